@@ -1,0 +1,1 @@
+"""biasgt recovery stage."""

@@ -1,0 +1,1 @@
+"""biasgt reports stage."""
