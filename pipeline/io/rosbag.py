@@ -1,0 +1,820 @@
+"""ROS1 / ROS2 bag reading and writing (via the ``rosbags`` library).
+
+Reading (:func:`read_bag`) turns a bag into a :class:`~pipeline.types.Sequence`:
+
+* ``sensor_msgs/Imu`` -> :class:`~pipeline.types.ImuSeries` (angular_velocity, linear_acceleration);
+* ``geometry_msgs/PoseStamped``, ``PoseWithCovarianceStamped``, ``TransformStamped``,
+  ``nav_msgs/Odometry`` and ``tf2_msgs/TFMessage`` (``/tf``, with ``/tf_static`` for static
+  links of a chain) -> :class:`~pipeline.types.PoseSeries`.
+
+Stamps are the message *header* stamps (``sec * 1e9 + nanosec``, exact int64 ns), never the
+bag receive times; only when every header stamp of a stream is zero does the reader fall back
+to receive times and say so in a ``BAG_HEADER_STAMP_ZERO`` finding.
+
+Accepted inputs: a ROS1 ``.bag`` (uncompressed, bz2 or lz4 chunks), a ROS2 bag folder with
+``metadata.yaml`` (sqlite3 or MCAP storage), a bare ``.db3`` / ``.mcap`` file, or a folder
+without ``metadata.yaml`` that holds exactly one ``.db3`` / ``.mcap`` file.
+
+Writing (:func:`write_bag`) exports ``Sequence.imu`` and one pose stream to ROS1 ``.bag`` or a
+ROS2 bag folder (sqlite3 by default, MCAP on request; ``rosbags`` 0.11 writes both).
+"""
+
+from __future__ import annotations
+
+import enum
+import logging
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.rosbag1 import ReaderError as Ros1ReaderError
+from rosbags.rosbag1 import Writer as Ros1Writer
+from rosbags.rosbag2 import ReaderError as Ros2ReaderError
+from rosbags.rosbag2 import StoragePlugin
+from rosbags.rosbag2 import Writer as Ros2Writer
+from rosbags.typesys import Stores, TypesysError, get_types_from_msg, get_typestore
+from scipy.spatial.transform import Rotation
+
+from pipeline.atomic import atomic_dir, atomic_path
+from pipeline.errors import (
+    AmbiguousInputError,
+    ConfigError,
+    DataError,
+    InputFormatError,
+    UnsupportedInputError,
+)
+from pipeline.types import (
+    NS_PER_S,
+    Finding,
+    ImuCalibration,
+    ImuSeries,
+    PoseSeries,
+    PoseSourceKind,
+    Sequence,
+    Severity,
+)
+
+logger = logging.getLogger(__name__)
+
+IMU_TYPE = "sensor_msgs/msg/Imu"
+POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+POSE_COV_STAMPED = "geometry_msgs/msg/PoseWithCovarianceStamped"
+TRANSFORM_STAMPED = "geometry_msgs/msg/TransformStamped"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+POSE_TYPES = (POSE_STAMPED, POSE_COV_STAMPED, TRANSFORM_STAMPED, ODOMETRY)
+
+BAG_READ_ERRORS = (AnyReaderError, Ros1ReaderError, Ros2ReaderError, TypesysError)
+_BAG_HINT = (
+    "give a ROS1 .bag file, a ROS2 bag folder with metadata.yaml, or a ROS2 .db3/.mcap file, "
+    "and check that the file is complete (not truncated)"
+)
+
+
+class RosVersion(str, enum.Enum):
+    """Which bag format :func:`write_bag` writes."""
+
+    ROS1 = "ros1"  # a single .bag file (rosbag v2.0 format)
+    ROS2 = "ros2"  # a rosbag2 folder (metadata.yaml + storage file)
+
+
+class Ros2Storage(str, enum.Enum):
+    """Storage plugin of a ROS2 bag written by :func:`write_bag`."""
+
+    SQLITE3 = "sqlite3"  # <folder>/<folder>.db3
+    MCAP = "mcap"  # <folder>/<folder>.mcap
+
+
+class PoseMsgType(str, enum.Enum):
+    """Message type :func:`write_bag` uses for the pose stream."""
+
+    POSE_STAMPED = "geometry_msgs/PoseStamped"
+    POSE_WITH_COVARIANCE_STAMPED = "geometry_msgs/PoseWithCovarianceStamped"
+    TRANSFORM_STAMPED = "geometry_msgs/TransformStamped"
+    ODOMETRY = "nav_msgs/Odometry"
+    TF = "tf2_msgs/TFMessage"  # one TransformStamped per TFMessage, on /tf by default
+
+
+# ---------------------------------------------------------------------------------------------
+# reading
+# ---------------------------------------------------------------------------------------------
+
+
+def _resolve_bag_path(path: Path) -> Path:
+    """The path AnyReader should open (a folder without metadata.yaml -> its single storage file)."""
+    if not path.exists():
+        raise InputFormatError("bag does not exist", path=path, hint="check the path")
+    if path.is_dir() and not (path / "metadata.yaml").is_file():
+        files = sorted(p for p in path.iterdir() if p.suffix in (".db3", ".mcap") and p.is_file())
+        if len(files) == 1:
+            return files[0]
+        raise InputFormatError(
+            "folder is not a ROS2 bag: it has no metadata.yaml"
+            + (f" and {len(files)} .db3/.mcap files" if files else " and no .db3/.mcap file"),
+            path=path,
+            hint="give the bag folder that holds metadata.yaml, or one .db3/.mcap file",
+        )
+    if path.is_file() and path.suffix not in (".bag", ".db3", ".mcap"):
+        raise UnsupportedInputError(
+            f"unknown bag file extension {path.suffix!r}", path=path,
+            hint="ROS1 bags end in .bag; ROS2 storage files in .db3 or .mcap",
+        )
+    return path
+
+
+def _stamp_ns(sec: np.ndarray, nanosec: np.ndarray) -> np.ndarray:
+    """Exact int64 ns from header ``sec`` / ``nanosec`` arrays."""
+    return np.asarray(sec, dtype=np.int64) * NS_PER_S + np.asarray(nanosec, dtype=np.int64)
+
+
+def _topic_list(topics: dict[str, tuple[str, int]]) -> str:
+    return ", ".join(f"{name} ({typ.replace('/msg/', '/')}, {n} msgs)" for name, (typ, n) in sorted(topics.items()))
+
+
+def _match_topic(requested: str, topics: dict[str, tuple[str, int]]) -> str | None:
+    """The bag topic named ``requested``; a missing or extra leading '/' is tolerated."""
+    if requested in topics:
+        return requested
+    alt = requested[1:] if requested.startswith("/") else "/" + requested
+    return alt if alt in topics else None
+
+
+@dataclass
+class _Stamped:
+    """Per-message arrays collected from one stream before building a series."""
+
+    header_ns: np.ndarray  # [N] int64
+    recv_ns: np.ndarray  # [N] int64
+    values: np.ndarray  # [N, K] float64
+    header_frame: str
+    child_frame: str
+
+
+def _choose_stamps(stream: str, s: _Stamped, findings: list[Finding]) -> np.ndarray:
+    """Header stamps, or the receive times (with a finding) when every header stamp is zero."""
+    if len(s.header_ns) and not np.any(s.header_ns):
+        findings.append(Finding(
+            "BAG_HEADER_STAMP_ZERO", Severity.WARNING, stream,
+            f"every header stamp on {stream} is zero; using the bag receive times instead "
+            "(they include transport latency)",
+            {"messages": int(len(s.header_ns))},
+        ))
+        return s.recv_ns.copy()
+    return s.header_ns
+
+
+def _pose_fields(msgtype: str, msg: Any) -> tuple[Any, Any, Any, str]:
+    """(header, position-like, quaternion-like, child frame) of one pose-type message."""
+    if msgtype == ODOMETRY:
+        return msg.header, msg.pose.pose.position, msg.pose.pose.orientation, msg.child_frame_id
+    if msgtype == POSE_COV_STAMPED:
+        return msg.header, msg.pose.pose.position, msg.pose.pose.orientation, ""
+    if msgtype == POSE_STAMPED:
+        return msg.header, msg.pose.position, msg.pose.orientation, ""
+    if msgtype == TRANSFORM_STAMPED:
+        return msg.header, msg.transform.translation, msg.transform.rotation, msg.child_frame_id
+    raise AssertionError(msgtype)  # callers only pass POSE_TYPES
+
+
+_IMU_FLOATS = 37  # orientation 4 + cov 9 + angular_velocity 3 + cov 9 + linear_acceleration 3 + cov 9
+_IMU_STD_HASH = {
+    False: get_typestore(Stores.ROS1_NOETIC).generate_msgdef(IMU_TYPE)[1],
+    True: get_typestore(Stores.ROS2_HUMBLE).hash_rihs01(IMU_TYPE),
+}
+
+
+def _gather_u32(buf: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """Little-endian uint32 at each byte offset of a uint8 buffer, [N] int64."""
+    b = buf[offsets[:, None] + np.arange(4)].astype(np.int64)
+    return b[:, 0] | (b[:, 1] << 8) | (b[:, 2] << 16) | (b[:, 3] << 24)
+
+
+def _decode_imu_raw(raws: list[bytes], is2: bool) -> tuple[np.ndarray, np.ndarray] | None:
+    """Vectorised decoding of standard sensor_msgs/Imu messages from their raw bytes.
+
+    ROS1: ``seq, sec, nsec (u32), frame_id (u32 length + bytes)`` then 37 float64.
+    ROS2 (little-endian CDR): 4-byte encapsulation header, ``sec (i32), nanosec (u32),
+    frame_id (u32 length incl. NUL + bytes)``, padding to 8 (relative to the payload), then 37
+    float64.
+
+    Returns:
+        ``(header_ns [N] int64, floats [N, 37])``, or ``None`` when any message does not have
+        the expected layout (the caller then deserialises message by message).
+    """
+    if not raws:
+        return np.empty(0, np.int64), np.empty((0, _IMU_FLOATS))
+    lengths = np.fromiter((len(r) for r in raws), np.int64, len(raws))
+    if lengths.min() < 16:
+        return None
+    starts = np.concatenate([[0], np.cumsum(lengths)[:-1]])
+    buf = np.frombuffer(b"".join(raws), np.uint8)
+    if is2:
+        if np.any(buf[starts[:, None] + np.arange(2)] != np.array([0, 1], np.uint8)):
+            return None  # not little-endian CDR
+        sec = _gather_u32(buf, starts + 4)
+        sec = np.where(sec >= 2**31, sec - 2**32, sec)  # int32
+        nsec = _gather_u32(buf, starts + 8)
+        body = 16 + _gather_u32(buf, starts + 12) - 4
+        data_off = 4 + ((body + 7) // 8) * 8
+        ok = lengths >= data_off + 8 * _IMU_FLOATS
+    else:
+        sec = _gather_u32(buf, starts + 4)
+        nsec = _gather_u32(buf, starts + 8)
+        data_off = 16 + _gather_u32(buf, starts + 12)
+        ok = lengths == data_off + 8 * _IMU_FLOATS
+    if not np.all(ok):
+        return None
+    rows = buf[(starts + data_off)[:, None] + np.arange(8 * _IMU_FLOATS)]
+    floats = np.ascontiguousarray(rows).view("<f8").reshape(len(raws), _IMU_FLOATS).astype(np.float64)
+    return _stamp_ns(sec, nsec), floats
+
+
+def _read_imu(reader: AnyReader, msgs: list) -> _Stamped:
+    """IMU samples from ``(connection, receive ns, raw bytes)`` tuples of one topic."""
+    recv, raws, types = [], [], set()
+    for conn, t_recv, raw in msgs:
+        recv.append(t_recv)
+        raws.append(raw)
+        types.add(conn.msgtype)
+    frame = reader.deserialize(raws[0], IMU_TYPE).header.frame_id if raws else ""
+    try:
+        standard = (reader.typestore.hash_rihs01(IMU_TYPE) if reader.is2
+                    else reader.typestore.generate_msgdef(IMU_TYPE)[1]) == _IMU_STD_HASH[reader.is2]
+    except TypesysError:
+        standard = False
+    fast = _decode_imu_raw(raws, reader.is2) if standard and types == {IMU_TYPE} else None
+    if fast is not None:
+        header_ns, floats = fast
+        vals = floats[:, [13, 14, 15, 25, 26, 27]]  # angular_velocity, linear_acceleration
+    else:
+        logger.debug("IMU messages are not in the standard layout; deserialising one by one")
+        sec, nsec, rows = [], [], []
+        for raw in raws:
+            m = reader.deserialize(raw, IMU_TYPE)
+            sec.append(m.header.stamp.sec)
+            nsec.append(m.header.stamp.nanosec)
+            w, a = m.angular_velocity, m.linear_acceleration
+            rows.append((w.x, w.y, w.z, a.x, a.y, a.z))
+        header_ns, vals = _stamp_ns(sec, nsec), np.asarray(rows, np.float64).reshape(-1, 6)
+    return _Stamped(header_ns, np.asarray(recv, np.int64), vals, "", frame)
+
+
+def _read_pose_topic(reader: AnyReader, msgs: list, msgtype: str) -> _Stamped:
+    """Pose samples from ``(connection, receive ns, raw bytes)`` tuples of one topic."""
+    sec, nsec, recv, vals = [], [], [], []
+    header_frame = child_frame = ""
+    for conn, t_recv, raw in msgs:
+        m = reader.deserialize(raw, conn.msgtype)
+        header, p, q, child = _pose_fields(msgtype, m)
+        sec.append(header.stamp.sec)
+        nsec.append(header.stamp.nanosec)
+        recv.append(t_recv)
+        vals.append((p.x, p.y, p.z, q.w, q.x, q.y, q.z))  # ROS xyzw -> wxyz
+        header_frame = header_frame or header.frame_id
+        child_frame = child_frame or child
+    return _Stamped(_stamp_ns(sec, nsec), np.asarray(recv, np.int64),
+                    np.asarray(vals, np.float64).reshape(-1, 7), header_frame, child_frame)
+
+
+@dataclass
+class _TfEdge:
+    """All samples of one parent->child transform on the tf topics."""
+
+    parent: str
+    child: str
+    static: bool
+    topic: str
+    sec: list
+    nsec: list
+    recv: list
+    vals: list  # (x, y, z, qw, qx, qy, qz)
+
+
+def _read_tf(reader: AnyReader, msgs: list) -> dict[tuple[str, str], _TfEdge]:
+    """Every (parent, child) edge in ``(connection, receive ns, raw bytes)`` TFMessage tuples."""
+    edges: dict[tuple[str, str], _TfEdge] = {}
+    for conn, t_recv, raw in msgs:
+        static = conn.topic.rstrip("/").endswith("tf_static")
+        m = reader.deserialize(raw, conn.msgtype)
+        for tr in m.transforms:
+            parent = tr.header.frame_id.lstrip("/")
+            child = tr.child_frame_id.lstrip("/")
+            key = (parent, child)
+            edge = edges.get(key)
+            if edge is None or (edge.static and not static):
+                edge = edges[key] = _TfEdge(parent, child, static, conn.topic, [], [], [], [])
+            elif static and not edge.static:
+                continue  # a dynamic edge wins over a static one of the same name
+            t, r = tr.transform.translation, tr.transform.rotation
+            edge.sec.append(tr.header.stamp.sec)
+            edge.nsec.append(tr.header.stamp.nanosec)
+            edge.recv.append(t_recv)
+            edge.vals.append((t.x, t.y, t.z, r.w, r.x, r.y, r.z))
+    return edges
+
+
+def _pair_list(edges: dict[tuple[str, str], _TfEdge], *, dynamic_only: bool) -> str:
+    rows = [e for e in edges.values() if not (dynamic_only and e.static)]
+    return ", ".join(
+        f"{e.parent}->{e.child} ({e.topic}, {len(e.sec)} msgs)" for e in sorted(rows, key=lambda e: (e.parent, e.child))
+    )
+
+
+def _edge_stamped(edge: _TfEdge) -> _Stamped:
+    return _Stamped(_stamp_ns(edge.sec, edge.nsec), np.asarray(edge.recv, np.int64),
+                    np.asarray(edge.vals, np.float64).reshape(-1, 7), edge.parent, edge.child)
+
+
+def _tf_chain(
+    path: Path, edges: dict[tuple[str, str], _TfEdge], parent: str, child: str
+) -> tuple[_Stamped, str]:
+    """T_parent_child over time, composing one dynamic edge with any static edges.
+
+    Returns:
+        The composed samples and the name of the dynamic edge's topic.
+    """
+    parent_of = {c: p for (p, c) in edges}
+    chain: list[_TfEdge] = []
+    node = child
+    while node != parent:
+        if node not in parent_of or len(chain) > len(edges):
+            raise AmbiguousInputError(
+                f"no tf chain from '{parent}' down to '{child}'",
+                path=path, field="/tf",
+                hint=f"choose frames with --tf-parent P --tf-child C where P is an ancestor of C; "
+                     f"transforms in the bag: {_pair_list(edges, dynamic_only=False)}",
+            )
+        p = parent_of[node]
+        chain.append(edges[(p, node)])
+        node = p
+    chain.reverse()  # parent ... child
+    dynamic = [e for e in chain if not e.static]
+    if len(dynamic) != 1:
+        what = "only static transforms" if not dynamic else f"{len(dynamic)} time-varying transforms"
+        raise UnsupportedInputError(
+            f"the tf chain {parent}->{child} holds {what}; biasgt reads chains with exactly one "
+            "time-varying (/tf) link",
+            path=path, field="/tf",
+            hint=f"choose one of the /tf pairs: {_pair_list(edges, dynamic_only=True)}",
+        )
+    dyn = _edge_stamped(dynamic[0])
+    vals = dyn.values
+    p_m = vals[:, :3]
+    rot = Rotation.from_quat(vals[:, 3:7], scalar_first=True) if len(vals) else None
+    if len(chain) > 1 and rot is not None:
+        # compose T = T_1 ... T_dyn ... T_n with the latest sample of each static link
+        def static_T(e: _TfEdge) -> tuple[np.ndarray, Rotation]:
+            v = np.asarray(e.vals[-1], np.float64)
+            return v[:3], Rotation.from_quat(v[3:7], scalar_first=True)
+
+        i = chain.index(dynamic[0])
+        for e in reversed(chain[:i]):  # left-multiply: T_e * T
+            t_e, r_e = static_T(e)
+            p_m = t_e + r_e.apply(p_m)
+            rot = r_e * rot
+        for e in chain[i + 1:]:  # right-multiply: T * T_e
+            t_e, r_e = static_T(e)
+            p_m = p_m + rot.apply(t_e)
+            rot = rot * r_e
+        vals = np.hstack([p_m, rot.as_quat(scalar_first=True)])
+    out = _Stamped(dyn.header_ns, dyn.recv_ns, vals, parent, child)
+    return out, dynamic[0].topic
+
+
+def _pose_series(s: _Stamped, t_ns: np.ndarray, kind: PoseSourceKind, frame_default: str) -> PoseSeries:
+    quat = s.values[:, 3:7]
+    if len(quat) and not np.any(quat):  # all-zero quaternions: a position-only stream (see write_bag)
+        quat = None
+    return PoseSeries(
+        t_ns=t_ns, p_m=s.values[:, :3], quat_wxyz=quat,
+        frame=s.child_frame or frame_default, source_kind=kind,
+        world_frame=s.header_frame or "world",
+    )
+
+
+def read_bag(
+    path: str | Path,
+    *,
+    imu_topic: str | None = None,
+    pose_topic: str | None = None,
+    tf_parent: str | None = None,
+    tf_child: str | None = None,
+    pose_kind: PoseSourceKind | None = None,
+    name: str | None = None,
+) -> Sequence:
+    """Read IMU and pose streams from a ROS1 or ROS2 bag.
+
+    Topic choice: with no option, the single ``sensor_msgs/Imu`` topic is the IMU (none ->
+    ``imu=None``) and the single pose-type topic (PoseStamped, PoseWithCovarianceStamped,
+    TransformStamped, Odometry) is the pose stream; when the bag has no pose-type topic, the
+    single parent->child pair on ``/tf`` is used. Several candidates raise
+    :class:`AmbiguousInputError`. ``pose_topic`` reads only that topic (a TFMessage topic such
+    as ``/tf`` needs a unique pair or ``tf_parent``/``tf_child``). ``tf_parent``/``tf_child``
+    read the chain ``T_parent_child`` from ``/tf`` (static links from ``/tf_static`` are
+    composed in); combined with ``pose_topic`` both streams are read.
+
+    Args:
+        path: ``.bag`` file, ROS2 bag folder, or ``.db3`` / ``.mcap`` file.
+        imu_topic: IMU topic to read.
+        pose_topic: Pose topic to read.
+        tf_parent: Parent frame of the tf chain to read (needs ``tf_child``).
+        tf_child: Child frame of the tf chain to read (needs ``tf_parent``).
+        pose_kind: Source kind of the pose stream(s); default VIO for Odometry, MOCAP otherwise.
+        name: Sequence name; default the bag's file or folder name without extension.
+
+    Returns:
+        The sequence: ``imu`` [N], ``poses`` keyed by topic (``"/tf:<parent>-><child>"`` for tf),
+        ``findings`` and ``metadata["bag"]`` (format, topics with types and counts, duration).
+
+    Raises:
+        InputFormatError: Not a bag, or a damaged one.
+        UnsupportedInputError: A chosen topic has a type biasgt cannot read.
+        AmbiguousInputError: Several candidate topics or tf pairs, or a requested topic is absent.
+    """
+    path = Path(path)
+    open_path = _resolve_bag_path(path)
+    if (tf_parent is None) != (tf_child is None):
+        raise AmbiguousInputError(
+            "a tf chain needs both a parent and a child frame", path=path,
+            hint="give both --tf-parent P and --tf-child C",
+        )
+    seq_name = name or (path.name if path.is_dir() else path.stem)
+    try:
+        with AnyReader([open_path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
+            return _read_open_bag(
+                reader, path, open_path, seq_name, imu_topic, pose_topic, tf_parent, tf_child, pose_kind
+            )
+    except BAG_READ_ERRORS as err:
+        raise InputFormatError(f"cannot read bag: {err}", path=path, hint=_BAG_HINT) from err
+    except FileNotFoundError as err:
+        raise InputFormatError(f"cannot read bag: {err}", path=path, hint=_BAG_HINT) from err
+
+
+def _read_open_bag(
+    reader: AnyReader,
+    path: Path,
+    open_path: Path,
+    seq_name: str,
+    imu_topic: str | None,
+    pose_topic: str | None,
+    tf_parent: str | None,
+    tf_child: str | None,
+    pose_kind: PoseSourceKind | None,
+) -> Sequence:
+    topics = {n: (info.msgtype or "?", int(info.msgcount)) for n, info in reader.topics.items()}
+    findings: list[Finding] = []
+
+    def find(requested: str, option: str) -> str:
+        got = _match_topic(requested, topics)
+        if got is None:
+            raise AmbiguousInputError(
+                f"topic '{requested}' is not in the bag", path=path, field=requested,
+                hint=f"choose one with {option} TOPIC from: {_topic_list(topics)}",
+            )
+        return got
+
+    # --- IMU ---
+    if imu_topic is not None:
+        imu_name: str | None = find(imu_topic, "--imu-topic")
+        if topics[imu_name][0] != IMU_TYPE:
+            raise UnsupportedInputError(
+                f"topic '{imu_name}' has type {topics[imu_name][0]}, not sensor_msgs/Imu", path=path,
+                field=imu_name, hint=f"choose an Imu topic with --imu-topic TOPIC from: {_topic_list(topics)}",
+            )
+    else:
+        cands = sorted(n for n, (t, _) in topics.items() if t == IMU_TYPE)
+        if len(cands) > 1:
+            raise AmbiguousInputError(
+                f"the bag has {len(cands)} sensor_msgs/Imu topics: {', '.join(cands)}", path=path,
+                hint="choose one with --imu-topic TOPIC",
+            )
+        imu_name = cands[0] if cands else None
+
+    # --- plan the pose streams (metadata only), then read every needed topic in one pass ---
+    tf_topics = sorted(n for n, (t, _) in topics.items() if t == TF_MESSAGE)
+    is_static = lambda t: t.rstrip("/").endswith("tf_static")  # noqa: E731
+    jobs: list[tuple[str, str | None, str | None, str | None]] = []  # (kind, topic, parent, child)
+
+    def plan_tf(topic: str | None) -> None:
+        if not tf_topics:
+            raise AmbiguousInputError(
+                "the bag has no tf2_msgs/TFMessage topic", path=path, field="/tf",
+                hint=f"choose a pose topic with --pose-topic TOPIC from: {_topic_list(topics)}",
+            )
+        jobs.append(("tf", topic, tf_parent, tf_child))
+
+    def plan_topic(topic: str) -> None:
+        typ = topics[topic][0]
+        if typ == TF_MESSAGE:
+            plan_tf(topic)
+        elif typ in POSE_TYPES:
+            jobs.append(("topic", topic, None, None))
+        else:
+            raise UnsupportedInputError(
+                f"topic '{topic}' has type {typ}, which is not a pose type", path=path, field=topic,
+                hint="choose a PoseStamped, PoseWithCovarianceStamped, TransformStamped, Odometry or "
+                     f"TFMessage topic with --pose-topic TOPIC from: {_topic_list(topics)}",
+            )
+
+    if pose_topic is not None:
+        chosen = find(pose_topic, "--pose-topic")
+        plan_topic(chosen)
+        if tf_parent is not None and topics[chosen][0] != TF_MESSAGE:
+            plan_tf(None)
+    elif tf_parent is not None:
+        plan_tf(None)
+    else:
+        cands = sorted(n for n, (t, _) in topics.items() if t in POSE_TYPES)
+        if len(cands) > 1:
+            raise AmbiguousInputError(
+                f"the bag has {len(cands)} pose topics: "
+                + ", ".join(f"{c} ({topics[c][0].replace('/msg/', '/')}, {topics[c][1]} msgs)" for c in cands),
+                path=path,
+                hint="choose one with --pose-topic TOPIC" + (" (or a /tf chain with --tf-parent P --tf-child C)"
+                                                           if tf_topics else ""),
+            )
+        if cands:
+            plan_topic(cands[0])
+        elif any(not is_static(t) for t in tf_topics):
+            plan_tf(None)
+
+    def tf_sources(topic: str | None) -> list[str]:
+        # dynamic tf from the chosen (or every non-static) TFMessage topic, static links from */tf_static
+        dyn = [topic] if topic else [t for t in tf_topics if not is_static(t)]
+        return dyn + [t for t in tf_topics if is_static(t) and t not in dyn]
+
+    needed = {imu_name} if imu_name else set()
+    for kind, topic, _, _ in jobs:
+        needed.update(tf_sources(topic) if kind == "tf" else [topic])
+    by_topic: dict[str, list] = {t: [] for t in needed}
+    if needed:
+        for item in reader.messages([c for c in reader.connections if c.topic in needed]):
+            by_topic[item[0].topic].append(item)
+
+    imu = None
+    if imu_name is not None:
+        s = _read_imu(reader, by_topic[imu_name])
+        t_ns = _choose_stamps(imu_name, s, findings)
+        imu = ImuSeries(t_ns, s.values[:, :3], s.values[:, 3:6])
+
+    poses: dict[str, PoseSeries] = {}
+    read_tf_pairs: dict[str, Any] = {}
+    for kind, topic, parent, child in jobs:
+        if kind == "topic":
+            assert topic is not None
+            typ = topics[topic][0]
+            s = _read_pose_topic(reader, by_topic[topic], typ)
+            t_ns = _choose_stamps(topic, s, findings)
+            src = pose_kind or (PoseSourceKind.VIO if typ == ODOMETRY else PoseSourceKind.MOCAP)
+            poses[topic] = _pose_series(s, t_ns, src, "pose")
+            continue
+        srcs = tf_sources(topic)
+        msgs = sorted((m for t in srcs for m in by_topic[t]), key=lambda m: m[1])
+        edges = _read_tf(reader, msgs)
+        read_tf_pairs.update({f"{e.parent}->{e.child}": {"topic": e.topic, "count": len(e.sec)}
+                              for e in edges.values()})
+        if parent is None:
+            dynamic_pairs = [k for k, e in edges.items() if not e.static]
+            if len(dynamic_pairs) != 1:
+                raise AmbiguousInputError(
+                    f"{topic or '/tf'} holds {len(dynamic_pairs)} parent->child pairs: "
+                    f"{_pair_list(edges, dynamic_only=True) or 'none'}",
+                    path=path, field=topic or "/tf", hint="choose one with --tf-parent P --tf-child C",
+                )
+            parent, child = dynamic_pairs[0]
+        assert child is not None
+        parent, child = parent.lstrip("/"), child.lstrip("/")
+        s, dyn_topic = _tf_chain(path, edges, parent, child)
+        stream = f"{dyn_topic}:{parent}->{child}"
+        t_ns = _choose_stamps(stream, s, findings)
+        poses[stream] = _pose_series(s, t_ns, pose_kind or PoseSourceKind.MOCAP, child)
+
+    # --- metadata for `biasgt inspect` ---
+    start, end = int(reader.start_time), int(reader.end_time)
+    storage = "rosbag1" if not reader.is2 else (
+        "rosbag2-mcap" if (open_path.suffix == ".mcap" or any(open_path.glob("*.mcap"))) else "rosbag2-sqlite3")
+    bag_meta = {
+        "path": str(path),
+        "format": storage,
+        "message_count": int(reader.message_count),
+        "start_time_ns": start,
+        "end_time_ns": end,
+        "duration_s": (end - start) / NS_PER_S if reader.message_count else 0.0,
+        "topics": {n: {"type": t, "count": c} for n, (t, c) in sorted(topics.items())},
+        "imu_topic": imu_name,
+        "pose_streams": sorted(poses),
+    }
+    if read_tf_pairs:
+        bag_meta["tf_pairs"] = read_tf_pairs
+    calibration = ImuCalibration()
+    if imu is not None and np.isfinite(imu.rate_hz):
+        calibration = ImuCalibration(rate_hz=imu.rate_hz)
+    logger.info("read %s: imu=%s (%d msgs), poses=%s", path, imu_name, 0 if imu is None else len(imu),
+                {k: len(v) for k, v in poses.items()})
+    return Sequence(
+        name=seq_name, imu=imu, poses=poses, calibration=calibration, findings=findings,
+        metadata={"source_path": str(path), "source_kind": "rosbag", "bag": bag_meta},
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# writing
+# ---------------------------------------------------------------------------------------------
+
+
+class _MsgFactory:
+    """Builds ROS messages of one typestore (ROS1 Noetic or ROS2 Humble)."""
+
+    def __init__(self, ros_version: RosVersion) -> None:
+        self.ros1 = ros_version == RosVersion.ROS1
+        self.ts = get_typestore(Stores.ROS1_NOETIC if self.ros1 else Stores.ROS2_HUMBLE)
+        if TF_MESSAGE not in self.ts.types:  # tf2_msgs is not part of the stock typestores
+            self.ts.register(get_types_from_msg("geometry_msgs/TransformStamped[] transforms", TF_MESSAGE))
+        self.T = self.ts.types
+        self.seq: dict[str, int] = {}
+
+    def serialize(self, msg: Any, msgtype: str) -> bytes:
+        if self.ros1:
+            return bytes(self.ts.serialize_ros1(msg, msgtype))
+        return bytes(self.ts.serialize_cdr(msg, msgtype))
+
+    def header(self, t_ns: int, frame_id: str, counter: str) -> Any:
+        stamp = self.T["builtin_interfaces/msg/Time"](sec=int(t_ns // NS_PER_S), nanosec=int(t_ns % NS_PER_S))
+        if self.ros1:
+            n = self.seq.get(counter, 0)
+            self.seq[counter] = n + 1
+            return self.T["std_msgs/msg/Header"](seq=n, stamp=stamp, frame_id=frame_id)
+        return self.T["std_msgs/msg/Header"](stamp=stamp, frame_id=frame_id)
+
+    def vec3(self, v: np.ndarray) -> Any:
+        return self.T["geometry_msgs/msg/Vector3"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+    def point(self, v: np.ndarray) -> Any:
+        return self.T["geometry_msgs/msg/Point"](x=float(v[0]), y=float(v[1]), z=float(v[2]))
+
+    def quat(self, q_wxyz: np.ndarray | None) -> Any:
+        if q_wxyz is None:  # position-only stream: an all-zero quaternion marks "no orientation"
+            return self.T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=0.0)
+        return self.T["geometry_msgs/msg/Quaternion"](
+            x=float(q_wxyz[1]), y=float(q_wxyz[2]), z=float(q_wxyz[3]), w=float(q_wxyz[0]))
+
+    def imu(self, t_ns: int, gyro: np.ndarray, acc: np.ndarray, frame_id: str) -> Any:
+        cov_unknown_orientation = np.zeros(9)
+        cov_unknown_orientation[0] = -1.0  # REP 145: orientation not provided
+        return self.T[IMU_TYPE](
+            header=self.header(t_ns, frame_id, "imu"),
+            orientation=self.T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
+            orientation_covariance=cov_unknown_orientation,
+            angular_velocity=self.vec3(gyro), angular_velocity_covariance=np.zeros(9),
+            linear_acceleration=self.vec3(acc), linear_acceleration_covariance=np.zeros(9),
+        )
+
+    def pose_msg(self, kind: PoseMsgType, t_ns: int, p: np.ndarray, q: np.ndarray | None,
+                 world: str, child: str) -> tuple[Any, str]:
+        header = self.header(t_ns, world, "pose")
+        pose = self.T["geometry_msgs/msg/Pose"](position=self.point(p), orientation=self.quat(q))
+        if kind == PoseMsgType.POSE_STAMPED:
+            return self.T[POSE_STAMPED](header=header, pose=pose), POSE_STAMPED
+        if kind == PoseMsgType.POSE_WITH_COVARIANCE_STAMPED:
+            pwc = self.T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36))
+            return self.T[POSE_COV_STAMPED](header=header, pose=pwc), POSE_COV_STAMPED
+        if kind == PoseMsgType.ODOMETRY:
+            pwc = self.T["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36))
+            twist = self.T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=self.T["geometry_msgs/msg/Twist"](linear=self.vec3(np.zeros(3)), angular=self.vec3(np.zeros(3))),
+                covariance=np.zeros(36))
+            return self.T[ODOMETRY](header=header, child_frame_id=child, pose=pwc, twist=twist), ODOMETRY
+        tr = self.T["geometry_msgs/msg/TransformStamped"](
+            header=header, child_frame_id=child,
+            transform=self.T["geometry_msgs/msg/Transform"](translation=self.vec3(p), rotation=self.quat(q)))
+        if kind == PoseMsgType.TRANSFORM_STAMPED:
+            return tr, TRANSFORM_STAMPED
+        return self.T[TF_MESSAGE](transforms=[tr]), TF_MESSAGE
+
+
+def _check_stamps(name: str, t_ns: np.ndarray) -> None:
+    if len(t_ns) and int(t_ns.min()) < 0:
+        raise DataError(f"{name} has negative stamps (min {int(t_ns.min())} ns); ROS times are unsigned",
+                        field=name, hint="shift the sequence to non-negative times before writing a bag")
+
+
+def write_bag(
+    sequence: Sequence,
+    path: str | Path,
+    *,
+    ros_version: RosVersion,
+    imu_topic: str = "/imu0",
+    pose_topic: str | None = None,
+    pose_stream: str | None = None,
+    pose_msg: PoseMsgType = PoseMsgType.POSE_STAMPED,
+    storage: Ros2Storage = Ros2Storage.SQLITE3,
+    imu_frame: str = "imu",
+) -> Path:
+    """Write ``sequence.imu`` and one pose stream to a ROS1 or ROS2 bag, atomically.
+
+    Header stamps and bag receive times are both the sequence's ``t_ns`` (exact ns). A
+    position-only stream (``quat_wxyz is None``) is written with all-zero quaternions, which
+    :func:`read_bag` reads back as ``quat_wxyz=None``. IMU orientation is marked unknown
+    (``orientation_covariance[0] = -1``).
+
+    Args:
+        sequence: What to write; ``imu`` and/or ``poses``.
+        path: ``.bag`` file for ROS1; a folder for ROS2 (holding ``<name>.db3`` or ``<name>.mcap``
+            and ``metadata.yaml``). An existing output is replaced only on success.
+        ros_version: ROS1 or ROS2.
+        imu_topic: Topic of the ``sensor_msgs/Imu`` messages.
+        pose_topic: Topic of the pose messages; default ``"/tf"`` for ``PoseMsgType.TF``, else ``"/pose"``.
+        pose_stream: Name of the stream in ``sequence.poses`` to write; default the first one.
+        pose_msg: Message type of the poses.
+        storage: ROS2 storage plugin (sqlite3 or MCAP); ignored for ROS1.
+        imu_frame: ``header.frame_id`` of the IMU messages.
+
+    Returns:
+        The written path.
+
+    Raises:
+        ConfigError: Bad output path or unknown pose stream.
+        DataError: Nothing to write, or negative stamps.
+    """
+    path = Path(path)
+    ros_version = RosVersion(ros_version)
+    pose_msg = PoseMsgType(pose_msg)
+    if ros_version == RosVersion.ROS1 and path.suffix != ".bag":
+        raise ConfigError("a ROS1 bag must be a .bag file", path=path, hint="give an output path ending in .bag")
+    if pose_topic is None:
+        pose_topic = "/tf" if pose_msg == PoseMsgType.TF else "/pose"
+    poses: PoseSeries | None = None
+    if pose_stream is not None:
+        if pose_stream not in sequence.poses:
+            raise ConfigError(f"sequence has no pose stream '{pose_stream}'", field=pose_stream,
+                              hint=f"choose one of: {', '.join(sequence.poses) or 'none'}")
+        poses = sequence.poses[pose_stream]
+    elif sequence.poses:
+        poses = next(iter(sequence.poses.values()))
+    imu = sequence.imu
+    if imu is None and poses is None:
+        raise DataError(f"sequence '{sequence.name}' has neither IMU nor poses; nothing to write", path=path)
+    if imu is not None:
+        _check_stamps("imu.t_ns", imu.t_ns)
+    if poses is not None:
+        _check_stamps("poses.t_ns", poses.t_ns)
+
+    # merge both streams in time order (stable: IMU before pose at equal stamps)
+    t_imu = imu.t_ns if imu is not None else np.empty(0, np.int64)
+    t_pose = poses.t_ns if poses is not None else np.empty(0, np.int64)
+    t_all = np.concatenate([t_imu, t_pose])
+    which = np.concatenate([np.zeros(len(t_imu), np.int8), np.ones(len(t_pose), np.int8)])
+    index = np.concatenate([np.arange(len(t_imu)), np.arange(len(t_pose))])
+    order = np.argsort(t_all, kind="stable")
+
+    fac = _MsgFactory(ros_version)
+
+    def write_all(writer: Any) -> None:
+        kw: dict[str, Any] = {"typestore": fac.ts}
+        conn_imu = writer.add_connection(imu_topic, IMU_TYPE, **kw) if imu is not None else None
+        conn_pose = None
+        if poses is not None:
+            _, pose_type = fac.pose_msg(pose_msg, 0, np.zeros(3), None, "w", "c")
+            conn_pose = writer.add_connection(pose_topic, pose_type, **kw)
+            fac.seq.pop("pose", None)
+        for k in order:
+            i = int(index[k])
+            t = int(t_all[k])
+            if which[k] == 0:
+                assert imu is not None
+                msg = fac.imu(t, imu.gyro_radps[i], imu.acc_mps2[i], imu_frame)
+                writer.write(conn_imu, t, fac.serialize(msg, IMU_TYPE))
+            else:
+                assert poses is not None
+                q = None if poses.quat_wxyz is None else poses.quat_wxyz[i]
+                msg, typ = fac.pose_msg(pose_msg, t, poses.p_m[i], q, poses.world_frame, poses.frame)
+                writer.write(conn_pose, t, fac.serialize(msg, typ))
+
+    if ros_version == RosVersion.ROS1:
+        with atomic_path(path) as tmp:
+            tmp.unlink()  # rosbags refuses to overwrite; the name stays reserved by us
+            with Ros1Writer(tmp) as writer:
+                write_all(writer)
+    else:
+        plugin = StoragePlugin.MCAP if Ros2Storage(storage) == Ros2Storage.MCAP else StoragePlugin.SQLITE3
+        # rosbags names the storage file after the folder, so write into a work folder whose
+        # bag folder already has the final name, then move the files into the atomic folder.
+        path.parent.mkdir(parents=True, exist_ok=True)
+        work = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".work", dir=path.parent))
+        try:
+            bag_dir = work / path.name
+            with Ros2Writer(bag_dir, version=9, storage_plugin=plugin) as writer:
+                write_all(writer)
+            with atomic_dir(path) as tmp:
+                for f in bag_dir.iterdir():
+                    os.replace(f, tmp / f.name)
+        finally:
+            shutil.rmtree(work, ignore_errors=True)
+    logger.info("wrote %s bag %s: imu=%d, poses=%d", ros_version.value, path,
+                len(t_imu), len(t_pose))
+    return path
