@@ -1,0 +1,646 @@
+"""Shared text-table parsing for the ASL, TUM and generic CSV readers.
+
+The readers here parse faithfully: they do not sort, deduplicate or normalise,
+and a literal ``nan`` stays NaN. What they do handle is the damage files pick up
+on their way through spreadsheets and scripts:
+
+* lines that cannot be parsed (empty rows, stray text, wrong field count) are
+  skipped and reported (``PARSE_SKIPPED_LINES``); more than 10 % of them, or no
+  usable line at all, is an :class:`~pipeline.errors.InputFormatError`;
+* time stamps are converted to int64 nanoseconds *exactly* from their decimal
+  text (``1.40363657975856E+018`` or ``1403715274.302142976``), never through
+  float64;
+* stamps that carry less than nanosecond precision (scientific notation,
+  rounding to 10^k ns with k >= 3) are reported (``STAMP_PRECISION_LOSS``);
+* a stamp unit left to ``TimeUnit.AUTO`` is guessed and reported
+  (``STAMP_UNIT_GUESSED``).
+
+Fast path: one strict :func:`pandas.read_csv` call. Only when it fails or
+produces a NaN does the slow path validate each line with a regular expression
+to find (and report) the bad ones exactly.
+"""
+
+from __future__ import annotations
+
+import csv
+import enum
+import io
+import logging
+import re
+from dataclasses import dataclass, field
+from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from pipeline.errors import InputFormatError
+from pipeline.types import NS_PER_S, Finding, Severity
+
+log = logging.getLogger(__name__)
+
+#: Share of unparseable data lines above which a file is rejected instead of repaired.
+MAX_BAD_LINE_FRACTION = 0.10
+#: How many bad line numbers a finding lists.
+MAX_LISTED_LINES = 50
+
+CODE_SKIPPED = "PARSE_SKIPPED_LINES"
+CODE_PRECISION = "STAMP_PRECISION_LOSS"
+CODE_UNIT_GUESSED = "STAMP_UNIT_GUESSED"
+
+_INT64_MAX = np.iinfo(np.int64).max
+
+
+class TimeUnit(str, enum.Enum):
+    """Unit of a time-stamp column."""
+
+    S = "s"
+    MS = "ms"
+    US = "us"
+    NS = "ns"
+    AUTO = "auto"  # guess from magnitude and spacing (reported as STAMP_UNIT_GUESSED)
+
+    @property
+    def ns_exponent(self) -> int:
+        """``log10`` of nanoseconds per unit (s -> 9, ns -> 0)."""
+        if self is TimeUnit.AUTO:
+            raise ValueError("TimeUnit.AUTO has no fixed scale; guess the unit first")
+        return {TimeUnit.S: 9, TimeUnit.MS: 6, TimeUnit.US: 3, TimeUnit.NS: 0}[self]
+
+
+class Delimiter(str, enum.Enum):
+    """Field separator of a text table."""
+
+    COMMA = ","
+    SEMICOLON = ";"
+    TAB = "\t"
+    WHITESPACE = "whitespace"  # one or more spaces or tabs (TUM trajectories)
+
+    @property
+    def pandas_sep(self) -> str:
+        return r"\s+" if self is Delimiter.WHITESPACE else self.value
+
+    def split(self, line: str) -> list[str]:
+        if self is Delimiter.WHITESPACE:
+            return line.split()
+        return line.split(self.value)
+
+    @property
+    def label(self) -> str:
+        return {",": "','", ";": "';'", "\t": "tab", "whitespace": "whitespace"}[self.value]
+
+
+# A number as pandas' C parser reads it; NaN/inf literals are data (kept as NaN), an empty field is not.
+_NUM = r"(?:[+-]?(?:(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?|[iI][nN][fF](?:[iI][nN][iI][tT][yY])?)|-?(?:nan|NaN))"
+# A stamp must be a finite decimal number.
+_STAMP = r"[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?"
+_STAMP_RE = re.compile(rf"\s*{_STAMP}\s*")
+_DECIMAL_PARTS = r"^\s*(?P<sign>[+-]?)(?P<int>\d*)(?:\.(?P<frac>\d*))?(?:[eE](?P<exp>[+-]?\d+))?\s*$"
+
+
+@dataclass(frozen=True)
+class Header:
+    """Where the data of a text table starts and what its header says.
+
+    Attributes:
+        names: Column names of the header line (``'#'`` and unit-free spaces
+            stripped), or ``None`` when the file has no header.
+        line: 1-based line number of the header, or ``None``.
+        data_offset: Character offset of the first data line in the text.
+        first_data_line: 1-based line number of the first data line.
+    """
+
+    names: list[str] | None
+    line: int | None
+    data_offset: int
+    first_data_line: int
+
+
+@dataclass
+class ParsedTable:
+    """The numeric content of a text table.
+
+    Attributes:
+        t_ns: Stamps, int64 [N].
+        values: The requested value columns, float64 [N, K].
+        bad_lines: 1-based numbers of the skipped lines.
+        n_data_lines: Number of non-blank, non-comment data lines (good + bad).
+        scientific: True if any stamp was written in scientific notation.
+        resolution_ns: Largest 10^k (k >= 3) dividing every stamp, else 1.
+        unit: The stamp unit used (the guessed one for ``TimeUnit.AUTO``).
+        unit_guessed: True if ``unit`` was guessed.
+    """
+
+    t_ns: np.ndarray
+    values: np.ndarray
+    bad_lines: list[int] = field(default_factory=list)
+    n_data_lines: int = 0
+    scientific: bool = False
+    resolution_ns: int = 1
+    unit: TimeUnit = TimeUnit.NS
+    unit_guessed: bool = False
+
+
+def read_text(path: Path) -> str:
+    """The text of ``path`` (UTF-8, BOM removed), or an InputFormatError if it is missing, empty or binary."""
+    if not path.exists():
+        raise InputFormatError("file does not exist", path=path, hint="check the path")
+    if not path.is_file():
+        raise InputFormatError("is not a file", path=path, hint="pass the data file itself")
+    raw = path.read_bytes()
+    if not raw or raw.isspace():
+        raise InputFormatError("file is empty", path=path, hint="the file must hold a header and data lines")
+    if b"\x00" in raw[:4096]:
+        raise InputFormatError("file is binary, not text", path=path, hint="pass a CSV or text file")
+    return raw.decode("utf-8-sig", errors="replace")
+
+
+def _clean_name(name: str) -> str:
+    return name.strip().lstrip("#").strip()
+
+
+def _looks_numeric(field_text: str) -> bool:
+    return _STAMP_RE.fullmatch(field_text) is not None
+
+
+def split_header(text: str, delimiter: Delimiter) -> Header:
+    """Find the header and the first data line of a text table.
+
+    Leading blank lines and lines starting with ``'#'`` (or ``'%'``) are skipped; the
+    last such ``'#'`` line is the header. A first non-comment line whose first
+    field is not a number is a header without ``'#'`` (``Time,X,Y,Z``).
+
+    Args:
+        text: The whole file.
+        delimiter: Field separator.
+
+    Returns:
+        The header description (``names`` is ``None`` when there is no header).
+    """
+    n = len(text)
+    pos = 0  # start of the current line
+    line_no = 1  # its 1-based number
+    header_text: str | None = None
+    header_line: int | None = None
+    data_offset, first_data_line = n, line_no
+    while pos < n:
+        end = text.find("\n", pos)
+        end = n if end < 0 else end
+        stripped = text[pos:end].strip()
+        if not stripped or stripped[0] in "#%":
+            if stripped.startswith("#"):
+                header_text, header_line = stripped[1:], line_no
+        else:
+            fields = delimiter.split(stripped)
+            if fields and _looks_numeric(fields[0]):
+                data_offset, first_data_line = pos, line_no  # first data line
+            else:
+                # A header without '#'; data starts on the next line.
+                header_text, header_line = stripped, line_no
+                data_offset, first_data_line = min(end + 1, n), line_no + 1
+            break
+        pos = end + 1
+        line_no += 1
+    else:
+        data_offset, first_data_line = n, line_no
+    names = None
+    if header_text is not None:
+        names = [_clean_name(x) for x in delimiter.split(header_text.strip())]
+        while names and not names[-1]:
+            names.pop()  # trailing delimiter
+    return Header(names=names, line=header_line, data_offset=data_offset, first_data_line=first_data_line)
+
+
+def decimal_to_ns(strings: pd.Series | np.ndarray | list[str], unit: TimeUnit) -> tuple[np.ndarray, bool]:
+    """Convert decimal stamp strings to int64 nanoseconds exactly.
+
+    ``"1.40363657975856E+018"`` (ns) gives ``1403636579758560000`` and
+    ``"1403715274.302142976"`` (s) gives ``1403715274302142976``: the digits are
+    scaled as integers, never through float64. Digits finer than 1 ns are rounded
+    half to even.
+
+    Args:
+        strings: Stamp texts [N] (surrounding blanks allowed).
+        unit: Their unit (not AUTO).
+
+    Returns:
+        ``(t_ns, scientific)``: int64 [N] stamps and whether any was in scientific notation.
+
+    Raises:
+        ValueError: A string is not a finite decimal number or does not fit int64 ns.
+    """
+    exp_unit = unit.ns_exponent
+    arr = strings if isinstance(strings, pa.Array) else pa.array(strings)
+    if arr.type != pa.string():
+        arr = pc.cast(arr, pa.string())
+    if len(arr) == 0:
+        return np.zeros(0, dtype=np.int64), False
+    if arr.null_count:
+        raise ValueError("missing stamp")
+    trimmed = pc.utf8_trim_whitespace(arr)
+    if pc.all(pc.match_substring_regex(trimmed, r"^[+-]?\d{1,19}$")).as_py():
+        try:
+            ints = pc.cast(trimmed, pa.int64()).to_numpy(zero_copy_only=False).astype(np.int64)
+        except pa.ArrowInvalid:
+            return _decimal_to_ns_slow(arr, exp_unit), False
+        scale = 10**exp_unit
+        if scale > 1:
+            if np.any(np.abs(ints) > _INT64_MAX // scale):
+                raise ValueError("stamp does not fit int64 nanoseconds")
+            ints = ints * np.int64(scale)
+        return ints, False
+    scientific = bool(pc.any(pc.match_substring_regex(trimmed, "[eE]")).as_py())
+    parts = pc.extract_regex(trimmed, _DECIMAL_PARTS)
+    if parts.null_count:
+        bad = np.flatnonzero(parts.is_null().to_numpy(zero_copy_only=False))[0]
+        raise ValueError(f"not a decimal number: {arr[int(bad)].as_py()!r}")
+    sign_s, int_s, frac_s, exp_s = (parts.field(i) for i in range(4))
+    all_digits = pc.binary_join_element_wise(int_s, frac_s, "")
+    if not pc.all(pc.greater(pc.utf8_length(all_digits), 0)).as_py():
+        raise ValueError("a stamp has no digits")
+    digits = pc.utf8_ltrim(all_digits, characters="0")
+    if pc.max(pc.utf8_length(digits)).as_py() > 19:
+        return _decimal_to_ns_slow(arr, exp_unit), scientific
+    digits = pc.if_else(pc.equal(digits, ""), "0", digits)
+    try:
+        mant = pc.cast(digits, pa.int64()).to_numpy(zero_copy_only=False).astype(np.int64)
+    except pa.ArrowInvalid:  # 19 digits above int64: exact fallback
+        return _decimal_to_ns_slow(arr, exp_unit), scientific
+    exp_txt = pc.if_else(pc.equal(exp_s, ""), "0", exp_s)
+    exp_txt = pc.utf8_ltrim(exp_txt, characters="+")
+    exp = pc.cast(exp_txt, pa.int64()).to_numpy(zero_copy_only=False).astype(np.int64)
+    e = exp - pc.utf8_length(frac_s).to_numpy(zero_copy_only=False).astype(np.int64) + exp_unit
+    negative = pc.equal(sign_s, "-").to_numpy(zero_copy_only=False)
+    out = np.empty(len(mant), dtype=np.int64)
+    pos = e >= 0
+    if np.any(pos):
+        ep = e[pos]
+        if np.any((ep > 18) & (mant[pos] != 0)):
+            raise ValueError("stamp does not fit int64 nanoseconds")
+        scale = np.power(np.int64(10), np.minimum(ep, 18))
+        if np.any(mant[pos] > _INT64_MAX // scale):
+            raise ValueError("stamp does not fit int64 nanoseconds")
+        out[pos] = mant[pos] * scale
+    neg = ~pos
+    if np.any(neg):
+        en = -e[neg]
+        big = en > 18
+        scale = np.power(np.int64(10), np.minimum(en, 18))
+        q, r = np.divmod(mant[neg], scale)
+        half = scale // 2
+        round_up = (r > half) | ((r == half) & (q % 2 == 1))
+        q = q + round_up.astype(np.int64)
+        q[big] = 0
+        out[neg] = q
+    out[negative] = -out[negative]
+    return out, scientific
+
+
+def _decimal_to_ns_slow(arr: pa.Array, exp_unit: int) -> np.ndarray:
+    """Per-element :class:`decimal.Decimal` conversion for stamps with more than 18 digits."""
+    out = np.empty(len(arr), dtype=np.int64)
+    for i, s in enumerate(arr.to_pylist()):
+        try:
+            value = Decimal(s.strip()).scaleb(exp_unit).to_integral_value(rounding=ROUND_HALF_EVEN)
+        except (InvalidOperation, AttributeError) as exc:
+            raise ValueError(f"not a decimal number: {s!r}") from exc
+        if not value.is_finite() or abs(value) > _INT64_MAX:
+            raise ValueError(f"stamp {s!r} does not fit int64 nanoseconds")
+        out[i] = int(value)
+    return out
+
+
+def stamp_resolution_ns(t_ns: np.ndarray) -> int:
+    """Largest ``10**k`` (3 <= k <= 9) that divides every stamp, or 1 if none does (or N < 2)."""
+    if len(t_ns) < 2:
+        return 1
+    for k in range(9, 2, -1):
+        if not np.any(t_ns % (10**k)):
+            return 10**k
+    return 1
+
+
+def guess_time_unit(t_raw: np.ndarray) -> TimeUnit:
+    """Guess the unit of raw stamps from their magnitude and median spacing.
+
+    Epoch stamps are recognised by magnitude (a date between 1973 and 2286 in
+    that unit). Relative stamps take the unit whose median spacing is a plausible
+    sampling period (50 us to 2 s); between two plausible units, non-integer
+    stamps choose the coarser one, integer stamps the one closer to 100 Hz.
+
+    Args:
+        t_raw: Stamps in an unknown unit, float64 [N].
+
+    Returns:
+        The guessed unit (``TimeUnit.S`` when nothing fits).
+    """
+    units = (TimeUnit.S, TimeUnit.MS, TimeUnit.US, TimeUnit.NS)
+    finite = t_raw[np.isfinite(t_raw)]
+    if len(finite) == 0:
+        return TimeUnit.S
+    magnitude = float(np.max(np.abs(finite)))
+    for unit in units:
+        t_s = magnitude * 10.0 ** (unit.ns_exponent - 9)
+        if 1e8 <= t_s <= 1e10:
+            return unit
+    dt = np.diff(finite)
+    dt = dt[dt > 0]
+    if len(dt) == 0:
+        return TimeUnit.S
+    med = float(np.median(dt))
+    plausible = [u for u in units if 5e-5 <= med * 10.0 ** (u.ns_exponent - 9) <= 2.0]
+    if not plausible:
+        return TimeUnit.S
+    if len(plausible) == 1:
+        return plausible[0]
+    if np.any(finite != np.round(finite)):
+        return plausible[0]
+    return min(plausible, key=lambda u: abs(np.log10(med * 10.0 ** (u.ns_exponent - 9)) + 2.0))
+
+
+def _line_regex(ncols: int, stamp_col: int, numeric_cols: set[int], delimiter: Delimiter) -> re.Pattern[str]:
+    """A regex for one valid data line: ``ncols`` fields, the numeric ones numbers."""
+    parts = []
+    for i in range(ncols):
+        if i == stamp_col:
+            parts.append(_STAMP)
+        elif i in numeric_cols:
+            parts.append(_NUM)
+        elif delimiter is Delimiter.WHITESPACE:
+            parts.append(r"\S+")
+        else:
+            parts.append(rf"[^{re.escape(delimiter.value)}\n]*?")
+    if delimiter is Delimiter.WHITESPACE:
+        body = r"[ \t]+".join(parts)
+        return re.compile(rf"[ \t]*{body}[ \t]*\r?")
+    sep = rf"[ \t]*{re.escape(delimiter.value)}[ \t]*"
+    body = sep.join(parts)
+    return re.compile(rf"[ \t]*{body}[ \t]*(?:{re.escape(delimiter.value)}[ \t]*)?\r?")
+
+
+def _describe_bad_line(line: str, ncols: int, delimiter: Delimiter) -> str:
+    fields = delimiter.split(line.strip().rstrip(delimiter.value if delimiter is not Delimiter.WHITESPACE else ""))
+    shown = line.strip()
+    if len(shown) > 60:
+        shown = shown[:57] + "..."
+    if len(fields) != ncols:
+        return f"has {len(fields)} fields, expected {ncols} separated by {delimiter.label}: {shown!r}"
+    return f"is not numeric: {shown!r}"
+
+
+@dataclass
+class _Raw:
+    """Columns straight out of pandas: stamps as int64 (raw unit) or strings, values float64 [N, K]."""
+
+    stamps: np.ndarray | pd.Series
+    values: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+
+def _read_csv(data: str, ncols: int, stamp_col: int, value_cols: list[int], delimiter: Delimiter,
+              int_stamps: bool, strict: bool) -> _Raw:
+    dtypes: dict[int, object] = {c: np.float64 for c in value_cols}
+    dtypes[stamp_col] = np.int64 if int_stamps else str
+    frame = pd.read_csv(
+        io.StringIO(data),
+        sep=delimiter.pandas_sep,
+        header=None,
+        names=list(range(ncols)),
+        usecols=[stamp_col, *value_cols],
+        index_col=False,
+        dtype=dtypes,
+        comment="#" if strict else None,
+        quoting=csv.QUOTE_NONE,
+        skip_blank_lines=True,
+        engine="c",
+    )
+    values = frame[value_cols].to_numpy(dtype=np.float64) if value_cols else np.zeros((len(frame), 0))
+    stamps = frame[stamp_col].to_numpy(dtype=np.int64) if int_stamps else frame[stamp_col]
+    return _Raw(stamps, np.ascontiguousarray(values))
+
+
+def _read_fast(data: str, ncols: int, stamp_col: int, value_cols: list[int], delimiter: Delimiter,
+               int_stamps: bool) -> _Raw | None:
+    """Strict pandas parse; ``None`` when any line is not clean (the caller then validates line by line)."""
+    try:
+        raw = _read_csv(data, ncols, stamp_col, value_cols, delimiter, int_stamps, strict=True)
+    except (ValueError, OverflowError, TypeError, pd.errors.ParserError, pd.errors.EmptyDataError):
+        return None
+    if np.isnan(raw.values).any():
+        return None
+    if not int_stamps and raw.stamps.isna().any():
+        return None
+    return raw
+
+
+def _read_validated(
+    path: Path, data: str, header: Header, ncols: int, stamp_col: int, value_cols: list[int],
+    delimiter: Delimiter, what: str,
+) -> tuple[_Raw, list[int], int]:
+    """Slow path: validate every line with one vectorised regex (RE2), skip the bad ones, parse the rest.
+
+    Returns:
+        ``(raw, bad_lines, n_data)``: parsed good lines, 1-based numbers of bad lines,
+        number of data lines (good + bad; blank and ``'#'`` lines do not count).
+    """
+    pattern = _line_regex(ncols, stamp_col, set(value_cols), delimiter)
+    lines = pc.list_flatten(pc.split_pattern(pa.array([data], type=pa.string()), "\n"))
+    ok = pc.match_substring_regex(lines, f"^(?:{pattern.pattern})$").to_numpy(zero_copy_only=False)
+    candidates = np.flatnonzero(~ok)
+    cand_text = lines.take(pa.array(candidates, type=pa.int64())).to_pylist() if len(candidates) else []
+    bad_idx = [int(i) for i, text in zip(candidates, cand_text) if text.strip() and not text.strip().startswith("#")]
+    bad_lines = [header.first_data_line + i for i in bad_idx]
+    n_good = int(np.count_nonzero(ok))
+    n_data = n_good + len(bad_lines)
+    if n_data == 0:
+        raise InputFormatError(f"no data lines (expected a {what})", path=path,
+                               hint="the file must hold data lines after its header")
+    if n_good == 0 or len(bad_lines) > MAX_BAD_LINE_FRACTION * n_data:
+        reason = _describe_bad_line(lines[bad_idx[0]].as_py(), ncols, delimiter)
+        raise InputFormatError(
+            f"{len(bad_lines)} of {n_data} data lines cannot be parsed; the first {reason}",
+            path=path, line=bad_lines[0],
+            hint=f"expected format: {what}, {ncols} numeric fields per line "
+                 f"(more than {MAX_BAD_LINE_FRACTION:.0%} bad lines are not skipped)",
+        )
+    good = lines.filter(pa.array(ok))
+    if delimiter is not Delimiter.WHITESPACE:  # drop an optional trailing delimiter
+        good = pc.replace_substring_regex(good, f"[ \\t]*{re.escape(delimiter.value)}?[ \\t]*\\r?$", "")
+    joined = pc.binary_join(pa.ListArray.from_arrays(pa.array([0, len(good)], type=pa.int32()), good), "\n")
+    good_text = joined[0].as_py() + "\n"
+    # Every line is valid now; NaN literals are data and stay NaN.
+    try:
+        raw = _read_csv(good_text, ncols, stamp_col, value_cols, delimiter, int_stamps=False, strict=False)
+    except (ValueError, OverflowError, pd.errors.ParserError) as exc:  # the regex let through what pandas rejects
+        raise InputFormatError(f"cannot parse the data lines ({exc})", path=path, line=header.first_data_line,
+                               hint=f"expected format: {what}, {ncols} numeric fields per line") from exc
+    return raw, bad_lines, n_data
+
+
+_INT_STAMP_RE = re.compile(r"\s*[+-]?\d{1,18}\s*")
+
+
+def _first_stamp_is_int(data: str, stamp_col: int, delimiter: Delimiter) -> bool:
+    end = data.find("\n")
+    fields = delimiter.split(data[:end if end >= 0 else None].strip())
+    return len(fields) > stamp_col and _INT_STAMP_RE.fullmatch(fields[stamp_col]) is not None
+
+
+def _ends_valid(data: str, pattern: re.Pattern[str]) -> bool:
+    """True if the first and the last non-blank line of ``data`` are valid data (or comment) lines."""
+    body = data.strip("\r\n\t ")
+    first_end = body.find("\n")
+    first = body[:first_end if first_end >= 0 else None]
+    last = body[body.rfind("\n") + 1:]
+    return all(pattern.fullmatch(x) is not None or x.lstrip().startswith("#") for x in (first, last))
+
+
+def _int_stamps_to_ns(raw: np.ndarray, unit: TimeUnit) -> np.ndarray:
+    scale = 10**unit.ns_exponent
+    if scale == 1:
+        return raw
+    if np.any(np.abs(raw) > _INT64_MAX // scale):
+        raise ValueError("stamp does not fit int64 nanoseconds")
+    return raw * np.int64(scale)
+
+
+def parse_table(
+    path: Path,
+    text: str,
+    header: Header,
+    *,
+    ncols: int,
+    stamp_col: int,
+    value_cols: list[int],
+    delimiter: Delimiter,
+    unit: TimeUnit,
+    what: str,
+) -> ParsedTable:
+    """Parse the numeric data lines of a text table.
+
+    Args:
+        path: File name (for messages).
+        text: The whole file.
+        header: From :func:`split_header`.
+        ncols: Number of fields each data line must have.
+        stamp_col: Index of the stamp column.
+        value_cols: Indices of the float columns to return, in order.
+        delimiter: Field separator.
+        unit: Unit of the stamp column (``AUTO`` to guess).
+        what: What the file should be, for messages (``"EuRoC IMU CSV"``).
+
+    Returns:
+        Stamps, values and what was skipped.
+
+    Raises:
+        InputFormatError: No data, more than 10 % bad lines, or unconvertible stamps.
+    """
+    data = text[header.data_offset:]
+    if not data.strip():
+        raise InputFormatError(f"no data lines (expected a {what})", path=path,
+                               hint="the file must hold data lines after its header")
+    # Integer stamps (the usual ns) parse straight to int64, exactly; anything else goes as text.
+    int_stamps = _first_stamp_is_int(data, stamp_col, delimiter)
+    # A bad first or last line (spreadsheet exports end in junk) makes the strict parse fail late: skip it.
+    ends_ok = _ends_valid(data, _line_regex(ncols, stamp_col, set(value_cols), delimiter))
+    raw = _read_fast(data, ncols, stamp_col, value_cols, delimiter, int_stamps) if ends_ok else None
+    bad_lines: list[int] = []
+    if raw is None:
+        raw, bad_lines, n_data = _read_validated(path, data, header, ncols, stamp_col, value_cols, delimiter, what)
+    else:
+        n_data = len(raw)
+    if len(raw) == 0:
+        raise InputFormatError(f"no data lines (expected a {what})", path=path,
+                               hint="the file must hold data lines after its header")
+    guessed = False
+    if unit is TimeUnit.AUTO:
+        approx = (raw.stamps.astype(np.float64) if isinstance(raw.stamps, np.ndarray)
+                  else pd.to_numeric(raw.stamps.str.strip(), errors="coerce").to_numpy(dtype=np.float64))
+        unit = guess_time_unit(approx)
+        guessed = True
+    try:
+        if isinstance(raw.stamps, np.ndarray):
+            t_ns, scientific = _int_stamps_to_ns(raw.stamps, unit), False
+        else:
+            t_ns, scientific = decimal_to_ns(raw.stamps, unit)
+    except ValueError as exc:
+        raise InputFormatError(f"cannot convert time stamps to nanoseconds ({exc})", path=path,
+                               line=header.first_data_line, field=header.names[stamp_col]
+                               if header.names and len(header.names) > stamp_col else f"column {stamp_col}",
+                               hint=f"stamps must be decimal numbers in {unit.value}") from exc
+    return ParsedTable(
+        t_ns=t_ns,
+        values=raw.values,
+        bad_lines=bad_lines,
+        n_data_lines=n_data,
+        scientific=scientific,
+        resolution_ns=stamp_resolution_ns(t_ns),
+        unit=unit,
+        unit_guessed=guessed,
+    )
+
+
+def table_findings(parsed: ParsedTable, path: Path, stream: str, n_fields: int) -> list[Finding]:
+    """The findings a parse produced: skipped lines, stamp precision loss, guessed unit.
+
+    Args:
+        parsed: Result of :func:`parse_table`.
+        path: The file.
+        stream: Stream name for the findings (``"imu"``, ``"poses/vicon0"``, ``"ground_truth"``).
+        n_fields: Fields per valid line (for the fix-it message).
+    """
+    findings: list[Finding] = []
+    if parsed.bad_lines:
+        n = len(parsed.bad_lines)
+        listed = parsed.bad_lines[:MAX_LISTED_LINES]
+        shown = ", ".join(str(x) for x in listed[:10]) + (", ..." if n > 10 else "")
+        findings.append(Finding(
+            code=CODE_SKIPPED,
+            severity=Severity.WARNING,
+            stream=stream,
+            message=(f"skipped {n} unparseable line(s) of {display_name(path)} (line {shown}); delete or fix them "
+                     f"(each data line needs {n_fields} numeric fields)"),
+            details={"count": n, "lines": listed, "file": str(path)},
+        ))
+    if parsed.scientific or parsed.resolution_ns >= 1000:
+        resolution = max(parsed.resolution_ns, 1)
+        reason = "scientific notation" if parsed.scientific else "rounded"
+        what = ("written in scientific notation" if parsed.scientific
+                else f"all multiples of {_fmt_ns(resolution)}")
+        findings.append(Finding(
+            code=CODE_PRECISION,
+            severity=Severity.WARNING,
+            stream=stream,
+            message=(f"time stamps in {display_name(path)} are {what}: resolution {_fmt_ns(resolution)}, not 1 ns; "
+                     "export them as integer nanoseconds if the source has them"),
+            details={"resolution_ns": int(resolution), "reason": reason, "file": str(path)},
+        ))
+    if parsed.unit_guessed:
+        findings.append(Finding(
+            code=CODE_UNIT_GUESSED,
+            severity=Severity.INFO,
+            stream=stream,
+            message=(f"time unit of {display_name(path)} guessed as '{parsed.unit.value}' from magnitude and spacing; "
+                     "set time_unit in the CSV mapping if that is wrong"),
+            details={"unit": parsed.unit.value, "file": str(path)},
+        ))
+    return findings
+
+
+def display_name(path: Path) -> str:
+    """A short but telling file name for messages: ``imu0/data.csv`` rather than ``data.csv``."""
+    return f"{path.parent.name}/{path.name}" if path.parent.name else path.name
+
+
+def _fmt_ns(ns: int) -> str:
+    if ns >= NS_PER_S:
+        return f"{ns / NS_PER_S:g} s"
+    if ns >= 1_000_000:
+        return f"{ns / 1_000_000:g} ms"
+    if ns >= 1000:
+        return f"{ns / 1000:g} us"
+    return f"{ns} ns"
