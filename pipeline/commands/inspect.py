@@ -1,0 +1,132 @@
+"""``biasgt inspect``: read an input, run the input checks, print streams, findings and a verdict.
+
+Exit codes: 0 when nothing is fatal (verdict ``ok`` or ``repairable``), 1 when
+a fatal problem was found (verdict ``fatal``), 2 for errors (unreadable input,
+bad options).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from typing import Any
+
+import numpy as np
+
+from pipeline.types import Finding, Sequence
+
+#: Version of the ``--json`` output; bump when a key changes meaning or disappears.
+SCHEMA_VERSION = 1
+#: Top-level keys of the ``--json`` object.
+JSON_KEYS = ("schema_version", "input", "format", "streams", "findings", "verdict")
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from pipeline.ingest import add_check_arguments, add_reader_arguments
+
+    p = subparsers.add_parser(
+        "inspect",
+        help="check an input (streams, time stamps, units, overlap) without writing anything",
+        description=(
+            "Read INPUT (EuRoC/ASL folder, TUM or CSV file, ROS1/ROS2 bag, canonical store), list its streams, "
+            "and report every problem the input checks find, each with a stable code, a severity and how to fix it. "
+            "Verdict: ok, repairable (biasgt convert --repair can fix it) or fatal. "
+            "Exit code 0 = no fatal problem, 1 = fatal problem found, 2 = error."
+        ),
+    )
+    p.add_argument("input", metavar="INPUT", help="file or folder to inspect")
+    p.add_argument("--json", action="store_true",
+                   help="print one JSON object {schema_version, input, format, streams, findings, verdict}")
+    add_reader_arguments(p)
+    add_check_arguments(p)
+    p.set_defaults(func=run)
+
+
+def inspect_report(input_path: str, seq: Sequence, findings: list[Finding]) -> dict[str, Any]:
+    """The ``--json`` object (keys :data:`JSON_KEYS`)."""
+    from pipeline.checks import stream_summaries, verdict
+    from pipeline.ingest import input_format
+
+    return json_safe({
+        "schema_version": SCHEMA_VERSION,
+        "input": str(input_path),
+        "format": input_format(seq),
+        "streams": stream_summaries(seq),
+        "findings": [f.to_dict() for f in findings],
+        "verdict": verdict(findings).value,
+    })
+
+
+def json_safe(obj: Any) -> Any:
+    """``obj`` with non-finite floats as ``None`` and numpy values as Python ones (strict JSON)."""
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return json_safe(obj.tolist())
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    return obj
+
+
+def _fmt(x: Any, spec: str) -> str:
+    if x is None or (isinstance(x, float) and not math.isfinite(x)):
+        return "-"
+    return format(x, spec)
+
+
+def format_report(report: dict[str, Any]) -> str:
+    """Human-readable text of an :func:`inspect_report` object."""
+    lines = [f"input:  {report['input']}  (format: {report['format'] or 'unknown'})", ""]
+    w = max([len("stream")] + [len(s["stream"]) for s in report["streams"]])
+    header = (f"{'stream':<{w}} {'kind':<12} {'rows':>8} {'start [s]':>18} {'duration [s]':>12} "
+              f"{'rate [Hz]':>10} {'dt std [ms]':>11} {'dt max [ms]':>11}")
+    lines += [header, "-" * len(header)]
+    for s in report["streams"]:
+        t0 = None if s["t0_ns"] is None else s["t0_ns"] / 1e9
+        lines.append(
+            f"{s['stream']:<{w}} {s['kind']:<12} {s['count']:>8d} {_fmt(t0, '18.3f')} {_fmt(s['duration_s'], '12.3f')} "
+            f"{_fmt(s['rate_hz'], '10.2f')} {_fmt(s['dt_std_ms'], '11.3f')} {_fmt(s['dt_max_ms'], '11.3f')}"
+        )
+    lines.append("")
+    from pipeline.ingest import severity_rank
+    from pipeline.types import Severity
+
+    findings = sorted(report["findings"], key=lambda f: severity_rank(Severity(f["severity"])))
+    if findings:
+        lines.append("findings:")
+        wc = max(len(f["code"]) for f in findings)
+        ws = max(len(f["stream"]) for f in findings)
+        for f in findings:
+            lines.append(f"  {f['severity'].upper():<10} {f['code']:<{wc}} {f['stream']:<{ws}} {f['message']}")
+    else:
+        lines.append("findings: none")
+    counts = {sev: sum(1 for f in findings if f["severity"] == sev) for sev in ("fatal", "repairable", "warning")}
+    summary = ", ".join(f"{n} {sev}{'s' if sev == 'warning' and n > 1 else ''}"
+                        for sev, n in counts.items() if n) or "no problems"
+    meaning = {
+        "ok": "can be converted as it is",
+        "repairable": "'biasgt convert --repair ...' can fix it",
+        "fatal": "cannot be converted",
+    }[report["verdict"]]
+    lines += ["", f"verdict: {report['verdict']} ({summary}): {meaning}"]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.checks import Verdict, run_checks
+    from pipeline.ingest import check_options_from_args, load, reader_kwargs_from_args
+
+    options = check_options_from_args(args)
+    seq = load(args.input, reader_kwargs_from_args(args))
+    findings = run_checks(seq, options)
+    report = inspect_report(args.input, seq, findings)
+    if args.json:
+        print(json.dumps(report, indent=2, allow_nan=False))
+    else:
+        print(format_report(report))
+    return 1 if report["verdict"] == Verdict.FATAL.value else 0

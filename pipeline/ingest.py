@@ -1,0 +1,242 @@
+"""Ingest: load an input, check it, apply the allowed repairs, and write the canonical store.
+
+This is the library behind ``biasgt inspect`` / ``biasgt convert`` and the
+Snakemake ``ingest`` rule. It also holds the reader/check command-line options
+those commands share (:func:`add_reader_arguments`, :func:`reader_kwargs_from_args`,
+:func:`add_check_arguments`, :func:`check_options_from_args`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from pipeline.checks import (
+    FATAL_HINTS,
+    REPAIR_FOR_CODE,
+    CheckOptions,
+    Repair,
+    Verdict,
+    apply_repairs,
+    fatal_findings,
+    parse_repairs,
+    repairable_findings,
+    run_checks,
+    verdict,
+)
+from pipeline.errors import ConfigError, FatalCheckError
+from pipeline.types import Finding, Sequence, Severity
+
+log = logging.getLogger(__name__)
+
+#: Keyword arguments of :func:`pipeline.io.load_sequence` that :func:`reader_kwargs_from_args` fills.
+READER_KWARGS = ("fmt", "name", "csv_mapping", "imu_topic", "pose_topic", "tf_parent", "tf_child")
+
+
+def load(input_path: str | Path, reader_kwargs: Mapping[str, Any] | None = None) -> Sequence:
+    """Load any supported input through :func:`pipeline.io.load_sequence`.
+
+    Args:
+        input_path: File or folder.
+        reader_kwargs: Keyword arguments for the reader (``None`` values are dropped).
+    """
+    from pipeline.io import load_sequence  # the readers are heavy (rosbags): import on use
+
+    kwargs = {k: v for k, v in (reader_kwargs or {}).items() if v is not None}
+    return load_sequence(Path(input_path), **kwargs)
+
+
+def input_format(seq: Sequence) -> str | None:
+    """The input format a reader recorded in ``seq.metadata`` (``"asl"``, ``"rosbag1"``, ...), if any."""
+    md = seq.metadata
+    for key in ("format", "source_format"):
+        if isinstance(md.get(key), str):
+            return md[key]
+    bag = md.get("bag")
+    if isinstance(bag, dict) and isinstance(bag.get("format"), str):
+        return bag["format"]
+    kind = md.get("source_kind")
+    return kind if isinstance(kind, str) else None
+
+
+@dataclass
+class CheckedSequence:
+    """A sequence after checks (and possibly repairs).
+
+    Attributes:
+        sequence: The (repaired) sequence, ``findings`` set to the final check results.
+        findings_before: Findings of the unrepaired input.
+        findings: Findings after the repairs.
+        changes: What the repairs changed.
+    """
+
+    sequence: Sequence
+    findings_before: list[Finding]
+    findings: list[Finding]
+    changes: list[str]
+
+    @property
+    def verdict(self) -> Verdict:
+        return verdict(self.findings)
+
+
+def refusal_message(findings: Iterable[Finding]) -> tuple[str, str] | None:
+    """``(problem, hint)`` when ``findings`` forbid writing the sequence, else ``None``.
+
+    Fatal findings and remaining repairable ones forbid it; the hint names the
+    ``--repair`` flags that would fix the repairable ones.
+    """
+    findings = list(findings)
+    blocking = fatal_findings(findings) + repairable_findings(findings)
+    if not blocking:
+        return None
+    listed = "; ".join(f"{f.code} ({f.stream})" for f in blocking)
+    problem = f"refusing to convert: {len(blocking)} problem(s) remain: {listed}"
+    hints: list[str] = []
+    flags = sorted({REPAIR_FOR_CODE[f.code].value for f in repairable_findings(findings) if f.code in REPAIR_FOR_CODE})
+    if flags:
+        hints.append(f"rerun with --repair {','.join(flags)}")
+    for code in dict.fromkeys(f.code for f in fatal_findings(findings)):
+        hints.append(f"{code}: {FATAL_HINTS.get(code, 'see biasgt inspect')}")
+    hints.append("'biasgt inspect INPUT' explains each problem")
+    return problem, "; ".join(hints)
+
+
+def check_and_repair(
+    seq: Sequence, repairs: Iterable[Repair | str] = (), check_options: CheckOptions | None = None
+) -> CheckedSequence:
+    """Check ``seq``, apply the allowed repairs, and check again.
+
+    Returns:
+        The result; its ``sequence.findings`` are the final findings and its
+        metadata records ``repairs`` (and ``findings_before_repair`` when something changed).
+    """
+    opts = check_options or CheckOptions()
+    before = run_checks(seq, opts)
+    allowed = parse_repairs(repairs)
+    if allowed:
+        repaired, changes = apply_repairs(seq, allowed, opts)
+    else:
+        repaired, changes = seq, []
+    after = run_checks(repaired, opts) if changes else before
+    metadata = dict(repaired.metadata)
+    metadata.setdefault("repairs", [])
+    if changes:
+        metadata["findings_before_repair"] = [f.to_dict() for f in before]
+    final = replace(repaired, findings=list(after), metadata=metadata)
+    return CheckedSequence(final, before, after, changes)
+
+
+def ingest(
+    input_path: str | Path,
+    out_dir: str | Path,
+    *,
+    repairs: Iterable[Repair | str] = (),
+    reader_kwargs: Mapping[str, Any] | None = None,
+    check_options: CheckOptions | None = None,
+) -> Sequence:
+    """Load, check, repair (only what ``repairs`` allows), re-check and write the canonical store.
+
+    Args:
+        input_path: Any input :func:`pipeline.io.load_sequence` reads.
+        out_dir: Store folder to write (atomically; replaced only on success).
+        repairs: Allowed repairs (:class:`Repair` members or flag names, ``"all"``).
+        reader_kwargs: Keyword arguments for :func:`pipeline.io.load_sequence`.
+        check_options: Check thresholds.
+
+    Returns:
+        The sequence as written (findings and repairs recorded in it).
+
+    Raises:
+        FatalCheckError: When a fatal or an unrepaired repairable problem remains;
+            nothing is written then.
+    """
+    from pipeline.store import write_store
+
+    seq = load(input_path, reader_kwargs)
+    checked = check_and_repair(seq, repairs, check_options)
+    refusal = refusal_message(checked.findings)
+    if refusal is not None:
+        raise FatalCheckError(refusal[0], path=input_path, hint=refusal[1])
+    out = checked.sequence
+    out.metadata.setdefault("source_path", str(input_path))
+    write_store(out, out_dir)
+    log.info("wrote %s (%s)", out_dir, "; ".join(checked.changes) or "no repairs")
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# shared command-line options
+
+
+def add_reader_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options that choose how an input is read (passed to :func:`pipeline.io.load_sequence`)."""
+    g = parser.add_argument_group("reader options")
+    g.add_argument("--format", dest="fmt", metavar="FMT", default=None,
+                   help="input format when auto-detection is not enough: store, asl, tum, csv or bag")
+    g.add_argument("--imu-topic", metavar="TOPIC", help="bag topic with sensor_msgs/Imu (when there are several)")
+    g.add_argument("--pose-topic", metavar="TOPIC", help="bag topic with the poses (PoseStamped, Odometry, ...)")
+    g.add_argument("--tf-parent", metavar="FRAME", help="take poses from /tf: parent (world) frame")
+    g.add_argument("--tf-child", metavar="FRAME", help="take poses from /tf: child (tracked) frame")
+    g.add_argument("--csv-mapping", metavar="FILE", type=Path,
+                   help="YAML file mapping a generic CSV's columns to biasgt fields")
+
+
+def reader_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
+    """Reader keyword arguments from parsed options (loads ``--csv-mapping``)."""
+    mapping = None
+    path = getattr(args, "csv_mapping", None)
+    if path is not None:
+        try:
+            mapping = yaml.safe_load(Path(path).read_text(encoding="utf-8"))
+        except OSError as exc:
+            raise ConfigError(f"cannot read CSV mapping ({exc.strerror})", path=path,
+                              hint="give an existing YAML file to --csv-mapping") from exc
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"CSV mapping is not valid YAML ({exc})", path=path) from exc
+        if not isinstance(mapping, dict):
+            raise ConfigError("CSV mapping must be a YAML mapping of field: column", path=path)
+    return {
+        "fmt": getattr(args, "fmt", None),
+        "name": getattr(args, "name", None),
+        "csv_mapping": mapping,
+        "imu_topic": getattr(args, "imu_topic", None),
+        "pose_topic": getattr(args, "pose_topic", None),
+        "tf_parent": getattr(args, "tf_parent", None),
+        "tf_child": getattr(args, "tf_child", None),
+    }
+
+
+def add_check_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options that tune the input checks."""
+    g = parser.add_argument_group("check options")
+    d = CheckOptions()
+    g.add_argument("--min-duration", type=float, default=d.min_duration_s, metavar="S",
+                   help=f"shortest acceptable IMU span in seconds (default {d.min_duration_s:g})")
+    g.add_argument("--gap-factor", type=float, default=d.gap_factor, metavar="X",
+                   help=f"report steps longer than X times the median step as gaps (default {d.gap_factor:g})")
+    g.add_argument("--allow-pose-only", action="store_true",
+                   help="accept an input without IMU (NO_IMU becomes info)")
+    g.add_argument("--ignore", default="", metavar="CODES",
+                   help="comma list of non-fatal finding codes that are false positives (e.g. GYRO_DEGPS)")
+
+
+def check_options_from_args(args: argparse.Namespace) -> CheckOptions:
+    """:class:`CheckOptions` from parsed options."""
+    return CheckOptions(
+        min_duration_s=args.min_duration,
+        gap_factor=args.gap_factor,
+        allow_pose_only=args.allow_pose_only,
+        ignore=frozenset(c for c in str(args.ignore or "").split(",") if c.strip()),
+    )
+
+
+def severity_rank(sev: Severity) -> int:
+    """Sort key: fatal first."""
+    return {Severity.FATAL: 0, Severity.REPAIRABLE: 1, Severity.WARNING: 2, Severity.INFO: 3}[sev]
