@@ -1,0 +1,86 @@
+"""``biasgt run``: run the whole workflow (the repository's Snakefile) with Snakemake."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from pipeline.workflow import DEFAULT_CONFIG, SNAKEFILE, run_workflow
+
+DESCRIPTION = f"""\
+Run the biasgt workflow ({SNAKEFILE}) with Snakemake: simulate / ingest every sequence of the
+config, then the later stages. Outputs go to results/<stage>/<sequence>/ and logs to
+logs/<stage>/<sequence>.log under the working directory (--directory, default: the current
+folder). Finished jobs are kept: rerunning only redoes what a changed input, parameter or code
+affects. The config is checked before Snakemake starts.
+
+Everything after '--' goes to Snakemake unchanged, e.g. to run on a SLURM cluster:
+  biasgt run --config my.yaml -- --executor slurm --jobs 50 --default-resources slurm_partition=cpu
+(see docs/cluster.md)."""
+
+EPILOG = f"""\
+examples:
+  biasgt run                              the default config ({DEFAULT_CONFIG.name}: simulated data)
+  biasgt run --config config/euroc.yaml --cores 4
+  biasgt run --dry-run                    show what would run
+  biasgt run --until ingest               stop after the ingest jobs
+  biasgt run --target results/ingest/sim_handheld_01
+  biasgt run -- --forceall                extra Snakemake arguments after '--'"""
+
+
+def _cores(value: str) -> int | str:
+    if value == "all":
+        return value
+    try:
+        n = int(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer or 'all', got {value!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer or 'all', got {value!r}")
+    return n
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "run",
+        help="run the whole workflow with Snakemake (simulate/ingest ... report)",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--config", type=Path, default=None, metavar="FILE",
+                   help=f"workflow config YAML (default: {DEFAULT_CONFIG})")
+    p.add_argument("--cores", type=_cores, default=1, metavar="N",
+                   help="cores Snakemake may use at once, or 'all' (default 1)")
+    p.add_argument("--directory", type=Path, default=None, metavar="DIR",
+                   help="working directory for results/ and logs/ (default: the current folder)")
+    p.add_argument("-n", "--dry-run", action="store_true", help="only show the jobs that would run")
+    p.add_argument("--until", nargs="+", default=[], metavar="RULE",
+                   help="run only the jobs up to these rules (e.g. ingest)")
+    p.add_argument("--target", nargs="+", default=[], metavar="TARGET",
+                   help="build these files or rules instead of the whole workflow")
+    p.add_argument("snakemake_args", nargs="*", metavar="-- SNAKEMAKE_ARGS",
+                   help="further Snakemake arguments, after '--'")
+    p.set_defaults(func=main)
+
+
+def main(args: argparse.Namespace) -> int:
+    result = run_workflow(
+        config_file=args.config,
+        cores=args.cores,
+        workdir=args.directory,
+        dry_run=args.dry_run,
+        until=args.until,
+        targets=args.target,
+        extra=args.snakemake_args,
+    )
+    if args.dry_run:
+        return 0
+    results = result.workdir / "results"
+    print(f"results: {results}" if results.is_dir() else f"results: none yet under {result.workdir}")
+    for path in result.outputs:
+        kind = "report" if path.suffix == ".html" else "stage"
+        print(f"  {kind}: {path}")
+    sys.stdout.flush()
+    return 0

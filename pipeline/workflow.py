@@ -1,0 +1,872 @@
+"""Snakemake glue: config loading and checks, the sequence table, path helpers, step functions.
+
+Everything the workflow (``Snakefile`` and ``workflow/rules/*.smk``) needs lives here as plain,
+importable and unit-tested Python, so that the ``.smk`` files only wire rules together:
+
+* :func:`load_config` / :func:`validate_schema` / :func:`check_config`: read a workflow config,
+  apply the JSON schema (``workflow/schemas/config.schema.yaml``, with its defaults, exactly as
+  ``snakemake.utils.validate`` does) and check what a schema cannot say (unique names, existing
+  input paths, simulator settings). Errors are :class:`~pipeline.errors.ConfigError` naming the
+  config file and the sequence entry.
+* :class:`WorkflowConfig` / :class:`SequenceEntry`: the parsed sequence table.
+* :func:`stage_dir` / :func:`log_file` / :func:`ingest_input` / :func:`simulate_settings` /
+  :func:`ingest_settings` / :func:`final_outputs`: what the ``get_*`` input functions return.
+* :func:`run_step` / :func:`simulate_step` / :func:`ingest_step`: what the thin scripts under
+  ``workflow/scripts/`` call.
+* :func:`snakemake_command` / :func:`run_workflow`: ``biasgt run`` (Snakemake in a subprocess).
+
+Layout of a workflow run (relative to the working directory)::
+
+    results/<stage>/<sequence>/...   one folder per stage and sequence
+    logs/<stage>/<sequence>.log      the log of that job
+"""
+
+from __future__ import annotations
+
+import copy
+import enum
+import logging
+import os
+import re
+import subprocess
+import sys
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import yaml
+
+from pipeline.errors import BiasgtError, ConfigError
+
+log = logging.getLogger(__name__)
+
+#: Root of the (editable) repository: the parent of the ``pipeline`` package.
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SNAKEFILE = REPO_ROOT / "Snakefile"
+SCHEMA_FILE = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
+
+RESULTS_DIR = "results"
+LOGS_DIR = "logs"
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+
+# SimConfig fields set by an entry's shorthand keys; ``overrides`` must not set them again.
+_SIM_SHORTHANDS = {
+    ("name",): "name",
+    ("duration_s",): "duration_s",
+    ("seed",): "seed",
+    ("motion", "preset"): "preset",
+    ("poses", "format"): "pose_format",
+}
+
+
+class SourceKind(str, enum.Enum):
+    """Where a sequence's data comes from."""
+
+    SIMULATE = "simulate"  # the built-in simulator writes an ASL folder
+    ASL = "asl"  # EuRoC / ASL ``mav0`` folder
+    TUM = "tum"  # TUM pose text ("t tx ty tz qx qy qz qw")
+    CSV = "csv"  # generic CSV with a column mapping
+    BAG = "bag"  # ROS1 .bag, ROS2 bag folder, .db3 or .mcap
+
+
+#: The ``fmt`` given to :func:`pipeline.io.load_sequence` for each source.
+READER_FORMAT: dict[SourceKind, str] = {
+    SourceKind.SIMULATE: "asl",  # the simulator writes an ASL folder
+    SourceKind.ASL: "asl",
+    SourceKind.TUM: "tum",
+    SourceKind.CSV: "csv",
+    SourceKind.BAG: "rosbag",
+}
+
+
+class Split(str, enum.Enum):
+    """Role of a sequence for training."""
+
+    TRAIN = "train"
+    TEST = "test"
+    NONE = "none"
+
+
+class Stage(str, enum.Enum):
+    """Stages with a results folder, in workflow order (later stages add themselves here)."""
+
+    SIMULATE = "simulate"
+    INGEST = "ingest"
+    RECOVER = "recover"
+    INTERPOLATE = "interpolate"
+    VALIDATE = "validate"
+    WINDOWS = "windows"
+    TRAIN = "train"
+    EVALUATE = "evaluate"
+    REPORT = "report"
+
+
+# --------------------------------------------------------------------------------------------
+# Config: schema, defaults, semantic checks
+# --------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class SequenceEntry:
+    """One entry of the ``sequences:`` list, checked.
+
+    Attributes:
+        name: Sequence name (safe for paths).
+        source: Where the data comes from.
+        split: Train / test / none.
+        index: Position in the ``sequences:`` list (0-based), for error messages.
+        path: Resolved input file or folder (real sources), ``None`` for simulated ones.
+        raw: The entry as validated (schema defaults filled in).
+    """
+
+    name: str
+    source: SourceKind
+    split: Split
+    index: int
+    path: Path | None
+    raw: dict[str, Any] = field(repr=False, compare=False)
+
+    @property
+    def is_simulated(self) -> bool:
+        return self.source is SourceKind.SIMULATE
+
+    @property
+    def where(self) -> str:
+        """``sequences[i] ('name')``, for messages."""
+        return f"sequences[{self.index}] ('{self.name}')"
+
+
+@dataclass(frozen=True)
+class WorkflowConfig:
+    """A checked workflow config.
+
+    Attributes:
+        data: The config dict with schema defaults filled in.
+        config_file: The file it was read from (relative paths are resolved against its folder),
+            ``None`` when built from a dict alone (paths then resolve against the current folder).
+        sequences: The sequence table, in config order.
+    """
+
+    data: dict[str, Any]
+    config_file: Path | None
+    sequences: tuple[SequenceEntry, ...]
+
+    @property
+    def names(self) -> list[str]:
+        return [s.name for s in self.sequences]
+
+    def select(
+        self, *, splits: Iterable[Split | str] | None = None, sources: Iterable[SourceKind | str] | None = None
+    ) -> list[SequenceEntry]:
+        """Entries whose split and source are among the given ones (``None``: any)."""
+        split_set = None if splits is None else {Split(s) for s in splits}
+        source_set = None if sources is None else {SourceKind(s) for s in sources}
+        return [
+            s for s in self.sequences
+            if (split_set is None or s.split in split_set) and (source_set is None or s.source in source_set)
+        ]
+
+    def sequence(self, name: str) -> SequenceEntry:
+        """The entry called ``name``.
+
+        Raises:
+            ConfigError: No such sequence.
+        """
+        for s in self.sequences:
+            if s.name == name:
+                return s
+        raise ConfigError(
+            f"no sequence named '{name}'", path=self.config_file, field="sequences",
+            hint=f"configured sequences: {', '.join(self.names) or '(none)'}",
+        )
+
+    def section(self, name: str) -> dict[str, Any]:
+        """A top-level section (``ingest``, ``recovery``, ...), ``{}`` when absent."""
+        return dict(self.data.get(name) or {})
+
+
+def load_schema(schema_file: str | Path = SCHEMA_FILE) -> dict[str, Any]:
+    """The workflow config JSON schema (YAML file) as a dict."""
+    return yaml.safe_load(Path(schema_file).read_text(encoding="utf-8"))
+
+
+def _json_path(parts: Iterable[Any]) -> str:
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out or "(top level)"
+
+
+def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
+    """(field, problem) of a jsonschema error, naming the sequence where there is one."""
+    where = _json_path(error.absolute_path)
+    parts = list(error.absolute_path)
+    if len(parts) >= 2 and parts[0] == "sequences" and isinstance(parts[1], int):
+        seqs = data.get("sequences") or []
+        entry = seqs[parts[1]] if parts[1] < len(seqs) else None
+        if isinstance(entry, dict) and "name" in entry:
+            where += f" (sequence '{entry['name']}')"
+    message = error.message
+    if error.validator == "enum":
+        message = f"{error.instance!r} is not one of {', '.join(map(str, error.validator_value))}"
+    elif error.validator == "pattern":
+        message = (f"{error.instance!r} is not a valid name: use letters, digits, '_', '.', '-' "
+                   "and do not start with '.' or '-'")
+    return where, message
+
+
+def validate_schema(
+    data: Any, *, config_file: str | Path | None = None, schema_file: str | Path = SCHEMA_FILE
+) -> dict[str, Any]:
+    """Validate ``data`` against the workflow schema and fill in its defaults, in place.
+
+    Same semantics as ``snakemake.utils.validate(config, schema)`` (draft 2020-12, defaults of
+    ``properties`` set before validating), usable without Snakemake.
+
+    Args:
+        data: The parsed config.
+        config_file: Named in the error message.
+        schema_file: The schema.
+
+    Returns:
+        ``data`` with defaults filled in.
+
+    Raises:
+        ConfigError: The first (most relevant) schema violation, with its location.
+    """
+    import jsonschema
+    from jsonschema import Draft202012Validator, validators
+
+    if not isinstance(data, dict):
+        raise ConfigError(f"the config must be a mapping, got {type(data).__name__}", path=config_file,
+                          hint="see config/config.yaml for an example")
+    schema = load_schema(schema_file)
+    validate_properties = Draft202012Validator.VALIDATORS["properties"]
+
+    def set_defaults(validator: Any, properties: dict, instance: Any, schema_: dict) -> Iterable[Any]:
+        if isinstance(instance, dict):
+            for prop, sub in properties.items():
+                if "default" in sub:
+                    instance.setdefault(prop, copy.deepcopy(sub["default"]))
+        yield from validate_properties(validator, properties, instance, schema_)
+
+    validator_cls = validators.extend(Draft202012Validator, {"properties": set_defaults})
+    errors = list(validator_cls(schema).iter_errors(data))
+    if errors:
+        # An unknown key is reported only when nothing else is wrong: with an invalid 'source',
+        # for example, the source's own keys also look "unevaluated".
+        primary = [e for e in errors if e.validator != "unevaluatedProperties"] or errors
+        best = jsonschema.exceptions.best_match(primary)
+        where, message = _schema_error_message(best, data)
+        raise ConfigError(f"{where}: {message}", path=config_file,
+                          hint="see workflow/schemas/config.schema.yaml for the allowed keys and values")
+    return data
+
+
+def _expand(raw: str) -> Path:
+    return Path(os.path.expandvars(os.path.expanduser(raw)))
+
+
+def data_root(data: dict[str, Any], config_file: str | Path | None) -> Path:
+    """Absolute folder that relative input paths are resolved against."""
+    base = Path(config_file).resolve().parent if config_file is not None else Path.cwd()
+    root = _expand(str(data.get("data_root", ".")))
+    return Path(os.path.normpath(root if root.is_absolute() else base / root))
+
+
+def resolve_input_path(raw: str, root: Path) -> Path:
+    """``raw`` with ``~`` and ``$VARS`` expanded, made absolute against ``root``."""
+    p = _expand(raw)
+    return Path(os.path.normpath(p if p.is_absolute() else root / p))
+
+
+def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _deep_merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def _sim_dict(entry: dict[str, Any], root: Path, config_file: Path | None, where: str) -> dict[str, Any]:
+    overrides = entry.get("overrides") or {}
+    for keys, shorthand in _SIM_SHORTHANDS.items():
+        node: Any = overrides
+        for k in keys:
+            node = node.get(k) if isinstance(node, dict) else None
+        if node is not None:
+            raise ConfigError(
+                f"{where}: overrides.{'.'.join(keys)} repeats the entry's '{shorthand}'",
+                path=config_file, field=f"overrides.{'.'.join(keys)}",
+                hint=f"set it with '{shorthand}:' only" if shorthand != "name" else "the name is the entry's 'name'",
+            )
+    base = {
+        "name": entry["name"],
+        "duration_s": entry.get("duration_s", 60),
+        "seed": entry.get("seed", 0),
+        "motion": {"preset": entry.get("preset", "handheld")},
+        "poses": {"format": entry.get("pose_format", "mocap")},
+    }
+    sim = _deep_merge(base, overrides)
+    gt = (sim.get("motion") or {}).get("ground_truth_path")
+    if gt is not None:
+        sim["motion"]["ground_truth_path"] = str(resolve_input_path(str(gt), root))
+    return sim
+
+
+def check_config(
+    data: dict[str, Any], config_file: str | Path | None = None, *, check_paths: bool = True
+) -> WorkflowConfig:
+    """Check a schema-valid config for what the schema cannot express and build the table.
+
+    Checks: unique sequence names; real sources' paths exist (when ``check_paths``); simulated
+    entries make a valid :class:`pipeline.sim.config.SimConfig` (and semi-real ground-truth
+    files exist); reader options, repairs and check options are known to the ingest stage.
+
+    Args:
+        data: Config already passed through :func:`validate_schema` (or Snakemake's ``validate``).
+        config_file: The config file; relative paths resolve against its folder.
+        check_paths: Check that input paths exist (also switched off by the config's
+            ``check_input_paths: false``).
+
+    Returns:
+        The checked config.
+
+    Raises:
+        ConfigError: Naming the config file, the entry (``sequences[i] ('name')``) and the field.
+    """
+    config_file = None if config_file is None else Path(config_file)
+    check_paths = check_paths and bool(data.get("check_input_paths", True))
+    root = data_root(data, config_file)
+    seen: dict[str, int] = {}
+    entries: list[SequenceEntry] = []
+    for i, raw in enumerate(data.get("sequences") or []):
+        name = raw["name"]
+        where = f"sequences[{i}] ('{name}')"
+        if not NAME_PATTERN.match(name):  # also enforced by the schema
+            raise ConfigError(f"{where}: invalid sequence name", path=config_file, field="name",
+                              hint="use letters, digits, '_', '.', '-'")
+        if name in seen:
+            raise ConfigError(
+                f"{where}: duplicate sequence name '{name}' (also sequences[{seen[name]}])",
+                path=config_file, field="name", hint="give every sequence a unique name",
+            )
+        seen[name] = i
+        source = SourceKind(raw["source"])
+        path = None
+        if source is SourceKind.SIMULATE:
+            sim = _sim_dict(raw, root, config_file, where)
+            _check_sim_config(sim, config_file, where, check_paths)
+        else:
+            path = resolve_input_path(raw["path"], root)
+            if check_paths and not path.exists():
+                raise ConfigError(
+                    f"{where}: input path {path} does not exist", path=config_file, field="path",
+                    hint=f"fix 'path' (relative paths are resolved against data_root = {root})",
+                )
+        entries.append(SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw))
+    cfg = WorkflowConfig(data, config_file, tuple(entries))
+    for entry in cfg.sequences:
+        _check_ingest_settings(cfg, entry)
+    return cfg
+
+
+def _check_sim_config(sim: dict[str, Any], config_file: Path | None, where: str, check_paths: bool) -> None:
+    from pipeline.sim.config import SimConfig
+
+    try:
+        cfg = SimConfig.from_dict(sim)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: simulator setting: {exc.problem}", path=config_file,
+                          field=exc.field, hint=exc.hint) from None
+    gt = cfg.motion.ground_truth_path
+    if check_paths and gt is not None and not Path(gt).is_file():
+        raise ConfigError(f"{where}: ground-truth file {gt} does not exist", path=config_file,
+                          field="overrides.motion.ground_truth_path",
+                          hint="fix the path (relative paths are resolved against data_root)")
+
+
+def read_config_file(path: str | Path) -> Any:
+    """Parse a YAML (or JSON) config file.
+
+    Raises:
+        ConfigError: Missing file or invalid YAML.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError("config file not found", path=path,
+                          hint="give an existing file with --config (see config/config.yaml)") from None
+    except IsADirectoryError:
+        raise ConfigError("config path is a folder, not a file", path=path) from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise ConfigError(f"not valid YAML: {getattr(exc, 'problem', exc)}", path=path,
+                          line=None if mark is None else mark.line + 1) from None
+
+
+def load_config(path: str | Path, *, check_paths: bool = True) -> WorkflowConfig:
+    """Read, schema-validate (with defaults) and check a workflow config file."""
+    path = Path(path)
+    data = read_config_file(path)
+    validate_schema(data, config_file=path)
+    return check_config(data, path, check_paths=check_paths)
+
+
+# --------------------------------------------------------------------------------------------
+# Paths and rule parameters (what the get_* functions in workflow/rules/common.smk return)
+# --------------------------------------------------------------------------------------------
+
+
+def stage_dir(stage: Stage | str, sequence: str) -> str:
+    """``results/<stage>/<sequence>``, relative to the working directory."""
+    return f"{RESULTS_DIR}/{Stage(stage).value}/{sequence}"
+
+
+def log_file(stage: Stage | str, sequence: str) -> str:
+    """``logs/<stage>/<sequence>.log``, relative to the working directory."""
+    return f"{LOGS_DIR}/{Stage(stage).value}/{sequence}.log"
+
+
+def workdir_relative(path: str | Path, workdir: str | Path | None = None) -> str:
+    """``path`` relative to ``workdir`` when it lies inside it, else absolute (as a string)."""
+    path = Path(path)
+    wd = Path(workdir or Path.cwd()).resolve()
+    absolute = path if path.is_absolute() else wd / path
+    absolute = Path(os.path.normpath(absolute))
+    try:
+        return absolute.relative_to(wd).as_posix()
+    except ValueError:
+        return str(absolute)
+
+
+def names_regex(names: Iterable[str]) -> str:
+    """A regex matching exactly the given names (a never-matching one for none)."""
+    names = list(names)
+    return "|".join(re.escape(n) for n in names) if names else "(?!)"
+
+
+def simulate_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
+    """The :class:`pipeline.sim.config.SimConfig` dict of a simulated sequence.
+
+    Raises:
+        ConfigError: ``sequence`` is not a simulated sequence.
+    """
+    entry = cfg.sequence(sequence)
+    if not entry.is_simulated:
+        raise ConfigError(f"{entry.where} is not simulated (source '{entry.source.value}')",
+                          path=cfg.config_file, field="source")
+    return _sim_dict(entry.raw, data_root(cfg.data, cfg.config_file), cfg.config_file, entry.where)
+
+
+def simulate_inputs(cfg: WorkflowConfig, sequence: str, workdir: str | Path | None = None) -> list[str]:
+    """Files the simulation reads (the semi-real ground-truth file, if any)."""
+    gt = simulate_settings(cfg, sequence)["motion"].get("ground_truth_path")
+    return [] if gt is None else [workdir_relative(gt, workdir)]
+
+
+def ingest_input(cfg: WorkflowConfig, sequence: str, workdir: str | Path | None = None) -> str:
+    """What rule ``ingest`` reads: the simulation's ASL folder or the configured input path."""
+    entry = cfg.sequence(sequence)
+    if entry.is_simulated:
+        return stage_dir(Stage.SIMULATE, sequence)
+    assert entry.path is not None
+    return workdir_relative(entry.path, workdir)
+
+
+def ingest_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
+    """Parameters of rule ``ingest`` for one sequence (the rule's ``params``).
+
+    Returns:
+        ``{"reader_kwargs", "repairs", "check_options"}``: keyword arguments of
+        :func:`pipeline.io.load_sequence` (``fmt`` from the source, ``asl`` for simulated
+        sequences; ``name``; the entry's ``reader`` options), the allowed repairs (the entry's
+        list, else ``ingest.repairs``) and the check options (``ingest.check_options`` updated by
+        the entry's), all plain JSON-like values.
+    """
+    entry = cfg.sequence(sequence)
+    section = cfg.section("ingest")
+    repairs = entry.raw.get("repairs")
+    if repairs is None:
+        repairs = section.get("repairs") or []
+    check_options = _deep_merge(section.get("check_options") or {}, entry.raw.get("check_options") or {})
+    reader_kwargs: dict[str, Any] = dict(entry.raw.get("reader") or {})
+    reader_kwargs.update(fmt=READER_FORMAT[entry.source], name=entry.name)
+    return {
+        "reader_kwargs": {k: v for k, v in reader_kwargs.items() if v is not None},
+        "repairs": [str(r) for r in repairs],
+        "check_options": check_options,
+    }
+
+
+def make_check_options(options: dict[str, Any]) -> Any:
+    """A :class:`pipeline.checks.CheckOptions` from a config mapping.
+
+    Raises:
+        ConfigError: Unknown key or invalid value.
+    """
+    import dataclasses
+
+    from pipeline.checks import CheckOptions
+
+    known = {f.name for f in dataclasses.fields(CheckOptions)}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ConfigError(f"unknown check option(s) {', '.join(unknown)}", field="check_options",
+                          hint=f"allowed: {', '.join(sorted(known))}")
+    kwargs = dict(options)
+    if "ignore" in kwargs:
+        ignore = kwargs["ignore"]
+        kwargs["ignore"] = frozenset([ignore] if isinstance(ignore, str) else ignore or [])
+    try:
+        return CheckOptions(**kwargs)
+    except TypeError as exc:
+        raise ConfigError(f"invalid check options: {exc}", field="check_options") from None
+
+
+def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
+    """Raise a ConfigError naming the entry when its ingest settings are invalid."""
+    from pipeline.checks import parse_repairs
+    from pipeline.ingest import READER_KWARGS
+
+    reader = entry.raw.get("reader") or {}
+    reserved = sorted({"fmt", "name"} & set(reader))
+    if reserved:
+        raise ConfigError(f"{entry.where}: reader option(s) {', '.join(reserved)} cannot be set here",
+                          path=cfg.config_file, field="reader",
+                          hint="'source' sets the format and 'name' the sequence name")
+    unknown = sorted(set(reader) - set(READER_KWARGS))
+    if unknown:
+        raise ConfigError(
+            f"{entry.where}: unknown reader option(s) {', '.join(unknown)}", path=cfg.config_file, field="reader",
+            hint="allowed: " + ", ".join(k for k in READER_KWARGS if k not in ("fmt", "name")),
+        )
+    settings = ingest_settings(cfg, entry.name)
+    try:
+        parse_repairs(settings["repairs"])
+        make_check_options(settings["check_options"])
+    except ConfigError as exc:
+        raise ConfigError(f"{entry.where}: {exc.problem}", path=cfg.config_file, field=exc.field,
+                          hint=exc.hint) from None
+
+
+@dataclass(frozen=True)
+class FinalOutput:
+    """One kind of target of ``rule all``, registered by a stage's ``.smk`` file.
+
+    Attributes:
+        stage: The stage it belongs to (for listing).
+        pattern: A path pattern, expanded over sequences if it holds ``{sequence}``; or a
+            function ``(WorkflowConfig) -> list[str]`` for anything else.
+        splits: Only sequences with these splits (``None``: all).
+        sources: Only sequences from these sources (``None``: all).
+    """
+
+    stage: str
+    pattern: str | Callable[[WorkflowConfig], list[str]]
+    splits: tuple[Split, ...] | None = None
+    sources: tuple[SourceKind, ...] | None = None
+
+    def paths(self, cfg: WorkflowConfig) -> list[str]:
+        if callable(self.pattern):
+            return [str(p) for p in self.pattern(cfg)]
+        if "{sequence}" not in self.pattern:
+            return [self.pattern]
+        return [self.pattern.format(sequence=s.name) for s in cfg.select(splits=self.splits, sources=self.sources)]
+
+
+def final_outputs(registry: Iterable[FinalOutput], cfg: WorkflowConfig) -> list[str]:
+    """All targets of ``rule all``: every registered output, in registration order, once each."""
+    out: list[str] = []
+    seen: set[str] = set()
+    for item in registry:
+        for p in item.paths(cfg):
+            if p not in seen:
+                seen.add(p)
+                out.append(p)
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# Steps (called by the thin scripts under workflow/scripts/)
+# --------------------------------------------------------------------------------------------
+
+
+def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+    """Run one workflow job with the ``pipeline`` loggers writing to ``log_path``.
+
+    A known error (:class:`BiasgtError`) is logged on one line and ends the process with the
+    error's exit code (no traceback); any other exception is logged with its traceback and
+    re-raised.
+    """
+    log_path = Path(log_path)
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    handler = logging.FileHandler(log_path, mode="w", encoding="utf-8")
+    handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
+    root = logging.getLogger()
+    old_level = root.level
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+    try:
+        return func(*args, **kwargs)
+    except BiasgtError as exc:
+        log.error("%s", exc)
+        print(f"biasgt: error: {exc}", file=sys.stderr)
+        raise SystemExit(exc.exit_code) from None
+    except Exception:
+        log.exception("unexpected error (a bug in biasgt; please report it with this log)")
+        raise
+    finally:
+        root.removeHandler(handler)
+        root.setLevel(old_level)
+        handler.close()
+
+
+def simulate_step(settings: dict[str, Any], out_dir: str | Path) -> Path:
+    """Simulate one sequence from a :class:`SimConfig` dict and write it as an ASL folder."""
+    from pipeline.sim import simulate, write_simulation
+    from pipeline.sim.config import SimConfig
+
+    config = SimConfig.from_dict(dict(settings))
+    log.info("simulating '%s': %.1f s, preset %s, poses %s, seed %d", config.name, config.duration_s or -1,
+             config.motion.preset.value, config.poses.format.value, config.seed)
+    simulation = simulate(config)
+    out = Path(out_dir)
+    write_simulation(simulation, out)
+    log.info("wrote %s", out)
+    return out
+
+
+def ingest_step(input_path: str | Path, out_dir: str | Path, settings: dict[str, Any]) -> Path:
+    """Read, check (and, where allowed, repair) one input and write the canonical store."""
+    from pipeline.ingest import ingest
+
+    reader_kwargs = dict(settings.get("reader_kwargs") or {})
+    log.info("ingesting %s (format %s) -> %s", input_path, reader_kwargs.get("fmt", "auto"), out_dir)
+    ingest(
+        input_path, out_dir,
+        repairs=list(settings.get("repairs") or []),
+        reader_kwargs=reader_kwargs,
+        check_options=make_check_options(dict(settings.get("check_options") or {})),
+    )
+    log.info("wrote %s", out_dir)
+    return Path(out_dir)
+
+
+# --------------------------------------------------------------------------------------------
+# biasgt run: Snakemake in a subprocess
+# --------------------------------------------------------------------------------------------
+
+
+class WorkflowRunError(BiasgtError):
+    """Snakemake failed; the message names the failed rule and its log."""
+
+
+def snakemake_command(
+    *,
+    config_file: str | Path,
+    cores: int | str = 1,
+    workdir: str | Path | None = None,
+    dry_run: bool = False,
+    until: Sequence[str] = (),
+    targets: Sequence[str] = (),
+    extra: Sequence[str] = (),
+    snakefile: str | Path = SNAKEFILE,
+    python: str = sys.executable,
+) -> list[str]:
+    """The Snakemake command line ``biasgt run`` executes."""
+    cmd = [
+        python, "-m", "snakemake",
+        "--snakefile", str(Path(snakefile).resolve()),
+        "--directory", str(Path(workdir or Path.cwd()).resolve()),
+        "--configfile", str(Path(config_file).resolve()),
+        "--replace-workflow-config",
+        "--cores", str(cores),
+        "--rerun-incomplete",
+        "--show-failed-logs",
+    ]
+    if dry_run:
+        cmd.append("--dry-run")
+    if until:
+        cmd += ["--until", *until]
+    cmd += list(extra)
+    cmd += list(targets)
+    return cmd
+
+
+_JOB_HEADER = re.compile(r"^\s*(?:local)?(?:checkpoint|rule) ([A-Za-z0-9_]+):\s*$")
+
+
+def parse_dry_run_jobs(text: str) -> list[tuple[str, dict[str, str]]]:
+    """The jobs of a Snakemake dry-run printout, as ``(rule, wildcards)`` in printed order.
+
+    Args:
+        text: What ``snakemake --dry-run`` printed (stdout and stderr together).
+    """
+    jobs: list[tuple[str, dict[str, str]]] = []
+    for line in text.splitlines():
+        m = _JOB_HEADER.match(line)
+        if m:
+            jobs.append((m.group(1), {}))
+            continue
+        w = _WILDCARDS_LINE.match(line)
+        if w and jobs and not jobs[-1][1]:
+            for item in w.group(1).split(", "):
+                key, _, value = item.partition("=")
+                jobs[-1][1][key.strip()] = value.strip()
+    return jobs
+
+
+_ERROR_IN_RULE = re.compile(r"^\s*Error in rule ([A-Za-z0-9_]+):")
+_LOG_LINE = re.compile(r"^\s*log:\s*(\S+)")
+_WILDCARDS_LINE = re.compile(r"^\s*wildcards:\s*(.+)$")
+_JOBID_LINE = re.compile(r"^\s*jobid:\s*(\d+)\s*$")
+_NOISE = re.compile(r"^\s*(Shutting down|Complete log|Exiting because|Removing output|Will exit after|"
+                    r"Select jobs|\[.*\]$|$)")
+
+
+def describe_failure(lines: Sequence[str], workdir: str | Path) -> str:
+    """One line saying why Snakemake failed, from the tail of its output.
+
+    Names the failed rule, its wildcards and log file, and the last line of that log when it
+    exists; otherwise the last informative line Snakemake printed.
+    """
+    # Snakemake's error block names the job id; its wildcards are in the job's announcement.
+    wildcards_of_job: dict[str, str] = {}
+    current_job: str | None = None
+    for line in lines:
+        if (j := _JOBID_LINE.match(line)):
+            current_job = j.group(1)
+        elif (w := _WILDCARDS_LINE.match(line)) and current_job is not None:
+            wildcards_of_job.setdefault(current_job, w.group(1).strip())
+        elif _JOB_HEADER.match(line) or _ERROR_IN_RULE.match(line):
+            current_job = None
+    for i, line in enumerate(lines):
+        m = _ERROR_IN_RULE.match(line)
+        if not m:
+            continue
+        rule, wildcards, log_rel = m.group(1), None, None
+        for follow in lines[i + 1:i + 20]:
+            if _ERROR_IN_RULE.match(follow):
+                break
+            if (w := _WILDCARDS_LINE.match(follow)) and wildcards is None:
+                wildcards = w.group(1).strip()
+            if (j := _JOBID_LINE.match(follow)) and wildcards is None:
+                wildcards = wildcards_of_job.get(j.group(1))
+            if (lg := _LOG_LINE.match(follow)) and log_rel is None:
+                log_rel = lg.group(1)
+        text = f"rule '{rule}'" + (f" ({wildcards})" if wildcards else "") + " failed"
+        if log_rel:
+            log_abs = Path(workdir) / log_rel
+            last = _last_line(log_abs)
+            if last:
+                text += f": {last}"
+            text += f" (log: {log_abs})"
+        return text
+    informative = [ln.strip() for ln in lines if not _NOISE.match(ln)]
+    return informative[-1] if informative else "snakemake failed without a message"
+
+
+def _last_line(path: Path) -> str | None:
+    try:
+        lines = [ln.strip() for ln in path.read_text(encoding="utf-8", errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return None
+    if not lines:
+        return None
+    # Prefer the logged error line over a traceback's last frame.
+    for ln in reversed(lines):
+        if " ERROR " in ln:
+            return ln.split(": ", 1)[-1] if ": " in ln else ln
+    return lines[-1]
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """Outcome of :func:`run_workflow`.
+
+    Attributes:
+        workdir: The working directory (outputs are under ``workdir/results``).
+        command: The Snakemake command that ran.
+        outputs: Result folders and report files found after the run.
+    """
+
+    workdir: Path
+    command: list[str]
+    outputs: list[Path]
+
+
+def output_locations(workdir: str | Path) -> list[Path]:
+    """The stage folders under ``results/`` and any HTML reports, sorted."""
+    results = Path(workdir) / RESULTS_DIR
+    if not results.is_dir():
+        return []
+    out = sorted(p for p in results.iterdir() if p.is_dir() and not p.name.startswith("."))
+    out += sorted(p for p in results.rglob("*.html") if not any(part.startswith(".") for part in p.parts))
+    return out
+
+
+def run_workflow(
+    *,
+    config_file: str | Path | None = None,
+    cores: int | str = 1,
+    workdir: str | Path | None = None,
+    dry_run: bool = False,
+    until: Sequence[str] = (),
+    targets: Sequence[str] = (),
+    extra: Sequence[str] = (),
+    echo: IO[str] | None = None,
+) -> RunResult:
+    """Check the config, then run the workflow with Snakemake in a subprocess.
+
+    Snakemake's own output (stdout and stderr) is copied to ``echo`` (default ``sys.stderr``) as it
+    comes, so that the caller's stdout holds only its result.
+
+    Args:
+        config_file: Workflow config (default: the repository's ``config/config.yaml``).
+        cores: Cores Snakemake may use (an int or ``"all"``).
+        workdir: Working directory holding ``results/`` and ``logs/`` (default: current folder).
+        dry_run: Only show what would run.
+        until: Run only up to these rules or files.
+        targets: Files or rules to build instead of ``rule all``.
+        extra: Further Snakemake arguments, passed unchanged (e.g. ``--executor slurm``).
+        echo: Where Snakemake's output is copied to.
+
+    Returns:
+        The run's working directory, command and outputs.
+
+    Raises:
+        ConfigError: The config is invalid (checked before Snakemake starts).
+        WorkflowRunError: Snakemake failed; the message names the failed rule and its log.
+    """
+    config_file = Path(config_file or DEFAULT_CONFIG)
+    workdir = Path(workdir or Path.cwd()).resolve()
+    load_config(config_file)  # fail early, on one line, for a bad config
+    cmd = snakemake_command(config_file=config_file, cores=cores, workdir=workdir, dry_run=dry_run,
+                            until=until, targets=targets, extra=extra)
+    workdir.mkdir(parents=True, exist_ok=True)
+    log.info("running %s", " ".join(cmd))
+    echo = echo or sys.stderr
+    tail: list[str] = []
+    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
+                          errors="replace") as proc:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            echo.write(line)
+            tail.append(line.rstrip("\n"))
+            if len(tail) > 4000 and not dry_run:  # a dry run's plan is kept whole for the caller
+                del tail[:1000]
+        rc = proc.wait()
+    if rc != 0:
+        raise WorkflowRunError(
+            f"workflow failed (snakemake exit {rc}): {describe_failure(tail, workdir)}",
+            hint="fix the cause and rerun 'biasgt run' (finished jobs are kept)",
+        )
+    return RunResult(workdir, cmd, [] if dry_run else output_locations(workdir))

@@ -1,0 +1,28 @@
+# Stage ingest: any source -> checked canonical store results/ingest/{sequence}/
+# (sequence.yaml + Parquet tables, see pipeline/store.py).
+
+
+rule ingest:
+    input:
+        source=get_ingest_input,
+    output:
+        report(
+            directory("results/ingest/{sequence}"),
+            patterns=["{name,[^/]+}.yaml"],
+            caption="../report/ingest.rst",
+            category="Ingest",
+            labels={"sequence": "{sequence}", "file": "{name}.yaml"},
+        ),
+    log:
+        "logs/ingest/{sequence}.log",
+    params:
+        settings=get_ingest_settings,
+    threads: 1
+    resources:
+        mem_mb=lambda wildcards, attempt: 4000 * attempt,
+        runtime=lambda wildcards, attempt: 30 * attempt,
+    script:
+        "../scripts/ingest.py"
+
+
+final_output("ingest", "results/ingest/{sequence}")

@@ -1,0 +1,11 @@
+"""Adapter of rule ingest: all work is pipeline.workflow.ingest_step (unit-tested)."""
+
+from pipeline.workflow import ingest_step, run_step
+
+run_step(
+    snakemake.log[0],  # noqa: F821
+    ingest_step,
+    snakemake.input.source,  # noqa: F821
+    snakemake.output[0],  # noqa: F821
+    snakemake.params.settings,  # noqa: F821
+)
