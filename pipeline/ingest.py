@@ -36,7 +36,7 @@ from pipeline.types import Finding, Sequence, Severity
 log = logging.getLogger(__name__)
 
 #: Keyword arguments of :func:`pipeline.io.load_sequence` that :func:`reader_kwargs_from_args` fills.
-READER_KWARGS = ("fmt", "name", "csv_mapping", "imu_topic", "pose_topic", "tf_parent", "tf_child")
+READER_KWARGS = ("fmt", "name", "csv_mapping", "imu_topic", "pose_topic", "tf_parent", "tf_child", "extra_poses")
 
 
 def load(input_path: str | Path, reader_kwargs: Mapping[str, Any] | None = None) -> Sequence:
@@ -186,6 +186,10 @@ def add_reader_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--tf-child", metavar="FRAME", help="take poses from /tf: child (tracked) frame")
     g.add_argument("--csv-mapping", metavar="FILE", type=Path,
                    help="YAML file mapping a generic CSV's columns to biasgt fields")
+    g.add_argument("--add-poses", dest="extra_poses", metavar="PATH[:KIND]", action="append", default=[],
+                   help="merge poses from another input (TUM text, ASL pose or ground-truth CSV, bag), e.g. "
+                        "'gt.txt:ground_truth' or 'vio.txt:vio'; repeatable. KIND: mocap, position_tracker, "
+                        "vio, ground_truth")
 
 
 def reader_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
@@ -210,6 +214,7 @@ def reader_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
         "pose_topic": getattr(args, "pose_topic", None),
         "tf_parent": getattr(args, "tf_parent", None),
         "tf_child": getattr(args, "tf_child", None),
+        "extra_poses": list(getattr(args, "extra_poses", None) or []),
     }
 
 

@@ -363,11 +363,13 @@ def check_config(
             _check_sim_config(sim, config_file, where, check_paths)
         else:
             path = resolve_input_path(raw["path"], root)
-            if check_paths and not path.exists():
-                raise ConfigError(
-                    f"{where}: input path {path} does not exist", path=config_file, field="path",
-                    hint=f"fix 'path' (relative paths are resolved against data_root = {root})",
-                )
+            extra = [resolve_input_path(p["path"], root) for p in raw.get("poses") or []]
+            for field_name, p in [("path", path)] + [(f"poses[{j}].path", e) for j, e in enumerate(extra)]:
+                if check_paths and not p.exists():
+                    raise ConfigError(
+                        f"{where}: input path {p} does not exist", path=config_file, field=field_name,
+                        hint=f"fix '{field_name}' (relative paths are resolved against data_root = {root})",
+                    )
         entries.append(SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw))
     cfg = WorkflowConfig(data, config_file, tuple(entries))
     for entry in cfg.sequences:
@@ -481,6 +483,13 @@ def ingest_input(cfg: WorkflowConfig, sequence: str, workdir: str | Path | None 
     return workdir_relative(entry.path, workdir)
 
 
+def ingest_extra_inputs(cfg: WorkflowConfig, sequence: str, workdir: str | Path | None = None) -> list[str]:
+    """The entry's extra pose inputs (``poses:``), for rule ``ingest``'s dependency tracking."""
+    entry = cfg.sequence(sequence)
+    root = data_root(cfg.data, cfg.config_file)
+    return [workdir_relative(resolve_input_path(p["path"], root), workdir) for p in entry.raw.get("poses") or []]
+
+
 def ingest_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     """Parameters of rule ``ingest`` for one sequence (the rule's ``params``).
 
@@ -499,6 +508,10 @@ def ingest_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     check_options = _deep_merge(section.get("check_options") or {}, entry.raw.get("check_options") or {})
     reader_kwargs: dict[str, Any] = dict(entry.raw.get("reader") or {})
     reader_kwargs.update(fmt=READER_FORMAT[entry.source], name=entry.name)
+    root = data_root(cfg.data, cfg.config_file)
+    extra = [dict(p, path=str(resolve_input_path(p["path"], root))) for p in entry.raw.get("poses") or []]
+    if extra:
+        reader_kwargs["extra_poses"] = extra
     return {
         "reader_kwargs": {k: v for k, v in reader_kwargs.items() if v is not None},
         "repairs": [str(r) for r in repairs],

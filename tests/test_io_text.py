@@ -257,3 +257,41 @@ def test_csv_errors(tmp_path: Path) -> None:
     with pytest.raises(InputFormatError) as exc:
         read_csv_generic(junk, {"time_column": "t", "position_columns": ["x", "y", "z"], "time_unit": "s"})
     assert "junk.csv:7" in str(exc.value) and "5 of 10" in str(exc.value)
+
+
+# --- extra pose inputs merged into a sequence (IMU from one input, poses from another) ---------
+
+
+def test_load_sequence_merges_extra_pose_inputs(shared_data):
+    from pipeline.io import load_sequence, select_pose_stream
+    from pipeline.types import PoseSourceKind
+
+    root = shared_data / "euroc" / "V1_01_easy"
+    gt_txt = root / "ov_data" / "V1_01_easy_original.txt"
+    seq = load_sequence(root, extra_poses=[f"{gt_txt}:ground_truth"])
+    assert len(seq.imu) == 29120
+    name, poses = select_pose_stream(seq)
+    assert name == "V1_01_easy_original"
+    assert poses.source_kind is PoseSourceKind.GROUND_TRUTH
+    assert len(poses) == 28712
+    assert seq.metadata["extra_inputs"] == [str(gt_txt)]
+    # A ground-truth state file given as extra input becomes the sequence's ground truth.
+    state = shared_data / "euroc" / "V1_01_easy_proto_excerpt" / "mav0" / "state_groundtruth_estimate0" / "data.csv"
+    seq = load_sequence(root, extra_poses=[{"path": str(state)}])
+    assert seq.ground_truth is not None and len(seq.ground_truth) == 999
+
+
+def test_extra_pose_input_errors(tmp_path, shared_data):
+    from pipeline.errors import ConfigError, DataError, InputFormatError
+    from pipeline.io import PoseInput, load_sequence
+
+    root = shared_data / "euroc" / "V1_01_easy"
+    with pytest.raises(InputFormatError, match="missing.txt: does not exist"):
+        load_sequence(root, extra_poses=[str(tmp_path / "missing.txt")])
+    with pytest.raises(ConfigError, match="unknown pose kind"):
+        PoseInput.coerce({"path": "x.txt", "kind": "lidar"})
+    with pytest.raises(ConfigError, match="unknown keys"):
+        PoseInput.coerce({"path": "x.txt", "colour": "red"})
+    gt_txt = root / "ov_data" / "V1_01_easy_original.txt"
+    with pytest.raises(DataError, match="already exists"):
+        load_sequence(root, extra_poses=[str(gt_txt), str(gt_txt)])

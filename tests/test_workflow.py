@@ -55,7 +55,7 @@ def test_defaults_filled_like_snakemake_validate(tmp_path):
     a, b = mine["sequences"]
     assert a == {"name": "a", "source": "simulate", "split": "none", "preset": "handheld", "duration_s": 60,
                  "seed": 0, "pose_format": "mocap", "overrides": {}}
-    assert b == {"name": "b", "source": "tum", "path": "x.txt", "split": "none", "reader": {}}
+    assert b == {"name": "b", "source": "tum", "path": "x.txt", "split": "none", "poses": [], "reader": {}}
     assert mine["data_root"] == "." and mine["check_input_paths"] is True
     assert mine["training"] == {}
 
@@ -475,3 +475,26 @@ def test_failed_job_is_one_line_error(tmp_path):
     assert "not an ASL dataset folder" in msg
     assert f"(log: {tmp_path / 'logs' / 'ingest' / 'broken.log'})" in msg
     assert not (tmp_path / "results" / "ingest" / "broken").exists()
+
+
+def test_extra_pose_inputs_in_config(tmp_path):
+    """A real entry may merge poses from other files; they become ingest inputs and reader options."""
+    from pipeline import workflow as wf
+
+    (tmp_path / "data").mkdir()
+    (tmp_path / "data" / "imu").mkdir()
+    (tmp_path / "data" / "gt.txt").write_text("1.0 0 0 0 0 0 0 1\n")
+    cfg_file = tmp_path / "c.yaml"
+    cfg_file.write_text(
+        "data_root: data\nsequences:\n  - name: s\n    source: asl\n    path: imu\n"
+        "    poses: [{path: gt.txt, kind: ground_truth, stream: gt}]\n"
+    )
+    cfg = wf.load_config(cfg_file)
+    settings = wf.ingest_settings(cfg, "s")
+    assert settings["reader_kwargs"]["extra_poses"] == [
+        {"path": str((tmp_path / "data" / "gt.txt").resolve()), "kind": "ground_truth", "stream": "gt"}
+    ]
+    assert wf.ingest_extra_inputs(cfg, "s", tmp_path) == ["data/gt.txt"]
+    cfg_file.write_text(cfg_file.read_text().replace("gt.txt", "nope.txt"))
+    with pytest.raises(ConfigError, match=r"poses\[0\].path"):
+        wf.load_config(cfg_file)

@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import enum
 import logging
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -173,6 +175,7 @@ def load_sequence(
     pose_topic: str | None = None,
     tf_parent: str | None = None,
     tf_child: str | None = None,
+    extra_poses: Iterable[PoseInput | str | dict[str, Any]] = (),
 ) -> Sequence:
     """Read any supported input as a :class:`Sequence`.
 
@@ -185,6 +188,9 @@ def load_sequence(
         pose_topic: ROS bags: pose topic.
         tf_parent: ROS bags: parent frame of a /tf pose stream.
         tf_child: ROS bags: child frame of a /tf pose stream.
+        extra_poses: More pose inputs to merge into the sequence (e.g. IMU from an ASL folder
+            and ground-truth or VIO poses from a TUM file): :class:`PoseInput`, ``"PATH"``,
+            ``"PATH:KIND"`` or a dict with ``path`` and optional ``fmt``, ``stream``, ``kind``.
 
     Returns:
         The sequence, with the reader's findings and ``metadata["source_format"]``.
@@ -194,7 +200,23 @@ def load_sequence(
         UnsupportedInputError: Not a supported input; the message lists what is.
         ConfigError: An option that does not apply to this format, or a bad mapping.
     """
-    path = Path(path)
+    seq = _load_one(Path(path), fmt=fmt, name=name, csv_mapping=csv_mapping, imu_topic=imu_topic,
+                    pose_topic=pose_topic, tf_parent=tf_parent, tf_child=tf_child)
+    extras = [PoseInput.coerce(p) for p in extra_poses]
+    return add_pose_inputs(seq, extras) if extras else seq
+
+
+def _load_one(
+    path: Path,
+    *,
+    fmt: SourceFormat | str | None,
+    name: str | None,
+    csv_mapping: CsvMapping | dict[str, Any] | str | Path | None,
+    imu_topic: str | None,
+    pose_topic: str | None,
+    tf_parent: str | None,
+    tf_child: str | None,
+) -> Sequence:
     if not path.exists():
         raise InputFormatError("does not exist", path=path, hint="check the path")
     mapping = _coerce_mapping(csv_mapping)
@@ -239,6 +261,95 @@ def load_sequence(
                                         hint=SUPPORTED_HINT) from exc
         raise
     return read_bag(path, name=name, **bag_opts)
+
+
+@dataclass(frozen=True)
+class PoseInput:
+    """A separate pose input merged into a sequence (see :func:`add_pose_inputs`).
+
+    Attributes:
+        path: File or folder with poses (TUM text, ASL pose CSV, ground-truth state CSV, bag, ...).
+        fmt: Format; default auto-detected.
+        stream: Name of the merged stream; default the file stem (or the input's own stream name).
+        kind: Override of the source kind (e.g. ``ground_truth`` for a dataset's ground-truth
+            poses given as TUM text, which the TUM reader would call VIO).
+        pose_topic: For bags: the pose topic.
+    """
+
+    path: str
+    fmt: SourceFormat | None = None
+    stream: str | None = None
+    kind: PoseSourceKind | None = None
+    pose_topic: str | None = None
+
+    @classmethod
+    def coerce(cls, value: "PoseInput | str | Path | dict[str, Any]") -> "PoseInput":
+        """From a :class:`PoseInput`, ``"PATH"``, ``"PATH:KIND"`` or a config mapping."""
+        if isinstance(value, PoseInput):
+            return value
+        if isinstance(value, (str, Path)):
+            text = str(value)
+            head, sep, tail = text.rpartition(":")
+            kinds = {k.value for k in PoseSourceKind}
+            if sep and tail in kinds:
+                return cls(path=head, kind=PoseSourceKind(tail))
+            return cls(path=text)
+        if isinstance(value, dict):
+            unknown = set(value) - {"path", "fmt", "stream", "kind", "pose_topic"}
+            if unknown or "path" not in value:
+                raise ConfigError(
+                    f"pose input {value!r}: " + (f"unknown keys {sorted(unknown)}" if unknown else "no 'path'"),
+                    field="poses", hint="give path and optionally fmt, stream, kind, pose_topic")
+            try:
+                kind = None if value.get("kind") is None else PoseSourceKind(value["kind"])
+            except ValueError as exc:
+                raise ConfigError(f"unknown pose kind {value['kind']!r}", field="kind",
+                                  hint="use one of " + ", ".join(k.value for k in PoseSourceKind)) from exc
+            fmt = None if value.get("fmt") is None else parse_format(value["fmt"])
+            return cls(path=str(value["path"]), fmt=fmt, stream=value.get("stream"), kind=kind,
+                       pose_topic=value.get("pose_topic"))
+        raise ConfigError(f"cannot read a pose input from {value!r}", field="poses")
+
+
+def add_pose_inputs(sequence: Sequence, inputs: Iterable[PoseInput]) -> Sequence:
+    """Merge the pose streams (or ground-truth poses) of other inputs into ``sequence``.
+
+    Each input contributes its pose streams; an input with only a ground-truth state (e.g. an
+    EuRoC ``state_groundtruth_estimate0/data.csv``) contributes it as ``sequence.ground_truth``
+    when the sequence has none, else as a pose stream. Reader findings are kept, with the stream
+    names prefixed.
+
+    Raises:
+        DataError: An input holds no poses, or a stream name would collide.
+    """
+    for item in inputs:
+        other = _load_one(Path(item.path), fmt=item.fmt, name=None, csv_mapping=None, imu_topic=None,
+                          pose_topic=item.pose_topic, tf_parent=None, tf_child=None)
+        streams = dict(other.poses)
+        if not streams and other.ground_truth is not None:
+            if sequence.ground_truth is None and item.stream is None and item.kind is None:
+                sequence.ground_truth = other.ground_truth
+                sequence.findings.extend(other.findings)
+                sequence.metadata.setdefault("extra_inputs", []).append(str(item.path))
+                continue
+            streams = {GROUND_TRUTH_STREAM: other.ground_truth.to_pose_series()}
+        if not streams:
+            raise DataError("holds no poses", path=item.path,
+                            hint="give a pose input (TUM text, ASL pose CSV, ground-truth CSV, bag)")
+        if item.stream is not None and len(streams) > 1:
+            raise AmbiguousInputError(f"holds {len(streams)} pose streams ({', '.join(streams)})", path=item.path,
+                                      hint="name one with pose_topic, or leave 'stream' unset")
+        for name, poses in streams.items():
+            new_name = item.stream or (Path(item.path).stem if name == GROUND_TRUTH_STREAM else name)
+            if new_name in sequence.poses:
+                raise DataError(f"pose stream '{new_name}' already exists in sequence '{sequence.name}'",
+                                path=item.path, hint="give the extra input another stream name")
+            if item.kind is not None:
+                poses = replace(poses, source_kind=item.kind)
+            sequence.poses[new_name] = poses
+        sequence.findings.extend(other.findings)
+        sequence.metadata.setdefault("extra_inputs", []).append(str(item.path))
+    return sequence
 
 
 def _ordered_streams(sequence: Sequence) -> list[str]:

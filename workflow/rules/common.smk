@@ -60,5 +60,9 @@ def get_ingest_input(wildcards):
     return wf.ingest_input(WF_CONFIG, wildcards.sequence, os.getcwd())
 
 
+def get_ingest_extra_inputs(wildcards):
+    return wf.ingest_extra_inputs(WF_CONFIG, wildcards.sequence, os.getcwd())
+
+
 def get_ingest_settings(wildcards):
     return wf.ingest_settings(WF_CONFIG, wildcards.sequence)

@@ -5,6 +5,7 @@
 rule ingest:
     input:
         source=get_ingest_input,
+        extra_poses=get_ingest_extra_inputs,
     output:
         report(
             directory("results/ingest/{sequence}"),
