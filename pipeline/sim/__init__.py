@@ -18,8 +18,24 @@ from pipeline.sim.config import (
     SimConfig,
     TemperatureConfig,
 )
-from pipeline.sim.simulator import Simulation, SimTruth, simulate
-from pipeline.sim.writer import read_simulation_yaml, write_simulation
+
+# The simulator and writer pull in scipy.signal and pandas: load them on first use so that
+# `biasgt --help` and config validation stay fast (PEP 562 module __getattr__).
+_LAZY = {
+    "Simulation": "pipeline.sim.simulator",
+    "SimTruth": "pipeline.sim.simulator",
+    "simulate": "pipeline.sim.simulator",
+    "read_simulation_yaml": "pipeline.sim.writer",
+    "write_simulation": "pipeline.sim.writer",
+}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'pipeline.sim' has no attribute {name!r}")
 
 __all__ = [
     "ImuNoiseConfig",
