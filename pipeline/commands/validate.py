@@ -1,0 +1,181 @@
+"""``biasgt validate``: judge a bias trajectory by 1-s integration error (adapter over pipeline.validation)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger(__name__)
+
+DESCRIPTION = """\
+Validate bias trajectories the way AirIMU evaluates IMU models: cut the IMU into WINDOW_S windows
+(overlapping by OVERLAP), integrate each from the reference position, velocity and orientation with
+'imu - bias' and gravity, and compare the end state with the reference:
+  PRMSE = sqrt(mean |p_end - p_ref|^2) [m],   ROE = mean |Log(R_ref^T R_end)| [deg].
+
+Sources compared on the same windows: zero bias, a constant bias (the candidate's mean over the first
+window), the dataset's own ground-truth bias (when the input has one), the bias under test
+(--recovery DIR's bias.csv, else the first unnamed --bias), and every --bias NAME=FILE.
+
+Reference: the input's ground-truth state when it has one, else (or with --poses STREAM) a pose stream
+moved to the IMU frame and clock with the recovery's T_imu_pose and pose_time_offset_s (identity and 0
+without --recovery, which is right only for poses of the IMU on its clock).
+
+Verdict: FAIL when the bias under test integrates worse (PRMSE or ROE) than the constant or the dataset
+bias by more than --margin; WARN when worse within the margin, > 5 % of its windows are flagged
+outliers (error > --flag-k x median), or > 20 % of the windows were dropped; PASS otherwise.
+Writes OUT/validation.json and OUT/windows.parquet atomically.
+"""
+
+EPILOG = """\
+exit status: 0 PASS or WARN, 1 FAIL, 2 bad input (one-line error, nothing written).
+
+examples:
+  biasgt validate data/V1_01_store --recovery out/V1_01/recovery --out out/V1_01/validation
+  biasgt validate sim01 --bias out/sim01/bias.csv --bias openvins=V1_01_easy.csv --out out/val
+  biasgt validate MH_01 --recovery out/MH_01 --poses leica0 --window-s 2 --overlap 0 --out out/val2
+"""
+
+
+#: Defaults shown by the parser; equal to :class:`pipeline.validation.ValidationConfig`'s (a test checks).
+#: Kept here so that building the CLI does not import torch (pipeline.validation costs ~4 s to import).
+DEFAULTS = argparse.Namespace(window_s=1.0, overlap=0.5, margin=0.10, flag_k=5.0)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    from pipeline.ingest import add_reader_arguments
+
+    d = DEFAULTS
+    p = subparsers.add_parser(
+        "validate",
+        help="judge a bias trajectory by 1-s integration error (PRMSE, ROE) with a PASS/WARN/FAIL verdict",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("sequence", metavar="SEQUENCE", help="input with IMU (store folder, ASL/EuRoC folder, bag, ...)")
+    p.add_argument("--bias", action="append", default=[], metavar="[NAME=]FILE",
+                   help="bias file: bias.csv / interpolated .csv/.parquet, or a EuRoC/OpenVINS state CSV; the "
+                        "first unnamed one is the bias under test unless --recovery is given (repeatable)")
+    p.add_argument("--recovery", type=Path, metavar="DIR",
+                   help="recovery output folder: its bias.csv is the bias under test; recovery.json gives the clock "
+                        "offset, T_imu_pose, gravity and the random walks")
+    p.add_argument("--poses", metavar="STREAM", help="use this pose stream as reference (default: ground-truth "
+                                                     "state, else the default pose stream)")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (written atomically)")
+    p.add_argument("--window-s", type=float, default=d.window_s, metavar="S",
+                   help=f"window length in seconds (default {d.window_s:g})")
+    p.add_argument("--overlap", type=float, default=d.overlap, metavar="F",
+                   help=f"overlap of consecutive windows, in [0, 1) (default {d.overlap:g})")
+    p.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
+                   help="gravity in the reference world frame, m/s^2 (default: recovery.json's, else 0 0 -9.81)")
+    p.add_argument("--margin", type=float, default=d.margin, metavar="F",
+                   help=f"relative margin of the FAIL rule (default {d.margin:g})")
+    p.add_argument("--flag-k", type=float, default=d.flag_k, metavar="K",
+                   help=f"flag windows whose error exceeds K x the median (default {d.flag_k:g})")
+    p.add_argument("--velocity-cutoff-hz", type=float, default=None, metavar="HZ",
+                   help="smoothing cutoff for pose-derived velocity (default: chosen from the pose noise)")
+    add_reader_arguments(p)
+    p.set_defaults(func=run)
+
+
+def _split_bias_arg(value: str) -> tuple[str | None, Path]:
+    """``NAME=FILE`` or ``FILE`` (a value naming an existing file is never split)."""
+    if Path(value).exists() or "=" not in value:
+        return None, Path(value)
+    name, _, path = value.partition("=")
+    return (name.strip() or None), Path(path)
+
+
+def _format_table(result: Any) -> str:
+    rows = [("source", "kind", "PRMSE [m]", "ROE [deg]", "windows", "flagged")]
+    for name, m in result.sources.items():
+        mark = " *" if name == result.candidate else ""
+        rows.append((name + mark, m.kind.value, f"{m.prmse_m:.4f}", f"{m.roe_deg:.4f}", str(m.windows),
+                     str(int(m.flagged.sum()))))
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    lines = ["  ".join(c.ljust(w) if i < 2 else c.rjust(w) for i, (c, w) in enumerate(zip(r, widths))) for r in rows]
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from interpolation.bias import read_bias_csv
+    from pipeline.errors import ValidationError
+    from pipeline.ingest import load, reader_kwargs_from_args
+    from pipeline.validation import (
+        DEFAULT_GRAVITY_MPS2,
+        BiasSource,
+        BiasSourceKind,
+        ValidationConfig,
+        Verdict,
+        build_reference,
+        read_bias_file,
+        read_recovery_dir,
+        recovered_bias_at_imu,
+        validate_sequence,
+        write_validation,
+    )
+
+    if not args.bias and args.recovery is None:
+        raise ValidationError("nothing to validate", field="--bias",
+                              hint="give --recovery DIR or --bias FILE")
+    config = ValidationConfig(window_s=args.window_s, overlap=args.overlap, margin=args.margin,
+                              flag_k=args.flag_k, velocity_cutoff_hz=args.velocity_cutoff_hz)
+    recovery = read_recovery_dir(args.recovery) if args.recovery is not None else None
+    seq = load(args.sequence, reader_kwargs_from_args(args))
+    if seq.imu is None:
+        raise ValidationError(f"'{args.sequence}' has no IMU to integrate", path=args.sequence,
+                              hint="give an input with IMU readings")
+    cal = seq.calibration
+    rw_cal = np.array([cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3, dtype=float)
+
+    sources: dict[str, BiasSource] = {}
+    if recovery is not None:
+        rw = recovery.random_walk if recovery.random_walk is not None else rw_cal
+        track = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), seq.imu.t_ns, rw)
+        sources["recovered"] = BiasSource("recovered", BiasSourceKind.RECOVERED, track)
+    unnamed = 0
+    for value in args.bias:
+        name, path = _split_bias_arg(value)
+        track = read_bias_file(path)
+        if name is None:
+            unnamed += 1
+            first = unnamed == 1 and recovery is None
+            name = "recovered" if first else path.stem
+            kind = BiasSourceKind.RECOVERED if first else BiasSourceKind.FILE
+        else:
+            kind = BiasSourceKind.FILE
+        if name in sources or name in ("zero", "constant"):
+            raise ValidationError(f"bias source name '{name}' is used twice or reserved", field="--bias",
+                                  hint="name the sources with --bias NAME=FILE (zero and constant are reserved)")
+        sources[name] = BiasSource(name, kind, track)
+
+    if args.gravity is not None:
+        gravity = np.asarray(args.gravity, dtype=float)
+    elif recovery is not None and recovery.gravity_mps2 is not None:
+        gravity = recovery.gravity_mps2
+    else:
+        gravity = np.asarray(DEFAULT_GRAVITY_MPS2)
+    reference = build_reference(seq, pose_stream=args.poses, recovery=recovery, config=config)
+    result = validate_sequence(seq, sources, reference=reference, gravity_mps2=gravity, config=config)
+    if recovery is not None:
+        result.notes.append(f"recovery: {recovery.path}")
+        if result.reference.get("kind") == "poses":
+            result.notes.append("the reference poses are presumably those the recovery fitted: errors of the poses "
+                                "that the bias absorbed are not seen by this check (not an independent test)")
+    write_validation(result, args.out)
+
+    print(f"{result.sequence}: {result.windows_dropped['kept']} of {result.windows_dropped['candidates']} "
+          f"{config.window_s:g}-s windows ({result.reference['kind']} reference)")
+    print(_format_table(result))
+    print(f"verdict: {result.verdict.value} (* = bias under test)")
+    for reason in result.reasons:
+        print(f"  - {reason}")
+    for note in result.notes:
+        print(f"  note: {note}")
+    print(f"wrote {args.out}")
+    return 1 if result.verdict is Verdict.FAIL else 0

@@ -1,0 +1,481 @@
+"""Validation by 1-s integration error on the simulator: metrics, references, flags, drops, verdict, output, CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from scipy.spatial.transform import Rotation
+
+from interpolation.bias import BiasTrack, write_bias_table
+from pipeline.errors import ValidationError
+from pipeline.sim import PoseStreamConfig, SimConfig, simulate
+from pipeline.store import write_store
+from pipeline.types import ImuCalibration, ImuSeries, Sequence
+from pipeline.validation import (
+    BiasSourceKind,
+    ReferenceKind,
+    SourceMetrics,
+    ValidationConfig,
+    Verdict,
+    build_reference,
+    decide_verdict,
+    read_bias_file,
+    read_recovery_dir,
+    reference_from_poses,
+    reference_from_states,
+    validate_sequence,
+    write_validation,
+)
+
+NS = 1_000_000_000
+
+
+def _true_track(sim) -> BiasTrack:
+    tr = sim.truth
+    b = np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])
+    return BiasTrack(tr.t_ns, b, np.zeros_like(b))
+
+
+@pytest.fixture(scope="module")
+def clean_sim():
+    """20 s, noise-free IMU (bias kept) and noise-free poses."""
+    return simulate(SimConfig(duration_s=20.0, seed=1).noise_free())
+
+
+@pytest.fixture(scope="module")
+def noisy_sim():
+    """20 s with IMU white noise, 100 Hz mocap with 0.5 mm / 0.5 mrad noise, 12.3 ms offset, 5 deg / 8 cm extrinsic."""
+    cfg = SimConfig(duration_s=20.0, seed=2, poses=PoseStreamConfig(
+        clock_offset_s=0.0123, extrinsic_rotation_deg=5.0, extrinsic_translation_m=0.08))
+    return simulate(cfg)
+
+
+def _replace_imu(seq: Sequence, imu: ImuSeries, **kw) -> Sequence:
+    return dataclasses.replace(seq, imu=imu, **kw)
+
+
+# ----------------------------------------------------------------------------- metrics on the simulator
+
+
+def test_true_bias_integrates_to_the_truth_and_zero_is_much_worse(clean_sim):
+    res = validate_sequence(clean_sim.sequence, {"recovered": _true_track(clean_sim)},
+                            gravity_mps2=clean_sim.truth.gravity_mps2)
+    m = res.sources
+    assert list(m) == ["zero", "constant", "recovered", "dataset"]
+    assert m["recovered"].kind is BiasSourceKind.RECOVERED and m["dataset"].kind is BiasSourceKind.DATASET
+    # 20 s, stride 0.5 s: windows start at 0, 0.5, ..., 18.5 + the one ending at 20 s
+    assert res.windows_dropped["candidates"] == 39 and res.windows_dropped["kept"] == 39
+    assert m["recovered"].prmse_m < 1e-4  # midpoint integrator: ~4e-6 m
+    assert m["recovered"].roe_deg < 1e-3  # ~2e-4 deg
+    assert m["dataset"].prmse_m == pytest.approx(m["recovered"].prmse_m, rel=1e-9)
+    assert m["zero"].prmse_m > 1000 * m["recovered"].prmse_m
+    assert m["zero"].roe_deg > 1000 * m["recovered"].roe_deg
+    assert m["constant"].prmse_m > 10 * m["recovered"].prmse_m
+    assert res.verdict is Verdict.PASS and res.reasons == []
+    assert res.reference["kind"] == ReferenceKind.STATE.value
+    assert not any(mm.flagged.any() for mm in m.values())
+
+
+def test_imu_rate_and_keyframe_bias_agree(clean_sim):
+    """A keyframe bias (every 5th stamp) is interpolated to IMU rate; the random walk is smooth enough."""
+    full = _true_track(clean_sim)
+    k = np.arange(0, len(full), 5)
+    kf = BiasTrack(full.t_ns[k], full.bias[k], full.std[k])
+    res = validate_sequence(clean_sim.sequence, {"recovered": kf, "full": full},
+                            gravity_mps2=clean_sim.truth.gravity_mps2,
+                            config=ValidationConfig(include_dataset=False))
+    assert res.sources["full"].kind is BiasSourceKind.FILE
+    assert res.sources["recovered"].prmse_m < 2e-4
+    assert res.candidate == "recovered"
+
+
+def test_pose_reference_velocity_error(noisy_sim):
+    """Pose-derived reference vs the true state (the figures of the module docstring)."""
+    seq, tr = noisy_sim.sequence, noisy_sim.truth
+    poses = next(iter(seq.poses.values()))
+    truth = reference_from_states(seq.ground_truth, seq.imu.t_ns)
+    ref = reference_from_poses(poses, seq.imu.t_ns, T_imu_pose=tr.T_imu_frame, time_offset_s=tr.clock_offset_s)
+    ok = ref.valid & truth.valid
+    assert ok.mean() > 0.99
+    v_rms = np.sqrt(np.mean(np.sum((ref.v[ok] - truth.v[ok]) ** 2, axis=1)))
+    p_rms = np.sqrt(np.mean(np.sum((ref.p[ok] - truth.p[ok]) ** 2, axis=1)))
+    ang = np.degrees(Rotation.from_matrix(np.swapaxes(ref.R[ok], 1, 2) @ truth.R[ok]).magnitude())
+    assert ref.kind is ReferenceKind.POSES
+    assert ref.info["velocity_cutoff_hz"] in (2.0, 3.0, 4.0)
+    assert ref.info["position_noise_m"] == pytest.approx(0.5e-3, rel=0.15)
+    assert v_rms < 6e-3  # ~4 mm/s; a finite difference would give ~100 mm/s
+    assert p_rms < 0.5e-3
+    assert np.mean(ang) < 0.05
+    # A fixed cutoff far too high lets the mocap noise through.
+    loose = reference_from_poses(poses, seq.imu.t_ns, T_imu_pose=tr.T_imu_frame, time_offset_s=tr.clock_offset_s,
+                                 velocity_cutoff_hz=20.0)
+    assert np.sqrt(np.mean(np.sum((loose.v[ok] - truth.v[ok]) ** 2, axis=1))) > 3 * v_rms
+
+
+def test_pose_reference_with_extrinsic_and_offset_matches_state_reference(noisy_sim):
+    seq, tr = noisy_sim.sequence, noisy_sim.truth
+    true = _true_track(noisy_sim)
+    poses_ref = reference_from_poses(next(iter(seq.poses.values())), seq.imu.t_ns, T_imu_pose=tr.T_imu_frame,
+                                     time_offset_s=tr.clock_offset_s)
+    by_poses = validate_sequence(seq, {"recovered": true}, reference=poses_ref, gravity_mps2=tr.gravity_mps2)
+    by_state = validate_sequence(seq, {"recovered": true}, gravity_mps2=tr.gravity_mps2)
+    # IMU white noise dominates (~2 mm); reference velocity noise adds a few mm at most.
+    assert by_state.sources["recovered"].prmse_m < 5e-3
+    assert by_poses.sources["recovered"].prmse_m < by_state.sources["recovered"].prmse_m + 6e-3
+    assert by_poses.sources["zero"].prmse_m > 10 * by_poses.sources["recovered"].prmse_m
+    # Ignoring the extrinsic (identity) makes the true bias look much worse.
+    wrong = reference_from_poses(next(iter(seq.poses.values())), seq.imu.t_ns, time_offset_s=tr.clock_offset_s)
+    bad = validate_sequence(seq, {"recovered": true}, reference=wrong, gravity_mps2=tr.gravity_mps2)
+    assert bad.sources["recovered"].roe_deg > 5 * by_poses.sources["recovered"].roe_deg
+
+
+# ----------------------------------------------------------------------------- flags, drops, bad input
+
+
+def test_injected_corruption_is_flagged_at_its_windows(clean_sim):
+    seq = clean_sim.sequence
+    imu = seq.imu
+    gyro = imu.gyro_radps.copy()
+    i0 = 2010  # 10.05 s: inside the windows starting at 9.5 s and 10.0 s only
+    gyro[i0:i0 + 20] += np.array([0.5, -0.3, 0.2])
+    bad = _replace_imu(seq, ImuSeries(imu.t_ns, gyro, imu.acc_mps2))
+    res = validate_sequence(bad, {"recovered": _true_track(clean_sim)}, gravity_mps2=clean_sim.truth.gravity_mps2)
+    m = res.sources["recovered"]
+    flagged_t0 = sorted(f["t0_ns"] for f in m.to_dict()["flagged"])
+    assert flagged_t0 == [int(imu.t_ns[1900]), int(imu.t_ns[2000])]
+    assert all(f["rot_err_deg"] > 1.0 for f in m.to_dict()["flagged"])
+    # 2 of 39 windows flagged (5.1 %) -> WARN with that reason
+    assert res.verdict is Verdict.WARN
+    assert any("flagged" in r for r in res.reasons)
+
+
+def test_gapped_imu_drops_and_counts_windows(clean_sim):
+    seq = clean_sim.sequence
+    keep = np.ones(len(seq.imu), bool)
+    keep[1050:1100] = False  # 0.25-s gap after 5.245 s
+    res = validate_sequence(_replace_imu(seq, seq.imu.take(keep)), {"recovered": _true_track(clean_sim)},
+                            gravity_mps2=clean_sim.truth.gravity_mps2)
+    d = res.windows_dropped
+    # 3951 samples -> starts 0, 100, ..., 3700 (38 windows); the gap interval (1049 -> 1050 after
+    # removal) lies in the windows starting at 900 and 1000.
+    assert d["candidates"] == 38
+    assert d["by_reason"]["imu_gap"] == 2
+    assert d["kept"] == 36 and d["dropped"] == 2
+    assert res.sources["recovered"].prmse_m < 1e-4  # windows after the gap use the true stamps
+
+
+def test_nonfinite_samples_and_subsampled_reference(clean_sim):
+    seq = clean_sim.sequence
+    gyro = seq.imu.gyro_radps.copy()
+    gyro[3050] = np.nan  # inside the windows starting at 2900 and 3000
+    true = _true_track(clean_sim)
+    bias = true.bias.copy()
+    bias[450] = np.nan  # inside the windows starting at 300 and 400
+    nan_seq = _replace_imu(seq, ImuSeries(seq.imu.t_ns, gyro, seq.imu.acc_mps2))
+    res = validate_sequence(nan_seq, {"recovered": BiasTrack(true.t_ns, bias, true.std)},
+                            gravity_mps2=clean_sim.truth.gravity_mps2)
+    d = res.windows_dropped["by_reason"]
+    assert d["imu_nonfinite"] == 2 and d["bias_not_covered:recovered"] == 2
+    assert res.windows_dropped["kept"] == 35
+    assert np.isfinite(res.sources["recovered"].prmse_m) and res.sources["recovered"].prmse_m < 1e-4
+    # A reference built at other stamps (every 2nd IMU stamp) is re-interpolated to the IMU stamps.
+    sub = reference_from_states(seq.ground_truth, seq.imu.t_ns[::2])
+    res2 = validate_sequence(seq, {"recovered": true}, reference=sub, gravity_mps2=clean_sim.truth.gravity_mps2)
+    assert res2.reference["kind"] == "state" and res2.windows_dropped["kept"] == 39
+    assert res2.sources["recovered"].prmse_m < 2e-3
+    # Position-only poses cannot give a reference.
+    poses = next(iter(seq.poses.values()))
+    with pytest.raises(ValidationError, match="no orientation"):
+        reference_from_poses(dataclasses.replace(poses, quat_wxyz=None), seq.imu.t_ns)
+
+
+def test_bias_covering_part_of_the_span(clean_sim):
+    true = _true_track(clean_sim)
+    half = BiasTrack(true.t_ns[:2001], true.bias[:2001], true.std[:2001])  # 0 .. 10 s
+    res = validate_sequence(clean_sim.sequence, {"recovered": half}, gravity_mps2=clean_sim.truth.gravity_mps2)
+    d = res.windows_dropped
+    assert d["by_reason"]["bias_not_covered:recovered"] == 20  # windows ending after 10 s
+    assert d["kept"] == 19
+    assert res.verdict is Verdict.WARN and any("dropped" in r for r in res.reasons)
+    outside = BiasTrack(true.t_ns[:5] - 100 * NS, true.bias[:5], true.std[:5])
+    with pytest.raises(ValidationError, match="no window .* can be validated"):
+        validate_sequence(clean_sim.sequence, {"recovered": outside}, gravity_mps2=clean_sim.truth.gravity_mps2)
+
+
+def test_short_sequence_is_one_clear_error(clean_sim):
+    seq = clean_sim.sequence
+    short = _replace_imu(seq, seq.imu.take(slice(0, 100)))  # 0.495 s
+    with pytest.raises(ValidationError) as exc:
+        validate_sequence(short, {"recovered": _true_track(clean_sim)})
+    assert "shorter than one window" in str(exc.value)
+    assert "\n" not in str(exc.value)
+
+
+def test_unordered_imu_and_bad_inputs_are_errors(clean_sim):
+    seq = clean_sim.sequence
+    t = seq.imu.t_ns.copy()
+    t[500], t[501] = t[501], t[500]
+    with pytest.raises(ValidationError, match="not strictly increasing"):
+        validate_sequence(_replace_imu(seq, ImuSeries(t, seq.imu.gyro_radps, seq.imu.acc_mps2)),
+                          {"recovered": _true_track(clean_sim)})
+    with pytest.raises(ValidationError, match="no IMU"):
+        validate_sequence(dataclasses.replace(seq, imu=None), {"recovered": _true_track(clean_sim)})
+    with pytest.raises(ValidationError, match="no bias to validate"):
+        validate_sequence(dataclasses.replace(seq, ground_truth=None),
+                          {}, reference=reference_from_states(seq.ground_truth, seq.imu.t_ns))
+    with pytest.raises(ValidationError, match="gravity"):
+        validate_sequence(seq, {"recovered": _true_track(clean_sim)}, gravity_mps2=(0, -9.81))
+    with pytest.raises(ValidationError, match="overlap"):
+        ValidationConfig(overlap=1.0)
+
+
+def test_without_ground_truth_validates_against_poses_and_says_what_is_missing(clean_sim):
+    seq = clean_sim.sequence
+    no_gt = dataclasses.replace(seq, ground_truth=None)
+    with pytest.raises(ValidationError, match="no ground-truth state"):
+        validate_sequence(no_gt, {"recovered": _true_track(clean_sim)})
+    ref = build_reference(dataclasses.replace(
+        no_gt, calibration=ImuCalibration(T_imu_frames={"mocap_marker": clean_sim.truth.T_imu_frame})))
+    assert ref.kind is ReferenceKind.POSES and ref.info["stream"] == "mocap0"
+    res = validate_sequence(no_gt, {"recovered": _true_track(clean_sim)}, reference=ref,
+                            gravity_mps2=clean_sim.truth.gravity_mps2)
+    assert "dataset" not in res.sources
+    assert any("no DATASET source" in n for n in res.notes)
+    assert res.sources["recovered"].prmse_m < 2e-3
+    # A tracked frame with unknown extrinsic and no recovery: refused with a hint.
+    with pytest.raises(ValidationError, match="pose in the IMU frame is unknown"):
+        build_reference(no_gt)
+
+
+def test_irregular_and_mismatched_rates_are_noted(clean_sim):
+    seq = clean_sim.sequence
+    rng = np.random.default_rng(0)
+    t = seq.imu.t_ns + rng.integers(-1_000_000, 1_000_000, len(seq.imu))  # +-1 ms jitter on 5 ms
+    t[0] = seq.imu.t_ns[0]
+    jittered = dataclasses.replace(seq, imu=ImuSeries(t, seq.imu.gyro_radps, seq.imu.acc_mps2),
+                                   calibration=ImuCalibration(rate_hz=100.0))
+    res = validate_sequence(jittered, {"recovered": _true_track(clean_sim)},
+                            gravity_mps2=clean_sim.truth.gravity_mps2)
+    assert any("calibration says 100 Hz" in n for n in res.notes)
+    assert any("irregular IMU stamps" in n for n in res.notes)
+    assert res.windows_dropped["kept"] == 39
+    # Each window is integrated with its actual (jittered) intervals and compared at its actual end stamp.
+    assert res.sources["recovered"].prmse_m < 1e-3
+    assert res.sources["zero"].prmse_m > 50 * res.sources["recovered"].prmse_m
+
+
+# ----------------------------------------------------------------------------- verdict rules
+
+
+def _metrics(name: str, kind: BiasSourceKind, prmse: float, roe: float, n: int = 100,
+             flagged: int = 0) -> SourceMetrics:
+    f = np.zeros(n, bool)
+    f[:flagged] = True
+    return SourceMetrics(name, kind, np.arange(n, dtype=np.int64), np.full(n, prmse), np.full(n, roe),
+                         prmse, roe, f, 5 * prmse, 5 * roe)
+
+
+@pytest.mark.parametrize(
+    ("cand", "const", "dataset", "flagged", "dropped", "verdict", "words"),
+    [
+        ((0.050, 0.20), (0.080, 0.30), (0.052, 0.21), 0, 0.0, Verdict.PASS, []),
+        ((0.050, 0.20), (0.080, 0.30), (0.0500, 0.2000), 0, 0.0, Verdict.PASS, []),  # tie
+        ((0.054, 0.20), (0.080, 0.30), (0.050, 0.20), 0, 0.0, Verdict.WARN, ["PRMSE", "within the 10% margin"]),
+        ((0.050, 0.215), (0.080, 0.30), None, 0, 0.0, Verdict.PASS, []),  # dataset absent, better than constant
+        ((0.056, 0.20), (0.080, 0.30), (0.050, 0.20), 0, 0.0, Verdict.FAIL, ["PRMSE", "more than the 10% margin"]),
+        ((0.050, 0.35), (0.080, 0.30), None, 0, 0.0, Verdict.FAIL, ["ROE", "'constant'"]),
+        ((0.050, 0.20), (0.080, 0.30), None, 6, 0.0, Verdict.WARN, ["6 of 100 windows", "flagged"]),
+        ((0.050, 0.20), (0.080, 0.30), None, 5, 0.0, Verdict.PASS, []),  # exactly 5 % is not more than 5 %
+        ((0.050, 0.20), (0.080, 0.30), None, 0, 0.25, Verdict.WARN, ["25.0% of the windows were dropped"]),
+    ],
+)
+def test_verdict_rules(cand, const, dataset, flagged, dropped, verdict, words):
+    m = {
+        "zero": _metrics("zero", BiasSourceKind.ZERO, 1.0, 5.0),
+        "constant": _metrics("constant", BiasSourceKind.CONSTANT_FIRST_WINDOW, *const),
+        "recovered": _metrics("recovered", BiasSourceKind.RECOVERED, *cand, flagged=flagged),
+    }
+    if dataset is not None:
+        m["dataset"] = _metrics("dataset", BiasSourceKind.DATASET, *dataset)
+    v, reasons = decide_verdict(m, "recovered", dropped_fraction=dropped)
+    assert v is verdict, reasons
+    text = " ".join(reasons)
+    for w in words:
+        assert w in text
+    if verdict is Verdict.PASS:
+        assert reasons == []
+
+
+def test_constructed_fail_with_a_biased_candidate(clean_sim):
+    true = _true_track(clean_sim)
+    off = BiasTrack(true.t_ns, true.bias + np.array([0, 0, 0, 0.3, 0, 0]), true.std)  # 0.3 m/s^2 off
+    res = validate_sequence(clean_sim.sequence, {"recovered": off}, gravity_mps2=clean_sim.truth.gravity_mps2)
+    assert res.verdict is Verdict.FAIL
+    assert any("against 'dataset'" in r and "PRMSE" in r for r in res.reasons)
+    assert res.sources["recovered"].prmse_m == pytest.approx(0.15, rel=0.05)  # 0.5 * 0.3 * 1 s^2
+
+
+# ----------------------------------------------------------------------------- output files
+
+
+EXPECTED_KEYS = {"schema_version", "sequence", "verdict", "reasons", "candidate", "config", "reference",
+                 "gravity_mps2", "sources", "windows_dropped", "notes"}
+EXPECTED_SOURCE_KEYS = {"kind", "prmse_m", "roe_deg", "windows", "flagged", "flag_threshold_pos_m",
+                        "flag_threshold_rot_deg"}
+
+
+def test_write_validation_key_set_and_windows_table(clean_sim, tmp_path):
+    res = validate_sequence(clean_sim.sequence, {"recovered": _true_track(clean_sim)},
+                            gravity_mps2=clean_sim.truth.gravity_mps2)
+    out = write_validation(res, tmp_path / "val")
+    data = json.loads((out / "validation.json").read_text())
+    assert set(data) == EXPECTED_KEYS
+    assert data["schema_version"] == 1 and data["verdict"] == "PASS" and data["sequence"] == "sim"
+    for s in data["sources"].values():
+        assert set(s) == EXPECTED_SOURCE_KEYS
+    assert set(data["windows_dropped"]) == {"candidates", "kept", "dropped", "fraction", "by_reason"}
+    assert data["sources"]["recovered"]["prmse_m"] == pytest.approx(res.sources["recovered"].prmse_m)
+    frame = pq.read_table(out / "windows.parquet").to_pandas()
+    assert list(frame.columns) == ["t0_ns", "source", "pos_err_m", "rot_err_deg", "flagged"]
+    assert frame["t0_ns"].dtype == np.int64
+    assert len(frame) == 4 * 39
+    rec = frame[frame.source == "recovered"]
+    assert np.sqrt(np.mean(rec.pos_err_m**2)) == pytest.approx(data["sources"]["recovered"]["prmse_m"])
+    assert sorted(p.name for p in out.iterdir()) == ["validation.json", "windows.parquet"]
+    # Into a folder with other files (a recovery folder): those are kept.
+    other = tmp_path / "rec"
+    other.mkdir()
+    (other / "bias.csv").write_text("x\n")
+    write_validation(res, other)
+    assert sorted(p.name for p in other.iterdir()) == ["bias.csv", "validation.json", "windows.parquet"]
+
+
+def test_write_failure_leaves_no_output(clean_sim, tmp_path, monkeypatch):
+    res = validate_sequence(clean_sim.sequence, {"recovered": _true_track(clean_sim)},
+                            gravity_mps2=clean_sim.truth.gravity_mps2)
+
+    def boom(*a, **k):
+        raise OSError("disk full")
+
+    monkeypatch.setattr(pq, "write_table", boom)
+    with pytest.raises(OSError):
+        write_validation(res, tmp_path / "val")
+    assert not (tmp_path / "val").exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- bias files and recovery folders
+
+
+def test_read_bias_file_formats(tmp_path):
+    t = 1_400_000_000_000_000_000 + np.arange(5, dtype=np.int64) * 50_000_000
+    b = np.arange(30, dtype=float).reshape(5, 6) / 100
+    write_bias_table(BiasTrack(t, b, np.full_like(b, 0.01)), tmp_path / "bias.csv")
+    write_bias_table(BiasTrack(t, b, np.full_like(b, 0.01)), tmp_path / "bias.parquet")
+    for name in ("bias.csv", "bias.parquet"):
+        tr = read_bias_file(tmp_path / name)
+        np.testing.assert_array_equal(tr.t_ns, t)
+        np.testing.assert_allclose(tr.bias, b)
+    # OpenVINS state layout: time(ns), p, q wxyz, v, bw, ba
+    rows = np.hstack([np.zeros((5, 3)), np.tile([1.0, 0, 0, 0], (5, 1)), np.zeros((5, 3)), b])
+    lines = ["#time(ns),px,py,pz,qw,qx,qy,qz,vx,vy,vz,bwx,bwy,bwz,bax,bay,baz"]
+    lines += [",".join([str(ti)] + [f"{x:.6f}" for x in r]) for ti, r in zip(t, rows)]
+    (tmp_path / "ov.csv").write_text("\n".join(lines) + "\n")
+    tr = read_bias_file(tmp_path / "ov.csv")
+    np.testing.assert_array_equal(tr.t_ns, t)
+    np.testing.assert_allclose(tr.bias, b, atol=1e-6)
+    assert np.all(tr.std == 0)
+    (tmp_path / "junk.csv").write_text("a,b\n1,2\n")
+    with pytest.raises(Exception, match="not a bias file"):
+        read_bias_file(tmp_path / "junk.csv")
+
+
+def _fake_recovery(sim, folder: Path, bias: BiasTrack) -> Path:
+    folder.mkdir(parents=True)
+    write_bias_table(bias, folder / "bias.csv")
+    T = sim.truth.T_imu_frame
+    q = Rotation.from_matrix(T[:3, :3]).as_quat(scalar_first=True)
+    report = {"pose_stream": "mocap0", "pose_time_offset_s": sim.truth.clock_offset_s,
+              "T_imu_pose": {"p_m": T[:3, 3].tolist(), "quat_wxyz": q.tolist()},
+              "gravity_world_mps2": sim.truth.gravity_mps2.tolist(),
+              "noise": {"gyro_random_walk": 1e-4, "acc_random_walk": 1e-3}}
+    (folder / "recovery.json").write_text(json.dumps(report))
+    return folder
+
+
+def test_read_recovery_dir(noisy_sim, tmp_path):
+    rec = read_recovery_dir(_fake_recovery(noisy_sim, tmp_path / "rec", _true_track(noisy_sim)))
+    np.testing.assert_allclose(rec.T_imu_pose, noisy_sim.truth.T_imu_frame, atol=1e-12)
+    assert rec.time_offset_s == pytest.approx(0.0123)
+    np.testing.assert_allclose(rec.random_walk, [1e-4] * 3 + [1e-3] * 3)
+    assert rec.pose_stream == "mocap0"
+    with pytest.raises(Exception, match="lacks recovery.json"):
+        read_recovery_dir(tmp_path)
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def test_cli_recovery_poses_reference_pass_and_fail(noisy_sim, tmp_path, capsys):
+    from pipeline.cli import main
+
+    store = write_store(dataclasses.replace(noisy_sim.sequence, ground_truth=None), tmp_path / "store")
+    true = _true_track(noisy_sim)
+    k = np.arange(0, len(true), 2)  # 100 Hz keyframes
+    rec = _fake_recovery(noisy_sim, tmp_path / "rec", BiasTrack(true.t_ns[k], true.bias[k], true.std[k]))
+    rc = main(["validate", str(store), "--recovery", str(rec), "--out", str(tmp_path / "val")])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    assert "verdict: PASS" in out and "poses reference" in out
+    assert "recovered *" in out
+    data = json.loads((tmp_path / "val" / "validation.json").read_text())
+    assert data["reference"]["kind"] == "poses" and data["reference"]["time_offset_s"] == pytest.approx(0.0123)
+    assert data["sources"]["recovered"]["prmse_m"] < 0.01
+    assert data["sources"]["zero"]["prmse_m"] > 0.05
+
+    # A bias under test that is off by 0.3 m/s^2 on x, with a ground-truth store: FAIL, exit 1, files written.
+    store_gt = write_store(noisy_sim.sequence, tmp_path / "store_gt")
+    write_bias_table(BiasTrack(true.t_ns, true.bias + [0, 0, 0, 0.3, 0, 0], true.std), tmp_path / "off.csv")
+    write_bias_table(true, tmp_path / "true.csv")
+    rc = main(["validate", str(store_gt), "--bias", str(tmp_path / "off.csv"), "--bias",
+               f"truth={tmp_path / 'true.csv'}", "--gravity", "0", "0", "-9.81", "--window-s", "2", "--overlap", "0",
+               "--out", str(tmp_path / "val2")])
+    out = capsys.readouterr().out
+    assert rc == 1
+    assert "verdict: FAIL" in out and "state reference" in out
+    data = json.loads((tmp_path / "val2" / "validation.json").read_text())
+    assert data["config"]["window_s"] == 2.0 and data["windows_dropped"]["candidates"] == 10
+    assert set(data["sources"]) == {"zero", "constant", "recovered", "truth", "dataset"}
+    assert data["sources"]["truth"]["kind"] == "file"
+    assert data["sources"]["truth"]["prmse_m"] == pytest.approx(data["sources"]["dataset"]["prmse_m"])
+    # Marker poses without --recovery: the extrinsic is unknown -> exit 2, nothing written.
+    rc = main(["validate", str(store), "--bias", str(tmp_path / "true.csv"), "--poses", "mocap0",
+               "--out", str(tmp_path / "val3")])
+    assert rc == 2 and "unknown" in capsys.readouterr().err
+    assert not (tmp_path / "val3").exists()
+
+
+def test_cli_defaults_match_the_config():
+    from pipeline.commands.validate import DEFAULTS
+
+    d = ValidationConfig()
+    assert vars(DEFAULTS) == {k: getattr(d, k) for k in vars(DEFAULTS)}
+
+
+def test_cli_bad_input_exit_2_and_nothing_written(noisy_sim, tmp_path, capsys):
+    from pipeline.cli import main
+
+    store = write_store(noisy_sim.sequence, tmp_path / "store")
+    (tmp_path / "bad.csv").write_text("hello,world\n1,2\n")
+    rc = main(["validate", str(store), "--bias", str(tmp_path / "bad.csv"), "--out", str(tmp_path / "val")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "not a bias file" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "val").exists()
+    rc = main(["validate", str(store), "--out", str(tmp_path / "val")])
+    assert rc == 2 and "nothing to validate" in capsys.readouterr().err
+    assert not (tmp_path / "val").exists()
