@@ -1,1 +1,32 @@
-"""biasgt recovery stage."""
+"""biasgt recovery stage: IMU bias ground truth by joint optimisation in GTSAM.
+
+Public API::
+
+    from recovery.config import RecoveryConfig
+    from recovery.outputs import write_recovery
+    from recovery.recover import recover        # (``recovery.recover`` is also the module's name)
+    result = recover(sequence, pose_stream="vicon0", config=RecoveryConfig())
+    write_recovery(result, "out/recovery")   # bias.csv, recovery.json, trajectory_tum.txt
+
+Modules: :mod:`recovery.config` (options and mode enums), :mod:`recovery.preintegration`
+(midpoint preintegration at keyframes off the IMU stamps), :mod:`recovery.graph` (one
+window's factor graph, solve, marginals), :mod:`recovery.noise` (random walks and pose
+sigma by maximum evidence), :mod:`recovery.segments` (overlapping segments, stitching),
+:mod:`recovery.recover` (the whole stage), :mod:`recovery.outputs` (files),
+:mod:`recovery.calibration_init` (closed-form offset / extrinsic / gravity initialisation).
+"""
+
+from recovery.config import (
+    ExtrinsicMode,
+    ImuGapPolicy,
+    NoiseEstimation,
+    PoseFactorMode,
+    RecoveryConfig,
+    RobustLoss,
+    TimeOffsetMode,
+)
+
+__all__ = [
+    "ExtrinsicMode", "ImuGapPolicy", "NoiseEstimation", "PoseFactorMode", "RecoveryConfig", "RobustLoss",
+    "TimeOffsetMode",
+]
