@@ -104,3 +104,56 @@ def test_malformed_bias_files(tmp_path):
     unsorted.write_text("\n".join(rows) + "\n")
     with pytest.raises(DataError, match=r"unsorted.csv:3: bias stamps are not strictly increasing"):
         read_bias_csv(unsorted)
+
+
+# --- the stage and its CLI ----------------------------------------------------------------------
+
+
+def _fake_recovery(tmp_path, imu_t_ns, *, margin_ns=0):
+    import json
+
+    t0, t1 = int(imu_t_ns[0]) - margin_ns, int(imu_t_ns[-1]) + margin_ns
+    t = np.array([t0 + (t1 - t0) * i // 10 for i in range(11)], dtype=np.int64)
+    bias = np.column_stack([np.linspace(0, 1e-3, 11)] * 3 + [np.linspace(0.1, 0.2, 11)] * 3)
+    rec = tmp_path / "recovery"
+    rec.mkdir()
+    write_bias_table(BiasTrack(t, bias, np.full_like(bias, 1e-5)), rec / "bias.csv")
+    (rec / "recovery.json").write_text(json.dumps({"noise": {"gyro_random_walk": 2e-5, "acc_random_walk": 3e-3}}))
+    return rec, t, bias
+
+
+def test_interpolate_cli_writes_parquet_and_csv(tmp_path):
+    from pipeline.cli import main
+    from pipeline.sim import SimConfig, simulate
+    from pipeline.store import write_store
+
+    sim = simulate(SimConfig(duration_s=3.0, seed=2))
+    store = write_store(sim.sequence, tmp_path / "store")
+    rec, t, bias = _fake_recovery(tmp_path, sim.sequence.imu.t_ns)
+    out = tmp_path / "bias_imu.parquet"
+    assert main(["interpolate", str(rec), "--imu", str(store), "--out", str(out)]) == 0
+    back = read_bias_csv(out)
+    twin = read_bias_csv(out.with_suffix(".csv"))
+    np.testing.assert_array_equal(back.t_ns, sim.sequence.imu.t_ns)
+    np.testing.assert_array_equal(twin.t_ns, back.t_ns)
+    # Linear in time between keyframes, and the keyframe values are linear too: exact line.
+    frac = (back.t_ns - t[0]) / (t[-1] - t[0])
+    np.testing.assert_allclose(back.bias[:, 3], 0.1 + 0.1 * frac, atol=1e-12)
+    assert np.all(back.std >= 1e-5 - 1e-15)
+
+
+def test_interpolate_cli_refuses_uncovered_span(tmp_path, capsys):
+    from pipeline.cli import main
+    from pipeline.sim import SimConfig, simulate
+    from pipeline.store import write_store
+
+    sim = simulate(SimConfig(duration_s=3.0, seed=2))
+    store = write_store(sim.sequence, tmp_path / "store")
+    rec, _, _ = _fake_recovery(tmp_path, sim.sequence.imu.t_ns, margin_ns=-500_000_000)
+    out = tmp_path / "bias_imu.parquet"
+    assert main(["interpolate", str(rec), "--imu", str(store), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "outside the recovered bias span" in err[0] and "--clamp" in err[0]
+    assert not out.exists() and not out.with_suffix(".csv").exists()
+    assert main(["interpolate", str(rec), "--imu", str(store), "--out", str(out), "--clamp"]) == 0
+    assert out.exists()
