@@ -3,10 +3,10 @@
 Integrates batches of one-second, 200-Hz windows (T = 201 samples, 200 intervals of 5 ms,
 MIDPOINT scheme, random gyro/acc, per-window [B, 3] biases) on the CPU with
 ``torch.set_num_threads(2)``, after a warm-up, and prints the median of several runs as
-windows per second, for float32 and float64, forward only and forward + backward (the
-training-loss use). Wall-clock time; on a shared machine the figures are pessimistic.
+windows per second, for float32 and float64, forward only (and, with ``--backward``,
+forward + backward: the training-loss use). Wall-clock time; on a shared machine the figures are pessimistic.
 
-Run: ``.venv/bin/python benchmarks/integration.py [--threads N] [--repeats N]``
+Run: ``.venv/bin/python benchmarks/integration.py [--threads N] [--repeats N] [--backward]``
 """
 
 from __future__ import annotations
@@ -60,7 +60,8 @@ def _time_once(kw: dict, backward: bool) -> float:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--threads", type=int, default=2, help="torch intra-op threads (default 2)")
-    parser.add_argument("--repeats", type=int, default=7, help="timed runs per case (median reported)")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs per case (median reported)")
+    parser.add_argument("--backward", action="store_true", help="also time forward + backward (training use)")
     parser.add_argument("--batches", type=int, nargs="+", default=[1024, 8192], help="windows per call")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
@@ -69,7 +70,7 @@ def main() -> None:
     print(f"{'dtype':8s} {'B':>6s} {'pass':>9s} {'median_ms':>10s} {'min_ms':>8s} {'windows/s':>10s}")
     for dtype in (torch.float32, torch.float64):
         for B in args.batches:
-            for backward in (False, True):
+            for backward in (False, True) if args.backward else (False,):
                 kw = _inputs(B, dtype, backward)
                 for _ in range(2):  # warm-up (allocator, thread pool)
                     _time_once(kw, backward)

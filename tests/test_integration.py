@@ -236,7 +236,11 @@ def test_constant_rate_and_specific_force_closed_form():
     K = _skew_np(w / s)
     I3 = np.eye(3)
     J1 = tau * I3 + (1 - math.cos(s * tau)) / s * K + (tau - math.sin(s * tau) / s) * K @ K
-    J2 = tau**2 / 2 * I3 + (tau / s - math.sin(s * tau) / s**2) * K + (tau**2 / 2 - (1 - math.cos(s * tau)) / s**2) * K @ K
+    J2 = (
+        tau**2 / 2 * I3
+        + (tau / s - math.sin(s * tau) / s**2) * K
+        + (tau**2 / 2 - (1 - math.cos(s * tau)) / s**2) * K @ K
+    )
     R_true = R0 @ Rotation.from_rotvec(w * tau).as_matrix()
     v_true = v0 + G * tau + R0 @ J1 @ a
     p_true = p0 + v0 * tau + 0.5 * G * tau**2 + R0 @ J2 @ a
@@ -266,8 +270,9 @@ def test_one_second_window_end_pose(window):
     gyro, acc, p_true, v_true = _imu_from_truth(t, R_true, gyro)
     assert abs(t[-1] - t[0] - 1.0) < 1e-12 and len(t) == 201
     dt = 1.0 / RATE_HZ
-    mid = _errors(_run(gyro, acc, R_true, v_true, p_true, dt, IntegrationScheme.MIDPOINT), R_true[-1], p_true[-1], v_true[-1])
-    eul = _errors(_run(gyro, acc, R_true, v_true, p_true, dt, IntegrationScheme.EULER), R_true[-1], p_true[-1], v_true[-1])
+    end = (R_true[-1], p_true[-1], v_true[-1])
+    mid = _errors(_run(gyro, acc, R_true, v_true, p_true, dt, IntegrationScheme.MIDPOINT), *end)
+    eul = _errors(_run(gyro, acc, R_true, v_true, p_true, dt, IntegrationScheme.EULER), *end)
     pos, vel, rot = mid
     assert pos < 1e-4, mid  # brief: 1e-4 m
     assert rot < 1e-3, mid  # brief: 1e-3 deg
@@ -290,7 +295,8 @@ def test_midpoint_is_second_order():
         for rate in (100.0, 200.0):
             t, R_true, gyro, _ = _window_spline(rate_hz=rate)
             gyro, acc, p_true, v_true = _imu_from_truth(t, R_true, gyro)
-            errs.append(_errors(_run(gyro, acc, R_true, v_true, p_true, 1.0 / rate, scheme), R_true[-1], p_true[-1], v_true[-1]))
+            res = _run(gyro, acc, R_true, v_true, p_true, 1.0 / rate, scheme)
+            errs.append(_errors(res, R_true[-1], p_true[-1], v_true[-1]))
         out[scheme] = (errs[0][0] / errs[1][0], errs[0][2] / errs[1][2])
     pos_ratio, rot_ratio = out[IntegrationScheme.MIDPOINT]
     assert 3.0 < pos_ratio < 5.0 and 3.0 < rot_ratio < 5.0, out
@@ -464,3 +470,56 @@ def test_cuda_matches_cpu():
     gpu = integrate(*dev[:2], 0.005, *dev[2:5], gravity_mps2=G, bias_gyro_radps=dev[5], bias_acc_mps2=dev[6])
     assert gpu.p.device.type == "cuda"
     torch.testing.assert_close(gpu.p.cpu(), cpu.p, atol=1e-10, rtol=0)
+
+
+@pytest.mark.parametrize("scheme", list(IntegrationScheme))
+def test_end_state_matches_trajectory_for_every_dt_form_and_time_blocking(scheme, monkeypatch):
+    """The end-state fast path (weighted sums) equals the trajectory path, for dt given as a
+    float, [T-1], [B, 1] and per-window [B, T-1], and with time processed in many blocks."""
+    import pipeline.integration as integration
+
+    B, T = 3, 23
+    gyro, acc, R0, v0, p0, bg, ba = _random_batch(B, T)
+    gen = torch.Generator().manual_seed(7)
+    dt_forms = {
+        "float": 0.01,
+        "[T-1]": 0.01 + 0.002 * torch.rand(T - 1, generator=gen, dtype=F64),
+        "[B,1]": torch.tensor([[0.01], [0.012], [0.008]], dtype=F64),
+        "[B,T-1]": 0.01 + 0.002 * torch.rand(B, T - 1, generator=gen, dtype=F64),
+    }
+    kw = dict(gravity_mps2=G, bias_gyro_radps=bg, bias_acc_mps2=ba, scheme=scheme)
+    for name, dt in dt_forms.items():
+        ref = integrate(gyro, acc, dt, R0, v0, p0, return_trajectory=True, **kw)
+        end = integrate(gyro, acc, dt, R0, v0, p0, **kw)
+        for attr in ("R", "v", "p"):
+            torch.testing.assert_close(getattr(end, attr), getattr(ref, attr), atol=1e-12, rtol=0, msg=name)
+        # window b alone, with its own dt, gives the same result
+        dt_full = torch.as_tensor(dt, dtype=F64).expand(B, T - 1)
+        one = integrate(gyro[1:2], acc[1:2], dt_full[1:2], R0[1:2], v0[1:2], p0[1:2], gravity_mps2=G,
+                        bias_gyro_radps=bg[1:2], bias_acc_mps2=ba[1:2], scheme=scheme)
+        torch.testing.assert_close(one.p, end.p[1:2], atol=1e-12, rtol=0, msg=name)
+        # many small time blocks (4 steps; the last one partial) give the same numbers
+        monkeypatch.setattr(integration, "_CPU_BLOCK_ELEMENTS", 1)
+        blocked = integrate(gyro, acc, dt, R0, v0, p0, **kw)
+        blocked_traj = integrate(gyro, acc, dt, R0, v0, p0, return_trajectory=True, **kw)
+        monkeypatch.undo()
+        for attr in ("R", "v", "p"):
+            torch.testing.assert_close(getattr(blocked, attr), getattr(ref, attr), atol=1e-12, rtol=0, msg=name)
+        torch.testing.assert_close(blocked_traj.p_traj, ref.p_traj, atol=1e-12, rtol=0, msg=name)
+        torch.testing.assert_close(blocked_traj.R_traj, ref.R_traj, atol=1e-12, rtol=0, msg=name)
+
+
+@pytest.mark.parametrize("scheme", list(IntegrationScheme))
+def test_gradcheck_end_state_path(scheme, monkeypatch):
+    import pipeline.integration as integration
+
+    monkeypatch.setattr(integration, "_CPU_BLOCK_ELEMENTS", 1)  # several time blocks
+    gyro, acc, R0, v0, p0, bg, ba = _random_batch(2, 7, seed=2)
+    dt = 0.01 + 0.005 * torch.rand(2, 6, dtype=F64, generator=torch.Generator().manual_seed(1))
+    inputs = [x.clone().requires_grad_(True) for x in (gyro, acc, bg, ba, R0, v0, p0, dt)]
+
+    def fn(gyro, acc, bg, ba, R0, v0, p0, dt):
+        r = integrate(gyro, acc, dt, R0, v0, p0, gravity_mps2=G, bias_gyro_radps=bg, bias_acc_mps2=ba, scheme=scheme)
+        return r.R, r.v, r.p
+
+    assert torch.autograd.gradcheck(fn, inputs)
