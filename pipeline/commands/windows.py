@@ -1,0 +1,101 @@
+"""``biasgt windows``: cut recovered sequences into a versioned training dataset (adapter over training.windows)."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+SPLITS = ("train", "val", "test", "none")
+
+DESCRIPTION = """\
+Cut sequences into fixed-length IMU windows for training, exactly as 'biasgt validate' cuts them
+(WINDOW_S long, overlapping by OVERLAP). Each window holds the IMU [T, 6], the recovered bias
+interpolated to the IMU stamps [T, 6] with its sigma, the reference start and end states (the
+ground-truth state when the input has one, else the pose stream moved with the recovery's clock
+offset and T_imu_pose), its stamps and the sequence name. Windows crossing an IMU gap, outside the
+recovered bias span or without a reference are dropped and counted.
+
+Sequences come from --seq NAME SPLIT STORE RECOVERY_DIR (repeatable), and/or from --splits FILE.yaml
+({train: [NAME, ...], val: [...], test: [...], none: [...]}) with --results DIR, which takes each
+NAME's store from DIR/ingest/NAME and its recovery from DIR/recovery/NAME (the workflow layout).
+A sequence belongs to exactly one split; naming it twice is an error. Normalisation statistics
+come from the train split only.
+
+All sequences must share one uniform IMU rate; --resample-hz HZ resamples those that do not
+(linear interpolation onto a uniform grid, gaps kept). Writes OUT atomically:
+  OUT/manifest.json             sequences, splits, window counts, drops, config + hash, code version,
+                                normalisation statistics (train split)
+  OUT/sequences/NAME/*.npy      arrays, memory-mapped by training.dataset.WindowDataset
+"""
+
+EPILOG = """\
+examples:
+  biasgt windows --seq MH_01 train stores/MH_01 rec/MH_01 --seq MH_02 test stores/MH_02 rec/MH_02 --out ds
+  biasgt windows --splits config/euroc_splits.yaml --results results --out results/windows
+  biasgt windows --splits splits.yaml --results results --window-s 2 --overlap 0 --resample-hz 200 --out ds2
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "windows",
+        help="cut recovered sequences into a versioned training dataset (IMU, bias, sigma, states)",
+        description=DESCRIPTION,
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--seq", nargs=4, action="append", default=[], metavar=("NAME", "SPLIT", "STORE", "RECOVERY_DIR"),
+                   help=f"a sequence: its name, split ({'/'.join(SPLITS)}), store folder and recovery folder "
+                        "(repeatable)")
+    p.add_argument("--splits", type=Path, metavar="FILE.yaml",
+                   help="split -> sequence names (train/val/test/none); needs --results")
+    p.add_argument("--results", type=Path, metavar="DIR",
+                   help="workflow results folder holding ingest/NAME and recovery/NAME (with --splits)")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="dataset folder (written atomically)")
+    p.add_argument("--window-s", type=float, default=1.0, metavar="S", help="window length in seconds (default 1)")
+    p.add_argument("--overlap", type=float, default=0.5, metavar="F",
+                   help="overlap of consecutive windows, in [0, 1) (default 0.5)")
+    p.add_argument("--resample-hz", type=float, default=None, metavar="HZ",
+                   help="resample IMU streams not at HZ onto a uniform HZ grid (default: refuse other rates)")
+    p.add_argument("--gap-factor", type=float, default=2.0, metavar="K",
+                   help="an IMU interval longer than K x the nominal one is a gap (default 2)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipeline.errors import ConfigError
+    from training.windows import (
+        WindowConfig,
+        WindowSource,
+        build_window_dataset,
+        format_summary,
+        read_splits_file,
+        sources_from_results,
+    )
+
+    config = WindowConfig(window_s=args.window_s, overlap=args.overlap, resample_hz=args.resample_hz,
+                          gap_factor=args.gap_factor)
+    sources = []
+    for name, split, store, recovery in args.seq:
+        if split not in SPLITS:
+            raise ConfigError(f"unknown split '{split}' for sequence '{name}'", field="--seq",
+                              hint=f"use one of {', '.join(SPLITS)}")
+        sources.append(WindowSource(name, split, Path(store), Path(recovery)))
+    if (args.splits is None) != (args.results is None):
+        raise ConfigError("--splits and --results go together", field="--splits" if args.results is None
+                          else "--results", hint="give both, e.g. --splits splits.yaml --results results")
+    if args.splits is not None:
+        sources += sources_from_results(read_splits_file(args.splits), args.results)
+    if not sources:
+        raise ConfigError("no sequence given", field="--seq",
+                          hint="give --seq NAME SPLIT STORE RECOVERY_DIR or --splits FILE --results DIR")
+    manifest = build_window_dataset(sources, args.out, config)
+    print(f"{len(manifest['sequences'])} sequences, {manifest['window_samples']} samples per window "
+          f"({config.window_s:g} s at {manifest['rate_hz']:g} Hz, overlap {config.overlap:g}), "
+          f"config {manifest['config_hash']}")
+    print(format_summary(manifest))
+    print(f"wrote {args.out}")
+    return 0

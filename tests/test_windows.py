@@ -1,0 +1,399 @@
+"""Training windows on the simulator: counts, contents, drops, rates, splits, manifest, loading, atomicity, CLI."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from interpolation.bias import BIAS_COLUMNS, interpolate_bias, read_bias_csv
+from interpolation.pipeline import recovery_random_walk
+from pipeline import __version__
+from pipeline.cli import main
+from pipeline.errors import ConfigError, DataError, InputFormatError
+from pipeline.sim import ImuNoiseConfig, PoseStreamConfig, SimConfig, simulate
+from pipeline.store import write_store
+from pipeline.types import ImuSeries
+from training.dataset import ARRAYS, Split, WindowDataset, read_manifest
+from training.windows import (
+    WindowConfig,
+    WindowSource,
+    build_window_dataset,
+    extract_windows,
+    format_summary,
+    read_splits_file,
+    resample_imu,
+    sources_from_results,
+)
+
+NS = 1_000_000_000
+RW = (2e-4, 3e-3)  # gyro, acc random walks written to recovery.json
+
+
+# ----------------------------------------------------------------------------- helpers
+
+
+def _sim(seed: int = 1, duration_s: float = 10.0, rate_hz: float = 200.0, name: str = "sim", **kw):
+    return simulate(SimConfig(duration_s=duration_s, seed=seed, name=name,
+                              imu=ImuNoiseConfig(rate_hz=rate_hz), **kw))
+
+
+def _write_recovery(folder: Path, sim, *, every: int = 10, span_s: tuple[float, float] | None = None,
+                    offset_s: float = 0.0, T_imu_pose: np.ndarray | None = None) -> Path:
+    """A recovery folder from the simulator's true bias: keyframes every ``every`` IMU samples."""
+    tr = sim.truth
+    k = np.arange(0, len(tr.t_ns), every)
+    if span_s is not None:
+        rel = (tr.t_ns[k] - tr.t_ns[0]) / NS
+        k = k[(rel >= span_s[0] - 1e-9) & (rel <= span_s[1] + 1e-9)]
+    bias = np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])[k]
+    frame = pd.DataFrame(bias, columns=list(BIAS_COLUMNS))
+    frame.insert(0, "t_ns", tr.t_ns[k])
+    for i, c in enumerate(BIAS_COLUMNS):
+        frame[f"{c}_std"] = 1e-4 * (1 + i) * (1 + 0.1 * np.sin(np.arange(len(k))))
+    folder.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(folder / "bias.csv", index=False, float_format="%.12g")
+    T = np.eye(4) if T_imu_pose is None else T_imu_pose
+    report = {
+        "noise": {"gyro_random_walk": RW[0], "acc_random_walk": RW[1]},
+        "gravity_world_mps2": [0.0, 0.0, -9.81],
+        "pose_time_offset_s": offset_s,
+        "T_imu_pose": {"p_m": T[:3, 3].tolist(),
+                       "quat_wxyz": Rotation.from_matrix(T[:3, :3]).as_quat(scalar_first=True).tolist()},
+    }
+    (folder / "recovery.json").write_text(json.dumps(report), encoding="utf-8")
+    return folder
+
+
+def _source(tmp: Path, sim, name: str, split: str, **rec_kw) -> WindowSource:
+    store = write_store(dataclasses.replace(sim.sequence, name=name), tmp / "stores" / name)
+    rec = _write_recovery(tmp / "rec" / name, sim, **rec_kw)
+    return WindowSource(name, split, store, rec)
+
+
+@pytest.fixture(scope="module")
+def sim10():
+    return _sim(seed=1)
+
+
+# ----------------------------------------------------------------------------- extraction
+
+
+def test_count_shapes_spacing_bias_and_states(sim10, tmp_path):
+    rec = _write_recovery(tmp_path / "rec", sim10)
+    sw = extract_windows(sim10.sequence, rec, "train", WindowConfig())
+    a = sw.arrays
+    # 10 s at 200 Hz = 2001 samples; 1-s windows (200 intervals, 201 samples) every 100 samples: 19
+    assert len(sw) == 19 and sw.candidates == 19
+    assert sw.split is Split.TRAIN
+    assert a["imu"].shape == (19, 201, 6) and a["bias"].shape == (19, 201, 6) and a["bias_std"].shape == (19, 201, 6)
+    assert a["t_ns"].shape == (19, 201) and a["t_ns"].dtype == np.int64
+    assert a["start_R"].shape == (19, 3, 3) and a["end_p"].shape == (19, 3)
+    assert sum(sw.dropped.values()) == 0
+    t = sim10.sequence.imu.t_ns
+    np.testing.assert_array_equal(np.diff(a["t_ns"][:, 0]), np.full(18, NS // 2))  # t0 every 0.5 s
+    assert a["t_ns"][0, 0] == t[0] and a["t_ns"][-1, -1] == t[-1]
+    assert np.all(a["t_ns"][:, -1] - a["t_ns"][:, 0] == NS)
+    idx = 100 * np.arange(19)[:, None] + np.arange(201)[None, :]
+    np.testing.assert_array_equal(a["imu"], sim10.sequence.imu.imu_6[idx])
+    # the bias and its sigma are the interpolation stage's numbers at the IMU stamps
+    expect = interpolate_bias(read_bias_csv(rec / "bias.csv"), t, random_walk=recovery_random_walk(rec))
+    np.testing.assert_array_equal(a["bias"], expect.bias[idx])
+    np.testing.assert_array_equal(a["bias_std"], expect.std[idx])
+    assert np.all(a["bias_std"] > 0)
+    # start and end states are the simulator's truth at the first and last stamp
+    gt = sim10.sequence.ground_truth
+    np.testing.assert_array_equal(gt.t_ns, t)
+    s, e = idx[:, 0], idx[:, -1]
+    np.testing.assert_allclose(a["start_p"], gt.p_m[s], atol=1e-12)
+    np.testing.assert_allclose(a["end_p"], gt.p_m[e], atol=1e-12)
+    np.testing.assert_allclose(a["start_v"], gt.v_mps[s], atol=1e-12)
+    np.testing.assert_allclose(a["end_v"], gt.v_mps[e], atol=1e-12)
+    R = Rotation.from_quat(gt.quat_wxyz, scalar_first=True).as_matrix()
+    np.testing.assert_allclose(a["start_R"], R[s], atol=1e-9)
+    np.testing.assert_allclose(a["end_R"], R[e], atol=1e-9)
+    assert sw.info["reference"] == "state" and sw.info["rate_hz"] == pytest.approx(200.0)
+
+
+def test_window_length_and_overlap_are_configurable(sim10, tmp_path):
+    rec = _write_recovery(tmp_path / "rec", sim10)
+    sw = extract_windows(sim10.sequence, rec, "test", WindowConfig(window_s=2.0, overlap=0.0))
+    assert len(sw) == 5 and sw.arrays["imu"].shape == (5, 401, 6)
+    np.testing.assert_array_equal(np.diff(sw.arrays["t_ns"][:, 0]), np.full(4, 2 * NS))
+
+
+def test_windows_crossing_an_imu_gap_are_dropped(sim10, tmp_path):
+    rec = _write_recovery(tmp_path / "rec", sim10)
+    imu = sim10.sequence.imu
+    keep = np.ones(len(imu), bool)
+    keep[804:840] = False  # 180 ms gap between samples 803 and 840 (new indices 803 -> 804)
+    seq = dataclasses.replace(sim10.sequence, imu=imu.take(keep))
+    sw = extract_windows(seq, rec, "train", WindowConfig())
+    # 1965 samples -> starts 0, 100, ..., 1700 (18); those at 700 and 800 span the gap interval
+    assert sw.candidates == 18 and len(sw) == 16
+    assert sw.dropped["imu_gap"] == 2
+    assert not np.any((sw.arrays["t_ns"][:, 0] < imu.t_ns[840]) & (sw.arrays["t_ns"][:, -1] > imu.t_ns[803]))
+    assert np.all(np.diff(sw.arrays["t_ns"], axis=1) <= 2 * NS // 200)
+
+
+def test_windows_outside_the_recovered_span_are_dropped(sim10, tmp_path):
+    rec = _write_recovery(tmp_path / "rec", sim10, span_s=(2.0, 7.0))
+    sw = extract_windows(sim10.sequence, rec, "train", WindowConfig())
+    # windows [s, s + 200] inside samples [400, 1400]: s = 400, 500, ..., 1200
+    assert len(sw) == 9 and sw.dropped["outside_recovery"] == 10
+    t = sim10.sequence.imu.t_ns
+    np.testing.assert_array_equal(sw.arrays["t_ns"][:, 0], t[400:1201:100])
+
+
+def test_pose_reference_when_the_sequence_has_no_ground_truth(tmp_path):
+    """No ground-truth state: start/end states come from the poses with the recovery's offset and extrinsic."""
+    sim = simulate(SimConfig(duration_s=10.0, seed=5, poses=PoseStreamConfig(
+        clock_offset_s=0.0123, extrinsic_rotation_deg=5.0, extrinsic_translation_m=0.08)).noise_free())
+    rec = _write_recovery(tmp_path / "rec", sim, offset_s=sim.truth.clock_offset_s,
+                          T_imu_pose=sim.truth.T_imu_frame)
+    seq = dataclasses.replace(sim.sequence, ground_truth=None)
+    sw = extract_windows(seq, rec, "train", WindowConfig())
+    assert sw.info["reference"] == "poses"
+    assert sw.info["reference_info"]["time_offset_s"] == pytest.approx(0.0123)
+    assert len(sw) >= 17  # the poses start a little after the IMU (random phase, clock offset)
+    gt = sim.sequence.ground_truth
+    i = np.searchsorted(gt.t_ns, sw.arrays["t_ns"][:, 0])
+    np.testing.assert_array_equal(gt.t_ns[i], sw.arrays["t_ns"][:, 0])
+    assert np.max(np.abs(sw.arrays["start_p"] - gt.p_m[i])) < 2e-3
+    assert np.max(np.abs(sw.arrays["start_v"] - gt.v_mps[i])) < 0.03
+    R = Rotation.from_quat(gt.quat_wxyz[i], scalar_first=True).as_matrix()
+    ang = Rotation.from_matrix(np.swapaxes(sw.arrays["start_R"], 1, 2) @ R).magnitude()
+    assert np.degrees(ang.max()) < 0.05
+
+
+# ----------------------------------------------------------------------------- rates
+
+
+def test_another_rate_is_refused_unless_resampled(sim10, tmp_path):
+    slow = _sim(seed=2, rate_hz=100.0)
+    a = _source(tmp_path, sim10, "fast", "train")
+    b = _source(tmp_path, slow, "slow", "test")
+    with pytest.raises(DataError) as exc:
+        build_window_dataset([a, b], tmp_path / "ds", WindowConfig())
+    msg = str(exc.value)
+    assert "'slow'" in msg and "100.000 Hz" in msg and "--resample-hz" in msg and "\n" not in msg
+    assert not (tmp_path / "ds").exists()
+
+    m = build_window_dataset([a, b], tmp_path / "ds", WindowConfig(resample_hz=200.0))
+    assert m["window_samples"] == 201 and m["rate_hz"] == 200.0
+    assert m["sequences"]["slow"]["windows"] == 19
+    assert m["sequences"]["slow"]["info"]["resampled"] is True
+    assert m["sequences"]["slow"]["info"]["recorded_rate_hz"] == pytest.approx(100.0)
+    assert m["sequences"]["fast"]["info"]["resampled"] is False  # already at 200 Hz: kept as recorded
+    imu = np.load(tmp_path / "ds" / "sequences" / "slow" / "imu.npy")
+    rec = slow.sequence.imu.imu_6
+    np.testing.assert_allclose(imu[0, 0::2], rec[:101], rtol=0, atol=1e-12)  # recorded samples kept
+    np.testing.assert_allclose(imu[0, 1::2], 0.5 * (rec[:100] + rec[1:101]), atol=1e-12)  # linear in between
+
+
+def test_non_uniform_stamps_are_refused_unless_resampled(sim10, tmp_path):
+    imu = sim10.sequence.imu
+    rng = np.random.default_rng(0)
+    t = imu.t_ns.copy()
+    jitter = rng.choice(np.arange(1, len(t) - 1), 100, replace=False)
+    t[jitter] += 1_500_000  # 1.5 ms on 5 % of the stamps
+    seq = dataclasses.replace(sim10.sequence, imu=ImuSeries(t, imu.gyro_radps, imu.acc_mps2))
+    rec = _write_recovery(tmp_path / "rec", sim10)
+    with pytest.raises(DataError, match="non-uniform IMU stamps.*--resample-hz"):
+        extract_windows(seq, rec, "train", WindowConfig())
+    sw = extract_windows(seq, rec, "train", WindowConfig(resample_hz=200.0))
+    assert len(sw) == 19 and sw.info["resampled"]
+    np.testing.assert_array_equal(sw.arrays["t_ns"][:, 0], imu.t_ns[0:1801:100])
+
+
+def test_resampling_keeps_gaps():
+    t = np.concatenate([np.arange(0, 100), np.arange(150, 250)]).astype(np.int64) * 10_000_000  # 100 Hz, 0.5-s gap
+    x = (t / NS)[:, None] * np.ones((1, 3))
+    out = resample_imu(ImuSeries(t, x, 2 * x), 200.0)
+    assert out.t_ns[0] == 0 and out.t_ns[-1] == t[-1]
+    assert np.max(np.diff(out.t_ns)) == 510_000_000  # 0.99 s -> 1.50 s: no reading invented inside the gap
+    assert len(out) == 199 + 199
+    np.testing.assert_allclose(out.gyro_radps[:, 0], out.t_ns / NS, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- config and splits
+
+
+def test_window_config_dict_round_trip_and_errors():
+    cfg = WindowConfig.from_dict({"window_s": 2, "resample_hz": 100})
+    assert cfg == WindowConfig(window_s=2.0, overlap=0.5, resample_hz=100.0, gap_factor=2.0)
+    assert WindowConfig.from_dict(cfg.to_dict()) == cfg
+    assert WindowConfig.from_dict(None) == WindowConfig()
+    with pytest.raises(ConfigError, match="unknown window setting.*window_len"):
+        WindowConfig.from_dict({"window_len": 1.0})
+    for bad in ({"overlap": 1.0}, {"window_s": 0}, {"resample_hz": -5}, {"gap_factor": 1.0}):
+        with pytest.raises(ConfigError):
+            WindowConfig.from_dict(bad)
+
+
+def test_a_sequence_in_two_splits_is_a_config_error(sim10, tmp_path):
+    a = _source(tmp_path, sim10, "A", "train")
+    twin = WindowSource("A", "test", a.store_dir, a.recovery_dir)
+    with pytest.raises(ConfigError, match="'A' is listed in splits train and test"):
+        build_window_dataset([a, twin], tmp_path / "ds", WindowConfig())
+    with pytest.raises(ConfigError, match="no sequence in split 'train'"):
+        build_window_dataset([twin], tmp_path / "ds", WindowConfig())
+    assert not (tmp_path / "ds").exists()
+    f = tmp_path / "splits.yaml"
+    f.write_text("train: [MH_01, MH_03]\ntest: [MH_02, MH_01]\n")
+    with pytest.raises(ConfigError, match="'MH_01' is listed in splits train and test"):
+        read_splits_file(f)
+    f.write_text("train: [MH_01]\nvalidation: [MH_02]\n")
+    with pytest.raises(ConfigError, match="unknown split 'validation'"):
+        read_splits_file(f)
+
+
+def test_airimu_euroc_split_file(tmp_path):
+    f = tmp_path / "euroc.yaml"
+    f.write_text("train: [MH_01, MH_03, MH_05, V1_02, V2_01, V2_03]\ntest: [MH_02, MH_04, V1_03, V2_02]\n")
+    splits = read_splits_file(f)
+    assert splits == {Split.TRAIN: ["MH_01", "MH_03", "MH_05", "V1_02", "V2_01", "V2_03"],
+                      Split.TEST: ["MH_02", "MH_04", "V1_03", "V2_02"]}
+    with pytest.raises(InputFormatError, match="no ingest output for sequence 'MH_01'"):
+        sources_from_results(splits, tmp_path / "results")
+
+
+def test_normalisation_comes_from_the_train_split_only(sim10, tmp_path):
+    train = [_source(tmp_path, sim10, "A", "train"), _source(tmp_path, _sim(seed=3), "B", "train")]
+    m1 = build_window_dataset(train + [_source(tmp_path, _sim(seed=4), "C", "test")], tmp_path / "ds1")
+    stacked = {k: np.concatenate([np.load(tmp_path / "ds1" / "sequences" / n / f"{k}.npy") for n in ("A", "B")])
+               for k in ("imu", "bias")}
+    for k in ("imu", "bias"):
+        flat = stacked[k].reshape(-1, 6)
+        np.testing.assert_allclose(m1["normalization"][f"{k}_mean"], flat.mean(axis=0), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(m1["normalization"][f"{k}_std"], flat.std(axis=0, ddof=1), rtol=1e-10)
+    other = _sim(seed=9)
+    m2 = build_window_dataset(train + [_source(tmp_path, other, "D", "test")], tmp_path / "ds2")
+    assert m2["normalization"] == m1["normalization"]
+    d = np.load(tmp_path / "ds2" / "sequences" / "D" / "imu.npy")
+    c = np.load(tmp_path / "ds1" / "sequences" / "C" / "imu.npy")
+    assert not np.allclose(c, d)  # the test data did change
+
+
+# ----------------------------------------------------------------------------- dataset on disk
+
+
+@pytest.fixture(scope="module")
+def dataset(sim10, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("ds")
+    sources = [_source(tmp, sim10, "A", "train"), _source(tmp, _sim(seed=6), "B", "test", span_s=(2.0, 7.0))]
+    manifest = build_window_dataset(sources, tmp / "ds", WindowConfig())
+    return tmp / "ds", manifest, sources
+
+
+def test_manifest_content(dataset, tmp_path):
+    root, m, sources = dataset
+    assert read_manifest(root) == m
+    assert m["code_version"] == __version__ and m["format_version"] == 1
+    assert m["config"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0}
+    assert len(m["config_hash"]) == 16
+    assert m["splits"] == {"train": ["A"], "test": ["B"]}
+    assert m["sequences"]["A"]["windows"] == 19 and m["sequences"]["A"]["candidates"] == 19
+    assert m["sequences"]["B"]["windows"] == 9 and m["sequences"]["B"]["dropped"]["outside_recovery"] == 10
+    assert m["totals"]["test"] == {"sequences": 1, "windows": 9, "candidates": 19, "dropped": 10}
+    assert m["window_samples"] == 201 and m["rate_hz"] == 200.0
+    assert set(m["normalization"]) == {"imu_mean", "imu_std", "bias_mean", "bias_std"}
+    assert sorted(p.name for p in (root / "sequences" / "A").iterdir()) == sorted(f"{k}.npy" for k in ARRAYS)
+    m2 = build_window_dataset(sources[:1], tmp_path / "ds2", WindowConfig(window_s=2.0))
+    assert m2["config_hash"] != m["config_hash"]
+    m3 = build_window_dataset(sources[:1], tmp_path / "ds3", WindowConfig())
+    assert m3["config_hash"] == m["config_hash"]
+    summary = format_summary(m).splitlines()
+    assert summary[1].split() == ["train", "1", "19", "0", "-"]
+    assert summary[2].split() == ["test", "1", "9", "10", "outside_recovery", "10"]
+
+
+def test_window_dataset_is_memory_mapped_and_loads_through_a_dataloader(dataset, sim10):
+    root, m, _ = dataset
+    ds = WindowDataset(root, "train")
+    assert isinstance(ds, torch.utils.data.Dataset)
+    assert ds.sequences == ["A"] and len(ds) == 19
+    assert all(isinstance(v, np.memmap) for v in ds.arrays("A").values())
+    item = ds[3]
+    assert item["imu"].shape == (201, 6) and item["imu"].dtype == torch.float32
+    assert item["dt_s"].shape == (200,) and torch.allclose(item["dt_s"], torch.full((200,), 0.005))
+    assert item["t0_ns"] == int(sim10.sequence.imu.t_ns[300]) and item["sequence"] == "A"
+    np.testing.assert_allclose(item["bias"].numpy(), np.load(root / "sequences/A/bias.npy")[3], rtol=1e-6)
+    loader = torch.utils.data.DataLoader(ds, batch_size=4, shuffle=False, num_workers=0)
+    batches = list(loader)
+    assert [len(b["sequence"]) for b in batches] == [4, 4, 4, 4, 3]
+    b = batches[0]
+    shapes = {k: tuple(v.shape) for k, v in b.items() if k != "sequence"}
+    assert shapes == {"imu": (4, 201, 6), "bias": (4, 201, 6), "bias_std": (4, 201, 6), "dt_s": (4, 200),
+                      "start_R": (4, 3, 3), "start_v": (4, 3), "start_p": (4, 3), "end_R": (4, 3, 3),
+                      "end_v": (4, 3), "end_p": (4, 3), "t0_ns": (4,)}
+    assert b["t0_ns"].dtype == torch.int64 and b["sequence"] == ["A"] * 4
+    assert torch.equal(b["t0_ns"], torch.as_tensor(sim10.sequence.imu.t_ns[[0, 100, 200, 300]]))
+    clone = pickle.loads(blob := pickle.dumps(ds))  # what a 'spawn' DataLoader worker receives
+    assert len(blob) < 50_000 and isinstance(clone.arrays("A")["imu"], np.memmap)
+    assert torch.equal(clone[7]["imu"], ds[7]["imu"])
+    test = WindowDataset(root, Split.TEST, dtype=torch.float64)
+    assert len(test) == 9 and test[0]["end_p"].dtype == torch.float64
+    assert len(WindowDataset(root, "val")) == 0
+
+
+def test_a_failure_leaves_no_output(sim10, tmp_path):
+    good = _source(tmp_path, sim10, "A", "train")
+    broken = WindowSource("B", "test", good.store_dir, tmp_path / "missing_recovery")
+    with pytest.raises(InputFormatError, match="recovery output lacks"):
+        build_window_dataset([good, broken], tmp_path / "out" / "ds")
+    assert not (tmp_path / "out" / "ds").exists()
+    assert list((tmp_path / "out").iterdir()) == []  # no temporary folder left behind
+    first = build_window_dataset([good], tmp_path / "out" / "ds")
+    with pytest.raises(InputFormatError):
+        build_window_dataset([good, broken], tmp_path / "out" / "ds", WindowConfig(window_s=2.0))
+    assert read_manifest(tmp_path / "out" / "ds") == first  # the previous dataset is untouched
+    assert [p.name for p in (tmp_path / "out").iterdir()] == ["ds"]
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
+    results = tmp_path / "results"
+    for name, seed in (("sim_a", 11), ("sim_b", 12)):
+        sim = _sim(seed=seed, name=name)
+        write_store(sim.sequence, results / "ingest" / name)
+        _write_recovery(results / "recovery" / name, sim, span_s=(0.0, 10.0) if name == "sim_a" else (0.0, 5.0))
+    splits = tmp_path / "splits.yaml"
+    splits.write_text("train: [sim_a]\ntest: [sim_b]\n")
+    rc = main(["windows", "--splits", str(splits), "--results", str(results), "--out", str(tmp_path / "ds")])
+    out = capsys.readouterr().out.splitlines()
+    assert rc == 0
+    assert out[0].startswith("2 sequences, 201 samples per window (1 s at 200 Hz, overlap 0.5)")
+    assert out[2].split() == ["train", "1", "19", "0", "-"]
+    assert out[3].split() == ["test", "1", "9", "10", "outside_recovery", "10"]
+    m = read_manifest(tmp_path / "ds")
+    assert m["splits"] == {"train": ["sim_a"], "test": ["sim_b"]}
+    assert len(WindowDataset(tmp_path / "ds", "test")) == 9
+
+    # the same through --seq, with another window length
+    rc = main(["windows", "--seq", "sim_a", "train", str(results / "ingest/sim_a"), str(results / "recovery/sim_a"),
+               "--seq", "sim_b", "val", str(results / "ingest/sim_b"), str(results / "recovery/sim_b"),
+               "--window-s", "2", "--overlap", "0", "--out", str(tmp_path / "ds2")])
+    assert rc == 0
+    m2 = read_manifest(tmp_path / "ds2")
+    assert m2["window_samples"] == 401 and m2["sequences"]["sim_a"]["windows"] == 5
+    assert m2["splits"] == {"train": ["sim_a"], "val": ["sim_b"]}
+    capsys.readouterr()
+
+    # one name in two splits: one-line error, exit 2, nothing written
+    rc = main(["windows", "--splits", str(splits), "--results", str(results), "--out", str(tmp_path / "ds3"),
+               "--seq", "sim_a", "test", str(results / "ingest/sim_a"), str(results / "recovery/sim_a")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "'sim_a' is listed in splits test and train" in err[0]
+    assert not (tmp_path / "ds3").exists()
+    rc = main(["windows", "--splits", str(splits), "--out", str(tmp_path / "ds3")])
+    assert rc == 2 and "--splits and --results go together" in capsys.readouterr().err

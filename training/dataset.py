@@ -1,0 +1,361 @@
+"""The versioned window dataset on disk, and its lazy ``torch.utils.data.Dataset``.
+
+Layout (``biasgt windows`` writes it atomically)::
+
+    DATASET/
+      manifest.json                       format version, config + its hash, code version,
+                                          per-sequence split and window counts, normaliser stats
+      sequences/<name>/imu.npy            [W, T, 6] gyro (rad/s) then acc (m/s^2), float64
+      sequences/<name>/bias.npy           [W, T, 6] interpolated bias, same order and units
+      sequences/<name>/bias_std.npy       [W, T, 6] its standard deviation
+      sequences/<name>/t_ns.npy           [W, T]    int64 IMU stamps
+      sequences/<name>/start_R.npy        [W, 3, 3] reference world-from-imu at the first stamp
+      sequences/<name>/start_v.npy        [W, 3]    (m/s)   start_p.npy [W, 3] (m)
+      sequences/<name>/end_R.npy, end_v.npy, end_p.npy   the same at the last stamp
+
+Arrays are plain ``.npy`` files so that :class:`WindowDataset` memory-maps them: a dataset
+larger than RAM is read window by window. The split is a property of a *sequence*; a
+sequence appears in exactly one split, so train and test never share windows of one
+recording. Normalisation statistics come from the train split only.
+"""
+
+from __future__ import annotations
+
+import enum
+import hashlib
+import json
+import logging
+import re
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pipeline import __version__
+from pipeline.atomic import atomic_dir
+from pipeline.errors import ConfigError, DataError, InputFormatError
+
+log = logging.getLogger(__name__)
+
+FORMAT_VERSION = 1
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+MANIFEST = "manifest.json"
+ARRAYS = ("imu", "bias", "bias_std", "t_ns", "start_R", "start_v", "start_p", "end_R", "end_v", "end_p")
+
+
+class Split(str, enum.Enum):
+    """Which part of the dataset a sequence belongs to."""
+
+    TRAIN = "train"
+    VAL = "val"
+    TEST = "test"
+    NONE = "none"  # windowed but not used for training or testing
+
+
+@dataclass
+class SequenceWindows:
+    """All windows of one sequence (shapes as in the module docstring).
+
+    Attributes:
+        name: Sequence name.
+        split: Split of the whole sequence.
+        arrays: ``ARRAYS`` name -> array.
+        dropped: Reason -> number of windows dropped (a window counts under every reason that
+            applies, so the reasons may add up to more than ``candidates - len(self)``).
+        candidates: Windows planned before dropping (0: unknown, taken as ``len(self)``).
+        info: JSON-serialisable provenance stored in the manifest entry (rates, reference kind,
+            input folders).
+    """
+
+    name: str
+    split: Split
+    arrays: dict[str, np.ndarray]
+    dropped: dict[str, int] = field(default_factory=dict)
+    candidates: int = 0
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        missing = [a for a in ARRAYS if a not in self.arrays]
+        if missing:
+            raise DataError(f"windows of {self.name} lack arrays {missing}")
+        n = {len(self.arrays[a]) for a in ARRAYS}
+        if len(n) != 1:
+            raise DataError(f"windows of {self.name} have inconsistent counts {sorted(n)}")
+        self.split = Split(self.split)
+        self.candidates = max(int(self.candidates), len(self))
+
+    def __len__(self) -> int:
+        return len(self.arrays["imu"])
+
+
+def config_hash(config: dict[str, Any]) -> str:
+    """Stable short hash of a JSON-serialisable config."""
+    text = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+#: Windows per chunk when statistics are computed (bounds the memory of a pass).
+_STATS_CHUNK = 4096
+
+
+def normalization_stats(windows: Iterable[SequenceWindows]) -> dict[str, list[float]]:
+    """Per-channel mean and std of IMU and bias over the given (train) windows.
+
+    Every sample of every window counts (a sample shared by two overlapping windows counts
+    twice, as the model sees it): ``mean = x.reshape(-1, 6).mean(0)``,
+    ``std = x.reshape(-1, 6).std(0, ddof=1)`` (floored at 1e-12) with ``x`` all train windows
+    stacked. Two passes over chunks of windows, so memory-mapped arrays are never loaded whole.
+
+    Returns:
+        ``imu_mean``, ``imu_std``, ``bias_mean``, ``bias_std``: lists of 6 floats each
+        (gyro x, y, z in rad/s then acc x, y, z in m/s^2).
+
+    Raises:
+        DataError: No train window.
+    """
+    windows = [w for w in windows if len(w)]
+    if not windows:
+        raise DataError("no training windows to compute normalisation statistics from",
+                        hint="assign at least one sequence with windows to split 'train'")
+
+    def chunks(key: str) -> Iterator[np.ndarray]:
+        for w in windows:
+            a = w.arrays[key]
+            for i in range(0, len(a), _STATS_CHUNK):
+                yield np.asarray(a[i:i + _STATS_CHUNK], dtype=np.float64).reshape(-1, 6)
+
+    stats: dict[str, list[float]] = {}
+    for key in ("imu", "bias"):
+        total, s = 0, np.zeros(6)
+        for c in chunks(key):
+            total += len(c)
+            s += c.sum(axis=0)
+        mean = s / total
+        sq = np.zeros(6)
+        for c in chunks(key):
+            sq += ((c - mean) ** 2).sum(axis=0)
+        std = np.sqrt(sq / max(total - 1, 1))
+        stats[f"{key}_mean"] = mean.tolist()
+        stats[f"{key}_std"] = np.maximum(std, 1e-12).tolist()
+    return stats
+
+
+def _json_safe(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {str(k): _json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_json_safe(v) for v in obj]
+    if isinstance(obj, enum.Enum):
+        return obj.value
+    if isinstance(obj, Path):
+        return str(obj)
+    if isinstance(obj, np.ndarray):
+        return _json_safe(obj.tolist())
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def _load_arrays(folder: Path) -> dict[str, np.ndarray]:
+    """The arrays of one sequence folder, memory-mapped read-only."""
+    try:
+        return {k: np.load(folder / f"{k}.npy", mmap_mode="r") for k in ARRAYS}
+    except (OSError, ValueError) as exc:
+        raise InputFormatError(f"cannot read window arrays ({exc})", path=folder,
+                               hint="re-create the dataset with 'biasgt windows'") from None
+
+
+def write_dataset(
+    sequences: Iterable[SequenceWindows],
+    out_dir: str | Path,
+    *,
+    config: dict[str, Any],
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """Write a window dataset atomically and return its manifest.
+
+    ``sequences`` may be a generator: each sequence is written to the temporary folder as it
+    comes and may then be freed, and the normalisation statistics are computed afterwards from
+    the memory-mapped train arrays, so the dataset never has to fit in memory at once. An
+    exception anywhere (also inside the generator) removes the temporary folder: ``out_dir`` is
+    left as it was (absent, or the previous complete dataset).
+
+    Args:
+        sequences: Windows per sequence, each with its split.
+        out_dir: Destination folder (replaced only once complete).
+        config: The resolved windowing config (stored, and hashed into ``config_hash``).
+        extra: More JSON-serialisable top-level manifest entries (e.g. ``rate_hz``).
+
+    Returns:
+        The manifest (also ``out_dir/manifest.json``): ``format_version``, ``code_version``,
+        ``config``, ``config_hash``, ``window_samples`` (T), ``rate_hz``, ``splits`` (split ->
+        sequence names), ``sequences`` (name -> split, windows, candidates, dropped, path,
+        info), ``totals`` (split -> sequences, windows, candidates, dropped),
+        ``normalization`` (train-split statistics, see :func:`normalization_stats`).
+
+    Raises:
+        ConfigError: A sequence name used twice or unsafe as a folder name.
+        DataError: Windows of different lengths; no train window.
+    """
+    manifest: dict[str, Any] = {
+        "format_version": FORMAT_VERSION,
+        "code_version": __version__,
+        "config": _json_safe(config),
+        "config_hash": config_hash(config),
+        "window_samples": 0,
+        "rate_hz": None,
+        "splits": {},
+        "sequences": {},
+        "totals": {},
+    }
+    if extra:
+        manifest.update(_json_safe(extra))
+    with atomic_dir(out_dir) as tmp:
+        lengths: dict[int, str] = {}
+        for seq in sequences:
+            if seq.name in manifest["sequences"]:
+                other = manifest["sequences"][seq.name]["split"]
+                raise ConfigError(f"sequence '{seq.name}' is given twice (splits {other} and {seq.split.value})",
+                                  field=seq.name, hint="list every sequence once, in exactly one split")
+            if not _SAFE_NAME.match(seq.name):
+                raise ConfigError(f"sequence name '{seq.name}' cannot be a folder name", field=seq.name,
+                                  hint="use letters, digits, '_', '-' and '.'")
+            if len(seq):
+                length = int(seq.arrays["imu"].shape[1])
+                lengths.setdefault(length, seq.name)
+                if len(lengths) > 1:
+                    (l0, n0), = [(k, v) for k, v in lengths.items() if k != length]
+                    raise DataError(
+                        f"windows of '{seq.name}' have {length} samples but those of '{n0}' have {l0} "
+                        "(IMU rates differ)",
+                        hint="resample every sequence onto one rate (--resample-hz HZ)")
+                if manifest["rate_hz"] is None and seq.info.get("rate_hz") is not None:
+                    manifest["rate_hz"] = float(seq.info["rate_hz"])
+            folder = tmp / "sequences" / seq.name
+            folder.mkdir(parents=True)
+            for key in ARRAYS:
+                np.save(folder / f"{key}.npy", np.ascontiguousarray(seq.arrays[key]))
+            manifest["sequences"][seq.name] = {
+                "split": seq.split.value,
+                "windows": len(seq),
+                "candidates": seq.candidates,
+                "dropped": {k: int(v) for k, v in seq.dropped.items()},
+                "path": f"sequences/{seq.name}",
+                "info": _json_safe(seq.info),
+            }
+            manifest["splits"].setdefault(seq.split.value, []).append(seq.name)
+            log.info("%s (%s): %d windows kept of %d", seq.name, seq.split.value, len(seq), seq.candidates)
+        manifest["window_samples"] = next(iter(lengths), 0)
+        for split, names in manifest["splits"].items():
+            entries = [manifest["sequences"][n] for n in names]
+            kept = sum(e["windows"] for e in entries)
+            cand = sum(e["candidates"] for e in entries)
+            manifest["totals"][split] = {"sequences": len(names), "windows": kept, "candidates": cand,
+                                         "dropped": cand - kept}
+        train = [
+            SequenceWindows(name, Split.TRAIN, _load_arrays(tmp / manifest["sequences"][name]["path"]))
+            for name in manifest["splits"].get(Split.TRAIN.value, [])
+        ]
+        manifest["normalization"] = normalization_stats(train)
+        del train  # close the memory maps before the folder is renamed
+        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
+    return manifest
+
+
+def read_manifest(root: str | Path) -> dict[str, Any]:
+    """Load and check a dataset manifest."""
+    path = Path(root) / MANIFEST
+    if not path.is_file():
+        raise InputFormatError("not a biasgt window dataset (no manifest.json)", path=root,
+                               hint="create one with 'biasgt windows'")
+    try:
+        manifest = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, json.JSONDecodeError) as exc:
+        raise InputFormatError(f"cannot read the manifest ({exc})", path=path,
+                               hint="re-create the dataset with 'biasgt windows'") from None
+    if not isinstance(manifest, dict) or manifest.get("format_version") != FORMAT_VERSION:
+        version = manifest.get("format_version") if isinstance(manifest, dict) else None
+        raise InputFormatError(f"unsupported dataset format {version}", path=path,
+                               hint="re-create the dataset with this version's 'biasgt windows'")
+    return manifest
+
+
+class WindowDataset(torch.utils.data.Dataset):
+    """Windows of one split, memory-mapped; a ``torch.utils.data.Dataset``.
+
+    The ``.npy`` arrays are opened with ``np.load(..., mmap_mode="r")`` (``np.memmap``): only
+    the windows asked for are read from disk, so the dataset may be larger than RAM.
+
+    Items are dicts: ``imu`` [T, 6] (gyro rad/s, acc m/s^2), ``bias`` [T, 6], ``bias_std``
+    [T, 6], ``dt_s`` [T-1], ``start_R`` [3, 3], ``start_v`` [3], ``start_p`` [3], ``end_R``
+    [3, 3], ``end_v`` [3], ``end_p`` [3] (tensors of ``dtype``), plus ``t0_ns`` (int) and
+    ``sequence`` (str). A ``DataLoader`` with ``batch_size=B`` stacks them to [B, T, 6], ...,
+    ``t0_ns`` [B] (int64) and a list of B names.
+
+    Args:
+        root: Dataset folder.
+        split: Which split to serve (a sequence belongs to exactly one).
+        dtype: Floating dtype of the returned tensors (default float32).
+    """
+
+    def __init__(self, root: str | Path, split: Split | str = Split.TRAIN, dtype: Any = None) -> None:
+        self.root = Path(root)
+        self.split = Split(split)
+        self.manifest = read_manifest(self.root)
+        self.dtype = dtype or torch.float32
+        self.normalization = {k: np.asarray(v) for k, v in self.manifest["normalization"].items()}
+        self.window_samples = int(self.manifest["window_samples"])
+        self._arrays: list[dict[str, np.ndarray]] = []
+        self._names: list[str] = []
+        index: list[tuple[int, int]] = []
+        for name, entry in self.manifest["sequences"].items():
+            if Split(entry["split"]) is not self.split or entry["windows"] == 0:
+                continue
+            arrays = _load_arrays(self.root / entry["path"])
+            if len(arrays["imu"]) != entry["windows"]:
+                raise InputFormatError(f"sequence '{name}' holds {len(arrays['imu'])} windows, the manifest says "
+                                       f"{entry['windows']}", path=self.root / entry["path"],
+                                       hint="re-create the dataset with 'biasgt windows'")
+            self._arrays.append(arrays)
+            self._names.append(name)
+            index.extend((len(self._arrays) - 1, i) for i in range(entry["windows"]))
+        self._index = index
+
+    def __getstate__(self) -> dict[str, Any]:
+        # Pickled for DataLoader workers started by 'spawn': re-open the memory maps there
+        # instead of copying every array into the pickle.
+        state = dict(self.__dict__)
+        state["_arrays"] = None
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        seqs = self.manifest["sequences"]
+        self._arrays = [_load_arrays(self.root / seqs[name]["path"]) for name in self._names]
+
+    @property
+    def sequences(self) -> list[str]:
+        return list(self._names)
+
+    def arrays(self, sequence: str) -> dict[str, np.ndarray]:
+        """The memory-mapped arrays of one sequence of this split (``ARRAYS`` name -> [W, ...])."""
+        return self._arrays[self._names.index(sequence)]
+
+    def __len__(self) -> int:
+        return len(self._index)
+
+    def __getitem__(self, item: int) -> dict[str, Any]:
+        s, i = self._index[item]
+        a = self._arrays[s]
+        t_ns = np.asarray(a["t_ns"][i])
+        out: dict[str, Any] = {
+            k: torch.as_tensor(np.array(a[k][i]), dtype=self.dtype)
+            for k in ARRAYS if k != "t_ns"
+        }
+        out["dt_s"] = torch.as_tensor(np.diff(t_ns) * 1e-9, dtype=self.dtype)
+        out["t0_ns"] = int(t_ns[0])
+        out["sequence"] = self._names[s]
+        return out

@@ -1,0 +1,514 @@
+"""Training windows: cut recovered sequences into fixed-length IMU windows with bias and states.
+
+Every sequence is cut exactly as the validation cuts it (:func:`pipeline.validation.plan_windows`),
+so a model is trained and judged on the same windows. A window holds the IMU samples
+``i .. i + n`` with ``n = round(window_s * rate)`` intervals (``T = n + 1`` samples, spanning
+exactly ``window_s``) and starts every ``round(n * (1 - overlap))`` samples. For each window:
+
+* ``imu`` [T, 6]: gyro (rad/s) then accelerometer (m/s^2), as recorded (or resampled, below);
+* ``bias`` / ``bias_std`` [T, 6]: the recovery's keyframe bias (``RECOVERY_DIR/bias.csv``)
+  interpolated to the IMU stamps with its standard deviation (:func:`interpolation.bias.
+  interpolate_bias`, linear = Brownian-bridge mean, random walks from ``recovery.json``): the
+  same numbers ``biasgt interpolate`` writes;
+* ``start_*`` / ``end_*``: the reference orientation (world-from-imu, [3, 3]), velocity and
+  position at the first and last stamp: the sequence's ground-truth state when it has one,
+  else the pose stream the recovery used, moved onto the IMU clock and frame with the
+  recovery's ``pose_time_offset_s`` and ``T_imu_pose`` (:func:`pipeline.validation.
+  build_reference`, smoothing-spline velocity);
+* ``t_ns`` [T] (``t0_ns`` = its first stamp) and the sequence name.
+
+Dropped windows (counted per reason in the manifest; a window counts under every reason that
+applies): ``imu_gap`` (an IMU interval > ``gap_factor`` x the nominal one inside the window),
+``imu_nonfinite``, ``outside_recovery`` (a sample outside the recovered bias span: the bias is
+never extrapolated) and ``no_reference`` (no reference state at the first or last stamp).
+
+Rates. All windows of a dataset have the same number of samples, so all sequences must have
+one uniform IMU rate: the same window length in samples and a nominal rate within 1 % of the
+dataset's (the first sequence's), and at most 1 % of the (non-gap) intervals more than 10 %
+off the nominal one. Otherwise extraction stops with a one-line error naming the sequence, its
+rate and ``--resample-hz``. With ``resample_hz`` set, each sequence that does not already
+satisfy this at that rate is resampled: the grid is ``t_k = t_first + round(k / resample_hz)``
+(ns) over the recorded span, each IMU channel is interpolated linearly between the recorded
+samples (:func:`numpy.interp`), and grid points inside an IMU gap are left out, so that windows
+crossing the gap are still dropped rather than filled with invented readings. Linear
+interpolation attenuates content near the Nyquist frequency of the slower rate; downsampling
+does not low-pass filter first (choose a rate at or above the recorded one where possible).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import logging
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from interpolation.bias import read_bias_csv
+from interpolation.pipeline import recovery_random_walk
+from pipeline.errors import ConfigError, DataError, InputFormatError
+from pipeline.types import NS_PER_S, ImuSeries, Sequence
+from pipeline.validation import (
+    ReferenceStates,
+    ValidationConfig,
+    _gap_free_mask,
+    _window_any,
+    build_reference,
+    plan_windows,
+    read_recovery_dir,
+    recovered_bias_at_imu,
+)
+from training.dataset import ARRAYS, SequenceWindows, Split, write_dataset
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "DropReason",
+    "WindowConfig",
+    "WindowSource",
+    "build_window_dataset",
+    "extract_windows",
+    "format_summary",
+    "read_splits_file",
+    "resample_imu",
+    "sources_from_results",
+]
+
+#: Largest relative difference between a sequence's nominal IMU rate and the dataset's.
+RATE_TOLERANCE = 0.01
+#: An interval more than this (relative) off the nominal one is irregular ...
+JITTER_TOLERANCE = 0.10
+#: ... and more than this fraction of irregular intervals makes the stamps non-uniform.
+MAX_IRREGULAR_FRACTION = 0.01
+
+
+class DropReason(str, enum.Enum):
+    """Why a window is left out of the dataset."""
+
+    IMU_GAP = "imu_gap"
+    IMU_NONFINITE = "imu_nonfinite"
+    OUTSIDE_RECOVERY = "outside_recovery"
+    NO_REFERENCE = "no_reference"
+
+
+@dataclass(frozen=True)
+class WindowConfig:
+    """How sequences are cut into windows.
+
+    Attributes:
+        window_s: Window length in seconds (``n = round(window_s * rate)`` intervals, n + 1 samples).
+        overlap: Fraction of a window shared with the next, in [0, 1) (0.5: stride window_s / 2).
+        resample_hz: Resample IMU streams onto a uniform grid at this rate (Hz) where needed;
+            None refuses sequences at another rate (see the module docstring).
+        gap_factor: An IMU interval longer than this times the nominal one is a gap.
+    """
+
+    window_s: float = 1.0
+    overlap: float = 0.5
+    resample_hz: float | None = None
+    gap_factor: float = 2.0
+
+    def __post_init__(self) -> None:
+        try:
+            for name in ("window_s", "overlap", "gap_factor"):
+                object.__setattr__(self, name, float(getattr(self, name)))
+            if self.resample_hz is not None:
+                object.__setattr__(self, "resample_hz", float(self.resample_hz))
+        except (TypeError, ValueError):
+            raise ConfigError(f"window settings must be numbers, got {self.__dict__}",
+                              hint="give window_s, overlap, gap_factor (and resample_hz) as numbers") from None
+        checks = (
+            ("window_s", np.isfinite(self.window_s) and self.window_s > 0, "give a positive length in seconds"),
+            ("overlap", 0.0 <= self.overlap < 1.0, "give an overlap in [0, 1), e.g. 0.5"),
+            ("resample_hz", self.resample_hz is None or (np.isfinite(self.resample_hz) and self.resample_hz > 0),
+             "give a positive rate in Hz, e.g. 200"),
+            ("gap_factor", self.gap_factor > 1.0, "give a factor > 1, e.g. 2"),
+        )
+        for name, ok, hint in checks:
+            if not ok:
+                raise ConfigError(f"invalid window setting {name} = {getattr(self, name)!r}", field=name, hint=hint)
+
+    def to_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any] | None, *, path: str | Path | None = None) -> "WindowConfig":
+        """Build from a (possibly partial) mapping; unknown keys raise :class:`ConfigError`."""
+        d = dict(d or {})
+        known = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ConfigError(f"unknown window setting(s) {', '.join(map(str, unknown))}", path=path,
+                              field=str(unknown[0]), hint=f"known settings: {', '.join(sorted(known))}")
+        return cls(**d)
+
+    def validation_config(self) -> ValidationConfig:
+        """The validation config that cuts the same windows."""
+        return ValidationConfig(window_s=self.window_s, overlap=self.overlap, gap_factor=self.gap_factor)
+
+
+@dataclass(frozen=True)
+class WindowSource:
+    """One sequence to window.
+
+    Attributes:
+        name: Sequence name in the dataset (a folder name).
+        split: Its split (the whole sequence belongs to it).
+        store_dir: Canonical store (``biasgt convert`` / ingest output) or any readable input.
+        recovery_dir: Folder written by ``biasgt recover`` (``bias.csv``, ``recovery.json``).
+    """
+
+    name: str
+    split: Split
+    store_dir: Path
+    recovery_dir: Path
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "split", Split(self.split))
+        except ValueError:
+            raise ConfigError(f"unknown split '{self.split}' for sequence '{self.name}'", field=self.name,
+                              hint=f"use one of {', '.join(s.value for s in Split)}") from None
+        object.__setattr__(self, "store_dir", Path(self.store_dir))
+        object.__setattr__(self, "recovery_dir", Path(self.recovery_dir))
+
+
+# ----------------------------------------------------------------------------- rates
+
+
+def _nominal_rate_hz(imu: ImuSeries) -> float:
+    dt = np.diff(imu.t_ns)
+    dt = dt[dt > 0]
+    if len(dt) == 0:
+        raise DataError("the IMU has fewer than two distinct stamps", hint="give a longer recording")
+    return float(NS_PER_S / np.median(dt))
+
+
+def _irregular_fraction(imu: ImuSeries, gap_factor: float) -> float:
+    """Fraction of the non-gap intervals more than JITTER_TOLERANCE off the nominal one."""
+    dt = np.diff(imu.t_ns).astype(np.float64)
+    nominal = float(np.median(dt))
+    inside = dt <= gap_factor * nominal
+    if not inside.any():
+        return 0.0
+    return float(np.mean(np.abs(dt[inside] / nominal - 1.0) > JITTER_TOLERANCE))
+
+
+def _rate_matches(rate_hz: float, target_hz: float, window_s: float) -> bool:
+    return (abs(rate_hz / target_hz - 1.0) <= RATE_TOLERANCE
+            and round(window_s * rate_hz) == round(window_s * target_hz))
+
+
+def resample_imu(imu: ImuSeries, rate_hz: float, *, gap_factor: float = 2.0) -> ImuSeries:
+    """The IMU linearly interpolated onto a uniform grid ``t_first + round(k / rate_hz)`` (ns).
+
+    Grid points inside a recorded gap (an interval > ``gap_factor`` x the recorded nominal one)
+    are left out, so the result keeps the gap. Temperature is interpolated too.
+
+    Args:
+        imu: Recorded IMU, strictly increasing stamps.
+        rate_hz: Target rate (Hz).
+        gap_factor: Gap threshold of the recorded stamps.
+
+    Returns:
+        The resampled IMU, [M] rows.
+    """
+    t = imu.t_ns
+    if len(t) < 2 or np.any(np.diff(t) <= 0):
+        raise DataError("cannot resample: the IMU stamps are not strictly increasing",
+                        hint="run 'biasgt convert --repair all' first")
+    period_ns = NS_PER_S / float(rate_hz)
+    m = int(np.floor((int(t[-1]) - int(t[0])) / period_ns + 1e-9)) + 1
+    grid = int(t[0]) + np.round(np.arange(m) * period_ns).astype(np.int64)
+    grid = grid[_gap_free_mask(t, grid, gap_factor)]
+    x = (t - t[0]).astype(np.float64)
+    xq = (grid - t[0]).astype(np.float64)
+
+    def interp(values: np.ndarray) -> np.ndarray:
+        return np.column_stack([np.interp(xq, x, values[:, i]) for i in range(values.shape[1])])
+
+    temp = None
+    if imu.temperature_degc is not None:
+        temp = np.interp(xq, x, imu.temperature_degc)
+    return ImuSeries(grid, interp(imu.gyro_radps), interp(imu.acc_mps2), temp)
+
+
+def _uniform_imu(sequence: Sequence, config: WindowConfig, rate_hz: float | None) -> tuple[ImuSeries, dict[str, Any]]:
+    """The sequence's IMU at the dataset rate (resampled only when ``config.resample_hz`` asks)."""
+    imu = sequence.imu
+    rate = _nominal_rate_hz(imu)
+    irregular = _irregular_fraction(imu, config.gap_factor)
+    target = config.resample_hz if config.resample_hz is not None else rate_hz
+    uniform = irregular <= MAX_IRREGULAR_FRACTION
+    matches = target is None or _rate_matches(rate, target, config.window_s)
+    info: dict[str, Any] = {"recorded_rate_hz": rate, "resampled": False}
+    if uniform and matches:
+        info["rate_hz"] = rate
+        return imu, info
+    if config.resample_hz is None:
+        if not matches:
+            raise DataError(
+                f"sequence '{sequence.name}' has an IMU rate of {rate:.3f} Hz, not the dataset's {target:.3f} Hz",
+                field="resample_hz",
+                hint="give --resample-hz HZ (windows: resample_hz) to resample every sequence onto one uniform grid",
+            )
+        raise DataError(
+            f"sequence '{sequence.name}' has non-uniform IMU stamps ({rate:.3f} Hz nominal, {irregular:.1%} of the "
+            f"intervals more than {JITTER_TOLERANCE:.0%} off)", field="resample_hz",
+            hint="give --resample-hz HZ (windows: resample_hz) to resample onto a uniform grid",
+        )
+    log.info("resampling the IMU of '%s' from %.3f Hz to %.3f Hz", sequence.name, rate, config.resample_hz)
+    out = resample_imu(imu, config.resample_hz, gap_factor=config.gap_factor)
+    info.update(resampled=True, rate_hz=float(config.resample_hz))
+    return out, info
+
+
+# ----------------------------------------------------------------------------- extraction
+
+
+def _empty_arrays(samples: int) -> dict[str, np.ndarray]:
+    shapes = {"imu": (samples, 6), "bias": (samples, 6), "bias_std": (samples, 6), "t_ns": (samples,),
+              "start_R": (3, 3), "start_v": (3,), "start_p": (3,), "end_R": (3, 3), "end_v": (3,), "end_p": (3,)}
+    return {k: np.zeros((0, *shapes[k]), dtype=np.int64 if k == "t_ns" else np.float64) for k in ARRAYS}
+
+
+def extract_windows(
+    sequence: Sequence,
+    recovery_dir: str | Path,
+    split: Split | str,
+    config: WindowConfig = WindowConfig(),
+    *,
+    rate_hz: float | None = None,
+) -> SequenceWindows:
+    """Cut one sequence into training windows (see the module docstring).
+
+    Args:
+        sequence: The sequence (IMU; ground-truth state or the recovery's pose stream).
+        recovery_dir: Its recovery folder (``bias.csv``, ``recovery.json``).
+        split: Split of the whole sequence.
+        config: Window settings.
+        rate_hz: The dataset's IMU rate, which this sequence must match unless resampled (None:
+            any uniform rate, or ``config.resample_hz``).
+
+    Returns:
+        The kept windows (arrays [W, T, 6], [W, T], [W, 3, 3], [W, 3]) with drop counts per
+        :class:`DropReason`, ``candidates`` and ``info`` (rates, reference kind, folders).
+
+    Raises:
+        DataError: No IMU; another or non-uniform rate without ``resample_hz``.
+        InputFormatError: Unreadable recovery folder.
+        ValidationError: Sequence shorter than one window, no usable reference.
+    """
+    if sequence.imu is None or len(sequence.imu) < 2:
+        raise DataError(f"sequence '{sequence.name}' has no IMU to cut into windows",
+                        hint="give the store of a recording with IMU readings")
+    split = Split(split)
+    recovery_dir = Path(recovery_dir)
+    recovery = read_recovery_dir(recovery_dir)
+    random_walk = recovery_random_walk(recovery_dir)
+    imu, info = _uniform_imu(sequence, config, rate_hz)
+    if info["resampled"]:
+        sequence = dataclasses.replace(sequence, imu=imu)
+    vcfg = config.validation_config()
+
+    plan = plan_windows(imu, vcfg)
+    n, starts = plan.n, plan.starts
+    keep = plan.keep.copy()
+    dropped = {DropReason.IMU_GAP.value: plan.dropped["imu_gap"],
+               DropReason.IMU_NONFINITE.value: plan.dropped["imu_nonfinite"]}
+
+    bias = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), imu.t_ns, random_walk)
+    outside = _window_any(np.asarray(bias.clamped, bool), starts, n + 1)
+    dropped[DropReason.OUTSIDE_RECOVERY.value] = int(outside.sum())
+    keep &= ~outside
+
+    reference: ReferenceStates = build_reference(sequence, recovery=recovery, config=vcfg)
+    no_ref = ~(reference.valid[starts] & reference.valid[starts + n])
+    dropped[DropReason.NO_REFERENCE.value] = int(no_ref.sum())
+    keep &= ~no_ref
+
+    s = starts[keep]
+    idx = s[:, None] + np.arange(n + 1)[None, :]
+    e = s + n
+    if len(s):
+        imu6 = imu.imu_6
+        arrays = {
+            "imu": imu6[idx], "bias": bias.bias[idx], "bias_std": bias.std[idx], "t_ns": imu.t_ns[idx],
+            "start_R": reference.R[s], "start_v": reference.v[s], "start_p": reference.p[s],
+            "end_R": reference.R[e], "end_v": reference.v[e], "end_p": reference.p[e],
+        }
+    else:
+        arrays = _empty_arrays(n + 1)
+    info.update(
+        window_samples=n + 1,
+        reference=reference.kind.value,
+        reference_info=dict(reference.info),
+        recovery_dir=str(recovery_dir),
+        bias_random_walk=random_walk.tolist(),
+    )
+    if not len(s):
+        log.warning("sequence '%s': all %d windows dropped (%s)", sequence.name, len(starts),
+                    ", ".join(f"{k} {v}" for k, v in dropped.items() if v))
+    elif len(s) < len(starts):
+        log.info("sequence '%s': %d of %d windows kept (%s)", sequence.name, len(s), len(starts),
+                 ", ".join(f"{k} {v}" for k, v in dropped.items() if v))
+    return SequenceWindows(sequence.name, split, arrays, dropped, candidates=len(starts), info=info)
+
+
+# ----------------------------------------------------------------------------- dataset
+
+
+def _load_source(source: WindowSource) -> Sequence:
+    from pipeline.store import is_store, read_store
+
+    if is_store(source.store_dir):
+        return read_store(source.store_dir)
+    if not source.store_dir.exists():
+        raise InputFormatError(f"input of sequence '{source.name}' does not exist", path=source.store_dir,
+                               hint="give the store folder written by 'biasgt convert' (or the workflow's ingest)")
+    from pipeline.ingest import load
+
+    return load(source.store_dir)
+
+
+def _check_sources(sources: list[WindowSource]) -> None:
+    if not sources:
+        raise ConfigError("no sequence to window", hint="give at least one sequence (--seq or --splits)")
+    seen: dict[str, WindowSource] = {}
+    for src in sources:
+        if src.name in seen:
+            a, b = seen[src.name].split.value, src.split.value
+            where = f"in splits {a} and {b}" if a != b else f"twice in split {a}"
+            raise ConfigError(f"sequence '{src.name}' is listed {where}", field=src.name,
+                              hint="name every sequence once, in exactly one split (windows of one recording "
+                                   "must never be in two splits)")
+        seen[src.name] = src
+    if not any(s.split is Split.TRAIN for s in sources):
+        raise ConfigError("no sequence in split 'train': normalisation statistics come from the train split",
+                          hint="assign at least one sequence to 'train'")
+
+
+def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
+                         config: WindowConfig = WindowConfig()) -> dict[str, Any]:
+    """Window every source and write the dataset atomically (:func:`training.dataset.write_dataset`).
+
+    Sequences are loaded, cut and written one at a time. The dataset rate is ``config.resample_hz``
+    when set, else the first source's IMU rate; every other sequence must match it (see the module
+    docstring). A failure anywhere leaves ``out_dir`` as it was.
+
+    Args:
+        sources: The sequences, each in one split; at least one in ``train``.
+        out_dir: Dataset folder.
+        config: Window settings.
+
+    Returns:
+        The manifest (see :func:`training.dataset.write_dataset`).
+
+    Raises:
+        ConfigError: A sequence listed twice (in one or two splits), no train sequence.
+        DataError / InputFormatError / ValidationError: From loading and cutting a sequence.
+    """
+    sources = list(sources)
+    _check_sources(sources)
+
+    def windows() -> Iterator[SequenceWindows]:
+        rate = config.resample_hz
+        for src in sources:
+            seq = _load_source(src)
+            seq = dataclasses.replace(seq, name=src.name)
+            sw = extract_windows(seq, src.recovery_dir, src.split, config, rate_hz=rate)
+            sw.info["store_dir"] = str(src.store_dir)
+            if rate is None:
+                rate = float(sw.info["rate_hz"])
+            yield sw
+
+    return write_dataset(windows(), out_dir, config=config.to_dict())
+
+
+# ----------------------------------------------------------------------------- splits and results layout
+
+
+def read_splits_file(path: str | Path) -> dict[Split, list[str]]:
+    """Read a splits YAML: ``{train: [NAME, ...], val: [...], test: [...], none: [...]}``.
+
+    Raises:
+        ConfigError: Unreadable file, unknown split, a non-list value, or a name in two splits.
+    """
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError("splits file not found", path=path) from None
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"cannot read the splits file ({exc})", path=path) from None
+    if not isinstance(data, dict) or not data:
+        raise ConfigError("a splits file is a mapping split -> list of sequence names", path=path,
+                          hint="write e.g. 'train: [MH_01, MH_03]' and 'test: [MH_02]'")
+    out: dict[Split, list[str]] = {}
+    where: dict[str, Split] = {}
+    for key, names in data.items():
+        try:
+            split = Split(str(key))
+        except ValueError:
+            raise ConfigError(f"unknown split '{key}'", path=path, field=str(key),
+                              hint=f"use {', '.join(s.value for s in Split)}") from None
+        if names is None:
+            names = []
+        if not isinstance(names, list) or not all(isinstance(n, (str, int)) for n in names):
+            raise ConfigError(f"split '{key}' must be a list of sequence names", path=path, field=str(key))
+        for name in map(str, names):
+            if name in where:
+                a = where[name].value
+                detail = f"in splits {a} and {split.value}" if a != split.value else f"twice in split {a}"
+                raise ConfigError(f"sequence '{name}' is listed {detail}", path=path, field=name,
+                                  hint="name every sequence once, in exactly one split")
+            where[name] = split
+            out.setdefault(split, []).append(name)
+    return out
+
+
+def sources_from_results(splits: Mapping[Split | str, Iterable[str]], results_dir: str | Path) -> list[WindowSource]:
+    """Sources from a workflow results folder: ``DIR/ingest/NAME`` and ``DIR/recovery/NAME``.
+
+    Raises:
+        InputFormatError: A store or recovery folder is missing.
+    """
+    results_dir = Path(results_dir)
+    out = []
+    for split, names in splits.items():
+        for name in names:
+            store, rec = results_dir / "ingest" / name, results_dir / "recovery" / name
+            for folder, stage in ((store, "ingest"), (rec, "recovery")):
+                if not folder.is_dir():
+                    raise InputFormatError(f"no {stage} output for sequence '{name}'", path=folder,
+                                           hint=f"run the workflow up to the {stage} stage for '{name}' "
+                                                "(biasgt run), or give --results the right folder")
+            out.append(WindowSource(name, Split(split), store, rec))
+    return out
+
+
+def format_summary(manifest: Mapping[str, Any]) -> str:
+    """Per-split table: sequences, windows kept, windows dropped (and the reasons)."""
+    rows = [("split", "sequences", "windows", "dropped", "reasons")]
+    for split in Split:
+        names = manifest.get("splits", {}).get(split.value)
+        if not names:
+            continue
+        entries = [manifest["sequences"][n] for n in names]
+        reasons: dict[str, int] = {}
+        for e in entries:
+            for k, v in e["dropped"].items():
+                reasons[k] = reasons.get(k, 0) + int(v)
+        kept = sum(e["windows"] for e in entries)
+        dropped = sum(e["candidates"] - e["windows"] for e in entries)
+        why = ", ".join(f"{k} {v}" for k, v in reasons.items() if v) or "-"
+        rows.append((split.value, str(len(names)), str(kept), str(dropped), why))
+    widths = [max(len(r[i]) for r in rows) for i in range(4)]
+    return "\n".join(
+        "  ".join([r[0].ljust(widths[0])] + [c.rjust(w) for c, w in zip(r[1:4], widths[1:])] + [r[4]])
+        for r in rows
+    )
