@@ -3,7 +3,7 @@
 Cases (each measured in its own subprocess, so the peak RSS is that case's alone):
 
 * ``v101``: the real EuRoC V1_01_easy folder (29120 IMU rows), from the shared data folder;
-* ``hour``: a synthetic 1-hour 200-Hz IMU (720000 rows: sinusoids + noise, gravity on z)
+* ``hour``: a simulated 1-hour 200-Hz IMU (720000 rows, pipeline.sim: handheld motion, noise, bias)
   written as an EuRoC/ASL ``mav0/imu0/data.csv`` in a temporary folder, read back through
   ``load_sequence``.
 
@@ -35,23 +35,25 @@ TARGETS = {"v101": {"seconds": 0.5, "peak_rss_mb": None}, "hour": {"seconds": 5.
 
 
 def write_hour_asl(root: Path, duration_s: float = 3600.0, rate_hz: float = 200.0, seed: int = 0) -> Path:
-    """Write a synthetic ASL folder ``root/mav0/imu0/data.csv`` (sinusoids + white noise)."""
-    import numpy as np
+    """Simulate a 1-hour sequence (pipeline.sim) and write its IMU as ``root/mav0/imu0/data.csv``.
+
+    The IMU comes from the project's simulator (handheld motion, EuRoC-like noise, random-walk
+    bias); it is written with pyarrow's CSV writer (full precision, integer ns) because the
+    simulator's own writer, which also writes poses and the ground truth, is slow for an hour.
+    """
     import pyarrow as pa
     import pyarrow.csv as pcsv
 
-    rng = np.random.default_rng(seed)
-    n = int(round(duration_s * rate_hz))
-    t_ns = 1_403_715_273_262_142_976 + np.arange(n, dtype=np.int64) * int(round(1e9 / rate_hz))
-    t_s = np.arange(n) / rate_hz
-    gyro = 0.6 * np.sin(np.outer(t_s, [0.31, 0.73, 1.13]) + [0.0, 1.0, 2.0]) + rng.normal(0, 0.0024, (n, 3))
-    gyro += [0.002, -0.02, 0.08]  # bias
-    acc = 0.8 * np.cos(np.outer(t_s, [0.23, 0.57, 0.91])) + [0.0, 0.0, 9.81] + rng.normal(0, 0.028, (n, 3))
+    from pipeline.sim import SimConfig, simulate
+
+    config = SimConfig.from_dict({"duration_s": duration_s, "seed": seed, "imu": {"rate_hz": rate_hz}})
+    imu = simulate(config).sequence.imu
     d = root / "mav0" / "imu0"
     d.mkdir(parents=True, exist_ok=True)
     header = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
               "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n")
-    table = pa.table({"t": t_ns, **{f"g{i}": gyro[:, i] for i in range(3)}, **{f"a{i}": acc[:, i] for i in range(3)}})
+    table = pa.table({"t": imu.t_ns, **{f"g{i}": imu.gyro_radps[:, i] for i in range(3)},
+                      **{f"a{i}": imu.acc_mps2[:, i] for i in range(3)}})
     with open(d / "data.csv", "wb") as f:
         f.write(header.encode("ascii"))
         pcsv.write_csv(table, f, pcsv.WriteOptions(include_header=False))

@@ -514,3 +514,14 @@ def test_select_pose_stream_priority() -> None:
     assert "--poses NAME" in str(exc.value) and "vio, ground_truth" in str(exc.value)
     with pytest.raises(DataError):
         select_pose_stream(Sequence("empty"))
+
+
+def test_int64_overflowing_stamp_is_a_clear_error(tmp_path):
+    """19-digit stamps take the fast int64 path; one beyond int64 falls back and is reported."""
+    d = tmp_path / "mav0" / "imu0"
+    d.mkdir(parents=True)
+    header = ("#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
+              "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]\n")
+    (d / "data.csv").write_text(header + "9999999999999999999,0,0,0,0,0,9.8\n1,0,0,0,0,0,9.8\n")
+    with pytest.raises(InputFormatError, match=r"data.csv:2: .*does not fit int64"):
+        read_asl(tmp_path)

@@ -423,9 +423,44 @@ def _read_csv(data: str, ncols: int, stamp_col: int, value_cols: list[int], deli
     return _Raw(stamps, np.ascontiguousarray(values))
 
 
+def _read_arrow(data: str, ncols: int, stamp_col: int, value_cols: list[int], delimiter: Delimiter) -> _Raw | None:
+    """Parse a clean table with pyarrow (int64 stamps, float64 values); ``None`` if it is not clean."""
+    import pyarrow.csv as pacsv
+
+    names = [f"c{i}" for i in range(ncols)]
+    types = {names[stamp_col]: pa.int64(), **{names[c]: pa.float64() for c in value_cols}}
+    try:
+        table = pacsv.read_csv(
+            pa.py_buffer(data.encode("utf-8")),
+            read_options=pacsv.ReadOptions(column_names=names),
+            parse_options=pacsv.ParseOptions(delimiter=delimiter.value, quote_char=False, ignore_empty_lines=True),
+            convert_options=pacsv.ConvertOptions(column_types=types, include_columns=[names[stamp_col]]
+                                                 + [names[c] for c in value_cols]),
+        )
+    except (pa.ArrowInvalid, pa.ArrowTypeError, pa.ArrowNotImplementedError):
+        return None
+    if table.num_rows == 0 or any(table.column(n).null_count for n in table.column_names):
+        return None
+    stamps = table.column(names[stamp_col]).to_numpy()
+    values = np.column_stack([table.column(names[c]).to_numpy() for c in value_cols]) if value_cols \
+        else np.zeros((table.num_rows, 0))
+    if np.isnan(values).any():
+        return None
+    return _Raw(np.asarray(stamps, dtype=np.int64), np.ascontiguousarray(values, dtype=np.float64))
+
+
 def _read_fast(data: str, ncols: int, stamp_col: int, value_cols: list[int], delimiter: Delimiter,
                int_stamps: bool) -> _Raw | None:
-    """Strict pandas parse; ``None`` when any line is not clean (the caller then validates line by line)."""
+    """Strict parse; ``None`` when any line is not clean (the caller then validates line by line).
+
+    Clean integer-stamped tables (the common case: EuRoC/ASL files) go through pyarrow's
+    multithreaded CSV reader, several times faster than pandas on long recordings; anything it
+    rejects (spaces after delimiters, comment lines, text stamps) falls back to pandas.
+    """
+    if int_stamps and delimiter is not Delimiter.WHITESPACE:
+        raw = _read_arrow(data, ncols, stamp_col, value_cols, delimiter)
+        if raw is not None:
+            return raw
     try:
         raw = _read_csv(data, ncols, stamp_col, value_cols, delimiter, int_stamps, strict=True)
     except (ValueError, OverflowError, TypeError, pd.errors.ParserError, pd.errors.EmptyDataError):
@@ -481,7 +516,7 @@ def _read_validated(
     return raw, bad_lines, n_data
 
 
-_INT_STAMP_RE = re.compile(r"\s*[+-]?\d{1,18}\s*")
+_INT_STAMP_RE = re.compile(r"\s*[+-]?\d{1,19}\s*")  # 19 digits: ns since 1970 (int64 overflow falls back)
 
 
 def _first_stamp_is_int(data: str, stamp_col: int, delimiter: Delimiter) -> bool:
