@@ -1,0 +1,281 @@
+"""Configuration of bias recovery: one dataclass, enums for every mode.
+
+``RecoveryConfig.from_dict`` rejects unknown keys with a :class:`ConfigError`
+naming the key, so a typo in a YAML file never silently falls back to a default.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from pipeline.errors import ConfigError
+from pipeline.types import PoseSourceKind
+
+
+class PoseFactorMode(str, enum.Enum):
+    """How pose measurements enter the graph.
+
+    ABSOLUTE: one prior per pose (mocap, ground truth, position trackers).
+    RELATIVE: BetweenFactors over a short horizon (VIO): global drift of the
+        source cannot leak into the bias, at the price of weaker constraints.
+        Trade-off: an absolute factor on a drifting VIO pose explains the drift
+        as acceleration (acc bias) and rotation rate (gyro bias); relative factors
+        over ``relative_horizon`` keyframes (~0.1-0.3 s) see only the local,
+        accurate motion, so the bias is less constrained (larger std) but unbiased.
+    AUTO: ABSOLUTE for MOCAP / POSITION_TRACKER / GROUND_TRUTH, RELATIVE for VIO.
+    """
+
+    AUTO = "auto"
+    ABSOLUTE = "absolute"
+    RELATIVE = "relative"
+
+
+class ExtrinsicMode(str, enum.Enum):
+    """Where ``T_imu_pose`` comes from.
+
+    KNOWN: the calibration (``T_imu_frames[frame]``), identity when absent.
+    ESTIMATE: initialise from the data and refine jointly in the graph.
+    AUTO: KNOWN when the calibration names the tracked frame (or the frame is
+        the IMU itself), else ESTIMATE.
+    """
+
+    AUTO = "auto"
+    KNOWN = "known"
+    ESTIMATE = "estimate"
+
+
+class RobustLoss(str, enum.Enum):
+    """M-estimator on pose factors."""
+
+    HUBER = "huber"
+    CAUCHY = "cauchy"
+    NONE = "none"
+
+
+class TimeOffsetMode(str, enum.Enum):
+    """How the pose-to-IMU clock offset is obtained.
+
+    FIXED: use ``time_offset_s`` as given.
+    ESTIMATE: coarse correlation estimate, refined by a 1-D search of the
+        optimised cost (parabolic fit), with an uncertainty.
+    AUTO: FIXED (0 when not given) for GROUND_TRUTH streams, which are on the
+        IMU clock by construction; ESTIMATE otherwise.
+    """
+
+    AUTO = "auto"
+    FIXED = "fixed"
+    ESTIMATE = "estimate"
+
+
+class NoiseEstimation(str, enum.Enum):
+    """How bias random-walk strengths are chosen.
+
+    EVIDENCE: maximise the Laplace-approximated marginal likelihood over a grid
+        of inflation factors of the calibration's random walks (gyro and acc
+        separately), on a decimated graph.
+    FIXED: use the calibration (times ``*_random_walk_scale``) as given.
+    """
+
+    EVIDENCE = "evidence"
+    FIXED = "fixed"
+
+
+class ImuGapPolicy(str, enum.Enum):
+    """What to do with an IMU gap longer than ``max_imu_gap_s``.
+
+    SPLIT: recover each gap-free piece separately; no keyframe inside a gap.
+    REFUSE: raise a RecoveryError.
+    """
+
+    SPLIT = "split"
+    REFUSE = "refuse"
+
+
+@dataclass
+class RecoveryConfig:
+    """All knobs of :func:`recovery.recover.recover`.
+
+    Attributes:
+        pose_factor_mode: See :class:`PoseFactorMode`.
+        keyframe_rate_hz: Keyframes per second; ``None`` = every pose sample.
+        relative_horizon: RELATIVE mode: number of keyframes each BetweenFactor spans
+            (factors from every keyframe to the next ``relative_horizon`` ones).
+        time_offset_mode: See :class:`TimeOffsetMode`.
+        time_offset_s: Seconds added to pose stamps (FIXED mode, or the coarse start).
+        max_time_offset_s: Search range of the coarse offset estimate.
+        offset_refine_step_s: Largest grid step of the offset refinement (the step is
+            2x the coarse std, clamped to [step/8, step]).
+        offset_refine_keyframe_rate_hz: Keyframe rate of the refinement solves.
+        calib_window_s: Length of data used for offset / extrinsic / noise estimation.
+        extrinsic_mode: See :class:`ExtrinsicMode`.
+        extrinsic_keyframe_rate_hz: Keyframe rate of the joint extrinsic solve.
+        estimate_gravity: Estimate the gravity direction in the pose world frame;
+            ``None`` (auto): yes, except for POSITION_TRACKER streams (levelled frames).
+        gravity_mps2: Gravity magnitude.
+        gravity_window_s: Longest span of the decimated solve that estimates the
+            gravity direction (then fixed in the full-rate segments).
+        gravity_keyframe_rate_hz: Keyframe rate of that solve.
+        position_sigma_m: Pose position noise; ``None`` = default of the source kind.
+        rotation_sigma_rad: Pose rotation noise; ``None`` = default of the source kind.
+        gyro_noise_density / acc_noise_density: Override the calibration's white noise.
+        gyro_random_walk / acc_random_walk: Override the calibration's bias random walk.
+        noise_estimation: See :class:`NoiseEstimation`.
+        random_walk_scales: Candidate inflation factors of the random walks for EVIDENCE.
+        pose_sigma_scales: Candidate factors of the pose sigmas (ignored when
+            ``position_sigma_m`` is given).
+        noise_keyframe_rate_hz: Keyframe rate of the evidence solves.
+        integration_sigma: Preintegration integration noise (GTSAM integrationCovariance).
+        robust_loss: See :class:`RobustLoss`.
+        robust_k: Threshold of the M-estimator, in whitened units.
+        outlier_threshold: After convergence, a pose factor whose whitened residual
+            (per-DoF RMS) exceeds this many sigmas is counted in ``outliers_rejected``,
+            removed, and the window solved again.
+        segment_s: Segment length for long recordings (bounded memory).
+        segment_overlap_s: Overlap between segments (blended linearly).
+        max_imu_gap_s: Longest IMU gap bridged; see ``imu_gap_policy``.
+        imu_gap_policy: See :class:`ImuGapPolicy`.
+        min_poses: Fewest pose samples accepted.
+        max_iterations: LM iteration limit.
+        relative_error_tol: LM relative error tolerance.
+        min_rotation_excitation_deg: Below this rotation spread the extrinsic
+            rotation is declared unobservable.
+        compute_marginals: Compute the bias standard deviations (*_std columns).
+        marginal_rate_hz: Exact marginals on this grid (plus ends and gap edges),
+            linearly interpolated between; ``None`` = at every keyframe (slower).
+    """
+
+    pose_factor_mode: PoseFactorMode = PoseFactorMode.AUTO
+    keyframe_rate_hz: float | None = None
+    relative_horizon: int = 5
+    time_offset_mode: TimeOffsetMode = TimeOffsetMode.AUTO
+    time_offset_s: float = 0.0
+    max_time_offset_s: float = 0.5
+    offset_refine_step_s: float = 0.002
+    offset_refine_keyframe_rate_hz: float = 10.0
+    calib_window_s: float = 60.0
+    extrinsic_mode: ExtrinsicMode = ExtrinsicMode.AUTO
+    extrinsic_keyframe_rate_hz: float = 10.0
+    estimate_gravity: bool | None = None
+    gravity_mps2: float = 9.81
+    gravity_window_s: float = 300.0
+    gravity_keyframe_rate_hz: float = 10.0
+    position_sigma_m: float | None = None
+    rotation_sigma_rad: float | None = None
+    gyro_noise_density: float | None = None
+    acc_noise_density: float | None = None
+    gyro_random_walk: float | None = None
+    acc_random_walk: float | None = None
+    noise_estimation: NoiseEstimation = NoiseEstimation.EVIDENCE
+    random_walk_scales: list[float] = field(default_factory=lambda: [0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0])
+    pose_sigma_scales: list[float] = field(default_factory=lambda: [0.03, 0.1, 0.3, 1.0, 3.0, 10.0])
+    noise_keyframe_rate_hz: float = 10.0
+    integration_sigma: float = 1e-4
+    robust_loss: RobustLoss = RobustLoss.HUBER
+    robust_k: float = 3.0
+    outlier_threshold: float = 5.0
+    segment_s: float = 60.0
+    segment_overlap_s: float = 10.0
+    max_imu_gap_s: float = 0.1
+    imu_gap_policy: ImuGapPolicy = ImuGapPolicy.SPLIT
+    min_poses: int = 20
+    max_iterations: int = 30
+    relative_error_tol: float = 1e-6
+    min_rotation_excitation_deg: float = 10.0
+    compute_marginals: bool = True
+    marginal_rate_hz: float | None = 20.0
+
+    _ENUMS = {
+        "pose_factor_mode": PoseFactorMode,
+        "time_offset_mode": TimeOffsetMode,
+        "extrinsic_mode": ExtrinsicMode,
+        "robust_loss": RobustLoss,
+        "noise_estimation": NoiseEstimation,
+        "imu_gap_policy": ImuGapPolicy,
+    }
+
+    def __post_init__(self) -> None:
+        for name, enum_type in self._ENUMS.items():
+            value = getattr(self, name)
+            try:
+                setattr(self, name, enum_type(value))
+            except ValueError:
+                choices = ", ".join(e.value for e in enum_type)
+                raise ConfigError(f"invalid value {value!r}", field=name, hint=f"use one of {choices}") from None
+        positive = ("max_time_offset_s", "offset_refine_step_s", "offset_refine_keyframe_rate_hz", "calib_window_s",
+                    "extrinsic_keyframe_rate_hz", "gravity_mps2", "gravity_window_s", "gravity_keyframe_rate_hz", "noise_keyframe_rate_hz", "robust_k",
+                    "outlier_threshold", "segment_s", "max_imu_gap_s", "integration_sigma")
+        for name in positive:
+            if not float(getattr(self, name)) > 0:
+                raise ConfigError(f"must be > 0, got {getattr(self, name)!r}", field=name)
+        for name in ("keyframe_rate_hz", "marginal_rate_hz", "position_sigma_m", "rotation_sigma_rad", "gyro_noise_density",
+                     "acc_noise_density", "gyro_random_walk", "acc_random_walk"):
+            value = getattr(self, name)
+            if value is not None and not float(value) > 0:
+                raise ConfigError(f"must be > 0 or null, got {value!r}", field=name)
+        if self.segment_overlap_s < 0 or self.segment_overlap_s * 2 >= self.segment_s:
+            raise ConfigError("must be >= 0 and less than half of segment_s", field="segment_overlap_s")
+        if self.relative_horizon < 1:
+            raise ConfigError("must be >= 1", field="relative_horizon")
+        if self.min_poses < 3:
+            raise ConfigError("must be >= 3", field="min_poses")
+        if not self.random_walk_scales or any(float(s) <= 0 for s in self.random_walk_scales):
+            raise ConfigError("must be a non-empty list of positive numbers", field="random_walk_scales")
+        self.random_walk_scales = [float(s) for s in self.random_walk_scales]
+        if not self.pose_sigma_scales or any(float(s) <= 0 for s in self.pose_sigma_scales):
+            raise ConfigError("must be a non-empty list of positive numbers", field="pose_sigma_scales")
+        self.pose_sigma_scales = [float(s) for s in self.pose_sigma_scales]
+
+    @classmethod
+    def field_names(cls) -> list[str]:
+        return [f.name for f in dataclasses.fields(cls)]
+
+    def to_dict(self) -> dict[str, Any]:
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            value = getattr(self, f.name)
+            out[f.name] = value.value if isinstance(value, enum.Enum) else (list(value) if isinstance(value, list) else value)
+        return out
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], *, path: str | Path | None = None) -> "RecoveryConfig":
+        if not isinstance(d, dict):
+            raise ConfigError("recovery config must be a mapping of option: value", path=path)
+        d = dict(d.get("recovery", d)) if isinstance(d.get("recovery"), dict) else dict(d)
+        known = set(cls.field_names())
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ConfigError(f"unknown recovery option {unknown[0]!r}", path=path, field=unknown[0],
+                              hint=f"valid options: {', '.join(sorted(known))}")
+        try:
+            return cls(**d)
+        except TypeError as exc:
+            raise ConfigError(f"invalid recovery option: {exc}", path=path) from None
+
+    @classmethod
+    def from_yaml(cls, path: str | Path) -> "RecoveryConfig":
+        import yaml
+
+        path = Path(path)
+        try:
+            data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
+        except FileNotFoundError:
+            raise ConfigError("config file not found", path=path) from None
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"not valid YAML: {' '.join(str(exc).split())}", path=path) from None
+        return cls.from_dict(data, path=path)
+
+    def replace(self, **changes: Any) -> "RecoveryConfig":
+        return dataclasses.replace(self, **changes)
+
+
+# Default pose noise per source kind: (position sigma m, rotation sigma rad).
+DEFAULT_POSE_SIGMAS: dict[PoseSourceKind, tuple[float, float]] = {
+    PoseSourceKind.MOCAP: (1.0e-3, 1.0e-3),
+    PoseSourceKind.GROUND_TRUTH: (1.0e-3, 1.0e-3),
+    PoseSourceKind.POSITION_TRACKER: (1.0e-3, 1.0e-3),
+    PoseSourceKind.VIO: (5.0e-3, 2.0e-3),
+}

@@ -1,0 +1,658 @@
+"""``recover(sequence) -> RecoveryResult``: bias ground truth by joint optimisation.
+
+Stages (each logged; all results and choices land in ``recovery.json``):
+
+1. checks: an IMU and a pose stream with enough samples, increasing stamps, a
+   time overlap; IMU gaps longer than ``max_imu_gap_s`` split the recording
+   (or are refused, ``imu_gap_policy``).
+2. calibration window: the ``calib_window_s`` with the most rotation.
+3. clock offset: coarse |omega| (or |f|) correlation from
+   :mod:`recovery.calibration_init`, refined to sub-millisecond by a 1-D search
+   of the optimised graph cost with a parabolic fit; std from its curvature.
+4. extrinsic ``T_imu_pose``: known (calibration) or initialised in closed form
+   and refined jointly in the graph (``E(0)`` Pose3 for 6-DoF sources, ``L(0)``
+   lever arm for position trackers) on a decimated window.
+5. noise: bias random walks and pose sigmas by maximum evidence (:mod:`recovery.noise`).
+6. the full-rate solve, by overlapping segments (bounded memory), with robust
+   pose factors, outlier rejection, gravity direction and bias marginals;
+   stitched without seams (:mod:`recovery.segments`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pipeline.errors import AmbiguousInputError, BiasgtError, RecoveryError
+from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence
+from recovery.config import (
+    DEFAULT_POSE_SIGMAS,
+    ExtrinsicMode,
+    ImuGapPolicy,
+    NoiseEstimation,
+    PoseFactorMode,
+    RecoveryConfig,
+    TimeOffsetMode,
+)
+from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, solve_window
+from recovery.noise import NoiseChoice, estimate_noise
+from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
+from recovery.segments import plan_segments, stitch
+
+log = logging.getLogger(__name__)
+
+IMU_FRAME_NAMES = ("imu", "imu0", "body", "base_link_imu")
+
+
+@dataclass
+class RecoveryResult:
+    """Recovered bias and everything needed to judge it.
+
+    Attributes:
+        t_ns: Keyframe stamps on the IMU clock, int64 [K].
+        bias_gyro_radps / bias_acc_mps2: [K, 3].
+        bias_gyro_std_radps / bias_acc_std_mps2: Marginal 1-sigma, [K, 3].
+        p_m / quat_wxyz / v_mps: Optimised IMU trajectory in the pose world frame, [K, 3] / [K, 4] / [K, 3].
+        report: The content of ``recovery.json``.
+    """
+
+    t_ns: np.ndarray
+    bias_gyro_radps: np.ndarray
+    bias_acc_mps2: np.ndarray
+    bias_gyro_std_radps: np.ndarray
+    bias_acc_std_mps2: np.ndarray
+    p_m: np.ndarray
+    quat_wxyz: np.ndarray
+    v_mps: np.ndarray
+    report: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def warnings(self) -> list[str]:
+        return list(self.report.get("warnings", []))
+
+    def bias_at(self, t_ns: np.ndarray) -> np.ndarray:
+        """Bias linearly interpolated at ``t_ns``, [M, 6] (gyro, acc); clamped at the ends."""
+        b = np.hstack([self.bias_gyro_radps, self.bias_acc_mps2])
+        x = (self.t_ns - self.t_ns[0]).astype(float)
+        xq = (np.asarray(t_ns, dtype=np.int64) - self.t_ns[0]).astype(float)
+        return np.stack([np.interp(xq, x, b[:, c]) for c in range(6)], axis=1)
+
+
+# ----------------------------------------------------------------------------- input handling
+
+
+def _select_stream(sequence: Sequence, pose_stream: str | None) -> tuple[str, PoseSeries]:
+    try:  # the io package's rule when it has one
+        from pipeline.io import select_pose_stream  # type: ignore[attr-defined]
+    except ImportError:
+        select_pose_stream = None
+    if select_pose_stream is not None:
+        sel = select_pose_stream(sequence, pose_stream)
+        if isinstance(sel, tuple):
+            return sel
+        name = pose_stream if pose_stream is not None else next(k for k, v in sequence.poses.items() if v is sel)
+        return name, sel
+    if not sequence.poses:
+        raise RecoveryError(f"sequence '{sequence.name}' has no pose stream",
+                            hint="give an input with mocap / position-tracker / VIO poses")
+    if pose_stream is not None:
+        if pose_stream not in sequence.poses:
+            raise RecoveryError(f"no pose stream '{pose_stream}'", field="--poses",
+                                hint=f"choose one of: {', '.join(sequence.poses)}")
+        return pose_stream, sequence.poses[pose_stream]
+    if len(sequence.poses) == 1:
+        name = next(iter(sequence.poses))
+        return name, sequence.poses[name]
+    raise AmbiguousInputError(f"sequence '{sequence.name}' has several pose streams", field="--poses",
+                              hint=f"choose one with --poses: {', '.join(sequence.poses)}")
+
+
+def _clean_poses(poses: PoseSeries, name: str, warnings: list[str]) -> PoseSeries:
+    ok = np.isfinite(poses.p_m).all(axis=1)
+    if poses.quat_wxyz is not None:
+        ok &= np.isfinite(poses.quat_wxyz).all(axis=1)
+        norms = np.linalg.norm(np.where(np.isfinite(poses.quat_wxyz), poses.quat_wxyz, 0.0), axis=1)
+        ok &= norms > 0.5
+    if not ok.all():
+        warnings.append(f"pose stream '{name}': dropped {int((~ok).sum())} non-finite samples")
+        poses = poses.take(ok)
+    if len(poses) >= 2 and not (np.diff(poses.t_ns) > 0).all():
+        raise RecoveryError(f"pose stream '{name}' stamps are not strictly increasing",
+                            hint="run 'biasgt convert' (it sorts and deduplicates when allowed)")
+    if poses.quat_wxyz is not None:
+        q = poses.quat_wxyz / np.linalg.norm(poses.quat_wxyz, axis=1, keepdims=True)
+        poses = PoseSeries(poses.t_ns, poses.p_m, q, poses.frame, poses.source_kind, poses.world_frame)
+    return poses
+
+
+def _imu_pieces(imu: ImuSeries, config: RecoveryConfig, warnings: list[str]) -> list[tuple[int, int]]:
+    """Gap-free spans of the IMU ``[(t0_ns, t1_ns)]``."""
+    dt = np.diff(imu.t_ns)
+    if not (dt > 0).all():
+        raise RecoveryError("IMU stamps are not strictly increasing",
+                            hint="run 'biasgt convert' (it sorts and deduplicates when allowed)")
+    if not (np.isfinite(imu.gyro_radps).all() and np.isfinite(imu.acc_mps2).all()):
+        raise RecoveryError("IMU readings contain non-finite values", hint="run 'biasgt inspect' on the input")
+    limit = int(config.max_imu_gap_s * NS_PER_S)
+    gaps = np.nonzero(dt > limit)[0]
+    if len(gaps) and config.imu_gap_policy == ImuGapPolicy.REFUSE:
+        g = gaps[0]
+        raise RecoveryError(
+            f"IMU gap of {dt[g] / NS_PER_S:.3f} s at t_ns={int(imu.t_ns[g])} exceeds max_imu_gap_s={config.max_imu_gap_s}",
+            hint="raise max_imu_gap_s or set imu_gap_policy: split")
+    bounds = [0, *(gaps + 1).tolist(), len(imu.t_ns)]
+    pieces = [(int(imu.t_ns[a]), int(imu.t_ns[b - 1])) for a, b in zip(bounds[:-1], bounds[1:]) if b - a >= 2]
+    for g in gaps:
+        warnings.append(f"IMU gap of {dt[g] / NS_PER_S:.3f} s at t_ns={int(imu.t_ns[g])}: recording split there "
+                        "(no bias across the gap)")
+    return pieces
+
+
+def _shifted_stamps(poses: PoseSeries, offset_s: float) -> np.ndarray:
+    return poses.t_ns + int(round(offset_s * NS_PER_S))
+
+
+def _select_keyframes(t_ns: np.ndarray, rate_hz: float | None, t_origin_ns: int) -> np.ndarray:
+    """Indices of the keyframes: all, or the first sample of each 1/rate bin (global grid)."""
+    if rate_hz is None:
+        return np.arange(len(t_ns))
+    period = NS_PER_S / rate_hz
+    bins = np.floor((t_ns - t_origin_ns) / period).astype(np.int64)
+    _, first = np.unique(bins, return_index=True)
+    return first
+
+
+class _Problem:
+    """Pose stream + IMU; builds windows (samples + keyframes) at a given offset."""
+
+    def __init__(self, imu: ImuSeries, poses: PoseSeries, pieces: list[tuple[int, int]]) -> None:
+        self.imu = imu
+        self.imu_6 = imu.imu_6
+        self.poses = poses
+        self.pieces = pieces
+        self.origin = int(imu.t_ns[0])
+
+    def window(self, offset_s: float, t0_ns: int, t1_ns: int, rate_hz: float | None
+               ) -> tuple[MidpointSamples, KeyframePoses] | None:
+        t = _shifted_stamps(self.poses, offset_s)
+        piece = next(((a, b) for a, b in self.pieces if a <= t0_ns <= b or a <= t1_ns <= b), None)
+        if piece is None:
+            return None
+        lo, hi = max(t0_ns, piece[0]), min(t1_ns, piece[1])
+        sel = np.nonzero((t > lo) & (t < hi))[0]
+        if len(sel) < 3:
+            return None
+        sel = sel[_select_keyframes(t[sel], rate_hz, self.origin)]
+        if len(sel) < 3:
+            return None
+        kf = KeyframePoses(t[sel], self.poses.p_m[sel],
+                           None if self.poses.quat_wxyz is None else self.poses.quat_wxyz[sel],
+                           self.poses.source_kind)
+        return midpoint_samples(self.imu.t_ns, self.imu_6, kf.t_ns), kf
+
+
+def _calibration_window(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: tuple[int, int],
+                        length_s: float) -> tuple[int, int]:
+    """The ``length_s`` window (inside one IMU piece and the pose overlap) with the most rotation."""
+    best, best_score = None, -1.0
+    w2 = np.sum(imu.gyro_radps**2, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(w2)])
+    for a, b in pieces:
+        a, b = max(a, overlap[0]), min(b, overlap[1])
+        if b <= a:
+            continue
+        L = int(length_s * NS_PER_S)
+        if b - a <= L:
+            cand = [(a, b)]
+        else:
+            starts = np.linspace(a, b - L, num=max(2, int((b - a - L) / NS_PER_S) + 1)).astype(np.int64)
+            cand = [(int(s), int(s) + L) for s in starts]
+        for s, e in cand:
+            i0, i1 = np.searchsorted(imu.t_ns, [s, e])
+            score = cum[i1] - cum[i0]
+            if score > best_score:
+                best, best_score = (s, e), score
+    if best is None:
+        raise RecoveryError("no time overlap between the IMU and the pose stream")
+    return best
+
+
+# ----------------------------------------------------------------------------- offset
+
+
+def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,
+                   opts: SolveOptions, config: RecoveryConfig) -> tuple[float, float, list[dict[str, float]]]:
+    """1-D search of the optimised cost over the offset; parabolic vertex and curvature std."""
+    o = replace(opts, reject_outliers=False, compute_marginals=False, marginal_extras=False)
+    cache: dict[int, float] = {}
+    init: dict[str, WindowInit] = {}
+
+    def cost(off: float) -> float:
+        key = int(round(off * 1e9))
+        if key in cache:
+            return cache[key]
+        w = problem.window(off, window[0], window[1], config.offset_refine_keyframe_rate_hz)
+        if w is None:
+            c = float("inf")
+        else:
+            try:
+                sol = solve_window(w[0], w[1], noise, T, o, init.get("x"))
+                # normalise per keyframe: the keyframe set can change by one between offsets
+                c = sol.cost / len(w[1]) * 1000.0
+                init["x"] = WindowInit(gravity_unit=sol.gravity_unit, bias=np.median(sol.bias, axis=0))
+            except BiasgtError:
+                c = float("inf")
+        cache[key] = c
+        return c
+
+    # 5-point grid around the coarse value; slide it while the minimum is at an edge
+    h = float(np.clip(2.0 * coarse_std_s, config.offset_refine_step_s / 8, config.offset_refine_step_s))
+    center = coarse_s
+    grid_k = np.arange(-2, 3)
+    for _ in range(12):
+        xs = center + grid_k * h
+        cs = np.array([cost(x) for x in xs])
+        i = int(np.argmin(cs))
+        if 0 < i < len(xs) - 1 or not np.isfinite(cs[i]):
+            break
+        center = xs[i]
+    fine, fc = xs, cs
+    ok = np.isfinite(fc)
+    if ok.sum() < 3:
+        raise RecoveryError("the clock-offset search found no finite cost")
+    a, b, _ = np.polyfit(fine[ok], fc[ok], 2)
+    table = [{"offset_s": float(k / 1e9), "cost_per_kkf": float(v)} for k, v in sorted(cache.items())]
+    if a <= 0:
+        return float(fine[int(np.argmin(fc))]), float(h), table
+    vertex = float(-b / (2 * a))
+    vertex = float(np.clip(vertex, fine[0], fine[-1]))
+    # cost = 0.5 chi2 / K * 1000  -> d2(0.5 chi2)/d off2 = 2a K / 1000
+    n_kf = len(problem.window(vertex, window[0], window[1], config.offset_refine_keyframe_rate_hz)[1])
+    curv = 2 * a * n_kf / 1000.0
+    std = float(1.0 / math.sqrt(curv)) if curv > 0 else float(h)
+    return vertex, std, table
+
+
+# ----------------------------------------------------------------------------- extrinsic
+
+
+def _rotation_excitation_deg(poses: PoseSeries) -> float:
+    """Spread of the orientations: 2x the RMS angle from the mean orientation, degrees."""
+    if poses.quat_wxyz is None or len(poses) < 3:
+        return 0.0
+    q = poses.quat_wxyz[:: max(1, len(poses) // 2000)]
+    r = Rotation.from_quat(np.c_[q[:, 1:], q[:, :1]])
+    mean = r.mean()
+    ang = (mean.inv() * r).magnitude()
+    return float(2.0 * np.degrees(np.sqrt(np.mean(ang**2))))
+
+
+def _known_extrinsic(sequence: Sequence, poses: PoseSeries) -> np.ndarray | None:
+    T = sequence.calibration.T_imu_frames.get(poses.frame)
+    if T is not None:
+        return np.asarray(T, dtype=float)
+    if poses.frame.lower() in IMU_FRAME_NAMES or poses.source_kind == PoseSourceKind.GROUND_TRUTH:
+        return np.eye(4)
+    return None
+
+
+def _matrix_to_dict(T: np.ndarray) -> dict[str, list[float]]:
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()
+    return {"p_m": [float(x) for x in T[:3, 3]], "quat_wxyz": [float(q[3]), float(q[0]), float(q[1]), float(q[2])]}
+
+
+def _continue_from(prev: WindowSolution, w: tuple[MidpointSamples, KeyframePoses],
+                   gravity_unit: np.ndarray) -> WindowInit:
+    """Initial values of a position-only segment from the previous segment's solution.
+
+    Orientation is the weak direction of position-only sources: a segment started from
+    the closed-form guess can settle in a wrong minimum (a tilted attitude explained by a
+    large gyro bias). Overlap keyframes take the previous solution; later ones are
+    propagated with the gyro minus the previous bias.
+    """
+    from recovery.graph import propagate_orientations
+
+    samples, kf = w
+    K = len(kf)
+    q = np.zeros((K, 4))
+    q[:, 0] = 1.0
+    _, ia, ib = np.intersect1d(kf.t_ns, prev.t_ns, assume_unique=True, return_indices=True)
+    known = np.zeros(K, dtype=bool)
+    if len(ia) == 0 or ia[0] != 0:
+        return WindowInit(gravity_unit=gravity_unit)
+    q[ia] = prev.quat_wxyz[ib]
+    known[ia] = True
+    last_bias = prev.bias[ib[-1]]
+    q = propagate_orientations(samples, q, known, last_bias[:3])
+    bias = np.tile(last_bias, (K, 1))
+    bias[ia] = prev.bias[ib]
+    return WindowInit(gravity_unit=gravity_unit, bias=bias, rot_wxyz=q)
+
+
+# ----------------------------------------------------------------------------- main entry
+
+
+def recover(sequence: Sequence, *, pose_stream: str | None = None,
+            config: RecoveryConfig | None = None) -> RecoveryResult:
+    """Recover the bias trajectory of ``sequence``'s IMU from one of its pose streams.
+
+    Args:
+        sequence: IMU + poses (+ calibration); anything :func:`pipeline.io.load_sequence` returns.
+        pose_stream: Name of the pose stream; may be omitted when there is one.
+        config: Options; defaults are meant to work without tuning.
+
+    Returns:
+        The bias per keyframe with marginal std, the optimised trajectory and the report.
+
+    Raises:
+        RecoveryError: The input cannot give a trustworthy result (one line saying why).
+        AmbiguousInputError: Several pose streams and none chosen.
+    """
+    config = config or RecoveryConfig()
+    t_start = time.perf_counter()
+    warnings: list[str] = []
+    flags: dict[str, Any] = {}
+    timings: dict[str, float] = {}
+    imu = sequence.imu
+    if imu is None or len(imu) < 10:
+        raise RecoveryError(f"sequence '{sequence.name}' has no IMU data (or fewer than 10 samples)")
+    name, poses = _select_stream(sequence, pose_stream)
+    poses = _clean_poses(poses, name, warnings)
+    kind = poses.source_kind
+    if len(poses) < config.min_poses:
+        raise RecoveryError(f"pose stream '{name}' has {len(poses)} samples, fewer than min_poses={config.min_poses}")
+    pieces = _imu_pieces(imu, config, warnings)
+    cal = sequence.calibration
+    has_rot = poses.quat_wxyz is not None and kind != PoseSourceKind.POSITION_TRACKER
+    if kind == PoseSourceKind.POSITION_TRACKER and poses.quat_wxyz is not None:
+        poses = PoseSeries(poses.t_ns, poses.p_m, None, poses.frame, kind, poses.world_frame)
+
+    pose_mode = config.pose_factor_mode
+    if pose_mode == PoseFactorMode.AUTO:
+        pose_mode = PoseFactorMode.RELATIVE if kind == PoseSourceKind.VIO else PoseFactorMode.ABSOLUTE
+    if pose_mode == PoseFactorMode.RELATIVE and not has_rot:
+        raise RecoveryError("relative pose factors need orientations; this stream is position-only",
+                            field="pose_factor_mode", hint="use absolute")
+    # Total stations (compensator) and GNSS (ENU) frames are levelled; the gravity tilt is also
+    # barely observable from positions alone: keep z-up there unless told otherwise.
+    estimate_g = config.estimate_gravity
+    if estimate_g is None:
+        estimate_g = kind != PoseSourceKind.POSITION_TRACKER
+    default_sp, default_sr = DEFAULT_POSE_SIGMAS[kind]
+    base_sp = config.position_sigma_m or default_sp
+    base_sr = config.rotation_sigma_rad or default_sr
+    base_imu = ImuNoise(
+        gyro_noise_density=config.gyro_noise_density or cal.gyro_noise_density,
+        acc_noise_density=config.acc_noise_density or cal.acc_noise_density,
+        gyro_random_walk=config.gyro_random_walk or cal.gyro_random_walk,
+        acc_random_walk=config.acc_random_walk or cal.acc_random_walk,
+        integration_sigma=config.integration_sigma,
+    )
+    opts = SolveOptions(
+        pose_mode=pose_mode, relative_horizon=config.relative_horizon, position_sigma_m=base_sp,
+        rotation_sigma_rad=base_sr, robust_loss=config.robust_loss, robust_k=config.robust_k,
+        outlier_threshold=config.outlier_threshold, estimate_gravity=estimate_g,
+        gravity_mps2=config.gravity_mps2, max_iterations=config.max_iterations,
+        relative_error_tol=config.relative_error_tol,
+    )
+    # the noise scales during calibration start at the middle of the candidate grid
+    start_scale = 10.0 if config.noise_estimation == NoiseEstimation.EVIDENCE else 1.0
+    calib_imu = replace(base_imu, gyro_random_walk=base_imu.gyro_random_walk * start_scale,
+                        acc_random_walk=base_imu.acc_random_walk * start_scale)
+    problem = _Problem(imu, poses, pieces)
+
+    # --- clock offset, coarse
+    from recovery import calibration_init as ci
+
+    t0 = time.perf_counter()
+    off_mode = config.time_offset_mode
+    if off_mode == TimeOffsetMode.AUTO:
+        off_mode = TimeOffsetMode.FIXED if kind == PoseSourceKind.GROUND_TRUTH else TimeOffsetMode.ESTIMATE
+    offset_s, offset_std, offset_method = float(config.time_offset_s), 0.0, "fixed"
+    coarse = None
+    if off_mode == TimeOffsetMode.ESTIMATE:
+        try:
+            coarse = ci.estimate_time_offset(imu, poses, max_offset_s=config.max_time_offset_s)
+            offset_s, offset_std, offset_method = coarse.offset_s, coarse.std_s, f"correlation_{coarse.method}"
+        except BiasgtError as exc:
+            offset_std = config.offset_refine_step_s  # search with the widest grid step
+            warnings.append(f"coarse clock offset failed ({exc}); starting from time_offset_s={config.time_offset_s}")
+    timings["offset_coarse_s"] = time.perf_counter() - t0
+
+    t_pose = _shifted_stamps(poses, offset_s)
+    overlap = (max(int(imu.t_ns[0]), int(t_pose[0])), min(int(imu.t_ns[-1]), int(t_pose[-1])))
+    n_overlap = int(((t_pose > imu.t_ns[0]) & (t_pose < imu.t_ns[-1])).sum())
+    if overlap[1] <= overlap[0] or n_overlap < config.min_poses:
+        raise RecoveryError(
+            f"no usable time overlap between the IMU and pose stream '{name}' ({n_overlap} poses inside the IMU span)",
+            hint="check that both come from the same recording and that the stamps use the same epoch")
+    calib = _calibration_window(imu, pieces, overlap, config.calib_window_s)
+
+    # --- extrinsic
+    known_T = _known_extrinsic(sequence, poses)
+    ext_mode = config.extrinsic_mode
+    if ext_mode == ExtrinsicMode.AUTO:
+        ext_mode = ExtrinsicMode.KNOWN if known_T is not None else ExtrinsicMode.ESTIMATE
+    T = known_T.copy() if known_T is not None else np.eye(4)
+    ext_info: dict[str, Any] = {"mode": ext_mode.value, "source": "calibration" if known_T is not None else "identity"}
+    excitation = _rotation_excitation_deg(poses) if has_rot else float("nan")
+    flags["rotation_excitation_deg"] = excitation
+    rot_observable = True
+    estimate_rotation = False
+    estimate_lever = False
+    if ext_mode == ExtrinsicMode.ESTIMATE:
+        if has_rot:
+            try:
+                rot = ci.estimate_extrinsic_rotation(imu, poses, offset_s)
+                rot_observable = bool(rot.observable) and excitation >= config.min_rotation_excitation_deg
+                if rot_observable:
+                    T[:3, :3] = rot.R_imu_pose
+                    ext_info["rotation_init_residual"] = float(rot.residual_deg)
+            except BiasgtError as exc:
+                rot_observable = False
+                warnings.append(f"extrinsic rotation initialisation failed: {exc}")
+            if not rot_observable:
+                warnings.append(
+                    f"extrinsic rotation unobservable (rotation excitation {excitation:.1f} deg): using the "
+                    f"{'calibration' if known_T is not None else 'identity'} rotation")
+            else:
+                try:
+                    lev = ci.estimate_lever_arm(imu, poses, offset_s, T[:3, :3])
+                    if lev.observable:
+                        T[:3, 3] = lev.p_imu_pose_m
+                except BiasgtError as exc:
+                    warnings.append(f"lever-arm initialisation failed: {exc}")
+            estimate_rotation = rot_observable
+            estimate_lever = rot_observable
+        else:
+            estimate_lever = True
+    flags["extrinsic_rotation_observable"] = bool(rot_observable) if has_rot else None
+    ext_opts = replace(opts, estimate_extrinsic=estimate_rotation or estimate_lever, marginal_extras=True)
+
+    def solve_extrinsic(off: float) -> WindowSolution | None:
+        w = problem.window(off, calib[0], calib[1], config.extrinsic_keyframe_rate_hz)
+        if w is None:
+            return None
+        return solve_window(w[0], w[1], calib_imu, T, ext_opts)
+
+    t0 = time.perf_counter()
+    ext_sol = None
+    if ext_opts.estimate_extrinsic:
+        ext_sol = solve_extrinsic(offset_s)
+        if ext_sol is not None:
+            T = ext_sol.T_imu_pose
+    timings["extrinsic_s"] = time.perf_counter() - t0
+
+    # --- clock offset, refined
+    t0 = time.perf_counter()
+    offset_table: list[dict[str, float]] = []
+    if off_mode == TimeOffsetMode.ESTIMATE:
+        try:
+            offset_s, offset_std, offset_table = _refine_offset(problem, offset_s, offset_std, calib, calib_imu, T, opts, config)
+            offset_method += "+graph_cost_parabola"
+        except (BiasgtError, ValueError, np.linalg.LinAlgError) as exc:
+            warnings.append(f"clock offset refinement failed ({exc}); using the coarse estimate")
+        if ext_opts.estimate_extrinsic:
+            ext_sol = solve_extrinsic(offset_s)
+            if ext_sol is not None:
+                T = ext_sol.T_imu_pose
+    timings["offset_refine_s"] = time.perf_counter() - t0
+    if ext_sol is not None:
+        if "extrinsic_cov" in ext_sol.extras:
+            c = np.sqrt(np.diag(ext_sol.extras["extrinsic_cov"]))
+            ext_info["rotation_std_deg"] = [float(np.degrees(x)) for x in c[:3]]
+            ext_info["translation_std_m"] = [float(x) for x in c[3:]]
+        if "lever_arm_cov" in ext_sol.extras:
+            ext_info["translation_std_m"] = [float(x) for x in np.sqrt(np.diag(ext_sol.extras["lever_arm_cov"]))]
+        ext_info["source"] = "estimated"
+    elif ext_mode == ExtrinsicMode.ESTIMATE and not rot_observable:
+        ext_info["source"] = "fallback_" + ext_info["source"]
+
+    # --- noise
+    t0 = time.perf_counter()
+    if config.noise_estimation == NoiseEstimation.EVIDENCE:
+        w = problem.window(offset_s, calib[0], calib[1], config.noise_keyframe_rate_hz)
+        if w is None:
+            raise RecoveryError("too few poses in the calibration window to estimate the noise",
+                                hint="set noise_estimation: fixed and give the random walks")
+        choice = estimate_noise(w[0], w[1], base_imu, base_sp, base_sr, T, opts, config.random_walk_scales,
+                                estimate_pose=config.position_sigma_m is None,
+                                pose_scales=config.pose_sigma_scales)
+    else:
+        choice = NoiseChoice(base_imu, base_sp, base_sr)
+    for nm, scale, grid in (("gyro", choice.gyro_rw_scale, config.random_walk_scales),
+                            ("acc", choice.acc_rw_scale, config.random_walk_scales),
+                            ("pose sigma", choice.pose_scale, config.pose_sigma_scales)):
+        if nm == "pose sigma" and (config.position_sigma_m is not None or kind == PoseSourceKind.GROUND_TRUTH):
+            continue  # smoothed ground-truth poses legitimately hit the lower edge
+        if config.noise_estimation == NoiseEstimation.EVIDENCE and (scale <= min(grid) or scale >= max(grid)):
+            warnings.append(f"{nm} scale {scale:g} is at the edge of its candidate grid "
+                            "(random_walk_scales / pose_sigma_scales); widen the grid")
+    timings["noise_s"] = time.perf_counter() - t0
+
+    # --- gravity direction: one decimated solve over a long window, then fixed
+    t0 = time.perf_counter()
+    t_pose = _shifted_stamps(poses, offset_s)
+    grav_info: dict[str, Any] = {}
+    gravity_unit = np.array([0.0, 0.0, -1.0])
+    gopts = replace(opts, position_sigma_m=choice.position_sigma_m, rotation_sigma_rad=choice.rotation_sigma_rad,
+                    marginal_extras=True)
+    refine_lever = ext_sol is not None and has_rot and estimate_lever
+    if estimate_g or refine_lever:
+        longest = max(pieces, key=lambda ab: min(ab[1], int(t_pose[-1])) - max(ab[0], int(t_pose[0])))
+        ga, gb = max(longest[0], int(t_pose[0])), min(longest[1], int(t_pose[-1]))
+        gb = min(gb, ga + int(config.gravity_window_s * NS_PER_S))
+        w = problem.window(offset_s, ga, gb, config.gravity_keyframe_rate_hz)
+        if w is not None:
+            g_init = ext_sol.gravity_unit if ext_sol is not None and estimate_g else None
+            gsol = solve_window(w[0], w[1], choice.imu, T, replace(gopts, estimate_lever_arm=refine_lever),
+                                WindowInit(gravity_unit=g_init))
+            gravity_unit = gsol.gravity_unit
+            if refine_lever:
+                T = gsol.T_imu_pose
+                if "lever_arm_cov" in gsol.extras:
+                    ext_info["translation_std_m"] = [float(x) for x in np.sqrt(np.diag(gsol.extras["lever_arm_cov"]))]
+                ext_info["lever_arm_refined_window_s"] = float((gb - ga) / NS_PER_S)
+            if "gravity_cov_tangent" in gsol.extras:
+                grav_info["tilt_std_rad"] = float(np.sqrt(np.trace(gsol.extras["gravity_cov_tangent"]) / 2))
+            grav_info["window_s"] = float((gb - ga) / NS_PER_S)
+    grav_info["estimated"] = bool(estimate_g)
+    timings["gravity_s"] = time.perf_counter() - t0
+
+    # --- full solve by segments (gravity fixed: no per-segment gravity, no seams from it)
+    t0 = time.perf_counter()
+    full_opts = replace(opts, position_sigma_m=choice.position_sigma_m, rotation_sigma_rad=choice.rotation_sigma_rad,
+                        compute_marginals=config.compute_marginals, estimate_gravity=False,
+                        marginal_rate_hz=config.marginal_rate_hz)
+    solutions: list[list[WindowSolution]] = []
+    for a, b in pieces:
+        a2, b2 = max(a, int(t_pose[0])), min(b, int(t_pose[-1]))
+        if b2 <= a2:
+            continue
+        piece_solutions = []
+        for s_ns, e_ns in plan_segments(a2, b2, config.segment_s, config.segment_overlap_s):
+            w = problem.window(offset_s, s_ns, e_ns, config.keyframe_rate_hz)
+            if w is None or len(w[1]) < 3:
+                continue
+            init = WindowInit(gravity_unit=gravity_unit)
+            if not has_rot and piece_solutions:
+                init = _continue_from(piece_solutions[-1], w, gravity_unit)
+            sol = solve_window(w[0], w[1], choice.imu, T, full_opts, init)
+            piece_solutions.append(sol)
+        if piece_solutions:
+            solutions.append(piece_solutions)
+    if not solutions:
+        raise RecoveryError(f"too few poses of '{name}' inside the IMU span to build a graph")
+    stitched_pieces = [stitch(ps) for ps in solutions]
+    flat = [s for ps in solutions for s in ps]
+    timings["solve_s"] = time.perf_counter() - t0
+
+    t_ns = np.concatenate([s.t_ns for s in stitched_pieces])
+    bias = np.concatenate([s.bias for s in stitched_pieces])
+    bias_std = np.concatenate([s.bias_std for s in stitched_pieces])
+    seams = [j for s in stitched_pieces for j in s.seam_jumps]
+    n_kf = len(t_ns)
+    outlier_t = np.unique(np.concatenate([s.t_ns[s.outliers] for s in flat])) if flat else np.zeros(0)
+    if len(outlier_t) > 0.05 * n_kf:
+        warnings.append(f"{len(outlier_t)} of {n_kf} poses rejected as outliers: check the pose noise / the stream")
+
+    weights = np.array([len(s.t_ns) for s in flat], dtype=float)
+    pose_rms = float(np.sqrt(np.average([s.pose_whitened_rms**2 for s in flat], weights=weights)))
+    imu_rms = float(np.sqrt(np.average([s.imu_whitened_rms**2 for s in flat], weights=weights)))
+    if pose_rms > 3.0:
+        warnings.append(f"pose residuals are {pose_rms:.1f} sigma RMS: the pose stream disagrees with the IMU "
+                        "(wrong extrinsic, clock offset, or noise)")
+    gravity = gravity_unit * config.gravity_mps2
+    if flat and any(s.iterations >= config.max_iterations for s in flat):
+        warnings.append("the optimiser hit max_iterations in at least one segment (may not have converged)")
+    for wmsg in warnings:
+        log.warning("%s", wmsg)
+
+    duration = float((t_ns[-1] - t_ns[0]) / NS_PER_S) if n_kf > 1 else 0.0
+    source_kind = sequence.metadata.get("source_format") or sequence.metadata.get("source_kind")
+    report: dict[str, Any] = {
+        "sequence": sequence.name,
+        "pose_stream": name,
+        "pose_source_kind": kind.value,
+        "pose_frame": poses.frame,
+        "input_format": source_kind if isinstance(source_kind, str) else None,
+        "pose_factor_mode": pose_mode.value,
+        "pose_time_offset_s": float(offset_s),
+        "pose_time_offset_std_s": float(offset_std),
+        "pose_time_offset_method": offset_method if off_mode == TimeOffsetMode.ESTIMATE else "fixed",
+        "pose_time_offset_search": offset_table,
+        "T_imu_pose": _matrix_to_dict(T),
+        "extrinsic": ext_info,
+        "gravity_world_mps2": [float(x) for x in gravity],
+        "gravity": grav_info,
+        "noise": choice.to_dict(),
+        "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
+        "outliers_rejected": int(len(outlier_t)),
+        "keyframes": int(n_kf),
+        "keyframe_rate_hz": config.keyframe_rate_hz,
+        "segments": len(flat),
+        "segment_seams": seams,
+        "imu_pieces": len(pieces),
+        "calibration_window_ns": [int(calib[0]), int(calib[1])],
+        "duration_s": duration,
+        "runtime_s": float(time.perf_counter() - t_start),
+        "timings_s": {k: float(v) for k, v in timings.items()},
+        "flags": flags,
+        "extrinsic_rotation_observable": flags.get("extrinsic_rotation_observable"),
+        "warnings": warnings,
+        "config": config.to_dict(),
+    }
+    return RecoveryResult(
+        t_ns=t_ns, bias_gyro_radps=bias[:, :3], bias_acc_mps2=bias[:, 3:],
+        bias_gyro_std_radps=bias_std[:, :3], bias_acc_std_mps2=bias_std[:, 3:],
+        p_m=np.concatenate([s.p_m for s in stitched_pieces]),
+        quat_wxyz=np.concatenate([s.quat_wxyz for s in stitched_pieces]),
+        v_mps=np.concatenate([s.v_mps for s in stitched_pieces]),
+        report=report,
+    )

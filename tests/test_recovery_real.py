@@ -1,0 +1,80 @@
+"""Bias recovery on real EuRoC data (skips without the shared data folder).
+
+Cheap versions of the acceptance checks in ``benchmarks/recovery.py``: shorter
+spans and decimated keyframes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.types import PoseSourceKind
+from recovery.config import RecoveryConfig
+from recovery.recover import recover
+
+
+def _v101(shared_data, duration_s: float):
+    from pipeline.io import load_sequence
+    from pipeline.io.tum import read_tum_poses
+
+    seq = load_sequence(shared_data / "euroc/V1_01_easy")
+    poses, _ = read_tum_poses(shared_data / "euroc/V1_01_easy/ov_data/V1_01_easy_original.txt",
+                              source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu")
+    poses = poses.take(poses.t_ns < poses.t_ns[0] + int(duration_s * 1e9))
+    seq.poses = {"euroc_gt": poses}
+    return seq
+
+
+def test_v101_gt_poses_match_euroc_bias_first_5s(shared_data):
+    """EuRoC GT poses (IMU frame, IMU clock) -> bias close to EuRoC's own estimate over the first 5 s."""
+    seq = _v101(shared_data, 25.0)
+    res = recover(seq, pose_stream="euroc_gt", config=RecoveryConfig(keyframe_rate_hz=50.0))
+    rep = res.report
+    assert rep["pose_time_offset_method"] == "fixed" and rep["pose_time_offset_s"] == 0.0
+    assert rep["extrinsic"]["source"] == "calibration"  # frame 'imu': identity
+    ref = pd.read_csv(shared_data / "euroc/V1_01_easy_proto_excerpt/mav0/state_groundtruth_estimate0/data.csv")
+    ref = ref.to_numpy()
+    t_ref = ref[:, 0].astype(np.int64)
+    sel = (res.t_ns >= t_ref[0]) & (res.t_ns <= t_ref[-1])
+    assert sel.sum() > 200
+    ours = np.hstack([res.bias_gyro_radps, res.bias_acc_mps2])[sel]
+    theirs = np.stack([np.interp(res.t_ns[sel], t_ref, ref[:, c]) for c in range(11, 17)], 1)
+    diff = np.abs((ours - theirs).mean(axis=0))
+    assert (diff[:3] < 2e-3).all(), diff
+    assert (diff[3:] < 0.08).all(), diff
+    # the sigmas are finite and of a sane size
+    assert np.isfinite(res.bias_gyro_std_radps).all() and (res.bias_gyro_std_radps < 5e-3).all()
+    assert rep["residuals"]["pose_whitened_rms"] < 3.0
+
+
+@pytest.mark.slow
+def test_mh01_leica_agrees_with_gt_recovery(shared_data):
+    """Raw Leica positions (lever arm from sensor.yaml, clock offset estimated) vs the GT-pose recovery."""
+    from pipeline.io import load_sequence
+    from pipeline.io.tum import read_tum_poses
+
+    seq = load_sequence(shared_data / "euroc/MH_01_easy")
+    assert "leica0" in seq.poses
+    ra = recover(seq, pose_stream="leica0", config=RecoveryConfig())
+    assert ra.report["pose_source_kind"] == "position_tracker"
+    assert ra.report["T_imu_pose"]["p_m"] == pytest.approx([0.0748903, -0.0184772, -0.120209], abs=1e-9)
+    gt, _ = read_tum_poses(shared_data / "euroc/MH_01_easy/ov_data/MH_01_easy.txt",
+                           source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu")
+    seq.poses["euroc_gt"] = gt
+    rb = recover(seq, pose_stream="euroc_gt", config=RecoveryConfig(keyframe_rate_hz=20.0))
+    ba = np.hstack([ra.bias_gyro_radps, ra.bias_acc_mps2])
+    sa = np.hstack([ra.bias_gyro_std_radps, ra.bias_acc_std_mps2])
+    bb = rb.bias_at(ra.t_ns)
+    sb_all = np.hstack([rb.bias_gyro_std_radps, rb.bias_acc_std_mps2])
+    sb = np.stack([np.interp(ra.t_ns, rb.t_ns, sb_all[:, c]) for c in range(6)], 1)
+    sel = (ra.t_ns >= rb.t_ns[0]) & (ra.t_ns <= rb.t_ns[-1])
+    z = np.abs(ba - bb)[sel] / np.sqrt(sa**2 + sb**2)[sel]
+    frac = (z < 3).mean(axis=0)
+    # Acceptance target: >= 0.95 on every axis. Reached for acc xyz and gyro y; gyro x/z reach
+    # ~0.82-0.85 (benchmarks/recovery.py reports it as a MISS): a known gap, asserted so it cannot regress.
+    assert (frac[[1, 3, 4, 5]] >= 0.95).all(), frac
+    assert (frac[[0, 2]] >= 0.75).all(), frac
+    # the gyro bias itself agrees to ~1e-3 rad/s on average
+    assert (np.abs(ba - bb)[sel][:, :3].mean(axis=0) < 2e-3).all()
