@@ -14,14 +14,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from interpolation.bias import CSV_HEADER as BIAS_COLUMNS  # the bias.csv contract, defined once
 from pipeline.atomic import atomic_dir
 from pipeline.types import PoseSeries, PoseSourceKind
 from recovery.recover import RecoveryResult
-
-BIAS_COLUMNS = (
-    "t_ns", "bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z",
-    "bg_x_std", "bg_y_std", "bg_z_std", "ba_x_std", "ba_y_std", "ba_z_std",
-)
 BIAS_CSV = "bias.csv"
 REPORT_JSON = "recovery.json"
 TRAJECTORY_TUM = "trajectory_tum.txt"
@@ -85,27 +81,4 @@ def write_recovery(result: RecoveryResult, out_dir: str | Path) -> Path:
         (tmp / REPORT_JSON).write_text(json.dumps(_json_safe(result.report), indent=2, allow_nan=False) + "\n",
                                        encoding="utf-8")
         _write_tum(tmp / TRAJECTORY_TUM, result)
-        _usual_permissions(tmp)
     return out_dir
-
-
-def _usual_permissions(folder: Path) -> None:
-    """mkdtemp/mkstemp create 0700/0600; give the result the usual umask-based modes."""
-    import os
-
-    umask = os.umask(0)
-    os.umask(umask)
-    folder.chmod(0o777 & ~umask)
-    for p in folder.iterdir():
-        p.chmod(0o666 & ~umask)
-
-
-def read_bias_csv(path: str | Path) -> pd.DataFrame:
-    """Read a ``bias.csv`` back (checks the header)."""
-    frame = pd.read_csv(path)
-    if tuple(frame.columns) != BIAS_COLUMNS:
-        from pipeline.errors import InputFormatError
-
-        raise InputFormatError("not a biasgt bias.csv (unexpected header)", path=path,
-                               hint=f"expected columns {','.join(BIAS_COLUMNS)}")
-    return frame

@@ -18,7 +18,8 @@ from pipeline.sim import simulate
 from pipeline.sim.config import PoseFormat, PoseStreamConfig, SimConfig
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import ExtrinsicMode, PoseFactorMode, RecoveryConfig, RobustLoss
-from recovery.outputs import BIAS_COLUMNS, read_bias_csv, write_recovery
+from interpolation.bias import read_bias_csv
+from recovery.outputs import BIAS_COLUMNS, write_recovery
 from recovery.preintegration import midpoint_samples
 from recovery.recover import recover
 from recovery.segments import plan_segments
@@ -135,9 +136,11 @@ def test_write_recovery_files(clean_run, tmp_path):
     assert not (out / "stale.txt").exists()  # replaced as a whole
     header = (out / "bias.csv").read_text().splitlines()[0]
     assert header == ",".join(BIAS_COLUMNS)
-    frame = read_bias_csv(out / "bias.csv")
-    assert frame["t_ns"].dtype == np.int64 and len(frame) == len(res.t_ns)
-    np.testing.assert_allclose(frame["bg_x"], res.bias_gyro_radps[:, 0], rtol=1e-8)
+    track = read_bias_csv(out / "bias.csv")
+    assert track.t_ns.dtype == np.int64 and len(track) == len(res.t_ns)
+    np.testing.assert_allclose(track.bias[:, 0], res.bias_gyro_radps[:, 0], rtol=1e-8)
+    mode = (out / "bias.csv").stat().st_mode & 0o777
+    assert mode == 0o666 & ~_umask() and (out.stat().st_mode & 0o777) == 0o777 & ~_umask()
     rep = json.loads((out / "recovery.json").read_text())
     for key in ("pose_time_offset_s", "T_imu_pose", "gravity_world_mps2", "noise", "residuals",
                 "outliers_rejected", "keyframes", "duration_s", "runtime_s", "warnings",
@@ -343,3 +346,11 @@ def test_cli_recover_on_store(tmp_path, clean_run, capsys):
     assert rc == 2
     assert not (tmp_path / "rec2").exists()
     assert "keyframe_rate" in capsys.readouterr().err
+
+
+def _umask() -> int:
+    import os
+
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
