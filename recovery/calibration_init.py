@@ -59,8 +59,6 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal, sparse
-from scipy.integrate import cumulative_trapezoid
 from scipy.ndimage import gaussian_filter1d
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation, Slerp
@@ -190,6 +188,34 @@ def _check_increasing(t_ns: np.ndarray, name: str, min_len: int = 3) -> None:
                         hint="run 'biasgt convert' so the input checks sort and deduplicate the stream")
 
 
+def _cumtrapz(y: np.ndarray, x: np.ndarray, axis: int = 0, initial: float = 0.0) -> np.ndarray:
+    """``scipy.integrate.cumulative_trapezoid(y, x, axis=0, initial=0)`` in numpy (axis 0 only).
+
+    Kept local: scipy.integrate and scipy.signal add ~50 MB of RSS to every recovery run.
+    """
+    if axis != 0:
+        raise ValueError("axis must be 0")
+    y = np.asarray(y, dtype=float)
+    dx = np.diff(np.asarray(x, dtype=float)).reshape((-1,) + (1,) * (y.ndim - 1))
+    out = np.empty_like(y)
+    out[0] = initial
+    np.cumsum(0.5 * dx * (y[1:] + y[:-1]), axis=0, out=out[1:])
+    if initial != 0.0:
+        out[1:] += initial
+    return out
+
+
+def _correlate_valid(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``scipy.signal.correlate(a, v)`` for real 1-D, len(a) >= len(v):
+    ``out[k] = sum_l a[l + k] v[l]``, [len(a) - len(v) + 1]."""
+    from scipy.fft import irfft, next_fast_len, rfft  # scipy.fft is light (already loaded by ndimage)
+
+    n, m = len(a), len(v)
+    size = next_fast_len(n + m - 1, real=True)
+    full = irfft(rfft(a, size) * np.conj(rfft(v, size)), size)
+    return full[: n - m + 1]
+
+
 def _rotations(poses: PoseSeries) -> Rotation:
     if poses.quat_wxyz is None:
         raise DataError(f"{_pose_name(poses)} has no orientation", field="quat_wxyz",
@@ -205,7 +231,7 @@ def _rotations(poses: PoseSeries) -> Rotation:
 def _gyro_integral(imu: ImuSeries, t_ref_ns: int) -> tuple[np.ndarray, np.ndarray]:
     """Times [N] (s, relative to t_ref_ns) and the cumulative gyro integral [N, 3] (rad)."""
     t_s = (imu.t_ns - t_ref_ns) / NS_PER_S
-    return t_s, cumulative_trapezoid(imu.gyro_radps, t_s, axis=0, initial=0.0)
+    return t_s, _cumtrapz(imu.gyro_radps, t_s, axis=0, initial=0.0)
 
 
 def _interp_cols(t: np.ndarray, tp: np.ndarray, fp: np.ndarray) -> np.ndarray:
@@ -303,7 +329,7 @@ def _lag_correlation(x: np.ndarray, y_ext: np.ndarray) -> np.ndarray:
     xc = x - x.mean()
     sx = xc.std()
     sy = _sliding_std(y_ext, n)
-    c = signal.correlate(y_ext, xc, mode="valid", method="fft")
+    c = _correlate_valid(y_ext, xc)
     with np.errstate(invalid="ignore", divide="ignore"):
         r = c / (n * sx * sy)
     return np.nan_to_num(r, nan=-1.0)
@@ -398,12 +424,12 @@ def _position_r2(acc: np.ndarray, u: np.ndarray) -> np.ndarray:
     a2 = np.sum(acc**2, axis=1)
     D = np.column_stack([-2 * acc, np.ones(n)])
     Minv = np.linalg.pinv(D.T @ D)
-    Dz = np.stack([signal.correlate(u, D[:, j], mode="valid", method="fft") for j in range(4)], axis=1)
+    Dz = np.stack([_correlate_valid(u, D[:, j]) for j in range(4)], axis=1)
     Dz -= (D.T @ a2)[None, :]
     c1 = np.concatenate([[0.0], np.cumsum(u)])
     c2 = np.concatenate([[0.0], np.cumsum(u * u)])
     su, suu = c1[n:] - c1[:-n], c2[n:] - c2[:-n]
-    sua = signal.correlate(u, a2, mode="valid", method="fft")
+    sua = _correlate_valid(u, a2)
     zz = suu - 2 * sua + np.sum(a2**2)
     zsum = su - a2.sum()
     tss = zz - zsum**2 / n
@@ -627,8 +653,8 @@ def _acc_lstsq(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_imu_pose: n
     ti = (imu.t_ns[sel_imu] - t_ref) / NS_PER_S
     R_wi = _imu_rotations(imu, poses, offset_s, R_ip, ti, t_ref)  # [N, 3, 3]
     f_w = np.einsum("nij,nj->ni", R_wi, imu.acc_mps2[sel_imu])
-    AA_f = cumulative_trapezoid(cumulative_trapezoid(f_w, ti, axis=0, initial=0), ti, axis=0, initial=0)
-    AA_R = cumulative_trapezoid(cumulative_trapezoid(R_wi, ti, axis=0, initial=0), ti, axis=0, initial=0)
+    AA_f = _cumtrapz(_cumtrapz(f_w, ti, axis=0, initial=0), ti, axis=0, initial=0)
+    AA_R = _cumtrapz(_cumtrapz(R_wi, ti, axis=0, initial=0), ti, axis=0, initial=0)
 
     tp = (poses.t_ns - t_ref) / NS_PER_S + offset_s
     inside = np.flatnonzero((tp >= ti[0]) & (tp <= ti[-1]))
@@ -681,6 +707,8 @@ def _acc_lstsq(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_imu_pose: n
         blocks_r.append(np.repeat(rows[:, :, None], 3, axis=2))
         blocks_c.append(np.broadcast_to((n_r + 3 + 3 * knot)[:, None, None] + np.arange(3)[None, None, :], (M, 3, 3)))
         blocks_v.append(J_b * (wk * scale)[:, None, None])
+    from scipy import sparse  # only for the extrinsic / lever-arm solves
+
     A = sparse.csr_array((np.concatenate([v.ravel() for v in blocks_v]),
                           (np.concatenate([r.ravel() for r in blocks_r]),
                            np.concatenate([c.ravel() for c in blocks_c]))), shape=(3 * M, nx))

@@ -117,14 +117,18 @@ class RecoveryConfig:
             ``None`` (auto): yes, except for POSITION_TRACKER streams (levelled frames).
         gravity_mps2: Gravity magnitude.
         gravity_window_s: Longest span of the decimated solve that estimates the
-            gravity direction (then fixed in the full-rate segments).
+            gravity direction (then the prior of the per-segment gravity variable).
         gravity_keyframe_rate_hz: Keyframe rate of that solve.
         position_sigma_m: Pose position noise; ``None`` = default of the source kind.
         rotation_sigma_rad: Pose rotation noise; ``None`` = default of the source kind.
         gyro_noise_density / acc_noise_density: Override the calibration's white noise.
         gyro_random_walk / acc_random_walk: Override the calibration's bias random walk.
         noise_estimation: See :class:`NoiseEstimation`.
-        random_walk_scales: Candidate inflation factors of the random walks for EVIDENCE.
+        random_walk_scales: Candidate inflation factors of the random walks (relative to
+            the calibration / sensor.yaml) for EVIDENCE; their min and max bound the search.
+            A narrow range (e.g. ``[0.5, 1, 3, 10, 30]``) keeps a pose stream with artefacts
+            (e.g. EuRoC GT jumps) from choosing a random walk so loose that the bias absorbs
+            them; hitting a bound is reported in ``recovery.json`` warnings.
         pose_sigma_scales: Candidate factors of the pose sigmas (ignored when
             ``position_sigma_m`` is given).
         noise_keyframe_rate_hz: Keyframe rate of the evidence solves.
@@ -134,7 +138,8 @@ class RecoveryConfig:
         outlier_threshold: After convergence, a pose factor whose whitened residual
             (per-DoF RMS) exceeds this many sigmas is counted in ``outliers_rejected``,
             removed, and the window solved again.
-        segment_s: Segment length for long recordings (bounded memory).
+        segment_s: Segment length for long recordings (bounded memory: peak memory
+            grows with the keyframes per segment; run time barely depends on it).
         segment_overlap_s: Overlap between segments (blended linearly).
         max_imu_gap_s: Longest IMU gap bridged; see ``imu_gap_policy``.
         imu_gap_policy: See :class:`ImuGapPolicy`.

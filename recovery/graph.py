@@ -80,6 +80,7 @@ class SolveOptions:
     compute_marginals: bool = False
     marginal_extras: bool = False  # gravity / extrinsic covariances
     marginal_rate_hz: float | None = 20.0  # bias marginals at this rate (+ ends, gap edges), interpolated
+    gravity_prior_cov: np.ndarray | None = None  # [2, 2] Unit3-tangent prior on G(0) around init.gravity_unit
 
 
 @dataclass
@@ -207,6 +208,33 @@ class _Built:
     neg_log_const: float  # sum of the Gaussian normalisers (for the evidence)
 
 
+def _savgol_slope(y: np.ndarray, win: int, dt: float) -> np.ndarray:
+    """First derivative of a local quadratic least-squares fit (Savitzky-Golay), [K, 3].
+
+    Same values as ``scipy.signal.savgol_filter(y, win, 2, deriv=1, delta=dt, mode="interp")``
+    without importing scipy.signal (~40 MB and ~0.5 s on the recovery path): inside, the
+    slope of a centred quadratic fit equals that of a linear fit, ``sum_j j y_{k+j} / sum_j j^2``;
+    at the ends the quadratic fit to the first / last ``win`` samples is differentiated.
+    """
+    K = len(y)
+    m = win // 2
+    j = np.arange(-m, m + 1, dtype=float)
+    c = j / (np.sum(j**2) * dt)
+    out = np.empty_like(y, dtype=float)
+    for col in range(y.shape[1]):
+        out[m:K - m, col] = np.convolve(y[:, col], c[::-1], mode="valid")
+    x = np.arange(win, dtype=float) * dt
+    for head in (True, False):
+        coef = np.polyfit(x, y[:win] if head else y[K - win:], 2)  # [3, C]: quadratic fit per column
+        xs = x[:m] if head else x[win - m:]
+        vals = 2.0 * coef[0][None, :] * xs[:, None] + coef[1][None, :]
+        if head:
+            out[:m] = vals
+        else:
+            out[K - m:] = vals
+    return out
+
+
 def initial_velocity(t_s: np.ndarray, p_m: np.ndarray, window_s: float = 0.3) -> np.ndarray:
     """Velocity guess [K, 3]: local quadratic fits (Savitzky-Golay) over ~``window_s``.
 
@@ -218,12 +246,10 @@ def initial_velocity(t_s: np.ndarray, p_m: np.ndarray, window_s: float = 0.3) ->
         return np.zeros((K, 3))
     if K < 7:
         return np.gradient(p_m, t_s, axis=0)
-    from scipy.signal import savgol_filter
-
     dt = float(np.median(np.diff(t_s)))
     win = int(round(window_s / max(dt, 1e-4))) | 1
     win = max(5, min(win, K if K % 2 else K - 1))
-    vel = savgol_filter(p_m, win, 2, deriv=1, delta=dt, axis=0)
+    vel = _savgol_slope(np.asarray(p_m, dtype=float), win, dt)
     # irregular stamps (dropouts): fall back to differences where the grid assumption breaks
     irregular = np.abs(np.diff(t_s) - dt) > 0.5 * dt
     if irregular.any():
@@ -329,6 +355,37 @@ def initial_orientations(
     return out
 
 
+_BIAS_POOL: list[gtsam.Values] = []  # one Values of zero biases B(0..n-1), grown on demand
+
+
+def _bias_values(bias: np.ndarray, K: int) -> gtsam.Values:
+    """A Values holding ``B(k) = bias[k]`` for k < K (``bias`` [6] or [K, 6], gyro then acc).
+
+    ``Values.insert(key, ConstantBias)`` costs ~0.1 ms in the Python binding (pybind tries
+    ~44 overloads first): 0.6 s per 6000-keyframe segment. A cached pool of zero biases
+    is copied and trimmed in C++ instead and moved to ``bias`` by one ``retract``.
+    """
+    if not _BIAS_POOL or _BIAS_POOL[0].size() < K:
+        pool = _BIAS_POOL[0] if _BIAS_POOL else gtsam.Values()
+        zero = gtsam.imuBias.ConstantBias()
+        for k in range(pool.size(), K):
+            pool.insert(B(k), zero)
+        if not _BIAS_POOL:
+            _BIAS_POOL.append(pool)
+    vals = gtsam.Values(_BIAS_POOL[0])
+    for k in range(K, vals.size()):
+        vals.erase(B(k))
+    b = np.asarray(bias, dtype=float)
+    if not np.any(b):
+        return vals
+    b = np.broadcast_to(b, (K, 6))
+    delta = gtsam.VectorValues()
+    tangent = np.ascontiguousarray(np.hstack([b[:, 3:], b[:, :3]]))  # ConstantBias tangent: [acc, gyro]
+    for k in range(K):
+        delta.insert(B(k), tangent[k])
+    return vals.retract(delta)
+
+
 def build_window(
     samples: MidpointSamples,
     kf: KeyframePoses,
@@ -347,7 +404,6 @@ def build_window(
     bias_lin = bias0 if bias0.ndim == 1 else bias0[:-1]
     pims = preintegrate(samples, params, bias_lin)
     graph = gtsam.NonlinearFactorGraph()
-    values = gtsam.Values()
     nlc = 0.0
     Ep = _pose3(T_imu_pose)
     Einv = Ep.inverse()
@@ -370,17 +426,21 @@ def build_window(
     P = np.array([x.translation() for x in Xs])
     t = (kf.t_ns - kf.t_ns[0]) / NS_PER_S
     Vel = initial_velocity(t, P) if init.velocity is None else np.asarray(init.velocity, dtype=float)
+    values = _bias_values(bias0, K)
+    Vel = np.ascontiguousarray(Vel, dtype=float)
     for k in range(K):
         values.insert(X(k), Xs[k])
         values.insert(V(k), Vel[k])
-        b = bias0 if bias0.ndim == 1 else bias0[k]
-        values.insert(B(k), gtsam.imuBias.ConstantBias(b[3:], b[:3]))
 
     # --- IMU factors
     imu_factors = []
     if opts.estimate_gravity:
         gu = np.array([0.0, 0.0, -1.0]) if init.gravity_unit is None else np.asarray(init.gravity_unit, float)
         values.insert(G(0), gtsam.Unit3(gu / np.linalg.norm(gu)))
+        if opts.gravity_prior_cov is not None:
+            prior_g = gtsam.noiseModel.Gaussian.Covariance(np.asarray(opts.gravity_prior_cov, dtype=float))
+            graph.add(gtsam.PriorFactorUnit3(G(0), gtsam.Unit3(gu / np.linalg.norm(gu)), prior_g))
+            nlc += prior_g.negLogConstant()
     for k in range(K - 1):
         if opts.estimate_gravity:
             f = gtsam.CombinedImuFactorWithGravityDirection(
@@ -492,6 +552,9 @@ def _optimize(built: _Built, opts: SolveOptions) -> tuple[gtsam.Values, int]:
     params.setAbsoluteErrorTol(1e-9)
     optimizer = gtsam.LevenbergMarquardtOptimizer(built.graph, built.values, params)
     result = optimizer.optimize()
+    if log.isEnabledFor(logging.DEBUG):
+        log.debug("LM: %d keys, %d iterations, error %.6g -> %.6g", built.values.size(), optimizer.iterations(),
+                  built.graph.error(built.values), optimizer.error())
     return result, int(optimizer.iterations())
 
 
@@ -534,10 +597,13 @@ def solve_window(
     built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init)
     result, iters = _optimize(built, opts)
     outliers = np.zeros(0, dtype=int)
+    pose_norms = None
     if opts.reject_outliers and built.pose_factors:
         norms = _whitened_norms(built.pose_factors, result)
         bad = norms > opts.outlier_threshold
+        pose_norms = norms  # still valid unless the window is solved again below
         if bad.any():
+            pose_norms = None
             outliers = np.unique([built.pose_factors[i][0] for i in np.nonzero(bad)[0]])
             if len(outliers) > 0.2 * K:
                 log.warning("%d of %d pose factors exceed %.1f sigma: the pose noise may be underestimated",
@@ -550,7 +616,8 @@ def solve_window(
     if not math.isfinite(cost):
         raise RecoveryError("the optimisation diverged (non-finite cost)",
                             hint="check the pose stream, its clock offset and the extrinsic")
-    pose_norms = _whitened_norms(built.pose_factors, result) if built.pose_factors else np.zeros(0)
+    if pose_norms is None:
+        pose_norms = _whitened_norms(built.pose_factors, result) if built.pose_factors else np.zeros(0)
     pose_rms = float(np.sqrt(np.mean(pose_norms**2))) if len(pose_norms) else float("nan")
     imu_sq = []
     for f in built.imu_factors:
@@ -622,10 +689,19 @@ def _init_from(result: gtsam.Values, K: int, opts: SolveOptions, init: WindowIni
 
 
 def result_subset(result: gtsam.Values, template: gtsam.Values) -> gtsam.Values:
-    """The values of ``result`` for the keys of ``template`` (warm start)."""
-    out = gtsam.Values()
-    for key in template.keys():
-        out.insert(key, _value_at(result, key, template))
+    """The values of ``result`` for the keys of ``template`` (warm start).
+
+    Copied and trimmed in C++ (a per-key ``insert`` of a bias costs ~0.1 ms in the binding);
+    keys of ``template`` missing from ``result`` take the template's value.
+    """
+    out = gtsam.Values(result)
+    wanted = set(template.keys())
+    for key in list(out.keys()):
+        if key not in wanted:
+            out.erase(key)
+    for key in wanted:
+        if not out.exists(key):
+            out.insert(key, _value_at(template, key, template))
     return out
 
 

@@ -107,6 +107,8 @@ def estimate_noise(
     table: list[dict[str, float]] = []
     cache: dict[tuple[float, float, float], float] = {}
 
+    warm: dict[str, WindowInit | None] = {"init": init}
+
     def evaluate(g: float, a: float, p: float) -> float:
         key = (round(g, 6), round(a, 6), round(p, 6))
         if key in cache:
@@ -115,8 +117,12 @@ def estimate_noise(
                         acc_random_walk=base_imu.acc_random_walk * a)
         o = replace(opts, position_sigma_m=base_position_sigma_m * p, rotation_sigma_rad=base_rotation_sigma_rad * p)
         try:
-            sol = solve_window(samples, kf, noise, T_imu_pose, o, init, want_evidence=True)
+            sol = solve_window(samples, kf, noise, T_imu_pose, o, warm["init"], want_evidence=True)
             ev = sol.log_evidence
+            # warm start of the next candidate from this optimum (same graph, nearby noise):
+            # LM then needs ~2 iterations instead of ~5; the optimum, hence the evidence, is the same
+            warm["init"] = WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias, velocity=sol.v_mps,
+                                      rot_wxyz=None if kf.quat_wxyz is not None else sol.quat_wxyz)
         except Exception as exc:  # a diverged candidate is simply not chosen
             log.debug("noise candidate g=%g a=%g p=%g failed: %s", g, a, p, exc)
             ev = float("-inf")
@@ -125,12 +131,33 @@ def estimate_noise(
         return ev
 
     def search(name: str, grid: list[float]) -> None:
-        evs = []
-        for s in grid:
-            args = dict(state)
-            args[name] = s
-            evs.append(evaluate(args["g"], args["a"], args["p"]))
-        state[name] = _argmax_parabolic_log(grid, evs)
+        """Bracketing search along one coordinate: start at the current value's grid
+        neighbours and walk uphill until the best point has evaluated neighbours on both
+        sides (or is at the grid edge); then a parabola in log-scale. On a unimodal
+        evidence curve this returns what the full grid would, at ~3-4 instead of 6-7 solves."""
+        grid = sorted(grid)
+        n = len(grid)
+        i0 = int(np.argmin(np.abs(np.log(grid) - math.log(state[name]))))
+        evs: dict[int, float] = {}
+
+        def at(j: int) -> float:
+            if j not in evs:
+                args = dict(state)
+                args[name] = grid[j]
+                evs[j] = evaluate(args["g"], args["a"], args["p"])
+            return evs[j]
+
+        for j in range(max(i0 - 1, 0), min(i0 + 1, n - 1) + 1):
+            at(j)
+        while True:
+            best = max(evs, key=lambda j: (evs[j], -abs(j - i0)))
+            if best == min(evs) and best > 0:
+                at(best - 1)
+            elif best == max(evs) and best < n - 1:
+                at(best + 1)
+            else:
+                break
+        state[name] = _argmax_parabolic_log(grid, [evs.get(j, float("nan")) for j in range(n)])
 
     if estimate_pose:
         search("p", list(pose_scales or POSE_SCALES))

@@ -65,6 +65,18 @@ def _write_tum(path: Path, result: RecoveryResult) -> None:
                      f"{q[i, 1]!r} {q[i, 2]!r} {q[i, 3]!r} {q[i, 0]!r}\n")
 
 
+def _write_bias_csv(path: Path, result: RecoveryResult) -> None:
+    """``bias.csv`` as :func:`bias_frame` would write with ``to_csv(float_format="%.9g", na_rep="nan")``,
+    formatted with one %-format per row (pandas' CSV writer takes ~1 s for 18000 rows)."""
+    data = np.hstack([result.bias_gyro_radps, result.bias_acc_mps2, result.bias_gyro_std_radps,
+                      result.bias_acc_std_mps2]).astype(float)
+    t = np.asarray(result.t_ns, dtype=np.int64)
+    fmt = "%d" + ",%.9g" * data.shape[1] + "\n"
+    with open(path, "w", encoding="utf-8", newline="") as fh:
+        fh.write(",".join(BIAS_COLUMNS) + "\n")
+        fh.writelines(fmt % (ti, *row) for ti, row in zip(t.tolist(), data.tolist()))
+
+
 def write_recovery(result: RecoveryResult, out_dir: str | Path) -> Path:
     """Write ``bias.csv``, ``recovery.json`` and ``trajectory_tum.txt`` into ``out_dir`` atomically.
 
@@ -77,7 +89,7 @@ def write_recovery(result: RecoveryResult, out_dir: str | Path) -> Path:
     """
     out_dir = Path(out_dir)
     with atomic_dir(out_dir) as tmp:
-        bias_frame(result).to_csv(tmp / BIAS_CSV, index=False, float_format="%.9g", na_rep="nan")
+        _write_bias_csv(tmp / BIAS_CSV, result)
         (tmp / REPORT_JSON).write_text(json.dumps(_json_safe(result.report), indent=2, allow_nan=False) + "\n",
                                        encoding="utf-8")
         _write_tum(tmp / TRAJECTORY_TUM, result)

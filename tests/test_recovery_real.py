@@ -49,6 +49,18 @@ def test_v101_gt_poses_match_euroc_bias_first_5s(shared_data):
     assert rep["residuals"]["pose_whitened_rms"] < 3.0
 
 
+def test_v101_random_walk_bound_is_kept_and_reported(shared_data):
+    """EuRoC GT poses have artefacts (jumps every 10 samples) that pull the evidence search to
+    ~100x the datasheet gyro random walk; a bounded random_walk_scales keeps it at the bound and
+    recovery.json says so."""
+    seq = _v101(shared_data, 25.0)
+    cfg = RecoveryConfig(keyframe_rate_hz=50.0, random_walk_scales=[0.5, 1.0, 3.0, 10.0, 30.0])
+    res = recover(seq, pose_stream="euroc_gt", config=cfg)
+    noise = res.report["noise"]
+    assert noise["gyro_random_walk_scale"] <= 30.0 and noise["acc_random_walk_scale"] <= 30.0
+    assert any(w.startswith("gyro random walk: the evidence search hit its bound") for w in res.warnings), res.warnings
+
+
 @pytest.mark.slow
 def test_mh01_leica_agrees_with_gt_recovery(shared_data):
     """Raw Leica positions (lever arm from sensor.yaml, clock offset estimated) vs the GT-pose recovery."""
