@@ -1,0 +1,81 @@
+"""``biasgt report``: the per-sequence dataset quality report (one self-contained HTML file).
+
+Thin adapter over :func:`reports.quality.build_quality_report`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+from pathlib import Path
+
+from pipeline.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "report",
+        help="write the dataset quality report of one sequence (self-contained HTML)",
+        description=(
+            "Write one self-contained HTML page (figures embedded, no network needed) that says whether a "
+            "sequence's recovered bias is usable and why: the validation verdict in plain words, the streams and "
+            "input checks, the estimated calibration (clock offset, extrinsic, gravity, noise), the recovered bias "
+            "with its uncertainty, residuals, the integration error per bias source, and the IMU's Allan deviation. "
+            "Give a results folder and --sequence NAME (reads results/ingest|recovery|validation/NAME), or the "
+            "stage folders with --ingest/--recovery/--validation. Missing recovery or validation outputs are "
+            "reported in the page; a missing ingest store is an error. Prints the path of the written file."
+        ),
+        epilog="Example: biasgt report results --sequence MH_01_easy --out MH_01_easy.html",
+    )
+    p.add_argument("results", metavar="RESULTS_DIR", nargs="?", type=Path, default=None,
+                   help="the workflow's results/ folder (or the folder holding it)")
+    p.add_argument("--sequence", metavar="NAME", default=None, help="sequence name (with RESULTS_DIR)")
+    p.add_argument("--ingest", metavar="DIR", type=Path, default=None,
+                   help="the sequence's canonical store (overrides RESULTS_DIR/ingest/NAME)")
+    p.add_argument("--recovery", metavar="DIR", type=Path, default=None,
+                   help="the recovery output folder (bias.csv, recovery.json; overrides RESULTS_DIR/recovery/NAME)")
+    p.add_argument("--validation", metavar="DIR", type=Path, default=None,
+                   help="the validation output folder (validation.json, windows.parquet; overrides "
+                        "RESULTS_DIR/validation/NAME)")
+    p.add_argument("--out", metavar="FILE.html", type=Path, default=None,
+                   help="the HTML file to write (default with RESULTS_DIR: RESULTS_DIR/report/NAME/report.html)")
+    p.set_defaults(func=run)
+
+
+def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | None, Path]:
+    """``(ingest, recovery, validation, out)`` from the command-line arguments.
+
+    Raises:
+        ConfigError: Neither RESULTS_DIR with --sequence nor --ingest given, or no --out.
+    """
+    from reports.quality import stage_dirs
+
+    ingest, recovery, validation, out = args.ingest, args.recovery, args.validation, args.out
+    if args.results is not None:
+        if not args.sequence:
+            raise ConfigError("RESULTS_DIR needs --sequence NAME", field="--sequence",
+                              hint="name the sequence, e.g. --sequence MH_01_easy")
+        found = stage_dirs(args.results, args.sequence)
+        ingest = ingest or found["ingest"]
+        recovery = recovery or found["recovery"]
+        validation = validation or found["validation"]
+        if out is None:
+            root = found["ingest"].parent.parent if found["ingest"] is not None else args.results
+            out = root / "report" / args.sequence / "report.html"
+    if ingest is None:
+        raise ConfigError("no input given", field="--ingest",
+                          hint="give RESULTS_DIR --sequence NAME, or --ingest DIR (and --recovery/--validation)")
+    if out is None:
+        raise ConfigError("no output file given", field="--out", hint="add --out FILE.html")
+    return ingest, recovery, validation, out
+
+
+def run(args: argparse.Namespace) -> int:
+    from reports.quality import build_quality_report
+
+    ingest, recovery, validation, out = resolve_inputs(args)
+    path = build_quality_report(ingest, recovery_dir=recovery, validation_dir=validation, out_path=out)
+    print(path)
+    return 0
