@@ -25,7 +25,6 @@ import datetime as _dt
 import json
 import logging
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -974,12 +973,6 @@ def render_report(inp: ReportInputs) -> str:
     return page(f"biasgt quality report: {seq.name}", body)
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def build_quality_report(
     ingest_dir: str | Path,
     *,
@@ -1012,6 +1005,5 @@ def build_quality_report(
     text = render_report(inputs)
     with atomic_path(out_path) as tmp:
         tmp.write_text(text, encoding="utf-8")
-        os.chmod(tmp, 0o666 & ~_umask())  # a report is for reading: not the temp file's 0600
     log.info("wrote %s (%.0f kB)", out_path, len(text) / 1024)
     return out_path
