@@ -4,7 +4,8 @@
 #   snakemake --cores N --configfile FILE               (from a folder holding results/ and logs/)
 #   snakemake --executor slurm --jobs 50 ...            (cluster; see docs/cluster.md)
 #
-# Outputs: results/<stage>/<sequence>/..., logs: logs/<stage>/<sequence>.log.
+# Outputs: results/<stage>/<sequence>/..., logs: logs/<stage>/<sequence>.log (<stage>: simulate,
+# ingest, recovery, interpolation, validation, windows (one 'dataset'), report).
 # A stage is one .smk file under workflow/rules/: add it with one 'include:' line below; it
 # registers its final outputs with final_output(...) (see workflow/rules/common.smk).
 
@@ -43,3 +44,8 @@ rule all:
 
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/ingest.smk"
+include: "workflow/rules/recover.smk"
+include: "workflow/rules/interpolate.smk"
+include: "workflow/rules/validate.smk"
+include: "workflow/rules/windows.smk"
+include: "workflow/rules/report.smk"

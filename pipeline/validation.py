@@ -85,6 +85,7 @@ import json
 import logging
 import math
 from collections.abc import Mapping
+from collections.abc import Sequence as Sequence_
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -123,6 +124,7 @@ __all__ = [
     "Verdict",
     "WindowPlan",
     "build_reference",
+    "bias_sources",
     "dataset_bias",
     "decide_verdict",
     "plan_windows",
@@ -131,6 +133,7 @@ __all__ = [
     "recovered_bias_at_imu",
     "reference_from_poses",
     "reference_from_states",
+    "validate_inputs",
     "validate_sequence",
     "write_validation",
 ]
@@ -1167,7 +1170,8 @@ def build_reference(
     except BiasgtError as exc:
         raise ValidationError(f"no reference for sequence '{sequence.name}': {exc.problem}", field="poses",
                               hint=exc.hint) from None
-    if recovery is not None:
+    if recovery is not None and (recovery.pose_stream is None or recovery.pose_stream == name):
+        # the recovery's extrinsic and clock offset belong to the stream it fitted
         T, offset = recovery.T_imu_pose, recovery.time_offset_s
     else:
         T = sequence.calibration.T_imu_frames.get(poses.frame)
@@ -1185,3 +1189,104 @@ def build_reference(
                                velocity_cutoff_hz=config.velocity_cutoff_hz, gap_factor=config.reference_gap_factor)
     ref.info["stream"] = name
     return ref
+
+
+# ----------------------------------------------------------------------------- assembling the inputs (CLI, workflow)
+
+
+def bias_sources(
+    sequence: Sequence,
+    *,
+    recovery: RecoveryInfo | None = None,
+    bias_files: Sequence_[tuple[str | None, str | Path]] = (),
+) -> dict[str, BiasSource]:
+    """The bias sources of a validation: the recovery's bias and any bias files.
+
+    The recovery's ``bias.csv`` becomes ``"recovered"`` (RECOVERED, interpolated to the IMU stamps
+    with the recovery's random walks, else the calibration's). An unnamed file is the bias under
+    test (``"recovered"``) when it is the first one and no recovery is given, else FILE named by
+    its stem; a named one is FILE.
+
+    Args:
+        sequence: The sequence (its IMU stamps and calibration are used).
+        recovery: From :func:`read_recovery_dir`, or None.
+        bias_files: ``(name or None, path)`` pairs.
+
+    Raises:
+        ValidationError: Nothing to validate, or a name used twice or reserved.
+        InputFormatError: An unreadable bias file.
+    """
+    if not bias_files and recovery is None:
+        raise ValidationError("nothing to validate", field="--bias", hint="give --recovery DIR or --bias FILE")
+    if sequence.imu is None:
+        raise ValidationError(f"sequence '{sequence.name}' has no IMU to integrate",
+                              hint="give an input with IMU readings")
+    cal = sequence.calibration
+    rw_cal = np.array([cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3, dtype=float)
+    sources: dict[str, BiasSource] = {}
+    if recovery is not None:
+        rw = recovery.random_walk if recovery.random_walk is not None else rw_cal
+        track = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), sequence.imu.t_ns, rw)
+        sources["recovered"] = BiasSource("recovered", BiasSourceKind.RECOVERED, track)
+    unnamed = 0
+    for name, path in bias_files:
+        path = Path(path)
+        track = read_bias_file(path)
+        if name is None:
+            unnamed += 1
+            first = unnamed == 1 and recovery is None
+            name = "recovered" if first else path.stem
+            kind = BiasSourceKind.RECOVERED if first else BiasSourceKind.FILE
+        else:
+            kind = BiasSourceKind.FILE
+        if name in sources or name in ("zero", "constant"):
+            raise ValidationError(f"bias source name '{name}' is used twice or reserved", field="--bias",
+                                  hint="name the sources with --bias NAME=FILE (zero and constant are reserved)")
+        sources[name] = BiasSource(name, kind, track)
+    return sources
+
+
+def validate_inputs(
+    sequence: Sequence,
+    *,
+    recovery_dir: str | Path | None = None,
+    bias_files: Sequence_[tuple[str | None, str | Path]] = (),
+    pose_stream: str | None = None,
+    gravity_mps2: Any = None,
+    config: ValidationConfig = ValidationConfig(),
+) -> ValidationResult:
+    """Validate a sequence from what ``biasgt validate`` and the workflow's rule are given.
+
+    Assembles the sources (:func:`bias_sources`), the gravity (``gravity_mps2``, else the
+    recovery's estimate, else :data:`DEFAULT_GRAVITY_MPS2`) and the reference
+    (:func:`build_reference`), then runs :func:`validate_sequence`. A FAIL verdict is a result,
+    not an error.
+
+    Args:
+        sequence: The sequence (canonical store or any input, already loaded).
+        recovery_dir: A recovery output folder (``bias.csv`` + ``recovery.json``), or None.
+        bias_files: ``(name or None, path)`` bias files (see :func:`bias_sources`).
+        pose_stream: Reference pose stream (None: ground truth, else the recovery's stream).
+        gravity_mps2: Gravity in the reference world frame, [3], or None.
+        config: Validation options.
+
+    Raises:
+        ValidationError / InputFormatError / DataError: Bad or insufficient inputs.
+    """
+    recovery = read_recovery_dir(recovery_dir) if recovery_dir is not None else None
+    sources = bias_sources(sequence, recovery=recovery, bias_files=bias_files)
+    if gravity_mps2 is not None:
+        gravity = np.asarray(gravity_mps2, dtype=float)
+    elif recovery is not None and recovery.gravity_mps2 is not None:
+        gravity = recovery.gravity_mps2
+    else:
+        gravity = np.asarray(DEFAULT_GRAVITY_MPS2)
+    reference = build_reference(sequence, pose_stream=pose_stream, recovery=recovery, config=config)
+    result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config)
+    if recovery is not None:
+        result.notes.append(f"recovery: {recovery.path}")
+        if result.reference.get("kind") == ReferenceKind.POSES.value and (
+                recovery.pose_stream is None or result.reference.get("stream") == recovery.pose_stream):
+            result.notes.append("the reference poses are presumably those the recovery fitted: errors of the poses "
+                                "that the bias absorbed are not seen by this check (not an independent test)")
+    return result

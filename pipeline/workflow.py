@@ -10,15 +10,22 @@ importable and unit-tested Python, so that the ``.smk`` files only wire rules to
   config file and the sequence entry.
 * :class:`WorkflowConfig` / :class:`SequenceEntry`: the parsed sequence table.
 * :func:`stage_dir` / :func:`log_file` / :func:`ingest_input` / :func:`simulate_settings` /
-  :func:`ingest_settings` / :func:`final_outputs`: what the ``get_*`` input functions return.
-* :func:`run_step` / :func:`simulate_step` / :func:`ingest_step`: what the thin scripts under
-  ``workflow/scripts/`` call.
+  :func:`ingest_settings` / :func:`recovery_settings` / :func:`interpolation_settings` /
+  :func:`validation_settings` / :func:`windows_settings` / :func:`windows_inputs` /
+  :func:`final_outputs`: what the ``get_*`` input functions return. Each rule's ``params`` hold
+  only its own config section (merged with the entry's overrides) and what it depends on, so
+  that Snakemake's params trigger reruns exactly the affected jobs.
+* :func:`run_step` / :func:`simulate_step` / :func:`ingest_step` / :func:`recover_step` /
+  :func:`interpolate_step` / :func:`validate_step` / :func:`windows_step` / :func:`report_step`:
+  what the thin scripts under ``workflow/scripts/`` call.
 * :func:`snakemake_command` / :func:`run_workflow`: ``biasgt run`` (Snakemake in a subprocess).
 
 Layout of a workflow run (relative to the working directory)::
 
-    results/<stage>/<sequence>/...   one folder per stage and sequence
-    logs/<stage>/<sequence>.log      the log of that job
+    results/<folder>/<sequence>/...  one folder per stage and sequence (:attr:`Stage.folder`:
+                                     simulate, ingest, recovery, interpolation, validation, report)
+    results/windows/dataset/         the window dataset of the train / val / test sequences
+    logs/<folder>/<sequence>.log     the log of that job (logs/windows/dataset.log)
 """
 
 from __future__ import annotations
@@ -82,15 +89,21 @@ READER_FORMAT: dict[SourceKind, str] = {
 
 
 class Split(str, enum.Enum):
-    """Role of a sequence for training."""
+    """Role of a sequence for training (TRAIN / VAL / TEST sequences are windowed)."""
 
     TRAIN = "train"
+    VAL = "val"
     TEST = "test"
     NONE = "none"
 
+    @property
+    def windowed(self) -> bool:
+        """Whether the sequence's windows go into the window dataset."""
+        return self is not Split.NONE
+
 
 class Stage(str, enum.Enum):
-    """Stages with a results folder, in workflow order (later stages add themselves here)."""
+    """Stages with a results folder, in workflow order; the value is the rule's name."""
 
     SIMULATE = "simulate"
     INGEST = "ingest"
@@ -101,6 +114,27 @@ class Stage(str, enum.Enum):
     TRAIN = "train"
     EVALUATE = "evaluate"
     REPORT = "report"
+
+    @property
+    def folder(self) -> str:
+        """Folder name under ``results/`` and ``logs/``: the name of the stage's config section
+        (``recovery``, ``interpolation``, ``validation``, ...), else the rule's name."""
+        return _STAGE_FOLDERS.get(self, self.value)
+
+
+_STAGE_FOLDERS = {
+    Stage.RECOVER: "recovery",
+    Stage.INTERPOLATE: "interpolation",
+    Stage.VALIDATE: "validation",
+    Stage.TRAIN: "training",
+    Stage.EVALUATE: "evaluation",
+}
+
+#: The window dataset (one for the whole config) and its job name in ``logs/windows/``.
+WINDOWS_DATASET = "dataset"
+#: File names inside the stage folders.
+INTERPOLATED_BIAS = "bias_imu.parquet"
+REPORT_HTML = "report.html"
 
 
 # --------------------------------------------------------------------------------------------
@@ -199,6 +233,23 @@ def _json_path(parts: Iterable[Any]) -> str:
     return out or "(top level)"
 
 
+def _unknown_keys_message(instance: dict[str, Any], allowed: set[str]) -> str | None:
+    """``unknown key 'x' (did you mean 'y'?): allowed here: ...`` for the keys of ``instance`` not in ``allowed``."""
+    import difflib
+
+    extra = [k for k in instance if k not in allowed]
+    if not extra:
+        return None
+    plural = "s" if len(extra) > 1 else ""
+    if not allowed:
+        return f"unknown key{plural} {', '.join(map(repr, extra))}: this section has no options"
+    named = []
+    for k in extra:
+        close = difflib.get_close_matches(str(k), sorted(allowed), n=1)
+        named.append(f"'{k}' (did you mean '{close[0]}'?)" if close else f"'{k}'")
+    return f"unknown key{plural} {', '.join(named)}: allowed here: {', '.join(sorted(allowed))}"
+
+
 def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
     """(field, problem) of a jsonschema error, naming the sequence where there is one."""
     where = _json_path(error.absolute_path)
@@ -209,6 +260,8 @@ def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
         if isinstance(entry, dict) and "name" in entry:
             where += f" (sequence '{entry['name']}')"
     message = error.message
+    if error.validator == "additionalProperties" and isinstance(error.instance, dict):
+        message = _unknown_keys_message(error.instance, set(error.schema.get("properties") or {})) or message
     if error.validator == "enum":
         message = f"{error.instance!r} is not one of {', '.join(map(str, error.validator_value))}"
     elif error.validator == "pattern":
@@ -372,8 +425,14 @@ def check_config(
                     )
         entries.append(SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw))
     cfg = WorkflowConfig(data, config_file, tuple(entries))
+    try:  # the top-level section alone first, so that its errors name it and not an entry
+        make_recovery_config({k: v for k, v in cfg.section("recovery").items() if k not in RECOVERY_EXTRA_KEYS})
+    except ConfigError as exc:
+        raise ConfigError(f"recovery.{exc.field}: {exc.problem}" if exc.field else f"recovery: {exc.problem}",
+                          path=config_file, hint=exc.hint) from None
     for entry in cfg.sequences:
         _check_ingest_settings(cfg, entry)
+        _check_stage_settings(cfg, entry)
     return cfg
 
 
@@ -428,13 +487,28 @@ def load_config(path: str | Path, *, check_paths: bool = True) -> WorkflowConfig
 
 
 def stage_dir(stage: Stage | str, sequence: str) -> str:
-    """``results/<stage>/<sequence>``, relative to the working directory."""
-    return f"{RESULTS_DIR}/{Stage(stage).value}/{sequence}"
+    """``results/<folder>/<sequence>`` (folder: :attr:`Stage.folder`), relative to the working directory."""
+    return f"{RESULTS_DIR}/{Stage(stage).folder}/{sequence}"
 
 
 def log_file(stage: Stage | str, sequence: str) -> str:
-    """``logs/<stage>/<sequence>.log``, relative to the working directory."""
-    return f"{LOGS_DIR}/{Stage(stage).value}/{sequence}.log"
+    """``logs/<folder>/<sequence>.log`` (folder: :attr:`Stage.folder`), relative to the working directory."""
+    return f"{LOGS_DIR}/{Stage(stage).folder}/{sequence}.log"
+
+
+def interpolated_bias_path(sequence: str) -> str:
+    """``results/interpolation/<sequence>/bias_imu.parquet`` (its CSV twin lies next to it)."""
+    return f"{stage_dir(Stage.INTERPOLATE, sequence)}/{INTERPOLATED_BIAS}"
+
+
+def report_path(sequence: str) -> str:
+    """``results/report/<sequence>/report.html`` (where ``biasgt report results --sequence NAME`` writes)."""
+    return f"{stage_dir(Stage.REPORT, sequence)}/{REPORT_HTML}"
+
+
+def windows_dataset_dir() -> str:
+    """``results/windows/dataset``: the window dataset of all train / val / test sequences."""
+    return stage_dir(Stage.WINDOWS, WINDOWS_DATASET)
 
 
 def workdir_relative(path: str | Path, workdir: str | Path | None = None) -> str:
@@ -570,6 +644,154 @@ def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
                           hint=exc.hint) from None
 
 
+# --------------------------------------------------------------------------------------------
+# Parameters of the later stages (recover, interpolate, validate, windows, report)
+# --------------------------------------------------------------------------------------------
+
+#: Keys of a ``recovery:`` section (top level or per sequence) that are not RecoveryConfig options.
+RECOVERY_EXTRA_KEYS = ("pose_stream",)
+#: Keys of a ``validation:`` section that are not ValidationConfig options.
+VALIDATION_EXTRA_KEYS = ("poses", "gravity_mps2")
+#: Sections a sequence entry may override (merged over the top-level section of the same name).
+ENTRY_OVERRIDE_SECTIONS = ("recovery", "validation")
+
+
+def _merged_section(cfg: WorkflowConfig, entry: SequenceEntry, section: str) -> dict[str, Any]:
+    return _deep_merge(cfg.section(section), entry.raw.get(section) or {})
+
+
+def recovery_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
+    """Parameters of rule ``recover`` for one sequence (the rule's ``params``).
+
+    Returns:
+        ``{"pose_stream": str | None, "config": {RecoveryConfig option: value}}``: the top-level
+        ``recovery:`` section updated by the entry's own ``recovery:`` mapping (``pose_stream``:
+        the pose stream to fit, ``None`` = :func:`pipeline.io.select_pose_stream`'s default,
+        ``"ground_truth"`` = the ground-truth state as poses).
+    """
+    merged = _merged_section(cfg, cfg.sequence(sequence), "recovery")
+    pose_stream = merged.pop("pose_stream", None)
+    return {"pose_stream": pose_stream, "config": merged}
+
+
+def make_recovery_config(options: dict[str, Any]) -> Any:
+    """A :class:`recovery.config.RecoveryConfig` from a config mapping.
+
+    Raises:
+        ConfigError: Unknown option or invalid value (naming the option).
+    """
+    from recovery.config import RecoveryConfig
+
+    return RecoveryConfig.from_dict(dict(options))
+
+
+def interpolation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
+    """Parameters of rule ``interpolate``: ``{"method": "linear"|"cubic", "clamp": bool, "write_csv": bool}``."""
+    cfg.sequence(sequence)  # a known sequence
+    section = cfg.section("interpolation")
+    return {
+        "method": str(section.get("method", "linear")),
+        "clamp": bool(section.get("clamp", True)),
+        "write_csv": bool(section.get("write_csv", True)),
+    }
+
+
+def interpolation_outputs(cfg: WorkflowConfig) -> list[str]:
+    """Output patterns of rule ``interpolate`` (``{sequence}`` left in): the Parquet table and,
+    with ``interpolation.write_csv``, its CSV twin."""
+    parquet = interpolated_bias_path("{sequence}")
+    write_csv = bool(cfg.section("interpolation").get("write_csv", True))
+    return [parquet] + ([parquet[: -len(".parquet")] + ".csv"] if write_csv else [])
+
+
+def validation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
+    """Parameters of rule ``validate`` for one sequence.
+
+    Returns:
+        ``{"poses": str | None, "gravity_mps2": [3] | None, "config": {ValidationConfig option: value}}``:
+        the top-level ``validation:`` section updated by the entry's ``validation:`` mapping.
+        ``poses``: the reference pose stream (``None``: the ground-truth state, else the
+        recovery's stream); ``gravity_mps2``: ``None`` = the recovery's estimate.
+    """
+    merged = _merged_section(cfg, cfg.sequence(sequence), "validation")
+    poses = merged.pop("poses", None)
+    gravity = merged.pop("gravity_mps2", None)
+    return {"poses": poses, "gravity_mps2": gravity, "config": merged}
+
+
+def make_validation_config(options: dict[str, Any]) -> Any:
+    """A :class:`pipeline.validation.ValidationConfig` from a config mapping (imports torch).
+
+    Raises:
+        ConfigError: Unknown option or invalid value.
+    """
+    import dataclasses
+
+    from pipeline.validation import ValidationConfig
+
+    known = {f.name for f in dataclasses.fields(ValidationConfig)}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ConfigError(f"unknown validation option(s) {', '.join(unknown)}", field="validation",
+                          hint=f"allowed: {', '.join(sorted(known | set(VALIDATION_EXTRA_KEYS)))}")
+    try:
+        return ValidationConfig(**options)
+    except BiasgtError as exc:
+        raise ConfigError(exc.problem, field=exc.field, hint=exc.hint) from None
+    except TypeError as exc:
+        raise ConfigError(f"invalid validation options: {exc}", field="validation") from None
+
+
+def windowed_sequences(cfg: WorkflowConfig) -> list[SequenceEntry]:
+    """The sequences whose windows form the dataset: split train, val or test, in config order."""
+    return [s for s in cfg.sequences if s.split.windowed]
+
+
+def windows_inputs(cfg: WorkflowConfig) -> dict[str, list[str]]:
+    """Inputs of rule ``windows``: ``{"stores": [...], "recoveries": [...]}`` of :func:`windowed_sequences`."""
+    entries = windowed_sequences(cfg)
+    return {"stores": [stage_dir(Stage.INGEST, s.name) for s in entries],
+            "recoveries": [stage_dir(Stage.RECOVER, s.name) for s in entries]}
+
+
+def windows_settings(cfg: WorkflowConfig) -> dict[str, Any]:
+    """Parameters of rule ``windows``: ``{"sequences": [[name, split], ...], "config": windows section}``."""
+    return {"sequences": [[s.name, s.split.value] for s in windowed_sequences(cfg)],
+            "config": cfg.section("windows")}
+
+
+def window_outputs(cfg: WorkflowConfig) -> list[str]:
+    """Target of rule ``all`` for the windows stage: the dataset folder, or nothing when no
+    sequence is in split ``train`` (the normalisation statistics come from the train split;
+    val / test sequences alone make no dataset)."""
+    if not any(s.split is Split.TRAIN for s in cfg.sequences):
+        if windowed_sequences(cfg):
+            log.warning("no sequence in split 'train': the window dataset is not built")
+        return []
+    return [windows_dataset_dir()]
+
+
+def _schema_section_keys(section: str) -> set[str]:
+    return set((load_schema()["properties"].get(section) or {}).get("properties") or {})
+
+
+def _check_stage_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
+    """Raise a ConfigError naming the entry when its stage overrides or merged options are invalid."""
+    for section in ENTRY_OVERRIDE_SECTIONS:
+        own = entry.raw.get(section) or {}
+        allowed = _schema_section_keys(section)
+        unknown = sorted(set(own) - allowed)
+        if unknown:
+            raise ConfigError(f"{entry.where}: unknown {section} option(s) {', '.join(unknown)}",
+                              path=cfg.config_file, field=f"{section}.{unknown[0]}",
+                              hint=f"allowed: {', '.join(sorted(allowed))}")
+    try:
+        make_recovery_config(recovery_settings(cfg, entry.name)["config"])
+    except ConfigError as exc:
+        raise ConfigError(f"{entry.where}: recovery option: {exc.problem}", path=cfg.config_file,
+                          field=f"recovery.{exc.field}" if exc.field else "recovery", hint=exc.hint) from None
+
+
 @dataclass(frozen=True)
 class FinalOutput:
     """One kind of target of ``rule all``, registered by a stage's ``.smk`` file.
@@ -671,6 +893,129 @@ def ingest_step(input_path: str | Path, out_dir: str | Path, settings: dict[str,
     )
     log.info("wrote %s", out_dir)
     return Path(out_dir)
+
+
+def recover_step(store_dir: str | Path, out_dir: str | Path, settings: dict[str, Any]) -> Path:
+    """Recover the bias of one canonical store and write ``bias.csv``, ``recovery.json``,
+    ``trajectory_tum.txt`` (settings: :func:`recovery_settings`)."""
+    from pipeline.store import read_store
+    from recovery.outputs import write_recovery
+    from recovery.recover import recover
+
+    config = make_recovery_config(dict(settings.get("config") or {}))
+    sequence = read_store(store_dir)
+    log.info("recovering the bias of '%s' from pose stream %s", sequence.name,
+             settings.get("pose_stream") or "(default)")
+    result = recover(sequence, pose_stream=settings.get("pose_stream"), config=config)
+    write_recovery(result, out_dir)
+    report = result.report
+    log.info("wrote %s: %s keyframes over %.1f s from '%s'", out_dir, report.get("keyframes"),
+             float(report.get("duration_s") or 0.0), report.get("pose_stream"))
+    for warning in result.warnings:
+        log.warning("%s", warning)
+    return Path(out_dir)
+
+
+def interpolate_step(recovery_dir: str | Path, store_dir: str | Path, out_path: str | Path,
+                     settings: dict[str, Any]) -> list[Path]:
+    """Interpolate a recovery's keyframe bias to the store's IMU stamps (settings:
+    :func:`interpolation_settings`)."""
+    from interpolation.bias import InterpolationMethod
+    from interpolation.pipeline import interpolate_recovery
+
+    try:
+        method = InterpolationMethod(settings.get("method", "linear"))
+    except ValueError:
+        raise ConfigError(f"unknown interpolation method {settings.get('method')!r}", field="interpolation.method",
+                          hint="use " + ", ".join(m.value for m in InterpolationMethod)) from None
+    written = interpolate_recovery(recovery_dir, store_dir, out_path, method=method,
+                                   clamp=bool(settings.get("clamp", True)),
+                                   write_csv_twin=bool(settings.get("write_csv", True)))
+    log.info("wrote %s", ", ".join(map(str, written)))
+    return written
+
+
+def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str | Path,
+                  settings: dict[str, Any]) -> Any:
+    """Validate one sequence's recovered bias by 1-s integration error and write
+    ``validation.json`` + ``windows.parquet`` (settings: :func:`validation_settings`).
+
+    A FAIL verdict is a result (written, logged as a warning, returned); only bad inputs raise.
+
+    Returns:
+        The :class:`pipeline.validation.ValidationResult`.
+    """
+    from pipeline.store import read_store
+    from pipeline.validation import Verdict, validate_inputs, write_validation
+
+    config = make_validation_config(dict(settings.get("config") or {}))
+    sequence = read_store(store_dir)
+    result = validate_inputs(sequence, recovery_dir=recovery_dir, pose_stream=settings.get("poses"),
+                             gravity_mps2=settings.get("gravity_mps2"), config=config)
+    write_validation(result, out_dir)
+    level = logging.WARNING if result.verdict is Verdict.FAIL else logging.INFO
+    log.log(level, "verdict %s for '%s'%s", result.verdict.value, result.sequence,
+            "".join(f"; {r}" for r in result.reasons))
+    log.info("wrote %s", out_dir)
+    return result
+
+
+def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path], out_dir: str | Path,
+                 settings: dict[str, Any]) -> Path:
+    """Cut the window dataset of the train / val / test sequences.
+
+    Args:
+        stores / recoveries: Each sequence's canonical store and recovery folder, in the order of
+            ``settings["sequences"]`` (:func:`windows_inputs`).
+        out_dir: The dataset folder.
+        settings: :func:`windows_settings`.
+    """
+    from training.windows import WindowSource, build_window_dataset
+
+    named = list(settings.get("sequences") or [])
+    if not (len(named) == len(stores) == len(recoveries)):
+        raise ConfigError(f"windows: {len(named)} sequences but {len(stores)} stores and {len(recoveries)} recoveries",
+                          field="windows", hint="a bug in the workflow wiring; please report it")
+    sources = [WindowSource(name, split, str(store), str(rec))
+               for (name, split), store, rec in zip(named, stores, recoveries)]
+    config = make_window_config(dict(settings.get("config") or {}))
+    log.info("cutting windows of %d sequence(s): %s", len(sources),
+             ", ".join(f"{s.name} ({s.split})" for s in sources))
+    build_window_dataset(sources, out_dir, config)
+    log.info("wrote %s", out_dir)
+    return Path(out_dir)
+
+
+def make_window_config(options: dict[str, Any]) -> Any:
+    """A :class:`training.windows.WindowConfig` from the ``windows:`` section.
+
+    Raises:
+        ConfigError: Unknown option or invalid value.
+    """
+    import dataclasses
+
+    from training.windows import WindowConfig
+
+    if hasattr(WindowConfig, "from_dict"):
+        return WindowConfig.from_dict(dict(options))
+    known = {f.name for f in dataclasses.fields(WindowConfig)}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise ConfigError(f"unknown windows option(s) {', '.join(unknown)}", field="windows",
+                          hint=f"allowed: {', '.join(sorted(known))}")
+    try:
+        return WindowConfig(**options)
+    except TypeError as exc:
+        raise ConfigError(f"invalid windows options: {exc}", field="windows") from None
+
+
+def report_step(ingest_dir: str | Path, recovery_dir: str | Path | None, validation_dir: str | Path | None,
+                out_path: str | Path) -> Path:
+    """Write the quality report (one self-contained HTML file) of one sequence."""
+    from reports.quality import build_quality_report
+
+    return build_quality_report(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir,
+                                out_path=out_path)
 
 
 # --------------------------------------------------------------------------------------------

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
+import json
 import logging
 import subprocess
 import sys
@@ -34,12 +36,20 @@ def sim_entry(name: str, **kw) -> dict:
 
 def test_default_config_is_valid_with_defaults():
     cfg = wf.load_config(REPO / "config" / "config.yaml")
-    assert cfg.names == ["sim_handheld_01", "sim_drone_01", "sim_cart_leica_01", "sim_handheld_test_01"]
+    assert cfg.names == ["sim_handheld_01", "sim_drone_01", "sim_cart_leica_01", "sim_handheld_val_01",
+                         "sim_handheld_test_01"]
     assert all(s.source is wf.SourceKind.SIMULATE for s in cfg.sequences)
+    assert all(wf.simulate_settings(cfg, n)["duration_s"] <= 60 for n in cfg.names)  # 'make run' stays quick
     assert [s.name for s in cfg.select(splits=["test"])] == ["sim_handheld_test_01"]
+    assert [s.name for s in cfg.select(splits=["val"])] == ["sim_handheld_val_01"]
     assert len(cfg.select(splits=["train"])) == 3
-    for section in ("recovery", "interpolation", "validation", "windows", "training", "evaluation", "report"):
+    assert wf.window_outputs(cfg) == ["results/windows/dataset"]
+    for section in ("training", "evaluation", "report"):
         assert cfg.data[section] == {}
+    assert cfg.data["interpolation"] == {"method": "linear", "clamp": True, "write_csv": True}
+    assert cfg.data["windows"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0}
+    assert cfg.data["recovery"]["keyframe_rate_hz"] is None and cfg.data["recovery"]["pose_stream"] is None
+    assert cfg.data["validation"]["window_s"] == 1.0 and cfg.data["validation"]["poses"] is None
     assert cfg.data["ingest"] == {"repairs": [], "check_options": {}}
     assert cfg.config_file == REPO / "config" / "config.yaml"
 
@@ -72,6 +82,15 @@ def test_euroc_config_is_valid(shared_data):
     assert Path(semi["motion"]["ground_truth_path"]).is_file()
     assert [s.name for s in cfg.select(splits=["test"])] == [
         "semi_MH_04_difficult", "semi_V1_03_difficult", "semi_V2_02_medium"]
+    # MH_01: recovered from the raw Leica positions, validated against independent GT poses
+    assert wf.recovery_settings(cfg, "MH_01_easy")["pose_stream"] == "leica0"
+    assert wf.validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
+    assert wf.ingest_settings(cfg, "MH_01_easy")["reader_kwargs"]["extra_poses"][0]["kind"] == "ground_truth"
+    assert wf.recovery_settings(cfg, "V1_02_medium_excerpt")["pose_stream"] == "ground_truth"  # GT state only
+    # every entry goes through every per-sequence stage; the windowed ones all have 6-DoF references
+    assert mh01.split is wf.Split.NONE
+    assert [s.name for s in wf.windowed_sequences(cfg)] == [s.name for s in cfg.sequences if s.is_simulated]
+    assert wf.window_outputs(cfg) == ["results/windows/dataset"]
 
 
 def test_euroc_config_default_data_root_points_at_shared_data():
@@ -136,7 +155,7 @@ def test_rejects_bad_names_and_unknown_keys(tmp_path):
     msg = _error(tmp_path, {"sequences": [sim_entry("a", presett="handheld")]})
     assert "'presett' was unexpected" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a")], "recover": {}})
-    assert "'recover' was unexpected" in msg
+    assert "(top level): unknown key 'recover' (did you mean 'recovery'?)" in msg
     msg = _error(tmp_path, {"sequences": []})
     assert "sequences" in msg and "should be non-empty" in msg
 
@@ -156,6 +175,72 @@ def test_rejects_bad_simulator_and_ingest_settings(tmp_path):
     assert "sequences[0] ('r'): unknown reader option(s) imu_topics" in msg and "imu_topic" in msg
     msg = _error(tmp_path, {"sequences": [{"name": "r", "source": "bag", "path": "x.bag", "reader": {"fmt": "asl"}}]})
     assert "sequences[0] ('r'): reader option(s) fmt cannot be set here (field 'reader'); 'source' sets the format" in msg
+
+
+def test_stage_section_defaults_match_the_libraries():
+    """The schema documents every option of recovery / validation / windows with the library's default."""
+    import dataclasses
+    import enum
+
+    from pipeline.validation import ValidationConfig
+    from recovery.config import RecoveryConfig
+    from training.windows import WindowConfig
+
+    props = wf.load_schema()["properties"]
+    for section, cls, extra in (("recovery", RecoveryConfig, wf.RECOVERY_EXTRA_KEYS),
+                                ("validation", ValidationConfig, wf.VALIDATION_EXTRA_KEYS),
+                                ("windows", WindowConfig, ())):
+        schema = props[section]
+        assert schema["additionalProperties"] is False
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        assert set(schema["properties"]) == set(fields) | set(extra), section
+        default = cls()
+        for name in fields:
+            value = getattr(default, name)
+            doc = schema["properties"][name]
+            assert doc["description"], (section, name)
+            if isinstance(value, enum.Enum):
+                assert doc["enum"] == [e.value for e in type(value)] and doc["default"] == value.value, (section, name)
+            else:
+                assert doc["default"] == value, (section, name)
+        for name in extra:
+            assert schema["properties"][name]["default"] is None
+    from interpolation.bias import InterpolationMethod
+
+    assert props["interpolation"]["properties"]["method"]["enum"] == [m.value for m in InterpolationMethod]
+    # the schema's defaults build the libraries' default configs
+    cfg = wf.validate_schema({"sequences": [sim_entry("a")]})
+    assert wf.make_recovery_config(wf.recovery_settings(wf.check_config(cfg), "a")["config"]) == RecoveryConfig()
+    assert wf.make_validation_config(wf.validation_settings(wf.check_config(cfg), "a")["config"]) == ValidationConfig()
+    assert wf.make_window_config(cfg["windows"]) == WindowConfig()
+
+
+def test_rejects_unknown_and_invalid_stage_options(tmp_path):
+    seqs = [sim_entry("a")]
+    msg = _error(tmp_path, {"sequences": seqs, "recovery": {"keyframe_rat_hz": 5}})
+    assert "recovery: unknown key 'keyframe_rat_hz' (did you mean 'keyframe_rate_hz'?): allowed here: " in msg
+    assert "pose_stream" in msg and "time_offset_mode" in msg
+    msg = _error(tmp_path, {"sequences": seqs, "validation": {"window": 2, "margn": 0.2}})
+    assert "validation: unknown keys 'window' (did you mean 'window_s'?), 'margn' (did you mean 'margin'?)" in msg
+    msg = _error(tmp_path, {"sequences": seqs, "interpolation": {"method": "spline"}})
+    assert "interpolation.method: 'spline' is not one of linear, cubic" in msg
+    msg = _error(tmp_path, {"sequences": seqs, "windows": {"window_len": 2}})
+    assert "windows: unknown key 'window_len' (did you mean 'window_s'?)" in msg
+    msg = _error(tmp_path, {"sequences": seqs, "report": {"theme": "dark"}})
+    assert "report: unknown key 'theme': this section has no options" in msg
+    msg = _error(tmp_path, {"sequences": seqs, "recovery": {"keyframe_rate_hz": -1}})
+    assert "recovery.keyframe_rate_hz: must be > 0 or null, got -1" in msg
+    msg = _error(tmp_path, {"sequences": seqs, "recovery": {"robust_loss": "tukey"}})
+    assert "recovery.robust_loss: 'tukey' is not one of huber, cauchy, none" in msg
+    # per-sequence overrides: same keys, checked at start-up, naming the entry
+    msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"pose_strem": "mocap0"})]})
+    assert "sequences[0] ('a'): unknown recovery option(s) pose_strem (field 'recovery.pose_strem')" in msg
+    msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"segment_overlap_s": 40})]})
+    assert "sequences[0] ('a'): recovery option: must be >= 0 and less than half of segment_s" in msg
+    msg = _error(tmp_path, {"sequences": [sim_entry("a", validation={"refernce": "x"})]})
+    assert "sequences[0] ('a'): unknown validation option(s) refernce" in msg
+    msg = _error(tmp_path, {"sequences": [sim_entry("a", split="training")]})
+    assert "'training' is not one of train, val, test, none" in msg
 
 
 def test_rejects_unreadable_config(tmp_path):
@@ -208,7 +293,8 @@ def test_ingest_input_paths(mixed_cfg, tmp_path):
     assert wf.ingest_input(mixed_cfg, "tum1", tmp_path / "elsewhere") == str(tmp_path / "data" / "poses.txt")
     assert wf.simulate_inputs(mixed_cfg, "sim1", tmp_path) == []
     assert wf.simulate_inputs(mixed_cfg, "semi", tmp_path) == ["gt.csv"]
-    with pytest.raises(ConfigError, match=r"no sequence named 'nope' \(field 'sequences'\); configured sequences: sim1, seqA, tum1, semi"):
+    with pytest.raises(ConfigError, match=r"no sequence named 'nope' \(field 'sequences'\); "
+                                          r"configured sequences: sim1, seqA, tum1, semi"):
         wf.ingest_input(mixed_cfg, "nope", tmp_path)
 
 
@@ -243,6 +329,68 @@ def test_ingest_settings(mixed_cfg):
     assert tum["check_options"] == {"gap_factor": 3.0, "allow_pose_only": True}
     opts = wf.make_check_options(tum["check_options"] | {"ignore": ["gyro_degps"]})
     assert opts.gap_factor == 3.0 and opts.allow_pose_only is True and opts.ignore == frozenset({"GYRO_DEGPS"})
+
+
+def test_stage_folders_and_files():
+    assert wf.stage_dir("recover", "s") == "results/recovery/s"
+    assert wf.stage_dir(wf.Stage.INTERPOLATE, "s") == "results/interpolation/s"
+    assert wf.stage_dir("validate", "s") == "results/validation/s"
+    assert wf.log_file("recover", "s") == "logs/recovery/s.log"
+    assert wf.log_file("windows", wf.WINDOWS_DATASET) == "logs/windows/dataset.log"
+    assert wf.windows_dataset_dir() == "results/windows/dataset"
+    assert wf.interpolated_bias_path("s") == "results/interpolation/s/bias_imu.parquet"
+    assert wf.report_path("s") == "results/report/s/report.html"
+    # the report's reader finds the workflow's stage folders
+    from reports.quality import STAGE_FOLDERS
+
+    assert STAGE_FOLDERS["recovery"][0] == wf.Stage.RECOVER.folder
+    assert STAGE_FOLDERS["validation"][0] == wf.Stage.VALIDATE.folder
+
+
+def test_stage_settings_merge_entry_overrides(tmp_path):
+    cfg = wf.load_config(write_config(tmp_path / "c.yaml", {
+        "sequences": [
+            sim_entry("a", split="train", recovery={"pose_stream": "ground_truth", "keyframe_rate_hz": 20},
+                      validation={"poses": "mocap0", "margin": 0.5}),
+            sim_entry("b", split="val"),
+            sim_entry("c", split="none"),
+            sim_entry("d", split="test"),
+        ],
+        "recovery": {"keyframe_rate_hz": 50, "robust_loss": "cauchy"},
+        "interpolation": {"method": "cubic", "write_csv": False},
+        "validation": {"window_s": 2.0, "gravity_mps2": [0, 0, -9.8]},
+        "windows": {"window_s": 2.0},
+    }))
+    a, b = wf.recovery_settings(cfg, "a"), wf.recovery_settings(cfg, "b")
+    assert a["pose_stream"] == "ground_truth" and b["pose_stream"] is None
+    assert a["config"]["keyframe_rate_hz"] == 20 and b["config"]["keyframe_rate_hz"] == 50
+    assert a["config"]["robust_loss"] == b["config"]["robust_loss"] == "cauchy"
+    assert "pose_stream" not in a["config"]
+    rc = wf.make_recovery_config(a["config"])
+    assert rc.keyframe_rate_hz == 20 and rc.robust_loss.value == "cauchy"
+    va, vb = wf.validation_settings(cfg, "a"), wf.validation_settings(cfg, "b")
+    assert va["poses"] == "mocap0" and vb["poses"] is None
+    assert va["gravity_mps2"] == vb["gravity_mps2"] == [0, 0, -9.8]
+    assert va["config"]["margin"] == 0.5 and vb["config"]["margin"] == 0.1 and va["config"]["window_s"] == 2.0
+    assert wf.interpolation_settings(cfg, "a") == {"method": "cubic", "clamp": True, "write_csv": False}
+    assert wf.interpolation_outputs(cfg) == ["results/interpolation/{sequence}/bias_imu.parquet"]
+    assert wf.windows_settings(cfg) == {
+        "sequences": [["a", "train"], ["b", "val"], ["d", "test"]],
+        "config": {"window_s": 2.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0},
+    }
+    assert wf.windows_inputs(cfg) == {
+        "stores": ["results/ingest/a", "results/ingest/b", "results/ingest/d"],
+        "recoveries": ["results/recovery/a", "results/recovery/b", "results/recovery/d"],
+    }
+    assert wf.window_outputs(cfg) == ["results/windows/dataset"]
+    no_train = wf.load_config(write_config(tmp_path / "t.yaml", {"sequences": [sim_entry("x", split="test")]}))
+    assert wf.window_outputs(no_train) == []  # no train split: no dataset (normalisation needs train)
+    assert wf.interpolation_outputs(no_train) == ["results/interpolation/{sequence}/bias_imu.parquet",
+                                                  "results/interpolation/{sequence}/bias_imu.csv"]
+    with pytest.raises(ConfigError, match="unknown validation option"):
+        wf.make_validation_config({"windw_s": 1})
+    with pytest.raises(ConfigError, match="invalid overlap"):
+        wf.make_validation_config({"overlap": 1.5})
 
 
 def test_final_outputs_registry(mixed_cfg):
@@ -365,7 +513,79 @@ def test_cli_reports_bad_config_on_one_line(tmp_path, capsys):
 
 
 # ---------------------------------------------------------------------------------------------
-# real snakemake runs (grouped on one xdist worker; ~40 s together)
+# step functions in-process (validate: a FAIL verdict is data, bad inputs stop the job)
+
+
+@SPINE_GROUP
+@pytest.mark.slow  # uses the end-to-end run (~40-80 s, once per module)
+def test_validate_step_fail_is_a_result_and_bad_input_stops(e2e_run, tmp_path):
+    import json as _json
+
+    import pandas as pd
+
+    from pipeline.validation import Verdict
+
+    workdir = e2e_run.workdir
+    store = workdir / "results" / "ingest" / "tiny_b"
+    recovery = tmp_path / "recovery_off"
+    import shutil
+
+    shutil.copytree(workdir / "results" / "recovery" / "tiny_b", recovery)
+    bias = pd.read_csv(recovery / "bias.csv")
+    bias["ba_x"] += 0.5  # 0.5 m/s^2 off: far worse than a constant bias
+    bias.to_csv(recovery / "bias.csv", index=False)
+    cfg = wf.load_config(e2e_run.config)
+    settings = wf.validation_settings(cfg, "tiny_b")
+    log_path = tmp_path / "logs" / "validate.log"
+    result = wf.run_step(log_path, wf.validate_step, store, recovery, tmp_path / "val", settings)
+    assert result.verdict is Verdict.FAIL
+    data = _json.loads((tmp_path / "val" / "validation.json").read_text())
+    assert data["verdict"] == "FAIL" and data["reasons"]
+    assert "WARNING pipeline.workflow: verdict FAIL for 'tiny_b'" in log_path.read_text()
+    # a missing recovery is an input error: exit 2, one logged line, nothing written
+    with pytest.raises(SystemExit) as info:
+        wf.run_step(log_path, wf.validate_step, store, tmp_path / "nowhere", tmp_path / "val2", settings)
+    assert info.value.code == 2 and not (tmp_path / "val2").exists()
+    assert "recovery output lacks recovery.json" in log_path.read_text()
+
+
+@SPINE_GROUP
+@pytest.mark.slow  # uses the end-to-end run (~40-80 s, once per module)
+def test_other_step_functions_in_process(e2e_run, tmp_path):
+    import pyarrow.parquet as pq
+
+    from pipeline.store import read_store
+
+    results = e2e_run.workdir / "results"
+    store, recovery = results / "ingest" / "tiny_a", results / "recovery" / "tiny_a"
+    log_path = tmp_path / "step.log"
+    # interpolate: cubic, Parquet only
+    out = tmp_path / "interp" / "bias_imu.parquet"
+    written = wf.run_step(log_path, wf.interpolate_step, recovery, store, out,
+                          {"method": "cubic", "clamp": True, "write_csv": False})
+    assert written == [out] and not out.with_suffix(".csv").exists()
+    assert pq.read_table(out).num_rows == len(read_store(store).imu)
+    with pytest.raises(SystemExit) as info:
+        wf.run_step(log_path, wf.interpolate_step, recovery, store, tmp_path / "x.parquet", {"method": "spline"})
+    assert info.value.code == 2 and "unknown interpolation method 'spline'" in log_path.read_text()
+    # recover: an unknown pose stream is a one-line input error naming the streams
+    with pytest.raises(SystemExit) as info:
+        wf.run_step(log_path, wf.recover_step, store, tmp_path / "rec", {"pose_stream": "vicon9", "config": {}})
+    assert info.value.code == 2 and "vicon9" in log_path.read_text() and "mocap0" in log_path.read_text()
+    assert not (tmp_path / "rec").exists()
+    # report: one HTML file from the three stage folders
+    html = wf.run_step(log_path, wf.report_step, store, recovery, results / "validation" / "tiny_a",
+                       tmp_path / "r" / "report.html")
+    assert html.read_text().lower().lstrip().startswith("<!doctype html")
+    # windows: inputs and names must line up; options are checked
+    with pytest.raises(ConfigError, match="1 sequences but 2 stores"):
+        wf.windows_step([store, store], [recovery, recovery], tmp_path / "ds", {"sequences": [["tiny_a", "train"]]})
+    with pytest.raises(ConfigError, match="window_len"):
+        wf.make_window_config({"window_len": 2})
+
+
+# ---------------------------------------------------------------------------------------------
+# real snakemake runs (grouped on one xdist worker)
 
 
 def _dry_run_jobs(cfg: Path, workdir: Path) -> list[tuple[str, dict[str, str]]]:
@@ -374,37 +594,56 @@ def _dry_run_jobs(cfg: Path, workdir: Path) -> list[tuple[str, dict[str, str]]]:
     return [(rule, w) for rule, w in wf.parse_dry_run_jobs(echo.getvalue()) if rule != "all"]
 
 
+STAGE_RULES = ("simulate", "ingest", "recover", "interpolate", "validate", "windows", "report")
+
+
 @SPINE_GROUP
 def test_dry_run_of_default_workflow(tmp_path):
     echo = io.StringIO()
     result = wf.run_workflow(workdir=tmp_path, dry_run=True, echo=echo)
     jobs = wf.parse_dry_run_jobs(echo.getvalue())
     names = wf.load_config(wf.DEFAULT_CONFIG).names
-    assert sorted(w["sequence"] for r, w in jobs if r == "simulate") == sorted(names)
-    assert sorted(w["sequence"] for r, w in jobs if r == "ingest") == sorted(names)
+    for rule in STAGE_RULES:
+        if rule != "windows":
+            assert sorted(w["sequence"] for r, w in jobs if r == rule) == sorted(names), rule
+    assert [r for r, _ in jobs].count("windows") == 1
     assert [r for r, _ in jobs].count("all") == 1
     assert result.outputs == [] and not (tmp_path / "results").exists()
 
 
-def _have_spine() -> str | None:
+def _have_stages() -> str | None:
     try:
         from pipeline.ingest import ingest  # noqa: F401
         from pipeline.io import load_sequence  # noqa: F401
         from pipeline.sim import simulate, write_simulation  # noqa: F401
+        from recovery.recover import recover  # noqa: F401
+        from reports.quality import build_quality_report  # noqa: F401
+        from training.windows import build_window_dataset  # noqa: F401
     except ImportError as exc:
-        return f"the simulator or ingest stage is not importable yet ({exc})"
+        return f"a stage is not importable yet ({exc})"
     return None
 
 
+@dataclasses.dataclass
+class E2E:
+    workdir: Path
+    config: Path
+    printed: str
+    wall_s: float
+
+
 @pytest.fixture(scope="module")
-def spine_run(tmp_path_factory):
-    """A real run of simulate + ingest on two 3-second simulated sequences."""
-    reason = _have_spine()
+def e2e_run(tmp_path_factory) -> E2E:
+    """A real run of every stage on two 8-second simulated sequences (train and test)."""
+    import time
+
+    reason = _have_stages()
     if reason:
         pytest.skip(reason)
-    workdir = tmp_path_factory.mktemp("spine")
+    workdir = tmp_path_factory.mktemp("e2e")
     cfg = write_config(workdir / "config.yaml", {
-        "sequences": [sim_entry("tiny_a", seed=1, split="train"), sim_entry("tiny_b", seed=2, split="test")],
+        "sequences": [sim_entry("tiny_a", seed=1, split="train", duration_s=8),
+                      sim_entry("tiny_b", seed=2, split="test", duration_s=8)],
     })
     import argparse
 
@@ -414,56 +653,103 @@ def spine_run(tmp_path_factory):
     run.register(parser.add_subparsers())
     args = parser.parse_args(["run", "--config", str(cfg), "--directory", str(workdir), "--cores", "2"])
     stdout = io.StringIO()
+    t0 = time.perf_counter()
     with contextlib.redirect_stdout(stdout):  # the 'biasgt run' command, as 'make run' calls it
         code = args.func(args)
     assert code == 0
-    return workdir, cfg, stdout.getvalue()
+    return E2E(workdir, cfg, stdout.getvalue(), time.perf_counter() - t0)
 
 
 @SPINE_GROUP
-def test_real_run_writes_readable_stores(spine_run):
+@pytest.mark.slow
+def test_real_run_writes_every_stage(e2e_run):
     from pipeline.store import read_store
+    from recovery.outputs import BIAS_COLUMNS
 
-    workdir, _, printed = spine_run
+    workdir, printed = e2e_run.workdir, e2e_run.printed
+    results = workdir / "results"
     assert printed.splitlines() == [
-        f"results: {workdir / 'results'}",
-        f"  stage: {workdir / 'results' / 'ingest'}",
-        f"  stage: {workdir / 'results' / 'simulate'}",
+        f"results: {results}",
+        *(f"  stage: {results / d}" for d in sorted(
+            ["simulate", "ingest", "recovery", "interpolation", "validation", "windows", "report"])),
+        f"reports ({2}):",
+        f"  {results / 'report' / 'tiny_a' / 'report.html'}",
+        f"  {results / 'report' / 'tiny_b' / 'report.html'}",
     ]
-    for name, seed in (("tiny_a", 1), ("tiny_b", 2)):
-        assert (workdir / "results" / "simulate" / name / "mav0" / "imu0" / "data.csv").is_file()
-        seq = read_store(workdir / "results" / "ingest" / name)
-        assert seq.name == name
-        assert seq.imu is not None and 3.0 * 200 - 2 <= len(seq.imu) <= 3.0 * 200 + 2
-        assert seq.poses, "the simulated mocap stream must be ingested"
-        for stage in ("simulate", "ingest"):
+    for name in ("tiny_a", "tiny_b"):
+        assert (results / "simulate" / name / "mav0" / "imu0" / "data.csv").is_file()
+        seq = read_store(results / "ingest" / name)
+        assert seq.name == name and seq.imu is not None and 8 * 200 - 2 <= len(seq.imu) <= 8 * 200 + 2
+        header = (results / "recovery" / name / "bias.csv").read_text().splitlines()[0]
+        assert header == ",".join(BIAS_COLUMNS)
+        assert header == "t_ns,bg_x,bg_y,bg_z,ba_x,ba_y,ba_z,bg_x_std,bg_y_std,bg_z_std,ba_x_std,ba_y_std,ba_z_std"
+        rec = json.loads((results / "recovery" / name / "recovery.json").read_text())
+        assert rec["pose_stream"] == "mocap0" and rec["keyframes"] > 100
+        interp = results / "interpolation" / name
+        assert (interp / "bias_imu.parquet").is_file() and (interp / "bias_imu.csv").is_file()
+        import pyarrow.parquet as pq
+
+        assert pq.read_table(interp / "bias_imu.parquet").num_rows == len(seq.imu)
+        val = json.loads((results / "validation" / name / "validation.json").read_text())
+        assert val["verdict"] in ("PASS", "WARN", "FAIL") and val["candidate"] == "recovered"
+        assert val["reference"]["kind"] == "state"  # the simulator's ground truth
+        assert {"zero", "constant", "recovered", "dataset"} <= set(val["sources"])
+        # the recovered bias integrates far better than no bias at all
+        assert val["sources"]["recovered"]["prmse_m"] < 0.5 * val["sources"]["zero"]["prmse_m"]
+        assert (results / "validation" / name / "windows.parquet").is_file()
+        html = (results / "report" / name / "report.html").read_text()
+        assert html.lstrip().lower().startswith("<!doctype html") and name in html and val["verdict"] in html
+        for stage in ("simulate", "ingest", "recovery", "interpolation", "validation", "report"):
             log_text = (workdir / "logs" / stage / f"{name}.log").read_text()
-            assert "INFO" in log_text and "ERROR" not in log_text
+            assert "INFO" in log_text and "ERROR" not in log_text, (stage, name)
+    manifest = json.loads((results / "windows" / "dataset" / "manifest.json").read_text())
+    assert {n: s["split"] for n, s in manifest["sequences"].items()} == {"tiny_a": "train", "tiny_b": "test"}
+    assert all(s["windows"] > 5 for s in manifest["sequences"].values())
+    assert "ERROR" not in (workdir / "logs" / "windows" / "dataset.log").read_text()
 
 
 @SPINE_GROUP
-def test_rerun_only_what_a_config_change_affects(spine_run):
-    """--rerun-triggers params: a dry run after editing the config lists only the affected jobs.
+@pytest.mark.slow  # uses the end-to-end run (~40-80 s, once per module)
+def test_rerun_only_what_a_config_change_affects(e2e_run):
+    """Snakemake's params trigger: a dry run after editing the config lists only the affected jobs."""
+    workdir, cfg = e2e_run.workdir, e2e_run.config
+    base = yaml.safe_load(cfg.read_text())
 
-    One dry run covers three edits at once (each Snakemake start costs seconds): a simulator
-    parameter of tiny_a (-> simulate and ingest of tiny_a), an ingest option of tiny_b (-> ingest of
-    tiny_b only, not its simulation) and a later stage's section (-> nothing of the spine).
-    """
-    workdir, cfg, _ = spine_run
-    data = yaml.safe_load(cfg.read_text())
-    data["sequences"][0]["seed"] = 7
-    data["sequences"][1]["check_options"] = {"gap_factor": 4.0}
-    data["recovery"] = {"some_option": 1}
-    jobs = _dry_run_jobs(write_config(workdir / "edited.yaml", data), workdir)
-    assert sorted(jobs, key=str) == [
-        ("ingest", {"sequence": "tiny_a"}), ("ingest", {"sequence": "tiny_b"}), ("simulate", {"sequence": "tiny_a"}),
-    ]
+    def jobs_after(edit) -> list[tuple[str, str]]:
+        data = yaml.safe_load(yaml.safe_dump(base))
+        edit(data)
+        jobs = _dry_run_jobs(write_config(workdir / "edited.yaml", data), workdir)
+        return sorted((rule, w.get("sequence", "")) for rule, w in jobs)
+
+    both = ("tiny_a", "tiny_b")
+    assert jobs_after(lambda d: None) == []
+    # a recovery option: recover and everything after it, for every sequence; not simulate / ingest
+    assert jobs_after(lambda d: d.update(recovery={"keyframe_rate_hz": 50})) == sorted(
+        [(r, s) for r in ("recover", "interpolate", "validate", "report") for s in both] + [("windows", "")])
+    # one sequence's own recovery override: that sequence's chain (and the dataset) only
+    assert jobs_after(lambda d: d["sequences"][1].update(recovery={"keyframe_rate_hz": 50})) == sorted(
+        [(r, "tiny_b") for r in ("recover", "interpolate", "validate", "report")] + [("windows", "")])
+    # a validation option: validate and report only
+    assert jobs_after(lambda d: d.update(validation={"window_s": 2.0})) == sorted(
+        [(r, s) for r in ("validate", "report") for s in both])
+    # interpolation and windows options: their own jobs only
+    assert jobs_after(lambda d: d.update(interpolation={"method": "cubic"})) == [
+        ("interpolate", "tiny_a"), ("interpolate", "tiny_b")]
+    assert jobs_after(lambda d: d.update(windows={"overlap": 0.0})) == [("windows", "")]
+    # a simulator parameter of one sequence: its whole chain; an ingest option: from ingest on
+    def sim_and_ingest(d):
+        d["sequences"][0]["seed"] = 7
+        d["sequences"][1]["check_options"] = {"gap_factor": 4.0}
+
+    assert jobs_after(sim_and_ingest) == sorted(
+        [("simulate", "tiny_a")] + [(r, s) for r in ("ingest", "recover", "interpolate", "validate", "report")
+                                    for s in both] + [("windows", "")])
 
 
 @SPINE_GROUP
 def test_failed_job_is_one_line_error(tmp_path):
-    if _have_spine():
-        pytest.skip(_have_spine())
+    if _have_stages():
+        pytest.skip(_have_stages())
     (tmp_path / "empty_mav0").mkdir()
     cfg = write_config(tmp_path / "cfg.yaml", {"sequences": [{"name": "broken", "source": "asl",
                                                              "path": "empty_mav0"}]})

@@ -10,9 +10,12 @@ from pipeline.workflow import DEFAULT_CONFIG, SNAKEFILE, run_workflow
 
 DESCRIPTION = f"""\
 Run the biasgt workflow ({SNAKEFILE}) with Snakemake: simulate / ingest every sequence of the
-config, then the later stages. Outputs go to results/<stage>/<sequence>/ and logs to
-logs/<stage>/<sequence>.log under the working directory (--directory, default: the current
-folder). Finished jobs are kept: rerunning only redoes what a changed input, parameter or code
+config, recover the bias, interpolate it to the IMU rate, validate it, cut the window dataset of
+the train/val/test sequences and write one quality report per sequence. Outputs go to
+results/<stage>/<sequence>/ (stages: simulate, ingest, recovery, interpolation, validation,
+report; the windows go to results/windows/dataset/) and logs to logs/<stage>/<sequence>.log under
+the working directory (--directory, default: the current folder); the reports' paths are printed
+at the end. Finished jobs are kept: rerunning only redoes what a changed input, parameter or code
 affects. The config is checked before Snakemake starts.
 
 Everything after '--' goes to Snakemake unchanged, e.g. to run on a SLURM cluster:
@@ -26,7 +29,8 @@ examples:
   biasgt run --dry-run                    show what would run
   biasgt run --until ingest               stop after the ingest jobs
   biasgt run --target results/ingest/sim_handheld_01
-  biasgt run -- --forceall                extra Snakemake arguments after '--'"""
+  biasgt run -- --forceall                extra Snakemake arguments after '--'
+  biasgt run -- --report run_report.html  Snakemake's HTML report of the finished run"""
 
 
 def _cores(value: str) -> int | str:
@@ -79,8 +83,13 @@ def main(args: argparse.Namespace) -> int:
         return 0
     results = result.workdir / "results"
     print(f"results: {results}" if results.is_dir() else f"results: none yet under {result.workdir}")
-    for path in result.outputs:
-        kind = "report" if path.suffix == ".html" else "stage"
-        print(f"  {kind}: {path}")
+    stages = [p for p in result.outputs if p.suffix != ".html"]
+    reports = [p for p in result.outputs if p.suffix == ".html"]
+    for path in stages:
+        print(f"  stage: {path}")
+    if reports:
+        print(f"reports ({len(reports)}):")
+        for path in reports:
+            print(f"  {path}")
     sys.stdout.flush()
     return 0

@@ -101,72 +101,21 @@ def _format_table(result: Any) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from interpolation.bias import read_bias_csv
     from pipeline.errors import ValidationError
     from pipeline.ingest import load, reader_kwargs_from_args
-    from pipeline.validation import (
-        DEFAULT_GRAVITY_MPS2,
-        BiasSource,
-        BiasSourceKind,
-        ValidationConfig,
-        Verdict,
-        build_reference,
-        read_bias_file,
-        read_recovery_dir,
-        recovered_bias_at_imu,
-        validate_sequence,
-        write_validation,
-    )
+    from pipeline.validation import ValidationConfig, Verdict, validate_inputs, write_validation
 
     if not args.bias and args.recovery is None:
         raise ValidationError("nothing to validate", field="--bias",
                               hint="give --recovery DIR or --bias FILE")
     config = ValidationConfig(window_s=args.window_s, overlap=args.overlap, margin=args.margin,
                               flag_k=args.flag_k, velocity_cutoff_hz=args.velocity_cutoff_hz)
-    recovery = read_recovery_dir(args.recovery) if args.recovery is not None else None
     seq = load(args.sequence, reader_kwargs_from_args(args))
     if seq.imu is None:
         raise ValidationError(f"'{args.sequence}' has no IMU to integrate", path=args.sequence,
                               hint="give an input with IMU readings")
-    cal = seq.calibration
-    rw_cal = np.array([cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3, dtype=float)
-
-    sources: dict[str, BiasSource] = {}
-    if recovery is not None:
-        rw = recovery.random_walk if recovery.random_walk is not None else rw_cal
-        track = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), seq.imu.t_ns, rw)
-        sources["recovered"] = BiasSource("recovered", BiasSourceKind.RECOVERED, track)
-    unnamed = 0
-    for value in args.bias:
-        name, path = _split_bias_arg(value)
-        track = read_bias_file(path)
-        if name is None:
-            unnamed += 1
-            first = unnamed == 1 and recovery is None
-            name = "recovered" if first else path.stem
-            kind = BiasSourceKind.RECOVERED if first else BiasSourceKind.FILE
-        else:
-            kind = BiasSourceKind.FILE
-        if name in sources or name in ("zero", "constant"):
-            raise ValidationError(f"bias source name '{name}' is used twice or reserved", field="--bias",
-                                  hint="name the sources with --bias NAME=FILE (zero and constant are reserved)")
-        sources[name] = BiasSource(name, kind, track)
-
-    if args.gravity is not None:
-        gravity = np.asarray(args.gravity, dtype=float)
-    elif recovery is not None and recovery.gravity_mps2 is not None:
-        gravity = recovery.gravity_mps2
-    else:
-        gravity = np.asarray(DEFAULT_GRAVITY_MPS2)
-    reference = build_reference(seq, pose_stream=args.poses, recovery=recovery, config=config)
-    result = validate_sequence(seq, sources, reference=reference, gravity_mps2=gravity, config=config)
-    if recovery is not None:
-        result.notes.append(f"recovery: {recovery.path}")
-        if result.reference.get("kind") == "poses":
-            result.notes.append("the reference poses are presumably those the recovery fitted: errors of the poses "
-                                "that the bias absorbed are not seen by this check (not an independent test)")
+    result = validate_inputs(seq, recovery_dir=args.recovery, bias_files=[_split_bias_arg(v) for v in args.bias],
+                             pose_stream=args.poses, gravity_mps2=args.gravity, config=config)
     write_validation(result, args.out)
 
     print(f"{result.sequence}: {result.windows_dropped['kept']} of {result.windows_dropped['candidates']} "

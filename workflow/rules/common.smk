@@ -66,3 +66,23 @@ def get_ingest_extra_inputs(wildcards):
 
 def get_ingest_settings(wildcards):
     return wf.ingest_settings(WF_CONFIG, wildcards.sequence)
+
+
+def get_recovery_settings(wildcards):
+    return wf.recovery_settings(WF_CONFIG, wildcards.sequence)
+
+
+def get_interpolation_settings(wildcards):
+    return wf.interpolation_settings(WF_CONFIG, wildcards.sequence)
+
+
+def get_validation_settings(wildcards):
+    return wf.validation_settings(WF_CONFIG, wildcards.sequence)
+
+
+def get_windows_inputs(wildcards):
+    return wf.windows_inputs(WF_CONFIG)
+
+
+def get_windows_settings(wildcards):
+    return wf.windows_settings(WF_CONFIG)

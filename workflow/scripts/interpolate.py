@@ -1,0 +1,12 @@
+"""Adapter of rule interpolate: all work is pipeline.workflow.interpolate_step (unit-tested)."""
+
+from pipeline.workflow import interpolate_step, run_step
+
+run_step(
+    snakemake.log[0],  # noqa: F821
+    interpolate_step,
+    snakemake.input.recovery,  # noqa: F821
+    snakemake.input.store,  # noqa: F821
+    snakemake.output[0],  # noqa: F821
+    snakemake.params.settings,  # noqa: F821
+)

@@ -1,0 +1,11 @@
+"""Adapter of rule recover: all work is pipeline.workflow.recover_step (unit-tested)."""
+
+from pipeline.workflow import recover_step, run_step
+
+run_step(
+    snakemake.log[0],  # noqa: F821
+    recover_step,
+    snakemake.input.store,  # noqa: F821
+    snakemake.output[0],  # noqa: F821
+    snakemake.params.settings,  # noqa: F821
+)
