@@ -402,7 +402,23 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         RecoveryError: The input cannot give a trustworthy result (one line saying why).
         AmbiguousInputError: Several pose streams and none chosen.
     """
-    config = config or RecoveryConfig()
+    try:
+        return _recover(sequence, pose_stream=pose_stream, config=config or RecoveryConfig())
+    except RuntimeError as exc:
+        # GTSAM reports a singular (unobservable) problem as a bare RuntimeError.
+        text = str(exc)
+        if "ndetermina" not in text and "ill-posed" not in text and "singular" not in text.lower():
+            raise
+        first = text.strip().splitlines()[0] if text.strip() else "singular system"
+        raise RecoveryError(
+            f"sequence '{sequence.name}': the optimisation is degenerate ({first}); the motion does not "
+            "make the bias, clock offset or extrinsic observable",
+            hint="record more varied motion (rotation about several axes), or fix the extrinsic "
+                 "(--extrinsic known) and the clock offset (--time-offset-s)",
+        ) from exc
+
+
+def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryConfig) -> RecoveryResult:
     t_start = time.perf_counter()
     warnings: list[str] = []
     flags: dict[str, Any] = {}

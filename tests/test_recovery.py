@@ -446,3 +446,22 @@ def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
+
+
+def test_degenerate_problem_is_a_recovery_error(monkeypatch):
+    """GTSAM's bare RuntimeError for an indeterminant system becomes a one-line RecoveryError."""
+    import recovery.recover as rr
+    from pipeline.errors import RecoveryError
+    from pipeline.types import Sequence
+
+    def boom(*a, **k):
+        raise RuntimeError("\nIndeterminant linear system detected while working near variable\n"
+                           "8070450532247928832 (Symbol: p0).\n")
+
+    monkeypatch.setattr(rr, "_recover", boom)
+    with pytest.raises(RecoveryError, match=r"degenerate \(Indeterminant linear system detected") as info:
+        rr.recover(Sequence(name="flat"))
+    assert "\n" not in str(info.value) and "--extrinsic known" in str(info.value)
+    monkeypatch.setattr(rr, "_recover", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("other bug")))
+    with pytest.raises(RuntimeError, match="other bug"):
+        rr.recover(Sequence(name="x"))
