@@ -599,23 +599,14 @@ def make_check_options(options: dict[str, Any]) -> Any:
     Raises:
         ConfigError: Unknown key or invalid value.
     """
-    import dataclasses
-
     from pipeline.checks import CheckOptions
+    from pipeline.configs import dataclass_from_mapping
 
-    known = {f.name for f in dataclasses.fields(CheckOptions)}
-    unknown = sorted(set(options) - known)
-    if unknown:
-        raise ConfigError(f"unknown check option(s) {', '.join(unknown)}", field="check_options",
-                          hint=f"allowed: {', '.join(sorted(known))}")
     kwargs = dict(options)
     if "ignore" in kwargs:
         ignore = kwargs["ignore"]
         kwargs["ignore"] = frozenset([ignore] if isinstance(ignore, str) else ignore or [])
-    try:
-        return CheckOptions(**kwargs)
-    except TypeError as exc:
-        raise ConfigError(f"invalid check options: {exc}", field="check_options") from None
+    return dataclass_from_mapping(CheckOptions, kwargs, what="check option", field="check_options")
 
 
 def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
@@ -725,21 +716,11 @@ def make_validation_config(options: dict[str, Any]) -> Any:
     Raises:
         ConfigError: Unknown option or invalid value.
     """
-    import dataclasses
-
+    from pipeline.configs import dataclass_from_mapping
     from pipeline.validation import ValidationConfig
 
-    known = {f.name for f in dataclasses.fields(ValidationConfig)}
-    unknown = sorted(set(options) - known)
-    if unknown:
-        raise ConfigError(f"unknown validation option(s) {', '.join(unknown)}", field="validation",
-                          hint=f"allowed: {', '.join(sorted(known | set(VALIDATION_EXTRA_KEYS)))}")
-    try:
-        return ValidationConfig(**options)
-    except BiasgtError as exc:
-        raise ConfigError(exc.problem, field=exc.field, hint=exc.hint) from None
-    except TypeError as exc:
-        raise ConfigError(f"invalid validation options: {exc}", field="validation") from None
+    return dataclass_from_mapping(ValidationConfig, options, what="validation option", field="validation",
+                                  also_allowed=VALIDATION_EXTRA_KEYS)
 
 
 def windowed_sequences(cfg: WorkflowConfig) -> list[SequenceEntry]:
@@ -992,21 +973,9 @@ def make_window_config(options: dict[str, Any]) -> Any:
     Raises:
         ConfigError: Unknown option or invalid value.
     """
-    import dataclasses
-
     from training.windows import WindowConfig
 
-    if hasattr(WindowConfig, "from_dict"):
-        return WindowConfig.from_dict(dict(options))
-    known = {f.name for f in dataclasses.fields(WindowConfig)}
-    unknown = sorted(set(options) - known)
-    if unknown:
-        raise ConfigError(f"unknown windows option(s) {', '.join(unknown)}", field="windows",
-                          hint=f"allowed: {', '.join(sorted(known))}")
-    try:
-        return WindowConfig(**options)
-    except TypeError as exc:
-        raise ConfigError(f"invalid windows options: {exc}", field="windows") from None
+    return WindowConfig.from_dict(dict(options))
 
 
 def report_step(ingest_dir: str | Path, recovery_dir: str | Path | None, validation_dir: str | Path | None,
