@@ -125,6 +125,8 @@ class WindowSolution:
     iterations: int
     log_evidence: float = float("nan")
     extras: dict[str, Any] = field(default_factory=dict)
+    pose_residual: np.ndarray | None = None  # [K] whitened RMS of each keyframe's pose factor(s), NaN if none
+    imu_residual: np.ndarray | None = None  # [K] whitened RMS of the IMU factor ending at each keyframe
 
 
 def _pose3(T: np.ndarray) -> gtsam.Pose3:
@@ -624,6 +626,20 @@ def solve_window(
         r = f.whitenedError(result)
         imu_sq.append(float(r @ r) / len(r))
     imu_rms = float(np.sqrt(np.mean(imu_sq))) if imu_sq else float("nan")
+    # Per keyframe, for plots over time: the whitened RMS of its pose factor(s) and of the IMU
+    # factor that ends at it (factor k links keyframes k and k+1).
+    pose_res = np.full(K, np.nan)
+    if len(pose_norms):
+        sq = np.zeros(K)
+        cnt = np.zeros(K)
+        idx = np.array([k for k, _, _ in built.pose_factors], dtype=int)
+        np.add.at(sq, idx, pose_norms**2)
+        np.add.at(cnt, idx, 1.0)
+        has = cnt > 0
+        pose_res[has] = np.sqrt(sq[has] / cnt[has])
+    imu_res = np.full(K, np.nan)
+    if imu_sq and len(imu_sq) == K - 1:
+        imu_res[1:] = np.sqrt(imu_sq)
 
     P = np.zeros((K, 3))
     Q = np.zeros((K, 4))
@@ -674,6 +690,7 @@ def solve_window(
         t_ns=kf.t_ns.copy(), p_m=P, quat_wxyz=Q, v_mps=Vv, bias=bias, bias_std=bias_std, gravity_unit=gu,
         T_imu_pose=T_used, cost=cost, pose_whitened_rms=pose_rms, imu_whitened_rms=imu_rms,
         outliers=outliers, iterations=iters, log_evidence=ev, extras=extras,
+        pose_residual=pose_res, imu_residual=imu_res,
     )
 
 

@@ -1,4 +1,4 @@
-"""Writing a recovery result: ``bias.csv``, ``recovery.json``, ``trajectory_tum.txt``.
+"""Writing a recovery result: ``bias.csv``, ``recovery.json``, ``trajectory_tum.txt``, ``residuals.csv``.
 
 The folder is written through :func:`pipeline.atomic.atomic_dir`: it appears
 complete or not at all.
@@ -21,6 +21,7 @@ from recovery.recover import RecoveryResult
 BIAS_CSV = "bias.csv"
 REPORT_JSON = "recovery.json"
 TRAJECTORY_TUM = "trajectory_tum.txt"
+RESIDUALS_CSV = "residuals.csv"
 
 
 def bias_frame(result: RecoveryResult) -> pd.DataFrame:
@@ -93,4 +94,8 @@ def write_recovery(result: RecoveryResult, out_dir: str | Path) -> Path:
         (tmp / REPORT_JSON).write_text(json.dumps(_json_safe(result.report), indent=2, allow_nan=False) + "\n",
                                        encoding="utf-8")
         _write_tum(tmp / TRAJECTORY_TUM, result)
+        if result.residuals:
+            frame = pd.DataFrame({"t_ns": np.asarray(result.t_ns, dtype=np.int64),
+                                  **{k: np.asarray(v) for k, v in result.residuals.items()}})
+            frame.to_csv(tmp / RESIDUALS_CSV, index=False, float_format="%.6g", na_rep="nan")
     return out_dir

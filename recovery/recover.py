@@ -60,6 +60,8 @@ class RecoveryResult:
         bias_gyro_std_radps / bias_acc_std_mps2: Marginal 1-sigma, [K, 3].
         p_m / quat_wxyz / v_mps: Optimised IMU trajectory in the pose world frame, [K, 3] / [K, 4] / [K, 3].
         report: The content of ``recovery.json``.
+        residuals: Per keyframe [K]: ``pose_whitened_rms``, ``imu_whitened_rms`` (NaN where a keyframe
+            has no such factor) and ``outlier`` (its pose was rejected); written as ``residuals.csv``.
     """
 
     t_ns: np.ndarray
@@ -71,6 +73,7 @@ class RecoveryResult:
     quat_wxyz: np.ndarray
     v_mps: np.ndarray
     report: dict[str, Any] = field(default_factory=dict)
+    residuals: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def warnings(self) -> list[str]:
@@ -746,4 +749,19 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         quat_wxyz=np.concatenate([s.quat_wxyz for s in stitched_pieces]),
         v_mps=np.concatenate([s.v_mps for s in stitched_pieces]),
         report=report,
+        residuals=_residuals_at(t_ns, flat, outlier_t),
     )
+
+
+def _residuals_at(t_ns: np.ndarray, solutions: list[WindowSolution], outlier_t: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-keyframe whitened residuals over the stitched keyframes (in overlaps the later segment wins)."""
+    pose = np.full(len(t_ns), np.nan)
+    imu = np.full(len(t_ns), np.nan)
+    for sol in solutions:
+        if sol.pose_residual is None or sol.imu_residual is None:
+            continue
+        idx = np.searchsorted(t_ns, sol.t_ns)
+        ok = (idx < len(t_ns)) & (t_ns[np.minimum(idx, len(t_ns) - 1)] == sol.t_ns)
+        pose[idx[ok]] = sol.pose_residual[ok]
+        imu[idx[ok]] = sol.imu_residual[ok]
+    return {"pose_whitened_rms": pose, "imu_whitened_rms": imu, "outlier": np.isin(t_ns, outlier_t)}

@@ -239,6 +239,12 @@ def test_write_recovery_files(clean_run, tmp_path):
                 "extrinsic_rotation_observable", "pose_stream", "pose_source_kind"):
         assert key in rep
     assert set(rep["T_imu_pose"]) == {"p_m", "quat_wxyz"}
+    res = pd.read_csv(out / "residuals.csv")
+    assert list(res.columns) == ["t_ns", "pose_whitened_rms", "imu_whitened_rms", "outlier"]
+    np.testing.assert_array_equal(res["t_ns"].to_numpy(), track.t_ns)
+    # Whitened residuals of a consistent fit are O(1); every keyframe after the first has an IMU factor.
+    assert np.isfinite(res["imu_whitened_rms"].to_numpy()[1:]).all()
+    assert 0.2 < np.nanmedian(res["pose_whitened_rms"]) < 3.0 and 0.05 < np.nanmedian(res["imu_whitened_rms"]) < 3.0
     tum = (out / "trajectory_tum.txt").read_text().split("\n")
     assert len([ln for ln in tum if ln and not ln.startswith("#")]) == len(res.t_ns)
     leftovers = [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
