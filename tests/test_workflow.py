@@ -96,7 +96,7 @@ def test_euroc_config_is_valid(shared_data):
 def test_euroc_config_default_data_root_points_at_shared_data():
     data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
     root = wf.data_root(wf.validate_schema(data), REPO / "config" / "euroc.yaml")
-    assert root == (REPO.parent / "shared" / "data").resolve()
+    assert root.resolve() == (REPO.parent / "shared" / "data").resolve()
 
 
 def test_schema_enums_match_code():
