@@ -154,7 +154,7 @@ def case_mh01():
     from pipeline.io import load_sequence
     from pipeline.io.tum import read_tum_poses
     from pipeline.types import PoseSourceKind
-    from recovery.recover import recover
+    from recovery.recover import agreement_z, recover
 
     seq = load_sequence(DATA / "euroc/MH_01_easy")
     t0 = time.perf_counter()
@@ -165,13 +165,7 @@ def case_mh01():
     seq.poses["euroc_gt"] = gt
     rb = recover(seq, pose_stream="euroc_gt", config=_config())
     t2 = time.perf_counter()
-    ba = np.hstack([ra.bias_gyro_radps, ra.bias_acc_mps2])
-    sa = np.hstack([ra.bias_gyro_std_radps, ra.bias_acc_std_mps2])
-    bb = rb.bias_at(ra.t_ns)
-    sb_all = np.hstack([rb.bias_gyro_std_radps, rb.bias_acc_std_mps2])
-    sb = np.stack([np.interp(ra.t_ns, rb.t_ns, sb_all[:, c]) for c in range(6)], 1)
-    sel = (ra.t_ns >= rb.t_ns[0]) & (ra.t_ns <= rb.t_ns[-1])
-    z = np.abs(ba - bb)[sel] / np.sqrt(sa**2 + sb**2)[sel]
+    z = agreement_z(ra, rb)
     frac_axes = (z < 3).mean(0)
     frac_all = float((z < 3).all(1).mean())
     rep = ra.report

@@ -86,6 +86,26 @@ class RecoveryResult:
         xq = (np.asarray(t_ns, dtype=np.int64) - self.t_ns[0]).astype(float)
         return np.stack([np.interp(xq, x, b[:, c]) for c in range(6)], axis=1)
 
+    def std_at(self, t_ns: np.ndarray) -> np.ndarray:
+        """Marginal bias std linearly interpolated at ``t_ns``, [M, 6]; clamped at the ends."""
+        s = np.hstack([self.bias_gyro_std_radps, self.bias_acc_std_mps2])
+        x = (self.t_ns - self.t_ns[0]).astype(float)
+        xq = (np.asarray(t_ns, dtype=np.int64) - self.t_ns[0]).astype(float)
+        return np.stack([np.interp(xq, x, s[:, c]) for c in range(6)], axis=1)
+
+
+def agreement_z(a: RecoveryResult, b: RecoveryResult) -> np.ndarray:
+    """|a - b| / sqrt(sigma_a^2 + sigma_b^2) at ``a``'s keyframes inside ``b``'s span, [M, 6].
+
+    Used to check that two recoveries of one recording (e.g. from Leica positions and from
+    ground-truth poses) agree within their combined uncertainty.
+    """
+    sel = (a.t_ns >= b.t_ns[0]) & (a.t_ns <= b.t_ns[-1])
+    t = a.t_ns[sel]
+    ba = np.hstack([a.bias_gyro_radps, a.bias_acc_mps2])[sel]
+    sa = np.hstack([a.bias_gyro_std_radps, a.bias_acc_std_mps2])[sel]
+    return np.abs(ba - b.bias_at(t)) / np.sqrt(sa**2 + b.std_at(t) ** 2)
+
 
 # ----------------------------------------------------------------------------- input handling
 

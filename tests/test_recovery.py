@@ -19,6 +19,7 @@ from pipeline.sim.config import PoseFormat, PoseStreamConfig, SimConfig
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import ExtrinsicMode, PoseFactorMode, RecoveryConfig, RobustLoss
 from interpolation.bias import read_bias_csv
+from pipeline.atomic import _umask
 from recovery.outputs import BIAS_COLUMNS, write_recovery
 from recovery.preintegration import midpoint_samples
 from recovery.recover import recover
@@ -446,14 +447,6 @@ def test_cli_recover_on_store(tmp_path, clean_run, capsys):
     assert "keyframe_rate" in capsys.readouterr().err
 
 
-def _umask() -> int:
-    import os
-
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
 def test_degenerate_problem_is_a_recovery_error(monkeypatch):
     """GTSAM's bare RuntimeError for an indeterminant system becomes a one-line RecoveryError."""
     import recovery.recover as rr
@@ -471,3 +464,17 @@ def test_degenerate_problem_is_a_recovery_error(monkeypatch):
     monkeypatch.setattr(rr, "_recover", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("other bug")))
     with pytest.raises(RuntimeError, match="other bug"):
         rr.recover(Sequence(name="x"))
+
+
+def test_agreement_z_is_zero_for_identical_and_scales_with_sigma(clean_run):
+    import dataclasses
+
+    from recovery.recover import agreement_z
+
+    _, res = clean_run
+    z = agreement_z(res, res)
+    assert z.shape == (len(res.t_ns), 6) and np.allclose(z, 0.0)
+    shifted = dataclasses.replace(res, bias_gyro_radps=res.bias_gyro_radps + 3e-4)
+    z = agreement_z(shifted, res)
+    expected = 3e-4 / np.sqrt(2 * res.bias_gyro_std_radps**2)
+    np.testing.assert_allclose(z[:, :3], expected, rtol=1e-9)
