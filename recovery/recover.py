@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.errors import AmbiguousInputError, BiasgtError, RecoveryError
+from pipeline.errors import BiasgtError, RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import (
     DEFAULT_POSE_SIGMAS,
@@ -111,29 +111,10 @@ def agreement_z(a: RecoveryResult, b: RecoveryResult) -> np.ndarray:
 
 
 def _select_stream(sequence: Sequence, pose_stream: str | None) -> tuple[str, PoseSeries]:
-    try:  # the io package's rule when it has one
-        from pipeline.io import select_pose_stream  # type: ignore[attr-defined]
-    except ImportError:
-        select_pose_stream = None
-    if select_pose_stream is not None:
-        sel = select_pose_stream(sequence, pose_stream)
-        if isinstance(sel, tuple):
-            return sel
-        name = pose_stream if pose_stream is not None else next(k for k, v in sequence.poses.items() if v is sel)
-        return name, sel
-    if not sequence.poses:
-        raise RecoveryError(f"sequence '{sequence.name}' has no pose stream",
-                            hint="give an input with mocap / position-tracker / VIO poses")
-    if pose_stream is not None:
-        if pose_stream not in sequence.poses:
-            raise RecoveryError(f"no pose stream '{pose_stream}'", field="--poses",
-                                hint=f"choose one of: {', '.join(sequence.poses)}")
-        return pose_stream, sequence.poses[pose_stream]
-    if len(sequence.poses) == 1:
-        name = next(iter(sequence.poses))
-        return name, sequence.poses[name]
-    raise AmbiguousInputError(f"sequence '{sequence.name}' has several pose streams", field="--poses",
-                              hint=f"choose one with --poses: {', '.join(sequence.poses)}")
+    """The pose stream to fit: ``pose_stream``, else the io package's default priority."""
+    from pipeline.io import select_pose_stream
+
+    return select_pose_stream(sequence, pose_stream)
 
 
 def _clean_poses(poses: PoseSeries, name: str, warnings: list[str]) -> PoseSeries:
