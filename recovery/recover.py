@@ -404,7 +404,8 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
 
     Raises:
         RecoveryError: The input cannot give a trustworthy result (one line saying why).
-        AmbiguousInputError: Several pose streams and none chosen.
+        AmbiguousInputError: The named pose stream does not exist (lists the streams).
+        DataError: The sequence has no pose stream and no ground truth.
     """
     try:
         return _recover(sequence, pose_stream=pose_stream, config=config or RecoveryConfig())
