@@ -20,7 +20,8 @@ Reference states (:class:`ReferenceStates`, :class:`ReferenceKind`)
     linear in p and v, Slerp in R.
     POSES: a pose stream when there is no full state. Poses are moved onto the IMU clock
     (``t_imu = t_pose + pose_time_offset_s``) and into the IMU frame
-    (``T_world_imu = T_world_pose @ inv(T_imu_pose)``). Position and velocity come from ONE
+    (``T_world_imu = T_world_pose @ inv(T_imu_pose)``) by
+    :func:`pipeline.pose_transform.poses_in_imu_frame`. Position and velocity come from ONE
     smoothing spline per sequence (:func:`scipy.interpolate.make_smoothing_spline`, penalty
     ``lam * int p''^2``), differentiated for v: a finite difference of 0.5-mm mocap noise at
     100 Hz has ~0.1 m/s of noise, i.e. 10 cm of error after 1 s, far above any bias effect.
@@ -102,6 +103,7 @@ from interpolation.bias import BiasTrack, interpolate_bias, read_bias_csv
 from pipeline.atomic import atomic_dir, atomic_path
 from pipeline.errors import BiasgtError, DataError, InputFormatError, ValidationError
 from pipeline.integration import IntegrationScheme, integrate
+from pipeline.pose_transform import as_transform, poses_in_imu_frame, transform_from_json
 from pipeline.so3 import rotation_angle_deg
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence, StateSeries
 
@@ -127,6 +129,7 @@ __all__ = [
     "bias_sources",
     "dataset_bias",
     "decide_verdict",
+    "gap_free_mask",
     "plan_windows",
     "read_bias_file",
     "read_recovery_dir",
@@ -135,6 +138,7 @@ __all__ = [
     "reference_from_states",
     "validate_inputs",
     "validate_sequence",
+    "windows_with_any",
     "write_validation",
 ]
 
@@ -259,8 +263,21 @@ class ReferenceStates:
         return len(self.t_ns)
 
 
-def _gap_free_mask(src_t_ns: np.ndarray, query_t_ns: np.ndarray, gap_factor: float) -> np.ndarray:
-    """True for query stamps inside ``src_t_ns``'s span and not inside an interval > gap_factor x median."""
+def gap_free_mask(src_t_ns: np.ndarray, query_t_ns: np.ndarray, gap_factor: float) -> np.ndarray:
+    """Which query stamps a source stream covers without a gap.
+
+    A query stamp is covered when it lies inside the source's span and not strictly inside a
+    gap, i.e. a source interval longer than ``gap_factor`` times the median one (a query
+    stamp equal to a source stamp at a gap's edge is covered).
+
+    Args:
+        src_t_ns: Stamps of the source stream, sorted, int64 [M].
+        query_t_ns: Stamps to test, int64 [N] (any order).
+        gap_factor: Source intervals longer than this times the median are gaps (> 1).
+
+    Returns:
+        Boolean mask [N].
+    """
     src_t_ns = np.asarray(src_t_ns, dtype=np.int64)
     query_t_ns = np.asarray(query_t_ns, dtype=np.int64)
     inside = (query_t_ns >= src_t_ns[0]) & (query_t_ns <= src_t_ns[-1])
@@ -324,16 +341,16 @@ def reference_from_states(
     p_q = np.column_stack([np.interp(xq, x, p[:, i]) for i in range(3)])
     v_q = np.column_stack([np.interp(xq, x, v[:, i]) for i in range(3)])
     R_q = _slerp(src_t, quat, t_ns, t0)
-    valid = _gap_free_mask(src_t, t_ns, gap_factor)
+    valid = gap_free_mask(src_t, t_ns, gap_factor)
     valid &= np.isfinite(p_q).all(1) & np.isfinite(v_q).all(1) & np.isfinite(R_q).all((1, 2))
     return ReferenceStates(t_ns, R_q, v_q, p_q, valid, ReferenceKind.STATE, info)
 
 
 def _as_T(T: Any) -> np.ndarray:
-    T = np.eye(4) if T is None else np.asarray(T, dtype=np.float64)
-    if T.shape != (4, 4) or not np.all(np.isfinite(T)):
-        raise ValidationError(f"T_imu_pose must be a finite 4x4 matrix, got shape {T.shape}", field="T_imu_pose")
-    return T
+    try:
+        return as_transform(T)
+    except DataError as exc:
+        raise ValidationError(exc.problem, field="T_imu_pose", hint=exc.hint) from None
 
 
 def _spline_lambda(h_s: float, cutoff_hz: float) -> float:
@@ -428,11 +445,8 @@ def reference_from_poses(
                               hint="give a pose stream covering at least one window")
     _check_increasing(poses.t_ns, "pose")
     T = _as_T(T_imu_pose)
-    offset_ns = int(round(float(time_offset_s) * NS_PER_S))
-    src_t = poses.t_ns + offset_ns  # on the IMU clock
-    R_wp = Rotation.from_quat(poses.quat_wxyz, scalar_first=True).as_matrix()
-    R_wi = R_wp @ T[:3, :3].T
-    p_wi = poses.p_m - np.einsum("nij,j->ni", R_wi, T[:3, 3])
+    imu_poses = poses_in_imu_frame(poses, T, time_offset_s)
+    src_t, p_wi = imu_poses.t_ns, imu_poses.p_m  # on the IMU clock, in the IMU frame
     t0 = int(src_t[0])
     x = (src_t - t0) / NS_PER_S
     h = float(np.median(np.diff(x)))
@@ -444,9 +458,8 @@ def reference_from_poses(
     xq = (np.clip(t_ns, src_t[0], src_t[-1]) - t0) / NS_PER_S
     p_q = spline(xq)
     v_q = spline.derivative()(xq)
-    quat_wi = Rotation.from_matrix(R_wi).as_quat(scalar_first=True)
-    R_q = _slerp(src_t, quat_wi, t_ns, t0)
-    valid = _gap_free_mask(src_t, t_ns, gap_factor)
+    R_q = _slerp(src_t, imu_poses.quat_wxyz, t_ns, t0)
+    valid = gap_free_mask(src_t, t_ns, gap_factor)
     info = {
         "source": "poses",
         "frame": poses.frame,
@@ -491,20 +504,9 @@ class RecoveryInfo:
 
 
 def _parse_T(value: Any, path: Path) -> np.ndarray:
-    if value is None:
-        return np.eye(4)
     try:
-        if isinstance(value, dict):
-            if "matrix" in value:
-                return _as_T(value["matrix"])
-            T = np.eye(4)
-            q = value.get("quat_wxyz")
-            if q is not None:
-                T[:3, :3] = Rotation.from_quat(np.asarray(q, dtype=float), scalar_first=True).as_matrix()
-            T[:3, 3] = np.asarray(value.get("p_m", [0.0, 0.0, 0.0]), dtype=float)
-            return T
-        return _as_T(value)
-    except (ValueError, TypeError, BiasgtError) as exc:
+        return transform_from_json(value)
+    except DataError as exc:
         raise ValidationError(f"cannot read T_imu_pose ({exc})", path=path, field="T_imu_pose",
                               hint="give a 4x4 matrix or {p_m, quat_wxyz}") from None
 
@@ -668,9 +670,21 @@ class WindowPlan:
     dropped: dict[str, int]
 
 
-def _window_any(bad: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:
-    """True for windows ``[s, s + length)`` of ``bad`` holding any True."""
-    c = np.concatenate([[0], np.cumsum(bad.astype(np.int64))])
+def windows_with_any(flags: np.ndarray, starts: np.ndarray, length: int) -> np.ndarray:
+    """Which windows ``flags[s : s + length]`` hold at least one True (by a cumulative sum).
+
+    For windows of ``n`` IMU intervals use ``length = n`` on per-interval flags [N - 1] and
+    ``length = n + 1`` on per-sample flags [N].
+
+    Args:
+        flags: Boolean per-row flags, [N].
+        starts: First row of each window, int [W]; ``starts + length <= N``.
+        length: Rows per window.
+
+    Returns:
+        Boolean mask [W].
+    """
+    c = np.concatenate([[0], np.cumsum(flags.astype(np.int64))])
     return (c[starts + length] - c[starts]) > 0
 
 
@@ -699,9 +713,9 @@ def plan_windows(imu: ImuSeries, config: ValidationConfig) -> WindowPlan:
         )
     stride = max(1, int(round(n * (1.0 - config.overlap))))
     starts = np.arange(0, len(t) - n, stride, dtype=np.int64)
-    gap = _window_any(dt > config.gap_factor * nominal, starts, n)
+    gap = windows_with_any(dt > config.gap_factor * nominal, starts, n)
     nonfinite_rows = ~(np.isfinite(imu.gyro_radps).all(1) & np.isfinite(imu.acc_mps2).all(1))
-    nonfinite = _window_any(nonfinite_rows, starts, n + 1)
+    nonfinite = windows_with_any(nonfinite_rows, starts, n + 1)
     dropped = {"imu_gap": int(gap.sum()), "imu_nonfinite": int(nonfinite.sum())}
     return WindowPlan(starts, n, rate, ~(gap | nonfinite), dropped)
 
@@ -1028,7 +1042,7 @@ def validate_sequence(
     for src in given:
         bias, covered = _bias_at(src.track, imu.t_ns)
         covered = covered & np.isfinite(bias).all(axis=1)
-        uncovered = _window_any(~covered, s, plan.n + 1)
+        uncovered = windows_with_any(~covered, s, plan.n + 1)
         by_reason[f"bias_not_covered:{src.name}"] = int(uncovered.sum())
         if uncovered.any():
             log.info("bias source '%s' does not cover %d of %d windows", src.name, int(uncovered.sum()), len(s))

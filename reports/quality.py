@@ -25,8 +25,9 @@ import datetime as _dt
 import json
 import logging
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -36,6 +37,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from pipeline import __version__
 from pipeline.atomic import atomic_path
 from pipeline.errors import BiasgtError, ConfigError, InputFormatError
+from pipeline.pose_transform import offset_ns, poses_in_imu_frame, transform_from_json
 from pipeline.types import NS_PER_S, Finding, PoseSeries, PoseSourceKind, Sequence, Severity
 from reports import plots
 from reports.allan import ImuAllan, imu_allan
@@ -198,56 +200,54 @@ def gather_inputs(
             inputs.missing.append(f"Validation: {vj} does not exist (the validation stage has not run or failed), "
                                   "so there is no verdict and no integration-error statistics.")
         else:
-            try:
-                inputs.validation = _read_json(vj)
-            except BiasgtError as exc:
-                inputs.problems.append(f"Validation: {exc}")
+            inputs.validation = _read_noting_problems(inputs, "Validation", vj, _read_json)
             wp = vdir / WINDOWS_PARQUET
             if wp.is_file():
-                try:
-                    inputs.windows = pd.read_parquet(wp)
-                except (OSError, ValueError) as exc:
-                    inputs.problems.append(f"Validation: cannot read {wp} ({exc})")
+                inputs.windows = _read_noting_problems(inputs, "Validation", wp, pd.read_parquet, (OSError, ValueError))
             else:
                 inputs.missing.append(f"Validation: {wp} does not exist, so the per-window error "
                                       "distributions cannot be drawn (the summary table is shown).")
     return inputs
 
 
+def _read_noting_problems(inputs: ReportInputs, stage: str, path: Path, reader: Callable[[Path], Any],
+                          io_errors: tuple[type[Exception], ...] = ()) -> Any:
+    """``reader(path)``, or None with a plain sentence in ``inputs.problems`` when it fails.
+
+    A :class:`BiasgtError` is reported as it reads (it names the file); an error in
+    ``io_errors`` (caught first) as ``cannot read PATH (error)``.
+    """
+    try:
+        return reader(path)
+    except io_errors as exc:
+        inputs.problems.append(f"{stage}: cannot read {path} ({exc})")
+    except BiasgtError as exc:
+        inputs.problems.append(f"{stage}: {exc}")
+    return None
+
+
 def _gather_recovery(inputs: ReportInputs, rdir: Path) -> None:
     from interpolation.bias import read_bias_csv
     from pipeline.io.tum import read_tum_poses
 
-    rj = rdir / RECOVERY_JSON
-    if rj.is_file():
-        try:
-            inputs.recovery = _read_json(rj)
-        except BiasgtError as exc:
-            inputs.problems.append(f"Recovery: {exc}")
-    else:
-        inputs.missing.append(f"Recovery: {rj} does not exist, so the estimated calibration is not shown.")
-    bc = rdir / BIAS_CSV
-    if bc.is_file():
-        try:
-            inputs.bias = read_bias_csv(bc)
-        except BiasgtError as exc:
-            inputs.problems.append(f"Recovery: {exc}")
-    else:
-        inputs.missing.append(f"Recovery: {bc} does not exist, so the recovered bias is not shown.")
-    tt = rdir / TRAJECTORY_TUM
-    if tt.is_file():
-        try:
-            inputs.trajectory, _ = read_tum_poses(tt, source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu",
-                                                  stream="recovered")
-        except BiasgtError as exc:
-            inputs.problems.append(f"Recovery: {exc}")
+    def read_trajectory(path: Path) -> PoseSeries:
+        return read_tum_poses(path, source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu", stream="recovered")[0]
+
+    rj, bc, tt = rdir / RECOVERY_JSON, rdir / BIAS_CSV, rdir / TRAJECTORY_TUM
+    for path, attr, reader, absent in (
+        (rj, "recovery", _read_json, "so the estimated calibration is not shown"),
+        (bc, "bias", read_bias_csv, "so the recovered bias is not shown"),
+        (tt, "trajectory", read_trajectory, None),
+    ):
+        if path.is_file():
+            setattr(inputs, attr, _read_noting_problems(inputs, "Recovery", path, reader))
+        elif absent is not None:
+            inputs.missing.append(f"Recovery: {path} does not exist, {absent}.")
     for name in RESIDUAL_FILES:
         rp = rdir / name
         if rp.is_file():
-            try:
-                inputs.residuals = _read_residuals(rp)
-            except (BiasgtError, OSError, ValueError) as exc:
-                inputs.problems.append(f"Recovery: cannot read {rp} ({exc})")
+            inputs.residuals = _read_noting_problems(inputs, "Recovery", rp, _read_residuals,
+                                                     (BiasgtError, OSError, ValueError))
             break
 
 
@@ -610,26 +610,13 @@ def _bias_section(inp: ReportInputs) -> Html:
 def transform_from_report(value: Any) -> np.ndarray:
     """4x4 ``T_imu_pose`` from ``recovery.json``: ``{p_m, quat_wxyz}``, ``{matrix}`` or a 4x4 list.
 
-    (The same forms :func:`pipeline.validation.read_recovery_dir` accepts; parsed here so the
-    report does not import the validation's torch stack for six numbers.)
+    The forms :func:`pipeline.validation.read_recovery_dir` accepts, read by the same
+    (torch-free) :func:`pipeline.pose_transform.transform_from_json`.
 
     Raises:
-        ValueError: Not one of these forms.
+        DataError: Not one of these forms, or not finite.
     """
-    if value is None:
-        return np.eye(4)
-    if isinstance(value, dict) and "matrix" in value:
-        value = value["matrix"]
-    if isinstance(value, dict):
-        T = np.eye(4)
-        if value.get("quat_wxyz") is not None:
-            T[:3, :3] = Rotation.from_quat(np.asarray(value["quat_wxyz"], dtype=float), scalar_first=True).as_matrix()
-        T[:3, 3] = np.asarray(value.get("p_m", [0.0, 0.0, 0.0]), dtype=float).reshape(3)
-        return T
-    T = np.asarray(value, dtype=float)
-    if T.shape != (4, 4):
-        raise ValueError(f"T_imu_pose must be 4x4 or {{p_m, quat_wxyz}}, got shape {T.shape}")
-    return T
+    return transform_from_json(value)
 
 
 def pose_residuals(
@@ -640,15 +627,23 @@ def pose_residuals(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Distance and angle between the recovered IMU trajectory and a pose stream moved into the IMU frame.
 
-    The pose stream goes onto the IMU clock (``t + time_offset_s``) and into the IMU frame
-    (``T_world_imu = T_world_pose inv(T_imu_pose)``; for a position-only stream the lever arm is
-    removed with the recovered orientation), interpolated at the trajectory's stamps (linear in
-    position, Slerp in rotation). Stamps outside the pose span are skipped.
+    The pose stream is interpolated at the trajectory's stamps taken back to the pose clock
+    (linear in position, Slerp in rotation), then moved onto the IMU clock and into the IMU
+    frame by :func:`pipeline.pose_transform.poses_in_imu_frame` (for a position-only stream the
+    lever arm is removed with the recovered orientation; when the trajectory has none either,
+    positions are compared as they are). Stamps outside the pose span are skipped.
+
+    Args:
+        trajectory: Recovered ``T_world_imu`` on the IMU clock, [K0] rows.
+        poses: ``T_world_<frame>`` on the pose clock (``quat_wxyz`` may be None).
+        T_imu_pose: 4x4 ``T_imu_<frame>``.
+        time_offset_s: Seconds to ADD to pose stamps to put them on the IMU clock.
 
     Returns:
         ``(t_ns [K], pos_err_m [K], rot_err_deg [K] or None)``.
     """
-    t_pose = poses.t_ns + int(round(time_offset_s * NS_PER_S))
+    shift_ns = offset_ns(time_offset_s)
+    t_pose = poses.t_ns + shift_ns
     tq = trajectory.t_ns
     keep = (tq >= t_pose[0]) & (tq <= t_pose[-1])
     tq = tq[keep]
@@ -656,22 +651,19 @@ def pose_residuals(
         return tq, np.zeros(0), None
     x, xq = (t_pose - t_pose[0]).astype(float), (tq - t_pose[0]).astype(float)
     p_wp = np.column_stack([np.interp(xq, x, poses.p_m[:, i]) for i in range(3)])
-    R_ip, p_ip = T_imu_pose[:3, :3], T_imu_pose[:3, 3]
-    traj_q = trajectory.quat_wxyz[keep] if trajectory.quat_wxyz is not None else None
-    R_traj = None if traj_q is None else Rotation.from_quat(traj_q, scalar_first=True)
-    rot_err = None
+    quat_wp = None
     if poses.quat_wxyz is not None:
-        R_wp = Slerp(x, Rotation.from_quat(poses.quat_wxyz, scalar_first=True))(xq)
-        R_pi = Rotation.from_matrix(R_ip.T)
-        R_wi = R_wp * R_pi
-        p_wi = p_wp + R_wp.apply(-(R_ip.T @ p_ip))
-        if R_traj is not None:
-            rot_err = np.degrees((R_wi.inv() * R_traj).magnitude())
-    elif R_traj is not None:
-        p_wi = p_wp - R_traj.apply(p_ip)
-    else:
-        p_wi = p_wp
-    pos_err = np.linalg.norm(trajectory.p_m[keep] - p_wi, axis=1)
+        quat_wp = Slerp(x, Rotation.from_quat(poses.quat_wxyz, scalar_first=True))(xq).as_quat(scalar_first=True)
+    traj_q = trajectory.quat_wxyz[keep] if trajectory.quat_wxyz is not None else None
+    if quat_wp is None and traj_q is None:
+        T_imu_pose = np.eye(4)  # no attitude on either side: the lever arm cannot be removed
+    at_pose = replace(poses, t_ns=tq - shift_ns, p_m=p_wp, quat_wxyz=quat_wp)
+    in_imu = poses_in_imu_frame(at_pose, T_imu_pose, time_offset_s, imu_quat_wxyz=traj_q)
+    rot_err = None
+    if in_imu.quat_wxyz is not None and traj_q is not None:
+        R_wi = Rotation.from_quat(in_imu.quat_wxyz, scalar_first=True)
+        rot_err = np.degrees((R_wi.inv() * Rotation.from_quat(traj_q, scalar_first=True)).magnitude())
+    pos_err = np.linalg.norm(trajectory.p_m[keep] - in_imu.p_m, axis=1)
     return tq, pos_err, rot_err
 
 

@@ -12,10 +12,11 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from interpolation.bias import BiasTrack, write_bias_table
-from pipeline.errors import ValidationError
+from pipeline.errors import DataError, ValidationError
+from pipeline.pose_transform import IMU_FRAME, poses_in_imu_frame, transform_from_json
 from pipeline.sim import PoseStreamConfig, SimConfig, simulate
 from pipeline.store import write_store
-from pipeline.types import ImuCalibration, ImuSeries, Sequence
+from pipeline.types import ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from pipeline.validation import (
     BiasSourceKind,
     ReferenceKind,
@@ -24,11 +25,13 @@ from pipeline.validation import (
     Verdict,
     build_reference,
     decide_verdict,
+    gap_free_mask,
     read_bias_file,
     read_recovery_dir,
     reference_from_poses,
     reference_from_states,
     validate_sequence,
+    windows_with_any,
     write_validation,
 )
 
@@ -132,6 +135,88 @@ def test_pose_reference_with_extrinsic_and_offset_matches_state_reference(noisy_
     wrong = reference_from_poses(next(iter(seq.poses.values())), seq.imu.t_ns, time_offset_s=tr.clock_offset_s)
     bad = validate_sequence(seq, {"recovered": true}, reference=wrong, gravity_mps2=tr.gravity_mps2)
     assert bad.sources["recovered"].roe_deg > 5 * by_poses.sources["recovered"].roe_deg
+
+
+# ----------------------------------------------------------------------------- shared pose transform and helpers
+
+
+def _imu_trajectory(n: int = 400, rate_hz: float = 200.0):
+    """A smooth synthetic IMU trajectory: stamps [n], p_world_imu [n, 3], R_world_imu (Rotation of n)."""
+    t_ns = 7 * NS + np.round(np.arange(n) * NS / rate_hz).astype(np.int64)
+    t = (t_ns - t_ns[0]) / NS
+    p = np.column_stack([np.sin(1.3 * t), 0.5 * np.cos(0.7 * t), 0.2 * t])
+    R = Rotation.from_rotvec(np.column_stack([0.4 * np.sin(t), 0.3 * np.cos(2 * t), 1.1 * t]))
+    return t_ns, p, R
+
+
+def test_poses_in_imu_frame_recovers_the_imu_trajectory():
+    t_ns, p_wi, R_wi = _imu_trajectory()
+    T_ip = np.eye(4)
+    T_ip[:3, :3] = Rotation.from_rotvec([0.2, -0.4, 0.9]).as_matrix()
+    T_ip[:3, 3] = [0.08, -0.03, 0.12]
+    offset_s = 0.0123456789  # 12 345 678.9 ns -> the stream is 12 345 679 ns behind the IMU clock
+    # T_world_pose = T_world_imu @ T_imu_pose, stamped on a clock that lags the IMU's
+    R_wp = R_wi * Rotation.from_matrix(T_ip[:3, :3])
+    p_wp = p_wi + R_wi.apply(T_ip[:3, 3])
+    t_pose = t_ns - 12_345_679
+    poses = PoseSeries(t_pose, p_wp, R_wp.as_quat(scalar_first=True), "marker", PoseSourceKind.MOCAP, "map")
+    out = poses_in_imu_frame(poses, T_ip, offset_s)
+    assert out.frame == IMU_FRAME and out.world_frame == "map" and out.source_kind is PoseSourceKind.MOCAP
+    np.testing.assert_array_equal(out.t_ns, t_ns)
+    np.testing.assert_allclose(out.p_m, p_wi, rtol=0, atol=1e-14)
+    ang = (Rotation.from_quat(out.quat_wxyz, scalar_first=True).inv() * R_wi).magnitude()
+    assert np.max(ang) < 1e-14
+    # Position-only stream: the lever arm is removed with the given IMU attitude.
+    prism = PoseSeries(t_pose, p_wp, None, "prism", PoseSourceKind.POSITION_TRACKER)
+    out2 = poses_in_imu_frame(prism, T_ip, offset_s, imu_quat_wxyz=R_wi.as_quat(scalar_first=True))
+    assert out2.quat_wxyz is None
+    np.testing.assert_array_equal(out2.t_ns, t_ns)
+    np.testing.assert_allclose(out2.p_m, p_wi, rtol=0, atol=1e-14)
+    # ... and cannot be removed without one; with no lever arm nothing moves.
+    with pytest.raises(DataError, match="lever arm"):
+        poses_in_imu_frame(prism, T_ip, offset_s)
+    T_rot = T_ip.copy()
+    T_rot[:3, 3] = 0.0
+    np.testing.assert_array_equal(poses_in_imu_frame(prism, T_rot).p_m, p_wp)
+    # Identity extrinsic and zero offset: the stream is returned as is (quaternion up to sign).
+    same = poses_in_imu_frame(poses)
+    np.testing.assert_array_equal(same.t_ns, t_pose)
+    np.testing.assert_allclose(np.abs(np.sum(same.quat_wxyz * poses.quat_wxyz, axis=1)), 1.0, atol=1e-15)
+    with pytest.raises(DataError, match="4x4"):
+        poses_in_imu_frame(poses, np.eye(3))
+    # reference_from_poses uses the same transform: noise-free poses give the IMU attitude and position.
+    ref = reference_from_poses(poses, t_ns, T_imu_pose=T_ip, time_offset_s=offset_s)
+    assert ref.valid.all()
+    assert np.max(Rotation.from_matrix(np.swapaxes(ref.R, 1, 2) @ R_wi.as_matrix()).magnitude()) < 1e-12
+    np.testing.assert_allclose(ref.p, p_wi, atol=1e-4)  # the smoothing spline, not the transform, limits this
+
+
+def test_transform_from_json_forms():
+    T = np.eye(4)
+    q = Rotation.from_rotvec([0.1, 0.2, -0.3]).as_quat(scalar_first=True)
+    T[:3, :3] = Rotation.from_quat(q, scalar_first=True).as_matrix()
+    T[:3, 3] = [1.0, 2.0, 3.0]
+    np.testing.assert_allclose(transform_from_json({"p_m": [1, 2, 3], "quat_wxyz": q.tolist()}), T, atol=1e-15)
+    np.testing.assert_array_equal(transform_from_json({"matrix": T.tolist()}), T)
+    np.testing.assert_array_equal(transform_from_json(T.tolist()), T)
+    np.testing.assert_array_equal(transform_from_json(None), np.eye(4))
+    np.testing.assert_array_equal(transform_from_json({"p_m": [1, 2, 3]})[:3, 3], [1, 2, 3])
+    for bad in ([[1, 2], [3, 4]], {"p_m": [1, 2]}, {"quat_wxyz": [1, 0]}, "eye", np.full((4, 4), np.nan)):
+        with pytest.raises(DataError, match="T_imu_pose"):
+            transform_from_json(bad)
+
+
+def test_gap_free_mask_and_windows_with_any():
+    src = np.array([0, 10, 20, 30, 100, 110, 120], dtype=np.int64)  # median interval 10, one 70-ns gap
+    query = np.array([-1, 0, 15, 30, 31, 99, 100, 105, 120, 121], dtype=np.int64)
+    np.testing.assert_array_equal(gap_free_mask(src, query, 4.0),
+                                  [False, True, True, True, False, False, True, True, True, False])
+    np.testing.assert_array_equal(gap_free_mask(src, query, 8.0), (query >= 0) & (query <= 120))
+    flags = np.zeros(10, bool)
+    flags[[3, 9]] = True
+    starts = np.array([0, 2, 4, 6], dtype=np.int64)
+    np.testing.assert_array_equal(windows_with_any(flags, starts, 3), [False, True, False, False])
+    np.testing.assert_array_equal(windows_with_any(flags, starts, 4), [True, True, False, True])
 
 
 # ----------------------------------------------------------------------------- flags, drops, bad input

@@ -55,12 +55,12 @@ from pipeline.types import NS_PER_S, ImuSeries, Sequence
 from pipeline.validation import (
     ReferenceStates,
     ValidationConfig,
-    _gap_free_mask,
-    _window_any,
     build_reference,
+    gap_free_mask,
     plan_windows,
     read_recovery_dir,
     recovered_bias_at_imu,
+    windows_with_any,
 )
 from training.dataset import ARRAYS, SequenceWindows, Split, write_dataset
 
@@ -224,7 +224,7 @@ def resample_imu(imu: ImuSeries, rate_hz: float, *, gap_factor: float = 2.0) -> 
     period_ns = NS_PER_S / float(rate_hz)
     m = int(np.floor((int(t[-1]) - int(t[0])) / period_ns + 1e-9)) + 1
     grid = int(t[0]) + np.round(np.arange(m) * period_ns).astype(np.int64)
-    grid = grid[_gap_free_mask(t, grid, gap_factor)]
+    grid = grid[gap_free_mask(t, grid, gap_factor)]
     x = (t - t[0]).astype(np.float64)
     xq = (grid - t[0]).astype(np.float64)
 
@@ -322,7 +322,7 @@ def extract_windows(
                DropReason.IMU_NONFINITE.value: plan.dropped["imu_nonfinite"]}
 
     bias = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), imu.t_ns, random_walk)
-    outside = _window_any(np.asarray(bias.clamped, bool), starts, n + 1)
+    outside = windows_with_any(np.asarray(bias.clamped, bool), starts, n + 1)
     dropped[DropReason.OUTSIDE_RECOVERY.value] = int(outside.sum())
     keep &= ~outside
 
