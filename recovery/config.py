@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from pipeline.errors import ConfigError
 from pipeline.types import PoseSourceKind
 
@@ -101,7 +103,13 @@ class RecoveryConfig:
 
     Attributes:
         pose_factor_mode: See :class:`PoseFactorMode`.
-        keyframe_rate_hz: Keyframes per second; ``None`` = every pose sample.
+        keyframe_rate_hz: Keyframes per second. ``None`` (default): every pose sample's
+            information -- 20-Hz keyframes with the samples in between fused into them for
+            6-DoF absolute streams (``pose_fusion``), each sample a keyframe otherwise.
+        pose_fusion: Fuse the pose samples between keyframes into them through the IMU
+            (:mod:`recovery.fusion`; 6-DoF absolute streams). ``False``: keyframes are single
+            samples and the samples between them are dropped (every sample with
+            ``keyframe_rate_hz: null``; ~5x slower on 100-Hz mocap, same accuracy).
         relative_horizon: RELATIVE mode: number of keyframes each BetweenFactor spans
             (factors from every keyframe to the next ``relative_horizon`` ones).
         time_offset_mode: See :class:`TimeOffsetMode`.
@@ -109,7 +117,9 @@ class RecoveryConfig:
         max_time_offset_s: Search range of the coarse offset estimate.
         offset_refine_step_s: Largest grid step of the offset refinement (the step is
             2x the coarse std, clamped to [step/8, step]).
-        offset_refine_keyframe_rate_hz: Keyframe rate of the refinement solves.
+        offset_refine_keyframe_rate_hz: Keyframe rate of the refinement solves (``None``: auto,
+            :data:`CALIBRATION_RATE_FUSED_HZ` with fused keyframes, else :data:`CALIBRATION_RATE_HZ`;
+            the same for the other calibration solves below).
         calib_window_s: Length of data used for offset / extrinsic / noise estimation.
         extrinsic_mode: See :class:`ExtrinsicMode`.
         extrinsic_keyframe_rate_hz: Keyframe rate of the joint extrinsic solve.
@@ -132,6 +142,14 @@ class RecoveryConfig:
         pose_sigma_scales: Candidate factors of the pose sigmas (ignored when
             ``position_sigma_m`` is given).
         noise_keyframe_rate_hz: Keyframe rate of the evidence solves.
+        position_only_window_s: Position-only streams (no orientation measured): the noise
+            evidence window and the segments span up to this long instead of ``calib_window_s`` /
+            ``segment_s``. From positions the gyro bias about gravity is seen only through the
+            heading drift it causes (information ~ window^3), so the walk of the bias and the
+            bias itself need minutes: on EuRoC MH_01 (Leica, 20 Hz) a 60-s window chose 0.7x the
+            datasheet gyro random walk where the whole recording (and the ground-truth poses)
+            say 2-7x, and 60-s segments were over-confident in the gyro bias ~2x.
+            Memory grows with the keyframes per segment (300 s at 20 Hz: 6000).
         integration_sigma: Preintegration integration noise (GTSAM integrationCovariance).
         robust_loss: See :class:`RobustLoss`.
         robust_k: Threshold of the M-estimator, in whitened units.
@@ -139,8 +157,11 @@ class RecoveryConfig:
             (per-DoF RMS) exceeds this many sigmas is counted in ``outliers_rejected``,
             removed, and the window solved again.
         segment_s: Segment length for long recordings (bounded memory: peak memory
-            grows with the keyframes per segment; run time barely depends on it).
-        segment_overlap_s: Overlap between segments (blended linearly).
+            grows with the keyframes per segment; run time barely depends on it). ``None``:
+            :data:`SEGMENT_KEYFRAMES` keyframes at the solve's keyframe rate, within
+            [:data:`SEGMENT_S_MIN`, :data:`SEGMENT_S_MAX`] (300 s at 20 Hz, 60 s at 100 Hz).
+        segment_overlap_s: Overlap between segments (blended linearly); ``None``: a sixth of
+            ``segment_s``.
         max_imu_gap_s: Longest IMU gap bridged; see ``imu_gap_policy``.
         imu_gap_policy: See :class:`ImuGapPolicy`.
         min_poses: Fewest pose samples accepted.
@@ -155,19 +176,20 @@ class RecoveryConfig:
 
     pose_factor_mode: PoseFactorMode = PoseFactorMode.AUTO
     keyframe_rate_hz: float | None = None
+    pose_fusion: bool = True
     relative_horizon: int = 5
     time_offset_mode: TimeOffsetMode = TimeOffsetMode.AUTO
     time_offset_s: float = 0.0
     max_time_offset_s: float = 0.5
     offset_refine_step_s: float = 0.002
-    offset_refine_keyframe_rate_hz: float = 10.0
+    offset_refine_keyframe_rate_hz: float | None = None
     calib_window_s: float = 60.0
     extrinsic_mode: ExtrinsicMode = ExtrinsicMode.AUTO
-    extrinsic_keyframe_rate_hz: float = 10.0
+    extrinsic_keyframe_rate_hz: float | None = None
     estimate_gravity: bool | None = None
     gravity_mps2: float = 9.81
     gravity_window_s: float = 300.0
-    gravity_keyframe_rate_hz: float = 10.0
+    gravity_keyframe_rate_hz: float | None = None
     position_sigma_m: float | None = None
     rotation_sigma_rad: float | None = None
     gyro_noise_density: float | None = None
@@ -177,13 +199,14 @@ class RecoveryConfig:
     noise_estimation: NoiseEstimation = NoiseEstimation.EVIDENCE
     random_walk_scales: list[float] = field(default_factory=lambda: [0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0])
     pose_sigma_scales: list[float] = field(default_factory=lambda: [0.03, 0.1, 0.3, 1.0, 3.0, 10.0])
-    noise_keyframe_rate_hz: float = 10.0
+    noise_keyframe_rate_hz: float | None = None
+    position_only_window_s: float = 300.0
     integration_sigma: float = 1e-4
     robust_loss: RobustLoss = RobustLoss.HUBER
     robust_k: float = 3.0
     outlier_threshold: float = 5.0
-    segment_s: float = 60.0
-    segment_overlap_s: float = 10.0
+    segment_s: float | None = None
+    segment_overlap_s: float | None = None
     max_imu_gap_s: float = 0.1
     imu_gap_policy: ImuGapPolicy = ImuGapPolicy.SPLIT
     min_poses: int = 20
@@ -191,7 +214,7 @@ class RecoveryConfig:
     relative_error_tol: float = 1e-6
     min_rotation_excitation_deg: float = 10.0
     compute_marginals: bool = True
-    marginal_rate_hz: float | None = 20.0
+    marginal_rate_hz: float | None = 5.0
 
     _ENUMS = {
         "pose_factor_mode": PoseFactorMode,
@@ -202,6 +225,23 @@ class RecoveryConfig:
         "imu_gap_policy": ImuGapPolicy,
     }
 
+    def calibration_rate_hz(self, name: str, fused: bool) -> float:
+        """Keyframe rate of a calibration solve (``name``: offset_refine, extrinsic, gravity, noise)."""
+        value = getattr(self, f"{name}_keyframe_rate_hz")
+        if value is not None:
+            return float(value)
+        return CALIBRATION_RATE_FUSED_HZ if fused else CALIBRATION_RATE_HZ
+
+    def segment_plan(self, keyframe_rate_hz: float) -> tuple[float, float]:
+        """``(segment_s, segment_overlap_s)`` for a solve with this many keyframes per second."""
+        seg = self.segment_s
+        if seg is None:
+            seg = float(np.clip(SEGMENT_KEYFRAMES / keyframe_rate_hz, SEGMENT_S_MIN, SEGMENT_S_MAX))
+        overlap = self.segment_overlap_s if self.segment_overlap_s is not None else seg / 6.0
+        if overlap * 2 >= seg:
+            raise ConfigError(f"must be less than half of segment_s ({seg:g} s)", field="segment_overlap_s")
+        return float(seg), float(overlap)
+
     def __post_init__(self) -> None:
         for name, enum_type in self._ENUMS.items():
             value = getattr(self, name)
@@ -210,18 +250,19 @@ class RecoveryConfig:
             except ValueError:
                 choices = ", ".join(e.value for e in enum_type)
                 raise ConfigError(f"invalid value {value!r}", field=name, hint=f"use one of {choices}") from None
-        positive = ("max_time_offset_s", "offset_refine_step_s", "offset_refine_keyframe_rate_hz", "calib_window_s",
-                    "extrinsic_keyframe_rate_hz", "gravity_mps2", "gravity_window_s", "gravity_keyframe_rate_hz", "noise_keyframe_rate_hz", "robust_k",
-                    "outlier_threshold", "segment_s", "max_imu_gap_s", "integration_sigma")
+        positive = ("max_time_offset_s", "offset_refine_step_s", "calib_window_s", "gravity_mps2", "gravity_window_s",
+                    "position_only_window_s", "robust_k", "outlier_threshold", "max_imu_gap_s", "integration_sigma")
         for name in positive:
             if not float(getattr(self, name)) > 0:
                 raise ConfigError(f"must be > 0, got {getattr(self, name)!r}", field=name)
         for name in ("keyframe_rate_hz", "marginal_rate_hz", "position_sigma_m", "rotation_sigma_rad", "gyro_noise_density",
-                     "acc_noise_density", "gyro_random_walk", "acc_random_walk"):
+                     "acc_noise_density", "gyro_random_walk", "acc_random_walk", "offset_refine_keyframe_rate_hz",
+                     "extrinsic_keyframe_rate_hz", "gravity_keyframe_rate_hz", "noise_keyframe_rate_hz", "segment_s"):
             value = getattr(self, name)
             if value is not None and not float(value) > 0:
                 raise ConfigError(f"must be > 0 or null, got {value!r}", field=name)
-        if self.segment_overlap_s < 0 or self.segment_overlap_s * 2 >= self.segment_s:
+        if self.segment_overlap_s is not None and (
+                self.segment_overlap_s < 0 or (self.segment_s is not None and self.segment_overlap_s * 2 >= self.segment_s)):
             raise ConfigError("must be >= 0 and less than half of segment_s", field="segment_overlap_s")
         if self.relative_horizon < 1:
             raise ConfigError("must be >= 1", field="relative_horizon")
@@ -278,6 +319,15 @@ class RecoveryConfig:
 
 
 # Default pose noise per source kind: (position sigma m, rotation sigma rad).
+# Automatic keyframe rates of the calibration solves (offset, extrinsic, noise, gravity): fused
+# keyframes carry all samples of their bin, so a sparser grid loses little and solves faster.
+CALIBRATION_RATE_HZ = 10.0
+CALIBRATION_RATE_FUSED_HZ = 5.0
+# Automatic segment length: about this many keyframes per segment (memory), within bounds.
+SEGMENT_KEYFRAMES = 6000
+SEGMENT_S_MIN = 30.0
+SEGMENT_S_MAX = 300.0
+
 DEFAULT_POSE_SIGMAS: dict[PoseSourceKind, tuple[float, float]] = {
     PoseSourceKind.MOCAP: (1.0e-3, 1.0e-3),
     PoseSourceKind.GROUND_TRUTH: (1.0e-3, 1.0e-3),

@@ -26,6 +26,7 @@ from gtsam.symbol_shorthand import B, E, G, L, V, X
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, PoseSourceKind
 from recovery.config import PoseFactorMode, RobustLoss
+from recovery.fusion import FusedPoses, PerBin, WithinBinStats
 from recovery.preintegration import ImuNoise, MidpointSamples, make_params, preintegrate
 
 log = logging.getLogger(__name__)
@@ -44,19 +45,49 @@ class KeyframePoses:
         p_m: Measured position of the tracked frame, [K, 3].
         quat_wxyz: Measured orientation of the tracked frame, [K, 4] or None.
         source_kind: The pose source.
+        count: Pose samples fused into each keyframe, int [K] (None: one sample each); the pose
+            factor's covariance is divided by it.
+        v_mps: Fused IMU velocity, [K, 3]; dt2_s2: its information per unit position variance
+            (``sum dt^2`` of the bin), [K] (0: no velocity measurement).
+        per_bin: Within-bin residual sums of the fused samples (for the noise evidence).
+        rejected_t_ns: Pose samples rejected while fusing (outliers), int64 [R].
     """
 
     t_ns: np.ndarray
     p_m: np.ndarray
     quat_wxyz: np.ndarray | None
     source_kind: PoseSourceKind
+    count: np.ndarray | None = None
+    v_mps: np.ndarray | None = None
+    dt2_s2: np.ndarray | None = None
+    per_bin: PerBin | None = None
+    rejected_t_ns: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_ns)
 
+    @classmethod
+    def from_fused(cls, fused: FusedPoses, source_kind: PoseSourceKind) -> "KeyframePoses":
+        """Keyframes carrying the fused samples of their bins (:mod:`recovery.fusion`)."""
+        return cls(fused.t_ns, fused.p_m, fused.quat_wxyz, source_kind, fused.count, fused.v_mps,
+                   fused.dt2_s2, fused.per_bin, fused.rejected_t_ns)
+
+    def within_bin(self) -> WithinBinStats | None:
+        """Residual sums of the fused samples about their keyframes (None when not fused)."""
+        if self.per_bin is None:
+            return None
+        return WithinBinStats(float(self.per_bin.pos_sq.sum()), int(self.per_bin.pos_dof.sum()),
+                              float(self.per_bin.rot_sq.sum()), int(self.per_bin.rot_dof.sum()))
+
     def take(self, index: np.ndarray | slice) -> "KeyframePoses":
         q = None if self.quat_wxyz is None else self.quat_wxyz[index]
-        return KeyframePoses(self.t_ns[index], self.p_m[index], q, self.source_kind)
+        if self.count is None:
+            return KeyframePoses(self.t_ns[index], self.p_m[index], q, self.source_kind)
+        pb = self.per_bin
+        return KeyframePoses(self.t_ns[index], self.p_m[index], q, self.source_kind, self.count[index],
+                             self.v_mps[index], self.dt2_s2[index],
+                             PerBin(pb.pos_sq[index], pb.pos_dof[index], pb.rot_sq[index], pb.rot_dof[index]),
+                             self.rejected_t_ns)
 
 
 @dataclass
@@ -75,6 +106,7 @@ class SolveOptions:
     gravity_mps2: float = 9.81
     estimate_extrinsic: bool = False
     estimate_lever_arm: bool = False  # 6-DoF sources: rotation of T_imu_pose fixed, lever arm L(0) free (native factors)
+    velocity_factors: bool = True  # fused keyframes: a velocity prior from their bin (off while T_imu_pose is unknown)
     max_iterations: int = 30
     relative_error_tol: float = 1e-6
     compute_marginals: bool = False
@@ -427,7 +459,12 @@ def build_window(
             Xs.append(gtsam.Pose3(R, kf.p_m[k] - R.rotate(lever)))
     P = np.array([x.translation() for x in Xs])
     t = (kf.t_ns - kf.t_ns[0]) / NS_PER_S
-    Vel = initial_velocity(t, P) if init.velocity is None else np.asarray(init.velocity, dtype=float)
+    if init.velocity is not None:
+        Vel = np.asarray(init.velocity, dtype=float)
+    else:
+        Vel = initial_velocity(t, P)
+        if kf.v_mps is not None:  # fused keyframes measured their velocity: a better start for LM
+            Vel[kf.dt2_s2 > 0] = kf.v_mps[kf.dt2_s2 > 0]
     values = _bias_values(bias0, K)
     Vel = np.ascontiguousarray(Vel, dtype=float)
     for k in range(K):
@@ -457,9 +494,16 @@ def build_window(
     b0 = bias0 if bias0.ndim == 1 else bias0[0]
     graph.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(b0[3:], b0[:3]), prior_b))
 
-    # --- pose factors
+    # --- pose factors (fused keyframes: covariance / samples fused; one model per distinct count)
     pose_factors: list[tuple[int, Any, Any]] = []
     sr, sp = opts.rotation_sigma_rad, opts.position_sigma_m
+    cache: dict[tuple[str, int], tuple[Any, Any]] = {}
+
+    def models(key: tuple[str, int], make: Any) -> tuple[Any, Any]:
+        if key not in cache:
+            base = make(key)
+            cache[key] = (base, _robust(base, opts.robust_loss, opts.robust_k))
+        return cache[key]
     if position_only:
         base = gtsam.noiseModel.Isotropic.Sigma(3, sp)
         model = _robust(base, opts.robust_loss, opts.robust_k)
@@ -482,13 +526,11 @@ def build_window(
         lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
         values.insert(L(0), lever.copy())
         R_Et = Ep.rotation().inverse()
-        base_r = gtsam.noiseModel.Isotropic.Sigma(3, sr)
-        base_p = gtsam.noiseModel.Isotropic.Sigma(3, sp)
-        model_r = _robust(base_r, opts.robust_loss, opts.robust_k)
-        model_p = _robust(base_p, opts.robust_loss, opts.robust_k)
         for k in range(K):
             if k in skip_set:
                 continue
+            base_r, model_r = models(("r", _count(kf, k)), lambda c: gtsam.noiseModel.Isotropic.Sigma(3, sr / math.sqrt(c[1])))
+            base_p, model_p = models(("p", _count(kf, k)), lambda c: gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(c[1])))
             fr = gtsam.PoseRotationPrior3D(X(k), Z[k].rotation().compose(R_Et), model_r)
             fp = gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model_p)
             graph.add(fr)
@@ -525,26 +567,46 @@ def build_window(
     else:
         if opts.estimate_extrinsic:
             values.insert(E(0), Ep)
-            base = gtsam.noiseModel.Diagonal.Sigmas(np.array([sr] * 3 + [sp] * 3))
-            model = _robust(base, opts.robust_loss, opts.robust_k)
             for k in range(K):
                 if k in skip_set:
                     continue
+                base, model = models(("e", _count(kf, k)), lambda c: gtsam.noiseModel.Diagonal.Sigmas(
+                    np.array([sr] * 3 + [sp] * 3) / math.sqrt(c[1])))
                 f = gtsam.CustomFactor(model, [X(k), E(0)], _extrinsic_error(Z[k]))
                 graph.add(f)
                 pose_factors.append((k, f, base))
                 nlc += base.negLogConstant()
         else:
-            base = gtsam.noiseModel.Gaussian.Covariance(_pose_cov_in_imu(Ep, sr, sp))
-            model = _robust(base, opts.robust_loss, opts.robust_k)
+            cov = _pose_cov_in_imu(Ep, sr, sp)
             for k in range(K):
                 if k in skip_set:
                     continue
+                base, model = models(("x", _count(kf, k)), lambda c: gtsam.noiseModel.Gaussian.Covariance(cov / c[1]))
                 f = gtsam.PriorFactorPose3(X(k), Xs[k], model)
                 graph.add(f)
                 pose_factors.append((k, f, base))
                 nlc += base.negLogConstant()
+    use_velocity = (kf.v_mps is not None and opts.velocity_factors and not position_only
+                    and opts.pose_mode != PoseFactorMode.RELATIVE
+                    and not opts.estimate_extrinsic and not opts.estimate_lever_arm)
+    if use_velocity:
+        # the bin's line fit: velocity std sigma_p / sqrt(sum dt^2) (decoupled from the position
+        # because the keyframe sits at the bins' mean sample time). Not while the lever arm is
+        # a variable: the fused velocity was computed with a fixed one (omega x lever).
+        for k in range(K):
+            if k in skip_set or kf.dt2_s2[k] <= 0.0:
+                continue
+            base = gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(float(kf.dt2_s2[k])))
+            f = gtsam.PriorFactorVector(V(k), kf.v_mps[k], _robust(base, opts.robust_loss, opts.robust_k))
+            graph.add(f)
+            pose_factors.append((k, f, base))
+            nlc += base.negLogConstant()
     return _Built(graph, values, pose_factors, imu_factors, nlc)
+
+
+def _count(kf: KeyframePoses, k: int) -> int:
+    """Samples fused into keyframe ``k`` (1 when the keyframes are plain samples)."""
+    return 1 if kf.count is None else int(kf.count[k])
 
 
 def _optimize(built: _Built, opts: SolveOptions) -> tuple[gtsam.Values, int]:

@@ -8,7 +8,9 @@ likelihood of all measurements is approximated around the optimum x*:
 
 (``E`` = 0.5 sum of squared whitened residuals, ``Z_f`` the Gaussian normaliser
 of factor f, ``H`` the Gauss-Newton Hessian, obtained from GTSAM as the log
-determinant of the eliminated Bayes net). It is maximised coordinate-wise over
+determinant of the eliminated Bayes net; for keyframes fused from several pose
+samples, plus the Gaussian likelihood of the samples' scatter about their
+keyframes, :class:`recovery.fusion.WithinBinStats`). It is maximised coordinate-wise over
 inflation factors of (1) the pose sigmas, (2) the gyro random walk, (3) the acc
 random walk, on a decimated graph over the calibration window. The random walk
 is a continuous-time density, so decimation changes how much information the
@@ -20,6 +22,7 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -40,6 +43,8 @@ class NoiseChoice:
         position_sigma_m / rotation_sigma_rad: Pose noise actually used.
         gyro_rw_scale / acc_rw_scale / pose_scale: Chosen factors relative to the
             calibration / defaults.
+        pose_method: ``"evidence"`` (common scale of both pose sigmas by evidence) or
+            ``"within_bin_residuals"`` (closed form from fused samples, see recovery.recover).
         method: ``"evidence"`` or ``"fixed"``.
         table: Every evaluated candidate with its log evidence.
     """
@@ -52,6 +57,7 @@ class NoiseChoice:
     pose_scale: float = 1.0
     method: str = "fixed"
     table: list[dict[str, float]] = field(default_factory=list)
+    pose_method: str = "evidence"
 
     def to_dict(self) -> dict:
         return {
@@ -61,6 +67,7 @@ class NoiseChoice:
             "gyro_random_walk_scale": float(self.gyro_rw_scale),
             "acc_random_walk_scale": float(self.acc_rw_scale),
             "pose_sigma_scale": float(self.pose_scale),
+            "pose_sigma_method": self.pose_method if self.method == "evidence" else "fixed",
             "method": self.method,
             "candidates": self.table,
         }
@@ -107,7 +114,13 @@ def estimate_noise(
     table: list[dict[str, float]] = []
     cache: dict[tuple[float, float, float], float] = {}
 
-    warm: dict[str, WindowInit | None] = {"init": init}
+    # Warm start of each candidate: the optimum of the best candidate so far (same graph, nearby
+    # noise: LM needs ~2 iterations instead of ~5, and the optimum is the same). From the best one,
+    # not the last one: a candidate far off (e.g. a pose sigma 30x too small for a position-only
+    # stream over minutes) can settle in a wrong attitude minimum, and chaining from it would
+    # carry that minimum into every later candidate.
+    warm: dict[str, Any] = {"init": init, "ev": float("-inf")}
+    within = kf.within_bin()
 
     def evaluate(g: float, a: float, p: float) -> float:
         key = (round(g, 6), round(a, 6), round(p, 6))
@@ -119,10 +132,12 @@ def estimate_noise(
         try:
             sol = solve_window(samples, kf, noise, T_imu_pose, o, warm["init"], want_evidence=True)
             ev = sol.log_evidence
-            # warm start of the next candidate from this optimum (same graph, nearby noise):
-            # LM then needs ~2 iterations instead of ~5; the optimum, hence the evidence, is the same
-            warm["init"] = WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias, velocity=sol.v_mps,
-                                      rot_wxyz=None if kf.quat_wxyz is not None else sol.quat_wxyz)
+            if within is not None:  # fused keyframes: the samples' scatter about them
+                ev += within.log_likelihood(o.position_sigma_m, o.rotation_sigma_rad)
+            if ev > warm["ev"]:
+                warm["ev"] = ev
+                warm["init"] = WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias, velocity=sol.v_mps,
+                                          rot_wxyz=None if kf.quat_wxyz is not None else sol.quat_wxyz)
         except Exception as exc:  # a diverged candidate is simply not chosen
             log.debug("noise candidate g=%g a=%g p=%g failed: %s", g, a, p, exc)
             ev = float("-inf")
@@ -147,8 +162,8 @@ def estimate_noise(
                 evs[j] = evaluate(args["g"], args["a"], args["p"])
             return evs[j]
 
-        for j in range(max(i0 - 1, 0), min(i0 + 1, n - 1) + 1):
-            at(j)
+        for j in sorted(range(max(i0 - 1, 0), min(i0 + 1, n - 1) + 1), key=lambda j: abs(j - i0)):
+            at(j)  # the current value first: the start of the warm-start chain
         while True:
             best = max(evs, key=lambda j: (evs[j], -abs(j - i0)))
             if best == min(evs) and best > 0:

@@ -40,6 +40,7 @@ from recovery.config import (
     RecoveryConfig,
     TimeOffsetMode,
 )
+from recovery.fusion import fuse_poses
 from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, solve_window
 from recovery.noise import NoiseChoice, estimate_noise
 from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
@@ -172,15 +173,40 @@ def _select_keyframes(t_ns: np.ndarray, rate_hz: float | None, t_origin_ns: int)
     return first
 
 
-class _Problem:
-    """Pose stream + IMU; builds windows (samples + keyframes) at a given offset."""
+FUSED_KEYFRAME_RATE_HZ = 20.0  # keyframe_rate_hz null + pose_fusion: bins of this rate
 
-    def __init__(self, imu: ImuSeries, poses: PoseSeries, pieces: list[tuple[int, int]]) -> None:
+
+class _Problem:
+    """Pose stream + IMU; builds windows (IMU samples + keyframes) at a given clock offset.
+
+    With ``fuse`` (6-DoF absolute streams), the pose samples of each keyframe bin are fused
+    into the keyframe through the IMU (:mod:`recovery.fusion`), linearised at the extrinsic,
+    gravity and bias set by :meth:`set_linearisation`; otherwise a keyframe is one sample.
+    """
+
+    def __init__(self, imu: ImuSeries, poses: PoseSeries, pieces: list[tuple[int, int]], fuse: bool = False,
+                 gravity_mps2: float = 9.81) -> None:
         self.imu = imu
         self.imu_6 = imu.imu_6
         self.poses = poses
         self.pieces = pieces
         self.origin = int(imu.t_ns[0])
+        self.fuse = fuse
+        self.T_imu_pose = np.eye(4)
+        self.gravity_world = np.array([0.0, 0.0, -gravity_mps2])
+        self.gravity_mps2 = gravity_mps2
+        self.bias: Any = None  # None, [6] (gyro, acc), or a function t_ns [M] -> [M, 6]
+
+    def set_linearisation(self, *, T_imu_pose: np.ndarray | None = None, gravity_unit: np.ndarray | None = None,
+                          bias: Any = None) -> None:
+        """Extrinsic, gravity direction and bias the fusion moves samples with (unchanged if None)."""
+        if T_imu_pose is not None:
+            self.T_imu_pose = np.asarray(T_imu_pose, dtype=float).copy()
+        if gravity_unit is not None:
+            u = np.asarray(gravity_unit, dtype=float)
+            self.gravity_world = u / np.linalg.norm(u) * self.gravity_mps2
+        if bias is not None:
+            self.bias = bias
 
     def window(self, offset_s: float, t0_ns: int, t1_ns: int, rate_hz: float | None
                ) -> tuple[MidpointSamples, KeyframePoses] | None:
@@ -192,12 +218,28 @@ class _Problem:
         sel = np.nonzero((t > lo) & (t < hi))[0]
         if len(sel) < 3:
             return None
-        sel = sel[_select_keyframes(t[sel], rate_hz, self.origin)]
-        if len(sel) < 3:
-            return None
-        kf = KeyframePoses(t[sel], self.poses.p_m[sel],
-                           None if self.poses.quat_wxyz is None else self.poses.quat_wxyz[sel],
-                           self.poses.source_kind)
+        if self.fuse and rate_hz is None:
+            rate_hz = FUSED_KEYFRAME_RATE_HZ
+        if self.fuse:
+            # whole bins only: a keyframe in two overlapping windows fuses the same samples
+            period = NS_PER_S / rate_hz
+            b = np.floor((t[sel] - self.origin) / period)
+            sel = sel[(b >= math.ceil((lo - self.origin) / period)) & (b < math.floor((hi - self.origin) / period))]
+            if len(sel) < 3:
+                return None
+            bias = self.bias(t[sel]) if callable(self.bias) else self.bias
+            fused = fuse_poses(t[sel], self.poses.p_m[sel], self.poses.quat_wxyz[sel], self.imu.t_ns, self.imu_6,
+                               rate_hz, self.origin, self.T_imu_pose, self.gravity_world, bias)
+            if len(fused) < 3:
+                return None
+            kf = KeyframePoses.from_fused(fused, self.poses.source_kind)
+        else:
+            sel = sel[_select_keyframes(t[sel], rate_hz, self.origin)]
+            if len(sel) < 3:
+                return None
+            kf = KeyframePoses(t[sel], self.poses.p_m[sel],
+                               None if self.poses.quat_wxyz is None else self.poses.quat_wxyz[sel],
+                               self.poses.source_kind)
         return midpoint_samples(self.imu.t_ns, self.imu_6, kf.t_ns), kf
 
 
@@ -231,9 +273,14 @@ def _calibration_window(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: 
 
 
 def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,
-                   opts: SolveOptions, config: RecoveryConfig) -> tuple[float, float, list[dict[str, float]]]:
-    """1-D search of the optimised cost over the offset; parabolic vertex and curvature std."""
+                   opts: SolveOptions, config: RecoveryConfig
+                   ) -> tuple[float, float, list[dict[str, float]], WindowInit | None]:
+    """1-D search of the optimised cost over the offset; parabolic vertex and curvature std.
+
+    Also returns the gravity and median bias of the last solve (a linearisation point for fusion).
+    """
     o = replace(opts, reject_outliers=False, compute_marginals=False, marginal_extras=False)
+    rate = config.calibration_rate_hz("offset_refine", problem.fuse)
     cache: dict[int, float] = {}
     init: dict[str, WindowInit] = {}
 
@@ -241,7 +288,7 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
         key = int(round(off * 1e9))
         if key in cache:
             return cache[key]
-        w = problem.window(off, window[0], window[1], config.offset_refine_keyframe_rate_hz)
+        w = problem.window(off, window[0], window[1], rate)
         if w is None:
             c = float("inf")
         else:
@@ -255,10 +302,11 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
         cache[key] = c
         return c
 
-    # 5-point grid around the coarse value; slide it while the minimum is at an edge
+    # 3-point grid around the coarse value (the cost is quadratic within +-2 coarse sigmas);
+    # slide it while the minimum is at an edge
     h = float(np.clip(2.0 * coarse_std_s, config.offset_refine_step_s / 8, config.offset_refine_step_s))
     center = coarse_s
-    grid_k = np.arange(-2, 3)
+    grid_k = np.arange(-1, 2)
     for _ in range(12):
         xs = center + grid_k * h
         cs = np.array([cost(x) for x in xs])
@@ -273,14 +321,14 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
     a, b, _ = np.polyfit(fine[ok], fc[ok], 2)
     table = [{"offset_s": float(k / 1e9), "cost_per_kkf": float(v)} for k, v in sorted(cache.items())]
     if a <= 0:
-        return float(fine[int(np.argmin(fc))]), float(h), table
+        return float(fine[int(np.argmin(fc))]), float(h), table, init.get("x")
     vertex = float(-b / (2 * a))
     vertex = float(np.clip(vertex, fine[0], fine[-1]))
     # cost = 0.5 chi2 / K * 1000  -> d2(0.5 chi2)/d off2 = 2a K / 1000
-    n_kf = len(problem.window(vertex, window[0], window[1], config.offset_refine_keyframe_rate_hz)[1])
+    n_kf = len(problem.window(vertex, window[0], window[1], rate)[1])
     curv = 2 * a * n_kf / 1000.0
     std = float(1.0 / math.sqrt(curv)) if curv > 0 else float(h)
-    return vertex, std, table
+    return vertex, std, table, init.get("x")
 
 
 # ----------------------------------------------------------------------------- extrinsic
@@ -337,6 +385,29 @@ def _continue_from(prev: WindowSolution, w: tuple[MidpointSamples, KeyframePoses
     bias = np.tile(last_bias, (K, 1))
     bias[ia] = prev.bias[ib]
     return WindowInit(gravity_unit=gravity_unit, bias=bias, rot_wxyz=q)
+
+
+def _chained_solution(problem: "_Problem", offset_s: float, win: tuple[int, int], rate_hz: float | None,
+                      imu_noise: ImuNoise, T: np.ndarray, opts: SolveOptions, gravity_unit: np.ndarray,
+                      piece_s: float, overlap_s: float) -> Any:
+    """Position-only streams: an initial guess over a long window, by consecutive shorter solves.
+
+    One graph over minutes of positions, started from the closed-form attitude guess, can settle
+    in a wrong attitude minimum (seen on EuRoC MH_01: 180 s at 10 Hz, pose residuals 2.4 sigma);
+    solves of ``piece_s`` chained by :func:`_continue_from` (as the segments are) do not.
+
+    Returns:
+        The stitched solutions (``t_ns``, ``quat_wxyz``, ``bias``, ``v_mps``), or None.
+    """
+    o = replace(opts, compute_marginals=False, marginal_extras=False, reject_outliers=False)
+    sols: list[WindowSolution] = []
+    for s_ns, e_ns in plan_segments(win[0], win[1], piece_s, overlap_s):
+        w = problem.window(offset_s, s_ns, e_ns, rate_hz)
+        if w is None or len(w[1]) < 3:
+            continue
+        init = _continue_from(sols[-1], w, gravity_unit) if sols else WindowInit(gravity_unit=gravity_unit)
+        sols.append(solve_window(w[0], w[1], imu_noise, T, o, init))
+    return stitch(sols) if sols else None
 
 
 COARSE_OFFSET_SPAN_S = 600.0  # the coarse clock offset looks at most this much of the recording
@@ -474,7 +545,8 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     start_scale = 10.0 if config.noise_estimation == NoiseEstimation.EVIDENCE else 1.0
     calib_imu = replace(base_imu, gyro_random_walk=base_imu.gyro_random_walk * start_scale,
                         acc_random_walk=base_imu.acc_random_walk * start_scale)
-    problem = _Problem(imu, poses, pieces)
+    fuse = bool(config.pose_fusion and has_rot and pose_mode == PoseFactorMode.ABSOLUTE)
+    problem = _Problem(imu, poses, pieces, fuse=fuse, gravity_mps2=config.gravity_mps2)
 
     # --- clock offset, coarse
     from recovery import calibration_init as ci
@@ -544,9 +616,10 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
             estimate_lever = True
     flags["extrinsic_rotation_observable"] = bool(rot_observable) if has_rot else None
     ext_opts = replace(opts, estimate_extrinsic=estimate_rotation or estimate_lever, marginal_extras=True)
+    problem.set_linearisation(T_imu_pose=T)
 
     def solve_extrinsic(off: float) -> WindowSolution | None:
-        w = problem.window(off, calib[0], calib[1], config.extrinsic_keyframe_rate_hz)
+        w = problem.window(off, calib[0], calib[1], config.calibration_rate_hz("extrinsic", problem.fuse))
         if w is None:
             return None
         return solve_window(w[0], w[1], calib_imu, T, ext_opts)
@@ -557,6 +630,8 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         ext_sol = solve_extrinsic(offset_s)
         if ext_sol is not None:
             T = ext_sol.T_imu_pose
+            problem.set_linearisation(T_imu_pose=T, gravity_unit=ext_sol.gravity_unit,
+                                      bias=np.median(ext_sol.bias, axis=0))
     timings["extrinsic_s"] = time.perf_counter() - t0
 
     # --- clock offset, refined
@@ -564,7 +639,10 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     offset_table: list[dict[str, float]] = []
     if off_mode == TimeOffsetMode.ESTIMATE:
         try:
-            offset_s, offset_std, offset_table = _refine_offset(problem, offset_s, offset_std, calib, calib_imu, T, opts, config)
+            offset_s, offset_std, offset_table, last = _refine_offset(problem, offset_s, offset_std, calib, calib_imu, T,
+                                                                      opts, config)
+            if last is not None and problem.bias is None:
+                problem.set_linearisation(gravity_unit=last.gravity_unit, bias=last.bias)
             offset_method += "+graph_cost_parabola"
         except (BiasgtError, ValueError, np.linalg.LinAlgError) as exc:
             warnings.append(f"clock offset refinement failed ({exc}); using the coarse estimate")
@@ -572,6 +650,8 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
             ext_sol = solve_extrinsic(offset_s)
             if ext_sol is not None:
                 T = ext_sol.T_imu_pose
+                problem.set_linearisation(T_imu_pose=T, gravity_unit=ext_sol.gravity_unit,
+                                          bias=np.median(ext_sol.bias, axis=0))
     timings["offset_refine_s"] = time.perf_counter() - t0
     if ext_sol is not None:
         if "extrinsic_cov" in ext_sol.extras:
@@ -586,14 +666,37 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
 
     # --- noise
     t0 = time.perf_counter()
+    if problem.fuse and problem.bias is None:
+        # fusion moves samples with the IMU: linearise it at a first bias estimate (a gyro-bias
+        # error is absorbed by the fit, an acc-bias error of 0.5 m/s^2 would add ~1e-4 m of scatter)
+        w = problem.window(offset_s, calib[0], calib[1], config.calibration_rate_hz("noise", problem.fuse))
+        if w is not None:
+            sol0 = solve_window(w[0], w[1], calib_imu, T, replace(opts, reject_outliers=False))
+            problem.set_linearisation(gravity_unit=sol0.gravity_unit, bias=_bias_function(sol0))
+    chain = None
     if config.noise_estimation == NoiseEstimation.EVIDENCE:
-        w = problem.window(offset_s, calib[0], calib[1], config.noise_keyframe_rate_hz)
+        noise_rate = config.calibration_rate_hz("noise", problem.fuse)
+        noise_win, noise_init = calib, None
+        if not has_rot and config.position_only_window_s > config.calib_window_s:
+            # position-only: the gyro random walk needs minutes to show (see position_only_window_s)
+            noise_win = _calibration_window(imu, pieces, overlap, config.position_only_window_s)
+            if noise_win != calib:
+                chain = _chained_solution(problem, offset_s, noise_win, noise_rate, calib_imu, T, opts,
+                                          np.array([0.0, 0.0, -1.0]), config.calib_window_s, config.calib_window_s / 6)
+        flags["noise_window_s"] = float((noise_win[1] - noise_win[0]) / NS_PER_S)
+        w = problem.window(offset_s, noise_win[0], noise_win[1], noise_rate)
+        if w is not None and chain is not None:
+            noise_init = _continue_from(chain, w, np.array([0.0, 0.0, -1.0]))
         if w is None:
             raise RecoveryError("too few poses in the calibration window to estimate the noise",
                                 hint="set noise_estimation: fixed and give the random walks")
-        choice = estimate_noise(w[0], w[1], base_imu, base_sp, base_sr, T, opts, config.random_walk_scales,
-                                estimate_pose=config.position_sigma_m is None,
-                                pose_scales=config.pose_sigma_scales)
+        sp, sr, pose_method = _pose_sigmas_from_fusion(w[1], base_sp, base_sr, config)
+        choice = estimate_noise(w[0], w[1], base_imu, sp, sr, T, opts, config.random_walk_scales,
+                                estimate_pose=config.position_sigma_m is None and pose_method == "evidence",
+                                pose_scales=config.pose_sigma_scales, init=noise_init)
+        if pose_method != "evidence":
+            choice.pose_scale = sp / base_sp
+            choice.pose_method = pose_method
     else:
         choice = NoiseChoice(base_imu, base_sp, base_sr)
     for nm, scale, grid in (("gyro", choice.gyro_rw_scale, config.random_walk_scales),
@@ -622,11 +725,18 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     gopts = replace(opts, position_sigma_m=choice.position_sigma_m, rotation_sigma_rad=choice.rotation_sigma_rad,
                     marginal_extras=True)
     refine_lever = ext_sol is not None and has_rot and estimate_lever
-    if estimate_g or refine_lever:
+    seg_s, seg_overlap_s = config.segment_plan(_solve_rate_hz(config, problem))
+    if not has_rot and config.position_only_window_s > seg_s:  # see position_only_window_s
+        seg_s, seg_overlap_s = config.position_only_window_s, config.position_only_window_s / 6
+    spans = [(max(a, int(t_pose[0])), min(b, int(t_pose[-1]))) for a, b in pieces]
+    spans = [(a, b) for a, b in spans if b > a]
+    # one piece solved as one segment: it estimates gravity itself, a separate solve adds nothing
+    one_segment = len(spans) == 1 and len(plan_segments(spans[0][0], spans[0][1], seg_s, seg_overlap_s)) == 1
+    if refine_lever or (estimate_g and not one_segment):
         longest = max(pieces, key=lambda ab: min(ab[1], int(t_pose[-1])) - max(ab[0], int(t_pose[0])))
         ga, gb = max(longest[0], int(t_pose[0])), min(longest[1], int(t_pose[-1]))
         gb = min(gb, ga + int(config.gravity_window_s * NS_PER_S))
-        w = problem.window(offset_s, ga, gb, config.gravity_keyframe_rate_hz)
+        w = problem.window(offset_s, ga, gb, config.calibration_rate_hz("gravity", problem.fuse))
         gwin = (ga, gb)
         if w is not None:
             g_init = ext_sol.gravity_unit if ext_sol is not None and estimate_g else None
@@ -638,9 +748,13 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
                 if "lever_arm_cov" in gsol.extras:
                     ext_info["translation_std_m"] = [float(x) for x in np.sqrt(np.diag(gsol.extras["lever_arm_cov"]))]
                 ext_info["lever_arm_refined_window_s"] = float((gb - ga) / NS_PER_S)
+            problem.set_linearisation(T_imu_pose=T, gravity_unit=gravity_unit, bias=_bias_function(gsol))
             if "gravity_cov_tangent" in gsol.extras:
                 grav_info["tilt_std_rad"] = float(np.sqrt(np.trace(gsol.extras["gravity_cov_tangent"]) / 2))
             grav_info["window_s"] = float((gb - ga) / NS_PER_S)
+    elif estimate_g:
+        gravity_unit = problem.gravity_world / np.linalg.norm(problem.gravity_world)
+        grav_info["window_s"] = float((spans[0][1] - spans[0][0]) / NS_PER_S) if spans else 0.0
     grav_info["estimated"] = bool(estimate_g)
     timings["gravity_s"] = time.perf_counter() - t0
 
@@ -655,20 +769,30 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         # error leaked into the x/y accelerometer bias unreported: acc NEES ~2 at 60 s, ~1.2 now).
         full_opts = replace(full_opts, estimate_gravity=True, gravity_prior_cov=gsol.extras["gravity_cov_tangent"])
         grav_info["per_segment"] = True
+    elif estimate_g and gsol is None:
+        full_opts = replace(full_opts, estimate_gravity=True, marginal_extras=True)  # the single segment estimates it
+        grav_info["per_segment"] = True
     solutions: list[list[WindowSolution]] = []
+    fusion_rejected: list[np.ndarray] = []
+    fusion_counts: list[np.ndarray] = []
+    fusion_within: list[Any] = []
     for a, b in pieces:
         a2, b2 = max(a, int(t_pose[0])), min(b, int(t_pose[-1]))
         if b2 <= a2:
             continue
         piece_solutions = []
-        for s_ns, e_ns in plan_segments(a2, b2, config.segment_s, config.segment_overlap_s):
+        for s_ns, e_ns in plan_segments(a2, b2, seg_s, seg_overlap_s):
             w = problem.window(offset_s, s_ns, e_ns, config.keyframe_rate_hz)
             if w is None or len(w[1]) < 3:
                 continue
-            init = WindowInit(gravity_unit=gravity_unit,
-                              bias=_bias_guess(w[1].t_ns, gsol, piece_solutions[-1] if piece_solutions else None))
+            guess = _bias_guess(w[1].t_ns, gsol, piece_solutions[-1] if piece_solutions else None)
+            if guess is None and callable(problem.bias):
+                guess = problem.bias(w[1].t_ns)
+            init = WindowInit(gravity_unit=gravity_unit, bias=guess)
             if not has_rot and piece_solutions:
                 init = _continue_from(piece_solutions[-1], w, gravity_unit)
+            elif not has_rot and chain is not None:
+                init = _continue_from(chain, w, gravity_unit)
             seg_opts = full_opts
             if full_opts.gravity_prior_cov is not None:
                 # the calibration solve saw this segment's data too: keep only the information
@@ -678,6 +802,11 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
                                    else np.asarray(full_opts.gravity_prior_cov) / (1.0 - seen))
             sol = solve_window(w[0], w[1], choice.imu, T, seg_opts, init)
             piece_solutions.append(sol)
+            if w[1].rejected_t_ns is not None:
+                fusion_rejected.append(w[1].rejected_t_ns)
+            if w[1].count is not None:
+                fusion_counts.append(w[1].count)
+                fusion_within.append(w[1].within_bin())
         if piece_solutions:
             solutions.append(piece_solutions)
     if not solutions:
@@ -687,6 +816,10 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         cosang = [float(np.clip(np.dot(s.gravity_unit, gravity_unit), -1.0, 1.0)) for ps in solutions for s in ps]
         grav_info["segment_max_tilt_change_rad"] = float(np.max(np.arccos(cosang)))
     flat = [s for ps in solutions for s in ps]
+    if estimate_g and gsol is None and len(flat) == 1:
+        gravity_unit = flat[0].gravity_unit
+        if "gravity_cov_tangent" in flat[0].extras:
+            grav_info["tilt_std_rad"] = float(np.sqrt(np.trace(flat[0].extras["gravity_cov_tangent"]) / 2))
     timings["solve_s"] = time.perf_counter() - t0
 
     t_ns = np.concatenate([s.t_ns for s in stitched_pieces])
@@ -695,6 +828,8 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     seams = [j for s in stitched_pieces for j in s.seam_jumps]
     n_kf = len(t_ns)
     outlier_t = np.unique(np.concatenate([s.t_ns[s.outliers] for s in flat])) if flat else np.zeros(0)
+    # samples rejected while fusing (the same sample may sit in two overlapping segments)
+    rejected_samples = np.unique(np.concatenate(fusion_rejected)) if fusion_rejected else np.zeros(0, np.int64)
     if len(outlier_t) > 0.05 * n_kf:
         warnings.append(f"{len(outlier_t)} of {n_kf} poses rejected as outliers: check the pose noise / the stream")
 
@@ -729,10 +864,13 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         "gravity": grav_info,
         "noise": choice.to_dict(),
         "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
-        "outliers_rejected": int(len(outlier_t)),
+        "outliers_rejected": int(len(outlier_t) + len(rejected_samples)),
+        "pose_fusion": _fusion_report(fuse, config, fusion_counts, fusion_within, len(rejected_samples)),
         "keyframes": int(n_kf),
         "keyframe_rate_hz": config.keyframe_rate_hz,
         "segments": len(flat),
+        "segment_s": seg_s,
+        "segment_overlap_s": seg_overlap_s,
         "segment_seams": seams,
         "imu_pieces": len(pieces),
         "calibration_window_ns": [int(calib[0]), int(calib[1])],
@@ -753,6 +891,72 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         report=report,
         residuals=_residuals_at(t_ns, flat, outlier_t),
     )
+
+
+def _solve_rate_hz(config: RecoveryConfig, problem: "_Problem") -> float:
+    """Keyframes per second of the full solve (for sizing segments)."""
+    if config.keyframe_rate_hz is not None:
+        return float(config.keyframe_rate_hz)
+    if problem.fuse:
+        return FUSED_KEYFRAME_RATE_HZ
+    t = problem.poses.t_ns
+    span_s = (t[-1] - t[0]) / NS_PER_S if len(t) > 1 else 0.0
+    return float(len(t) / span_s) if span_s > 0 else FUSED_KEYFRAME_RATE_HZ
+
+
+MIN_WITHIN_BIN_DOF = 300  # residual degrees of freedom for the closed-form pose sigma (1/sqrt(2 dof) = 4 %)
+
+
+def _pose_sigmas_from_fusion(kf: KeyframePoses, base_sp: float, base_sr: float, config: RecoveryConfig
+                             ) -> tuple[float, float, str]:
+    """Pose sigmas from the scatter of fused samples about their keyframes, when there is enough.
+
+    The residuals orthogonal to each bin's model depend on the pose noise alone, so
+    ``sigma^2 = RSS / dof`` is its maximum-likelihood estimate (position and rotation
+    separately, white noise assumed), clamped to the ``pose_sigma_scales`` range. Without
+    fused keyframes (or with a fixed sigma), the evidence search chooses a common scale.
+    """
+    within = kf.within_bin()
+    if config.position_sigma_m is not None or within is None or min(within.pos_dof, within.rot_dof) < MIN_WITHIN_BIN_DOF:
+        return base_sp, base_sr, "evidence"
+    lo, hi = min(config.pose_sigma_scales), max(config.pose_sigma_scales)
+    sp = float(np.clip(math.sqrt(within.pos_sq_m2 / within.pos_dof), lo * base_sp, hi * base_sp))
+    sr = float(np.clip(math.sqrt(within.rot_sq_rad2 / within.rot_dof), lo * base_sr, hi * base_sr))
+    return sp, sr, "within_bin_residuals"
+
+
+def _bias_function(sol: WindowSolution) -> Any:
+    """Bias of ``sol`` as a function of time (t_ns [M] -> [M, 6]; held constant past its ends)."""
+    x = (sol.t_ns - sol.t_ns[0]).astype(float)
+    b = sol.bias.copy()
+
+    def at(t_ns: np.ndarray) -> np.ndarray:
+        xq = (np.asarray(t_ns, dtype=np.int64) - sol.t_ns[0]).astype(float)
+        return np.stack([np.interp(xq, x, b[:, c]) for c in range(6)], axis=1)
+
+    return at
+
+
+def _fusion_report(enabled: bool, config: RecoveryConfig, counts: list[np.ndarray], within: list[Any],
+                   rejected: int) -> dict[str, Any]:
+    """What pose fusion did, for recovery.json."""
+    out: dict[str, Any] = {"enabled": bool(enabled)}
+    if not enabled or not counts:
+        return out
+    c = np.concatenate(counts)
+    pos_sq = sum(w.pos_sq_m2 for w in within)
+    pos_dof = sum(w.pos_dof for w in within)
+    rot_sq = sum(w.rot_sq_rad2 for w in within)
+    rot_dof = sum(w.rot_dof for w in within)
+    out.update({
+        "keyframe_rate_hz": float(config.keyframe_rate_hz or FUSED_KEYFRAME_RATE_HZ),
+        "samples_per_keyframe_mean": float(c.mean()),
+        "samples_fused": int(c.sum()),  # counted per segment: overlaps count twice
+        "samples_rejected": int(rejected),
+        "within_bin_position_rms_m": float(math.sqrt(pos_sq / pos_dof)) if pos_dof else None,
+        "within_bin_rotation_rms_rad": float(math.sqrt(rot_sq / rot_dof)) if rot_dof else None,
+    })
+    return out
 
 
 def _residuals_at(t_ns: np.ndarray, solutions: list[WindowSolution], outlier_t: np.ndarray) -> dict[str, np.ndarray]:

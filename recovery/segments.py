@@ -101,7 +101,10 @@ def stitch(solutions: list[WindowSolution]) -> Stitched:
         mid = len(common) // 2
         comb = np.sqrt(cur.bias_std[ia[mid]] ** 2 + nxt.bias_std[ib[mid]] ** 2)
         diff = np.abs(cur.bias[ia[mid]] - nxt.bias[ib[mid]])
-        seams.append({"t_ns": int(common[mid]), "max_abs_diff_over_sigma": float(np.nanmax(diff / comb))})
+        z = diff / comb
+        # without marginals (calibration solves) the seam cannot be judged: NaN
+        seams.append({"t_ns": int(common[mid]),
+                      "max_abs_diff_over_sigma": float(np.nanmax(z)) if np.isfinite(z).any() else float("nan")})
         cur = nxt
         cur_sel = nxt.t_ns > common[-1]
     for k in parts:

@@ -76,11 +76,12 @@ def test_mh01_leica_agrees_with_gt_recovery(shared_data):
                            source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu")
     seq.poses["euroc_gt"] = gt
     rb = recover(seq, pose_stream="euroc_gt", config=RecoveryConfig(keyframe_rate_hz=20.0))
+    # position-only: noise evidence and segments over the whole recording (position_only_window_s)
+    assert ra.report["flags"]["noise_window_s"] > 150 and ra.report["segments"] == 1
+    assert ra.report["noise"]["gyro_random_walk_scale"] > 2.0  # the 60-s window said ~0.7x
     frac = (agreement_z(ra, rb) < 3).mean(axis=0)
-    # Acceptance target: >= 0.95 on every axis. Reached for acc xyz and gyro y; gyro x/z reach
-    # ~0.82-0.85 (benchmarks/recovery.py reports it as a MISS): a known gap, asserted so it cannot regress.
-    assert (frac[[1, 3, 4, 5]] >= 0.95).all(), frac
-    assert (frac[[0, 2]] >= 0.75).all(), frac
+    # Acceptance target (issue 3): >= 95% of keyframes within the combined 3 sigma, every axis
+    assert (frac >= 0.95).all(), frac
     # the gyro bias itself agrees to ~1e-3 rad/s on average
     sel = (ra.t_ns >= rb.t_ns[0]) & (ra.t_ns <= rb.t_ns[-1])
     gyro_diff = np.abs(ra.bias_gyro_radps[sel] - rb.bias_at(ra.t_ns[sel])[:, :3])

@@ -235,7 +235,7 @@ def test_rejects_unknown_and_invalid_stage_options(tmp_path):
     # per-sequence overrides: same keys, checked at start-up, naming the entry
     msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"pose_strem": "mocap0"})]})
     assert "sequences[0] ('a'): unknown recovery option(s) pose_strem (field 'recovery.pose_strem')" in msg
-    msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"segment_overlap_s": 40})]})
+    msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"segment_s": 60, "segment_overlap_s": 40})]})
     assert "sequences[0] ('a'): recovery option: must be >= 0 and less than half of segment_s" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", validation={"refernce": "x"})]})
     assert "sequences[0] ('a'): unknown validation option(s) refernce" in msg
