@@ -27,23 +27,47 @@ def _v101(shared_data, duration_s: float):
     return seq
 
 
-def test_v101_gt_poses_match_euroc_bias_first_5s(shared_data):
-    """EuRoC GT poses (IMU frame, IMU clock) -> bias close to EuRoC's own estimate over the first 5 s."""
-    seq = _v101(shared_data, 25.0)
-    res = recover(seq, pose_stream="euroc_gt", config=RecoveryConfig(keyframe_rate_hz=50.0))
+def _static_start_check(shared_data):
+    """benchmarks/v101_bias_consistency.static_start_check (the benchmarks folder is not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "v101_bias_consistency.py"
+    spec = importlib.util.spec_from_file_location("v101_bias_consistency", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod.static_start_check(shared_data / "euroc")
+
+
+def test_v101_gt_poses_vs_euroc_bias_first_5s(shared_data):
+    """EuRoC GT poses (IMU frame, IMU clock), whole sequence, default settings: over the first 5 s
+    the gyro bias and acc x/z agree with EuRoC's own estimate (issue 3: 2e-3 rad/s, 0.08 m/s^2).
+    Acc y misses by ~0.002 because EuRoC's value (a sequence constant) contradicts its own static
+    start by 0.06 m/s^2; the recovered bias agrees with what the static data say."""
+    seq = _v101(shared_data, 1e6)
+    res = recover(seq, pose_stream="euroc_gt")
     rep = res.report
     assert rep["pose_time_offset_method"] == "fixed" and rep["pose_time_offset_s"] == 0.0
     assert rep["extrinsic"]["source"] == "calibration"  # frame 'imu': identity
+    fusion = rep["pose_fusion"]
+    assert fusion["enabled"] and fusion["samples_per_keyframe_mean"] > 9.9  # 200-Hz GT into 20-Hz keyframes
+    assert fusion["samples_rejected"] < 0.005 * fusion["samples_fused"]  # smooth GT: (almost) nothing rejected
     ref = pd.read_csv(shared_data / "euroc/V1_01_easy_proto_excerpt/mav0/state_groundtruth_estimate0/data.csv")
     ref = ref.to_numpy()
     t_ref = ref[:, 0].astype(np.int64)
     sel = (res.t_ns >= t_ref[0]) & (res.t_ns <= t_ref[-1])
-    assert sel.sum() > 200
+    assert sel.sum() >= 90  # 20-Hz keyframes over the 5-s excerpt
     ours = np.hstack([res.bias_gyro_radps, res.bias_acc_mps2])[sel]
     theirs = np.stack([np.interp(res.t_ns[sel], t_ref, ref[:, c]) for c in range(11, 17)], 1)
     diff = np.abs((ours - theirs).mean(axis=0))
     assert (diff[:3] < 2e-3).all(), diff
-    assert (diff[3:] < 0.08).all(), diff
+    assert diff[3] < 0.08 and diff[5] < 0.08, diff
+    # acc y: EuRoC's own static start (motors on, < 3 mm motion) says ~0.487, EuRoC's file 0.548
+    check = _static_start_check(shared_data)
+    assert check["gt_motion_m"] < 3e-3
+    assert check["ba_euroc"][1] - check["ba_static_local"][1] > 0.05
+    static = (res.t_ns >= int(check["t0_ns"]) + 300_000_000) & (res.t_ns < int(check["t0_ns"]) + 3_300_000_000)
+    assert abs(res.bias_acc_mps2[static, 1].mean() - check["ba_static_local"][1]) < 0.03
     # the sigmas are finite and of a sane size
     assert np.isfinite(res.bias_gyro_std_radps).all() and (res.bias_gyro_std_radps < 5e-3).all()
     assert rep["residuals"]["pose_whitened_rms"] < 3.0
