@@ -866,6 +866,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
         "outliers_rejected": int(len(outlier_t) + len(rejected_samples)),
         "pose_fusion": _fusion_report(fuse, config, fusion_counts, fusion_within, len(rejected_samples)),
+        "accuracy_floor": _accuracy_floor(choice, poses, pose_mode, has_rot),
         "keyframes": int(n_kf),
         "keyframe_rate_hz": config.keyframe_rate_hz,
         "segments": len(flat),
@@ -923,6 +924,24 @@ def _pose_sigmas_from_fusion(kf: KeyframePoses, base_sp: float, base_sr: float, 
     sp = float(np.clip(math.sqrt(within.pos_sq_m2 / within.pos_dof), lo * base_sp, hi * base_sp))
     sr = float(np.clip(math.sqrt(within.rot_sq_rad2 / within.rot_dof), lo * base_sr, hi * base_sr))
     return sp, sr, "within_bin_residuals"
+
+
+def _accuracy_floor(choice: NoiseChoice, poses: PoseSeries, pose_mode: PoseFactorMode, has_rot: bool
+                    ) -> dict[str, float | None]:
+    """The optimal smoother's per-axis bias RMSE for the noise used (:mod:`recovery.bounds`): what
+    no estimator beats with this IMU and pose stream; absolute pose streams only."""
+    from recovery.bounds import bias_rmse_floor
+
+    t = poses.t_ns
+    span_s = (t[-1] - t[0]) / NS_PER_S if len(t) > 1 else 0.0
+    if pose_mode != PoseFactorMode.ABSOLUTE or span_s <= 0:
+        return {"gyro_radps": None, "acc_mps2": None}
+    rate = len(t) / span_s
+    imu = choice.imu
+    acc = bias_rmse_floor(imu.acc_noise_density, imu.acc_random_walk, choice.position_sigma_m, rate, 2)
+    gyro = (bias_rmse_floor(imu.gyro_noise_density, imu.gyro_random_walk, choice.rotation_sigma_rad, rate, 1)
+            if has_rot else None)  # position-only: attitude is not measured
+    return {"gyro_radps": gyro, "acc_mps2": acc}
 
 
 def _bias_function(sol: WindowSolution) -> Any:

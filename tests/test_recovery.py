@@ -142,6 +142,20 @@ def test_clean_bias_accuracy_and_nees(clean_run):
     assert np.isfinite(res.bias_gyro_std_radps).all()
 
 
+def test_accuracy_floor_is_reported_and_not_beaten(clean_run):
+    """recovery.json states the optimal smoother's RMSE for the noise used; the recovery sits above it
+    and, on a short clean run, within a small factor of it."""
+    sim, res = clean_run
+    floor = res.report["accuracy_floor"]
+    # FAST fixes the noise at the simulator's truth: 10x EuRoC walks, 0.5 mm / 0.5 mrad at 100 Hz
+    assert floor["acc_mps2"] == pytest.approx(6.66e-3, rel=0.02)
+    assert floor["gyro_radps"] == pytest.approx(1.304e-4, rel=0.02)
+    eg, ea = _errors(res, sim.truth)
+    rg, ra = np.sqrt((eg**2).mean(0)), np.sqrt((ea**2).mean(0))
+    assert (rg > 0.6 * floor["gyro_radps"]).all() and (rg < 2.5 * floor["gyro_radps"]).all()  # 40 s: noisy RMSE
+    assert (ra > 0.6 * floor["acc_mps2"]).all() and (ra < 2.5 * floor["acc_mps2"]).all()
+
+
 def test_gravity_is_a_variable_per_segment(clean_run):
     """Gravity is re-estimated in each full-rate segment (prior from the calibration solve), so its
     uncertainty reaches the accelerometer-bias marginals; it stays close to the prior."""
