@@ -18,7 +18,7 @@ Cases:
            recovery from the GT poses: >= 95% of keyframes within combined 3 sigma.
     speed  180 s of 200-Hz IMU + 100-Hz mocap, read -> written (store -> recovery folder) in a
            child process: seconds, peak RSS, x real time; the default (every pose sample,
-           fused into 20-Hz keyframes), 20-Hz keyframes without fusion (samples between them
+           fused into 10-Hz keyframes), 20-Hz keyframes without fusion (samples between them
            dropped) and every sample its own keyframe (1 hour with --long). The machine is shared: timings vary with its load; the
            CPU seconds (process time, imports included) are steadier than the wall clock.
 """
@@ -202,7 +202,7 @@ def _peak_rss_mb() -> float:
 
 
 SPEED_SETTINGS = {
-    "default": {},  # every pose sample, fused into 20-Hz keyframes
+    "default": {},  # every pose sample, fused into 10-Hz keyframes
     "every-sample-keyframes": {"pose_fusion": False},  # each 100-Hz sample its own keyframe (slow)
     "20hz-no-fusion": {"pose_fusion": False, "keyframe_rate_hz": 20.0},  # samples between keyframes dropped
 }

@@ -104,7 +104,7 @@ class RecoveryConfig:
     Attributes:
         pose_factor_mode: See :class:`PoseFactorMode`.
         keyframe_rate_hz: Keyframes per second. ``None`` (default): every pose sample's
-            information -- 20-Hz keyframes with the samples in between fused into them for
+            information -- 10-Hz keyframes with the samples in between fused into them for
             6-DoF absolute streams (``pose_fusion``), each sample a keyframe otherwise.
         pose_fusion: Fuse the pose samples between keyframes into them through the IMU
             (:mod:`recovery.fusion`; 6-DoF absolute streams). ``False``: keyframes are single
@@ -159,7 +159,7 @@ class RecoveryConfig:
         segment_s: Segment length for long recordings (bounded memory: peak memory
             grows with the keyframes per segment; run time barely depends on it). ``None``:
             :data:`SEGMENT_KEYFRAMES` keyframes at the solve's keyframe rate, within
-            [:data:`SEGMENT_S_MIN`, :data:`SEGMENT_S_MAX`] (300 s at 20 Hz, 60 s at 100 Hz).
+            [:data:`SEGMENT_S_MIN`, :data:`SEGMENT_S_MAX`] (300 s at 10 or 20 Hz, 60 s at 100 Hz).
         segment_overlap_s: Overlap between segments (blended linearly); ``None``: a sixth of
             ``segment_s``.
         max_imu_gap_s: Longest IMU gap bridged; see ``imu_gap_policy``.

@@ -305,7 +305,7 @@ def test_hard_offset_extrinsic_outliers_dropouts():
     lever_err = np.array(rep["T_imu_pose"]["p_m"]) - T_true[:3, 3]
     assert np.linalg.norm(lever_err) < 0.02
     assert (np.abs(lever_err) < 4 * np.array(rep["extrinsic"]["translation_std_m"])).all()
-    # 20-Hz keyframes fuse every sample: each injected outlier is found inside its bin
+    # fused keyframes (default) use every sample: each injected outlier is found inside its bin
     n_out = len(sim.truth.poses.outlier_stamps_ns)
     assert n_out == 8
     assert rep["pose_fusion"]["enabled"] and rep["pose_fusion"]["samples_rejected"] >= n_out

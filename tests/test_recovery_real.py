@@ -50,13 +50,13 @@ def test_v101_gt_poses_vs_euroc_bias_first_5s(shared_data):
     assert rep["pose_time_offset_method"] == "fixed" and rep["pose_time_offset_s"] == 0.0
     assert rep["extrinsic"]["source"] == "calibration"  # frame 'imu': identity
     fusion = rep["pose_fusion"]
-    assert fusion["enabled"] and fusion["samples_per_keyframe_mean"] > 9.9  # 200-Hz GT into 20-Hz keyframes
+    assert fusion["enabled"] and fusion["samples_per_keyframe_mean"] > 19.8  # 200-Hz GT into 10-Hz keyframes
     assert fusion["samples_rejected"] < 0.005 * fusion["samples_fused"]  # smooth GT: (almost) nothing rejected
     ref = pd.read_csv(shared_data / "euroc/V1_01_easy_proto_excerpt/mav0/state_groundtruth_estimate0/data.csv")
     ref = ref.to_numpy()
     t_ref = ref[:, 0].astype(np.int64)
     sel = (res.t_ns >= t_ref[0]) & (res.t_ns <= t_ref[-1])
-    assert sel.sum() >= 90  # 20-Hz keyframes over the 5-s excerpt
+    assert sel.sum() >= 45  # 10-Hz keyframes over the 5-s excerpt
     ours = np.hstack([res.bias_gyro_radps, res.bias_acc_mps2])[sel]
     theirs = np.stack([np.interp(res.t_ns[sel], t_ref, ref[:, c]) for c in range(11, 17)], 1)
     diff = np.abs((ours - theirs).mean(axis=0))
