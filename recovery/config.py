@@ -121,6 +121,9 @@ class RecoveryConfig:
             :data:`CALIBRATION_RATE_FUSED_HZ` with fused keyframes, else :data:`CALIBRATION_RATE_HZ`;
             the same for the other calibration solves below).
         calib_window_s: Length of data used for offset / extrinsic / noise estimation.
+        offset_refine_window_s: Length of the (most rotating) data the clock-offset refinement
+            solves; ``None``: :data:`OFFSET_WINDOW_FUSED_S` with fused keyframes (100-Hz mocap pins
+            the offset to ~0.05 ms in 20 s), else ``calib_window_s``.
         extrinsic_mode: See :class:`ExtrinsicMode`.
         extrinsic_keyframe_rate_hz: Keyframe rate of the joint extrinsic solve.
         estimate_gravity: Estimate the gravity direction in the pose world frame;
@@ -184,6 +187,7 @@ class RecoveryConfig:
     offset_refine_step_s: float = 0.002
     offset_refine_keyframe_rate_hz: float | None = None
     calib_window_s: float = 60.0
+    offset_refine_window_s: float | None = None
     extrinsic_mode: ExtrinsicMode = ExtrinsicMode.AUTO
     extrinsic_keyframe_rate_hz: float | None = None
     estimate_gravity: bool | None = None
@@ -232,6 +236,12 @@ class RecoveryConfig:
             return float(value)
         return CALIBRATION_RATE_FUSED_HZ if fused else CALIBRATION_RATE_HZ
 
+    def offset_window_s(self, fused: bool) -> float:
+        """Length of the clock-offset refinement window."""
+        if self.offset_refine_window_s is not None:
+            return float(self.offset_refine_window_s)
+        return min(OFFSET_WINDOW_FUSED_S, self.calib_window_s) if fused else float(self.calib_window_s)
+
     def segment_plan(self, keyframe_rate_hz: float) -> tuple[float, float]:
         """``(segment_s, segment_overlap_s)`` for a solve with this many keyframes per second."""
         seg = self.segment_s
@@ -257,7 +267,8 @@ class RecoveryConfig:
                 raise ConfigError(f"must be > 0, got {getattr(self, name)!r}", field=name)
         for name in ("keyframe_rate_hz", "marginal_rate_hz", "position_sigma_m", "rotation_sigma_rad", "gyro_noise_density",
                      "acc_noise_density", "gyro_random_walk", "acc_random_walk", "offset_refine_keyframe_rate_hz",
-                     "extrinsic_keyframe_rate_hz", "gravity_keyframe_rate_hz", "noise_keyframe_rate_hz", "segment_s"):
+                     "extrinsic_keyframe_rate_hz", "gravity_keyframe_rate_hz", "noise_keyframe_rate_hz", "segment_s",
+                     "offset_refine_window_s"):
             value = getattr(self, name)
             if value is not None and not float(value) > 0:
                 raise ConfigError(f"must be > 0 or null, got {value!r}", field=name)
@@ -323,6 +334,7 @@ class RecoveryConfig:
 # keyframes carry all samples of their bin, so a sparser grid loses little and solves faster.
 CALIBRATION_RATE_HZ = 10.0
 CALIBRATION_RATE_FUSED_HZ = 5.0
+OFFSET_WINDOW_FUSED_S = 20.0
 # Automatic segment length: about this many keyframes per segment (memory), within bounds.
 SEGMENT_KEYFRAMES = 6000
 SEGMENT_S_MIN = 30.0

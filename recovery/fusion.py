@@ -37,7 +37,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.types import NS_PER_S
 
-INTEGRATION_STEP_S = 0.0025  # sub-step of the relative-motion integration (IMU linearly interpolated)
+INTEGRATION_STEP_S = 0.005  # sub-step of the relative-motion integration (IMU linearly interpolated)
 # Floors of the robust residual scales used to reject samples: smoothed ground-truth poses have
 # almost no within-bin scatter (EuRoC V1_01: 1.5e-5 m), so their small model errors (spline knots,
 # the IMU's own scale errors over a bin) would otherwise count as outliers. With these floors a

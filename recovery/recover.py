@@ -640,8 +640,11 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     offset_table: list[dict[str, float]] = []
     if off_mode == TimeOffsetMode.ESTIMATE:
         try:
-            offset_s, offset_std, offset_table, last = _refine_offset(problem, offset_s, offset_std, calib, calib_imu, T,
-                                                                      opts, config)
+            off_win = calib
+            if config.offset_window_s(problem.fuse) < config.calib_window_s:
+                off_win = _calibration_window(imu, pieces, (calib[0], calib[1]), config.offset_window_s(problem.fuse))
+            offset_s, offset_std, offset_table, last = _refine_offset(problem, offset_s, offset_std, off_win, calib_imu,
+                                                                      T, opts, config)
             if last is not None and problem.bias is None:
                 problem.set_linearisation(gravity_unit=last.gravity_unit, bias=last.bias)
             offset_method += "+graph_cost_parabola"

@@ -73,7 +73,7 @@ def test_relative_motion_closed_form():
         ay = lambda s: fx * np.sin(w * s) + fy * np.cos(w * s)  # noqa: E731
         ex = quad(lambda s: quad(ax, 0, s)[0], 0, dt)[0]
         ey = quad(lambda s: quad(ay, 0, s)[0], 0, dt)[0]
-        np.testing.assert_allclose(dp[i], [ex, ey, 0.5 * f[2] * dt**2], atol=1e-8)  # midpoint rule, 2.5-ms steps
+        np.testing.assert_allclose(dp[i], [ex, ey, 0.5 * f[2] * dt**2], atol=3e-8)  # midpoint rule, 5-ms steps
 
 
 def test_noise_free_fusion_matches_the_truth():

@@ -22,6 +22,8 @@ to find (and report) the bad ones exactly.
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import csv
 import enum
 import io
@@ -32,12 +34,14 @@ from decimal import ROUND_HALF_EVEN, Decimal, InvalidOperation
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pyarrow as pa
 import pyarrow.compute as pc
 
 from pipeline.errors import InputFormatError
 from pipeline.types import NS_PER_S, Finding, Severity
+
+if TYPE_CHECKING:  # pandas is imported where a table is parsed (it costs ~0.7 s to import)
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -403,6 +407,8 @@ class _Raw:
 
 def _read_csv(data: str, ncols: int, stamp_col: int, value_cols: list[int], delimiter: Delimiter,
               int_stamps: bool, strict: bool) -> _Raw:
+    import pandas as pd
+
     dtypes: dict[int, object] = {c: np.float64 for c in value_cols}
     dtypes[stamp_col] = np.int64 if int_stamps else str
     frame = pd.read_csv(
@@ -457,6 +463,8 @@ def _read_fast(data: str, ncols: int, stamp_col: int, value_cols: list[int], del
     multithreaded CSV reader, several times faster than pandas on long recordings; anything it
     rejects (spaces after delimiters, comment lines, text stamps) falls back to pandas.
     """
+    import pandas as pd
+
     if int_stamps and delimiter is not Delimiter.WHITESPACE:
         raw = _read_arrow(data, ncols, stamp_col, value_cols, delimiter)
         if raw is not None:
@@ -482,6 +490,8 @@ def _read_validated(
         ``(raw, bad_lines, n_data)``: parsed good lines, 1-based numbers of bad lines,
         number of data lines (good + bad; blank and ``'#'`` lines do not count).
     """
+    import pandas as pd
+
     pattern = _line_regex(ncols, stamp_col, set(value_cols), delimiter)
     lines = pc.list_flatten(pc.split_pattern(pa.array([data], type=pa.string()), "\n"))
     ok = pc.match_substring_regex(lines, f"^(?:{pattern.pattern})$").to_numpy(zero_copy_only=False)
@@ -574,6 +584,8 @@ def parse_table(
     Raises:
         InputFormatError: No data, more than 10 % bad lines, or unconvertible stamps.
     """
+    import pandas as pd
+
     data = text[header.data_offset:]
     if not data.strip():
         raise InputFormatError(f"no data lines (expected a {what})", path=path,

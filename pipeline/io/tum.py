@@ -13,7 +13,6 @@ import logging
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 
 from pipeline.atomic import atomic_path
 from pipeline.errors import DataError
@@ -117,6 +116,8 @@ def write_tum(path: str | Path, poses: PoseSeries) -> Path:
             path=path, hint="TUM needs orientations; write position-only streams as CSV instead",
         )
     q = poses.quat_wxyz
+    import pandas as pd  # only when writing (slow to import)
+
     frame = pd.DataFrame({
         "t": format_stamps_s(poses.t_ns),
         "tx": poses.p_m[:, 0], "ty": poses.p_m[:, 1], "tz": poses.p_m[:, 2],
