@@ -557,8 +557,26 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
             extra.append(f"{label}: {fmt(_num(noise, key), 4)}")
     if noise.get("method"):
         extra.append(f"chosen by: {noise['method']}")
+    if noise.get("pose_sigma_method"):
+        extra.append(f"pose sigmas from: {str(noise['pose_sigma_method']).replace('_', ' ')}")
     if extra:
         parts.append(p("; ".join(extra) + ".", class_="small"))
+    fusion = rec.get("pose_fusion") if isinstance(rec.get("pose_fusion"), dict) else {}
+    if fusion.get("enabled") and _num(fusion, "samples_per_keyframe_mean") is not None:
+        parts.append(p(
+            f"Pose fusion: {fmt(_num(fusion, 'samples_per_keyframe_mean'), 3)} pose samples per "
+            f"{fmt(_num(fusion, 'keyframe_rate_hz'), 3)}-Hz keyframe, moved to it through the IMU and fused; "
+            f"{int(_num(fusion, 'samples_rejected') or 0)} samples rejected as outliers; scatter about the "
+            f"keyframes {fmt(_num(fusion, 'within_bin_position_rms_m'), 3)} m / "
+            f"{fmt(_num(fusion, 'within_bin_rotation_rms_rad'), 3)} rad RMS.", class_="small"))
+    floor = rec.get("accuracy_floor") if isinstance(rec.get("accuracy_floor"), dict) else {}
+    if _num(floor, "acc_mps2") is not None:
+        gyro_txt = (f"gyro {fmt(_num(floor, 'gyro_radps'), 3)} rad/s, " if _num(floor, "gyro_radps") is not None
+                    else "")
+        parts.append(p(
+            f"Accuracy floor for this noise (optimal smoother, per axis): {gyro_txt}accelerometer "
+            f"{fmt(_num(floor, 'acc_mps2'), 3)} m/s²: no recovery of this recording is more accurate; the bias "
+            "sigmas of section 4 sit somewhat above it.", class_="small"))
     return section("calibration", _TITLE["calibration"], join(parts))
 
 

@@ -73,7 +73,12 @@ def write_stage_outputs(root: Path, *, recovery: bool = True, validation: bool =
             "gravity_world_mps2": GRAVITY, "gravity": {"estimated": True, "tilt_std_rad": 0.001},
             "noise": {"gyro_noise_density": 1.7e-4, "acc_noise_density": 2.0e-3, "gyro_random_walk": 3.9e-5,
                       "acc_random_walk": 6.0e-3, "position_sigma_m": 0.001, "rotation_sigma_rad": 0.002,
-                      "gyro_random_walk_scale": 2.0, "acc_random_walk_scale": 2.0, "method": "evidence"},
+                      "gyro_random_walk_scale": 2.0, "acc_random_walk_scale": 2.0, "method": "evidence",
+                      "pose_sigma_method": "within_bin_residuals"},
+            "pose_fusion": {"enabled": True, "keyframe_rate_hz": 10.0, "samples_per_keyframe_mean": 9.98,
+                            "samples_fused": 1996, "samples_rejected": 2, "within_bin_position_rms_m": 0.000501,
+                            "within_bin_rotation_rms_rad": 0.000498},
+            "accuracy_floor": {"gyro_radps": 0.00013, "acc_mps2": 0.00666},
             "residuals": {"pose_whitened_rms": 1.07, "imu_whitened_rms": 0.93},
             "outliers_rejected": 3, "outliers_t_ns": [int(t_kf[40]), int(t_kf[41]), int(t_kf[200])],
             "keyframes": int(len(k)), "segments": 1, "segment_seams": [],
@@ -285,6 +290,9 @@ def test_report_shows_the_numbers(full_report):
     assert "dataset&#x27;s own bias" in text  # ground truth overlaid
     assert "whole recording" in text  # simulated handheld motion: no rest
     assert "4,001" in text  # IMU samples (20 s at 200 Hz)
+    assert "Pose fusion: 9.98 pose samples per 10-Hz keyframe" in text and "2 samples rejected" in text
+    assert "pose sigmas from: within bin residuals" in text
+    assert "Accuracy floor for this noise (optimal smoother, per axis): gyro 0.00013 rad/s" in text
 
 
 def test_missing_stages_are_reported(tmp_path):
