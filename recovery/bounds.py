@@ -48,7 +48,10 @@ def bias_rmse_floor(noise_density: float, random_walk: float, pose_sigma: float,
         sn = s2 + r * w**m2
         return sb * sn / (sb + sn)
 
-    # split at the crossover of S_b with the pose term so quad sees the knee
-    knee = (q2 / r) ** (1.0 / (m2 + 2)) if r > 0 else 1.0
-    total = sum(quad(integrand, a, b, limit=200)[0] for a, b in ((0.0, knee), (knee, 100 * knee), (100 * knee, math.inf)))
+    # integrate over log(w) around the crossover of S_b with the pose term (the integrand decays
+    # as w^-2 above it and is bounded by s2 or r w^2m below it): smooth, no infinite range
+    knee = (q2 / r) ** (1.0 / (m2 + 2)) if r > 0 else max(q2 / max(s2, 1e-300), 1e-12) ** 0.5
+    u0 = math.log(knee)
+    total = quad(lambda u: integrand(math.exp(u)) * math.exp(u), u0 - 30.0, u0 + 30.0, limit=400,
+                 points=[u0])[0]
     return math.sqrt(total / math.pi)
