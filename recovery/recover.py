@@ -12,10 +12,17 @@ Stages (each logged; all results and choices land in ``recovery.json``):
 4. extrinsic ``T_imu_pose``: known (calibration) or initialised in closed form
    and refined jointly in the graph (``E(0)`` Pose3 for 6-DoF sources, ``L(0)``
    lever arm for position trackers) on a decimated window.
-5. noise: bias random walks and pose sigmas by maximum evidence (:mod:`recovery.noise`).
-6. the full-rate solve, by overlapping segments (bounded memory), with robust
+5. noise: bias random walks by maximum evidence (:mod:`recovery.noise`); pose sigmas
+   in closed form from the scatter of fused samples (else by evidence too).
+6. the full solve, by overlapping segments (bounded memory), with robust
    pose factors, outlier rejection, gravity direction and bias marginals;
    stitched without seams (:mod:`recovery.segments`).
+
+Keyframes: for 6-DoF absolute streams every pose sample is used through
+10-Hz keyframes that fuse the samples of their bin (:mod:`recovery.fusion`,
+linearised at the latest extrinsic / gravity / bias estimate); other streams use
+one keyframe per sample. ``recovery.json`` also states the accuracy floor of the
+noise at hand (:mod:`recovery.bounds`).
 """
 
 from __future__ import annotations
