@@ -115,15 +115,6 @@ class FusedPoses:
         return len(self.t_ns)
 
 
-def _wxyz_to_rot(q: np.ndarray) -> Rotation:
-    return Rotation.from_quat(np.c_[q[:, 1:], q[:, :1]])
-
-
-def _rot_to_wxyz(r: Rotation) -> np.ndarray:
-    q = r.as_quat()
-    return np.c_[q[:, 3:], q[:, :3]]
-
-
 class _ImuInterp:
     """Linear interpolation of all six IMU channels at once (one search per query)."""
 
@@ -275,7 +266,7 @@ def fuse_poses(
     R_E = np.asarray(T_imu_pose, dtype=float)[:3, :3]
     lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
     g = np.asarray(gravity_world_mps2, dtype=float)
-    R_pose = _wxyz_to_rot(quat_wxyz).as_matrix()
+    R_pose = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
     R_imu_j = R_pose @ R_E.T  # [M, 3, 3]
     keep = np.ones(M, dtype=bool)
 
@@ -347,7 +338,7 @@ def fuse_poses(
     return FusedPoses(
         t_ns=t_k_ns[has],
         p_m=p_k[has],
-        quat_wxyz=_rot_to_wxyz(Rotation.from_matrix(R_pose_k)),
+        quat_wxyz=Rotation.from_matrix(R_pose_k).as_quat(scalar_first=True),
         v_mps=v_k[has],
         count=n[has],
         dt2_s2=dt2[has],

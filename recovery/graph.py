@@ -106,7 +106,6 @@ class SolveOptions:
     gravity_mps2: float = 9.81
     estimate_extrinsic: bool = False
     estimate_lever_arm: bool = False  # 6-DoF sources: rotation of T_imu_pose fixed, lever arm L(0) free (native factors)
-    velocity_factors: bool = True  # fused keyframes: a velocity prior from their bin (off while T_imu_pose is unknown)
     max_iterations: int = 30
     relative_error_tol: float = 1e-6
     compute_marginals: bool = False
@@ -499,11 +498,14 @@ def build_window(
     sr, sp = opts.rotation_sigma_rad, opts.position_sigma_m
     cache: dict[tuple[str, int], tuple[Any, Any]] = {}
 
-    def models(key: tuple[str, int], make: Any) -> tuple[Any, Any]:
-        if key not in cache:
-            base = make(key)
-            cache[key] = (base, _robust(base, opts.robust_loss, opts.robust_k))
-        return cache[key]
+    def models(kind: str, k: int, make: Any) -> tuple[Any, Any]:
+        """(base, robust) noise models of keyframe k's factor ``kind``; ``make(n)`` builds the base
+        model for n fused samples (one model per distinct n)."""
+        n = 1 if kf.count is None else int(kf.count[k])
+        if (kind, n) not in cache:
+            base = make(n)
+            cache[(kind, n)] = (base, _robust(base, opts.robust_loss, opts.robust_k))
+        return cache[(kind, n)]
     if position_only:
         base = gtsam.noiseModel.Isotropic.Sigma(3, sp)
         model = _robust(base, opts.robust_loss, opts.robust_k)
@@ -529,8 +531,8 @@ def build_window(
         for k in range(K):
             if k in skip_set:
                 continue
-            base_r, model_r = models(("r", _count(kf, k)), lambda c: gtsam.noiseModel.Isotropic.Sigma(3, sr / math.sqrt(c[1])))
-            base_p, model_p = models(("p", _count(kf, k)), lambda c: gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(c[1])))
+            base_r, model_r = models("r", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sr / math.sqrt(n)))
+            base_p, model_p = models("p", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(n)))
             fr = gtsam.PoseRotationPrior3D(X(k), Z[k].rotation().compose(R_Et), model_r)
             fp = gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model_p)
             graph.add(fr)
@@ -570,8 +572,8 @@ def build_window(
             for k in range(K):
                 if k in skip_set:
                     continue
-                base, model = models(("e", _count(kf, k)), lambda c: gtsam.noiseModel.Diagonal.Sigmas(
-                    np.array([sr] * 3 + [sp] * 3) / math.sqrt(c[1])))
+                base, model = models("e", k, lambda n: gtsam.noiseModel.Diagonal.Sigmas(
+                    np.array([sr] * 3 + [sp] * 3) / math.sqrt(n)))
                 f = gtsam.CustomFactor(model, [X(k), E(0)], _extrinsic_error(Z[k]))
                 graph.add(f)
                 pose_factors.append((k, f, base))
@@ -581,12 +583,12 @@ def build_window(
             for k in range(K):
                 if k in skip_set:
                     continue
-                base, model = models(("x", _count(kf, k)), lambda c: gtsam.noiseModel.Gaussian.Covariance(cov / c[1]))
+                base, model = models("x", k, lambda n: gtsam.noiseModel.Gaussian.Covariance(cov / n))
                 f = gtsam.PriorFactorPose3(X(k), Xs[k], model)
                 graph.add(f)
                 pose_factors.append((k, f, base))
                 nlc += base.negLogConstant()
-    use_velocity = (kf.v_mps is not None and opts.velocity_factors and not position_only
+    use_velocity = (kf.v_mps is not None and not position_only
                     and opts.pose_mode != PoseFactorMode.RELATIVE
                     and not opts.estimate_extrinsic and not opts.estimate_lever_arm)
     if use_velocity:
@@ -602,11 +604,6 @@ def build_window(
             pose_factors.append((k, f, base))
             nlc += base.negLogConstant()
     return _Built(graph, values, pose_factors, imu_factors, nlc)
-
-
-def _count(kf: KeyframePoses, k: int) -> int:
-    """Samples fused into keyframe ``k`` (1 when the keyframes are plain samples)."""
-    return 1 if kf.count is None else int(kf.count[k])
 
 
 def _optimize(built: _Built, opts: SolveOptions) -> tuple[gtsam.Values, int]:
