@@ -37,7 +37,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=Path, default=None, metavar="FILE.yaml",
                    help="recovery options (YAML mapping; see recovery.config.RecoveryConfig)")
     p.add_argument("--keyframe-rate", type=float, default=None, metavar="HZ",
-                   help="keyframes per second (default: every pose sample)")
+                   help="keyframes per second (default: every pose sample's information -- 10-Hz keyframes "
+                        "fusing the samples between them for 6-DoF streams, one keyframe per sample otherwise)")
     p.add_argument("--time-offset-s", type=float, default=None, metavar="X",
                    help="seconds to add to pose stamps to put them on the IMU clock (fixes the offset)")
     p.add_argument("--estimate-time-offset", dest="estimate_time_offset", action=argparse.BooleanOptionalAction,
