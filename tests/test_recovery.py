@@ -468,6 +468,13 @@ def test_cli_recover_on_store(tmp_path, clean_run, capsys):
     assert list(frame.columns) == list(BIAS_COLUMNS)
     assert 350 <= len(frame) <= 410
     assert "wrote" in capsys.readouterr().out
+    assert json.loads((out / "recovery.json").read_text())["pose_fusion"]["enabled"] is True
+    rc = main(["recover", str(store), "--out", str(tmp_path / "rec_nf"), "--config", str(cfg), "--keyframe-rate", "10",
+               "--no-estimate-time-offset", "--no-pose-fusion"])
+    assert rc == 0
+    rep = json.loads((tmp_path / "rec_nf" / "recovery.json").read_text())
+    assert rep["pose_fusion"] == {"enabled": False} and rep["config"]["pose_fusion"] is False
+    capsys.readouterr()
     bad = tmp_path / "bad.yaml"
     bad.write_text("keyframe_rate: 3\n")
     rc = main(["recover", str(store), "--out", str(tmp_path / "rec2"), "--config", str(bad)])
