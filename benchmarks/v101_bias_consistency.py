@@ -33,42 +33,40 @@ G = 9.81
 STATIC_S = (0.3, 3.3)  # seconds after the first EuRoC GT stamp; the drone takes off at ~3.5-4 s
 
 
-def static_start_check(data: Path = DATA) -> dict[str, np.ndarray]:
-    """The numbers behind item 2: EuRoC's b_a, the local b_a of the static start (gravity along the
-    Vicon z) and EuRoC's gyro bias vs the local one. Used by tests/test_recovery_real.py."""
+def _load(data: Path) -> dict:
+    """IMU, EuRoC GT poses (IMU frame and clock) and EuRoC's estimate; GT kinematics per GT stamp."""
     imu = pd.read_csv(data / "V1_01_easy/mav0/imu0/data.csv").to_numpy()
     t_imu = imu[:, 0].astype(np.int64)
     gt = np.loadtxt(data / "V1_01_easy/ov_data/V1_01_easy_original.txt")
     t_gt = np.round(gt[:, 0] * 1e9).astype(np.int64)
     ref = pd.read_csv(data / "V1_01_easy_proto_excerpt/mav0/state_groundtruth_estimate0/data.csv").to_numpy()
-    t0 = int(ref[0, 0])
-    rot = Rotation.from_quat(gt[:, 4:8])
-    dt = float(np.median(np.diff(t_gt))) / 1e9
-    acc_w = savgol_filter(gt[:, 1:4], 41, 2, deriv=2, delta=dt, axis=0)
-    f = np.stack([np.interp(t_gt, t_imu, imu[:, 4 + c]) for c in range(3)], axis=1)
-    t = (t_gt - t0) / 1e9
-    st = (t_gt > t_imu[0]) & (t_gt < t_imu[-1]) & (t >= STATIC_S[0]) & (t < STATIC_S[1])
-    ba_local = (f[st] - rot[st].inv().apply(acc_w[st] + np.array([0.0, 0.0, G]))).mean(axis=0)
-    return {"t0_ns": np.array(t0), "ba_euroc": ref[0, 14:17], "ba_static_local": ba_local,
-            "gt_motion_m": np.ptp(gt[st, 1:4], axis=0).max()}
-
-
-def main() -> None:
-    imu = pd.read_csv(DATA / "V1_01_easy/mav0/imu0/data.csv").to_numpy()
-    t_imu = imu[:, 0].astype(np.int64)
-    gt = np.loadtxt(DATA / "V1_01_easy/ov_data/V1_01_easy_original.txt")
-    t_gt = np.round(gt[:, 0] * 1e9).astype(np.int64)
-    ref = pd.read_csv(DATA / "V1_01_easy_proto_excerpt/mav0/state_groundtruth_estimate0/data.csv").to_numpy()
-    t0, bg_ref, ba_ref = int(ref[0, 0]), ref[0, 11:14], ref[0, 14:17]
-
     rot = Rotation.from_quat(gt[:, 4:8])  # TUM: qx qy qz qw
-    Rm = rot.as_matrix()
     dt = float(np.median(np.diff(t_gt))) / 1e9
     acc_w = savgol_filter(gt[:, 1:4], 41, 2, deriv=2, delta=dt, axis=0)  # 0.2 s local quadratic
     f = np.stack([np.interp(t_gt, t_imu, imu[:, 4 + c]) for c in range(3)], axis=1)
+    t = (t_gt - int(ref[0, 0])) / 1e9
+    inside = (t_gt > t_imu[0]) & (t_gt < t_imu[-1])
+    return dict(imu=imu, t_imu=t_imu, gt=gt, t_gt=t_gt, ref=ref, rot=rot, dt=dt, acc_w=acc_w, f=f, t=t, inside=inside)
+
+
+def static_start_check(data: Path = DATA) -> dict[str, np.ndarray]:
+    """The numbers behind item 2: EuRoC's b_a and the local b_a of the static start (gravity along
+    the Vicon z), and how far the GT moves there. Used by tests/test_recovery_real.py."""
+    d = _load(data)
+    st = d["inside"] & (d["t"] >= STATIC_S[0]) & (d["t"] < STATIC_S[1])
+    ba_local = (d["f"][st] - d["rot"][st].inv().apply(d["acc_w"][st] + np.array([0.0, 0.0, G]))).mean(axis=0)
+    return {"t0_ns": np.array(int(d["ref"][0, 0])), "ba_euroc": d["ref"][0, 14:17], "ba_static_local": ba_local,
+            "gt_motion_m": np.ptp(d["gt"][st, 1:4], axis=0).max()}
+
+
+def main() -> None:
+    d = _load(DATA)
+    imu, t_imu, gt, t_gt, ref = d["imu"], d["t_imu"], d["gt"], d["t_gt"], d["ref"]
+    bg_ref, ba_ref = ref[0, 11:14], ref[0, 14:17]
+    rot, dt, acc_w, f, t = d["rot"], d["dt"], d["acc_w"], d["f"], d["t"]
+    Rm = rot.as_matrix()
     sf_w = rot.apply(f) - acc_w  # = R b_a - g
-    t = (t_gt - t0) / 1e9
-    ok = (t_gt > t_imu[0]) & (t_gt < t_imu[-1]) & (t > 0.3) & (t < t[-1] - 0.3)
+    ok = d["inside"] & (t > 0.3) & (t < t[-1] - 0.3)
 
     def const_fit(m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Least squares of R b_a - [gx, gy, -G] = sf_w: constant b_a, horizontal gravity."""

@@ -70,10 +70,6 @@ class WithinBinStats:
             out += -0.5 * self.rot_sq_rad2 / rotation_sigma_rad**2 - self.rot_dof * math.log(rotation_sigma_rad)
         return out
 
-    def restrict(self, keep: np.ndarray, per_bin: "PerBin") -> "WithinBinStats":
-        """The statistics of the bins selected by the boolean mask ``keep`` [K]."""
-        return WithinBinStats(float(per_bin.pos_sq[keep].sum()), int(per_bin.pos_dof[keep].sum()),
-                              float(per_bin.rot_sq[keep].sum()), int(per_bin.rot_dof[keep].sum()))
 
 
 @dataclass(frozen=True)
@@ -84,6 +80,11 @@ class PerBin:
     pos_dof: np.ndarray
     rot_sq: np.ndarray
     rot_dof: np.ndarray
+
+    def total(self) -> WithinBinStats:
+        """The sums over all keyframes."""
+        return WithinBinStats(float(self.pos_sq.sum()), int(self.pos_dof.sum()),
+                              float(self.rot_sq.sum()), int(self.rot_dof.sum()))
 
 
 @dataclass(frozen=True)
@@ -99,7 +100,6 @@ class FusedPoses:
         dt2_s2: ``sum dt_j^2`` per keyframe, [K] (velocity std = ``sigma_p / sqrt(dt2_s2)``).
         per_bin: Within-bin residual sums per keyframe.
         rejected_t_ns: Stamps (IMU clock) of the samples rejected as outliers, int64 [R].
-        samples: Pose samples used, ``count.sum()``.
     """
 
     t_ns: np.ndarray

@@ -74,10 +74,7 @@ class KeyframePoses:
 
     def within_bin(self) -> WithinBinStats | None:
         """Residual sums of the fused samples about their keyframes (None when not fused)."""
-        if self.per_bin is None:
-            return None
-        return WithinBinStats(float(self.per_bin.pos_sq.sum()), int(self.per_bin.pos_dof.sum()),
-                              float(self.per_bin.rot_sq.sum()), int(self.per_bin.rot_dof.sum()))
+        return None if self.per_bin is None else self.per_bin.total()
 
     def take(self, index: np.ndarray | slice) -> "KeyframePoses":
         q = None if self.quat_wxyz is None else self.quat_wxyz[index]

@@ -627,19 +627,18 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     problem.set_linearisation(T_imu_pose=T)
 
     def solve_extrinsic(off: float) -> WindowSolution | None:
+        """Joint extrinsic solve on the calibration window; adopts its T (and linearises fusion there)."""
+        nonlocal T
         w = problem.window(off, calib[0], calib[1], config.calibration_rate_hz("extrinsic", problem.fuse))
         if w is None:
             return None
-        return solve_window(w[0], w[1], calib_imu, T, ext_opts)
+        sol = solve_window(w[0], w[1], calib_imu, T, ext_opts)
+        T = sol.T_imu_pose
+        problem.set_linearisation(T_imu_pose=T, gravity_unit=sol.gravity_unit, bias=np.median(sol.bias, axis=0))
+        return sol
 
     t0 = time.perf_counter()
-    ext_sol = None
-    if ext_opts.estimate_extrinsic:
-        ext_sol = solve_extrinsic(offset_s)
-        if ext_sol is not None:
-            T = ext_sol.T_imu_pose
-            problem.set_linearisation(T_imu_pose=T, gravity_unit=ext_sol.gravity_unit,
-                                      bias=np.median(ext_sol.bias, axis=0))
+    ext_sol = solve_extrinsic(offset_s) if ext_opts.estimate_extrinsic else None
     timings["extrinsic_s"] = time.perf_counter() - t0
 
     # --- clock offset, refined
@@ -659,10 +658,6 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
             warnings.append(f"clock offset refinement failed ({exc}); using the coarse estimate")
         if ext_opts.estimate_extrinsic:
             ext_sol = solve_extrinsic(offset_s)
-            if ext_sol is not None:
-                T = ext_sol.T_imu_pose
-                problem.set_linearisation(T_imu_pose=T, gravity_unit=ext_sol.gravity_unit,
-                                          bias=np.median(ext_sol.bias, axis=0))
     timings["offset_refine_s"] = time.perf_counter() - t0
     if ext_sol is not None:
         if "extrinsic_cov" in ext_sol.extras:
@@ -911,9 +906,14 @@ def _solve_rate_hz(config: RecoveryConfig, problem: "_Problem") -> float:
         return float(config.keyframe_rate_hz)
     if problem.fuse:
         return FUSED_KEYFRAME_RATE_HZ
-    t = problem.poses.t_ns
+    return _pose_rate_hz(problem.poses) or FUSED_KEYFRAME_RATE_HZ
+
+
+def _pose_rate_hz(poses: PoseSeries) -> float | None:
+    """Mean pose samples per second over the stream's span (None for fewer than two samples)."""
+    t = poses.t_ns
     span_s = (t[-1] - t[0]) / NS_PER_S if len(t) > 1 else 0.0
-    return float(len(t) / span_s) if span_s > 0 else FUSED_KEYFRAME_RATE_HZ
+    return float(len(t) / span_s) if span_s > 0 else None
 
 
 MIN_WITHIN_BIN_DOF = 300  # residual degrees of freedom for the closed-form pose sigma (1/sqrt(2 dof) = 4 %)
@@ -943,11 +943,9 @@ def _accuracy_floor(choice: NoiseChoice, poses: PoseSeries, pose_mode: PoseFacto
     no estimator beats with this IMU and pose stream; absolute pose streams only."""
     from recovery.bounds import bias_rmse_floor
 
-    t = poses.t_ns
-    span_s = (t[-1] - t[0]) / NS_PER_S if len(t) > 1 else 0.0
-    if pose_mode != PoseFactorMode.ABSOLUTE or span_s <= 0:
+    rate = _pose_rate_hz(poses)
+    if pose_mode != PoseFactorMode.ABSOLUTE or rate is None:
         return {"gyro_radps": None, "acc_mps2": None}
-    rate = len(t) / span_s
     imu = choice.imu
     acc = bias_rmse_floor(imu.acc_noise_density, imu.acc_random_walk, choice.position_sigma_m, rate, 2)
     gyro = (bias_rmse_floor(imu.gyro_noise_density, imu.gyro_random_walk, choice.rotation_sigma_rad, rate, 1)
