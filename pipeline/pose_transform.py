@@ -17,8 +17,8 @@ recovered trajectory) to remove the lever arm ``p_imu_pose``.
 :func:`transform_from_json` reads ``T_imu_pose`` in the forms ``recovery.json`` uses.
 
 This module needs only NumPy and SciPy (no torch), so the report can use it without the
-validation's integration stack. Users: :func:`pipeline.validation.reference_from_poses`,
-:func:`pipeline.validation.read_recovery_dir`, :func:`reports.quality.pose_residuals` and
+validation's integration stack. Users: :func:`validation.validate.reference_from_poses`,
+:func:`validation.validate.read_recovery_dir`, :func:`reports.quality.pose_residuals` and
 :func:`reports.quality.transform_from_report`.
 """
 

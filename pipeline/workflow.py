@@ -711,13 +711,13 @@ def validation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
 
 
 def make_validation_config(options: dict[str, Any]) -> Any:
-    """A :class:`pipeline.validation.ValidationConfig` from a config mapping (imports torch).
+    """A :class:`validation.validate.ValidationConfig` from a config mapping (imports torch).
 
     Raises:
         ConfigError: Unknown option or invalid value.
     """
     from pipeline.configs import dataclass_from_mapping
-    from pipeline.validation import ValidationConfig
+    from validation.validate import ValidationConfig
 
     return dataclass_from_mapping(ValidationConfig, options, what="validation option", field="validation",
                                   also_allowed=VALIDATION_EXTRA_KEYS)
@@ -924,10 +924,10 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
     A FAIL verdict is a result (written, logged as a warning, returned); only bad inputs raise.
 
     Returns:
-        The :class:`pipeline.validation.ValidationResult`.
+        The :class:`validation.validate.ValidationResult`.
     """
     from pipeline.store import read_store
-    from pipeline.validation import Verdict, validate_inputs, write_validation
+    from validation.validate import Verdict, validate_inputs, write_validation
 
     config = make_validation_config(dict(settings.get("config") or {}))
     sequence = read_store(store_dir)

@@ -9,7 +9,7 @@ missing, and the page then says so plainly and shows the rest):
   (clock offset, extrinsic, gravity, noise used, residual statistics, warnings),
   ``trajectory_tum.txt`` (:func:`pipeline.io.tum.read_tum_poses`) and, when the recovery
   writes one, a per-keyframe residual table (``residuals.parquet`` or ``residuals.csv``);
-* validation: ``validation.json`` and ``windows.parquet`` (:mod:`pipeline.validation`).
+* validation: ``validation.json`` and ``windows.parquet`` (:mod:`validation.validate`).
 
 Sections, in order: verdict; streams and input checks; calibration estimated; recovered bias
 over time; pose and IMU residuals; integration-error distributions; Allan deviation.
@@ -628,7 +628,7 @@ def _bias_section(inp: ReportInputs) -> Html:
 def transform_from_report(value: Any) -> np.ndarray:
     """4x4 ``T_imu_pose`` from ``recovery.json``: ``{p_m, quat_wxyz}``, ``{matrix}`` or a 4x4 list.
 
-    The forms :func:`pipeline.validation.read_recovery_dir` accepts, read by the same
+    The forms :func:`validation.validate.read_recovery_dir` accepts, read by the same
     (torch-free) :func:`pipeline.pose_transform.transform_from_json`.
 
     Raises:

@@ -17,7 +17,7 @@ from pipeline.pose_transform import IMU_FRAME, poses_in_imu_frame, transform_fro
 from pipeline.sim import PoseStreamConfig, SimConfig, simulate
 from pipeline.store import write_store
 from pipeline.types import ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence
-from pipeline.validation import (
+from validation.validate import (
     BiasSourceKind,
     ReferenceKind,
     SourceMetrics,

@@ -16,7 +16,7 @@ from interpolation.bias import BiasTrack
 from pipeline.io import load_sequence
 from pipeline.io.tum import read_tum_poses
 from pipeline.types import NS_PER_S, PoseSourceKind, Sequence
-from pipeline.validation import (
+from validation.validate import (
     BiasSource,
     BiasSourceKind,
     ReferenceKind,

@@ -182,7 +182,7 @@ def test_stage_section_defaults_match_the_libraries():
     import dataclasses
     import enum
 
-    from pipeline.validation import ValidationConfig
+    from validation.validate import ValidationConfig
     from recovery.config import RecoveryConfig
     from training.windows import WindowConfig
 
@@ -523,7 +523,7 @@ def test_validate_step_fail_is_a_result_and_bad_input_stops(e2e_run, tmp_path):
 
     import pandas as pd
 
-    from pipeline.validation import Verdict
+    from validation.validate import Verdict
 
     workdir = e2e_run.workdir
     store = workdir / "results" / "ingest" / "tiny_b"

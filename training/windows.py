@@ -1,6 +1,6 @@
 """Training windows: cut recovered sequences into fixed-length IMU windows with bias and states.
 
-Every sequence is cut exactly as the validation cuts it (:func:`pipeline.validation.plan_windows`),
+Every sequence is cut exactly as the validation cuts it (:func:`validation.validate.plan_windows`),
 so a model is trained and judged on the same windows. A window holds the IMU samples
 ``i .. i + n`` with ``n = round(window_s * rate)`` intervals (``T = n + 1`` samples, spanning
 exactly ``window_s``) and starts every ``round(n * (1 - overlap))`` samples. For each window:
@@ -13,7 +13,7 @@ exactly ``window_s``) and starts every ``round(n * (1 - overlap))`` samples. For
 * ``start_*`` / ``end_*``: the reference orientation (world-from-imu, [3, 3]), velocity and
   position at the first and last stamp: the sequence's ground-truth state when it has one,
   else the pose stream the recovery used, moved onto the IMU clock and frame with the
-  recovery's ``pose_time_offset_s`` and ``T_imu_pose`` (:func:`pipeline.validation.
+  recovery's ``pose_time_offset_s`` and ``T_imu_pose`` (:func:`validation.validate.
   build_reference`, smoothing-spline velocity);
 * ``t_ns`` [T] (``t0_ns`` = its first stamp) and the sequence name.
 
@@ -52,7 +52,7 @@ from interpolation.bias import read_bias_csv
 from interpolation.pipeline import recovery_random_walk
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.types import NS_PER_S, ImuSeries, Sequence
-from pipeline.validation import (
+from validation.validate import (
     ReferenceStates,
     ValidationConfig,
     build_reference,

@@ -1,4 +1,4 @@
-"""``biasgt validate``: judge a bias trajectory by 1-s integration error (adapter over pipeline.validation)."""
+"""``biasgt validate``: judge a bias trajectory by 1-s integration error (adapter over validation.validate)."""
 
 from __future__ import annotations
 
@@ -39,8 +39,8 @@ examples:
 """
 
 
-#: Defaults shown by the parser; equal to :class:`pipeline.validation.ValidationConfig`'s (a test checks).
-#: Kept here so that building the CLI does not import torch (pipeline.validation costs ~4 s to import).
+#: Defaults shown by the parser; equal to :class:`validation.validate.ValidationConfig`'s (a test checks).
+#: Kept here so that building the CLI does not import torch (validation.validate costs ~4 s to import).
 DEFAULTS = argparse.Namespace(window_s=1.0, overlap=0.5, margin=0.10, flag_k=5.0)
 
 
@@ -103,7 +103,7 @@ def _format_table(result: Any) -> str:
 def run(args: argparse.Namespace) -> int:
     from pipeline.errors import ValidationError
     from pipeline.ingest import load, reader_kwargs_from_args
-    from pipeline.validation import ValidationConfig, Verdict, validate_inputs, write_validation
+    from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation
 
     if not args.bias and args.recovery is None:
         raise ValidationError("nothing to validate", field="--bias",
