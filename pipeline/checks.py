@@ -647,7 +647,8 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
                 "or pass --allow-pose-only to convert the poses alone)", {}))
     elif not seq.poses and seq.ground_truth is None:
         findings.append(Finding("NO_POSES", Severity.WARNING, IMU_STREAM,
-                                "the input has no pose stream: bias recovery needs one (pick it with --pose-topic); "
+                                "the input has no pose stream: bias recovery needs one (add a pose file with "
+                                "--add-poses PATH[:KIND], or pick a bag topic with --pose-topic); "
                                 "IMU-only data can still be converted", {}))
     streams = _streams(seq)
     n_pose_usable = sum(1 for s in streams if s.kind != "imu" and len(s.t_ns) >= 2)
