@@ -15,6 +15,8 @@ import threading
 from collections.abc import Collection, Iterator
 from pathlib import Path
 
+from pipeline.errors import OutputLocationError
+
 
 def _umask() -> int:
     mask = os.umask(0)
@@ -117,6 +119,36 @@ def atomic_dir(path: str | Path, *, owned: Collection[str] | None = None) -> Ite
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def check_output_location(path: str | Path) -> None:
+    """Fail early, before any work, if ``path`` cannot be written atomically.
+
+    The writers create a temporary sibling of ``path`` and rename it, creating missing parent
+    folders first; so the nearest existing ancestor must be a writable folder (probed by really
+    creating a file there: permission bits do not tell on read-only mounts or for root), and an
+    existing folder at ``path`` must be writable too (its other stages' files are moved along).
+
+    Raises:
+        OutputLocationError: Naming the blocking path and the fix.
+    """
+    path = Path(path)
+    ancestor = path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputLocationError(f"cannot create the output there: {ancestor} is a file, not a folder", path=path,
+                                  hint="choose an --out whose parent folders are folders")
+    probes = [ancestor] + ([path] if path.is_dir() else [])
+    for folder in probes:
+        try:
+            fd, name = tempfile.mkstemp(prefix=".biasgt-write-probe.", dir=folder)
+        except OSError as exc:
+            raise OutputLocationError(f"cannot write the output there: folder {folder} is not writable "
+                                      f"({exc.strerror})", path=path,
+                                      hint="choose a writable --out or fix the folder's permissions") from None
+        os.close(fd)
+        os.unlink(name)
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:

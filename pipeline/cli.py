@@ -15,6 +15,7 @@ import sys
 from collections.abc import Sequence
 
 from pipeline import __version__
+from pipeline.atomic import check_output_location
 from pipeline.errors import BiasgtError
 
 log = logging.getLogger("biasgt")
@@ -80,6 +81,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     _setup_logging(args.verbose, args.quiet)
     signal.signal(signal.SIGTERM, _raise_terminated)
     try:
+        if getattr(args, "out", None) is not None:  # every writing command names its output --out/OUT
+            check_output_location(args.out)
         return int(args.func(args) or 0)
     except BiasgtError as exc:
         print(f"biasgt {args.command}: error: {exc}", file=sys.stderr)

@@ -129,6 +129,51 @@ def test_sigterm_during_recover_leaves_a_complete_output_or_none(tmp_path: Path,
     assert _leftovers(tmp_path) == []
     if rc == 0:  # finished before the signal
         assert {"bias.csv", "recovery.json"} <= {p.name for p in out.iterdir()}
-    else:
-        assert rc == 128 + signal.SIGTERM
+    else:  # stopped by our handler (143), or by the default action before it was installed (-15)
+        assert rc in (128 + signal.SIGTERM, -signal.SIGTERM)
         assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- output location
+
+_WRITING_COMMANDS = [
+    ["simulate", "--duration", "5", "{out}"],
+    ["convert", "{sim}", "--out", "{out}"],
+    ["recover", "{sim}", "--out", "{out}"],
+    ["interpolate", "{sim}", "--imu", "{sim}", "--out", "{out}/bias.parquet"],
+    ["validate", "{sim}", "--recovery", "{sim}", "--out", "{out}"],
+    ["windows", "--seq", "s", "train", "{sim}", "{sim}", "--out", "{out}"],
+    ["report", "--ingest", "{sim}", "--out", "{out}/q.html"],
+]
+
+
+@pytest.mark.parametrize("command", _WRITING_COMMANDS, ids=lambda c: c[0])
+def test_output_under_a_file_is_refused_before_any_work(tmp_path: Path, command: list[str], capsys) -> None:
+    from pipeline.cli import main
+
+    blocker = tmp_path / "a_file"
+    blocker.write_text("")
+    argv = [a.format(out=blocker / "out", sim=tmp_path / "missing-input") for a in command]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "a_file is a file, not a folder" in err
+
+
+def test_read_only_output_folder_is_refused_before_any_work(tmp_path: Path) -> None:
+    """A read-only mount (permission bits do not stop root): bound read-only in a private mount namespace."""
+    import shlex
+    import shutil
+
+    ro = tmp_path / "read_only"
+    ro.mkdir()
+    mount = f"mount --bind -o ro {shlex.quote(str(ro))} {shlex.quote(str(ro))}"
+    probe = (subprocess.run(["unshare", "-m", "sh", "-c", f"{mount} && touch {shlex.quote(str(ro))}/x"],
+                            capture_output=True, text=True) if shutil.which("unshare") else None)
+    if probe is None or "Read-only file system" not in probe.stderr:
+        pytest.skip("cannot make a read-only mount here (needs unshare and mount rights)")
+    command = shlex.join(_biasgt("simulate", "--duration", "5", str(ro / "sim")))
+    run = subprocess.run(["unshare", "-m", "sh", "-c", f"{mount} && exec {command}"], env=_env(),
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    assert run.stderr.count("\n") == 1 and "is not writable" in run.stderr
+    assert list(ro.iterdir()) == []
