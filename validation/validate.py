@@ -563,8 +563,9 @@ def _header_line(path: Path) -> str:
 def read_bias_file(path: str | Path) -> BiasTrack:
     """Read any bias file biasgt knows, as a :class:`BiasTrack` (not yet at IMU rate).
 
-    Accepted: the recovery contract ``bias.csv`` (``t_ns,bg_x,...,ba_z_std``) or an interpolated
-    bias table (``.csv``/``.parquet``, same columns); a EuRoC/OpenVINS state CSV
+    Accepted: the recovery contract ``bias.csv`` (``t_ns,bg_x,...,ba_z_std``; the ``*_std``
+    columns optional, 0 when absent) or an interpolated bias table (``.csv``/``.parquet``, same
+    columns); a EuRoC/OpenVINS state CSV
     (``#time(ns),px,py,pz,qw,qx,qy,qz,vx,vy,vz,bwx,bwy,bwz,bax,bay,baz`` or EuRoC's
     ``state_groundtruth_estimate0/data.csv``), whose bias columns are used (std = 0).
 
@@ -575,7 +576,7 @@ def read_bias_file(path: str | Path) -> BiasTrack:
     if not path.is_file():
         raise InputFormatError("bias file does not exist", path=path, hint="check the path")
     if path.suffix == ".parquet" or "bg_x" in _header_line(path):
-        return read_bias_csv(path)
+        return read_bias_csv(path, require_std=False)
     from pipeline.io.asl import read_asl_state_csv
 
     try:

@@ -293,6 +293,9 @@ class PoseInput:
             kinds = {k.value for k in PoseSourceKind}
             if sep and tail in kinds:
                 return cls(path=head, kind=PoseSourceKind(tail))
+            if sep and head and Path(head).exists() and not Path(text).exists():
+                raise ConfigError(f"unknown pose kind {tail!r} in {text!r}", field="--add-poses",
+                                  hint="write PATH:KIND with KIND one of " + ", ".join(sorted(kinds)))
             return cls(path=text)
         if isinstance(value, dict):
             unknown = set(value) - {"path", "fmt", "stream", "kind", "pose_topic"}
