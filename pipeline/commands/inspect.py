@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object {schema_version, input, format, streams, findings, verdict}")
     add_reader_arguments(p)
-    add_check_arguments(p)
+    add_check_arguments(p, repairs=False)
     p.set_defaults(func=run)
 
 

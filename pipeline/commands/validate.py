@@ -45,7 +45,7 @@ DEFAULTS = argparse.Namespace(window_s=1.0, overlap=0.5, margin=0.10, flag_k=5.0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_reader_arguments
+    from pipeline.ingest import add_check_arguments, add_reader_arguments
 
     d = DEFAULTS
     p = subparsers.add_parser(
@@ -78,6 +78,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--velocity-cutoff-hz", type=float, default=None, metavar="HZ",
                    help="smoothing cutoff for pose-derived velocity (default: chosen from the pose noise)")
     add_reader_arguments(p)
+    add_check_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -102,7 +103,7 @@ def _format_table(result: Any) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.errors import ValidationError
-    from pipeline.ingest import load, reader_kwargs_from_args
+    from pipeline.ingest import check_options_from_args, load_checked, reader_kwargs_from_args
     from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation
 
     if not args.bias and args.recovery is None:
@@ -110,7 +111,8 @@ def run(args: argparse.Namespace) -> int:
                               hint="give --recovery DIR or --bias FILE")
     config = ValidationConfig(window_s=args.window_s, overlap=args.overlap, margin=args.margin,
                               flag_k=args.flag_k, velocity_cutoff_hz=args.velocity_cutoff_hz)
-    seq = load(args.sequence, reader_kwargs_from_args(args))
+    seq = load_checked(args.sequence, reader_kwargs_from_args(args), repairs=args.repair,
+                       check_options=check_options_from_args(args), action="validate")
     if seq.imu is None:
         raise ValidationError(f"'{args.sequence}' has no IMU to integrate", path=args.sequence,
                               hint="give an input with IMU readings")
