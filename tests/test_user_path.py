@@ -45,3 +45,37 @@ def test_misspelt_pose_kind_names_the_allowed_kinds(tmp_path: Path) -> None:
     assert "groundtruth" in message and "ground_truth" in message and "mocap" in message
     assert PoseInput.coerce(f"{gt}:ground_truth").kind.value == "ground_truth"
     assert PoseInput.coerce(str(gt)).path == str(gt)
+
+
+# ----------------------------------------------------------------------------- verdicts that say what they checked
+
+
+@pytest.fixture(scope="module")
+def wrong_datasheet(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """A simulated recording whose sensor.yaml understates the gyro random walk 1000x, and its recovery."""
+    from pipeline.cli import main
+
+    root = tmp_path_factory.mktemp("datasheet")
+    sim = root / "sim"
+    assert main(["-q", "simulate", "--duration", "20", "--seed", "1", str(sim)]) == 0
+    yaml_path = sim / "mav0" / "imu0" / "sensor.yaml"
+    text = yaml_path.read_text()
+    line = next(x for x in text.splitlines() if x.startswith("gyroscope_random_walk:"))
+    value = float(line.split(":")[1].split("#")[0])
+    yaml_path.write_text(text.replace(line, f"gyroscope_random_walk: {value / 1000:.6g}"))
+    assert main(["-q", "recover", str(sim), "--out", str(root / "rec")]) == 0
+    return sim, root / "rec"
+
+
+def test_random_walk_at_the_search_bound_is_a_limitation_with_a_next_step(wrong_datasheet, tmp_path, capsys) -> None:
+    from pipeline.cli import main
+    from validation.validate import read_recovery_dir, recovery_limitations
+
+    sim, rec = wrong_datasheet
+    (lim,) = recovery_limitations(read_recovery_dir(rec))
+    assert "gyro bias random walk was chosen at the edge of its search" in lim.text
+    assert "sensor.yaml" in lim.next_step
+    rc = main(["validate", str(sim), "--recovery", str(rec), "--out", str(tmp_path / "val")])
+    out = capsys.readouterr().out
+    assert rc in (0, 1) and "verdict: PASS" not in out  # never a PASS with the noise estimate at its bound
+    assert "edge of its search" in out and "next: check the IMU noise values" in out

@@ -126,6 +126,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"verdict: {result.verdict.value} (* = bias under test)")
     for reason in result.reasons:
         print(f"  - {reason}")
+    for step in result.next_steps:
+        print(f"  next: {step}")
     for note in result.notes:
         print(f"  note: {note}")
     print(f"wrote {args.out}")
