@@ -23,6 +23,7 @@ NONFINITE_ROWS      repairable  NaN/inf values or an all-zero quaternion (drop-n
 NON_MONOTONIC       repairable  stamps go backwards (sort)
 DUPLICATE_STAMPS    repairable  repeated stamps (drop-duplicates: keeps the first row)
 GAPS                warning     a step longer than ``gap_factor`` x the median step
+POSE_RATE_LOW       warning     a pose stream slower than ``min_pose_rate_hz`` (10 Hz)
 RATE                info        nominal rate and step jitter
 GYRO_DEGPS          repairable  gyro looks like deg/s (gyro-deg-to-rad)
 ACC_IN_G            repairable  accelerometer looks like g (acc-g-to-mps2)
@@ -123,7 +124,7 @@ FATAL_HINTS: dict[str, str] = {
 CHECK_CODES = frozenset({
     "EMPTY_STREAM", "NONFINITE_ROWS", "NON_MONOTONIC", "DUPLICATE_STAMPS", "GAPS", "RATE", "GYRO_DEGPS",
     "ACC_IN_G", "ACC_SCALE_SUSPECT", "SATURATION", "QUAT_NOT_UNIT", "QUAT_SIGN_FLIPS", "NO_TIME_OVERLAP",
-    "CLOCK_MISMATCH", "TOO_SHORT", "NO_IMU", "NO_POSES",
+    "CLOCK_MISMATCH", "TOO_SHORT", "NO_IMU", "NO_POSES", "POSE_RATE_LOW",
 })
 
 
@@ -147,6 +148,7 @@ class CheckOptions:
         min_overlap_fraction: Overlap of IMU and a pose stream, as a fraction of
             the shorter span, below which CLOCK_MISMATCH is a warning.
         saturation_min_count: Fewest samples at an axis's extreme value for SATURATION.
+        min_pose_rate_hz: Pose streams slower than this get POSE_RATE_LOW.
         ignore: Codes the user declared false positives: non-fatal findings with
             these codes are demoted to info (fatal ones cannot be ignored).
     """
@@ -157,6 +159,7 @@ class CheckOptions:
     quat_norm_tol: float = 1e-3
     min_overlap_fraction: float = 0.5
     saturation_min_count: int = 5
+    min_pose_rate_hz: float = 10.0
     ignore: frozenset[str] = field(default_factory=frozenset)
 
     def __post_init__(self) -> None:
@@ -330,6 +333,21 @@ def _check_stamps(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Findin
         details,
     ))
     return out
+
+
+def _check_pose_rate(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Finding]:
+    """POSE_RATE_LOW: a pose stream sampled too sparsely to pin the bias down over 1-s windows."""
+    if s.kind == "imu" or not math.isfinite(ts.nominal_ns) or ts.nominal_ns <= 0:
+        return []
+    rate = NS_PER_S / ts.nominal_ns
+    if rate >= opts.min_pose_rate_hz:
+        return []
+    return [Finding(
+        "POSE_RATE_LOW", Severity.WARNING, s.name,
+        f"{s.name} runs at {rate:.3g} Hz, below {opts.min_pose_rate_hz:g} Hz: the bias between poses rests on the "
+        "IMU alone and 1-s validation windows have few references; use the full-rate stream if there is one",
+        {"rate_hz": _round(rate), "min_pose_rate_hz": opts.min_pose_rate_hz},
+    )]
 
 
 def _check_nonfinite(s: _Stream, valid: np.ndarray) -> list[Finding]:
@@ -666,6 +684,7 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
         ts = _time_stats(s.t_ns)
         spans[s.name] = (ts.t0_ns, ts.t1_ns)
         findings += _check_stamps(s, ts, opts)
+        findings += _check_pose_rate(s, ts, opts)
         findings += _check_quaternions(s, valid, opts)
         if s.kind == "imu":
             assert seq.imu is not None

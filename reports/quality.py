@@ -545,10 +545,10 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
             al_v = "not visible" if allan is not None and allan.static else "n/a"
         else:
             al_v = _allan_cell(float(np.nanmean(al)), allan is not None and allan.static, "random_walk" in key)
-        nrows.append([label, fmt(used, 4), fmt(yaml_v, 4), ratio, al_v, unit])
-    parts.append(tag("h3", "Noise strengths: used by the recovery vs. sensor.yaml"))
-    parts.append(table(["parameter", "used", "sensor.yaml", "used / sensor.yaml", "Allan fit (section 7)", "unit"],
-                       nrows, numeric_from=1, text_cols=[5]))
+        nrows.append([label, fmt(used, 4), fmt(yaml_v, 4), ratio, al_v, unit, _calibration_origin(cal, key)])
+    parts.append(tag("h3", "Noise strengths: used by the recovery vs. the calibration"))
+    parts.append(table(["parameter", "used", "calibration", "used / calibration", "Allan fit (section 7)", "unit",
+                        "calibration from"], nrows, numeric_from=1, text_cols=[5, 6]))
     extra = []
     for key, label in (("position_sigma_m", "pose position sigma [m]"), ("rotation_sigma_rad", "pose rotation "
                        "sigma [rad]"), ("gyro_random_walk_scale", "gyro random-walk scale"),
@@ -879,6 +879,13 @@ def flagged_stretches(flagged: list[dict[str, Any]], stride_s: float) -> list[tu
 # ----------------------------------------------------------------------------- section 7: Allan
 
 
+def _calibration_origin(cal: Any, key: str) -> str:
+    """Where a calibration value came from: the file (folder/name), the config, or the default."""
+    origin = cal.value_sources()[key]
+    path = Path(origin)
+    return f"{path.parent.name}/{path.name}" if path.suffix in (".yaml", ".yml") else origin
+
+
 def _allan_cell(x: float, static: bool, is_rw: bool) -> str:
     """One fitted value as shown: a value, an upper bound (motion), or why there is none."""
     if not static:
@@ -912,7 +919,7 @@ def _allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None)
     parts = [tag("div", where, class_=cls) if cls else p(where),
              p("Overlapping Allan deviation per axis. Dotted line: white noise (slope −½, its value at τ = 1 s is "
                "the noise density); dash-dotted line: bias random walk (slope +½, its value at τ = 3 s is the random "
-               "walk). Black: fitted to this recording; orange: sensor.yaml.")]
+               "walk). Black: fitted to this recording; orange: the calibration.")]
     parts.append(figure_img(plots.allan_figure(
         allan.taus, allan.adev_gyro, title="Gyroscope", unit="rad/s", white=allan.gyro_white,
         random_walk=allan.gyro_rw, sensor_white=cal.gyro_noise_density, sensor_random_walk=cal.gyro_random_walk,
@@ -932,7 +939,7 @@ def _allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None)
     ):
         rows.append([label, *[_allan_cell(x, allan.static, is_rw) for x in fits], fmt(yaml_v, 4),
                      _allan_ratio(fits, yaml_v, allan.static, is_rw), unit])
-    parts.append(table(["parameter", "x", "y", "z", "sensor.yaml", "fit / sensor.yaml", "unit"], rows, numeric_from=1,
+    parts.append(table(["parameter", "x", "y", "z", "calibration", "fit / calibration", "unit"], rows, numeric_from=1,
                        text_cols=[6]))
     if allan.static:
         parts.append(p("“not visible”: the curve does not rise significantly above the white-noise line within a "

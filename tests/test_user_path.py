@@ -79,3 +79,34 @@ def test_random_walk_at_the_search_bound_is_a_limitation_with_a_next_step(wrong_
     out = capsys.readouterr().out
     assert rc in (0, 1) and "verdict: PASS" not in out  # never a PASS with the noise estimate at its bound
     assert "edge of its search" in out and "next: check the IMU noise values" in out
+
+
+def test_poses_at_2_hz_get_a_finding_and_no_pass(tmp_path: Path, capsys) -> None:
+    from pipeline.cli import main
+
+    sim = tmp_path / "sim"
+    assert main(["-q", "simulate", "--duration", "20", "--seed", "1", "--pose-rate", "2", str(sim)]) == 0
+    assert main(["inspect", str(sim)]) == 0
+    assert "POSE_RATE_LOW" in capsys.readouterr().out
+    assert main(["-q", "recover", str(sim), "--out", str(tmp_path / "rec")]) == 0
+    capsys.readouterr()
+    main(["validate", str(sim), "--recovery", str(tmp_path / "rec"), "--out", str(tmp_path / "val")])
+    out = capsys.readouterr().out
+    assert "verdict: PASS" not in out and "runs at 2 Hz" in out and "next: use a faster pose stream" in out
+
+
+def test_calibration_values_say_where_they_came_from(tmp_path: Path, shared_data: Path) -> None:
+    from pipeline.io import load_sequence
+    from pipeline.store import read_store, write_store
+    from pipeline.types import CALIBRATION_DEFAULT_SOURCE
+
+    bag = load_sequence(shared_data / "ros_bags" / "robot_localization_test" / "test1.bag")
+    (finding,) = [f for f in bag.findings if f.code == "CALIBRATION_DEFAULTED"]
+    assert finding.severity.value == "warning" and "gyro_random_walk" in finding.message
+    assert set(bag.calibration.value_sources().values()) == {CALIBRATION_DEFAULT_SOURCE}
+    asl = load_sequence(shared_data / "euroc" / "V1_01_easy")
+    yaml_path = str(shared_data / "euroc" / "V1_01_easy" / "mav0" / "imu0" / "sensor.yaml")
+    assert set(asl.calibration.value_sources().values()) == {yaml_path}
+    assert not [f for f in asl.findings if f.code == "CALIBRATION_DEFAULTED"]
+    back = read_store(write_store(asl, tmp_path / "store"))
+    assert back.calibration.value_sources() == asl.calibration.value_sources()

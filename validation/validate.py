@@ -118,7 +118,7 @@ from pipeline.errors import BiasgtError, DataError, InputFormatError, Validation
 from pipeline.integration import IntegrationScheme, integrate
 from pipeline.pose_transform import as_transform, poses_in_imu_frame, transform_from_json
 from pipeline.so3 import rotation_angle_deg
-from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence, StateSeries
+from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence, Severity, StateSeries
 
 log = logging.getLogger(__name__)
 
@@ -148,6 +148,7 @@ __all__ = [
     "sigma_window_errors",
     "read_recovery_dir",
     "recovery_limitations",
+    "input_limitations",
     "Limitation",
     "next_steps",
     "recovered_bias_at_imu",
@@ -1453,6 +1454,21 @@ def recovery_limitations(recovery: RecoveryInfo, config: ValidationConfig = Vali
     return out
 
 
+#: Input findings that limit what a bias recovered from that input is good for, and what to do.
+_LIMITING_FINDINGS = {
+    "POSE_RATE_LOW": "use a faster pose stream (motion capture at 100 Hz or more) if the recording has one",
+    "CALIBRATION_DEFAULTED": "give the IMU's own noise values (sensor.yaml or the recovery config) and recover again",
+    "SATURATION": "record with a larger sensor range, or drop the saturated stretches",
+    "STAMP_UNIT_GUESSED": "write the stamps as integer nanoseconds so that their unit is not guessed",
+}
+
+
+def input_limitations(sequence: Sequence) -> list[Limitation]:
+    """The sequence's WARNING findings that limit a bias recovered from it (:data:`_LIMITING_FINDINGS`)."""
+    return [Limitation(f"input: {f.message}", _LIMITING_FINDINGS[f.code]) for f in sequence.findings
+            if f.code in _LIMITING_FINDINGS and f.severity is Severity.WARNING]
+
+
 def validate_inputs(
     sequence: Sequence,
     *,
@@ -1489,7 +1505,8 @@ def validate_inputs(
     else:
         gravity = np.asarray(DEFAULT_GRAVITY_MPS2)
     reference = build_reference(sequence, pose_stream=pose_stream, recovery=recovery, config=config)
-    limitations = recovery_limitations(recovery, config) if recovery is not None else []
+    limitations = input_limitations(sequence)
+    limitations += recovery_limitations(recovery, config) if recovery is not None else []
     if recovery is not None and reference.kind is ReferenceKind.POSES and (
             recovery.pose_stream is None or reference.info.get("stream") == recovery.pose_stream):
         limitations.append(Limitation(

@@ -25,10 +25,17 @@ from typing import Any
 
 from pipeline.errors import AmbiguousInputError, ConfigError, DataError, InputFormatError, UnsupportedInputError
 from pipeline.io._text import TimeUnit
-from pipeline.io.asl import AslTable, read_asl, read_asl_csv, read_asl_pose_csv, sniff_asl_csv
+from pipeline.io.asl import (
+    CODE_CALIBRATION_DEFAULTED,
+    AslTable,
+    read_asl,
+    read_asl_csv,
+    read_asl_pose_csv,
+    sniff_asl_csv,
+)
 from pipeline.io.csv_generic import AccUnit, CsvMapping, GyroUnit, QuatOrder, read_csv_generic
 from pipeline.io.tum import read_tum, write_tum
-from pipeline.types import PoseSeries, PoseSourceKind, Sequence
+from pipeline.types import Finding, PoseSeries, PoseSourceKind, Sequence, Severity
 
 log = logging.getLogger(__name__)
 
@@ -203,7 +210,30 @@ def load_sequence(
     seq = _load_one(Path(path), fmt=fmt, name=name, csv_mapping=csv_mapping, imu_topic=imu_topic,
                     pose_topic=pose_topic, tf_parent=tf_parent, tf_child=tf_child)
     extras = [PoseInput.coerce(p) for p in extra_poses]
-    return add_pose_inputs(seq, extras) if extras else seq
+    seq = add_pose_inputs(seq, extras) if extras else seq
+    is_store = (parse_format(fmt) if fmt is not None else detect_format(Path(path))) is SourceFormat.STORE
+    return seq if is_store else _with_calibration_finding(seq)
+
+
+def _with_calibration_finding(seq: Sequence) -> Sequence:
+    """Add CALIBRATION_DEFAULTED when IMU noise values are defaults nobody gave (bags, CSV, TUM...).
+
+    Readers that know better (an ASL folder's sensor.yaml, a store that recorded its findings)
+    have said so already; a store's calibration is what its writer had.
+    """
+    if seq.imu is None or any(f.code == CODE_CALIBRATION_DEFAULTED for f in seq.findings):
+        return seq
+    missing = seq.calibration.defaulted()
+    if not missing:
+        return seq
+    finding = Finding(
+        CODE_CALIBRATION_DEFAULTED, Severity.WARNING, "imu",
+        f"no IMU noise values for {', '.join(missing)}: using the EuRoC (ADIS16448) datasheet defaults; "
+        "give this IMU's values (a Kalibr-style sensor.yaml next to the data, or the recovery config's "
+        "gyro_noise_density / gyro_random_walk / acc_noise_density / acc_random_walk)",
+        {"missing_keys": missing},
+    )
+    return replace(seq, findings=[*seq.findings, finding])
 
 
 def _load_one(
