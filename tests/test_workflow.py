@@ -579,7 +579,7 @@ def test_other_step_functions_in_process(e2e_run, tmp_path):
     assert html.read_text().lower().lstrip().startswith("<!doctype html")
     # windows: inputs and names must line up; options are checked
     with pytest.raises(ConfigError, match="1 sequences but 2 stores"):
-        wf.windows_step([store, store], [recovery, recovery], tmp_path / "ds", {"sequences": [["tiny_a", "train"]]})
+        wf.windows_step([store, store], [recovery, recovery], [recovery, recovery], tmp_path / "ds", {"sequences": [["tiny_a", "train"]]})
     with pytest.raises(ConfigError, match="window_len"):
         wf.make_window_config({"window_len": 2})
 
