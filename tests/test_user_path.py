@@ -110,3 +110,21 @@ def test_calibration_values_say_where_they_came_from(tmp_path: Path, shared_data
     assert not [f for f in asl.findings if f.code == "CALIBRATION_DEFAULTED"]
     back = read_store(write_store(asl, tmp_path / "store"))
     assert back.calibration.value_sources() == asl.calibration.value_sources()
+
+
+def test_validate_against_positions_only_names_the_stream_typed_and_what_to_use(tmp_path: Path, capsys) -> None:
+    from pipeline.cli import main
+
+    sim = tmp_path / "sim"
+    assert main(["-q", "simulate", "--duration", "20", "--seed", "3", "--pose-format", "position", str(sim)]) == 0
+    assert main(["-q", "recover", str(sim), "--out", str(tmp_path / "rec")]) == 0
+    capsys.readouterr()
+    rc = main(["validate", str(sim), "--recovery", str(tmp_path / "rec"), "--poses", "leica0",
+               "--out", str(tmp_path / "val")])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2 and len(err.splitlines()) == 1
+    assert "'leica0' has positions only" in err and "drop --poses" in err
+    assert not (tmp_path / "val").exists()
+    # following the hint works
+    rc = main(["validate", str(sim), "--recovery", str(tmp_path / "rec"), "--out", str(tmp_path / "val")])
+    assert rc in (0, 1) and (tmp_path / "val" / "validation.json").exists()

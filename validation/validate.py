@@ -1329,6 +1329,17 @@ def build_reference(
     except BiasgtError as exc:
         raise ValidationError(f"no reference for sequence '{sequence.name}': {exc.problem}", field="poses",
                               hint=exc.hint) from None
+    if poses.quat_wxyz is None:
+        full = [k for k, v in sequence.poses.items() if v.quat_wxyz is not None]
+        if sequence.ground_truth is not None:
+            instead = "validate against the sequence's ground-truth state instead: drop --poses"
+        elif full:
+            instead = f"validate against a 6-DoF stream instead: --poses {' or --poses '.join(full)}"
+        else:
+            instead = ("add 6-DoF poses or a ground truth of the same run (--add-poses FILE:ground_truth) and "
+                       "validate against them with --poses")
+        raise ValidationError(f"pose stream '{pose_stream or name}' has positions only: the 1-s integration "
+                              "check needs the orientation at each window's start", field="--poses", hint=instead)
     if recovery is not None and (recovery.pose_stream is None or recovery.pose_stream == name):
         # the recovery's extrinsic and clock offset belong to the stream it fitted
         T, offset = recovery.T_imu_pose, recovery.time_offset_s

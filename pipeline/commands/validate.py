@@ -35,7 +35,8 @@ exit status: 0 PASS or WARN, 1 FAIL, 2 bad input (one-line error, nothing writte
 examples:
   biasgt validate data/V1_01_store --recovery out/V1_01/recovery --out out/V1_01/validation
   biasgt validate sim01 --bias out/sim01/bias.csv --bias openvins=V1_01_easy.csv --out out/val
-  biasgt validate MH_01 --recovery out/MH_01 --poses leica0 --window-s 2 --overlap 0 --out out/val2
+  biasgt validate MH_01 --add-poses MH_01/ov_data/MH_01_easy.txt:ground_truth --poses MH_01_easy \
+      --recovery out/MH_01 --window-s 2 --overlap 0 --out out/val2   (Leica recovery, GT reference)
 """
 
 
