@@ -179,12 +179,18 @@ class CheckOptions:
 class _Stream:
     """A uniform view of one time-stamped stream: stamps plus named value arrays."""
 
-    name: str
+    name: str  # as shown: "imu", "poses/<stream>" (see pose_stream_label), "ground_truth"
     kind: str  # "imu", "poses", "ground_truth"
     t_ns: np.ndarray
     values: dict[str, np.ndarray]  # name -> [N, k]
     quat: np.ndarray | None
     obj: Any
+    key: str = ""  # the sequence's own key of a pose stream (a topic keeps its leading '/')
+
+
+def pose_stream_label(name: str) -> str:
+    """How findings name a pose stream: ``poses/vicon0``, ``poses/odom`` for topic ``/odom`` (no ``//``)."""
+    return f"poses/{name.lstrip('/')}"
 
 
 def _streams(seq: Sequence) -> list[_Stream]:
@@ -196,7 +202,7 @@ def _streams(seq: Sequence) -> list[_Stream]:
         vals = {"p": poses.p_m}
         if poses.quat_wxyz is not None:
             vals["quat"] = poses.quat_wxyz
-        out.append(_Stream(f"poses/{name}", "poses", poses.t_ns, vals, poses.quat_wxyz, poses))
+        out.append(_Stream(pose_stream_label(name), "poses", poses.t_ns, vals, poses.quat_wxyz, poses, key=name))
     if seq.ground_truth is not None:
         gt = seq.ground_truth
         vals = {"p": gt.p_m, "quat": gt.quat_wxyz, "v": gt.v_mps, "bg": gt.bias_gyro_radps, "ba": gt.bias_acc_mps2}
@@ -446,7 +452,7 @@ def detect_gyro_degps(seq: Sequence, valid: np.ndarray | None = None) -> dict[st
         candidates.append((GROUND_TRUTH_STREAM, seq.ground_truth.t_ns, seq.ground_truth.quat_wxyz))
     for name, poses in seq.poses.items():
         if poses.quat_wxyz is not None:
-            candidates.append((f"poses/{name}", poses.t_ns, poses.quat_wxyz))
+            candidates.append((pose_stream_label(name), poses.t_ns, poses.quat_wxyz))
     for name, pt, pq in candidates:
         if len(pt) < 3:
             continue
@@ -661,8 +667,9 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
         else:
             findings.append(Finding(
                 "NO_IMU", Severity.FATAL, IMU_STREAM,
-                "the input has no IMU stream; bias recovery needs one (pick it with --imu-topic, "
-                "or pass --allow-pose-only to convert the poses alone)", {}))
+                "the input has no IMU stream (no sensor_msgs/Imu topic, no imu0/data.csv, no IMU columns); "
+                "bias recovery needs one: give the recording that holds the IMU, or pass --allow-pose-only "
+                "to convert the poses alone", {}))
     elif not seq.poses and seq.ground_truth is None:
         findings.append(Finding("NO_POSES", Severity.WARNING, IMU_STREAM,
                                 "the input has no pose stream: bias recovery needs one (add a pose file with "
@@ -849,7 +856,7 @@ def apply_repairs(seq: Sequence, repairs: Iterable[Repair | str], options: Check
         if s.kind == "imu":
             imu = obj
         elif s.kind == "poses":
-            poses[s.name.removeprefix("poses/")] = obj
+            poses[s.key] = obj
         else:
             gt = obj
     work = replace(seq, imu=imu, poses=poses, ground_truth=gt)

@@ -128,3 +128,44 @@ def test_validate_against_positions_only_names_the_stream_typed_and_what_to_use(
     # following the hint works
     rc = main(["validate", str(sim), "--recovery", str(tmp_path / "rec"), "--out", str(tmp_path / "val")])
     assert rc in (0, 1) and (tmp_path / "val" / "validation.json").exists()
+
+
+# ----------------------------------------------------------------------------- inspect describes, it does not refuse
+
+
+@pytest.mark.parametrize(("bag", "streams"), [
+    ("evo_test_data/ROS_example.bag", {"poses/ORB-SLAM", "poses/S-PTAM", "poses/groundtruth"}),
+    ("evo_test_data/nav2_turtlebot.mcap", {"poses/amcl_pose", "poses/odom"}),
+])
+def test_inspect_lists_every_pose_stream_of_a_bag(shared_data: Path, capsys, bag: str, streams: set[str]) -> None:
+    import json
+
+    from pipeline.cli import main
+
+    rc = main(["inspect", "--json", str(shared_data / "ros_bags" / bag)])
+    report = json.loads(capsys.readouterr().out)
+    assert rc == 1  # no IMU in these bags: fatal for conversion, but described
+    assert {s["stream"] for s in report["streams"]} == streams
+    codes = {f["code"]: f for f in report["findings"]}
+    assert "--pose-topic" in codes["POSE_STREAM_CHOICE"]["message"]
+    assert "--imu-topic" not in codes["NO_IMU"]["message"]
+    assert not any("//" in f["stream"] or "//" in f["message"] for f in report["findings"])
+
+
+def test_inspect_json_prints_a_document_for_errors_too(tmp_path: Path, capsys) -> None:
+    import json
+
+    from pipeline.cli import main
+
+    rc = main(["inspect", "--json", str(tmp_path / "missing")])
+    captured = capsys.readouterr()
+    doc = json.loads(captured.out)
+    assert rc == 2 and doc["verdict"] == "error" and doc["error"]["type"] == "InputFormatError"
+    assert len(captured.err.strip().splitlines()) == 1
+
+
+def test_recover_still_asks_for_a_choice_among_pose_topics(shared_data: Path, capsys) -> None:
+    from pipeline.cli import main
+
+    rc = main(["recover", str(shared_data / "ros_bags" / "evo_test_data" / "ROS_example.bag"), "--out", "unused"])
+    assert rc == 2 and "--pose-topic" in capsys.readouterr().err

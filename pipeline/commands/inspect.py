@@ -119,10 +119,18 @@ def format_report(report: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.checks import Verdict, run_checks
+    from pipeline.errors import BiasgtError
     from pipeline.ingest import check_options_from_args, load, reader_kwargs_from_args
 
     options = check_options_from_args(args)
-    seq = load(args.input, reader_kwargs_from_args(args))
+    try:
+        seq = load(args.input, {**reader_kwargs_from_args(args), "all_pose_topics": True})
+    except BiasgtError as exc:
+        if args.json:  # --json always prints a JSON document
+            print(json.dumps({"input": str(args.input), "verdict": "error", "error": {
+                "type": type(exc).__name__, "message": str(exc), "path": exc.path, "line": exc.line,
+                "field": exc.field, "hint": exc.hint}}, indent=2))
+        raise
     findings = run_checks(seq, options)
     report = inspect_report(args.input, seq, findings)
     if args.json:

@@ -183,6 +183,7 @@ def load_sequence(
     tf_parent: str | None = None,
     tf_child: str | None = None,
     extra_poses: Iterable[PoseInput | str | dict[str, Any]] = (),
+    all_pose_topics: bool = False,
 ) -> Sequence:
     """Read any supported input as a :class:`Sequence`.
 
@@ -198,6 +199,8 @@ def load_sequence(
         extra_poses: More pose inputs to merge into the sequence (e.g. IMU from an ASL folder
             and ground-truth or VIO poses from a TUM file): :class:`PoseInput`, ``"PATH"``,
             ``"PATH:KIND"`` or a dict with ``path`` and optional ``fmt``, ``stream``, ``kind``.
+        all_pose_topics: ROS bags: read every pose topic (or tf pair) instead of refusing the
+            choice (for describing a bag, :func:`pipeline.io.rosbag.read_bag`).
 
     Returns:
         The sequence, with the reader's findings and ``metadata["source_format"]``.
@@ -208,7 +211,7 @@ def load_sequence(
         ConfigError: An option that does not apply to this format, or a bad mapping.
     """
     seq = _load_one(Path(path), fmt=fmt, name=name, csv_mapping=csv_mapping, imu_topic=imu_topic,
-                    pose_topic=pose_topic, tf_parent=tf_parent, tf_child=tf_child)
+                    pose_topic=pose_topic, tf_parent=tf_parent, tf_child=tf_child, all_pose_topics=all_pose_topics)
     extras = [PoseInput.coerce(p) for p in extra_poses]
     seq = add_pose_inputs(seq, extras) if extras else seq
     is_store = (parse_format(fmt) if fmt is not None else detect_format(Path(path))) is SourceFormat.STORE
@@ -246,6 +249,7 @@ def _load_one(
     pose_topic: str | None,
     tf_parent: str | None,
     tf_child: str | None,
+    all_pose_topics: bool = False,
 ) -> Sequence:
     if not path.exists():
         raise InputFormatError("does not exist", path=path, hint="check the path")
@@ -290,7 +294,7 @@ def _load_one(
             raise UnsupportedInputError("ROS bag support is not available in this build", path=path,
                                         hint=SUPPORTED_HINT) from exc
         raise
-    return read_bag(path, name=name, **bag_opts)
+    return read_bag(path, name=name, all_pose_topics=all_pose_topics, **bag_opts)
 
 
 @dataclass(frozen=True)
