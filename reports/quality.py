@@ -363,6 +363,31 @@ def verdict_summary(validation: dict[str, Any] | None) -> tuple[str, str]:
     return word, sentence.strip()
 
 
+def checked_and_not(validation: dict[str, Any]) -> list[str]:
+    """Plain sentences: what the validation checked, and what it did not."""
+    ref, cfg, dropped = (validation.get(k) if isinstance(validation.get(k), dict) else {}
+                         for k in ("reference", "config", "windows_dropped"))
+    kept = dropped.get("kept", "?")
+    if ref.get("kind") == "state":
+        against = "the sequence's ground-truth state (position, velocity, orientation)"
+    else:
+        against = f"the pose stream '{ref.get('stream', '?')}' (velocity from a smoothing spline of its positions)"
+    reasons = validation.get("reasons") if isinstance(validation.get("reasons"), list) else []
+    independent = not any("not an independent test" in str(r) for r in reasons)
+    baselines = sorted({str(s.get("kind")) for s in _sources(validation).values()}
+                       & {"constant_first_window", "dataset"})
+    return [
+        f"Checked: {kept} integrations of {fmt(_num(cfg, 'window_s') or 1.0, 3)} s of the IMU minus the bias, each "
+        f"from and against {against}; end-point position and rotation errors (PRMSE, ROE) compared with "
+        + " and ".join({"constant_first_window": "a constant bias", "dataset": "the dataset's own bias"}[k]
+                       for k in baselines) + ".",
+        "Independent reference: " + ("yes." if independent else "no, the reference is what the bias was fitted "
+                                                                  "to (pose errors absorbed by the bias are not seen)."),
+        "Not checked: drift over spans longer than one window; errors the reference and the IMU share (e.g. a "
+        "wrong extrinsic used by both); IMU scale and misalignment (not modelled: the bias absorbs them).",
+    ]
+
+
 def _verdict_section(inp: ReportInputs) -> Html:
     word, sentence = verdict_summary(inp.validation)
     cls = {"PASS": "v-pass", "WARN": "v-warn", "FAIL": "v-fail"}.get(word, "v-none")
@@ -373,8 +398,14 @@ def _verdict_section(inp: ReportInputs) -> Html:
             body.append(p("Reasons:"))
             body.append(ul(reasons))
         elif word == "PASS":
-            body.append(p("No reason for concern was found: the candidate is at least as good as every baseline, "
-                          "few windows are flagged and few were dropped."))
+            body.append(p("No reason for concern was found in what was checked: the candidate is at least as good "
+                          "as every baseline, few windows are flagged and few were dropped."))
+        steps = [str(x) for x in inp.validation.get("next_steps") or [] if isinstance(x, str)]
+        if steps:
+            body.append(p("What to do next:"))
+            body.append(ul(steps))
+        body.append(p("What was checked:"))
+        body.append(ul(checked_and_not(inp.validation)))
     else:
         where = inp.validation_dir if inp.validation_dir is not None else "(not given)"
         body.append(p(f"Looked for the validation output in {where}. Run the validation stage to get a verdict; "

@@ -169,3 +169,17 @@ def test_recover_still_asks_for_a_choice_among_pose_topics(shared_data: Path, ca
 
     rc = main(["recover", str(shared_data / "ros_bags" / "evo_test_data" / "ROS_example.bag"), "--out", "unused"])
     assert rc == 2 and "--pose-topic" in capsys.readouterr().err
+
+
+def test_report_first_box_says_what_was_checked_and_what_to_do(wrong_datasheet, tmp_path) -> None:
+    from pipeline.cli import main
+
+    sim, rec = wrong_datasheet
+    main(["-q", "validate", str(sim), "--recovery", str(rec), "--out", str(tmp_path / "val")])
+    assert main(["-q", "convert", str(sim), "--out", str(tmp_path / "store")]) == 0
+    assert main(["-q", "report", "--ingest", str(tmp_path / "store"), "--recovery", str(rec), "--validation",
+                 str(tmp_path / "val"), "--out", str(tmp_path / "q.html")]) == 0
+    html = (tmp_path / "q.html").read_text()
+    box = html[html.index('class="verdict'):html.index("</section>", html.index('class="verdict'))]
+    assert "What to do next:" in box and "check the IMU noise values" in box
+    assert "What was checked:" in box and "ground-truth state" in box and "Not checked:" in box
