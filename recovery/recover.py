@@ -497,8 +497,9 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         raise RecoveryError(
             f"sequence '{sequence.name}': the optimisation is degenerate ({first}); the motion does not "
             "make the bias, clock offset or extrinsic observable",
-            hint="record more varied motion (rotation about several axes), or fix the extrinsic "
-                 "(--extrinsic known) and the clock offset (--time-offset-s)",
+            hint="for wheel odometry or VIO poses, use fewer keyframes (--keyframe-rate 10); else record "
+                 "more varied motion (rotation about several axes), or fix the extrinsic (--extrinsic known) "
+                 "and the clock offset (--time-offset-s)",
         ) from exc
 
 

@@ -498,6 +498,7 @@ def test_degenerate_problem_is_a_recovery_error(monkeypatch):
     with pytest.raises(RecoveryError, match=r"degenerate \(Indeterminant linear system detected") as info:
         rr.recover(Sequence(name="flat"))
     assert "\n" not in str(info.value) and "--extrinsic known" in str(info.value)
+    assert "--keyframe-rate 10" in str(info.value)  # the option that works on wheel odometry (test_user_path)
     monkeypatch.setattr(rr, "_recover", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("other bug")))
     with pytest.raises(RuntimeError, match="other bug"):
         rr.recover(Sequence(name="x"))

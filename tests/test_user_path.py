@@ -207,3 +207,15 @@ def test_readme_csv_mapping_example_reads_a_csv(tmp_path: Path) -> None:
     (poses,) = seq.poses.values()
     np.testing.assert_allclose(poses.quat_wxyz[0], [1.0, 0.0, 0.0, 0.0])   # xyzw -> wxyz
     assert poses.frame == mapping["pose_frame"] and seq.imu.t_ns[1] - seq.imu.t_ns[0] == 5_000_000
+
+
+@pytest.mark.slow
+def test_degenerate_wheel_odometry_hint_works(shared_data: Path, tmp_path: Path, capsys) -> None:
+    """test2.bag (a Jackal's wheel odometry at 50 Hz) is degenerate with a keyframe per sample; the hint's
+    first option, fewer keyframes, recovers it (with its limitations reported)."""
+    from pipeline.cli import main
+
+    bag = shared_data / "ros_bags" / "robot_localization_test" / "test2.bag"
+    rc = main(["-q", "recover", str(bag), "--out", str(tmp_path / "rec"), "--keyframe-rate", "10"])
+    assert rc == 0, capsys.readouterr().err
+    assert (tmp_path / "rec" / "bias.csv").exists()
