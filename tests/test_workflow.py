@@ -47,7 +47,8 @@ def test_default_config_is_valid_with_defaults():
     for section in ("training", "evaluation", "report"):
         assert cfg.data[section] == {}
     assert cfg.data["interpolation"] == {"method": "linear", "clamp": True, "write_csv": True}
-    assert cfg.data["windows"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0}
+    assert cfg.data["windows"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0,
+                                   "accept_warn": False}
     assert cfg.data["recovery"]["keyframe_rate_hz"] is None and cfg.data["recovery"]["pose_stream"] is None
     assert cfg.data["validation"]["window_s"] == 1.0 and cfg.data["validation"]["poses"] is None
     assert cfg.data["ingest"] == {"repairs": [], "check_options": {}}
@@ -376,7 +377,7 @@ def test_stage_settings_merge_entry_overrides(tmp_path):
     assert wf.interpolation_outputs(cfg) == ["results/interpolation/{sequence}/bias_imu.parquet"]
     assert wf.windows_settings(cfg) == {
         "sequences": [["a", "train"], ["b", "val"], ["d", "test"]],
-        "config": {"window_s": 2.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0},
+        "config": {"window_s": 2.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0, "accept_warn": False},
     }
     assert wf.windows_inputs(cfg) == {
         "stores": ["results/ingest/a", "results/ingest/b", "results/ingest/d"],
