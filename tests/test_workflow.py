@@ -382,6 +382,7 @@ def test_stage_settings_merge_entry_overrides(tmp_path):
     assert wf.windows_inputs(cfg) == {
         "stores": ["results/ingest/a", "results/ingest/b", "results/ingest/d"],
         "recoveries": ["results/recovery/a", "results/recovery/b", "results/recovery/d"],
+        "validations": ["results/validation/a", "results/validation/b", "results/validation/d"],
     }
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
     no_train = wf.load_config(write_config(tmp_path / "t.yaml", {"sequences": [sim_entry("x", split="test")]}))
@@ -731,9 +732,9 @@ def test_rerun_only_what_a_config_change_affects(e2e_run):
     # one sequence's own recovery override: that sequence's chain (and the dataset) only
     assert jobs_after(lambda d: d["sequences"][1].update(recovery={"keyframe_rate_hz": 50})) == sorted(
         [(r, "tiny_b") for r in ("recover", "interpolate", "validate", "report")] + [("windows", "")])
-    # a validation option: validate and report only
+    # a validation option: validate, report and windows (the verdicts decide which sequences are windowed)
     assert jobs_after(lambda d: d.update(validation={"window_s": 2.0})) == sorted(
-        [(r, s) for r in ("validate", "report") for s in both])
+        [(r, s) for r in ("validate", "report") for s in both] + [("windows", "")])
     # interpolation and windows options: their own jobs only
     assert jobs_after(lambda d: d.update(interpolation={"method": "cubic"})) == [
         ("interpolate", "tiny_a"), ("interpolate", "tiny_b")]
