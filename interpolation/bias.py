@@ -95,8 +95,14 @@ class BiasTrack:
         return frame
 
 
-def read_bias_csv(path: str | Path) -> BiasTrack:
-    """Read a ``bias.csv`` (the recovery contract) or an interpolated bias CSV/Parquet."""
+def read_bias_csv(path: str | Path, *, require_std: bool = True) -> BiasTrack:
+    """Read a ``bias.csv`` (the recovery contract) or an interpolated bias CSV/Parquet.
+
+    Args:
+        path: The table.
+        require_std: Whether the six ``*_std`` columns must be there. A bias to compare against
+            (a constant, another tool's estimate) may have none: its sigma is then 0.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputFormatError("bias file does not exist", path=path,
@@ -108,6 +114,9 @@ def read_bias_csv(path: str | Path) -> BiasTrack:
         raise InputFormatError(f"cannot parse bias table ({exc})", path=path,
                                hint=f"the header must be {','.join(CSV_HEADER)}") from exc
     missing = [c for c in CSV_HEADER if c not in frame.columns]
+    if not require_std and missing == list(STD_COLUMNS):
+        frame[list(STD_COLUMNS)] = 0.0
+        missing = []
     if missing:
         raise InputFormatError("missing columns " + ", ".join(missing), path=path,
                                hint=f"the header must be {','.join(CSV_HEADER)}")

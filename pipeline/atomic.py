@@ -9,9 +9,13 @@ from __future__ import annotations
 import contextlib
 import os
 import shutil
+import signal
 import tempfile
-from collections.abc import Iterator
+import threading
+from collections.abc import Collection, Iterator
 from pathlib import Path
+
+from pipeline.errors import OutputLocationError
 
 
 def _umask() -> int:
@@ -42,18 +46,67 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         yield tmp
         if tmp.exists():
             _default_mode(tmp, is_dir=False)
-        os.replace(tmp, path)
+        with _stop_signals_deferred():
+            os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
         raise
 
 
+_STOP_SIGNALS = {signal.SIGINT, signal.SIGTERM}
+
+
 @contextlib.contextmanager
-def atomic_dir(path: str | Path) -> Iterator[Path]:
+def _stop_signals_deferred() -> Iterator[None]:
+    """Hold SIGINT/SIGTERM until the block ends, so a rename sequence is never cut in half.
+
+    A held signal is delivered (and its handler raises) right after the block. Outside the main
+    thread signals cannot be held there, and Python delivers them to the main thread anyway.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, _STOP_SIGNALS)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
+
+
+def _swap_in(tmp: Path, path: Path, owned: Collection[str] | None) -> None:
+    """Rename ``tmp`` onto ``path``; entries of an existing ``path`` not in ``owned`` move along."""
+    if not path.exists():
+        os.replace(tmp, path)
+        return
+    if not path.is_dir():
+        raise NotADirectoryError(f"{path} exists and is not a folder")
+    carried: list[str] = []
+    try:
+        if owned is not None:
+            for entry in path.iterdir():
+                if entry.name not in owned and not (tmp / entry.name).exists():
+                    os.replace(entry, tmp / entry.name)
+                    carried.append(entry.name)
+        old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+        os.replace(path, old / "x")
+    except BaseException:
+        for name in carried:  # put the other stages' outputs back where they were
+            os.replace(tmp / name, path / name)
+        raise
+    os.replace(tmp, path)
+    shutil.rmtree(old, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | Path, *, owned: Collection[str] | None = None) -> Iterator[Path]:
     """Yield a fresh temporary folder next to ``path``; it replaces ``path`` on success.
 
-    An existing ``path`` is replaced only once the new content is complete.
+    An existing ``path`` is replaced only once the new content is complete. With ``owned`` (the
+    file and folder names this writer produces), entries of an existing ``path`` with other
+    names (another stage's outputs in a shared folder) are kept; without it the folder is
+    replaced as a whole. On any exit other than success (an exception, Ctrl-C, SIGTERM turned
+    into an exception by the CLI) the temporary folder is removed and ``path`` is untouched.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -61,16 +114,41 @@ def atomic_dir(path: str | Path) -> Iterator[Path]:
     try:
         yield tmp
         _default_mode(tmp, is_dir=True)
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-            os.replace(path, old / "x")
-            os.replace(tmp, path)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, path)
+        with _stop_signals_deferred():
+            _swap_in(tmp, path, owned)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+
+
+def check_output_location(path: str | Path) -> None:
+    """Fail early, before any work, if ``path`` cannot be written atomically.
+
+    The writers create a temporary sibling of ``path`` and rename it, creating missing parent
+    folders first; so the nearest existing ancestor must be a writable folder (probed by really
+    creating a file there: permission bits do not tell on read-only mounts or for root), and an
+    existing folder at ``path`` must be writable too (its other stages' files are moved along).
+
+    Raises:
+        OutputLocationError: Naming the blocking path and the fix.
+    """
+    path = Path(path)
+    ancestor = path.parent
+    while not ancestor.exists() and ancestor != ancestor.parent:
+        ancestor = ancestor.parent
+    if not ancestor.is_dir():
+        raise OutputLocationError(f"cannot create the output there: {ancestor} is a file, not a folder", path=path,
+                                  hint="choose an --out whose parent folders are folders")
+    probes = [ancestor] + ([path] if path.is_dir() else [])
+    for folder in probes:
+        try:
+            fd, name = tempfile.mkstemp(prefix=".biasgt-write-probe.", dir=folder)
+        except OSError as exc:
+            raise OutputLocationError(f"cannot write the output there: folder {folder} is not writable "
+                                      f"({exc.strerror})", path=path,
+                                      hint="choose a writable --out or fix the folder's permissions") from None
+        os.close(fd)
+        os.unlink(name)
 
 
 def write_text_atomic(path: str | Path, text: str) -> None:

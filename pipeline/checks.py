@@ -23,6 +23,7 @@ NONFINITE_ROWS      repairable  NaN/inf values or an all-zero quaternion (drop-n
 NON_MONOTONIC       repairable  stamps go backwards (sort)
 DUPLICATE_STAMPS    repairable  repeated stamps (drop-duplicates: keeps the first row)
 GAPS                warning     a step longer than ``gap_factor`` x the median step
+POSE_RATE_LOW       warning     a pose stream slower than ``min_pose_rate_hz`` (10 Hz)
 RATE                info        nominal rate and step jitter
 GYRO_DEGPS          repairable  gyro looks like deg/s (gyro-deg-to-rad)
 ACC_IN_G            repairable  accelerometer looks like g (acc-g-to-mps2)
@@ -123,7 +124,7 @@ FATAL_HINTS: dict[str, str] = {
 CHECK_CODES = frozenset({
     "EMPTY_STREAM", "NONFINITE_ROWS", "NON_MONOTONIC", "DUPLICATE_STAMPS", "GAPS", "RATE", "GYRO_DEGPS",
     "ACC_IN_G", "ACC_SCALE_SUSPECT", "SATURATION", "QUAT_NOT_UNIT", "QUAT_SIGN_FLIPS", "NO_TIME_OVERLAP",
-    "CLOCK_MISMATCH", "TOO_SHORT", "NO_IMU", "NO_POSES",
+    "CLOCK_MISMATCH", "TOO_SHORT", "NO_IMU", "NO_POSES", "POSE_RATE_LOW",
 })
 
 
@@ -147,6 +148,7 @@ class CheckOptions:
         min_overlap_fraction: Overlap of IMU and a pose stream, as a fraction of
             the shorter span, below which CLOCK_MISMATCH is a warning.
         saturation_min_count: Fewest samples at an axis's extreme value for SATURATION.
+        min_pose_rate_hz: Pose streams slower than this get POSE_RATE_LOW.
         ignore: Codes the user declared false positives: non-fatal findings with
             these codes are demoted to info (fatal ones cannot be ignored).
     """
@@ -157,6 +159,7 @@ class CheckOptions:
     quat_norm_tol: float = 1e-3
     min_overlap_fraction: float = 0.5
     saturation_min_count: int = 5
+    min_pose_rate_hz: float = 10.0
     ignore: frozenset[str] = field(default_factory=frozenset)
 
     def __post_init__(self) -> None:
@@ -176,12 +179,18 @@ class CheckOptions:
 class _Stream:
     """A uniform view of one time-stamped stream: stamps plus named value arrays."""
 
-    name: str
+    name: str  # as shown: "imu", "poses/<stream>" (see pose_stream_label), "ground_truth"
     kind: str  # "imu", "poses", "ground_truth"
     t_ns: np.ndarray
     values: dict[str, np.ndarray]  # name -> [N, k]
     quat: np.ndarray | None
     obj: Any
+    key: str = ""  # the sequence's own key of a pose stream (a topic keeps its leading '/')
+
+
+def pose_stream_label(name: str) -> str:
+    """How findings name a pose stream: ``poses/vicon0``, ``poses/odom`` for topic ``/odom`` (no ``//``)."""
+    return f"poses/{name.lstrip('/')}"
 
 
 def _streams(seq: Sequence) -> list[_Stream]:
@@ -193,7 +202,7 @@ def _streams(seq: Sequence) -> list[_Stream]:
         vals = {"p": poses.p_m}
         if poses.quat_wxyz is not None:
             vals["quat"] = poses.quat_wxyz
-        out.append(_Stream(f"poses/{name}", "poses", poses.t_ns, vals, poses.quat_wxyz, poses))
+        out.append(_Stream(pose_stream_label(name), "poses", poses.t_ns, vals, poses.quat_wxyz, poses, key=name))
     if seq.ground_truth is not None:
         gt = seq.ground_truth
         vals = {"p": gt.p_m, "quat": gt.quat_wxyz, "v": gt.v_mps, "bg": gt.bias_gyro_radps, "ba": gt.bias_acc_mps2}
@@ -332,6 +341,21 @@ def _check_stamps(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Findin
     return out
 
 
+def _check_pose_rate(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Finding]:
+    """POSE_RATE_LOW: a pose stream sampled too sparsely to pin the bias down over 1-s windows."""
+    if s.kind == "imu" or not math.isfinite(ts.nominal_ns) or ts.nominal_ns <= 0:
+        return []
+    rate = NS_PER_S / ts.nominal_ns
+    if rate >= opts.min_pose_rate_hz:
+        return []
+    return [Finding(
+        "POSE_RATE_LOW", Severity.WARNING, s.name,
+        f"{s.name} runs at {rate:.3g} Hz, below {opts.min_pose_rate_hz:g} Hz: the bias between poses rests on the "
+        "IMU alone and 1-s validation windows have few references; use the full-rate stream if there is one",
+        {"rate_hz": _round(rate), "min_pose_rate_hz": opts.min_pose_rate_hz},
+    )]
+
+
 def _check_nonfinite(s: _Stream, valid: np.ndarray) -> list[Finding]:
     bad = np.flatnonzero(~valid)
     if not len(bad):
@@ -428,7 +452,7 @@ def detect_gyro_degps(seq: Sequence, valid: np.ndarray | None = None) -> dict[st
         candidates.append((GROUND_TRUTH_STREAM, seq.ground_truth.t_ns, seq.ground_truth.quat_wxyz))
     for name, poses in seq.poses.items():
         if poses.quat_wxyz is not None:
-            candidates.append((f"poses/{name}", poses.t_ns, poses.quat_wxyz))
+            candidates.append((pose_stream_label(name), poses.t_ns, poses.quat_wxyz))
     for name, pt, pq in candidates:
         if len(pt) < 3:
             continue
@@ -643,11 +667,13 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
         else:
             findings.append(Finding(
                 "NO_IMU", Severity.FATAL, IMU_STREAM,
-                "the input has no IMU stream; bias recovery needs one (pick it with --imu-topic, "
-                "or pass --allow-pose-only to convert the poses alone)", {}))
+                "the input has no IMU stream (no sensor_msgs/Imu topic, no imu0/data.csv, no IMU columns); "
+                "bias recovery needs one: give the recording that holds the IMU, or pass --allow-pose-only "
+                "to convert the poses alone", {}))
     elif not seq.poses and seq.ground_truth is None:
         findings.append(Finding("NO_POSES", Severity.WARNING, IMU_STREAM,
-                                "the input has no pose stream: bias recovery needs one (pick it with --pose-topic); "
+                                "the input has no pose stream: bias recovery needs one (add a pose file with "
+                                "--add-poses PATH[:KIND], or pick a bag topic with --pose-topic); "
                                 "IMU-only data can still be converted", {}))
     streams = _streams(seq)
     n_pose_usable = sum(1 for s in streams if s.kind != "imu" and len(s.t_ns) >= 2)
@@ -665,6 +691,7 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
         ts = _time_stats(s.t_ns)
         spans[s.name] = (ts.t0_ns, ts.t1_ns)
         findings += _check_stamps(s, ts, opts)
+        findings += _check_pose_rate(s, ts, opts)
         findings += _check_quaternions(s, valid, opts)
         if s.kind == "imu":
             assert seq.imu is not None
@@ -829,7 +856,7 @@ def apply_repairs(seq: Sequence, repairs: Iterable[Repair | str], options: Check
         if s.kind == "imu":
             imu = obj
         elif s.kind == "poses":
-            poses[s.name.removeprefix("poses/")] = obj
+            poses[s.key] = obj
         else:
             gt = obj
     work = replace(seq, imu=imu, poses=poses, ground_truth=gt)

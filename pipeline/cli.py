@@ -10,10 +10,12 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import signal
 import sys
 from collections.abc import Sequence
 
 from pipeline import __version__
+from pipeline.atomic import check_output_location
 from pipeline.errors import BiasgtError
 
 log = logging.getLogger("biasgt")
@@ -65,11 +67,22 @@ def _setup_logging(verbose: int, quiet: bool) -> None:
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
 
 
+class Terminated(BaseException):
+    """SIGTERM received: unwinds like Ctrl-C, so every temporary output is removed on the way out."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise Terminated()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     _setup_logging(args.verbose, args.quiet)
+    signal.signal(signal.SIGTERM, _raise_terminated)
     try:
+        if getattr(args, "out", None) is not None:  # every writing command names its output --out/OUT
+            check_output_location(args.out)
         return int(args.func(args) or 0)
     except BiasgtError as exc:
         print(f"biasgt {args.command}: error: {exc}", file=sys.stderr)
@@ -77,6 +90,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"biasgt {args.command}: interrupted", file=sys.stderr)
         return 130
+    except Terminated:
+        print(f"biasgt {args.command}: terminated (SIGTERM); nothing half-written was left", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except BrokenPipeError:
         # Output piped into e.g. `head`, which closed early: not an error of ours.
         import os

@@ -87,3 +87,7 @@ class RecoveryError(BiasgtError):
 
 class ValidationError(BiasgtError):
     """Validation cannot be run on this input."""
+
+
+class OutputLocationError(BiasgtError):
+    """The output path cannot be written (a read-only folder, a parent that is a file)."""

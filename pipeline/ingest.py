@@ -86,18 +86,22 @@ class CheckedSequence:
         return verdict(self.findings)
 
 
-def refusal_message(findings: Iterable[Finding]) -> tuple[str, str] | None:
-    """``(problem, hint)`` when ``findings`` forbid writing the sequence, else ``None``.
+def refusal_message(findings: Iterable[Finding], action: str = "convert") -> tuple[str, str] | None:
+    """``(problem, hint)`` when ``findings`` forbid using the sequence, else ``None``.
 
     Fatal findings and remaining repairable ones forbid it; the hint names the
     ``--repair`` flags that would fix the repairable ones.
+
+    Args:
+        findings: Check results.
+        action: What is refused (``"convert"``, ``"recover"``, ...), for the message.
     """
     findings = list(findings)
     blocking = fatal_findings(findings) + repairable_findings(findings)
     if not blocking:
         return None
     listed = "; ".join(f"{f.code} ({f.stream})" for f in blocking)
-    problem = f"refusing to convert: {len(blocking)} problem(s) remain: {listed}"
+    problem = f"refusing to {action}: {len(blocking)} problem(s) remain: {listed}"
     hints: list[str] = []
     flags = sorted({REPAIR_FOR_CODE[f.code].value for f in repairable_findings(findings) if f.code in REPAIR_FOR_CODE})
     if flags:
@@ -131,6 +135,35 @@ def check_and_repair(
         metadata["findings_before_repair"] = [f.to_dict() for f in before]
     final = replace(repaired, findings=list(after), metadata=metadata)
     return CheckedSequence(final, before, after, changes)
+
+
+def load_checked(
+    input_path: str | Path,
+    reader_kwargs: Mapping[str, Any] | None = None,
+    *,
+    repairs: Iterable[Repair | str] = (),
+    check_options: CheckOptions | None = None,
+    action: str,
+) -> Sequence:
+    """Load an input for a stage that uses it directly (recover, validate, interpolate), checked as ``convert`` would.
+
+    A canonical store was checked (and repaired as its writer allowed) when it was written and
+    is used as it is; any other input runs the same checks and repairs as ``biasgt convert``, so
+    wrong units, NaN rows or unsorted stamps never reach a result silently.
+
+    Raises:
+        FatalCheckError: A fatal or an unrepaired repairable problem; the hint names the
+            ``--repair`` flags (or ``--ignore`` for a false positive).
+    """
+    seq = load(input_path, reader_kwargs)
+    if input_format(seq) == "store":
+        return seq
+    checked = check_and_repair(seq, repairs, check_options)
+    refusal = refusal_message(checked.findings, action)
+    if refusal is not None:
+        hint = refusal[1] + "; '--ignore CODE' if a unit finding is a false positive"
+        raise FatalCheckError(refusal[0], path=input_path, hint=hint)
+    return checked.sequence
 
 
 def ingest(
@@ -218,10 +251,15 @@ def reader_kwargs_from_args(args: argparse.Namespace) -> dict[str, Any]:
     }
 
 
-def add_check_arguments(parser: argparse.ArgumentParser) -> None:
-    """Options that tune the input checks."""
+def add_check_arguments(parser: argparse.ArgumentParser, *, repairs: bool = True) -> None:
+    """Options that tune the input checks (and, with ``repairs``, the repairs allowed)."""
     g = parser.add_argument_group("check options")
     d = CheckOptions()
+    if repairs:
+        names = ", ".join(r.value for r in Repair)
+        g.add_argument("--repair", default="", metavar="LIST",
+                       help=f"comma list of allowed repairs ({names}) or 'all'; unit repairs touch only data "
+                            "whose check fires")
     g.add_argument("--min-duration", type=float, default=d.min_duration_s, metavar="S",
                    help=f"shortest acceptable IMU span in seconds (default {d.min_duration_s:g})")
     g.add_argument("--gap-factor", type=float, default=d.gap_factor, metavar="X",

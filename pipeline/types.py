@@ -256,6 +256,12 @@ class StateSeries:
         return PoseSeries(self.t_ns, self.p_m, self.quat_wxyz, frame, PoseSourceKind.GROUND_TRUTH)
 
 
+#: The noise values of :class:`ImuCalibration` (rates and extrinsics have their own defaults).
+CALIBRATION_NOISE_FIELDS = ("gyro_noise_density", "gyro_random_walk", "acc_noise_density", "acc_random_walk")
+#: What :meth:`ImuCalibration.value_sources` says of a value nobody gave.
+CALIBRATION_DEFAULT_SOURCE = "default (EuRoC ADIS16448 datasheet)"
+
+
 @dataclass(frozen=True)
 class ImuCalibration:
     """IMU noise model and known extrinsics.
@@ -268,6 +274,9 @@ class ImuCalibration:
         rate_hz: Nominal IMU rate.
         T_body_imu: 4x4 pose of the IMU in the body frame (EuRoC ``T_BS`` of imu0).
         T_imu_frames: Known 4x4 ``T_imu_<frame>`` per tracked-frame name.
+        sources: Where each noise value came from (attribute name -> a file path, or
+            ``"config"``); a value not listed is the EuRoC ADIS16448 default
+            (:data:`CALIBRATION_DEFAULT_SOURCE`).
     """
 
     gyro_noise_density: float = 1.6968e-4
@@ -277,6 +286,15 @@ class ImuCalibration:
     rate_hz: float = 200.0
     T_body_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
     T_imu_frames: dict[str, np.ndarray] = field(default_factory=dict)
+    sources: dict[str, str] = field(default_factory=dict)
+
+    def value_sources(self) -> dict[str, str]:
+        """Every noise value's origin (:data:`CALIBRATION_NOISE_FIELDS` -> file, ``config`` or the default)."""
+        return {k: self.sources.get(k, CALIBRATION_DEFAULT_SOURCE) for k in CALIBRATION_NOISE_FIELDS}
+
+    def defaulted(self) -> list[str]:
+        """Noise values that are the EuRoC defaults, not read from anywhere."""
+        return [k for k in CALIBRATION_NOISE_FIELDS if k not in self.sources]
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -287,6 +305,7 @@ class ImuCalibration:
             "rate_hz": float(self.rate_hz),
             "T_body_imu": np.asarray(self.T_body_imu, dtype=float).tolist(),
             "T_imu_frames": {k: np.asarray(v, dtype=float).tolist() for k, v in self.T_imu_frames.items()},
+            "sources": dict(self.sources),
         }
 
     @classmethod
@@ -299,6 +318,7 @@ class ImuCalibration:
             rate_hz=float(d["rate_hz"]),
             T_body_imu=np.asarray(d.get("T_body_imu", np.eye(4)), dtype=float),
             T_imu_frames={k: np.asarray(v, dtype=float) for k, v in d.get("T_imu_frames", {}).items()},
+            sources={str(k): str(v) for k, v in (d.get("sources") or {}).items()},
         )
 
 

@@ -729,10 +729,12 @@ def windowed_sequences(cfg: WorkflowConfig) -> list[SequenceEntry]:
 
 
 def windows_inputs(cfg: WorkflowConfig) -> dict[str, list[str]]:
-    """Inputs of rule ``windows``: ``{"stores": [...], "recoveries": [...]}`` of :func:`windowed_sequences`."""
+    """Inputs of rule ``windows``: ``{"stores", "recoveries", "validations"}`` of :func:`windowed_sequences`
+    (the validation verdicts decide which sequences enter the dataset)."""
     entries = windowed_sequences(cfg)
     return {"stores": [stage_dir(Stage.INGEST, s.name) for s in entries],
-            "recoveries": [stage_dir(Stage.RECOVER, s.name) for s in entries]}
+            "recoveries": [stage_dir(Stage.RECOVER, s.name) for s in entries],
+            "validations": [stage_dir(Stage.VALIDATE, s.name) for s in entries]}
 
 
 def windows_settings(cfg: WorkflowConfig) -> dict[str, Any]:
@@ -941,24 +943,25 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
     return result
 
 
-def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path], out_dir: str | Path,
-                 settings: dict[str, Any]) -> Path:
-    """Cut the window dataset of the train / val / test sequences.
+def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path], validations: Sequence[str | Path],
+                 out_dir: str | Path, settings: dict[str, Any]) -> Path:
+    """Cut the window dataset of the train / val / test sequences whose validation verdict allows it.
 
     Args:
-        stores / recoveries: Each sequence's canonical store and recovery folder, in the order of
-            ``settings["sequences"]`` (:func:`windows_inputs`).
+        stores / recoveries / validations: Each sequence's canonical store, recovery and validation
+            folder, in the order of ``settings["sequences"]`` (:func:`windows_inputs`).
         out_dir: The dataset folder.
         settings: :func:`windows_settings`.
     """
     from training.windows import WindowSource, build_window_dataset
 
     named = list(settings.get("sequences") or [])
-    if not (len(named) == len(stores) == len(recoveries)):
-        raise ConfigError(f"windows: {len(named)} sequences but {len(stores)} stores and {len(recoveries)} recoveries",
-                          field="windows", hint="a bug in the workflow wiring; please report it")
-    sources = [WindowSource(name, split, str(store), str(rec))
-               for (name, split), store, rec in zip(named, stores, recoveries)]
+    if not (len(named) == len(stores) == len(recoveries) == len(validations)):
+        raise ConfigError(f"windows: {len(named)} sequences but {len(stores)} stores, {len(recoveries)} recoveries "
+                          f"and {len(validations)} validations", field="windows",
+                          hint="a bug in the workflow wiring; please report it")
+    sources = [WindowSource(name, split, str(store), str(rec), str(val))
+               for (name, split), store, rec, val in zip(named, stores, recoveries, validations)]
     config = make_window_config(dict(settings.get("config") or {}))
     log.info("cutting windows of %d sequence(s): %s", len(sources),
              ", ".join(f"{s.name} ({s.split})" for s in sources))

@@ -73,6 +73,19 @@ class TimeOffsetMode(str, enum.Enum):
     ESTIMATE = "estimate"
 
 
+class IntrinsicsMode(str, enum.Enum):
+    """Which IMU intrinsics are estimated around the solve (:mod:`recovery.intrinsics`).
+
+    OFF: none (readings taken as they are; the bias absorbs scale and misalignment errors).
+    SCALE_MISALIGNMENT: gyro and accelerometer scale and misalignment.
+    WITH_G_SENSITIVITY: those and the gyro's g-sensitivity.
+    """
+
+    OFF = "off"
+    SCALE_MISALIGNMENT = "scale_misalignment"
+    WITH_G_SENSITIVITY = "with_g_sensitivity"
+
+
 class NoiseEstimation(str, enum.Enum):
     """How bias random-walk strengths are chosen.
 
@@ -167,6 +180,8 @@ class RecoveryConfig:
             ``segment_s``.
         max_imu_gap_s: Longest IMU gap bridged; see ``imu_gap_policy``.
         imu_gap_policy: See :class:`ImuGapPolicy`.
+        intrinsics: See :class:`IntrinsicsMode` (off by default: each round is one more full solve).
+        intrinsics_block_s: Length of the piecewise-constant bias correction of the intrinsics fit.
         min_poses: Fewest pose samples accepted.
         max_iterations: LM iteration limit.
         relative_error_tol: LM relative error tolerance.
@@ -213,6 +228,8 @@ class RecoveryConfig:
     segment_overlap_s: float | None = None
     max_imu_gap_s: float = 0.1
     imu_gap_policy: ImuGapPolicy = ImuGapPolicy.SPLIT
+    intrinsics: IntrinsicsMode = IntrinsicsMode.OFF
+    intrinsics_block_s: float = 10.0
     min_poses: int = 20
     max_iterations: int = 30
     relative_error_tol: float = 1e-6
@@ -227,6 +244,7 @@ class RecoveryConfig:
         "robust_loss": RobustLoss,
         "noise_estimation": NoiseEstimation,
         "imu_gap_policy": ImuGapPolicy,
+        "intrinsics": IntrinsicsMode,
     }
 
     def calibration_rate_hz(self, name: str, fused: bool) -> float:

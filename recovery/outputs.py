@@ -22,6 +22,8 @@ BIAS_CSV = "bias.csv"
 REPORT_JSON = "recovery.json"
 TRAJECTORY_TUM = "trajectory_tum.txt"
 RESIDUALS_CSV = "residuals.csv"
+#: Every name the recovery writes (an existing output folder keeps all others).
+RECOVERY_FILES = frozenset({BIAS_CSV, REPORT_JSON, TRAJECTORY_TUM, RESIDUALS_CSV})
 
 
 def bias_frame(result: RecoveryResult) -> pd.DataFrame:
@@ -83,13 +85,14 @@ def write_recovery(result: RecoveryResult, out_dir: str | Path) -> Path:
 
     Args:
         result: From :func:`recovery.recover.recover`.
-        out_dir: Output folder (replaced as a whole when it exists).
+        out_dir: Output folder; an existing one gets these files replaced, and keeps what other
+            stages wrote there (e.g. ``bias_imu.parquet``, ``validation/``).
 
     Returns:
         ``out_dir`` as a Path.
     """
     out_dir = Path(out_dir)
-    with atomic_dir(out_dir) as tmp:
+    with atomic_dir(out_dir, owned=RECOVERY_FILES) as tmp:
         _write_bias_csv(tmp / BIAS_CSV, result)
         (tmp / REPORT_JSON).write_text(json.dumps(_json_safe(result.report), indent=2, allow_nan=False) + "\n",
                                        encoding="utf-8")

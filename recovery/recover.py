@@ -42,6 +42,7 @@ from recovery.config import (
     DEFAULT_POSE_SIGMAS,
     ExtrinsicMode,
     ImuGapPolicy,
+    IntrinsicsMode,
     NoiseEstimation,
     PoseFactorMode,
     RecoveryConfig,
@@ -486,8 +487,17 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         AmbiguousInputError: The named pose stream does not exist (lists the streams).
         DataError: The sequence has no pose stream and no ground truth.
     """
+    config = config or RecoveryConfig()
     try:
-        return _recover(sequence, pose_stream=pose_stream, config=config or RecoveryConfig())
+        if config.intrinsics is not IntrinsicsMode.OFF and sequence.imu is not None:
+            from recovery.intrinsics import recover_with_intrinsics
+
+            plain = replace(config, intrinsics=IntrinsicsMode.OFF)
+            return recover_with_intrinsics(
+                sequence, lambda seq: _recover(seq, pose_stream=pose_stream, config=plain),
+                g_sensitivity=config.intrinsics is IntrinsicsMode.WITH_G_SENSITIVITY,
+                block_s=config.intrinsics_block_s)
+        return _recover(sequence, pose_stream=pose_stream, config=config)
     except RuntimeError as exc:
         # GTSAM reports a singular (unobservable) problem as a bare RuntimeError.
         text = str(exc)
@@ -497,8 +507,9 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         raise RecoveryError(
             f"sequence '{sequence.name}': the optimisation is degenerate ({first}); the motion does not "
             "make the bias, clock offset or extrinsic observable",
-            hint="record more varied motion (rotation about several axes), or fix the extrinsic "
-                 "(--extrinsic known) and the clock offset (--time-offset-s)",
+            hint="for wheel odometry or VIO poses, use fewer keyframes (--keyframe-rate 10); else record "
+                 "more varied motion (rotation about several axes), or fix the extrinsic (--extrinsic known) "
+                 "and the clock offset (--time-offset-s)",
         ) from exc
 
 

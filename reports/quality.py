@@ -363,6 +363,31 @@ def verdict_summary(validation: dict[str, Any] | None) -> tuple[str, str]:
     return word, sentence.strip()
 
 
+def checked_and_not(validation: dict[str, Any]) -> list[str]:
+    """Plain sentences: what the validation checked, and what it did not."""
+    ref, cfg, dropped = (validation.get(k) if isinstance(validation.get(k), dict) else {}
+                         for k in ("reference", "config", "windows_dropped"))
+    kept = dropped.get("kept", "?")
+    if ref.get("kind") == "state":
+        against = "the sequence's ground-truth state (position, velocity, orientation)"
+    else:
+        against = f"the pose stream '{ref.get('stream', '?')}' (velocity from a smoothing spline of its positions)"
+    reasons = validation.get("reasons") if isinstance(validation.get("reasons"), list) else []
+    independent = not any("not an independent test" in str(r) for r in reasons)
+    baselines = sorted({str(s.get("kind")) for s in _sources(validation).values()}
+                       & {"constant_first_window", "dataset"})
+    return [
+        f"Checked: {kept} integrations of {fmt(_num(cfg, 'window_s') or 1.0, 3)} s of the IMU minus the bias, each "
+        f"from and against {against}; end-point position and rotation errors (PRMSE, ROE) compared with "
+        + " and ".join({"constant_first_window": "a constant bias", "dataset": "the dataset's own bias"}[k]
+                       for k in baselines) + ".",
+        "Independent reference: " + ("yes." if independent else "no, the reference is what the bias was fitted "
+                                                                  "to (pose errors absorbed by the bias are not seen)."),
+        "Not checked: drift over spans longer than one window; errors the reference and the IMU share (e.g. a "
+        "wrong extrinsic used by both); IMU scale and misalignment (not modelled: the bias absorbs them).",
+    ]
+
+
 def _verdict_section(inp: ReportInputs) -> Html:
     word, sentence = verdict_summary(inp.validation)
     cls = {"PASS": "v-pass", "WARN": "v-warn", "FAIL": "v-fail"}.get(word, "v-none")
@@ -373,8 +398,14 @@ def _verdict_section(inp: ReportInputs) -> Html:
             body.append(p("Reasons:"))
             body.append(ul(reasons))
         elif word == "PASS":
-            body.append(p("No reason for concern was found: the candidate is at least as good as every baseline, "
-                          "few windows are flagged and few were dropped."))
+            body.append(p("No reason for concern was found in what was checked: the candidate is at least as good "
+                          "as every baseline, few windows are flagged and few were dropped."))
+        steps = [str(x) for x in inp.validation.get("next_steps") or [] if isinstance(x, str)]
+        if steps:
+            body.append(p("What to do next:"))
+            body.append(ul(steps))
+        body.append(p("What was checked:"))
+        body.append(ul(checked_and_not(inp.validation)))
     else:
         where = inp.validation_dir if inp.validation_dir is not None else "(not given)"
         body.append(p(f"Looked for the validation output in {where}. Run the validation stage to get a verdict; "
@@ -545,10 +576,10 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
             al_v = "not visible" if allan is not None and allan.static else "n/a"
         else:
             al_v = _allan_cell(float(np.nanmean(al)), allan is not None and allan.static, "random_walk" in key)
-        nrows.append([label, fmt(used, 4), fmt(yaml_v, 4), ratio, al_v, unit])
-    parts.append(tag("h3", "Noise strengths: used by the recovery vs. sensor.yaml"))
-    parts.append(table(["parameter", "used", "sensor.yaml", "used / sensor.yaml", "Allan fit (section 7)", "unit"],
-                       nrows, numeric_from=1, text_cols=[5]))
+        nrows.append([label, fmt(used, 4), fmt(yaml_v, 4), ratio, al_v, unit, _calibration_origin(cal, key)])
+    parts.append(tag("h3", "Noise strengths: used by the recovery vs. the calibration"))
+    parts.append(table(["parameter", "used", "calibration", "used / calibration", "Allan fit (section 7)", "unit",
+                        "calibration from"], nrows, numeric_from=1, text_cols=[5, 6]))
     extra = []
     for key, label in (("position_sigma_m", "pose position sigma [m]"), ("rotation_sigma_rad", "pose rotation "
                        "sigma [rad]"), ("gyro_random_walk_scale", "gyro random-walk scale"),
@@ -879,6 +910,13 @@ def flagged_stretches(flagged: list[dict[str, Any]], stride_s: float) -> list[tu
 # ----------------------------------------------------------------------------- section 7: Allan
 
 
+def _calibration_origin(cal: Any, key: str) -> str:
+    """Where a calibration value came from: the file (folder/name), the config, or the default."""
+    origin = cal.value_sources()[key]
+    path = Path(origin)
+    return f"{path.parent.name}/{path.name}" if path.suffix in (".yaml", ".yml") else origin
+
+
 def _allan_cell(x: float, static: bool, is_rw: bool) -> str:
     """One fitted value as shown: a value, an upper bound (motion), or why there is none."""
     if not static:
@@ -912,7 +950,7 @@ def _allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None)
     parts = [tag("div", where, class_=cls) if cls else p(where),
              p("Overlapping Allan deviation per axis. Dotted line: white noise (slope −½, its value at τ = 1 s is "
                "the noise density); dash-dotted line: bias random walk (slope +½, its value at τ = 3 s is the random "
-               "walk). Black: fitted to this recording; orange: sensor.yaml.")]
+               "walk). Black: fitted to this recording; orange: the calibration.")]
     parts.append(figure_img(plots.allan_figure(
         allan.taus, allan.adev_gyro, title="Gyroscope", unit="rad/s", white=allan.gyro_white,
         random_walk=allan.gyro_rw, sensor_white=cal.gyro_noise_density, sensor_random_walk=cal.gyro_random_walk,
@@ -932,7 +970,7 @@ def _allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None)
     ):
         rows.append([label, *[_allan_cell(x, allan.static, is_rw) for x in fits], fmt(yaml_v, 4),
                      _allan_ratio(fits, yaml_v, allan.static, is_rw), unit])
-    parts.append(table(["parameter", "x", "y", "z", "sensor.yaml", "fit / sensor.yaml", "unit"], rows, numeric_from=1,
+    parts.append(table(["parameter", "x", "y", "z", "calibration", "fit / calibration", "unit"], rows, numeric_from=1,
                        text_cols=[6]))
     if allan.static:
         parts.append(p("“not visible”: the curve does not rise significantly above the white-noise line within a "

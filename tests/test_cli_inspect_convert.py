@@ -112,7 +112,8 @@ def test_inspect_passes_reader_options_and_csv_mapping(fake, tmp_path, capsys):
                  "--tf-child", "base", "--csv-mapping", str(mapping), "--format", "rosbag"]) == 0
     _, kwargs = loader.calls[0]
     assert kwargs == {"fmt": "rosbag", "csv_mapping": {"t": "time", "gyro_x": "wx"}, "imu_topic": "/imu",
-                      "pose_topic": "/odom", "tf_parent": "world", "tf_child": "base", "extra_poses": []}
+                      "pose_topic": "/odom", "tf_parent": "world", "tf_child": "base", "extra_poses": [],
+                      "all_pose_topics": True}
     bad = tmp_path / "bad.yaml"
     bad.write_text("- a list\n", encoding="utf-8")
     assert main(["inspect", "in.csv", "--csv-mapping", str(bad)]) == 2

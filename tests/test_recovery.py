@@ -252,9 +252,10 @@ def test_write_recovery_files(clean_run, tmp_path):
     _, res = clean_run
     out = tmp_path / "rec"
     out.mkdir()
-    (out / "stale.txt").write_text("old")
+    (out / "bias_imu.parquet").write_text("another stage's output")
+    (out / "bias.csv").write_text("old")
     write_recovery(res, out)
-    assert not (out / "stale.txt").exists()  # replaced as a whole
+    assert (out / "bias_imu.parquet").read_text() == "another stage's output"  # only its own files replaced
     header = (out / "bias.csv").read_text().splitlines()[0]
     assert header == ",".join(BIAS_COLUMNS)
     track = read_bias_csv(out / "bias.csv")
@@ -497,6 +498,7 @@ def test_degenerate_problem_is_a_recovery_error(monkeypatch):
     with pytest.raises(RecoveryError, match=r"degenerate \(Indeterminant linear system detected") as info:
         rr.recover(Sequence(name="flat"))
     assert "\n" not in str(info.value) and "--extrinsic known" in str(info.value)
+    assert "--keyframe-rate 10" in str(info.value)  # the option that works on wheel odometry (test_user_path)
     monkeypatch.setattr(rr, "_recover", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("other bug")))
     with pytest.raises(RuntimeError, match="other bug"):
         rr.recover(Sequence(name="x"))

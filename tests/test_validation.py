@@ -27,6 +27,7 @@ from validation.validate import (
     decide_verdict,
     gap_free_mask,
     read_bias_file,
+    sigma_window_errors,
     read_recovery_dir,
     reference_from_poses,
     reference_from_states,
@@ -358,11 +359,17 @@ def test_irregular_and_mismatched_rates_are_noted(clean_sim):
 
 
 def _metrics(name: str, kind: BiasSourceKind, prmse: float, roe: float, n: int = 100,
-             flagged: int = 0) -> SourceMetrics:
+             flagged: int = 0, spread: float = 0.2, seed: int = 0, sigma: tuple[float, float] = (0.0, 0.0)
+             ) -> SourceMetrics:
+    """Per-window errors with exactly this PRMSE and ROE. Sources built with the same seed share
+    their window-to-window pattern, as real sources judged on the same windows do."""
     f = np.zeros(n, bool)
     f[:flagged] = True
-    return SourceMetrics(name, kind, np.arange(n, dtype=np.int64), np.full(n, prmse), np.full(n, roe),
-                         prmse, roe, f, 5 * prmse, 5 * roe)
+    pattern = 1.0 + spread * np.random.default_rng(seed).standard_normal(n)
+    pos = pattern * prmse / np.sqrt(np.mean(pattern**2))
+    rot = pattern * roe / np.mean(pattern)
+    return SourceMetrics(name, kind, np.arange(n, dtype=np.int64), pos, rot, prmse, roe, f, 5 * prmse, 5 * roe,
+                         np.full(n, sigma[0]), np.full(n, sigma[1]))
 
 
 @pytest.mark.parametrize(
@@ -372,7 +379,8 @@ def _metrics(name: str, kind: BiasSourceKind, prmse: float, roe: float, n: int =
         ((0.050, 0.20), (0.080, 0.30), (0.0500, 0.2000), 0, 0.0, Verdict.PASS, []),  # tie
         ((0.054, 0.20), (0.080, 0.30), (0.050, 0.20), 0, 0.0, Verdict.WARN, ["PRMSE", "within the 10% margin"]),
         ((0.050, 0.215), (0.080, 0.30), None, 0, 0.0, Verdict.PASS, []),  # dataset absent, better than constant
-        ((0.056, 0.20), (0.080, 0.30), (0.050, 0.20), 0, 0.0, Verdict.FAIL, ["PRMSE", "more than the 10% margin"]),
+        ((0.056, 0.20), (0.080, 0.30), (0.050, 0.20), 0, 0.0, Verdict.FAIL, ["PRMSE", "more than the 10% margin",
+                                                                            "paired test p"]),
         ((0.050, 0.35), (0.080, 0.30), None, 0, 0.0, Verdict.FAIL, ["ROE", "'constant'"]),
         ((0.050, 0.20), (0.080, 0.30), None, 6, 0.0, Verdict.WARN, ["6 of 100 windows", "flagged"]),
         ((0.050, 0.20), (0.080, 0.30), None, 5, 0.0, Verdict.PASS, []),  # exactly 5 % is not more than 5 %
@@ -396,6 +404,53 @@ def test_verdict_rules(cand, const, dataset, flagged, dropped, verdict, words):
         assert reasons == []
 
 
+def _judge(cand: SourceMetrics, dataset: SourceMetrics, **kwargs) -> tuple[Verdict, list[str]]:
+    m = {"constant": _metrics("constant", BiasSourceKind.CONSTANT_FIRST_WINDOW, 0.08, 0.3, n=cand.windows),
+         "recovered": cand, "dataset": dataset}
+    return decide_verdict(m, "recovered", dropped_fraction=0.0, **kwargs)
+
+
+def test_verdict_worse_beyond_the_margin_but_not_significant_is_a_warn():
+    # 20 % worse on average, but on 8 windows with independent, widely spread errors
+    cand = _metrics("recovered", BiasSourceKind.RECOVERED, 0.060, 0.20, n=8, spread=0.8, seed=1)
+    v, reasons = _judge(cand, _metrics("dataset", BiasSourceKind.DATASET, 0.050, 0.20, n=8, spread=0.8, seed=2))
+    assert v is Verdict.WARN, reasons
+    assert "not significantly" in " ".join(reasons)
+    # the same means on 200 windows that share their pattern: significant, FAIL
+    cand = _metrics("recovered", BiasSourceKind.RECOVERED, 0.060, 0.20, n=200)
+    v, reasons = _judge(cand, _metrics("dataset", BiasSourceKind.DATASET, 0.050, 0.20, n=200))
+    assert v is Verdict.FAIL, reasons
+
+
+def test_verdict_difference_explained_by_the_candidates_own_sigma_passes():
+    """The semi-real case: the dataset bias is the exact truth, the recovered one sits at its floor."""
+    truth = _metrics("dataset", BiasSourceKind.DATASET, 0.0020, 0.05, n=200)
+    # sqrt(0.0020^2 + (2 * 0.0008)^2) = 0.00256 m: 0.0025 m is what 0.8 mm of own sigma explains
+    cand = _metrics("recovered", BiasSourceKind.RECOVERED, 0.0025, 0.05, n=200, sigma=(0.0008, 0.0))
+    v, reasons = _judge(cand, truth)
+    assert v is Verdict.PASS, reasons
+    cand = _metrics("recovered", BiasSourceKind.RECOVERED, 0.0025, 0.05, n=200, sigma=(0.0002, 0.0))
+    assert _judge(cand, truth)[0] is Verdict.FAIL
+
+
+def test_verdict_limitations_make_a_pass_a_warn_listed_first():
+    cand = _metrics("recovered", BiasSourceKind.RECOVERED, 0.050, 0.20)
+    base = _metrics("dataset", BiasSourceKind.DATASET, 0.052, 0.21)
+    assert _judge(cand, base)[0] is Verdict.PASS
+    v, reasons = _judge(cand, base, limitations=["gyro random walk at the search bound"])
+    assert v is Verdict.WARN and reasons == ["gyro random walk at the search bound"]
+
+
+def test_sigma_window_errors_closed_form():
+    g = np.array([0.0, 0.0, -9.81])
+    R = np.repeat(np.eye(3)[None], 2, axis=0)
+    std = np.array([[0, 0, 0, 0.01, 0, 0],       # acc x only: 0.5 * 0.01 * T^2
+                    [1e-3, 0, 1e-3, 0, 0, 0]])   # gyro x tilts gravity, gyro z (about g) does not
+    pos, rot = sigma_window_errors(std, R, 2.0, g)
+    np.testing.assert_allclose(pos, [0.5 * 0.01 * 4.0, 9.81 * 1e-3 * 8.0 / 6.0], rtol=1e-12)
+    np.testing.assert_allclose(rot, [0.0, np.degrees(2.0 * np.sqrt(2) * 1e-3)], rtol=1e-12)
+
+
 def test_constructed_fail_with_a_biased_candidate(clean_sim):
     true = _true_track(clean_sim)
     off = BiasTrack(true.t_ns, true.bias + np.array([0, 0, 0, 0.3, 0, 0]), true.std)  # 0.3 m/s^2 off
@@ -409,9 +464,9 @@ def test_constructed_fail_with_a_biased_candidate(clean_sim):
 
 
 EXPECTED_KEYS = {"schema_version", "sequence", "verdict", "reasons", "candidate", "config", "reference",
-                 "gravity_mps2", "sources", "windows_dropped", "notes"}
+                 "gravity_mps2", "sources", "windows_dropped", "notes", "next_steps"}
 EXPECTED_SOURCE_KEYS = {"kind", "prmse_m", "roe_deg", "windows", "flagged", "flag_threshold_pos_m",
-                        "flag_threshold_rot_deg"}
+                        "flag_threshold_rot_deg", "sigma_prmse_m", "sigma_roe_deg"}
 
 
 def test_write_validation_key_set_and_windows_table(clean_sim, tmp_path):
@@ -516,7 +571,9 @@ def test_cli_recovery_poses_reference_pass_and_fail(noisy_sim, tmp_path, capsys)
     rc = main(["validate", str(store), "--recovery", str(rec), "--out", str(tmp_path / "val")])
     out = capsys.readouterr().out
     assert rc == 0, out
-    assert "verdict: PASS" in out and "poses reference" in out
+    # the bias is the truth, but the reference is the stream it was fitted to: WARN, saying so and what to do
+    assert "verdict: WARN" in out and "poses reference" in out
+    assert "not an independent test" in out and "next: validate against another pose stream" in out
     assert "recovered *" in out
     data = json.loads((tmp_path / "val" / "validation.json").read_text())
     assert data["reference"]["kind"] == "poses" and data["reference"]["time_offset_s"] == pytest.approx(0.0123)

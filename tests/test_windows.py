@@ -297,7 +297,7 @@ def test_manifest_content(dataset, tmp_path):
     root, m, sources = dataset
     assert read_manifest(root) == m
     assert m["code_version"] == __version__ and m["format_version"] == 1
-    assert m["config"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0}
+    assert m["config"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0, "accept_warn": False}
     assert len(m["config_hash"]) == 16
     assert m["splits"] == {"train": ["A"], "test": ["B"]}
     assert m["sequences"]["A"]["windows"] == 19 and m["sequences"]["A"]["candidates"] == 19
@@ -397,3 +397,35 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
     assert not (tmp_path / "ds3").exists()
     rc = main(["windows", "--splits", str(splits), "--out", str(tmp_path / "ds3")])
     assert rc == 2 and "--splits and --results go together" in capsys.readouterr().err
+
+
+# ----------------------------------------------------------------------------- verdict gate
+
+
+def _validated(tmp: Path, src: WindowSource, *, acc_offset_mps2: float = 0.0) -> WindowSource:
+    """``src`` with a validation folder written by the validate stage for its recovery (shifted on acc x)."""
+    from pipeline.store import read_store
+    from validation.validate import validate_inputs, write_validation
+
+    rec = src.recovery_dir
+    if acc_offset_mps2:
+        frame = pd.read_csv(rec / "bias.csv")
+        frame["ba_x"] += acc_offset_mps2
+        frame.to_csv(rec / "bias.csv", index=False, float_format="%.12g")
+    result = validate_inputs(read_store(src.store_dir), recovery_dir=rec)
+    out = write_validation(result, tmp / "val" / src.name)
+    return dataclasses.replace(src, validation_dir=out)
+
+
+def test_windows_take_only_sequences_whose_verdict_allows_it(sim10, tmp_path):
+    good = _validated(tmp_path, _source(tmp_path, sim10, "good", "train"))
+    bad = _validated(tmp_path, _source(tmp_path, _sim(seed=7), "bad", "train"), acc_offset_mps2=0.5)
+    test = _source(tmp_path, _sim(seed=8), "unchecked", "test")
+    m = build_window_dataset([good, bad, test], tmp_path / "ds", WindowConfig())
+    assert set(m["sequences"]) == {"good", "unchecked"}
+    assert m["excluded"]["bad"].startswith("validation FAIL: ")
+    assert m["not_validated"] == ["unchecked"]
+    assert "left out: bad: validation FAIL" in format_summary(m)
+    with pytest.raises(ConfigError, match="every train sequence was left out"):
+        build_window_dataset([bad, test], tmp_path / "ds2", WindowConfig())
+    assert not (tmp_path / "ds2").exists()

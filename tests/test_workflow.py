@@ -47,7 +47,8 @@ def test_default_config_is_valid_with_defaults():
     for section in ("training", "evaluation", "report"):
         assert cfg.data[section] == {}
     assert cfg.data["interpolation"] == {"method": "linear", "clamp": True, "write_csv": True}
-    assert cfg.data["windows"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0}
+    assert cfg.data["windows"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0,
+                                   "accept_warn": False}
     assert cfg.data["recovery"]["keyframe_rate_hz"] is None and cfg.data["recovery"]["pose_stream"] is None
     assert cfg.data["validation"]["window_s"] == 1.0 and cfg.data["validation"]["poses"] is None
     assert cfg.data["ingest"] == {"repairs": [], "check_options": {}}
@@ -376,11 +377,12 @@ def test_stage_settings_merge_entry_overrides(tmp_path):
     assert wf.interpolation_outputs(cfg) == ["results/interpolation/{sequence}/bias_imu.parquet"]
     assert wf.windows_settings(cfg) == {
         "sequences": [["a", "train"], ["b", "val"], ["d", "test"]],
-        "config": {"window_s": 2.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0},
+        "config": {"window_s": 2.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0, "accept_warn": False},
     }
     assert wf.windows_inputs(cfg) == {
         "stores": ["results/ingest/a", "results/ingest/b", "results/ingest/d"],
         "recoveries": ["results/recovery/a", "results/recovery/b", "results/recovery/d"],
+        "validations": ["results/validation/a", "results/validation/b", "results/validation/d"],
     }
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
     no_train = wf.load_config(write_config(tmp_path / "t.yaml", {"sequences": [sim_entry("x", split="test")]}))
@@ -579,7 +581,7 @@ def test_other_step_functions_in_process(e2e_run, tmp_path):
     assert html.read_text().lower().lstrip().startswith("<!doctype html")
     # windows: inputs and names must line up; options are checked
     with pytest.raises(ConfigError, match="1 sequences but 2 stores"):
-        wf.windows_step([store, store], [recovery, recovery], tmp_path / "ds", {"sequences": [["tiny_a", "train"]]})
+        wf.windows_step([store, store], [recovery, recovery], [recovery, recovery], tmp_path / "ds", {"sequences": [["tiny_a", "train"]]})
     with pytest.raises(ConfigError, match="window_len"):
         wf.make_window_config({"window_len": 2})
 
@@ -730,9 +732,9 @@ def test_rerun_only_what_a_config_change_affects(e2e_run):
     # one sequence's own recovery override: that sequence's chain (and the dataset) only
     assert jobs_after(lambda d: d["sequences"][1].update(recovery={"keyframe_rate_hz": 50})) == sorted(
         [(r, "tiny_b") for r in ("recover", "interpolate", "validate", "report")] + [("windows", "")])
-    # a validation option: validate and report only
+    # a validation option: validate, report and windows (the verdicts decide which sequences are windowed)
     assert jobs_after(lambda d: d.update(validation={"window_s": 2.0})) == sorted(
-        [(r, s) for r in ("validate", "report") for s in both])
+        [(r, s) for r in ("validate", "report") for s in both] + [("windows", "")])
     # interpolation and windows options: their own jobs only
     assert jobs_after(lambda d: d.update(interpolation={"method": "cubic"})) == [
         ("interpolate", "tiny_a"), ("interpolate", "tiny_b")]

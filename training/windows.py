@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import json
 import logging
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -105,12 +106,15 @@ class WindowConfig:
         resample_hz: Resample IMU streams onto a uniform grid at this rate (Hz) where needed;
             None refuses sequences at another rate (see the module docstring).
         gap_factor: An IMU interval longer than this times the nominal one is a gap.
+        accept_warn: Take sequences whose validation verdict is WARN too (PASS always, FAIL never;
+            a sequence without a validation is taken, and the manifest says it was not validated).
     """
 
     window_s: float = 1.0
     overlap: float = 0.5
     resample_hz: float | None = None
     gap_factor: float = 2.0
+    accept_warn: bool = False
 
     def __post_init__(self) -> None:
         try:
@@ -160,12 +164,15 @@ class WindowSource:
         split: Its split (the whole sequence belongs to it).
         store_dir: Canonical store (``biasgt convert`` / ingest output) or any readable input.
         recovery_dir: Folder written by ``biasgt recover`` (``bias.csv``, ``recovery.json``).
+        validation_dir: Folder written by ``biasgt validate`` for that recovery (its verdict gates
+            the sequence), or None (not validated).
     """
 
     name: str
     split: Split
     store_dir: Path
     recovery_dir: Path
+    validation_dir: Path | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -175,6 +182,8 @@ class WindowSource:
                               hint=f"use one of {', '.join(s.value for s in Split)}") from None
         object.__setattr__(self, "store_dir", Path(self.store_dir))
         object.__setattr__(self, "recovery_dir", Path(self.recovery_dir))
+        if self.validation_dir is not None:
+            object.__setattr__(self, "validation_dir", Path(self.validation_dir))
 
 
 # ----------------------------------------------------------------------------- rates
@@ -414,6 +423,16 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
     """
     sources = list(sources)
     _check_sources(sources)
+    excluded = {src.name: reason for src in sources if (reason := verdict_exclusion(src, config)) is not None}
+    for name, reason in excluded.items():
+        log.warning("sequence '%s' left out of the window dataset: %s", name, reason)
+    sources = [s for s in sources if s.name not in excluded]
+    if not any(s.split is Split.TRAIN for s in sources):
+        raise ConfigError("every train sequence was left out by its validation verdict: "
+                          + "; ".join(f"{k}: {v}" for k, v in excluded.items()),
+                          hint="fix those recordings (their quality reports say how), or set windows.accept_warn "
+                               "to take WARN sequences")
+    not_validated = [s.name for s in sources if s.validation_dir is None]
 
     def windows() -> Iterator[SequenceWindows]:
         rate = config.resample_hz
@@ -426,7 +445,31 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
                 rate = float(sw.info["rate_hz"])
             yield sw
 
-    return write_dataset(windows(), out_dir, config=config.to_dict())
+    return write_dataset(windows(), out_dir, config=config.to_dict(),
+                         extra={"excluded": excluded, "not_validated": not_validated})
+
+
+def verdict_exclusion(source: WindowSource, config: WindowConfig) -> str | None:
+    """Why ``source`` stays out of the dataset (its validation verdict), or None to take it.
+
+    Raises:
+        InputFormatError: ``validation_dir`` given without a readable ``validation.json``.
+    """
+    if source.validation_dir is None:
+        return None
+    from validation.validate import VALIDATION_JSON, Verdict
+
+    path = source.validation_dir / VALIDATION_JSON
+    try:
+        result = json.loads(path.read_text(encoding="utf-8"))
+        verdict = Verdict(result["verdict"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputFormatError(f"cannot read the validation verdict ({exc})", path=path,
+                               hint=f"run 'biasgt validate' for '{source.name}' first") from None
+    if verdict is Verdict.PASS or (verdict is Verdict.WARN and config.accept_warn):
+        return None
+    first = (result.get("reasons") or ["no reason given"])[0]
+    return f"validation {verdict.value}: {first}"
 
 
 # ----------------------------------------------------------------------------- splits and results layout
@@ -472,7 +515,8 @@ def read_splits_file(path: str | Path) -> dict[Split, list[str]]:
 
 
 def sources_from_results(splits: Mapping[Split | str, Iterable[str]], results_dir: str | Path) -> list[WindowSource]:
-    """Sources from a workflow results folder: ``DIR/ingest/NAME`` and ``DIR/recovery/NAME``.
+    """Sources from a workflow results folder: ``DIR/ingest/NAME``, ``DIR/recovery/NAME`` and, when
+    it exists, ``DIR/validation/NAME`` (whose verdict then gates the sequence).
 
     Raises:
         InputFormatError: A store or recovery folder is missing.
@@ -487,7 +531,8 @@ def sources_from_results(splits: Mapping[Split | str, Iterable[str]], results_di
                     raise InputFormatError(f"no {stage} output for sequence '{name}'", path=folder,
                                            hint=f"run the workflow up to the {stage} stage for '{name}' "
                                                 "(biasgt run), or give --results the right folder")
-            out.append(WindowSource(name, Split(split), store, rec))
+            val = results_dir / "validation" / name
+            out.append(WindowSource(name, Split(split), store, rec, val if val.is_dir() else None))
     return out
 
 
@@ -508,7 +553,9 @@ def format_summary(manifest: Mapping[str, Any]) -> str:
         why = ", ".join(f"{k} {v}" for k, v in reasons.items() if v) or "-"
         rows.append((split.value, str(len(names)), str(kept), str(dropped), why))
     widths = [max(len(r[i]) for r in rows) for i in range(4)]
-    return "\n".join(
-        "  ".join([r[0].ljust(widths[0])] + [c.rjust(w) for c, w in zip(r[1:4], widths[1:])] + [r[4]])
-        for r in rows
-    )
+    lines = ["  ".join([r[0].ljust(widths[0])] + [c.rjust(w) for c, w in zip(r[1:4], widths[1:])] + [r[4]])
+             for r in rows]
+    lines += [f"left out: {name}: {reason}" for name, reason in (manifest.get("excluded") or {}).items()]
+    if manifest.get("not_validated"):
+        lines.append(f"not validated (taken as they are): {', '.join(manifest['not_validated'])}")
+    return "\n".join(lines)

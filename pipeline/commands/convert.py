@@ -11,10 +11,8 @@ from pathlib import Path
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.checks import Repair
     from pipeline.ingest import add_check_arguments, add_reader_arguments
 
-    names = ", ".join(r.value for r in Repair)
     p = subparsers.add_parser(
         "convert",
         help="check an input, apply allowed repairs, and write the canonical Parquet store",
@@ -28,9 +26,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("input", metavar="INPUT", help="file or folder to convert")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="store folder to write")
     p.add_argument("--name", default=None, help="sequence name (default: from the input)")
-    p.add_argument("--repair", default="", metavar="LIST",
-                   help=f"comma list of allowed repairs ({names}) or 'all'; unit repairs touch only data "
-                        "whose check fires")
     add_reader_arguments(p)
     add_check_arguments(p)
     p.set_defaults(func=run)

@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true",
                    help="print one JSON object {schema_version, input, format, streams, findings, verdict}")
     add_reader_arguments(p)
-    add_check_arguments(p)
+    add_check_arguments(p, repairs=False)
     p.set_defaults(func=run)
 
 
@@ -119,10 +119,18 @@ def format_report(report: dict[str, Any]) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.checks import Verdict, run_checks
+    from pipeline.errors import BiasgtError
     from pipeline.ingest import check_options_from_args, load, reader_kwargs_from_args
 
     options = check_options_from_args(args)
-    seq = load(args.input, reader_kwargs_from_args(args))
+    try:
+        seq = load(args.input, {**reader_kwargs_from_args(args), "all_pose_topics": True})
+    except BiasgtError as exc:
+        if args.json:  # --json always prints a JSON document
+            print(json.dumps({"input": str(args.input), "verdict": "error", "error": {
+                "type": type(exc).__name__, "message": str(exc), "path": exc.path, "line": exc.line,
+                "field": exc.field, "hint": exc.hint}}, indent=2))
+        raise
     findings = run_checks(seq, options)
     report = inspect_report(args.input, seq, findings)
     if args.json:

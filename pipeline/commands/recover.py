@@ -13,7 +13,7 @@ log = logging.getLogger(__name__)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_reader_arguments
+    from pipeline.ingest import add_check_arguments, add_reader_arguments
 
     p = subparsers.add_parser(
         "recover",
@@ -56,6 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="keyframes are single pose samples (with --keyframe-rate, the samples between them are "
                         "dropped; without, every sample is a keyframe: ~5-10x slower on 100-Hz mocap)")
     add_reader_arguments(p)
+    add_check_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -92,12 +93,13 @@ def config_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.ingest import load, reader_kwargs_from_args
+    from pipeline.ingest import check_options_from_args, load_checked, reader_kwargs_from_args
     from recovery.outputs import write_recovery
     from recovery.recover import recover
 
     config = config_from_args(args)
-    seq = load(args.input, reader_kwargs_from_args(args))
+    seq = load_checked(args.input, reader_kwargs_from_args(args), repairs=args.repair,
+                       check_options=check_options_from_args(args), action="recover")
     stream = args.poses
     result = recover(seq, pose_stream=stream, config=config)
     write_recovery(result, args.out)

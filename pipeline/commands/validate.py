@@ -35,7 +35,8 @@ exit status: 0 PASS or WARN, 1 FAIL, 2 bad input (one-line error, nothing writte
 examples:
   biasgt validate data/V1_01_store --recovery out/V1_01/recovery --out out/V1_01/validation
   biasgt validate sim01 --bias out/sim01/bias.csv --bias openvins=V1_01_easy.csv --out out/val
-  biasgt validate MH_01 --recovery out/MH_01 --poses leica0 --window-s 2 --overlap 0 --out out/val2
+  biasgt validate MH_01 --add-poses MH_01/ov_data/MH_01_easy.txt:ground_truth --poses MH_01_easy \
+      --recovery out/MH_01 --window-s 2 --overlap 0 --out out/val2   (Leica recovery, GT reference)
 """
 
 
@@ -45,7 +46,7 @@ DEFAULTS = argparse.Namespace(window_s=1.0, overlap=0.5, margin=0.10, flag_k=5.0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_reader_arguments
+    from pipeline.ingest import add_check_arguments, add_reader_arguments
 
     d = DEFAULTS
     p = subparsers.add_parser(
@@ -78,6 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--velocity-cutoff-hz", type=float, default=None, metavar="HZ",
                    help="smoothing cutoff for pose-derived velocity (default: chosen from the pose noise)")
     add_reader_arguments(p)
+    add_check_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -102,7 +104,7 @@ def _format_table(result: Any) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.errors import ValidationError
-    from pipeline.ingest import load, reader_kwargs_from_args
+    from pipeline.ingest import check_options_from_args, load_checked, reader_kwargs_from_args
     from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation
 
     if not args.bias and args.recovery is None:
@@ -110,7 +112,8 @@ def run(args: argparse.Namespace) -> int:
                               hint="give --recovery DIR or --bias FILE")
     config = ValidationConfig(window_s=args.window_s, overlap=args.overlap, margin=args.margin,
                               flag_k=args.flag_k, velocity_cutoff_hz=args.velocity_cutoff_hz)
-    seq = load(args.sequence, reader_kwargs_from_args(args))
+    seq = load_checked(args.sequence, reader_kwargs_from_args(args), repairs=args.repair,
+                       check_options=check_options_from_args(args), action="validate")
     if seq.imu is None:
         raise ValidationError(f"'{args.sequence}' has no IMU to integrate", path=args.sequence,
                               hint="give an input with IMU readings")
@@ -124,6 +127,8 @@ def run(args: argparse.Namespace) -> int:
     print(f"verdict: {result.verdict.value} (* = bias under test)")
     for reason in result.reasons:
         print(f"  - {reason}")
+    for step in result.next_steps:
+        print(f"  next: {step}")
     for note in result.notes:
         print(f"  note: {note}")
     print(f"wrote {args.out}")

@@ -62,6 +62,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="resample IMU streams not at HZ onto a uniform HZ grid (default: refuse other rates)")
     p.add_argument("--gap-factor", type=float, default=2.0, metavar="K",
                    help="an IMU interval longer than K x the nominal one is a gap (default 2)")
+    p.add_argument("--validation", action="append", default=[], metavar="NAME=DIR",
+                   help="the 'biasgt validate' folder of a --seq sequence: its verdict decides whether the "
+                        "sequence enters the dataset (PASS; WARN with --accept-warn; never FAIL); repeatable. "
+                        "With --results, results/validation/NAME is used when it exists")
+    p.add_argument("--accept-warn", action="store_true", help="take sequences whose verdict is WARN too")
     p.set_defaults(func=run)
 
 
@@ -77,13 +82,18 @@ def run(args: argparse.Namespace) -> int:
     )
 
     config = WindowConfig(window_s=args.window_s, overlap=args.overlap, resample_hz=args.resample_hz,
-                          gap_factor=args.gap_factor)
+                          gap_factor=args.gap_factor, accept_warn=args.accept_warn)
+    validations = dict(_split_validation(v) for v in args.validation)
+    unknown = sorted(set(validations) - {name for name, *_ in args.seq})
+    if unknown:
+        raise ConfigError(f"--validation names '{unknown[0]}', which no --seq gives", field="--validation",
+                          hint="write NAME=DIR with the NAME of a --seq sequence")
     sources = []
     for name, split, store, recovery in args.seq:
         if split not in SPLITS:
             raise ConfigError(f"unknown split '{split}' for sequence '{name}'", field="--seq",
                               hint=f"use one of {', '.join(SPLITS)}")
-        sources.append(WindowSource(name, split, Path(store), Path(recovery)))
+        sources.append(WindowSource(name, split, Path(store), Path(recovery), validations.get(name)))
     if (args.splits is None) != (args.results is None):
         raise ConfigError("--splits and --results go together", field="--splits" if args.results is None
                           else "--results", hint="give both, e.g. --splits splits.yaml --results results")
@@ -99,3 +109,13 @@ def run(args: argparse.Namespace) -> int:
     print(format_summary(manifest))
     print(f"wrote {args.out}")
     return 0
+
+
+def _split_validation(value: str) -> tuple[str, Path]:
+    from pipeline.errors import ConfigError
+
+    name, sep, folder = value.partition("=")
+    if not sep or not name or not folder:
+        raise ConfigError(f"--validation {value!r} is not NAME=DIR", field="--validation",
+                          hint="e.g. --validation rec01=out/rec01/validation")
+    return name, Path(folder)

@@ -25,10 +25,17 @@ from typing import Any
 
 from pipeline.errors import AmbiguousInputError, ConfigError, DataError, InputFormatError, UnsupportedInputError
 from pipeline.io._text import TimeUnit
-from pipeline.io.asl import AslTable, read_asl, read_asl_csv, read_asl_pose_csv, sniff_asl_csv
+from pipeline.io.asl import (
+    CODE_CALIBRATION_DEFAULTED,
+    AslTable,
+    read_asl,
+    read_asl_csv,
+    read_asl_pose_csv,
+    sniff_asl_csv,
+)
 from pipeline.io.csv_generic import AccUnit, CsvMapping, GyroUnit, QuatOrder, read_csv_generic
 from pipeline.io.tum import read_tum, write_tum
-from pipeline.types import PoseSeries, PoseSourceKind, Sequence
+from pipeline.types import Finding, PoseSeries, PoseSourceKind, Sequence, Severity
 
 log = logging.getLogger(__name__)
 
@@ -176,6 +183,7 @@ def load_sequence(
     tf_parent: str | None = None,
     tf_child: str | None = None,
     extra_poses: Iterable[PoseInput | str | dict[str, Any]] = (),
+    all_pose_topics: bool = False,
 ) -> Sequence:
     """Read any supported input as a :class:`Sequence`.
 
@@ -191,6 +199,8 @@ def load_sequence(
         extra_poses: More pose inputs to merge into the sequence (e.g. IMU from an ASL folder
             and ground-truth or VIO poses from a TUM file): :class:`PoseInput`, ``"PATH"``,
             ``"PATH:KIND"`` or a dict with ``path`` and optional ``fmt``, ``stream``, ``kind``.
+        all_pose_topics: ROS bags: read every pose topic (or tf pair) instead of refusing the
+            choice (for describing a bag, :func:`pipeline.io.rosbag.read_bag`).
 
     Returns:
         The sequence, with the reader's findings and ``metadata["source_format"]``.
@@ -201,9 +211,32 @@ def load_sequence(
         ConfigError: An option that does not apply to this format, or a bad mapping.
     """
     seq = _load_one(Path(path), fmt=fmt, name=name, csv_mapping=csv_mapping, imu_topic=imu_topic,
-                    pose_topic=pose_topic, tf_parent=tf_parent, tf_child=tf_child)
+                    pose_topic=pose_topic, tf_parent=tf_parent, tf_child=tf_child, all_pose_topics=all_pose_topics)
     extras = [PoseInput.coerce(p) for p in extra_poses]
-    return add_pose_inputs(seq, extras) if extras else seq
+    seq = add_pose_inputs(seq, extras) if extras else seq
+    is_store = (parse_format(fmt) if fmt is not None else detect_format(Path(path))) is SourceFormat.STORE
+    return seq if is_store else _with_calibration_finding(seq)
+
+
+def _with_calibration_finding(seq: Sequence) -> Sequence:
+    """Add CALIBRATION_DEFAULTED when IMU noise values are defaults nobody gave (bags, CSV, TUM...).
+
+    Readers that know better (an ASL folder's sensor.yaml, a store that recorded its findings)
+    have said so already; a store's calibration is what its writer had.
+    """
+    if seq.imu is None or any(f.code == CODE_CALIBRATION_DEFAULTED for f in seq.findings):
+        return seq
+    missing = seq.calibration.defaulted()
+    if not missing:
+        return seq
+    finding = Finding(
+        CODE_CALIBRATION_DEFAULTED, Severity.WARNING, "imu",
+        f"no IMU noise values for {', '.join(missing)}: using the EuRoC (ADIS16448) datasheet defaults; "
+        "give this IMU's values (a Kalibr-style sensor.yaml next to the data, or the recovery config's "
+        "gyro_noise_density / gyro_random_walk / acc_noise_density / acc_random_walk)",
+        {"missing_keys": missing},
+    )
+    return replace(seq, findings=[*seq.findings, finding])
 
 
 def _load_one(
@@ -216,6 +249,7 @@ def _load_one(
     pose_topic: str | None,
     tf_parent: str | None,
     tf_child: str | None,
+    all_pose_topics: bool = False,
 ) -> Sequence:
     if not path.exists():
         raise InputFormatError("does not exist", path=path, hint="check the path")
@@ -260,7 +294,7 @@ def _load_one(
             raise UnsupportedInputError("ROS bag support is not available in this build", path=path,
                                         hint=SUPPORTED_HINT) from exc
         raise
-    return read_bag(path, name=name, **bag_opts)
+    return read_bag(path, name=name, all_pose_topics=all_pose_topics, **bag_opts)
 
 
 @dataclass(frozen=True)
@@ -293,6 +327,9 @@ class PoseInput:
             kinds = {k.value for k in PoseSourceKind}
             if sep and tail in kinds:
                 return cls(path=head, kind=PoseSourceKind(tail))
+            if sep and head and Path(head).exists() and not Path(text).exists():
+                raise ConfigError(f"unknown pose kind {tail!r} in {text!r}", field="--add-poses",
+                                  hint="write PATH:KIND with KIND one of " + ", ".join(sorted(kinds)))
             return cls(path=text)
         if isinstance(value, dict):
             unknown = set(value) - {"path", "fmt", "stream", "kind", "pose_topic"}

@@ -145,6 +145,7 @@ class ParsedTable:
     resolution_ns: int = 1
     unit: TimeUnit = TimeUnit.NS
     unit_guessed: bool = False
+    unit_declared: TimeUnit | None = None
 
 
 def read_text(path: Path) -> str:
@@ -469,6 +470,8 @@ def _read_fast(data: str, ncols: int, stamp_col: int, value_cols: list[int], del
         raw = _read_arrow(data, ncols, stamp_col, value_cols, delimiter)
         if raw is not None:
             return raw
+    if not _field_counts_ok(data, ncols, delimiter):
+        return None  # pandas would drop the extra fields of a long line silently
     try:
         raw = _read_csv(data, ncols, stamp_col, value_cols, delimiter, int_stamps, strict=True)
     except (ValueError, OverflowError, TypeError, pd.errors.ParserError, pd.errors.EmptyDataError):
@@ -478,6 +481,19 @@ def _read_fast(data: str, ncols: int, stamp_col: int, value_cols: list[int], del
     if not int_stamps and raw.stamps.isna().any():
         return None
     return raw
+
+
+def _field_counts_ok(data: str, ncols: int, delimiter: Delimiter) -> bool:
+    """True if every data line (not blank, not ``#``) has ``ncols`` fields (a trailing delimiter allowed)."""
+    lines = pc.utf8_trim_whitespace(pc.list_flatten(pc.split_pattern(pa.array([data], type=pa.string()), "\n")))
+    lines = lines.filter(pc.and_(pc.greater(pc.utf8_length(lines), 0),
+                                 pc.invert(pc.starts_with(lines, "#"))))
+    if delimiter is Delimiter.WHITESPACE:
+        counts = pc.list_value_length(pc.utf8_split_whitespace(lines))
+        return bool(pc.all(pc.equal(counts, ncols)).as_py() is not False)
+    counts = pc.count_substring(lines, delimiter.value)
+    trailing = pc.cast(pc.ends_with(lines, delimiter.value), pa.int64())
+    return bool(pc.all(pc.equal(pc.subtract(counts, trailing), ncols - 1)).as_py() is not False)
 
 
 def _read_validated(
@@ -553,6 +569,47 @@ def _int_stamps_to_ns(raw: np.ndarray, unit: TimeUnit) -> np.ndarray:
     return raw * np.int64(scale)
 
 
+def _approx_stamps(raw: _Raw) -> np.ndarray:
+    """The raw stamps as float64 [N] (only for guessing a unit; never used as the stamps)."""
+    import pandas as pd
+
+    if isinstance(raw.stamps, np.ndarray):
+        return raw.stamps.astype(np.float64)
+    return pd.to_numeric(raw.stamps.str.strip(), errors="coerce").to_numpy(dtype=np.float64)
+
+
+def _has_sub_ns_digits(stamps: pd.Series, unit: TimeUnit) -> bool:
+    """True if a decimal stamp has non-zero digits finer than 1 ns in ``unit`` (they would be rounded away)."""
+    arr = pc.utf8_trim_whitespace(pa.array(stamps, type=pa.string()))
+    if pc.any(pc.match_substring_regex(arr, "[eE]")).as_py():
+        return False  # scientific notation: reported as STAMP_PRECISION_LOSS instead
+    frac = pc.extract_regex(arr, r"\.(?P<frac>\d*)$").field(0)
+    finer = pc.utf8_slice_codeunits(pc.fill_null(frac, ""), unit.ns_exponent)
+    return bool(pc.any(pc.match_substring_regex(finer, "[1-9]")).as_py())
+
+
+def _unit_for_fractional_stamps(path: Path, header: Header, stamp_col: int, raw: _Raw, declared: TimeUnit) -> TimeUnit:
+    """The unit of stamps whose fraction is finer than 1 ns in the ``declared`` unit.
+
+    A header that says ``[ns]`` over ``1403715274.302140000`` is wrong about the unit: the
+    stamps are decimal seconds. They are read in the unit their magnitude and spacing say, exactly
+    from the decimal text (reported as STAMP_UNIT_GUESSED), never truncated to whole nanoseconds.
+
+    Raises:
+        InputFormatError: No coarser unit reads them without rounding.
+    """
+    unit = guess_time_unit(_approx_stamps(raw))
+    if unit.ns_exponent > declared.ns_exponent and not _has_sub_ns_digits(raw.stamps, unit):
+        log.warning("%s: stamps have a fraction finer than 1 ns in the declared unit '%s'; read as '%s'",
+                    display_name(path), declared.value, unit.value)
+        return unit
+    field = header.names[stamp_col] if header.names and len(header.names) > stamp_col else f"column {stamp_col}"
+    raise InputFormatError(
+        f"time stamps have digits finer than 1 ns in their declared unit '{declared.value}' and no other unit "
+        "fits them", path=path, line=header.first_data_line, field=field,
+        hint="write the stamps as integer nanoseconds (or decimal seconds with at most 9 decimals)")
+
+
 def parse_table(
     path: Path,
     text: str,
@@ -604,10 +661,11 @@ def parse_table(
         raise InputFormatError(f"no data lines (expected a {what})", path=path,
                                hint="the file must hold data lines after its header")
     guessed = False
+    declared = None if unit is TimeUnit.AUTO else unit
     if unit is TimeUnit.AUTO:
-        approx = (raw.stamps.astype(np.float64) if isinstance(raw.stamps, np.ndarray)
-                  else pd.to_numeric(raw.stamps.str.strip(), errors="coerce").to_numpy(dtype=np.float64))
-        unit = guess_time_unit(approx)
+        unit, guessed = guess_time_unit(_approx_stamps(raw)), True
+    elif not isinstance(raw.stamps, np.ndarray) and _has_sub_ns_digits(raw.stamps, unit):
+        unit = _unit_for_fractional_stamps(path, header, stamp_col, raw, unit)
         guessed = True
     try:
         if isinstance(raw.stamps, np.ndarray):
@@ -628,6 +686,7 @@ def parse_table(
         resolution_ns=stamp_resolution_ns(t_ns),
         unit=unit,
         unit_guessed=guessed,
+        unit_declared=declared,
     )
 
 
@@ -666,7 +725,17 @@ def table_findings(parsed: ParsedTable, path: Path, stream: str, n_fields: int) 
                      "export them as integer nanoseconds if the source has them"),
             details={"resolution_ns": int(resolution), "reason": reason, "file": str(path)},
         ))
-    if parsed.unit_guessed:
+    if parsed.unit_guessed and parsed.unit_declared is not None:
+        findings.append(Finding(
+            code=CODE_UNIT_GUESSED,
+            severity=Severity.WARNING,
+            stream=stream,
+            message=(f"time stamps of {display_name(path)} are declared in '{parsed.unit_declared.value}' but have a "
+                     f"fraction finer than 1 ns there; read exactly as '{parsed.unit.value}'. Write integer "
+                     "nanoseconds to silence this"),
+            details={"unit": parsed.unit.value, "declared": parsed.unit_declared.value, "file": str(path)},
+        ))
+    elif parsed.unit_guessed:
         findings.append(Finding(
             code=CODE_UNIT_GUESSED,
             severity=Severity.INFO,

@@ -20,7 +20,7 @@ from __future__ import annotations
 import enum
 import logging
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -365,16 +365,7 @@ def _calibration(mav0: Path, pose_frames: dict[str, str]) -> tuple[ImuCalibratio
         T_BS = read_T_BS(yaml_path)
         if T_BS is not None:
             frames[frame] = T_imu_body @ T_BS
-    calib = ImuCalibration(
-        gyro_noise_density=calib.gyro_noise_density,
-        gyro_random_walk=calib.gyro_random_walk,
-        acc_noise_density=calib.acc_noise_density,
-        acc_random_walk=calib.acc_random_walk,
-        rate_hz=calib.rate_hz,
-        T_body_imu=calib.T_body_imu,
-        T_imu_frames=frames,
-    )
-    return calib, findings
+    return replace(calib, T_imu_frames=frames), findings
 
 
 def read_asl(path: str | Path, *, name: str | None = None) -> Sequence:

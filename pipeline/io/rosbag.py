@@ -397,6 +397,12 @@ def _pose_series(s: _Stamped, t_ns: np.ndarray, kind: PoseSourceKind, frame_defa
     )
 
 
+def _choice_finding(what: str, option: str) -> Finding:
+    return Finding("POSE_STREAM_CHOICE", Severity.INFO, "poses",
+                   f"the bag has {what}: 'biasgt recover' and 'convert' need one, chosen with {option}",
+                   {"option": option})
+
+
 def read_bag(
     path: str | Path,
     *,
@@ -406,6 +412,7 @@ def read_bag(
     tf_child: str | None = None,
     pose_kind: PoseSourceKind | None = None,
     name: str | None = None,
+    all_pose_topics: bool = False,
 ) -> Sequence:
     """Read IMU and pose streams from a ROS1 or ROS2 bag.
 
@@ -426,6 +433,9 @@ def read_bag(
         tf_child: Child frame of the tf chain to read (needs ``tf_parent``).
         pose_kind: Source kind of the pose stream(s); default VIO for Odometry, MOCAP otherwise.
         name: Sequence name; default the bag's file or folder name without extension.
+        all_pose_topics: Instead of refusing a choice between several pose topics (or tf pairs),
+            read them all and say in a POSE_STREAM_CHOICE finding that recovery needs one
+            (``biasgt inspect`` describes a bag this way).
 
     Returns:
         The sequence: ``imu`` [N], ``poses`` keyed by topic (``"/tf:<parent>-><child>"`` for tf),
@@ -447,7 +457,8 @@ def read_bag(
     try:
         with AnyReader([open_path], default_typestore=get_typestore(Stores.ROS2_HUMBLE)) as reader:
             return _read_open_bag(
-                reader, path, open_path, seq_name, imu_topic, pose_topic, tf_parent, tf_child, pose_kind
+                reader, path, open_path, seq_name, imu_topic, pose_topic, tf_parent, tf_child, pose_kind,
+                all_pose_topics,
             )
     except BAG_READ_ERRORS as err:
         raise InputFormatError(f"cannot read bag: {err}", path=path, hint=_BAG_HINT) from err
@@ -465,6 +476,7 @@ def _read_open_bag(
     tf_parent: str | None,
     tf_child: str | None,
     pose_kind: PoseSourceKind | None,
+    all_pose_topics: bool = False,
 ) -> Sequence:
     topics = {n: (info.msgtype or "?", int(info.msgcount)) for n, info in reader.topics.items()}
     findings: list[Finding] = []
@@ -530,7 +542,12 @@ def _read_open_bag(
         plan_tf(None)
     else:
         cands = sorted(n for n, (t, _) in topics.items() if t in POSE_TYPES)
-        if len(cands) > 1:
+        if len(cands) > 1 and all_pose_topics:
+            findings.append(_choice_finding(f"{len(cands)} pose topics ({', '.join(cands)})",
+                                            "--pose-topic TOPIC"))
+            for c in cands:
+                plan_topic(c)
+        elif len(cands) > 1:
             raise AmbiguousInputError(
                 f"the bag has {len(cands)} pose topics: "
                 + ", ".join(f"{c} ({topics[c][0].replace('/msg/', '/')}, {topics[c][1]} msgs)" for c in cands),
@@ -538,7 +555,7 @@ def _read_open_bag(
                 hint="choose one with --pose-topic TOPIC" + (" (or a /tf chain with --tf-parent P --tf-child C)"
                                                            if tf_topics else ""),
             )
-        if cands:
+        elif cands:
             plan_topic(cands[0])
         elif any(not is_static(t) for t in tf_topics):
             plan_tf(None)
@@ -580,6 +597,16 @@ def _read_open_bag(
                               for e in edges.values()})
         if parent is None:
             dynamic_pairs = [k for k, e in edges.items() if not e.static]
+            if len(dynamic_pairs) > 1 and all_pose_topics:
+                findings.append(_choice_finding(f"{len(dynamic_pairs)} tf pairs ({_pair_list(edges, dynamic_only=True)})",
+                                                "--tf-parent P --tf-child C"))
+                for p, c in dynamic_pairs:
+                    p, c = p.lstrip("/"), c.lstrip("/")
+                    s, dyn_topic = _tf_chain(path, edges, p, c)
+                    stream = f"{dyn_topic}:{p}->{c}"
+                    poses[stream] = _pose_series(s, _choose_stamps(stream, s, findings),
+                                                 pose_kind or PoseSourceKind.MOCAP, c)
+                continue
             if len(dynamic_pairs) != 1:
                 raise AmbiguousInputError(
                     f"{topic or '/tf'} holds {len(dynamic_pairs)} parent->child pairs: "

@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import InputFormatError
-from pipeline.types import ImuCalibration
+from pipeline.types import CALIBRATION_NOISE_FIELDS, ImuCalibration
 
 #: sensor.yaml key -> ImuCalibration field.
 IMU_NOISE_KEYS = {
@@ -168,7 +168,8 @@ def read_imu_calibration(path: str | Path) -> ImuCalibration:
     T_BS = read_T_BS(path, data)
     if T_BS is not None:
         kwargs["T_body_imu"] = T_BS
-    return ImuCalibration(**kwargs)
+    sources = {attr: str(path) for attr in kwargs if attr in CALIBRATION_NOISE_FIELDS}
+    return ImuCalibration(**kwargs, sources=sources)
 
 
 def missing_noise_keys(path: str | Path) -> list[str]:

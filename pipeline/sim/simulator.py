@@ -26,7 +26,7 @@ from pipeline.sim.motion import (
     read_ground_truth_file,
 )
 from pipeline.sim.poses import PoseTruth, simulate_pose_stream
-from pipeline.types import ImuCalibration, ImuSeries, Sequence, StateSeries
+from pipeline.types import CALIBRATION_NOISE_FIELDS, ImuCalibration, ImuSeries, Sequence, StateSeries
 
 log = logging.getLogger(__name__)
 
@@ -209,6 +209,7 @@ def simulate(config: SimConfig) -> Simulation:
         rate_hz=imu_cfg.rate_hz,
         T_body_imu=np.eye(4),
         T_imu_frames={pose_truth.frame: pose_truth.T_imu_frame.copy()} if config.poses.extrinsic_known else {},
+        sources=dict.fromkeys(CALIBRATION_NOISE_FIELDS, "simulator config (reported datasheet values)"),
     )
     sequence = Sequence(
         name=config.name,

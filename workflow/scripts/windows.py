@@ -7,6 +7,7 @@ run_step(
     windows_step,
     list(snakemake.input.stores),  # noqa: F821
     list(snakemake.input.recoveries),  # noqa: F821
+    list(snakemake.input.validations),  # noqa: F821
     snakemake.output[0],  # noqa: F821
     snakemake.params.settings,  # noqa: F821
 )

@@ -1,0 +1,378 @@
+"""IMU intrinsics (scale, misalignment, g-sensitivity) estimated around the bias recovery.
+
+Measurement model (the seed paper's Eq. 2, Kalibr's scale-misalignment model; body frame)::
+
+    gyro = M_g omega + G f + b_g + n_g,      M_g = I + S_g      (S_g: 9 terms)
+    acc  = M_a f     + b_a + n_a,            M_a = I + S_a      (S_a: 9 terms)
+
+``S`` holds the scale errors on its diagonal and the misalignments off it; ``G`` (rad/s per
+m/s^2) is the gyro's g-sensitivity. The factor graph of :mod:`recovery.graph` has no such terms:
+on real data the bias absorbs them (on EuRoC V1_01 the evidence search then picks a gyro random
+walk ~100x the datasheet and the bias follows the angular rate).
+
+Why an alternating outer loop rather than a factor of our own. ``CombinedImuFactor`` takes
+corrected readings; a custom factor with intrinsics would have to re-preintegrate in Python at
+every linearisation (GTSAM's Python ``CustomFactor``), ~100x slower than the C++ factor over
+thousands of keyframes. The intrinsics are constants, observed through the *trajectory*, which
+the pose stream pins down whatever the bias does. So:
+
+1. solve as usual (the trajectory follows the poses);
+2. fit, by linear least squares over every keyframe interval, the intrinsics together with a
+   piecewise-constant bias correction (one value per ``block_s``, so slow drift stays with the
+   bias and only rate- or force-correlated error goes to the intrinsics):
+
+   * rotation: ``Log(dR_imu^T dR_traj) = sum_i J_i d_omega_i dt_i`` with ``J_i`` the rotation
+     from sample ``i`` to the interval's end and ``d_omega = -(S_g omega + G f) - db_g``;
+   * velocity: ``dv_traj - dv_imu = sum_i R_i d_f_i dt_i`` with ``d_f = -S_a f - db_a``;
+
+   weighted per group by the residual variance; the covariance of the fit gives each term's
+   sigma. A term whose sigma exceeds ``max_sigma`` is not observable from this motion: it is
+   fixed to zero (identity) and named in a warning;
+3. correct the readings, ``acc' = M_a^-1 acc``, ``gyro' = M_g^-1 (gyro - G f)``, and solve again
+   (noise evidence, offset and extrinsic included); repeat the fit on the corrected readings
+   while it still moves a term by more than 3 sigma (``max_rounds``).
+
+The bias is reported in the raw readings' convention: the solve on corrected readings recovers
+``b' = M^-1 b``, so ``b = M b'`` (and its sigma likewise).
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from pipeline.types import ImuSeries, NS_PER_S, Sequence
+
+log = logging.getLogger(__name__)
+
+#: Names of the nine terms of a 3x3 matrix in row-major order (``S[r, c]``).
+_TERMS = tuple(f"{'xyz'[r]}{'xyz'[c]}" for r in range(3) for c in range(3))
+
+
+@dataclass(frozen=True)
+class ImuIntrinsics:
+    """``M_g``, ``M_a`` (3x3, identity = perfect) and ``G`` (3x3, rad/s per m/s^2)."""
+
+    gyro_matrix: np.ndarray
+    acc_matrix: np.ndarray
+    gyro_g_sensitivity: np.ndarray
+
+    @classmethod
+    def identity(cls) -> "ImuIntrinsics":
+        return cls(np.eye(3), np.eye(3), np.zeros((3, 3)))
+
+    def correct(self, imu: ImuSeries, bias_acc_mps2: np.ndarray) -> ImuSeries:
+        """Readings with the intrinsics removed (``bias_acc_mps2`` [N, 3]: to estimate ``f`` for ``G``)."""
+        acc = np.linalg.solve(self.acc_matrix, imu.acc_mps2.T).T
+        f = np.linalg.solve(self.acc_matrix, (imu.acc_mps2 - bias_acc_mps2).T).T
+        gyro = np.linalg.solve(self.gyro_matrix, (imu.gyro_radps - f @ self.gyro_g_sensitivity.T).T).T
+        return replace(imu, gyro_radps=gyro, acc_mps2=acc)
+
+    def compose(self, step: "ImuIntrinsics") -> "ImuIntrinsics":
+        """The intrinsics of raw readings when ``step`` was fitted on readings corrected by ``self``."""
+        return ImuIntrinsics(self.gyro_matrix @ step.gyro_matrix, self.acc_matrix @ step.acc_matrix,
+                             self.gyro_g_sensitivity + self.gyro_matrix @ step.gyro_g_sensitivity)
+
+
+@dataclass(frozen=True)
+class IntrinsicsFit:
+    """One least-squares fit: the step, each term's sigma and whether it was observable.
+
+    Attributes:
+        step: Intrinsics of the readings the fit saw (identity where not observable).
+        sigma: Per group (``gyro_scale_misalignment``, ``acc_scale_misalignment``,
+            ``gyro_g_sensitivity``), the 3x3 sigmas of the terms (NaN where not estimated).
+        observable: The same groups, 3x3 booleans.
+        residual_rms: Whitening scale of each equation group (rad, m/s) after the fit.
+    """
+
+    step: ImuIntrinsics
+    sigma: dict[str, np.ndarray]
+    observable: dict[str, np.ndarray]
+    residual_rms: dict[str, float]
+    estimated: tuple[str, ...] = ("gyro_scale_misalignment", "acc_scale_misalignment")
+
+    def moved(self, n_sigma: float = 3.0) -> bool:
+        """Whether any observable term differs from zero by more than ``n_sigma`` of its sigmas."""
+        deltas = {"gyro_scale_misalignment": self.step.gyro_matrix - np.eye(3),
+                  "acc_scale_misalignment": self.step.acc_matrix - np.eye(3),
+                  "gyro_g_sensitivity": self.step.gyro_g_sensitivity}
+        return any(np.any(np.abs(deltas[k][self.observable[k]]) > n_sigma * self.sigma[k][self.observable[k]])
+                   for k in self.sigma)
+
+
+@dataclass(frozen=True)
+class _Interval:
+    """Rows of the linear system of one keyframe interval."""
+
+    A_rot: np.ndarray  # [3, 9 + 9] (S_g, G)
+    A_vel: np.ndarray  # [3, 9]     (S_a)
+    B_rot: np.ndarray  # [3, 3] coefficient of the gyro bias correction (sum of J_i dt_i)
+    B_vel: np.ndarray  # [3, 3] coefficient of the acc bias correction (sum of R_i dt_i)
+    r_rot: np.ndarray  # [3]
+    r_vel: np.ndarray  # [3]
+
+
+def _interval(t_s: np.ndarray, gyro: np.ndarray, f: np.ndarray, R0: np.ndarray, R1: np.ndarray,
+              v0: np.ndarray, v1: np.ndarray, gravity: np.ndarray) -> _Interval:
+    """Linearised residuals of one interval: samples [n] with hold durations ``t_s`` [n] (s)."""
+    dt = t_s
+    steps = Rotation.from_rotvec(gyro * dt[:, None]).as_matrix()  # [n, 3, 3]
+    n = len(dt)
+    # R_i: attitude at sample i (world from body), propagated from the trajectory's R0 by the gyro
+    R = np.empty((n + 1, 3, 3))
+    R[0] = R0
+    for i in range(n):
+        R[i + 1] = R[i] @ steps[i]
+    # J_i: rotation from sample i + 1 to the end, transposed (body frame at the end)
+    after = np.empty((n, 3, 3))
+    acc_rot = np.eye(3)
+    for i in range(n - 1, -1, -1):
+        after[i] = acc_rot.T
+        acc_rot = steps[i] @ acc_rot
+    dR_imu = R0.T @ R[n]
+    r_rot = Rotation.from_matrix(dR_imu.T @ (R0.T @ R1)).as_rotvec()
+    Jdt = after * dt[:, None, None]  # [n, 3, 3]
+    # d_omega_i = -(S_g omega_i + G f_i) - db: S omega = kron(omega^T, I) vec_row(S) in row-major -> use einsum
+    A_sg = -np.einsum("nij,nk->nijk", Jdt, gyro).reshape(n, 3, 9).sum(0)
+    A_g = -np.einsum("nij,nk->nijk", Jdt, f).reshape(n, 3, 9).sum(0)
+    # the attitude at the middle of each step rotates the step's (midpoint) specific force
+    half = Rotation.from_rotvec(0.5 * gyro * dt[:, None]).as_matrix()
+    Rdt = np.einsum("nij,njk->nik", R[:n], half) * dt[:, None, None]
+    dv_imu = np.einsum("nij,nj->i", Rdt, f) + gravity * dt.sum()
+    r_vel = (v1 - v0) - dv_imu
+    A_sa = -np.einsum("nij,nk->nijk", Rdt, f).reshape(n, 3, 9).sum(0)
+    return _Interval(np.hstack([A_sg, A_g]), A_sa, -Jdt.sum(0), -Rdt.sum(0), r_rot, r_vel)
+
+
+def _hold_durations(t_ns: np.ndarray, a_ns: int, b_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """(indices i of the sample intervals [t_i, t_i+1] that overlap [a, b], seconds of each inside it)."""
+    i0 = max(int(np.searchsorted(t_ns, a_ns, side="right")) - 1, 0)
+    i1 = int(np.searchsorted(t_ns, b_ns, side="left"))
+    idx = np.arange(i0, min(i1, len(t_ns) - 1))
+    start = np.maximum(t_ns[idx], a_ns)
+    end = np.minimum(t_ns[idx + 1], b_ns)
+    keep = end > start
+    return idx[keep], (end[keep] - start[keep]) / NS_PER_S
+
+
+@dataclass(frozen=True)
+class FitNoise:
+    """Noise of the intrinsics fit: white noise (per sqrt(Hz)) and the bias random walk of each sensor."""
+
+    gyro_noise_density: float
+    acc_noise_density: float
+    gyro_random_walk: float
+    acc_random_walk: float
+
+
+def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mps: np.ndarray,
+                   bias_at: Callable[[np.ndarray], np.ndarray], gravity_mps2: np.ndarray, noise: FitNoise, *,
+                   g_sensitivity: bool, block_s: float = 10.0, max_sigma: float = 2e-3,
+                   max_sigma_g_sensitivity: float = 5e-4, n_sigma: float = 3.0) -> IntrinsicsFit:
+    """Fit the intrinsics of ``imu`` against a solved trajectory (see the module docstring).
+
+    Per keyframe interval the bias correction is a free variable tied to its neighbours by the
+    random-walk prior ``noise`` (a Kalman-smoother-like sparse least squares); the solved bias,
+    which may have absorbed rate-correlated error, enters only through its ``block_s`` means.
+
+    Args:
+        imu: The readings the trajectory was solved with.
+        t_ns / quat_wxyz / v_mps: The solved IMU trajectory at the keyframes, [K] / [K, 4] / [K, 3].
+        bias_at: The solved bias at given stamps, [N] -> [N, 6].
+        gravity_mps2: Gravity in the trajectory's world frame, [3].
+        noise: White noise and bias random walk of the fit.
+        g_sensitivity: Also fit ``G``.
+        block_s: Blocks over which the solved bias is averaged before it is subtracted.
+        max_sigma / max_sigma_g_sensitivity: Largest sigma of an observable term.
+        n_sigma: A term is applied only when it differs from zero by more than this many sigmas.
+    """
+    R_kf = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
+    sample_block = np.clip(((imu.t_ns - t_ns[0]) / NS_PER_S // block_s).astype(int), 0, None)
+    b = _block_means(bias_at(imu.t_ns), sample_block)
+    gyro, f = imu.gyro_radps - b[:, :3], imu.acc_mps2 - b[:, 3:]
+    # midpoint samples: the mean of the readings at both ends of each sample interval (the
+    # recovery's preintegration does the same; a zero-order hold lags by half a sample and
+    # shows up as a spurious misalignment of ~1e-4)
+    gyro = np.vstack([0.5 * (gyro[:-1] + gyro[1:]), gyro[-1:]])
+    f = np.vstack([0.5 * (f[:-1] + f[1:]), f[-1:]])
+    rows: list[_Interval] = []
+    spans: list[float] = []
+    for k in range(len(t_ns) - 1):
+        idx, dt = _hold_durations(imu.t_ns, int(t_ns[k]), int(t_ns[k + 1]))
+        if len(idx) < 2 or not np.all(np.isfinite(gyro[idx])):
+            continue
+        rows.append(_interval(dt, gyro[idx], f[idx], R_kf[k], R_kf[k + 1], v_mps[k], v_mps[k + 1], gravity_mps2))
+        spans.append(float(dt.sum()))
+    span = np.asarray(spans)
+    n_int = 18 if g_sensitivity else 9
+    x_rot, s_rot, rms_rot = _solve_with_walk(np.stack([iv.A_rot[:, :n_int] for iv in rows]),
+                                             np.stack([iv.B_rot for iv in rows]), np.stack([iv.r_rot for iv in rows]),
+                                             span, noise.gyro_noise_density, noise.gyro_random_walk)
+    x_vel, s_vel, rms_vel = _solve_with_walk(np.stack([iv.A_vel for iv in rows]), np.stack([iv.B_vel for iv in rows]),
+                                             np.stack([iv.r_vel for iv in rows]), span, noise.acc_noise_density,
+                                             noise.acc_random_walk)
+    groups = {"gyro_scale_misalignment": (x_rot[:9], s_rot[:9], max_sigma),
+              "acc_scale_misalignment": (x_vel[:9], s_vel[:9], max_sigma)}
+    if g_sensitivity:
+        groups["gyro_g_sensitivity"] = (x_rot[9:18], s_rot[9:18], max_sigma_g_sensitivity)
+    mats, sigma, observable = {}, {}, {}
+    for name, (x, s_, limit) in groups.items():
+        ok = np.isfinite(s_) & (s_ <= limit)
+        # a term not significantly different from zero stays zero: applying its noise would move
+        # the bias (a G term times gravity is a constant gyro offset) for nothing
+        mats[name] = np.where(ok & (np.abs(x) > n_sigma * s_), x, 0.0).reshape(3, 3)
+        sigma[name] = s_.reshape(3, 3)
+        observable[name] = ok.reshape(3, 3)
+    if not g_sensitivity:
+        mats["gyro_g_sensitivity"] = np.zeros((3, 3))
+        sigma["gyro_g_sensitivity"] = np.full((3, 3), np.nan)
+        observable["gyro_g_sensitivity"] = np.zeros((3, 3), bool)
+    # The fit is linear in P with w = (I - P_g) gyro - G' f and f = (I - P_a) acc (bias removed):
+    # exactly M = (I - P)^-1 and G = M_g G', not just to first order (1 % scale: 1e-4 apart).
+    M_g = np.linalg.inv(np.eye(3) - mats["gyro_scale_misalignment"])
+    step = ImuIntrinsics(M_g, np.linalg.inv(np.eye(3) - mats["acc_scale_misalignment"]),
+                         M_g @ mats["gyro_g_sensitivity"])
+    return IntrinsicsFit(step, sigma, observable, {"rotation_rad": rms_rot, "velocity_mps": rms_vel},
+                         tuple(groups))
+
+
+def _block_means(values: np.ndarray, block: np.ndarray) -> np.ndarray:
+    """Each row replaced by the mean of its block's rows ([N, k], block [N] ints >= 0)."""
+    counts = np.bincount(block)
+    sums = np.stack([np.bincount(block, weights=values[:, c]) for c in range(values.shape[1])], axis=1)
+    return (sums / np.maximum(counts, 1)[:, None])[block]
+
+
+def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.ndarray, noise_density: float,
+                     random_walk: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Sparse weighted least squares for ``r_k = A_k x + B_k d_k`` with a random walk on ``d``.
+
+    Args:
+        A: [K, 3, P] coefficients of the intrinsic terms; B: [K, 3, 3] of interval k's bias
+            correction ``d_k``; r: [K, 3] residuals; span_s: [K] interval lengths.
+        noise_density / random_walk: Sigma of a residual is ``noise_density sqrt(span)`` (rescaled
+            by the fit's own residuals); ``d_k+1 - d_k`` has sigma ``random_walk sqrt(span)``.
+
+    Returns:
+        ``(x [P], sigma of x [P] (huge where a term is not identifiable), residual scale)``.
+    """
+    from scipy import sparse
+    from scipy.sparse.linalg import splu
+
+    K, _, P = A.shape
+    n = P + 3 * K
+    w_meas = 1.0 / (noise_density * np.sqrt(span_s))
+    row = np.arange(3 * K).reshape(K, 3)
+    a_rows, a_cols = np.broadcast_to(row[:, :, None], (K, 3, P)), np.broadcast_to(np.arange(P), (K, 3, P))
+    b_rows = np.broadcast_to(row[:, :, None], (K, 3, 3))
+    b_cols = np.broadcast_to(P + 3 * np.arange(K)[:, None, None] + np.arange(3)[None, None, :], (K, 3, 3))
+    meas = sparse.csr_matrix((np.concatenate([(A * w_meas[:, None, None]).ravel(), (B * w_meas[:, None, None]).ravel()]),
+                              (np.concatenate([a_rows.ravel(), b_rows.ravel()]),
+                               np.concatenate([a_cols.ravel(), b_cols.ravel()]))), shape=(3 * K, n))
+    w_walk = 1.0 / (random_walk * np.sqrt(0.5 * (span_s[:-1] + span_s[1:])))
+    i = np.arange(3 * (K - 1))
+    walk = sparse.csr_matrix((np.concatenate([-np.repeat(w_walk, 3), np.repeat(w_walk, 3)]),
+                              (np.concatenate([i, i]), np.concatenate([P + i, P + 3 + i]))), shape=(3 * (K - 1), n))
+    M = sparse.vstack([meas, walk]).tocsc()
+    y = np.concatenate([(r * w_meas[:, None]).ravel(), np.zeros(3 * (K - 1))])
+    N = (M.T @ M).tocsc() + sparse.identity(n, format="csc") * 1e-12
+    lu = splu(N)
+    x = lu.solve(M.T @ y)
+    res = M[:3 * K] @ x - y[:3 * K]
+    scale = float(np.sqrt(np.mean(res**2)))  # whitened residual RMS: rescales the assumed white noise
+    E = np.zeros((n, P))
+    E[:P, :P] = np.eye(P)
+    cov = lu.solve(E)[:P]
+    sigma = np.sqrt(np.maximum(np.diag(cov), 0.0)) * max(scale, 1.0)
+    return x[:P], sigma, scale * noise_density
+
+
+def intrinsics_report(total: ImuIntrinsics, last: IntrinsicsFit, rounds: int) -> dict:
+    """The ``intrinsics`` entry of ``recovery.json``."""
+    return {
+        "method": "alternating: least-squares fit on the solved trajectory, full solve on corrected readings",
+        "rounds": rounds,
+        "gyro_matrix": total.gyro_matrix.tolist(),
+        "acc_matrix": total.acc_matrix.tolist(),
+        "gyro_g_sensitivity": total.gyro_g_sensitivity.tolist(),
+        "sigma": {k: np.where(np.isfinite(v), v, None).tolist() for k, v in last.sigma.items()},
+        "observable": {k: v.tolist() for k, v in last.observable.items()},
+        "residual_rms": last.residual_rms,
+        "terms": "row-major 3x3, rows/columns x, y, z",
+    }
+
+
+def unobservable_warning(fit: IntrinsicsFit) -> str | None:
+    """A warning naming the terms that could not be estimated (fixed to identity / zero)."""
+    missing = [f"{group}[{_TERMS[i]}]" for group in fit.estimated
+               for i in np.flatnonzero(~fit.observable[group].ravel())]
+    if not missing:
+        return None
+    return ("IMU intrinsics not observable from this motion, fixed to identity/zero: " + ", ".join(missing[:12])
+            + (", ..." if len(missing) > 12 else "") + "; record rotations about and accelerations along every axis")
+
+
+def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Bias and sigma [K, 6] in the raw readings' convention from those of corrected readings."""
+    out = np.hstack([bias[:, :3] @ total.gyro_matrix.T, bias[:, 3:] @ total.acc_matrix.T])
+    var_g = (std[:, :3] ** 2) @ (total.gyro_matrix ** 2).T
+    var_a = (std[:, 3:] ** 2) @ (total.acc_matrix ** 2).T
+    return out, np.sqrt(np.hstack([var_g, var_a]))
+
+
+def _fit_noise(sequence: Sequence, report: dict, max_walk_scale: float = 30.0) -> FitNoise:
+    """White noise of the solve, and its random walks capped at ``max_walk_scale`` x the calibration's.
+
+    A solve on readings with intrinsic errors inflates the random walk so that the bias follows
+    them (up to 300x); at that strength the walk would absorb the intrinsics again.
+    """
+    cal = sequence.calibration
+    used = report.get("noise") or {}
+    def walk(key: str, datasheet: float) -> float:
+        return min(float(used.get(key, datasheet)), max_walk_scale * datasheet)
+    return FitNoise(float(used.get("gyro_noise_density", cal.gyro_noise_density)),
+                    float(used.get("acc_noise_density", cal.acc_noise_density)),
+                    walk("gyro_random_walk", cal.gyro_random_walk), walk("acc_random_walk", cal.acc_random_walk))
+
+
+def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
+                            block_s: float, max_rounds: int = 3):
+    """The alternating loop of the module docstring around ``solve`` (a full recovery).
+
+    Returns:
+        The last solve's :class:`recovery.recover.RecoveryResult`, its bias mapped back to the raw
+        readings and ``report["intrinsics"]`` filled in.
+    """
+    assert sequence.imu is not None
+    total = ImuIntrinsics.identity()  # the intrinsics removed from the readings ``result`` was solved on
+    result = solve(sequence)
+    work = sequence
+    fit = None
+    rounds = 0
+    for rounds in range(1, max_rounds + 1):
+        gravity = np.asarray(result.report.get("gravity_world_mps2", [0.0, 0.0, -9.81]), dtype=float)
+        fit = fit_intrinsics(work.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
+                             _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s)
+        log.info("intrinsics round %d: gyro scale %s, acc scale %s", rounds,
+                 np.round(np.diag(fit.step.gyro_matrix) - 1, 5), np.round(np.diag(fit.step.acc_matrix) - 1, 5))
+        if rounds > 1 and not fit.moved():
+            break
+        raw_acc_bias = result.bias_at(sequence.imu.t_ns)[:, 3:] @ total.acc_matrix.T
+        total = total.compose(fit.step)
+        work = replace(sequence, imu=total.correct(sequence.imu, raw_acc_bias))
+        result = solve(work)
+    assert fit is not None
+    bias, std = raw_bias(total, np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]),
+                         np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]))
+    report = dict(result.report)
+    report["intrinsics"] = intrinsics_report(total, fit, rounds)
+    warning = unobservable_warning(fit)
+    if warning:
+        report["warnings"] = [*report.get("warnings", []), warning]
+    return replace(result, bias_gyro_radps=bias[:, :3], bias_acc_mps2=bias[:, 3:], bias_gyro_std_radps=std[:, :3],
+                   bias_acc_std_mps2=std[:, 3:], report=report)
