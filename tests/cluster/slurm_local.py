@@ -115,11 +115,10 @@ def _real_memory_mb() -> int:
 
 @dataclass(frozen=True)
 class Cluster:
-    """A running one-node cluster: its folder, config file and client environment."""
+    """A running one-node cluster: its folder and config file."""
 
     root: Path
     conf: Path
-    env: dict[str, str]
 
     @property
     def jobcomp(self) -> Path:
@@ -220,23 +219,22 @@ def cluster(root: Path) -> Iterator[Cluster]:
     shutil.chown(root / "munge", "munge", "munge")
     os.chmod(root / "munge", 0o755)
     conf = write_slurm_conf(root)
-    env = dict(os.environ)
     try:
         m = root / "munge"
         subprocess.run(["runuser", "-u", "munge", "--", "munged", "--force", f"--socket={m / 'munge.socket'}",
                         f"--pid-file={m / 'munged.pid'}", f"--log-file={m / 'munged.log'}",
                         f"--seed-file={m / 'munged.seed'}"], check=True)
-        subprocess.run(["slurmctld", "-f", str(conf)], check=True, env=env)
-        subprocess.run(["slurmd", "-f", str(conf)], check=True, env=env)
+        subprocess.run(["slurmctld", "-f", str(conf)], check=True)
+        subprocess.run(["slurmd", "-f", str(conf)], check=True)
         deadline = time.monotonic() + 60
         state = ""
         while time.monotonic() < deadline:
-            state = subprocess.run(["sinfo", "-h", "-o", "%t"], env=env, capture_output=True, text=True).stdout.strip()
+            state = subprocess.run(["sinfo", "-h", "-o", "%t"], capture_output=True, text=True).stdout.strip()
             if state == "idle":
                 break
             time.sleep(1)
         check(state == "idle", f"node {socket.gethostname()} idle in SLURM (sinfo: {state!r})")
-        yield Cluster(root, conf, env)
+        yield Cluster(root, conf)
     finally:
         stop_daemons(root)
 
@@ -246,12 +244,12 @@ def cluster(root: Path) -> Iterator[Cluster]:
 # --------------------------------------------------------------------------------------------
 
 
-def biasgt_run(config: Path, workdir: Path, *args: str, env: dict[str, str] | None = None) -> tuple[int, str, float]:
+def biasgt_run(config: Path, workdir: Path, *args: str) -> tuple[int, str, float]:
     """``biasgt run`` under ``timeout -k``; returns (exit code, output, seconds)."""
     cmd = ["timeout", "-k", "15", str(RUN_TIMEOUT_S), sys.executable, "-m", "pipeline.cli", "run",
            "--config", str(config), "--directory", str(workdir), *args]
     t0 = time.monotonic()
-    proc = subprocess.run(cmd, env={**(env or os.environ), "PYTHONPATH": str(REPO)}, cwd=REPO,
+    proc = subprocess.run(cmd, env={**os.environ, "PYTHONPATH": str(REPO)}, cwd=REPO,
                           capture_output=True, text=True)
     seconds = time.monotonic() - t0
     (workdir.parent / f"{workdir.name}.out").write_text(proc.stdout + proc.stderr)
@@ -357,7 +355,7 @@ def rerun_after_repair(c: Cluster, config: Path, remote: Path, imu: Path, good_i
     """Repair the corrupt file and rerun: only that sequence's jobs run, the rest is untouched."""
     before = {p: p.stat().st_mtime_ns for p in (remote / "results").rglob("*") if p.is_file()}
     shutil.copy(good_imu, imu)
-    rc, out, seconds = biasgt_run(config, remote, *slurm_args(), env=c.env)
+    rc, out, seconds = biasgt_run(config, remote, *slurm_args())
     jobs = submitted_jobs(remote)
     check(rc == 0 and sorted(r for r, n, _ in jobs if n == "broken") == sorted(BROKEN_RULES) and len(jobs) == 5,
           f"rerun after the repair: exit {rc} in {seconds:.0f} s, the repaired sequence's {len(jobs)} jobs only")
@@ -385,7 +383,7 @@ def main(argv: list[str] | None = None) -> int:
         (tmp / "slurm.yaml").write_text(CONFIG + BROKEN)
         with cluster(tmp / "slurm") as c:
             remote = tmp / "remote"
-            rc, out, seconds = biasgt_run(tmp / "slurm.yaml", remote, *slurm_args(), env=c.env)
+            rc, out, seconds = biasgt_run(tmp / "slurm.yaml", remote, *slurm_args())
             jobs = submitted_jobs(remote)
             good = [job for job in jobs if job[1] != "broken"]
             print(f"SLURM run: exit {rc} in {seconds:.0f} s, {len(jobs)} SLURM jobs", flush=True)
