@@ -18,7 +18,8 @@ importable and unit-tested Python, so that the ``.smk`` files only wire rules to
 * :func:`run_step` / :func:`simulate_step` / :func:`ingest_step` / :func:`recover_step` /
   :func:`interpolate_step` / :func:`validate_step` / :func:`windows_step` / :func:`report_step`:
   what the thin scripts under ``workflow/scripts/`` call.
-* :func:`snakemake_command` / :func:`run_workflow`: ``biasgt run`` (Snakemake in a subprocess).
+* :func:`snakemake_command` / :func:`run_workflow`: ``biasgt run`` (Snakemake in a subprocess);
+  :func:`resolve_profile`: its ``--profile`` (``workflow/profiles/<name>``, e.g. ``slurm``).
 
 Layout of a workflow run (relative to the working directory)::
 
