@@ -2,7 +2,7 @@
 #
 #   biasgt run [--config FILE] [--cores N]              (recommended; see 'biasgt run --help')
 #   snakemake --cores N --configfile FILE               (from a folder holding results/ and logs/)
-#   snakemake --executor slurm --jobs 50 ...            (cluster; see docs/cluster.md)
+#   biasgt run --profile slurm                          (SLURM: workflow/profiles/slurm, docs/cluster.md)
 #
 # Outputs: results/<stage>/<sequence>/..., logs: logs/<stage>/<sequence>.log (<stage>: simulate,
 # ingest, recovery, interpolation, validation, windows (one 'dataset'), report).

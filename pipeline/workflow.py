@@ -18,7 +18,8 @@ importable and unit-tested Python, so that the ``.smk`` files only wire rules to
 * :func:`run_step` / :func:`simulate_step` / :func:`ingest_step` / :func:`recover_step` /
   :func:`interpolate_step` / :func:`validate_step` / :func:`windows_step` / :func:`report_step`:
   what the thin scripts under ``workflow/scripts/`` call.
-* :func:`snakemake_command` / :func:`run_workflow`: ``biasgt run`` (Snakemake in a subprocess).
+* :func:`snakemake_command` / :func:`run_workflow`: ``biasgt run`` (Snakemake in a subprocess);
+  :func:`resolve_profile`: its ``--profile`` (``workflow/profiles/<name>``, e.g. ``slurm``).
 
 Layout of a workflow run (relative to the working directory)::
 
@@ -35,6 +36,7 @@ import enum
 import logging
 import os
 import re
+import socket
 import subprocess
 import sys
 from collections.abc import Callable, Iterable, Sequence
@@ -53,6 +55,8 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 SNAKEFILE = REPO_ROOT / "Snakefile"
 SCHEMA_FILE = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
+#: Snakemake profiles shipped with the workflow (``biasgt run --profile NAME``), e.g. ``slurm``.
+PROFILES_DIR = REPO_ROOT / "workflow" / "profiles"
 
 RESULTS_DIR = "results"
 LOGS_DIR = "logs"
@@ -832,6 +836,8 @@ def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwarg
     old_level = root.level
     root.addHandler(handler)
     root.setLevel(logging.INFO)
+    slurm_job = os.environ.get("SLURM_JOB_ID")  # set inside a SLURM job (docs/cluster.md)
+    log.info("job on host %s%s", socket.gethostname(), f", SLURM job {slurm_job}" if slurm_job else "")
     try:
         return func(*args, **kwargs)
     except BiasgtError as exc:
@@ -1031,6 +1037,20 @@ def snakemake_command(
     return cmd
 
 
+def resolve_profile(profile: str | Path) -> Path:
+    """The folder of a Snakemake profile: a name under :data:`PROFILES_DIR` (``slurm``) or a path.
+
+    Raises:
+        ConfigError: Neither names a folder holding a ``config.yaml``.
+    """
+    for candidate in (PROFILES_DIR / str(profile), Path(profile)):
+        if (candidate / "config.yaml").is_file():
+            return candidate.resolve()
+    shipped = sorted(p.parent.name for p in PROFILES_DIR.glob("*/config.yaml"))
+    raise ConfigError(f"no Snakemake profile '{profile}'", field="--profile",
+                      hint=f"use one of {', '.join(shipped) or '(none)'} or a folder holding config.yaml")
+
+
 _JOB_HEADER = re.compile(r"^\s*(?:local)?(?:checkpoint|rule) ([A-Za-z0-9_]+):\s*$")
 
 
@@ -1091,7 +1111,7 @@ def describe_failure(lines: Sequence[str], workdir: str | Path) -> str:
             if (j := _JOBID_LINE.match(follow)) and wildcards is None:
                 wildcards = wildcards_of_job.get(j.group(1))
             if (lg := _LOG_LINE.match(follow)) and log_rel is None:
-                log_rel = lg.group(1)
+                log_rel = lg.group(1).rstrip(",")  # executor plugins append their own logs
         text = f"rule '{rule}'" + (f" ({wildcards})" if wildcards else "") + " failed"
         if log_rel:
             log_abs = Path(workdir) / log_rel

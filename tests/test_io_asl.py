@@ -251,6 +251,27 @@ def test_classify_header() -> None:
     assert classify_header(["#timestamp [ns]", " p_RS_R_x [m]", " p_RS_R_y [m]", " p_RS_R_z [m]"]) is AslTable.POSITION
     assert classify_header(["#timestamp", "x", "y", "z"]) is None
     assert classify_header(None, 8) is AslTable.POSE
+    with_temperature = IMU_HEADER.strip().split(",") + ["temperature [degC]"]
+    assert classify_header(with_temperature) is AslTable.IMU_TEMPERATURE
+    assert classify_header(with_temperature[:7] + ["counter"]) is None  # an 8th column is read by its name only
+
+
+def test_imu_temperature_column(tmp_path: Path) -> None:
+    """An eighth 'temperature [degC]' column lands in ImuSeries.temperature_degc and in the store."""
+    path = tmp_path / "seq" / "mav0" / "imu0" / "data.csv"
+    path.parent.mkdir(parents=True)
+    rows = [f"{1_000_000_000 + i * 5_000_000},0.1,0.2,0.3,0.0,0.0,9.81,{25.0 + 0.125 * i}\n" for i in range(40)]
+    path.write_text(IMU_HEADER.strip() + ",temperature [degC]\n" + "".join(rows))
+    seq = read_asl(tmp_path / "seq")
+    np.testing.assert_array_equal(seq.imu.temperature_degc, 25.0 + 0.125 * np.arange(40))
+    np.testing.assert_array_equal(seq.imu.acc_mps2[:, 2], 9.81)
+    back = read_store(write_store(seq, tmp_path / "store"))
+    np.testing.assert_array_equal(back.imu.temperature_degc, seq.imu.temperature_degc)
+    path.write_text(IMU_HEADER + "".join(r.rsplit(",", 1)[0] + "\n" for r in rows))
+    assert read_asl(tmp_path / "seq").imu.temperature_degc is None
+    path.write_text("".join(rows))  # eight unnamed columns: not an IMU file
+    with pytest.raises(InputFormatError, match="not a ASL IMU CSV"):
+        read_asl(tmp_path / "seq")
 
 
 # --------------------------------------------------------------------------------------------------

@@ -194,6 +194,25 @@ def test_temperature_term_and_sensor_matrices() -> None:
     np.testing.assert_allclose(sim.sequence.imu.acc_mps2, f @ M.acc_matrix.T + tr.bias_acc_mps2, atol=1e-12)
 
 
+def test_one_imu_unit_in_every_sequence_and_a_temperature_reference() -> None:
+    """Fixed coefficients and a reference temperature: the term is coeff * (T - reference) once settled."""
+    coeff_g, coeff_a = (1e-4, -2e-4, 3e-4), (2e-3, -1e-3, 4e-3)
+    temperature = TemperatureConfig(ambient_degc=18.0, warmup_delta_degc=6.0, warmup_tau_s=5.0, sensor_tau_s=2.0,
+                                    oscillation_amp_degc=0.0, reference_degc=25.0,
+                                    gyro_coeff_radps_per_degc=coeff_g, acc_coeff_mps2_per_degc=coeff_a)
+    imu = ImuNoiseConfig(white_noise=False, bias_random_walk=False, turn_on_bias=False, temperature=temperature)
+    for seed in (1, 2):
+        sim = simulate(SimConfig(duration_s=60.0, seed=seed, imu=imu))
+        tr = sim.truth
+        np.testing.assert_array_equal(tr.bias.temp_coeff_gyro, coeff_g)
+        temp = sim.sequence.imu.temperature_degc
+        assert temp[0] == pytest.approx(18.0) and temp[-1] == pytest.approx(24.0, abs=1e-3)
+        # starts at coeff * (18 - 25), ends (lag settled) at coeff * (24 - 25)
+        np.testing.assert_allclose(tr.bias_gyro_radps[0], np.multiply(coeff_g, -7.0), rtol=1e-9)
+        np.testing.assert_allclose(tr.bias_acc_mps2[-1], np.multiply(coeff_a, -1.0), rtol=1e-3)
+    assert SimConfig.from_dict(SimConfig(imu=imu).to_dict()).imu.temperature == temperature
+
+
 # ---------------------------------------------------------------------------------------------- poses
 
 
@@ -291,7 +310,7 @@ def test_write_is_deterministic_and_readable(tmp_path: Path) -> None:
     assert (a / "mav0/imu0/data.csv").read_bytes() != (c / "mav0/imu0/data.csv").read_bytes()
 
     lines = (a / "mav0/imu0/data.csv").read_text().splitlines()
-    assert lines[0] == IMU_HEADER and lines[1].startswith("1400000000123456789,")
+    assert lines[0] == f"{IMU_HEADER},temperature [degC]" and lines[1].startswith("1400000000123456789,")
     assert (a / "mav0/mocap0/data.csv").read_text().splitlines()[0] == MOCAP_HEADER
     assert (a / "mav0/state_groundtruth_estimate0/data.csv").read_text().splitlines()[0] == GT_HEADER
 
@@ -310,6 +329,7 @@ def test_write_is_deterministic_and_readable(tmp_path: Path) -> None:
     np.testing.assert_array_equal(seq.imu.t_ns, ref.imu.t_ns)
     np.testing.assert_array_equal(seq.imu.gyro_radps, ref.imu.gyro_radps)
     np.testing.assert_array_equal(seq.imu.acc_mps2, ref.imu.acc_mps2)
+    np.testing.assert_array_equal(seq.imu.temperature_degc, ref.imu.temperature_degc)  # lossless, 8th column
     for name in ("t_ns", "p_m", "quat_wxyz", "v_mps", "bias_gyro_radps", "bias_acc_mps2"):
         np.testing.assert_array_equal(getattr(seq.ground_truth, name), getattr(ref.ground_truth, name))
     mocap = seq.poses["mocap0"]

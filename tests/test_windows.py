@@ -21,7 +21,7 @@ from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.sim import ImuNoiseConfig, PoseStreamConfig, SimConfig, simulate
 from pipeline.store import write_store
 from pipeline.types import ImuSeries
-from training.dataset import ARRAYS, Split, WindowDataset, read_manifest
+from training.dataset import ARRAYS, TEMPERATURE, Split, WindowDataset, read_manifest
 from training.windows import (
     WindowConfig,
     WindowSource,
@@ -103,6 +103,7 @@ def test_count_shapes_spacing_bias_and_states(sim10, tmp_path):
     assert np.all(a["t_ns"][:, -1] - a["t_ns"][:, 0] == NS)
     idx = 100 * np.arange(19)[:, None] + np.arange(201)[None, :]
     np.testing.assert_array_equal(a["imu"], sim10.sequence.imu.imu_6[idx])
+    np.testing.assert_array_equal(a[TEMPERATURE], sim10.sequence.imu.temperature_degc[idx])
     # the bias and its sigma are the interpolation stage's numbers at the IMU stamps
     expect = interpolate_bias(read_bias_csv(rec / "bias.csv"), t, random_walk=recovery_random_walk(rec))
     np.testing.assert_array_equal(a["bias"], expect.bias[idx])
@@ -274,6 +275,9 @@ def test_normalisation_comes_from_the_train_split_only(sim10, tmp_path):
         flat = stacked[k].reshape(-1, 6)
         np.testing.assert_allclose(m1["normalization"][f"{k}_mean"], flat.mean(axis=0), rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(m1["normalization"][f"{k}_std"], flat.std(axis=0, ddof=1), rtol=1e-10)
+    temps = np.concatenate([np.load(tmp_path / "ds1" / "sequences" / n / f"{TEMPERATURE}.npy") for n in ("A", "B")])
+    np.testing.assert_allclose(m1["normalization"]["temperature_mean"], [temps.mean()], rtol=1e-12)
+    np.testing.assert_allclose(m1["normalization"]["temperature_std"], [temps.std(ddof=1)], rtol=1e-10)
     other = _sim(seed=9)
     m2 = build_window_dataset(train + [_source(tmp_path, other, "D", "test")], tmp_path / "ds2")
     assert m2["normalization"] == m1["normalization"]
@@ -304,8 +308,11 @@ def test_manifest_content(dataset, tmp_path):
     assert m["sequences"]["B"]["windows"] == 9 and m["sequences"]["B"]["dropped"]["outside_recovery"] == 10
     assert m["totals"]["test"] == {"sequences": 1, "windows": 9, "candidates": 19, "dropped": 10}
     assert m["window_samples"] == 201 and m["rate_hz"] == 200.0
-    assert set(m["normalization"]) == {"imu_mean", "imu_std", "bias_mean", "bias_std"}
-    assert sorted(p.name for p in (root / "sequences" / "A").iterdir()) == sorted(f"{k}.npy" for k in ARRAYS)
+    assert set(m["normalization"]) == {"imu_mean", "imu_std", "bias_mean", "bias_std", "temperature_mean",
+                                       "temperature_std"}
+    assert m["has_temperature"] is True  # the simulator reports the IMU temperature
+    assert sorted(p.name for p in (root / "sequences" / "A").iterdir()) == sorted(
+        f"{k}.npy" for k in (*ARRAYS, TEMPERATURE))
     m2 = build_window_dataset(sources[:1], tmp_path / "ds2", WindowConfig(window_s=2.0))
     assert m2["config_hash"] != m["config_hash"]
     m3 = build_window_dataset(sources[:1], tmp_path / "ds3", WindowConfig())
@@ -333,7 +340,9 @@ def test_window_dataset_is_memory_mapped_and_loads_through_a_dataloader(dataset,
     shapes = {k: tuple(v.shape) for k, v in b.items() if k != "sequence"}
     assert shapes == {"imu": (4, 201, 6), "bias": (4, 201, 6), "bias_std": (4, 201, 6), "dt_s": (4, 200),
                       "start_R": (4, 3, 3), "start_v": (4, 3), "start_p": (4, 3), "end_R": (4, 3, 3),
-                      "end_v": (4, 3), "end_p": (4, 3), "t0_ns": (4,)}
+                      "end_v": (4, 3), "end_p": (4, 3), "t0_ns": (4,), TEMPERATURE: (4, 201)}
+    assert ds.has_temperature
+    np.testing.assert_allclose(item[TEMPERATURE].numpy(), sim10.sequence.imu.temperature_degc[300:501], rtol=1e-6)
     assert b["t0_ns"].dtype == torch.int64 and b["sequence"] == ["A"] * 4
     assert torch.equal(b["t0_ns"], torch.as_tensor(sim10.sequence.imu.t_ns[[0, 100, 200, 300]]))
     clone = pickle.loads(blob := pickle.dumps(ds))  # what a 'spawn' DataLoader worker receives
@@ -342,6 +351,38 @@ def test_window_dataset_is_memory_mapped_and_loads_through_a_dataloader(dataset,
     test = WindowDataset(root, Split.TEST, dtype=torch.float64)
     assert len(test) == 9 and test[0]["end_p"].dtype == torch.float64
     assert len(WindowDataset(root, "val")) == 0
+
+
+def test_temperature_only_when_every_sequence_carries_it(sim10, tmp_path):
+    """One sequence without temperature: the dataset has none (no files, no stats, no item key)."""
+    bare = dataclasses.replace(sim10, sequence=dataclasses.replace(
+        sim10.sequence, imu=dataclasses.replace(sim10.sequence.imu, temperature_degc=None)))
+    sources = [_source(tmp_path, sim10, "A", "train"), _source(tmp_path, bare, "B", "test")]
+    m = build_window_dataset(sources, tmp_path / "ds")
+    assert m["has_temperature"] is False and "temperature_mean" not in m["normalization"]
+    assert not list((tmp_path / "ds").rglob(f"{TEMPERATURE}.npy"))
+    ds = WindowDataset(tmp_path / "ds", "train")
+    assert not ds.has_temperature and TEMPERATURE not in ds[0]
+
+
+def test_temperature_from_simulation_to_window_items(tmp_path):
+    """sim -> ASL folder -> reader -> store -> windows -> WindowDataset: the temperature arrives unchanged."""
+    from pipeline.io.asl import read_asl
+    from pipeline.sim import TemperatureConfig, write_simulation
+    from pipeline.store import read_store
+
+    warm = TemperatureConfig(warmup_delta_degc=10.0, warmup_tau_s=4.0, sensor_tau_s=1.0)
+    sim = simulate(SimConfig(duration_s=10.0, seed=2, name="S", imu=ImuNoiseConfig(temperature=warm)))
+    store = write_store(read_asl(write_simulation(sim, tmp_path / "asl"), name="S"), tmp_path / "store")
+    temperature = read_store(store).imu.temperature_degc
+    np.testing.assert_array_equal(temperature, sim.sequence.imu.temperature_degc)
+    assert temperature[-1] - temperature[0] > 9.0
+    rec = _write_recovery(tmp_path / "rec", sim)
+    build_window_dataset([WindowSource("S", "train", store, rec)], tmp_path / "ds")
+    ds = WindowDataset(tmp_path / "ds", "train", dtype=torch.float64)
+    assert len(ds) == 19
+    for i in (0, 7, 18):
+        np.testing.assert_array_equal(ds[i][TEMPERATURE].numpy(), temperature[100 * i:100 * i + 201])
 
 
 def test_a_failure_leaves_no_output(sim10, tmp_path):

@@ -7,6 +7,7 @@ import dataclasses
 import io
 import json
 import logging
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -450,6 +451,49 @@ def test_run_step_logs_and_maps_errors(tmp_path):
     assert "unexpected error" in text and "Traceback" in text
 
 
+def test_run_step_names_the_slurm_job(tmp_path, monkeypatch):
+    log_path = tmp_path / "x.log"
+    monkeypatch.delenv("SLURM_JOB_ID", raising=False)
+    wf.run_step(log_path, lambda: None)
+    assert "job on host" in log_path.read_text() and "SLURM job" not in log_path.read_text()
+    monkeypatch.setenv("SLURM_JOB_ID", "4711")
+    wf.run_step(log_path, lambda: None)
+    assert ", SLURM job 4711" in log_path.read_text()
+
+
+def test_resolve_profile(tmp_path):
+    assert wf.resolve_profile("slurm") == REPO / "workflow" / "profiles" / "slurm"
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "config.yaml").write_text("jobs: 2\n")
+    assert wf.resolve_profile(tmp_path / "mine") == tmp_path / "mine"
+    with pytest.raises(ConfigError, match="no Snakemake profile 'nope'.*use one of slurm"):
+        wf.resolve_profile("nope")
+
+
+@SPINE_GROUP
+def test_slurm_profile_sets_each_rules_resources(tmp_path, capsys):
+    """A dry run with --profile slurm gives every job the profile's memory and time (attempt 1)."""
+    from pipeline.cli import main
+
+    profile = yaml.safe_load((REPO / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
+    assert profile["executor"] == "slurm" and profile["set-resources"]["train"]["gpu"] == 1
+    cfg = write_config(tmp_path / "c.yaml", {"sequences": [sim_entry("a", split="train")]})
+    assert main(["run", "--config", str(cfg), "--directory", str(tmp_path), "--profile", "slurm", "--dry-run"]) == 0
+    resources = {}  # rule -> its jobs' "resources:" line
+    rule = None
+    for line in capsys.readouterr().err.splitlines():
+        if m := re.match(r"^(?:local)?rule (\w+):", line):
+            rule = m.group(1)
+        elif (m := re.match(r"^\s+resources: (.*)$", line)) and rule:
+            resources[rule] = m.group(1)
+    for rule, res in resources.items():
+        want = profile["set-resources"].get(rule, profile["default-resources"])
+        assert f"mem_mb={eval(str(want['mem_mb']), {'attempt': 1})}," in res, (rule, res)
+        assert f"runtime={eval(str(want['runtime']), {'attempt': 1})}" in res, (rule, res)
+    seen = set(resources) - {"all"}
+    assert seen == set(STAGE_RULES)
+
+
 def test_snakemake_command(tmp_path):
     cmd = wf.snakemake_command(config_file=tmp_path / "c.yaml", cores=3, workdir=tmp_path, dry_run=True,
                                until=["ingest"], targets=["results/ingest/a"], extra=["--forceall"])
@@ -489,6 +533,9 @@ def test_describe_failure(tmp_path):
     msg = wf.describe_failure(lines, tmp_path)
     assert msg == (f"rule 'ingest' (sequence=a) failed: in.csv: refusing to convert; rerun with --repair sort "
                    f"(log: {tmp_path / 'logs' / 'ingest' / 'a.log'})")
+    slurm = [ln.replace("log: logs/ingest/a.log (", "log: logs/ingest/a.log, /x/.snakemake/slurm_logs/rule_ingest/a/7.log (")
+             for ln in lines]  # the SLURM executor adds its own log
+    assert wf.describe_failure(slurm, tmp_path) == msg
     assert wf.describe_failure(["WorkflowError:", "Target rules may not contain wildcards.", ""], tmp_path) == (
         "Target rules may not contain wildcards.")
 

@@ -12,6 +12,8 @@ Layout (``biasgt windows`` writes it atomically)::
       sequences/<name>/start_R.npy        [W, 3, 3] reference world-from-imu at the first stamp
       sequences/<name>/start_v.npy        [W, 3]    (m/s)   start_p.npy [W, 3] (m)
       sequences/<name>/end_R.npy, end_v.npy, end_p.npy   the same at the last stamp
+      sequences/<name>/temperature_degc.npy [W, T] IMU temperature (degC); only when every
+                                          sequence carries one (manifest: has_temperature)
 
 Arrays are plain ``.npy`` files so that :class:`WindowDataset` memory-maps them: a dataset
 larger than RAM is read window by window. The split is a property of a *sequence*; a
@@ -44,6 +46,8 @@ FORMAT_VERSION = 1
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 MANIFEST = "manifest.json"
 ARRAYS = ("imu", "bias", "bias_std", "t_ns", "start_R", "start_v", "start_p", "end_R", "end_v", "end_p")
+#: The optional array: the IMU temperature [W, T] (degC).
+TEMPERATURE = "temperature_degc"
 
 
 class Split(str, enum.Enum):
@@ -62,7 +66,7 @@ class SequenceWindows:
     Attributes:
         name: Sequence name.
         split: Split of the whole sequence.
-        arrays: ``ARRAYS`` name -> array.
+        arrays: ``ARRAYS`` name -> array, and ``TEMPERATURE`` when the IMU carries one.
         dropped: Reason -> number of windows dropped (a window counts under every reason that
             applies, so the reasons may add up to more than ``candidates - len(self)``).
         candidates: Windows planned before dropping (0: unknown, taken as ``len(self)``).
@@ -81,7 +85,7 @@ class SequenceWindows:
         missing = [a for a in ARRAYS if a not in self.arrays]
         if missing:
             raise DataError(f"windows of {self.name} lack arrays {missing}")
-        n = {len(self.arrays[a]) for a in ARRAYS}
+        n = {len(self.arrays[a]) for a in (*ARRAYS, TEMPERATURE) if a in self.arrays}
         if len(n) != 1:
             raise DataError(f"windows of {self.name} have inconsistent counts {sorted(n)}")
         self.split = Split(self.split)
@@ -111,7 +115,8 @@ def normalization_stats(windows: Iterable[SequenceWindows]) -> dict[str, list[fl
 
     Returns:
         ``imu_mean``, ``imu_std``, ``bias_mean``, ``bias_std``: lists of 6 floats each
-        (gyro x, y, z in rad/s then acc x, y, z in m/s^2).
+        (gyro x, y, z in rad/s then acc x, y, z in m/s^2); when every window set carries
+        ``TEMPERATURE``, also ``temperature_mean`` and ``temperature_std`` (lists of 1 float, degC).
 
     Raises:
         DataError: No train window.
@@ -121,25 +126,29 @@ def normalization_stats(windows: Iterable[SequenceWindows]) -> dict[str, list[fl
         raise DataError("no training windows to compute normalisation statistics from",
                         hint="assign at least one sequence with windows to split 'train'")
 
-    def chunks(key: str) -> Iterator[np.ndarray]:
+    def chunks(key: str, width: int) -> Iterator[np.ndarray]:
         for w in windows:
             a = w.arrays[key]
             for i in range(0, len(a), _STATS_CHUNK):
-                yield np.asarray(a[i:i + _STATS_CHUNK], dtype=np.float64).reshape(-1, 6)
+                yield np.asarray(a[i:i + _STATS_CHUNK], dtype=np.float64).reshape(-1, width)
 
+    channels = {"imu": 6, "bias": 6}
+    if all(TEMPERATURE in w.arrays for w in windows):
+        channels["temperature"] = 1
     stats: dict[str, list[float]] = {}
-    for key in ("imu", "bias"):
-        total, s = 0, np.zeros(6)
-        for c in chunks(key):
+    for name, width in channels.items():
+        key = TEMPERATURE if name == "temperature" else name
+        total, s = 0, np.zeros(width)
+        for c in chunks(key, width):
             total += len(c)
             s += c.sum(axis=0)
         mean = s / total
-        sq = np.zeros(6)
-        for c in chunks(key):
+        sq = np.zeros(width)
+        for c in chunks(key, width):
             sq += ((c - mean) ** 2).sum(axis=0)
         std = np.sqrt(sq / max(total - 1, 1))
-        stats[f"{key}_mean"] = mean.tolist()
-        stats[f"{key}_std"] = np.maximum(std, 1e-12).tolist()
+        stats[f"{name}_mean"] = mean.tolist()
+        stats[f"{name}_std"] = np.maximum(std, 1e-12).tolist()
     return stats
 
 
@@ -159,10 +168,11 @@ def _json_safe(obj: Any) -> Any:
     return obj
 
 
-def _load_arrays(folder: Path) -> dict[str, np.ndarray]:
-    """The arrays of one sequence folder, memory-mapped read-only."""
+def _load_arrays(folder: Path, temperature: bool = False) -> dict[str, np.ndarray]:
+    """The arrays of one sequence folder (with ``TEMPERATURE`` if asked), memory-mapped read-only."""
+    keys = (*ARRAYS, TEMPERATURE) if temperature else ARRAYS
     try:
-        return {k: np.load(folder / f"{k}.npy", mmap_mode="r") for k in ARRAYS}
+        return {k: np.load(folder / f"{k}.npy", mmap_mode="r") for k in keys}
     except (OSError, ValueError) as exc:
         raise InputFormatError(f"cannot read window arrays ({exc})", path=folder,
                                hint="re-create the dataset with 'biasgt windows'") from None
@@ -194,7 +204,9 @@ def write_dataset(
         ``config``, ``config_hash``, ``window_samples`` (T), ``rate_hz``, ``splits`` (split ->
         sequence names), ``sequences`` (name -> split, windows, candidates, dropped, path,
         info), ``totals`` (split -> sequences, windows, candidates, dropped),
-        ``normalization`` (train-split statistics, see :func:`normalization_stats`).
+        ``normalization`` (train-split statistics, see :func:`normalization_stats`),
+        ``has_temperature`` (every sequence carries ``TEMPERATURE``: its arrays are written;
+        otherwise none are).
 
     Raises:
         ConfigError: A sequence name used twice or unsafe as a folder name.
@@ -215,6 +227,7 @@ def write_dataset(
         manifest.update(_json_safe(extra))
     with atomic_dir(out_dir) as tmp:
         lengths: dict[int, str] = {}
+        without_temperature: list[str] = []
         for seq in sequences:
             if seq.name in manifest["sequences"]:
                 other = manifest["sequences"][seq.name]["split"]
@@ -236,8 +249,11 @@ def write_dataset(
                     manifest["rate_hz"] = float(seq.info["rate_hz"])
             folder = tmp / "sequences" / seq.name
             folder.mkdir(parents=True)
-            for key in ARRAYS:
-                np.save(folder / f"{key}.npy", np.ascontiguousarray(seq.arrays[key]))
+            for key in (*ARRAYS, TEMPERATURE):
+                if key in seq.arrays:
+                    np.save(folder / f"{key}.npy", np.ascontiguousarray(seq.arrays[key]))
+            if TEMPERATURE not in seq.arrays:
+                without_temperature.append(seq.name)
             manifest["sequences"][seq.name] = {
                 "split": seq.split.value,
                 "windows": len(seq),
@@ -249,6 +265,7 @@ def write_dataset(
             manifest["splits"].setdefault(seq.split.value, []).append(seq.name)
             log.info("%s (%s): %d windows kept of %d", seq.name, seq.split.value, len(seq), seq.candidates)
         manifest["window_samples"] = next(iter(lengths), 0)
+        manifest["has_temperature"] = _keep_temperature(tmp, manifest, without_temperature)
         for split, names in manifest["splits"].items():
             entries = [manifest["sequences"][n] for n in names]
             kept = sum(e["windows"] for e in entries)
@@ -256,13 +273,25 @@ def write_dataset(
             manifest["totals"][split] = {"sequences": len(names), "windows": kept, "candidates": cand,
                                          "dropped": cand - kept}
         train = [
-            SequenceWindows(name, Split.TRAIN, _load_arrays(tmp / manifest["sequences"][name]["path"]))
+            SequenceWindows(name, Split.TRAIN, _load_arrays(tmp / manifest["sequences"][name]["path"],
+                                                            manifest["has_temperature"]))
             for name in manifest["splits"].get(Split.TRAIN.value, [])
         ]
         manifest["normalization"] = normalization_stats(train)
         del train  # close the memory maps before the folder is renamed
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
     return manifest
+
+
+def _keep_temperature(tmp: Path, manifest: dict[str, Any], without: list[str]) -> bool:
+    """Whether the dataset keeps the temperature: only when no sequence lacks it (else its files go)."""
+    if not without:
+        return bool(manifest["sequences"])
+    for entry in manifest["sequences"].values():
+        (tmp / entry["path"] / f"{TEMPERATURE}.npy").unlink(missing_ok=True)
+    if len(without) < len(manifest["sequences"]):
+        log.info("IMU temperature left out of the dataset: no temperature in %s", ", ".join(without))
+    return False
 
 
 def read_manifest(root: str | Path) -> dict[str, Any]:
@@ -291,7 +320,8 @@ class WindowDataset(torch.utils.data.Dataset):
 
     Items are dicts: ``imu`` [T, 6] (gyro rad/s, acc m/s^2), ``bias`` [T, 6], ``bias_std``
     [T, 6], ``dt_s`` [T-1], ``start_R`` [3, 3], ``start_v`` [3], ``start_p`` [3], ``end_R``
-    [3, 3], ``end_v`` [3], ``end_p`` [3] (tensors of ``dtype``), plus ``t0_ns`` (int) and
+    [3, 3], ``end_v`` [3], ``end_p`` [3], and ``temperature_degc`` [T] when the dataset has
+    it (:attr:`has_temperature`) (tensors of ``dtype``), plus ``t0_ns`` (int) and
     ``sequence`` (str). A ``DataLoader`` with ``batch_size=B`` stacks them to [B, T, 6], ...,
     ``t0_ns`` [B] (int64) and a list of B names.
 
@@ -308,13 +338,14 @@ class WindowDataset(torch.utils.data.Dataset):
         self.dtype = dtype or torch.float32
         self.normalization = {k: np.asarray(v) for k, v in self.manifest["normalization"].items()}
         self.window_samples = int(self.manifest["window_samples"])
+        self.has_temperature = bool(self.manifest.get("has_temperature", False))
         self._arrays: list[dict[str, np.ndarray]] = []
         self._names: list[str] = []
         index: list[tuple[int, int]] = []
         for name, entry in self.manifest["sequences"].items():
             if Split(entry["split"]) is not self.split or entry["windows"] == 0:
                 continue
-            arrays = _load_arrays(self.root / entry["path"])
+            arrays = _load_arrays(self.root / entry["path"], self.has_temperature)
             if len(arrays["imu"]) != entry["windows"]:
                 raise InputFormatError(f"sequence '{name}' holds {len(arrays['imu'])} windows, the manifest says "
                                        f"{entry['windows']}", path=self.root / entry["path"],
@@ -334,7 +365,7 @@ class WindowDataset(torch.utils.data.Dataset):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         seqs = self.manifest["sequences"]
-        self._arrays = [_load_arrays(self.root / seqs[name]["path"]) for name in self._names]
+        self._arrays = [_load_arrays(self.root / seqs[name]["path"], self.has_temperature) for name in self._names]
 
     @property
     def sequences(self) -> list[str]:
@@ -353,7 +384,7 @@ class WindowDataset(torch.utils.data.Dataset):
         t_ns = np.asarray(a["t_ns"][i])
         out: dict[str, Any] = {
             k: torch.as_tensor(np.array(a[k][i]), dtype=self.dtype)
-            for k in ARRAYS if k != "t_ns"
+            for k in a if k != "t_ns"
         }
         out["dt_s"] = torch.as_tensor(np.diff(t_ns) * 1e-9, dtype=self.dtype)
         out["t0_ns"] = int(t_ns[0])

@@ -15,7 +15,9 @@ exactly ``window_s``) and starts every ``round(n * (1 - overlap))`` samples. For
   else the pose stream the recovery used, moved onto the IMU clock and frame with the
   recovery's ``pose_time_offset_s`` and ``T_imu_pose`` (:func:`validation.validate.
   build_reference`, smoothing-spline velocity);
-* ``t_ns`` [T] (``t0_ns`` = its first stamp) and the sequence name.
+* ``t_ns`` [T] (``t0_ns`` = its first stamp) and the sequence name;
+* ``temperature_degc`` [T]: the IMU's temperature, when the sequence's IMU carries one (the
+  dataset keeps it only when every sequence does, see :func:`training.dataset.write_dataset`).
 
 Dropped windows (counted per reason in the manifest; a window counts under every reason that
 applies): ``imu_gap`` (an IMU interval > ``gap_factor`` x the nominal one inside the window),
@@ -63,7 +65,7 @@ from validation.validate import (
     recovered_bias_at_imu,
     windows_with_any,
 )
-from training.dataset import ARRAYS, SequenceWindows, Split, write_dataset
+from training.dataset import ARRAYS, TEMPERATURE, SequenceWindows, Split, write_dataset
 
 log = logging.getLogger(__name__)
 
@@ -352,6 +354,13 @@ def extract_windows(
         }
     else:
         arrays = _empty_arrays(n + 1)
+    if imu.temperature_degc is not None:
+        temperature = imu.temperature_degc[idx] if len(s) else np.zeros((0, n + 1))
+        if np.isfinite(temperature).all():
+            arrays[TEMPERATURE] = temperature
+        else:
+            log.warning("sequence '%s': non-finite IMU temperatures in the windows; temperature left out",
+                        sequence.name)
     info.update(
         window_samples=n + 1,
         reference=reference.kind.value,

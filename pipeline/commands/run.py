@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from pipeline.workflow import DEFAULT_CONFIG, SNAKEFILE, run_workflow
+from pipeline.workflow import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE, resolve_profile, run_workflow
 
 DESCRIPTION = f"""\
 Run the biasgt workflow ({SNAKEFILE}) with Snakemake: simulate / ingest every sequence of the
@@ -18,9 +18,9 @@ the working directory (--directory, default: the current folder); the reports' p
 at the end. Finished jobs are kept: rerunning only redoes what a changed input, parameter or code
 affects. The config is checked before Snakemake starts.
 
-Everything after '--' goes to Snakemake unchanged, e.g. to run on a SLURM cluster:
-  biasgt run --config my.yaml -- --executor slurm --jobs 50 --default-resources slurm_partition=cpu
-(see docs/cluster.md)."""
+On a SLURM cluster: biasgt run --config my.yaml --profile slurm (the Snakemake profile
+workflow/profiles/slurm: executor settings and per-rule cores, memory, time and GPUs; see
+docs/cluster.md). Everything after '--' goes to Snakemake unchanged and wins over the profile."""
 
 EPILOG = f"""\
 examples:
@@ -29,6 +29,7 @@ examples:
   biasgt run --dry-run                    show what would run
   biasgt run --until ingest               stop after the ingest jobs
   biasgt run --target results/ingest/sim_handheld_01
+  biasgt run --profile slurm -- --default-resources slurm_account=ME slurm_partition=cpu
   biasgt run -- --forceall                extra Snakemake arguments after '--'
   biasgt run -- --report run_report.html  Snakemake's HTML report of the finished run"""
 
@@ -59,6 +60,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="cores Snakemake may use at once, or 'all' (default 1)")
     p.add_argument("--directory", type=Path, default=None, metavar="DIR",
                    help="working directory for results/ and logs/ (default: the current folder)")
+    p.add_argument("--profile", default=None, metavar="NAME|DIR",
+                   help=f"Snakemake profile: a name under {PROFILES_DIR.relative_to(SNAKEFILE.parent)}/ "
+                        "(slurm) or a folder holding config.yaml")
     p.add_argument("-n", "--dry-run", action="store_true", help="only show the jobs that would run")
     p.add_argument("--until", nargs="+", default=[], metavar="RULE",
                    help="run only the jobs up to these rules (e.g. ingest)")
@@ -70,6 +74,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    profile = [] if args.profile is None else ["--profile", str(resolve_profile(args.profile))]
     result = run_workflow(
         config_file=args.config,
         cores=args.cores,
@@ -77,7 +82,7 @@ def main(args: argparse.Namespace) -> int:
         dry_run=args.dry_run,
         until=args.until,
         targets=args.target,
-        extra=args.snakemake_args,
+        extra=[*profile, *args.snakemake_args],
     )
     if args.dry_run:
         return 0

@@ -3,6 +3,7 @@
 Layout (``ROOT/mav0/`` or the ``mav0`` folder itself)::
 
     imu0/data.csv                        timestamp [ns], w xyz [rad/s], a xyz [m/s^2]
+                                         (+ optional last column 'temperature [degC]')
     imu0/sensor.yaml                     noise model, rate, T_BS (-> ImuCalibration)
     vicon0/ mocap0/ <name>0/data.csv     timestamp [ns], p xyz [m], q wxyz      (6-DoF pose streams)
     leica0/data.csv                      timestamp [ns], p xyz [m]              (position only)
@@ -13,6 +14,12 @@ Layout (``ROOT/mav0/`` or the ``mav0`` folder itself)::
 Pose streams land in ``Sequence.poses`` under their folder name, the EuRoC ground
 truth in ``Sequence.ground_truth``. Nothing is sorted, deduplicated or normalised
 here (:mod:`pipeline.checks` does that); unparseable lines are skipped and reported.
+
+IMU temperature: EuRoC's and TUM-VI's ``imu0/data.csv`` hold the seven columns above and no
+temperature. biasgt (its simulator) adds the die temperature as an optional eighth column named
+``temperature [degC]`` (any name starting with ``temp``), read into ``ImuSeries.temperature_degc``;
+tools that read the first seven columns are unaffected. It needs the header: eight unnamed
+columns are a pose file.
 """
 
 from __future__ import annotations
@@ -66,14 +73,17 @@ class AslTable(str, enum.Enum):
     """The kinds of ASL ``data.csv`` this reader understands (by column layout)."""
 
     IMU = "imu"  # 7 columns: t, w xyz, a xyz
+    IMU_TEMPERATURE = "imu_temperature"  # 8 columns: t, w xyz, a xyz, temperature (named in the header)
     POSE = "pose"  # 8 columns: t, p xyz, q wxyz
     POSITION = "position"  # 4 columns: t, p xyz
     STATE = "state"  # 17 columns: t, p xyz, q wxyz, v xyz, b_w xyz, b_a xyz
 
 
-_NCOLS = {AslTable.IMU: 7, AslTable.POSE: 8, AslTable.POSITION: 4, AslTable.STATE: 17}
+_NCOLS = {AslTable.IMU: 7, AslTable.IMU_TEMPERATURE: 8, AslTable.POSE: 8, AslTable.POSITION: 4, AslTable.STATE: 17}
+IMU_TABLES = (AslTable.IMU, AslTable.IMU_TEMPERATURE)
 _WHAT = {
     AslTable.IMU: "ASL IMU CSV (timestamp [ns], w xyz [rad/s], a xyz [m/s^2])",
+    AslTable.IMU_TEMPERATURE: "ASL IMU CSV (timestamp [ns], w xyz [rad/s], a xyz [m/s^2], temperature [degC])",
     AslTable.POSE: "ASL pose CSV (timestamp [ns], p xyz [m], q wxyz)",
     AslTable.POSITION: "ASL position CSV (timestamp [ns], p xyz [m])",
     AslTable.STATE: "EuRoC ground-truth CSV (timestamp [ns], p xyz, q wxyz, v xyz, b_w xyz, b_a xyz)",
@@ -106,8 +116,11 @@ def classify_header(names: list[str] | None, n_fields: int | None = None) -> Asl
     if not norm or not (norm[0].startswith(("time", "stamp")) or norm[0] == "t"):
         return None
     rest = norm[1:]
-    if len(norm) == 7 and _starts(rest[:3], ("w", "g")) and _starts(rest[3:], ("a",)):
-        return AslTable.IMU
+    if len(norm) in (7, 8) and _starts(rest[:3], ("w", "g")) and _starts(rest[3:6], ("a",)):
+        if len(norm) == 7:
+            return AslTable.IMU
+        if rest[6].startswith("temp"):
+            return AslTable.IMU_TEMPERATURE
     if len(norm) == 8 and _starts(rest[:3], ("p",)) and _starts(rest[3:], ("q",)):
         return AslTable.POSE
     if len(norm) == 4 and _starts(rest, ("p",)):
@@ -152,10 +165,12 @@ def _read_table(path: Path, expected: tuple[AslTable, ...], stream: str) -> tupl
     text = read_text(path)
     header = split_header(text, Delimiter.COMMA)
     kind = classify_header(header.names, _first_fields(text, header))
-    if kind is None and header.names is not None and len(expected) == 1:
+    trusted = AslTable.IMU if expected == IMU_TABLES else (expected[0] if len(expected) == 1 else None)
+    if kind is None and header.names is not None and trusted is not None:
         # Unusual names but the right column count (e.g. a hand-written header): trust the folder.
-        if len(header.names) == _NCOLS[expected[0]]:
-            kind = expected[0]
+        # (A temperature column is recognised by its name only.)
+        if len(header.names) == _NCOLS[trusted]:
+            kind = trusted
     if kind not in expected:
         wanted = " or ".join(_WHAT[k] for k in expected)
         got = ("no header" if header.names is None
@@ -186,11 +201,13 @@ def read_asl_imu_csv(path: str | Path, *, stream: str = "imu") -> tuple[ImuSerie
         stream: Stream name used in findings.
 
     Returns:
-        ``(imu, findings)``: readings (t_ns [N], gyro_radps [N, 3], acc_mps2 [N, 3]) and parse findings.
+        ``(imu, findings)``: readings (t_ns [N], gyro_radps [N, 3], acc_mps2 [N, 3] and, from an
+        eighth ``temperature`` column, temperature_degc [N]) and parse findings.
     """
     path = Path(path)
-    table, findings = _read_table(path, (AslTable.IMU,), stream)
-    return ImuSeries(table.parsed.t_ns, _values(table, [1, 2, 3]), _values(table, [4, 5, 6])), findings
+    table, findings = _read_table(path, IMU_TABLES, stream)
+    temperature = _values(table, [7])[:, 0] if table.kind is AslTable.IMU_TEMPERATURE else None
+    return ImuSeries(table.parsed.t_ns, _values(table, [1, 2, 3]), _values(table, [4, 5, 6]), temperature), findings
 
 
 def read_asl_state_csv(path: str | Path, *, stream: str = "ground_truth") -> tuple[StateSeries, list[Finding]]:
@@ -305,7 +322,7 @@ def read_asl_csv(path: str | Path, *, name: str | None = None,
         return read_asl_pose_csv(path, source_kind=source_kind, name=name)
     default = _standalone_stream_name(path)
     meta = {"source_path": str(path), "source_format": "asl"}
-    if kind is AslTable.IMU:
+    if kind in IMU_TABLES:
         imu, findings = read_asl_imu_csv(path)
         return Sequence(name=name or default, imu=imu, findings=findings,
                         metadata={**meta, "files": {"imu": str(path)}})

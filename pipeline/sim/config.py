@@ -84,10 +84,13 @@ PRESETS: dict[MotionPreset, PresetParams] = {
 class TemperatureConfig:
     """A slow temperature profile and the bias it causes.
 
-    The die temperature is ``ambient + warmup_delta * (1 - exp(-t / warmup_tau)) +
-    oscillation_amp * sin(2 pi t / oscillation_period)``; the bias follows it through a
-    first-order lag ``sensor_tau_s``, scaled by a random per-axis coefficient drawn with
-    standard deviation ``gyro_coeff_sigma`` / ``acc_coeff_sigma``.
+    The die temperature is ``T(t) = ambient + warmup_delta * (1 - exp(-t / warmup_tau)) +
+    oscillation_amp * sin(2 pi t / oscillation_period)``. The bias term is
+    ``coeff * (lag(T)(t) - reference)``: the temperature seen through a first-order lag
+    ``sensor_tau_s`` (starting at ``T(0)``), relative to ``reference_degc`` (default ``T(0)``: the
+    term starts at zero), times a per-axis coefficient: ``gyro_coeff_radps_per_degc`` /
+    ``acc_coeff_mps2_per_degc`` when given (one IMU unit, the same in every sequence), else drawn
+    per sequence with standard deviation ``gyro_coeff_sigma`` / ``acc_coeff_sigma``.
 
     Attributes:
         enabled: Add the temperature-driven bias term (the temperature is always reported).
@@ -99,6 +102,9 @@ class TemperatureConfig:
         sensor_tau_s: Thermal lag between the die temperature and the bias.
         gyro_coeff_sigma: rad/s per degC.
         acc_coeff_sigma: m/s^2 per degC.
+        reference_degc: Temperature at which the term is zero (None: the sequence's ``T(0)``).
+        gyro_coeff_radps_per_degc: Fixed gyro coefficients [3] (None: drawn).
+        acc_coeff_mps2_per_degc: Fixed accelerometer coefficients [3] (None: drawn).
     """
 
     enabled: bool = True
@@ -110,6 +116,9 @@ class TemperatureConfig:
     sensor_tau_s: float = 60.0
     gyro_coeff_sigma: float = 2.0e-4
     acc_coeff_sigma: float = 3.0e-3
+    reference_degc: float | None = None
+    gyro_coeff_radps_per_degc: tuple[float, float, float] | None = None
+    acc_coeff_mps2_per_degc: tuple[float, float, float] | None = None
 
 
 @dataclass(frozen=True)

@@ -81,7 +81,8 @@ def simulate_bias(
         rng_turn_on / rng_walk / rng_temp: Independent random streams per component.
 
     Returns:
-        ``b(t) = turn_on + random_walk(t) + coeff * lag(T(t) - T(0))`` for gyro and accelerometer.
+        ``b(t) = turn_on + random_walk(t) + coeff * (lag(T)(t) - reference)`` for gyro and
+        accelerometer (``reference`` default ``T(0)``; see :class:`TemperatureConfig`).
         The random walk starts at 0 and has increments ``N(0, sigma^2 dt)``.
     """
     n = len(t_s)
@@ -101,8 +102,13 @@ def simulate_bias(
     temperature = temperature_profile(tcfg, t_s)
     cg = rng_temp.normal(0.0, 1.0, 3) * tcfg.gyro_coeff_sigma
     ca = rng_temp.normal(0.0, 1.0, 3) * tcfg.acc_coeff_sigma
+    if tcfg.gyro_coeff_radps_per_degc is not None:
+        cg = np.asarray(tcfg.gyro_coeff_radps_per_degc, dtype=np.float64)
+    if tcfg.acc_coeff_mps2_per_degc is not None:
+        ca = np.asarray(tcfg.acc_coeff_mps2_per_degc, dtype=np.float64)
     if tcfg.enabled:
-        lagged = _first_order_lag(temperature - temperature[0], dt, tcfg.sensor_tau_s)
+        reference = temperature[0] if tcfg.reference_degc is None else tcfg.reference_degc
+        lagged = _first_order_lag(temperature - temperature[0], dt, tcfg.sensor_tau_s) + (temperature[0] - reference)
         bg += lagged[:, None] * cg
         ba += lagged[:, None] * ca
     else:

@@ -3,7 +3,9 @@
 Layout (written atomically; an existing folder is replaced only on success)::
 
     OUT/
-      mav0/imu0/data.csv                        EuRoC IMU CSV, integer ns, full-precision values
+      mav0/imu0/data.csv                        EuRoC IMU CSV, integer ns, full-precision values, plus
+                                                the die temperature as a last 'temperature [degC]'
+                                                column (see pipeline.io.asl)
       mav0/imu0/sensor.yaml                     T_BS = I and the REPORTED (datasheet) noise values
       mav0/mocap0/data.csv + sensor.yaml        pose format MOCAP (T_BS only if the extrinsic is known)
       mav0/leica0/data.csv + sensor.yaml        pose format POSITION (T_BS lever arm only if known)
@@ -30,6 +32,7 @@ from pipeline.errors import ConfigError
 from pipeline.io.tum import write_tum
 from pipeline.sim.config import PoseFormat
 from pipeline.sim.simulator import Simulation
+from pipeline.types import ImuSeries
 
 SIMULATION_YAML = "simulation.yaml"
 VIO_TUM_FILE = "vio_tum.txt"
@@ -39,6 +42,7 @@ IMU_HEADER = (
     "#timestamp [ns],w_RS_S_x [rad s^-1],w_RS_S_y [rad s^-1],w_RS_S_z [rad s^-1],"
     "a_RS_S_x [m s^-2],a_RS_S_y [m s^-2],a_RS_S_z [m s^-2]"
 )
+IMU_TEMPERATURE_COLUMN = "temperature [degC]"
 MOCAP_HEADER = (
     "#timestamp [ns],p_RS_R_x [m],p_RS_R_y [m],p_RS_R_z [m],q_RS_w [],q_RS_x [],q_RS_y [],q_RS_z []"
 )
@@ -59,6 +63,14 @@ def _csv_text(header: str, t_ns: np.ndarray, values: np.ndarray) -> str:
     lines.extend(f"{t}," + ",".join(map(repr, row)) for t, row in zip(stamps, rows))
     lines.append("")
     return "\n".join(lines)
+
+
+def _imu_csv_text(imu: ImuSeries) -> str:
+    """``imu0/data.csv``: the EuRoC columns, and the temperature as a last column when there is one."""
+    if imu.temperature_degc is None:
+        return _csv_text(IMU_HEADER, imu.t_ns, imu.imu_6)
+    values = np.column_stack([imu.imu_6, imu.temperature_degc])
+    return _csv_text(f"{IMU_HEADER},{IMU_TEMPERATURE_COLUMN}", imu.t_ns, values)
 
 
 def _matrix_yaml(T: np.ndarray) -> str:
@@ -202,9 +214,7 @@ def write_simulation(
     with atomic_dir(out_dir) as tmp:
         mav0 = tmp / "mav0"
         (mav0 / "imu0").mkdir(parents=True)
-        (mav0 / "imu0" / "data.csv").write_text(
-            _csv_text(IMU_HEADER, seq.imu.t_ns, seq.imu.imu_6), encoding="utf-8"
-        )
+        (mav0 / "imu0" / "data.csv").write_text(_imu_csv_text(seq.imu), encoding="utf-8")
         (mav0 / "imu0" / "sensor.yaml").write_text(imu_sensor_yaml(sim), encoding="utf-8")
 
         gt_dir = mav0 / "state_groundtruth_estimate0"

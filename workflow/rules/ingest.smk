@@ -19,9 +19,6 @@ rule ingest:
     params:
         settings=get_ingest_settings,
     threads: 1
-    resources:
-        mem_mb=lambda wildcards, attempt: 4000 * attempt,
-        runtime=lambda wildcards, attempt: 30 * attempt,
     script:
         "../scripts/ingest.py"
 

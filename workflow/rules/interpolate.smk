@@ -14,9 +14,6 @@ rule interpolate:
     params:
         settings=get_interpolation_settings,
     threads: 1
-    resources:
-        mem_mb=lambda wildcards, attempt: 2000 * attempt,
-        runtime=lambda wildcards, attempt: 15 * attempt,
     script:
         "../scripts/interpolate.py"
 

@@ -20,9 +20,6 @@ rule recover:
     params:
         settings=get_recovery_settings,
     threads: 1
-    resources:
-        mem_mb=lambda wildcards, attempt: 4000 * attempt,
-        runtime=lambda wildcards, attempt: 60 * attempt,
     script:
         "../scripts/recover.py"
 

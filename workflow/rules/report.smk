@@ -17,9 +17,6 @@ rule report:
     log:
         wf.log_file("report", "{sequence}"),
     threads: 1
-    resources:
-        mem_mb=lambda wildcards, attempt: 2000 * attempt,
-        runtime=lambda wildcards, attempt: 15 * attempt,
     script:
         "../scripts/report.py"
 

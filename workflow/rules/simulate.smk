@@ -20,8 +20,5 @@ rule simulate:
     wildcard_constraints:
         sequence=wf.names_regex(SIMULATED),
     threads: 1
-    resources:
-        mem_mb=lambda wildcards, attempt: 2000 * attempt,
-        runtime=lambda wildcards, attempt: 15 * attempt,
     script:
         "../scripts/simulate.py"

@@ -21,9 +21,6 @@ rule validate:
     params:
         settings=get_validation_settings,
     threads: 1
-    resources:
-        mem_mb=lambda wildcards, attempt: 4000 * attempt,
-        runtime=lambda wildcards, attempt: 30 * attempt,
     script:
         "../scripts/validate.py"
 

@@ -20,9 +20,6 @@ rule windows:
     params:
         settings=get_windows_settings,
     threads: 1
-    resources:
-        mem_mb=lambda wildcards, attempt: 8000 * attempt,
-        runtime=lambda wildcards, attempt: 60 * attempt,
     script:
         "../scripts/windows.py"
 

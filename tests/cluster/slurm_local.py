@@ -1,0 +1,409 @@
+"""The biasgt workflow on a throwaway single-node SLURM cluster, checked against a local run.
+
+    python tests/cluster/slurm_local.py [--keep]         (as root; '.ci/run' calls it)
+
+What it does, in a fresh temporary folder:
+
+1. Installs Debian's ``slurmctld``, ``slurmd``, ``slurm-client`` and ``munge`` when missing
+   (apt-get, as root).
+2. Runs a small workflow config (two 10-s simulated sequences) locally: the reference.
+3. Starts a one-node cluster: ``munged`` (as the munge user) with its own socket, then
+   ``slurmctld`` and ``slurmd`` with a config written to ``/etc/slurm/slurm.conf`` (no cgroups, no
+   accounting database; state, spool, pid and log files in the temporary folder); waits until
+   the node is idle.
+4. Runs the same config plus a third, recorded sequence whose IMU file has lost its samples,
+   with ``biasgt run --profile slurm`` (the repository's profile) and ``--slurm-status-command
+   squeue``. Checks that every job was a SLURM job (Snakemake's log names its SLURM job id, the
+   job's own log ``logs/<stage>/<sequence>.log`` says it ran under that id, and SLURM's
+   job-completion log lists it COMPLETED); that the broken sequence's ingest FAILED in SLURM
+   twice (the profile's ``retries: 1``), ``biasgt run`` exited 2 naming the rule and its log and
+   nothing of that sequence was left half-written.
+5. Compares the outputs file by file with the local run (every file under ``results/``; the
+   fields allowed to differ are listed in ``ALLOWED_DIFFERENCES``).
+6. Repairs the IMU file and reruns: only that sequence's 5 jobs run, every finished file is
+   untouched.
+7. Stops the daemons by their pid files (also on failure), removes the config and the
+   temporary folder (kept with --keep or on failure).
+
+Exits 0 when every check holds, 1 otherwise; prints the timings and the checks. Takes about
+4.5 minutes on 2 busy cores (20 SLURM jobs of 10-15 s each, mostly Snakemake's start-up in the job).
+"""
+
+from __future__ import annotations
+
+import argparse
+import getpass
+import json
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[2]
+PACKAGES = {"slurmctld": "slurmctld", "slurmd": "slurmd", "sbatch": "slurm-client", "munged": "munge"}
+RUN_TIMEOUT_S = 240  # one 'biasgt run'; Snakemake ignores SIGTERM while jobs run: timeout -k
+INIT_SECONDS = 5  # --slurm-init-seconds-before-status-checks; MinJobAge below is 3x or more
+MIN_JOB_AGE_S = 300
+SLURM_CONF = Path("/etc/slurm/slurm.conf")
+CONF_MARKER = "# throwaway single-node cluster of biasgt's tests/cluster/slurm_local.py: removed when it stops"
+
+CONFIG = """\
+sequences:
+  - {name: sim_a, source: simulate, split: train, preset: handheld, duration_s: 10, seed: 1, pose_format: mocap}
+  - {name: sim_b, source: simulate, split: test, preset: aggressive_drone, duration_s: 10, seed: 2, pose_format: mocap}
+"""
+#: A recorded sequence whose IMU file holds no samples: its ingest job fails.
+BROKEN = """\
+  - {name: broken, source: asl, split: none, path: broken}
+"""
+BROKEN_RULES = ("ingest", "recover", "interpolate", "validate", "report")
+
+#: Files whose content may legitimately differ between two runs, and what may differ in them.
+ALLOWED_DIFFERENCES = {
+    "recovery.json": "runtime_s and timings_s (wall-clock times of the solve)",
+    "report.html": "its generation time and the 'recovery runtime' row",
+}
+
+
+class CheckFailed(Exception):
+    """A check of this script failed."""
+
+
+def check(ok: bool, what: str) -> None:
+    print(("  ok    " if ok else "  FAIL  ") + what, flush=True)
+    if not ok:
+        raise CheckFailed(what)
+
+
+# --------------------------------------------------------------------------------------------
+# The cluster
+# --------------------------------------------------------------------------------------------
+
+
+def ensure_packages() -> None:
+    """Install the Debian SLURM and munge packages when a daemon or client is missing."""
+    missing = sorted({pkg for exe, pkg in PACKAGES.items() if not shutil.which(exe)})
+    if not missing:
+        return
+    if os.geteuid() != 0:
+        raise CheckFailed(f"missing {', '.join(missing)}: run as root, or apt-get install {' '.join(missing)}")
+    print(f"installing {' '.join(missing)} (apt-get)", flush=True)
+    env = {**os.environ, "DEBIAN_FRONTEND": "noninteractive"}
+    subprocess.run(["apt-get", "update", "-qq"], check=True, env=env)
+    subprocess.run(["apt-get", "install", "-y", "-qq", *missing], check=True, env=env, stdout=subprocess.DEVNULL)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("", 0))
+        return s.getsockname()[1]
+
+
+def _real_memory_mb() -> int:
+    total_kb = int(re.search(r"MemTotal:\s+(\d+)", Path("/proc/meminfo").read_text()).group(1))
+    return int(total_kb / 1024 * 0.8)
+
+
+@dataclass(frozen=True)
+class Cluster:
+    """A running one-node cluster: its folder and config file."""
+
+    root: Path
+    conf: Path
+
+    @property
+    def jobcomp(self) -> Path:
+        """SLURM's job-completion log (jobcomp/filetxt): one line per finished job."""
+        return self.root / "jobcomp.txt"
+
+    def finished_jobs(self) -> dict[str, str]:
+        """SLURM job id -> final state, from the job-completion log."""
+        states = {}
+        if self.jobcomp.exists():
+            for line in self.jobcomp.read_text().splitlines():
+                fields = dict(kv.split("=", 1) for kv in line.split() if "=" in kv)
+                states[fields["JobId"]] = fields["JobState"]
+        return states
+
+
+def write_slurm_conf(root: Path) -> Path:
+    """Write the cluster's config where every SLURM command finds it, ``/etc/slurm/slurm.conf``.
+
+    (Not a ``SLURM_CONF`` elsewhere: the plugin's job step removes every ``SLURM_*`` variable but
+    the job's identity before it calls ``srun`` inside the job.) Refuses to replace a config this
+    script did not write.
+    """
+    host = socket.gethostname()
+    cpus = os.cpu_count() or 1
+    user = getpass.getuser()
+    if SLURM_CONF.exists() and not SLURM_CONF.read_text().startswith(CONF_MARKER):
+        raise CheckFailed(f"{SLURM_CONF} exists (a real SLURM setup?): run this on a machine without one")
+    SLURM_CONF.parent.mkdir(parents=True, exist_ok=True)
+    conf = SLURM_CONF
+    conf.write_text(f"""\
+{CONF_MARKER}
+ClusterName=biasgt-ci
+SlurmctldHost={host}
+SlurmctldPort={_free_port()}
+SlurmdPort={_free_port()}
+SlurmUser={user}
+SlurmdUser=root
+AuthType=auth/munge
+AuthInfo=socket={root / 'munge' / 'munge.socket'}
+StateSaveLocation={root / 'state'}
+SlurmdSpoolDir={root / 'spool'}
+SlurmctldPidFile={root / 'slurmctld.pid'}
+SlurmdPidFile={root / 'slurmd.pid'}
+SlurmctldLogFile={root / 'slurmctld.log'}
+SlurmdLogFile={root / 'slurmd.log'}
+ProctrackType=proctrack/linuxproc
+TaskPlugin=task/none
+SelectType=select/cons_tres
+SelectTypeParameters=CR_Core_Memory
+AccountingStorageType=accounting_storage/none
+JobAcctGatherType=jobacct_gather/none
+JobCompType=jobcomp/filetxt
+JobCompLoc={root / 'jobcomp.txt'}
+MpiDefault=none
+ReturnToService=2
+MinJobAge={MIN_JOB_AGE_S}
+SlurmdTimeout=60
+NodeName={host} CPUs={cpus} RealMemory={_real_memory_mb()} State=UNKNOWN
+PartitionName=debug Nodes={host} Default=YES MaxTime=INFINITE State=UP
+""")
+    return conf
+
+
+def _pid(path: Path) -> int | None:
+    try:
+        return int(path.read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def stop_daemons(root: Path) -> None:
+    """SIGTERM each daemon named by a pid file under ``root``, then wait for it to go."""
+    for name in ("slurmd.pid", "slurmctld.pid", "munge/munged.pid"):
+        pid = _pid(root / name)
+        if pid is None:
+            continue
+        try:
+            os.kill(pid, signal.SIGTERM)
+        except ProcessLookupError:
+            continue
+        for _ in range(100):
+            try:
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.1)
+        print(f"stopped {name.removesuffix('.pid').split('/')[-1]} (pid {pid})", flush=True)
+    if SLURM_CONF.exists() and SLURM_CONF.read_text().startswith(CONF_MARKER):
+        SLURM_CONF.unlink()
+
+
+@contextmanager
+def cluster(root: Path) -> Iterator[Cluster]:
+    """Start munged, slurmctld and slurmd under ``root``; stop them on exit."""
+    for sub in ("state", "spool", "munge"):
+        (root / sub).mkdir(parents=True, exist_ok=True)
+    shutil.chown(root / "munge", "munge", "munge")
+    os.chmod(root / "munge", 0o755)
+    conf = write_slurm_conf(root)
+    try:
+        m = root / "munge"
+        subprocess.run(["runuser", "-u", "munge", "--", "munged", "--force", f"--socket={m / 'munge.socket'}",
+                        f"--pid-file={m / 'munged.pid'}", f"--log-file={m / 'munged.log'}",
+                        f"--seed-file={m / 'munged.seed'}"], check=True)
+        subprocess.run(["slurmctld", "-f", str(conf)], check=True)
+        subprocess.run(["slurmd", "-f", str(conf)], check=True)
+        deadline = time.monotonic() + 60
+        state = ""
+        while time.monotonic() < deadline:
+            state = subprocess.run(["sinfo", "-h", "-o", "%t"], capture_output=True, text=True).stdout.strip()
+            if state == "idle":
+                break
+            time.sleep(1)
+        check(state == "idle", f"node {socket.gethostname()} idle in SLURM (sinfo: {state!r})")
+        yield Cluster(root, conf)
+    finally:
+        stop_daemons(root)
+
+
+# --------------------------------------------------------------------------------------------
+# Workflow runs and checks
+# --------------------------------------------------------------------------------------------
+
+
+def biasgt_run(config: Path, workdir: Path, *args: str) -> tuple[int, str, float]:
+    """``biasgt run`` under ``timeout -k``; returns (exit code, output, seconds)."""
+    cmd = ["timeout", "-k", "15", str(RUN_TIMEOUT_S), sys.executable, "-m", "pipeline.cli", "run",
+           "--config", str(config), "--directory", str(workdir), *args]
+    t0 = time.monotonic()
+    proc = subprocess.run(cmd, env={**os.environ, "PYTHONPATH": str(REPO)}, cwd=REPO,
+                          capture_output=True, text=True)
+    seconds = time.monotonic() - t0
+    (workdir.parent / f"{workdir.name}.out").write_text(proc.stdout + proc.stderr)
+    return proc.returncode, proc.stdout + proc.stderr, seconds
+
+
+def slurm_args(*extra: str) -> list[str]:
+    """The SLURM run: the repository's profile, squeue status polling, the test's small sizes."""
+    return ["--profile", "slurm", "--",
+            "--slurm-status-command", "squeue",
+            "--slurm-init-seconds-before-status-checks", str(INIT_SECONDS),
+            "--jobs", "4", "--latency-wait", "5",
+            "--default-resources", "mem_mb=500", "runtime=10",
+            # the test machine has little memory: every rule asks for 500 MB (attempt 1 and 2)
+            *(f"--set-resources={rule}:mem_mb=500" for rule in
+              ("simulate", "ingest", "recover", "interpolate", "validate", "windows", "report")),
+            *extra]
+
+
+_SUBMITTED = re.compile(r"Job (\d+) has been submitted with SLURM jobid (\d+)")
+
+
+def submitted_jobs(workdir: Path) -> list[tuple[str, str, str]]:
+    """(rule, sequence or dataset, SLURM job id) of every job the last Snakemake run submitted."""
+    log = sorted((workdir / ".snakemake" / "log").glob("*.snakemake.log"))[-1].read_text()
+    rules = {}
+    for block in re.split(r"\n(?=\[[A-Z][a-z]{2} )", log):
+        m = re.search(r"^\s*rule (\w+):", block, re.M)
+        j = re.search(r"^\s*jobid: (\d+)", block, re.M)
+        w = re.search(r"^\s*wildcards: sequence=(\S+)", block, re.M)
+        if m and j:
+            rules[j.group(1)] = (m.group(1), w.group(1) if w else "dataset")
+    return [(*rules[job], slurm_id) for job, slurm_id in _SUBMITTED.findall(log)]
+
+
+def check_slurm_jobs(c: Cluster, workdir: Path, jobs: list[tuple[str, str, str]], state: str) -> None:
+    """Each job's own log names its SLURM job id; SLURM's completion log lists it in ``state``."""
+    finished = c.finished_jobs()
+    folders = {"recover": "recovery", "interpolate": "interpolation", "validate": "validation"}
+    for rule, name, slurm_id in jobs:
+        job_log = workdir / "logs" / folders.get(rule, rule) / f"{name}.log"
+        text = job_log.read_text() if job_log.exists() else ""
+        check(f"SLURM job {slurm_id}" in text and finished.get(slurm_id) == state,
+              f"{rule} {name}: SLURM job {slurm_id}, {finished.get(slurm_id)}, named in {job_log.relative_to(workdir)}")
+
+
+def same_content(a: Path, b: Path) -> bool:
+    """Byte-equal, or equal but for the fields of ALLOWED_DIFFERENCES."""
+    if a.read_bytes() == b.read_bytes():
+        return True
+    if a.name == "recovery.json":
+        def strip(p: Path) -> object:
+            return {k: v for k, v in json.loads(p.read_text()).items() if k not in ("runtime_s", "timings_s")}
+        return strip(a) == strip(b)
+    if a.name == "report.html":
+        timing = re.compile(r"generated \S+ \S+ UTC|recovery runtime \[s\]</td>\n<td class=\"num\">[0-9.e+-]+")
+        return timing.sub("", a.read_text()) == timing.sub("", b.read_text())
+    return False
+
+
+def compare_results(local: Path, remote: Path) -> int:
+    """Check that both runs wrote the same files with the same content; returns the file count."""
+    def files(root: Path) -> set[Path]:
+        return {p.relative_to(root) for p in (root / "results").rglob("*")
+                if p.is_file() and p.name != ".snakemake_timestamp"}
+
+    mine, theirs = files(local), files(remote)
+    check(mine == theirs, f"same {len(mine)} files under results/ (only local: {sorted(map(str, mine - theirs))[:3]}, "
+                          f"only SLURM: {sorted(map(str, theirs - mine))[:3]})")
+    exact = sum((local / p).read_bytes() == (remote / p).read_bytes() for p in mine)
+    differing = sorted(str(p) for p in mine if not same_content(local / p, remote / p))
+    check(not differing, f"same content: {exact} of {len(mine)} files byte-identical, the others equal "
+                         f"but for {'; '.join(f'{k}: {v}' for k, v in ALLOWED_DIFFERENCES.items())}"
+                         + (f"; DIFFERENT: {differing[:5]}" if differing else ""))
+    for key in ("recovery/sim_a/bias.csv", "validation/sim_a/validation.json", "windows/dataset/manifest.json"):
+        check((local / "results" / key).read_bytes() == (remote / "results" / key).read_bytes(),
+              f"results/{key} byte-identical")
+    return len(mine)
+
+
+def break_imu(folder: Path) -> Path:
+    """Cut the IMU file of the ASL copy in ``folder`` to its header (a recording that lost its
+    samples); returns the file."""
+    imu = folder / "mav0" / "imu0" / "data.csv"
+    imu.write_text(imu.read_text().splitlines(keepends=True)[0])
+    return imu
+
+
+def check_failed_ingest(c: Cluster, remote: Path, rc: int, out: str, jobs: list[tuple[str, str, str]]) -> None:
+    """The corrupt sequence: its ingest FAILED in SLURM twice (retries: 1), one-line error, nothing left."""
+    failed = [job for job in jobs if job[1] == "broken"]
+    check(rc == 2 and "rule 'ingest' (sequence=broken) failed" in out and "logs/ingest/broken.log" in out,
+          f"biasgt run exits 2 naming the failed rule and its log: {out.strip().splitlines()[-1][:200]}")
+    check([(r, n) for r, n, _ in failed] == [("ingest", "broken")] * 2,
+          f"the corrupt sequence's ingest was submitted twice (profile: retries 1): {failed}")
+    # The job log is rewritten by each attempt: it names the last one.
+    check_slurm_jobs(c, remote, failed[-1:], "FAILED")
+    check(c.finished_jobs().get(failed[0][2]) == "FAILED", f"first attempt, SLURM job {failed[0][2]}: FAILED")
+    check(not (remote / "results" / "ingest" / "broken").exists(), "no half-written results/ingest/broken")
+
+
+def rerun_after_repair(c: Cluster, config: Path, remote: Path, imu: Path, good_imu: Path) -> int:
+    """Repair the corrupt file and rerun: only that sequence's jobs run, the rest is untouched."""
+    before = {p: p.stat().st_mtime_ns for p in (remote / "results").rglob("*") if p.is_file()}
+    shutil.copy(good_imu, imu)
+    rc, out, seconds = biasgt_run(config, remote, *slurm_args())
+    jobs = submitted_jobs(remote)
+    check(rc == 0 and sorted(r for r, n, _ in jobs if n == "broken") == sorted(BROKEN_RULES) and len(jobs) == 5,
+          f"rerun after the repair: exit {rc} in {seconds:.0f} s, the repaired sequence's {len(jobs)} jobs only")
+    check_slurm_jobs(c, remote, jobs, "COMPLETED")
+    check(all(p.stat().st_mtime_ns == t for p, t in before.items()), f"the {len(before)} finished files untouched")
+    return len(jobs)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--keep", action="store_true", help="keep the temporary folder (its path is printed)")
+    args = parser.parse_args(argv)
+    t_start = time.monotonic()
+    tmp = Path(tempfile.mkdtemp(prefix="biasgt-slurm-"))
+    os.chmod(tmp, 0o755)  # munged checks that the socket's parent folders are not world-writable
+    print(f"working folder: {tmp}", flush=True)
+    try:
+        ensure_packages()
+        (tmp / "local.yaml").write_text(CONFIG)
+        rc, out, seconds = biasgt_run(tmp / "local.yaml", tmp / "local", "--cores", "2")
+        check(rc == 0, f"local run: exit {rc} in {seconds:.0f} s")
+        good_imu = tmp / "local" / "results" / "simulate" / "sim_a" / "mav0" / "imu0" / "data.csv"
+        shutil.copytree(tmp / "local" / "results" / "simulate" / "sim_a", tmp / "broken")
+        imu = break_imu(tmp / "broken")
+        (tmp / "slurm.yaml").write_text(CONFIG + BROKEN)
+        with cluster(tmp / "slurm") as c:
+            remote = tmp / "remote"
+            rc, out, seconds = biasgt_run(tmp / "slurm.yaml", remote, *slurm_args())
+            jobs = submitted_jobs(remote)
+            good = [job for job in jobs if job[1] != "broken"]
+            print(f"SLURM run: exit {rc} in {seconds:.0f} s, {len(jobs)} SLURM jobs", flush=True)
+            check(len(good) == 13, f"13 SLURM jobs of the good sequences (2 x 6 stages + windows; 'all' is "
+                                   f"local): {len(good)}")
+            check_slurm_jobs(c, remote, good, "COMPLETED")
+            check_failed_ingest(c, remote, rc, out, jobs)
+            n_files = compare_results(tmp / "local", remote)
+            n_rerun = rerun_after_repair(c, tmp / "slurm.yaml", remote, imu, good_imu)
+        print(f"PASS: {len(jobs)} + {n_rerun} SLURM jobs, {n_files} result files equal to the local run's, "
+              f"failure and rerun checked; {time.monotonic() - t_start:.0f} s in all", flush=True)
+        return 0
+    except (CheckFailed, subprocess.CalledProcessError) as exc:
+        print(f"FAILED: {exc} (outputs under {tmp})", flush=True)
+        args.keep = True
+        return 1
+    finally:
+        if not args.keep:
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
