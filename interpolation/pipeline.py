@@ -10,8 +10,11 @@ from typing import Any
 
 import numpy as np
 
-from interpolation.bias import BiasTrack, InterpolationMethod, interpolate_bias, read_bias_csv, write_bias_table
+from interpolation.bias import interpolate_bias
+from interpolation.config import InterpolationMethod
+from pipeline.bias_table import BiasTrack, read_bias_csv, write_bias_table
 from pipeline.errors import DataError, InputFormatError
+from pipeline.ingest import load
 
 log = logging.getLogger(__name__)
 
@@ -58,8 +61,6 @@ def interpolate_recovery(
     Raises:
         DataError: The input has no IMU, or stamps lie outside the span (without ``clamp``).
     """
-    from pipeline.ingest import load
-
     out_path = Path(out_path)
     if out_path.suffix not in (".parquet", ".csv"):
         raise InputFormatError("output must end in .parquet or .csv", path=out_path)

@@ -31,6 +31,7 @@ Layout of a workflow run (relative to the working directory)::
 from __future__ import annotations
 
 import copy
+import difflib
 import enum
 import logging
 import os
@@ -42,9 +43,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+import jsonschema
 import yaml
+from jsonschema import Draft202012Validator, validators
 
+from interpolation.config import InterpolationMethod
+from pipeline.checks import CheckOptions, parse_repairs
+from pipeline.configs import dataclass_from_mapping
 from pipeline.errors import BiasgtError, ConfigError
+from pipeline.ingest import READER_KWARGS, ingest
+from pipeline.sim.config import SimConfig
+from pipeline.store import read_store
+from recovery.config import RecoveryConfig
 
 log = logging.getLogger(__name__)
 
@@ -235,8 +245,6 @@ def _json_path(parts: Iterable[Any]) -> str:
 
 def _unknown_keys_message(instance: dict[str, Any], allowed: set[str]) -> str | None:
     """``unknown key 'x' (did you mean 'y'?): allowed here: ...`` for the keys of ``instance`` not in ``allowed``."""
-    import difflib
-
     extra = [k for k in instance if k not in allowed]
     if not extra:
         return None
@@ -289,9 +297,6 @@ def validate_schema(
     Raises:
         ConfigError: The first (most relevant) schema violation, with its location.
     """
-    import jsonschema
-    from jsonschema import Draft202012Validator, validators
-
     if not isinstance(data, dict):
         raise ConfigError(f"the config must be a mapping, got {type(data).__name__}", path=config_file,
                           hint="see config/config.yaml for an example")
@@ -437,8 +442,6 @@ def check_config(
 
 
 def _check_sim_config(sim: dict[str, Any], config_file: Path | None, where: str, check_paths: bool) -> None:
-    from pipeline.sim.config import SimConfig
-
     try:
         cfg = SimConfig.from_dict(sim)
     except ConfigError as exc:
@@ -599,9 +602,6 @@ def make_check_options(options: dict[str, Any]) -> Any:
     Raises:
         ConfigError: Unknown key or invalid value.
     """
-    from pipeline.checks import CheckOptions
-    from pipeline.configs import dataclass_from_mapping
-
     kwargs = dict(options)
     if "ignore" in kwargs:
         ignore = kwargs["ignore"]
@@ -611,9 +611,6 @@ def make_check_options(options: dict[str, Any]) -> Any:
 
 def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
     """Raise a ConfigError naming the entry when its ingest settings are invalid."""
-    from pipeline.checks import parse_repairs
-    from pipeline.ingest import READER_KWARGS
-
     reader = entry.raw.get("reader") or {}
     reserved = sorted({"fmt", "name"} & set(reader))
     if reserved:
@@ -671,8 +668,6 @@ def make_recovery_config(options: dict[str, Any]) -> Any:
     Raises:
         ConfigError: Unknown option or invalid value (naming the option).
     """
-    from recovery.config import RecoveryConfig
-
     return RecoveryConfig.from_dict(dict(options))
 
 
@@ -716,8 +711,7 @@ def make_validation_config(options: dict[str, Any]) -> Any:
     Raises:
         ConfigError: Unknown option or invalid value.
     """
-    from pipeline.configs import dataclass_from_mapping
-    from validation.validate import ValidationConfig
+    from validation.validate import ValidationConfig  # torch: only where a validation runs or is checked
 
     return dataclass_from_mapping(ValidationConfig, options, what="validation option", field="validation",
                                   also_allowed=VALIDATION_EXTRA_KEYS)
@@ -847,8 +841,8 @@ def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwarg
 
 def simulate_step(settings: dict[str, Any], out_dir: str | Path) -> Path:
     """Simulate one sequence from a :class:`SimConfig` dict and write it as an ASL folder."""
-    from pipeline.sim import simulate, write_simulation
-    from pipeline.sim.config import SimConfig
+    from pipeline.sim.simulator import simulate  # scipy.signal: only in the job that runs the step
+    from pipeline.sim.writer import write_simulation  # rosbags: only in the job that runs the step
 
     config = SimConfig.from_dict(dict(settings))
     log.info("simulating '%s': %.1f s, preset %s, poses %s, seed %d", config.name, config.duration_s or -1,
@@ -862,8 +856,6 @@ def simulate_step(settings: dict[str, Any], out_dir: str | Path) -> Path:
 
 def ingest_step(input_path: str | Path, out_dir: str | Path, settings: dict[str, Any]) -> Path:
     """Read, check (and, where allowed, repair) one input and write the canonical store."""
-    from pipeline.ingest import ingest
-
     reader_kwargs = dict(settings.get("reader_kwargs") or {})
     log.info("ingesting %s (format %s) -> %s", input_path, reader_kwargs.get("fmt", "auto"), out_dir)
     ingest(
@@ -879,9 +871,8 @@ def ingest_step(input_path: str | Path, out_dir: str | Path, settings: dict[str,
 def recover_step(store_dir: str | Path, out_dir: str | Path, settings: dict[str, Any]) -> Path:
     """Recover the bias of one canonical store and write ``bias.csv``, ``recovery.json``,
     ``trajectory_tum.txt`` (settings: :func:`recovery_settings`)."""
-    from pipeline.store import read_store
-    from recovery.outputs import write_recovery
-    from recovery.recover import recover
+    from recovery.outputs import write_recovery  # gtsam: only in the job that runs the step
+    from recovery.recover import recover  # gtsam: only in the job that runs the step
 
     config = make_recovery_config(dict(settings.get("config") or {}))
     sequence = read_store(store_dir)
@@ -901,8 +892,7 @@ def interpolate_step(recovery_dir: str | Path, store_dir: str | Path, out_path: 
                      settings: dict[str, Any]) -> list[Path]:
     """Interpolate a recovery's keyframe bias to the store's IMU stamps (settings:
     :func:`interpolation_settings`)."""
-    from interpolation.bias import InterpolationMethod
-    from interpolation.pipeline import interpolate_recovery
+    from interpolation.pipeline import interpolate_recovery  # pandas: only in the job that runs the step
 
     try:
         method = InterpolationMethod(settings.get("method", "linear"))
@@ -926,8 +916,7 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
     Returns:
         The :class:`validation.validate.ValidationResult`.
     """
-    from pipeline.store import read_store
-    from validation.validate import Verdict, validate_inputs, write_validation
+    from validation.validate import Verdict, validate_inputs, write_validation  # torch: only in this job
 
     config = make_validation_config(dict(settings.get("config") or {}))
     sequence = read_store(store_dir)
@@ -951,7 +940,7 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
         out_dir: The dataset folder.
         settings: :func:`windows_settings`.
     """
-    from training.windows import WindowSource, build_window_dataset
+    from training.windows import WindowSource, build_window_dataset  # torch: only in the job of this step
 
     named = list(settings.get("sequences") or [])
     if not (len(named) == len(stores) == len(recoveries)):
@@ -973,7 +962,7 @@ def make_window_config(options: dict[str, Any]) -> Any:
     Raises:
         ConfigError: Unknown option or invalid value.
     """
-    from training.windows import WindowConfig
+    from training.windows import WindowConfig  # torch: only where the windows stage runs or is checked
 
     return WindowConfig.from_dict(dict(options))
 
@@ -981,7 +970,7 @@ def make_window_config(options: dict[str, Any]) -> Any:
 def report_step(ingest_dir: str | Path, recovery_dir: str | Path | None, validation_dir: str | Path | None,
                 out_path: str | Path) -> Path:
     """Write the quality report (one self-contained HTML file) of one sequence."""
-    from reports.quality import build_quality_report
+    from reports.quality import build_quality_report  # matplotlib: only in the job that runs the step
 
     return build_quality_report(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir,
                                 out_path=out_path)

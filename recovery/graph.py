@@ -22,6 +22,8 @@ from typing import Any
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, E, G, L, V, X
+from scipy.signal import savgol_filter
+from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, PoseSourceKind
@@ -307,8 +309,6 @@ def propagate_orientations(
     Returns:
         Orientations [K, 4] (wxyz).
     """
-    from scipy.spatial.transform import Rotation
-
     out = np.array(q_wxyz, dtype=float, copy=True)
     K = len(out)
     cur = None
@@ -337,8 +337,6 @@ def initial_orientations(
     Wahba's problem between world accelerations (second differences of the
     positions plus gravity) and the gyro-propagated specific force.
     """
-    from scipy.spatial.transform import Rotation
-
     K = len(kf)
     # Gyro-propagated relative orientations at keyframes and specific force at keyframes.
     f_kf = np.zeros((K, 3))
@@ -355,8 +353,6 @@ def initial_orientations(
     f_kf[-1] = f_kf[-2] if K > 1 else f_kf[-1]
     t = (kf.t_ns - kf.t_ns[0]) / NS_PER_S
     # world acceleration by smoothed differences
-    from scipy.signal import savgol_filter
-
     if K >= 9:
         dt = float(np.median(np.diff(t))) if K > 1 else 0.05
         win = max(5, int(round(0.5 / max(dt, 1e-3))) | 1)

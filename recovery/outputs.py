@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from interpolation.bias import CSV_HEADER as BIAS_COLUMNS  # the bias.csv contract, defined once
+from pipeline.bias_table import CSV_HEADER
 from pipeline.atomic import atomic_dir
 from pipeline.types import PoseSeries, PoseSourceKind
 from recovery.recover import RecoveryResult
@@ -25,10 +25,10 @@ RESIDUALS_CSV = "residuals.csv"
 
 
 def bias_frame(result: RecoveryResult) -> pd.DataFrame:
-    """The ``bias.csv`` table (columns :data:`BIAS_COLUMNS`)."""
+    """The ``bias.csv`` table (columns :data:`CSV_HEADER`)."""
     data = np.hstack([result.bias_gyro_radps, result.bias_acc_mps2, result.bias_gyro_std_radps,
                       result.bias_acc_std_mps2])
-    frame = pd.DataFrame(data, columns=list(BIAS_COLUMNS[1:]))
+    frame = pd.DataFrame(data, columns=list(CSV_HEADER[1:]))
     frame.insert(0, "t_ns", np.asarray(result.t_ns, dtype=np.int64))
     return frame
 
@@ -74,7 +74,7 @@ def _write_bias_csv(path: Path, result: RecoveryResult) -> None:
     t = np.asarray(result.t_ns, dtype=np.int64)
     fmt = "%d" + ",%.9g" * data.shape[1] + "\n"
     with open(path, "w", encoding="utf-8", newline="") as fh:
-        fh.write(",".join(BIAS_COLUMNS) + "\n")
+        fh.write(",".join(CSV_HEADER) + "\n")
         fh.writelines(fmt % (ti, *row) for ti, row in zip(t.tolist(), data.tolist()))
 
 

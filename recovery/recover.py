@@ -47,8 +47,10 @@ from recovery.config import (
     RecoveryConfig,
     TimeOffsetMode,
 )
+from recovery import calibration_init as ci
+from recovery.bounds import bias_rmse_floor
 from recovery.fusion import fuse_poses
-from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, solve_window
+from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, propagate_orientations, solve_window
 from recovery.noise import NoiseChoice, estimate_noise
 from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
 from recovery.segments import plan_segments, stitch
@@ -376,8 +378,6 @@ def _continue_from(prev: WindowSolution, w: tuple[MidpointSamples, KeyframePoses
     large gyro bias). Overlap keyframes take the previous solution; later ones are
     propagated with the gyro minus the previous bias.
     """
-    from recovery.graph import propagate_orientations
-
     samples, kf = w
     K = len(kf)
     q = np.zeros((K, 4))
@@ -557,8 +557,6 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     problem = _Problem(imu, poses, pieces, fuse=fuse, gravity_mps2=config.gravity_mps2)
 
     # --- clock offset, coarse
-    from recovery import calibration_init as ci
-
     t0 = time.perf_counter()
     off_mode = config.time_offset_mode
     if off_mode == TimeOffsetMode.AUTO:
@@ -941,8 +939,6 @@ def _accuracy_floor(choice: NoiseChoice, poses: PoseSeries, pose_mode: PoseFacto
                     ) -> dict[str, float | None]:
     """The optimal smoother's per-axis bias RMSE for the noise used (:mod:`recovery.bounds`): what
     no estimator beats with this IMU and pose stream; absolute pose streams only."""
-    from recovery.bounds import bias_rmse_floor
-
     rate = _pose_rate_hz(poses)
     if pose_mode != PoseFactorMode.ABSOLUTE or rate is None:
         return {"gyro_radps": None, "acc_mps2": None}

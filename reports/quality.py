@@ -5,7 +5,7 @@ missing, and the page then says so plainly and shows the rest):
 
 * ingest: the canonical store (:func:`pipeline.store.read_store`), its stream summaries and
   input checks (:mod:`pipeline.checks`) and the repairs applied at conversion;
-* recovery: ``bias.csv`` (:func:`interpolation.bias.read_bias_csv`), ``recovery.json``
+* recovery: ``bias.csv`` (:func:`pipeline.bias_table.read_bias_csv`), ``recovery.json``
   (clock offset, extrinsic, gravity, noise used, residual statistics, warnings),
   ``trajectory_tum.txt`` (:func:`pipeline.io.tum.read_tum_poses`) and, when the recovery
   writes one, a per-keyframe residual table (``residuals.parquet`` or ``residuals.csv``);
@@ -36,8 +36,12 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline import __version__
 from pipeline.atomic import atomic_path
+from pipeline.bias_table import read_bias_csv
+from pipeline.checks import CHECK_CODES, run_checks, stream_summaries
 from pipeline.errors import BiasgtError, ConfigError, InputFormatError
+from pipeline.io.tum import read_tum_poses
 from pipeline.pose_transform import offset_ns, poses_in_imu_frame, transform_from_json
+from pipeline.store import is_store, read_store
 from pipeline.types import NS_PER_S, Finding, PoseSeries, PoseSourceKind, Sequence, Severity
 from reports import plots
 from reports.allan import ImuAllan, imu_allan
@@ -84,7 +88,7 @@ class ReportInputs:
         ingest_dir / recovery_dir / validation_dir: Where the inputs came from (None: not given).
         sequence: The canonical store's sequence.
         recovery: ``recovery.json`` content, or None.
-        bias: The recovered bias (``interpolation.bias.BiasTrack``), or None.
+        bias: The recovered bias (``pipeline.bias_table.BiasTrack``), or None.
         trajectory: The recovered IMU trajectory, or None.
         residuals: Per-keyframe residual table (``t_ns`` + numeric columns), or None.
         validation: ``validation.json`` content, or None.
@@ -167,8 +171,6 @@ def gather_inputs(
     Raises:
         InputFormatError: ``ingest_dir`` is not a canonical store (the report needs it).
     """
-    from pipeline.store import is_store, read_store
-
     ingest_dir = Path(ingest_dir)
     if not is_store(ingest_dir):
         raise InputFormatError(
@@ -227,9 +229,6 @@ def _read_noting_problems(inputs: ReportInputs, stage: str, path: Path, reader: 
 
 
 def _gather_recovery(inputs: ReportInputs, rdir: Path) -> None:
-    from interpolation.bias import read_bias_csv
-    from pipeline.io.tum import read_tum_poses
-
     def read_trajectory(path: Path) -> PoseSeries:
         return read_tum_poses(path, source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu", stream="recovered")[0]
 
@@ -397,8 +396,6 @@ def _verdict_section(inp: ReportInputs) -> Html:
 
 
 def _current_findings(seq: Sequence) -> list[Finding]:
-    from pipeline.checks import run_checks
-
     try:
         return run_checks(seq)
     except BiasgtError as exc:  # checks of a store should not fail; show it rather than crash
@@ -406,8 +403,6 @@ def _current_findings(seq: Sequence) -> list[Finding]:
 
 
 def _streams_section(inp: ReportInputs) -> Html:
-    from pipeline.checks import CHECK_CODES, stream_summaries
-
     seq = inp.sequence
     rows = []
     for s in stream_summaries(seq):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from synth import T0_NS, make_imu, make_poses, make_sequence
 
+import pipeline.ingest
 import pipeline.io
 from pipeline.checks import STREAM_SUMMARY_KEYS, CheckOptions, Repair, detect_acc_in_g, detect_gyro_degps
 from pipeline.cli import main
@@ -40,7 +41,7 @@ class FakeLoader:
 def fake(monkeypatch):
     def install(seq):
         loader = FakeLoader(seq)
-        monkeypatch.setattr(pipeline.io, "load_sequence", loader, raising=False)
+        monkeypatch.setattr(pipeline.ingest, "load_sequence", loader)
         return loader
     return install
 
@@ -218,11 +219,6 @@ def test_ingest_library_function(fake, tmp_path):
 # ------------------------------------------------------------------------------------------ real readers
 
 
-def _need_reader():
-    if not hasattr(pipeline.io, "load_sequence"):
-        pytest.skip("pipeline.io.load_sequence is not available yet")
-
-
 def _write_asl_imu(root: Path, t_ns: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> Path:
     d = root / "mav0" / "imu0"
     d.mkdir(parents=True)
@@ -234,7 +230,6 @@ def _write_asl_imu(root: Path, t_ns: np.ndarray, gyro: np.ndarray, acc: np.ndarr
 
 
 def test_asl_file_with_unsorted_degps_rows_inspected_and_converted(tmp_path, capsys):
-    _need_reader()
     imu = make_imu(duration_s=5.0)
     idx = np.arange(len(imu))
     idx[[100, 101]] = idx[[101, 100]]
@@ -259,7 +254,6 @@ def test_asl_file_with_unsorted_degps_rows_inspected_and_converted(tmp_path, cap
 
 
 def test_unit_heuristics_on_real_data(shared_data):
-    _need_reader()
     for folder, rule in (("V1_01_easy", "p99_magnitude"), ("V1_02_medium_kimera_excerpt", "pose_rate_ratio")):
         seq = pipeline.io.load_sequence(shared_data / "euroc" / folder)
         assert detect_gyro_degps(seq) is None
@@ -275,7 +269,6 @@ def test_unit_heuristics_on_real_data(shared_data):
 
 
 def test_inspect_mh01_reports_skipped_lines(shared_data, capsys):
-    _need_reader()
     assert main(["inspect", str(shared_data / "euroc" / "MH_01_easy"), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     skipped = [f for f in report["findings"] if f["code"] == "PARSE_SKIPPED_LINES"]
@@ -290,7 +283,6 @@ def test_inspect_mh01_reports_skipped_lines(shared_data, capsys):
 
 
 def test_inspect_and_convert_v101(shared_data, tmp_path, capsys):
-    _need_reader()
     src = shared_data / "euroc" / "V1_01_easy"
     assert main(["inspect", str(src)]) == 0
     out = capsys.readouterr().out

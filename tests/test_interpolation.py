@@ -5,14 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from interpolation.bias import (
-    CSV_HEADER,
-    BiasTrack,
-    InterpolationMethod,
-    interpolate_bias,
-    read_bias_csv,
-    write_bias_table,
-)
+from interpolation.bias import interpolate_bias
+from interpolation.config import InterpolationMethod
+from pipeline.bias_table import CSV_HEADER, BiasTrack, read_bias_csv, write_bias_table
 from pipeline.errors import DataError, InputFormatError
 
 

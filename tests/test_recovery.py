@@ -18,9 +18,10 @@ from pipeline.sim import simulate
 from pipeline.sim.config import PoseFormat, PoseStreamConfig, SimConfig
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import ExtrinsicMode, PoseFactorMode, RecoveryConfig, RobustLoss
-from interpolation.bias import read_bias_csv
+from pipeline.bias_table import read_bias_csv
 from pipeline.atomic import _umask
-from recovery.outputs import BIAS_COLUMNS, write_recovery
+from pipeline.bias_table import CSV_HEADER
+from recovery.outputs import write_recovery
 from recovery.preintegration import midpoint_samples
 from recovery.recover import recover
 from recovery.segments import plan_segments
@@ -256,7 +257,7 @@ def test_write_recovery_files(clean_run, tmp_path):
     write_recovery(res, out)
     assert not (out / "stale.txt").exists()  # replaced as a whole
     header = (out / "bias.csv").read_text().splitlines()[0]
-    assert header == ",".join(BIAS_COLUMNS)
+    assert header == ",".join(CSV_HEADER)
     track = read_bias_csv(out / "bias.csv")
     assert track.t_ns.dtype == np.int64 and len(track) == len(res.t_ns)
     np.testing.assert_allclose(track.bias[:, 0], res.bias_gyro_radps[:, 0], rtol=1e-8)
@@ -465,7 +466,7 @@ def test_cli_recover_on_store(tmp_path, clean_run, capsys):
                "--no-estimate-time-offset"])
     assert rc == 0
     frame = pd.read_csv(out / "bias.csv")
-    assert list(frame.columns) == list(BIAS_COLUMNS)
+    assert list(frame.columns) == list(CSV_HEADER)
     assert 350 <= len(frame) <= 410
     assert "wrote" in capsys.readouterr().out
     assert json.loads((out / "recovery.json").read_text())["pose_fusion"]["enabled"] is True

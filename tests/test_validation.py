@@ -11,7 +11,7 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.spatial.transform import Rotation
 
-from interpolation.bias import BiasTrack, write_bias_table
+from pipeline.bias_table import BiasTrack, write_bias_table
 from pipeline.errors import DataError, ValidationError
 from pipeline.pose_transform import IMU_FRAME, poses_in_imu_frame, transform_from_json
 from pipeline.sim import PoseStreamConfig, SimConfig, simulate

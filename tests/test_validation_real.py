@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from interpolation.bias import BiasTrack
+from pipeline.bias_table import BiasTrack
 from pipeline.io import load_sequence
 from pipeline.io.tum import read_tum_poses
 from pipeline.types import NS_PER_S, PoseSourceKind, Sequence

@@ -13,7 +13,8 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from interpolation.bias import BIAS_COLUMNS, interpolate_bias, read_bias_csv
+from interpolation.bias import interpolate_bias
+from pipeline.bias_table import BIAS_COLUMNS, read_bias_csv
 from interpolation.pipeline import recovery_random_walk
 from pipeline import __version__
 from pipeline.cli import main

@@ -205,7 +205,7 @@ def test_stage_section_defaults_match_the_libraries():
                 assert doc["default"] == value, (section, name)
         for name in extra:
             assert schema["properties"][name]["default"] is None
-    from interpolation.bias import InterpolationMethod
+    from interpolation.config import InterpolationMethod
 
     assert props["interpolation"]["properties"]["method"]["enum"] == [m.value for m in InterpolationMethod]
     # the schema's defaults build the libraries' default configs
@@ -664,7 +664,7 @@ def e2e_run(tmp_path_factory) -> E2E:
 @pytest.mark.slow
 def test_real_run_writes_every_stage(e2e_run):
     from pipeline.store import read_store
-    from recovery.outputs import BIAS_COLUMNS
+    from pipeline.bias_table import CSV_HEADER
 
     workdir, printed = e2e_run.workdir, e2e_run.printed
     results = workdir / "results"
@@ -681,7 +681,7 @@ def test_real_run_writes_every_stage(e2e_run):
         seq = read_store(results / "ingest" / name)
         assert seq.name == name and seq.imu is not None and 8 * 200 - 2 <= len(seq.imu) <= 8 * 200 + 2
         header = (results / "recovery" / name / "bias.csv").read_text().splitlines()[0]
-        assert header == ",".join(BIAS_COLUMNS)
+        assert header == ",".join(CSV_HEADER)
         assert header == "t_ns,bg_x,bg_y,bg_z,ba_x,ba_y,ba_z,bg_x_std,bg_y_std,bg_z_std,ba_x_std,ba_y_std,ba_z_std"
         rec = json.loads((results / "recovery" / name / "recovery.json").read_text())
         assert rec["pose_stream"] == "mocap0" and rec["keyframes"] >= 70  # 8 s of 10-Hz fused keyframes

@@ -48,9 +48,11 @@ from typing import Any
 import numpy as np
 import yaml
 
-from interpolation.bias import read_bias_csv
 from interpolation.pipeline import recovery_random_walk
+from pipeline.bias_table import read_bias_csv
 from pipeline.errors import ConfigError, DataError, InputFormatError
+from pipeline.ingest import load
+from pipeline.store import is_store, read_store
 from pipeline.types import NS_PER_S, ImuSeries, Sequence
 from validation.validate import (
     ReferenceStates,
@@ -363,15 +365,11 @@ def extract_windows(
 
 
 def _load_source(source: WindowSource) -> Sequence:
-    from pipeline.store import is_store, read_store
-
     if is_store(source.store_dir):
         return read_store(source.store_dir)
     if not source.store_dir.exists():
         raise InputFormatError(f"input of sequence '{source.name}' does not exist", path=source.store_dir,
                                hint="give the store folder written by 'biasgt convert' (or the workflow's ingest)")
-    from pipeline.ingest import load
-
     return load(source.store_dir)
 
 

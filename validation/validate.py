@@ -99,10 +99,13 @@ import torch
 from scipy.interpolate import make_smoothing_spline
 from scipy.spatial.transform import Rotation, Slerp
 
-from interpolation.bias import BiasTrack, interpolate_bias, read_bias_csv
+from interpolation.bias import interpolate_bias
 from pipeline.atomic import atomic_dir, atomic_path
+from pipeline.bias_table import BiasTrack, read_bias_csv
 from pipeline.errors import BiasgtError, DataError, InputFormatError, ValidationError
 from pipeline.integration import IntegrationScheme, integrate
+from pipeline.io import select_pose_stream
+from pipeline.io.asl import read_asl_state_csv
 from pipeline.pose_transform import as_transform, poses_in_imu_frame, transform_from_json
 from pipeline.so3 import rotation_angle_deg
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence, StateSeries
@@ -576,8 +579,6 @@ def read_bias_file(path: str | Path) -> BiasTrack:
         raise InputFormatError("bias file does not exist", path=path, hint="check the path")
     if path.suffix == ".parquet" or "bg_x" in _header_line(path):
         return read_bias_csv(path)
-    from pipeline.io.asl import read_asl_state_csv
-
     try:
         state, _ = read_asl_state_csv(path, stream="bias")
     except InputFormatError as exc:
@@ -1175,8 +1176,6 @@ def build_reference(
         raise ValidationError(f"sequence '{sequence.name}' has no IMU", hint="give an input with IMU readings")
     if (pose_stream is None or pose_stream == "ground_truth") and sequence.ground_truth is not None:
         return reference_from_states(sequence.ground_truth, imu.t_ns, gap_factor=config.reference_gap_factor)
-    from pipeline.io import select_pose_stream
-
     if pose_stream is None and recovery is not None and recovery.pose_stream in sequence.poses:
         pose_stream = recovery.pose_stream
     try:

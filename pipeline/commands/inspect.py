@@ -14,7 +14,17 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.types import Finding, Sequence
+from pipeline.checks import Verdict, run_checks, stream_summaries, verdict
+from pipeline.ingest import (
+    add_check_arguments,
+    add_reader_arguments,
+    check_options_from_args,
+    input_format,
+    load,
+    reader_kwargs_from_args,
+    severity_rank,
+)
+from pipeline.types import Finding, Sequence, Severity
 
 #: Version of the ``--json`` output; bump when a key changes meaning or disappears.
 SCHEMA_VERSION = 1
@@ -23,7 +33,6 @@ JSON_KEYS = ("schema_version", "input", "format", "streams", "findings", "verdic
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_check_arguments, add_reader_arguments
 
     p = subparsers.add_parser(
         "inspect",
@@ -45,8 +54,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def inspect_report(input_path: str, seq: Sequence, findings: list[Finding]) -> dict[str, Any]:
     """The ``--json`` object (keys :data:`JSON_KEYS`)."""
-    from pipeline.checks import stream_summaries, verdict
-    from pipeline.ingest import input_format
 
     return json_safe({
         "schema_version": SCHEMA_VERSION,
@@ -93,8 +100,6 @@ def format_report(report: dict[str, Any]) -> str:
             f"{_fmt(s['rate_hz'], '10.2f')} {_fmt(s['dt_std_ms'], '11.3f')} {_fmt(s['dt_max_ms'], '11.3f')}"
         )
     lines.append("")
-    from pipeline.ingest import severity_rank
-    from pipeline.types import Severity
 
     findings = sorted(report["findings"], key=lambda f: severity_rank(Severity(f["severity"])))
     if findings:
@@ -118,8 +123,6 @@ def format_report(report: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.checks import Verdict, run_checks
-    from pipeline.ingest import check_options_from_args, load, reader_kwargs_from_args
 
     options = check_options_from_args(args)
     seq = load(args.input, reader_kwargs_from_args(args))

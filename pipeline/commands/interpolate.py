@@ -6,6 +6,9 @@ import argparse
 import logging
 from pathlib import Path
 
+from interpolation.config import InterpolationMethod
+from pipeline.ingest import add_reader_arguments, reader_kwargs_from_args
+
 log = logging.getLogger(__name__)
 
 DESCRIPTION = """\
@@ -29,7 +32,6 @@ examples:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_reader_arguments
 
     p = subparsers.add_parser(
         "interpolate",
@@ -52,9 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from interpolation.bias import InterpolationMethod
-    from interpolation.pipeline import interpolate_recovery
-    from pipeline.ingest import reader_kwargs_from_args
+    from interpolation.pipeline import interpolate_recovery  # pandas/pyarrow: off the CLI start-up path
 
     written = interpolate_recovery(
         args.recovery,

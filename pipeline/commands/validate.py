@@ -7,6 +7,9 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from pipeline.errors import ValidationError
+from pipeline.ingest import add_reader_arguments, load, reader_kwargs_from_args
+
 log = logging.getLogger(__name__)
 
 DESCRIPTION = """\
@@ -45,7 +48,6 @@ DEFAULTS = argparse.Namespace(window_s=1.0, overlap=0.5, margin=0.10, flag_k=5.0
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_reader_arguments
 
     d = DEFAULTS
     p = subparsers.add_parser(
@@ -101,9 +103,7 @@ def _format_table(result: Any) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.errors import ValidationError
-    from pipeline.ingest import load, reader_kwargs_from_args
-    from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation
+    from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation  # torch: load on use
 
     if not args.bias and args.recovery is None:
         raise ValidationError("nothing to validate", field="--bias",

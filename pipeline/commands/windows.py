@@ -6,6 +6,8 @@ import argparse
 import logging
 from pathlib import Path
 
+from pipeline.errors import ConfigError
+
 log = logging.getLogger(__name__)
 
 SPLITS = ("train", "val", "test", "none")
@@ -66,8 +68,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.errors import ConfigError
-    from training.windows import (
+    from training.windows import (  # torch: off the CLI start-up path
         WindowConfig,
         WindowSource,
         build_window_dataset,

@@ -25,9 +25,10 @@ from typing import Any
 
 from pipeline.errors import AmbiguousInputError, ConfigError, DataError, InputFormatError, UnsupportedInputError
 from pipeline.io._text import TimeUnit
-from pipeline.io.asl import AslTable, read_asl, read_asl_csv, read_asl_pose_csv, sniff_asl_csv
+from pipeline.io.asl import AslTable, find_mav0, read_asl, read_asl_csv, read_asl_pose_csv, sniff_asl_csv
 from pipeline.io.csv_generic import AccUnit, CsvMapping, GyroUnit, QuatOrder, read_csv_generic
 from pipeline.io.tum import read_tum, write_tum
+from pipeline.store import is_store, read_store
 from pipeline.types import PoseSeries, PoseSourceKind, Sequence
 
 log = logging.getLogger(__name__)
@@ -103,9 +104,6 @@ def detect_format(path: str | Path) -> SourceFormat:
         InputFormatError: ``path`` does not exist.
         UnsupportedInputError: Nothing fits.
     """
-    from pipeline.store import is_store
-    from pipeline.io.asl import find_mav0
-
     path = Path(path)
     if not path.exists():
         raise InputFormatError("does not exist", path=path, hint="check the path")
@@ -235,8 +233,6 @@ def _load_one(
                           field="csv_mapping", hint="drop the mapping or force --format csv")
     log.debug("loading %s as %s", path, fmt.value)
     if fmt is SourceFormat.STORE:
-        from pipeline.store import read_store
-
         seq = read_store(path)
         if name:
             seq.name = name
@@ -253,13 +249,8 @@ def _load_one(
                      + SUPPORTED_HINT,
             )
         return read_csv_generic(path, mapping, name=name)
-    try:
-        from pipeline.io.rosbag import read_bag
-    except ModuleNotFoundError as exc:
-        if exc.name in ("pipeline.io.rosbag",):
-            raise UnsupportedInputError("ROS bag support is not available in this build", path=path,
-                                        hint=SUPPORTED_HINT) from exc
-        raise
+    from pipeline.io.rosbag import read_bag  # rosbags takes ~0.3 s to import: load it for bags only
+
     return read_bag(path, name=name, **bag_opts)
 
 
