@@ -7,7 +7,6 @@ interpolation at every IMU stamp; validation, windows and the report read it.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -18,6 +17,7 @@ import pyarrow.parquet as pq
 
 from pipeline.atomic import atomic_path
 from pipeline.errors import DataError, InputFormatError
+from pipeline.jsonio import dumps
 
 BIAS_COLUMNS = ("bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z")
 STD_COLUMNS = tuple(f"{c}_std" for c in BIAS_COLUMNS)
@@ -105,7 +105,7 @@ def write_bias_table(track: BiasTrack, path: str | Path, *, metadata: dict | Non
             meta = dict(metadata or {})
             if track.clamped is not None:
                 meta["clamped_rows"] = int(np.sum(track.clamped))
-            table = table.replace_schema_metadata({b"biasgt": json.dumps(meta).encode()})
+            table = table.replace_schema_metadata({b"biasgt": dumps(meta, indent=None).strip().encode()})
             pq.write_table(table, tmp)
         else:
             frame.to_csv(tmp, index=False, float_format="%.10g")

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import enum
+import typing
 from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
 
@@ -29,7 +31,8 @@ def dataclass_from_mapping(
         also_allowed: Keys the caller handles itself (listed as allowed in the hint).
 
     Raises:
-        ConfigError: Unknown key (listing the allowed ones) or a value the dataclass rejects.
+        ConfigError: Unknown key (listing the allowed ones), a value not of an enum field's values
+            (listing them), or a value the dataclass rejects.
     """
     options = dict(options or {})
     known = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
@@ -37,6 +40,15 @@ def dataclass_from_mapping(
     if unknown:
         raise ConfigError(f"unknown {what}(s) {', '.join(unknown)}", field=field,
                           hint=f"allowed: {', '.join(sorted(known | set(also_allowed)))}")
+    hints = typing.get_type_hints(cls)
+    for key, value in options.items():
+        kind = hints.get(key)
+        if isinstance(kind, type) and issubclass(kind, enum.Enum) and not isinstance(value, kind):
+            try:
+                options[key] = kind(value)
+            except ValueError:
+                raise ConfigError(f"unknown {field} {key} {value!r}", field=f"{field}.{key}",
+                                  hint="use one of: " + ", ".join(str(m.value) for m in kind)) from None
     try:
         return cls(**options)
     except BiasgtError as exc:

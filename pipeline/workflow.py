@@ -31,6 +31,7 @@ Layout of a workflow run (relative to the working directory)::
 from __future__ import annotations
 
 import copy
+import dataclasses
 import difflib
 import enum
 import logging
@@ -47,13 +48,26 @@ import jsonschema
 import yaml
 from jsonschema import Draft202012Validator, validators
 
-from interpolation.config import InterpolationMethod
+from interpolation.config import InterpolationConfig
 from pipeline.checks import CheckOptions, parse_repairs
 from pipeline.configs import dataclass_from_mapping
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.ingest import READER_KWARGS, ingest
+from pipeline.jsonio import to_plain
+from pipeline.layout import (  # the .smk files read these as wf.<name>
+    LOGS_DIR,
+    RESULTS_DIR,
+    WINDOWS_DATASET,
+    Stage,
+    interpolated_bias_path,
+    log_file,
+    report_path,
+    stage_dir,
+    windows_dataset_dir,
+)
 from pipeline.sim.config import SimConfig
 from pipeline.store import read_store
+from pipeline.types import Split
 from recovery.config import RecoveryConfig
 
 log = logging.getLogger(__name__)
@@ -64,8 +78,6 @@ SNAKEFILE = REPO_ROOT / "Snakefile"
 SCHEMA_FILE = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
 DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
 
-RESULTS_DIR = "results"
-LOGS_DIR = "logs"
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 
 # SimConfig fields set by an entry's shorthand keys; ``overrides`` must not set them again.
@@ -96,60 +108,6 @@ READER_FORMAT: dict[SourceKind, str] = {
     SourceKind.CSV: "csv",
     SourceKind.BAG: "rosbag",
 }
-
-
-class Split(str, enum.Enum):
-    """Role of a sequence for training (TRAIN / VAL / TEST sequences are windowed)."""
-
-    TRAIN = "train"
-    VAL = "val"
-    TEST = "test"
-    NONE = "none"
-
-    @property
-    def windowed(self) -> bool:
-        """Whether the sequence's windows go into the window dataset."""
-        return self is not Split.NONE
-
-
-class Stage(str, enum.Enum):
-    """Stages with a results folder, in workflow order; the value is the rule's name."""
-
-    SIMULATE = "simulate"
-    INGEST = "ingest"
-    RECOVER = "recover"
-    INTERPOLATE = "interpolate"
-    VALIDATE = "validate"
-    WINDOWS = "windows"
-    TRAIN = "train"
-    EVALUATE = "evaluate"
-    REPORT = "report"
-
-    @property
-    def folder(self) -> str:
-        """Folder name under ``results/`` and ``logs/``: the name of the stage's config section
-        (``recovery``, ``interpolation``, ``validation``, ...), else the rule's name."""
-        return _STAGE_FOLDERS.get(self, self.value)
-
-
-_STAGE_FOLDERS = {
-    Stage.RECOVER: "recovery",
-    Stage.INTERPOLATE: "interpolation",
-    Stage.VALIDATE: "validation",
-    Stage.TRAIN: "training",
-    Stage.EVALUATE: "evaluation",
-}
-
-#: The window dataset (one for the whole config) and its job name in ``logs/windows/``.
-WINDOWS_DATASET = "dataset"
-#: File names inside the stage folders.
-INTERPOLATED_BIAS = "bias_imu.parquet"
-REPORT_HTML = "report.html"
-
-
-# --------------------------------------------------------------------------------------------
-# Config: schema, defaults, semantic checks
-# --------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -489,31 +447,6 @@ def load_config(path: str | Path, *, check_paths: bool = True) -> WorkflowConfig
 # --------------------------------------------------------------------------------------------
 
 
-def stage_dir(stage: Stage | str, sequence: str) -> str:
-    """``results/<folder>/<sequence>`` (folder: :attr:`Stage.folder`), relative to the working directory."""
-    return f"{RESULTS_DIR}/{Stage(stage).folder}/{sequence}"
-
-
-def log_file(stage: Stage | str, sequence: str) -> str:
-    """``logs/<folder>/<sequence>.log`` (folder: :attr:`Stage.folder`), relative to the working directory."""
-    return f"{LOGS_DIR}/{Stage(stage).folder}/{sequence}.log"
-
-
-def interpolated_bias_path(sequence: str) -> str:
-    """``results/interpolation/<sequence>/bias_imu.parquet`` (its CSV twin lies next to it)."""
-    return f"{stage_dir(Stage.INTERPOLATE, sequence)}/{INTERPOLATED_BIAS}"
-
-
-def report_path(sequence: str) -> str:
-    """``results/report/<sequence>/report.html`` (where ``biasgt report results --sequence NAME`` writes)."""
-    return f"{stage_dir(Stage.REPORT, sequence)}/{REPORT_HTML}"
-
-
-def windows_dataset_dir() -> str:
-    """``results/windows/dataset``: the window dataset of all train / val / test sequences."""
-    return stage_dir(Stage.WINDOWS, WINDOWS_DATASET)
-
-
 def workdir_relative(path: str | Path, workdir: str | Path | None = None) -> str:
     """``path`` relative to ``workdir`` when it lies inside it, else absolute (as a string)."""
     path = Path(path)
@@ -674,19 +607,16 @@ def make_recovery_config(options: dict[str, Any]) -> Any:
 def interpolation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     """Parameters of rule ``interpolate``: ``{"method": "linear"|"cubic", "clamp": bool, "write_csv": bool}``."""
     cfg.sequence(sequence)  # a known sequence
-    section = cfg.section("interpolation")
-    return {
-        "method": str(section.get("method", "linear")),
-        "clamp": bool(section.get("clamp", True)),
-        "write_csv": bool(section.get("write_csv", True)),
-    }
+    config = dataclass_from_mapping(InterpolationConfig, cfg.section("interpolation"), what="interpolation option",
+                                    field="interpolation")
+    return to_plain(dataclasses.asdict(config))
 
 
 def interpolation_outputs(cfg: WorkflowConfig) -> list[str]:
     """Output patterns of rule ``interpolate`` (``{sequence}`` left in): the Parquet table and,
     with ``interpolation.write_csv``, its CSV twin."""
     parquet = interpolated_bias_path("{sequence}")
-    write_csv = bool(cfg.section("interpolation").get("write_csv", True))
+    write_csv = bool(cfg.section("interpolation").get("write_csv", InterpolationConfig.write_csv))
     return [parquet] + ([parquet[: -len(".parquet")] + ".csv"] if write_csv else [])
 
 
@@ -871,8 +801,7 @@ def ingest_step(input_path: str | Path, out_dir: str | Path, settings: dict[str,
 def recover_step(store_dir: str | Path, out_dir: str | Path, settings: dict[str, Any]) -> Path:
     """Recover the bias of one canonical store and write ``bias.csv``, ``recovery.json``,
     ``trajectory_tum.txt`` (settings: :func:`recovery_settings`)."""
-    from recovery.outputs import write_recovery  # gtsam: only in the job that runs the step
-    from recovery.recover import recover  # gtsam: only in the job that runs the step
+    from recovery.recover import recover, write_recovery  # gtsam: only in the job that runs the step
 
     config = make_recovery_config(dict(settings.get("config") or {}))
     sequence = read_store(store_dir)
@@ -894,14 +823,8 @@ def interpolate_step(recovery_dir: str | Path, store_dir: str | Path, out_path: 
     :func:`interpolation_settings`)."""
     from interpolation.pipeline import interpolate_recovery  # pandas: only in the job that runs the step
 
-    try:
-        method = InterpolationMethod(settings.get("method", "linear"))
-    except ValueError:
-        raise ConfigError(f"unknown interpolation method {settings.get('method')!r}", field="interpolation.method",
-                          hint="use " + ", ".join(m.value for m in InterpolationMethod)) from None
-    written = interpolate_recovery(recovery_dir, store_dir, out_path, method=method,
-                                   clamp=bool(settings.get("clamp", True)),
-                                   write_csv_twin=bool(settings.get("write_csv", True)))
+    config = dataclass_from_mapping(InterpolationConfig, settings, what="interpolation option", field="interpolation")
+    written = interpolate_recovery(recovery_dir, store_dir, out_path, config)
     log.info("wrote %s", ", ".join(map(str, written)))
     return written
 
@@ -916,7 +839,7 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
     Returns:
         The :class:`validation.validate.ValidationResult`.
     """
-    from validation.validate import Verdict, validate_inputs, write_validation  # torch: only in this job
+    from validation.validate import Verdict, validate_inputs, write_validation  # torch: only in this step's job
 
     config = make_validation_config(dict(settings.get("config") or {}))
     sequence = read_store(store_dir)

@@ -31,11 +31,14 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from pipeline.bias_table import BiasTrack
 from pipeline.errors import BiasgtError, RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import (
@@ -52,6 +55,7 @@ from recovery.bounds import bias_rmse_floor
 from recovery.fusion import fuse_poses
 from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, propagate_orientations, solve_window
 from recovery.noise import NoiseChoice, estimate_noise
+from recovery.outputs import RecoveryOutputs, RecoveryReport
 from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
 from recovery.segments import plan_segments, stitch
 
@@ -69,7 +73,7 @@ class RecoveryResult:
         bias_gyro_radps / bias_acc_mps2: [K, 3].
         bias_gyro_std_radps / bias_acc_std_mps2: Marginal 1-sigma, [K, 3].
         p_m / quat_wxyz / v_mps: Optimised IMU trajectory in the pose world frame, [K, 3] / [K, 4] / [K, 3].
-        report: The content of ``recovery.json``.
+        report: ``recovery.json`` (:class:`recovery.outputs.RecoveryReport`).
         residuals: Per keyframe [K]: ``pose_whitened_rms``, ``imu_whitened_rms`` (NaN where a keyframe
             has no such factor) and ``outlier`` (its pose was rejected); written as ``residuals.csv``.
     """
@@ -82,12 +86,23 @@ class RecoveryResult:
     p_m: np.ndarray
     quat_wxyz: np.ndarray
     v_mps: np.ndarray
-    report: dict[str, Any] = field(default_factory=dict)
+    report: RecoveryReport
     residuals: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def warnings(self) -> list[str]:
-        return list(self.report.get("warnings", []))
+        return list(self.report.warnings)
+
+    def outputs(self) -> RecoveryOutputs:
+        """What the output folder holds of this result (:class:`recovery.outputs.RecoveryOutputs`)."""
+        t_ns = np.asarray(self.t_ns, dtype=np.int64)
+        bias = BiasTrack(t_ns, np.hstack([self.bias_gyro_radps, self.bias_acc_mps2]).astype(float),
+                         np.hstack([self.bias_gyro_std_radps, self.bias_acc_std_mps2]).astype(float))
+        trajectory = PoseSeries(t_ns, self.p_m, self.quat_wxyz, "imu", PoseSourceKind.GROUND_TRUTH)
+        residuals = None
+        if self.residuals:
+            residuals = pd.DataFrame({"t_ns": t_ns, **{k: np.asarray(v) for k, v in self.residuals.items()}})
+        return RecoveryOutputs(bias, self.report, trajectory, residuals)
 
     def bias_at(self, t_ns: np.ndarray) -> np.ndarray:
         """Bias linearly interpolated at ``t_ns``, [M, 6] (gyro, acc); clamped at the ends."""
@@ -102,6 +117,11 @@ class RecoveryResult:
         x = (self.t_ns - self.t_ns[0]).astype(float)
         xq = (np.asarray(t_ns, dtype=np.int64) - self.t_ns[0]).astype(float)
         return np.stack([np.interp(xq, x, s[:, c]) for c in range(6)], axis=1)
+
+
+def write_recovery(result: RecoveryResult, out_dir: str | Path) -> Path:
+    """Write the recovery folder of ``result`` atomically (:meth:`recovery.outputs.RecoveryOutputs.write`)."""
+    return result.outputs().write(out_dir)
 
 
 def agreement_z(a: RecoveryResult, b: RecoveryResult) -> np.ndarray:
@@ -869,6 +889,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         "noise": choice.to_dict(),
         "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
         "outliers_rejected": int(len(outlier_t) + len(rejected_samples)),
+        "outlier_t_ns": [int(t) for t in np.union1d(outlier_t, rejected_samples)],  # IMU clock
         "pose_fusion": _fusion_report(fuse, config, fusion_counts, fusion_within, len(rejected_samples)),
         "accuracy_floor": _accuracy_floor(choice, poses, pose_mode, has_rot),
         "keyframes": int(n_kf),
@@ -893,7 +914,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         p_m=np.concatenate([s.p_m for s in stitched_pieces]),
         quat_wxyz=np.concatenate([s.quat_wxyz for s in stitched_pieces]),
         v_mps=np.concatenate([s.v_mps for s in stitched_pieces]),
-        report=report,
+        report=RecoveryReport.from_json(report),
         residuals=_residuals_at(t_ns, flat, outlier_t),
     )
 

@@ -21,7 +21,7 @@ from recovery.config import ExtrinsicMode, PoseFactorMode, RecoveryConfig, Robus
 from pipeline.bias_table import read_bias_csv
 from pipeline.atomic import _umask
 from pipeline.bias_table import CSV_HEADER
-from recovery.outputs import write_recovery
+from recovery.recover import write_recovery
 from recovery.preintegration import midpoint_samples
 from recovery.recover import recover
 from recovery.segments import plan_segments

@@ -48,23 +48,21 @@ from typing import Any
 import numpy as np
 import yaml
 
-from interpolation.pipeline import recovery_random_walk
-from pipeline.bias_table import read_bias_csv
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.ingest import load
 from pipeline.store import is_store, read_store
-from pipeline.types import NS_PER_S, ImuSeries, Sequence
+from pipeline.types import NS_PER_S, ImuSeries, Sequence, Split
+from recovery.outputs import REPORT_JSON, RecoveryOutputs
 from validation.validate import (
     ReferenceStates,
     ValidationConfig,
     build_reference,
     gap_free_mask,
     plan_windows,
-    read_recovery_dir,
     recovered_bias_at_imu,
     windows_with_any,
 )
-from training.dataset import ARRAYS, SequenceWindows, Split, write_dataset
+from training.dataset import ARRAYS, SequenceWindows, WindowManifest, write_dataset
 
 log = logging.getLogger(__name__)
 
@@ -310,8 +308,8 @@ def extract_windows(
                         hint="give the store of a recording with IMU readings")
     split = Split(split)
     recovery_dir = Path(recovery_dir)
-    recovery = read_recovery_dir(recovery_dir)
-    random_walk = recovery_random_walk(recovery_dir)
+    recovery = RecoveryOutputs.read(recovery_dir)
+    random_walk = recovery.report.require_random_walk(recovery_dir / REPORT_JSON)
     imu, info = _uniform_imu(sequence, config, rate_hz)
     if info["resampled"]:
         sequence = dataclasses.replace(sequence, imu=imu)
@@ -323,7 +321,7 @@ def extract_windows(
     dropped = {DropReason.IMU_GAP.value: plan.dropped["imu_gap"],
                DropReason.IMU_NONFINITE.value: plan.dropped["imu_nonfinite"]}
 
-    bias = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), imu.t_ns, random_walk)
+    bias = recovered_bias_at_imu(recovery.bias, imu.t_ns, random_walk)
     outside = windows_with_any(np.asarray(bias.clamped, bool), starts, n + 1)
     dropped[DropReason.OUTSIDE_RECOVERY.value] = int(outside.sum())
     keep &= ~outside
@@ -391,7 +389,7 @@ def _check_sources(sources: list[WindowSource]) -> None:
 
 
 def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
-                         config: WindowConfig = WindowConfig()) -> dict[str, Any]:
+                         config: WindowConfig = WindowConfig()) -> WindowManifest:
     """Window every source and write the dataset atomically (:func:`training.dataset.write_dataset`).
 
     Sequences are loaded, cut and written one at a time. The dataset rate is ``config.resample_hz``
@@ -412,6 +410,10 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
     """
     sources = list(sources)
     _check_sources(sources)
+    for src in sources:
+        if not src.split.windowed:
+            log.info("%s: split %s, not windowed", src.name, src.split.value)
+    sources = [s for s in sources if s.split.windowed]
 
     def windows() -> Iterator[SequenceWindows]:
         rate = config.resample_hz
@@ -489,11 +491,11 @@ def sources_from_results(splits: Mapping[Split | str, Iterable[str]], results_di
     return out
 
 
-def format_summary(manifest: Mapping[str, Any]) -> str:
+def format_summary(manifest: WindowManifest) -> str:
     """Per-split table: sequences, windows kept, windows dropped (and the reasons)."""
     rows = [("split", "sequences", "windows", "dropped", "reasons")]
     for split in Split:
-        names = manifest.get("splits", {}).get(split.value)
+        names = manifest.names(split)
         if not names:
             continue
         entries = [manifest["sequences"][n] for n in names]

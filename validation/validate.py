@@ -82,7 +82,6 @@ Verdict (:class:`Verdict`) per sequence, reasons in plain words
 from __future__ import annotations
 
 import enum
-import json
 import logging
 import math
 from collections.abc import Mapping
@@ -93,34 +92,29 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
 import torch
 from scipy.interpolate import make_smoothing_spline
 from scipy.spatial.transform import Rotation, Slerp
 
 from interpolation.bias import interpolate_bias
-from pipeline.atomic import atomic_dir, atomic_path
 from pipeline.bias_table import BiasTrack, read_bias_csv
 from pipeline.errors import BiasgtError, DataError, InputFormatError, ValidationError
 from pipeline.integration import IntegrationScheme, integrate
 from pipeline.io import select_pose_stream
 from pipeline.io.asl import read_asl_state_csv
-from pipeline.pose_transform import as_transform, poses_in_imu_frame, transform_from_json
+from pipeline.pose_transform import as_transform, poses_in_imu_frame
 from pipeline.so3 import rotation_angle_deg
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence, StateSeries
+from recovery.outputs import RecoveryOutputs
+from validation.outputs import SCHEMA_VERSION, Verdict, write_folder
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
-VALIDATION_JSON = "validation.json"
-WINDOWS_PARQUET = "windows.parquet"
 DEFAULT_GRAVITY_MPS2 = (0.0, 0.0, -9.81)
 
 __all__ = [
     "BiasSource",
     "BiasSourceKind",
-    "RecoveryInfo",
     "ReferenceKind",
     "ReferenceStates",
     "SourceMetrics",
@@ -135,7 +129,6 @@ __all__ = [
     "gap_free_mask",
     "plan_windows",
     "read_bias_file",
-    "read_recovery_dir",
     "recovered_bias_at_imu",
     "reference_from_poses",
     "reference_from_states",
@@ -164,14 +157,6 @@ class BiasSourceKind(str, enum.Enum):
     DATASET = "dataset"
     RECOVERED = "recovered"
     FILE = "file"
-
-
-class Verdict(str, enum.Enum):
-    """Outcome of a validation (see the module docstring for the rules)."""
-
-    PASS = "PASS"
-    WARN = "WARN"
-    FAIL = "FAIL"
 
 
 @dataclass(frozen=True)
@@ -479,77 +464,6 @@ def reference_from_poses(
 
 
 # ----------------------------------------------------------------------------- recovery output and bias files
-
-
-@dataclass(frozen=True)
-class RecoveryInfo:
-    """What validation takes from a recovery output folder (``recovery.json``).
-
-    Attributes:
-        path: The folder.
-        bias_csv: ``DIR/bias.csv``.
-        time_offset_s: ``pose_time_offset_s`` (seconds to add to pose stamps).
-        T_imu_pose: 4x4 ``T_imu_pose``.
-        gravity_mps2: ``gravity_world_mps2`` [3] or None.
-        random_walk: Bias random walks used, [6] (gyro x3, acc x3), or None.
-        pose_stream: The pose stream the recovery used, if named.
-        report: The whole ``recovery.json``.
-    """
-
-    path: Path
-    bias_csv: Path
-    time_offset_s: float
-    T_imu_pose: np.ndarray
-    gravity_mps2: np.ndarray | None
-    random_walk: np.ndarray | None
-    pose_stream: str | None
-    report: dict[str, Any]
-
-
-def _parse_T(value: Any, path: Path) -> np.ndarray:
-    try:
-        return transform_from_json(value)
-    except DataError as exc:
-        raise ValidationError(f"cannot read T_imu_pose ({exc})", path=path, field="T_imu_pose",
-                              hint="give a 4x4 matrix or {p_m, quat_wxyz}") from None
-
-
-def read_recovery_dir(path: str | Path) -> RecoveryInfo:
-    """Read ``DIR/recovery.json`` (offset, extrinsic, gravity, random walks) and locate ``DIR/bias.csv``.
-
-    Raises:
-        InputFormatError: Missing folder/files or unreadable JSON.
-    """
-    path = Path(path)
-    rj, bias = path / "recovery.json", path / "bias.csv"
-    for f in (rj, bias):
-        if not f.is_file():
-            raise InputFormatError(f"recovery output lacks {f.name}", path=path,
-                                   hint="give the folder written by 'biasgt recover --out DIR'")
-    try:
-        report = json.loads(rj.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputFormatError(f"cannot read recovery.json ({exc})", path=rj, hint="re-run the recovery") from None
-    if not isinstance(report, dict):
-        raise InputFormatError("recovery.json is not a JSON object", path=rj, hint="re-run the recovery")
-    noise = report.get("noise") if isinstance(report.get("noise"), dict) else {}
-    rw = None
-    g_rw = noise.get("gyro_random_walk", report.get("gyro_random_walk"))
-    a_rw = noise.get("acc_random_walk", report.get("acc_random_walk"))
-    if g_rw is not None and a_rw is not None:
-        rw = np.array([float(g_rw)] * 3 + [float(a_rw)] * 3)
-    g = report.get("gravity_world_mps2")
-    gravity = None if g is None else np.asarray(g, dtype=float).reshape(3)
-    return RecoveryInfo(
-        path=path,
-        bias_csv=bias,
-        time_offset_s=float(report.get("pose_time_offset_s", 0.0) or 0.0),
-        T_imu_pose=_parse_T(report.get("T_imu_pose"), rj),
-        gravity_mps2=gravity,
-        random_walk=rw,
-        pose_stream=report.get("pose_stream") if isinstance(report.get("pose_stream"), str) else None,
-        report=report,
-    )
 
 
 def _header_line(path: Path) -> str:
@@ -1106,48 +1020,10 @@ def validate_sequence(
 # ----------------------------------------------------------------------------- output
 
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
-
-
-def _write_files(result: ValidationResult, folder: Path, json_path: Path | None = None,
-                 parquet_path: Path | None = None) -> None:
-    text = json.dumps(result.to_dict(), indent=2, default=_json_default, allow_nan=True) + "\n"
-    table = pa.Table.from_pandas(result.windows_frame(), preserve_index=False)
-    pq.write_table(table, parquet_path or folder / WINDOWS_PARQUET)
-    (json_path or folder / VALIDATION_JSON).write_text(text, encoding="utf-8")
-
-
 def write_validation(result: ValidationResult, out_dir: str | Path) -> Path:
-    """Write ``out_dir/validation.json`` and ``out_dir/windows.parquet`` atomically.
-
-    A new or validation-only folder is replaced as a whole (:func:`atomic_dir`); a folder that
-    holds other files (e.g. the recovery's) keeps them and gets both files through temporary
-    siblings, ``validation.json`` renamed last.
-
-    Returns:
-        ``out_dir``.
-    """
-    out_dir = Path(out_dir)
-    ours = {VALIDATION_JSON, WINDOWS_PARQUET}
-    if not out_dir.exists() or (out_dir.is_dir() and {p.name for p in out_dir.iterdir()} <= ours):
-        with atomic_dir(out_dir) as tmp:
-            _write_files(result, tmp)
-    else:
-        if not out_dir.is_dir():
-            raise ValidationError("output path exists and is not a folder", path=out_dir,
-                                  hint="give a folder for --out")
-        with atomic_path(out_dir / VALIDATION_JSON) as tj, atomic_path(out_dir / WINDOWS_PARQUET) as tp:
-            _write_files(result, out_dir, tj, tp)
-    return out_dir
+    """Write ``out_dir/validation.json`` and ``out_dir/windows.parquet`` atomically
+    (:func:`validation.outputs.write_folder`); returns ``out_dir``."""
+    return write_folder(result.to_dict(), result.windows_frame(), out_dir)
 
 
 # ----------------------------------------------------------------------------- reference selection
@@ -1157,7 +1033,7 @@ def build_reference(
     sequence: Sequence,
     *,
     pose_stream: str | None = None,
-    recovery: RecoveryInfo | None = None,
+    recovery: RecoveryOutputs | None = None,
     config: ValidationConfig = ValidationConfig(),
 ) -> ReferenceStates:
     """The reference for ``sequence``: its ground-truth state, else a pose stream.
@@ -1176,16 +1052,17 @@ def build_reference(
         raise ValidationError(f"sequence '{sequence.name}' has no IMU", hint="give an input with IMU readings")
     if (pose_stream is None or pose_stream == "ground_truth") and sequence.ground_truth is not None:
         return reference_from_states(sequence.ground_truth, imu.t_ns, gap_factor=config.reference_gap_factor)
-    if pose_stream is None and recovery is not None and recovery.pose_stream in sequence.poses:
-        pose_stream = recovery.pose_stream
+    fitted = recovery.report.pose_stream if recovery is not None else None
+    if pose_stream is None and fitted in sequence.poses:
+        pose_stream = fitted
     try:
         name, poses = select_pose_stream(sequence, pose_stream)
     except BiasgtError as exc:
         raise ValidationError(f"no reference for sequence '{sequence.name}': {exc.problem}", field="poses",
                               hint=exc.hint) from None
-    if recovery is not None and (recovery.pose_stream is None or recovery.pose_stream == name):
+    if recovery is not None and (fitted is None or fitted == name):
         # the recovery's extrinsic and clock offset belong to the stream it fitted
-        T, offset = recovery.T_imu_pose, recovery.time_offset_s
+        T, offset = recovery.report.T_imu_pose, recovery.report.time_offset_s
     else:
         T = sequence.calibration.T_imu_frames.get(poses.frame)
         offset = 0.0
@@ -1210,7 +1087,7 @@ def build_reference(
 def bias_sources(
     sequence: Sequence,
     *,
-    recovery: RecoveryInfo | None = None,
+    recovery: RecoveryOutputs | None = None,
     bias_files: Sequence_[tuple[str | None, str | Path]] = (),
 ) -> dict[str, BiasSource]:
     """The bias sources of a validation: the recovery's bias and any bias files.
@@ -1222,7 +1099,7 @@ def bias_sources(
 
     Args:
         sequence: The sequence (its IMU stamps and calibration are used).
-        recovery: From :func:`read_recovery_dir`, or None.
+        recovery: The recovery folder (:meth:`recovery.outputs.RecoveryOutputs.read`), or None.
         bias_files: ``(name or None, path)`` pairs.
 
     Raises:
@@ -1238,8 +1115,8 @@ def bias_sources(
     rw_cal = np.array([cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3, dtype=float)
     sources: dict[str, BiasSource] = {}
     if recovery is not None:
-        rw = recovery.random_walk if recovery.random_walk is not None else rw_cal
-        track = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), sequence.imu.t_ns, rw)
+        rw = recovery.report.random_walk if recovery.report.random_walk is not None else rw_cal
+        track = recovered_bias_at_imu(recovery.bias, sequence.imu.t_ns, rw)
         sources["recovered"] = BiasSource("recovered", BiasSourceKind.RECOVERED, track)
     unnamed = 0
     for name, path in bias_files:
@@ -1286,20 +1163,21 @@ def validate_inputs(
     Raises:
         ValidationError / InputFormatError / DataError: Bad or insufficient inputs.
     """
-    recovery = read_recovery_dir(recovery_dir) if recovery_dir is not None else None
+    recovery = RecoveryOutputs.read(recovery_dir) if recovery_dir is not None else None
     sources = bias_sources(sequence, recovery=recovery, bias_files=bias_files)
     if gravity_mps2 is not None:
         gravity = np.asarray(gravity_mps2, dtype=float)
-    elif recovery is not None and recovery.gravity_mps2 is not None:
-        gravity = recovery.gravity_mps2
+    elif recovery is not None and recovery.report.gravity_world_mps2 is not None:
+        gravity = recovery.report.gravity_world_mps2
     else:
         gravity = np.asarray(DEFAULT_GRAVITY_MPS2)
     reference = build_reference(sequence, pose_stream=pose_stream, recovery=recovery, config=config)
     result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config)
     if recovery is not None:
-        result.notes.append(f"recovery: {recovery.path}")
+        result.notes.append(f"recovery: {recovery_dir}")
+        fitted = recovery.report.pose_stream
         if result.reference.get("kind") == ReferenceKind.POSES.value and (
-                recovery.pose_stream is None or result.reference.get("stream") == recovery.pose_stream):
+                fitted is None or result.reference.get("stream") == fitted):
             result.notes.append("the reference poses are presumably those the recovery fitted: errors of the poses "
                                 "that the bias absorbed are not seen by this check (not an independent test)")
     return result

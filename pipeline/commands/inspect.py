@@ -8,11 +8,8 @@ bad options).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from typing import Any
-
-import numpy as np
 
 from pipeline.checks import Verdict, run_checks, stream_summaries, verdict
 from pipeline.ingest import (
@@ -24,6 +21,7 @@ from pipeline.ingest import (
     reader_kwargs_from_args,
     severity_rank,
 )
+from pipeline.jsonio import dumps, to_plain
 from pipeline.types import Finding, Sequence, Severity
 
 #: Version of the ``--json`` output; bump when a key changes meaning or disappears.
@@ -54,30 +52,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def inspect_report(input_path: str, seq: Sequence, findings: list[Finding]) -> dict[str, Any]:
     """The ``--json`` object (keys :data:`JSON_KEYS`)."""
-
-    return json_safe({
+    return to_plain({
         "schema_version": SCHEMA_VERSION,
         "input": str(input_path),
         "format": input_format(seq),
         "streams": stream_summaries(seq),
         "findings": [f.to_dict() for f in findings],
         "verdict": verdict(findings).value,
-    })
+    }, finite_only=True)
 
 
-def json_safe(obj: Any) -> Any:
-    """``obj`` with non-finite floats as ``None`` and numpy values as Python ones (strict JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 
 
 def _fmt(x: Any, spec: str) -> str:
@@ -129,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
     findings = run_checks(seq, options)
     report = inspect_report(args.input, seq, findings)
     if args.json:
-        print(json.dumps(report, indent=2, allow_nan=False))
+        print(dumps(report), end="")
     else:
         print(format_report(report))
     return 1 if report["verdict"] == Verdict.FATAL.value else 0

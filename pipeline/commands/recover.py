@@ -93,8 +93,7 @@ def config_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from recovery.outputs import write_recovery  # gtsam: off the CLI start-up path
-    from recovery.recover import recover  # gtsam: off the CLI start-up path
+    from recovery.recover import recover, write_recovery  # gtsam: off the CLI start-up path
 
     config = config_from_args(args)
     seq = load(args.input, reader_kwargs_from_args(args))

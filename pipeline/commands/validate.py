@@ -103,7 +103,7 @@ def _format_table(result: Any) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation  # torch: load on use
+    from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation  # torch: on use
 
     if not args.bias and args.recovery is None:
         raise ValidationError("nothing to validate", field="--bias",

@@ -7,10 +7,11 @@ import logging
 from pathlib import Path
 
 from pipeline.errors import ConfigError
+from pipeline.types import Split
 
 log = logging.getLogger(__name__)
 
-SPLITS = ("train", "val", "test", "none")
+SPLITS = tuple(s.value for s in Split)
 
 DESCRIPTION = """\
 Cut sequences into fixed-length IMU windows for training, exactly as 'biasgt validate' cuts them
@@ -21,7 +22,7 @@ offset and T_imu_pose), its stamps and the sequence name. Windows crossing an IM
 recovered bias span or without a reference are dropped and counted.
 
 Sequences come from --seq NAME SPLIT STORE RECOVERY_DIR (repeatable), and/or from --splits FILE.yaml
-({train: [NAME, ...], val: [...], test: [...], none: [...]}) with --results DIR, which takes each
+({train: [NAME, ...], val: [...], test: [...], none: [...]}; split none: not windowed) with --results DIR, which takes each
 NAME's store from DIR/ingest/NAME and its recovery from DIR/recovery/NAME (the workflow layout).
 A sequence belongs to exactly one split; naming it twice is an error. Normalisation statistics
 come from the train split only.
@@ -94,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("no sequence given", field="--seq",
                           hint="give --seq NAME SPLIT STORE RECOVERY_DIR or --splits FILE --results DIR")
     manifest = build_window_dataset(sources, args.out, config)
-    print(f"{len(manifest['sequences'])} sequences, {manifest['window_samples']} samples per window "
-          f"({config.window_s:g} s at {manifest['rate_hz']:g} Hz, overlap {config.overlap:g}), "
-          f"config {manifest['config_hash']}")
+    print(f"{len(manifest.sequences)} sequences, {manifest.window_samples} samples per window "
+          f"({config.window_s:g} s at {manifest.rate_hz:g} Hz, overlap {config.overlap:g}), "
+          f"config {manifest.config_hash}")
     print(format_summary(manifest))
     print(f"wrote {args.out}")
     return 0
