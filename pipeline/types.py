@@ -38,6 +38,13 @@ class Split(str, enum.Enum):
         return self is not Split.NONE
 
 
+class IntegrationScheme(str, enum.Enum):
+    """How samples are integrated between two stamps (see :mod:`pipeline.integration`)."""
+
+    EULER = "euler"  # sample k held over [t_k, t_{k+1}] (AirIMU / GTSAM), first order
+    MIDPOINT = "midpoint"  # mid-point rotation, trapezoid velocity, second order
+
+
 class PoseSourceKind(str, enum.Enum):
     """Where a pose stream comes from; decides how recovery weights it."""
 

@@ -31,15 +31,13 @@ Layout of a workflow run (relative to the working directory)::
 from __future__ import annotations
 
 import copy
-import dataclasses
-import difflib
 import enum
 import logging
 import os
 import re
 import subprocess
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -50,10 +48,9 @@ from jsonschema import Draft202012Validator, validators
 
 from interpolation.config import InterpolationConfig
 from pipeline.checks import CheckOptions, parse_repairs
-from pipeline.configs import dataclass_from_mapping
+from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping, unknown_keys_message
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.ingest import READER_KWARGS, ingest
-from pipeline.jsonio import to_plain
 from pipeline.layout import (  # the .smk files read these as wf.<name>
     LOGS_DIR,
     RESULTS_DIR,
@@ -69,6 +66,8 @@ from pipeline.sim.config import SimConfig
 from pipeline.store import read_store
 from pipeline.types import Split
 from recovery.config import RecoveryConfig
+from training.windows_config import WindowConfig
+from validation.config import ValidationConfig
 
 log = logging.getLogger(__name__)
 
@@ -201,21 +200,6 @@ def _json_path(parts: Iterable[Any]) -> str:
     return out or "(top level)"
 
 
-def _unknown_keys_message(instance: dict[str, Any], allowed: set[str]) -> str | None:
-    """``unknown key 'x' (did you mean 'y'?): allowed here: ...`` for the keys of ``instance`` not in ``allowed``."""
-    extra = [k for k in instance if k not in allowed]
-    if not extra:
-        return None
-    plural = "s" if len(extra) > 1 else ""
-    if not allowed:
-        return f"unknown key{plural} {', '.join(map(repr, extra))}: this section has no options"
-    named = []
-    for k in extra:
-        close = difflib.get_close_matches(str(k), sorted(allowed), n=1)
-        named.append(f"'{k}' (did you mean '{close[0]}'?)" if close else f"'{k}'")
-    return f"unknown key{plural} {', '.join(named)}: allowed here: {', '.join(sorted(allowed))}"
-
-
 def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
     """(field, problem) of a jsonschema error, naming the sequence where there is one."""
     where = _json_path(error.absolute_path)
@@ -227,7 +211,11 @@ def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
             where += f" (sequence '{entry['name']}')"
     message = error.message
     if error.validator == "additionalProperties" and isinstance(error.instance, dict):
-        message = _unknown_keys_message(error.instance, set(error.schema.get("properties") or {})) or message
+        allowed = set(error.schema.get("properties") or {})
+        unknown = unknown_keys_message(error.instance, allowed)
+        if unknown:
+            message = f"{unknown}: " + (f"allowed here: {', '.join(sorted(allowed))}" if allowed
+                                        else "this section has no options")
     if error.validator == "enum":
         message = f"{error.instance!r} is not one of {', '.join(map(str, error.validator_value))}"
     elif error.validator == "pattern":
@@ -344,7 +332,7 @@ def check_config(
     files exist); reader options, repairs and check options are known to the ingest stage.
 
     Args:
-        data: Config already passed through :func:`validate_schema` (or Snakemake's ``validate``).
+        data: Config already passed through :func:`validate_schema`.
         config_file: The config file; relative paths resolve against its folder.
         check_paths: Check that input paths exist (also switched off by the config's
             ``check_input_paths: false``).
@@ -387,12 +375,12 @@ def check_config(
                         hint=f"fix '{field_name}' (relative paths are resolved against data_root = {root})",
                     )
         entries.append(SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw))
+    for section in STAGE_CONFIGS:  # the top-level sections first, so that their errors name them
+        try:
+            data[section] = resolved_section(section, data.get(section) or {})
+        except ConfigError as exc:
+            raise ConfigError(f"{section}: {exc.problem}", path=config_file, field=exc.field, hint=exc.hint) from None
     cfg = WorkflowConfig(data, config_file, tuple(entries))
-    try:  # the top-level section alone first, so that its errors name it and not an entry
-        make_recovery_config({k: v for k, v in cfg.section("recovery").items() if k not in RECOVERY_EXTRA_KEYS})
-    except ConfigError as exc:
-        raise ConfigError(f"recovery.{exc.field}: {exc.problem}" if exc.field else f"recovery: {exc.problem}",
-                          path=config_file, hint=exc.hint) from None
     for entry in cfg.sequences:
         _check_ingest_settings(cfg, entry)
         _check_stage_settings(cfg, entry)
@@ -550,12 +538,11 @@ def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
         raise ConfigError(f"{entry.where}: reader option(s) {', '.join(reserved)} cannot be set here",
                           path=cfg.config_file, field="reader",
                           hint="'source' sets the format and 'name' the sequence name")
-    unknown = sorted(set(reader) - set(READER_KWARGS))
+    allowed = [k for k in READER_KWARGS if k not in ("fmt", "name")]
+    unknown = unknown_keys_message(reader, allowed)
     if unknown:
-        raise ConfigError(
-            f"{entry.where}: unknown reader option(s) {', '.join(unknown)}", path=cfg.config_file, field="reader",
-            hint="allowed: " + ", ".join(k for k in READER_KWARGS if k not in ("fmt", "name")),
-        )
+        raise ConfigError(f"{entry.where}: reader option: {unknown}", path=cfg.config_file, field="reader",
+                          hint="allowed: " + ", ".join(allowed))
     settings = ingest_settings(cfg, entry.name)
     try:
         parse_repairs(settings["repairs"])
@@ -569,12 +556,43 @@ def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
 # Parameters of the later stages (recover, interpolate, validate, windows, report)
 # --------------------------------------------------------------------------------------------
 
-#: Keys of a ``recovery:`` section (top level or per sequence) that are not RecoveryConfig options.
-RECOVERY_EXTRA_KEYS = ("pose_stream",)
-#: Keys of a ``validation:`` section that are not ValidationConfig options.
-VALIDATION_EXTRA_KEYS = ("poses", "gravity_mps2")
+#: The config dataclass of each stage section of the workflow config: the one source of the
+#: section's options and their defaults (the schema leaves these sections open). check_config
+#: checks each section with it (an unknown key is named, with the allowed ones) and fills in every
+#: default, so the rules' params hold the whole resolved config. A stage adds its section with one
+#: line here, e.g. ``"training": TrainConfig``.
+STAGE_CONFIGS: dict[str, type] = {
+    "recovery": RecoveryConfig,
+    "interpolation": InterpolationConfig,
+    "validation": ValidationConfig,
+    "windows": WindowConfig,
+}
+#: Keys of a stage section that the workflow reads itself (not options of its dataclass), with defaults.
+SECTION_EXTRA_KEYS: dict[str, dict[str, Any]] = {
+    "recovery": {"pose_stream": None},
+    "validation": {"poses": None, "gravity_mps2": None},
+}
 #: Sections a sequence entry may override (merged over the top-level section of the same name).
 ENTRY_OVERRIDE_SECTIONS = ("recovery", "validation")
+
+
+def stage_config(section: str, options: Mapping[str, Any]) -> Any:
+    """The config dataclass of stage section ``section`` (:data:`STAGE_CONFIGS`) from ``options``;
+    the section's extra keys (:data:`SECTION_EXTRA_KEYS`) are left out.
+
+    Raises:
+        ConfigError: Unknown key (naming it and the allowed ones) or an invalid value.
+    """
+    extra = SECTION_EXTRA_KEYS.get(section, {})
+    return dataclass_from_mapping(STAGE_CONFIGS[section], {k: v for k, v in options.items() if k not in extra},
+                                  what=f"{section} option", field=section, also_allowed=extra)
+
+
+def resolved_section(section: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    """``options`` of a stage section, checked, with every default filled in (extra keys first)."""
+    extra = SECTION_EXTRA_KEYS.get(section, {})
+    return {**{k: options.get(k, default) for k, default in extra.items()},
+            **dataclass_to_mapping(stage_config(section, options))}
 
 
 def _merged_section(cfg: WorkflowConfig, entry: SequenceEntry, section: str) -> dict[str, Any]:
@@ -595,28 +613,17 @@ def recovery_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     return {"pose_stream": pose_stream, "config": merged}
 
 
-def make_recovery_config(options: dict[str, Any]) -> Any:
-    """A :class:`recovery.config.RecoveryConfig` from a config mapping.
-
-    Raises:
-        ConfigError: Unknown option or invalid value (naming the option).
-    """
-    return RecoveryConfig.from_dict(dict(options))
-
-
 def interpolation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     """Parameters of rule ``interpolate``: ``{"method": "linear"|"cubic", "clamp": bool, "write_csv": bool}``."""
     cfg.sequence(sequence)  # a known sequence
-    config = dataclass_from_mapping(InterpolationConfig, cfg.section("interpolation"), what="interpolation option",
-                                    field="interpolation")
-    return to_plain(dataclasses.asdict(config))
+    return resolved_section("interpolation", cfg.section("interpolation"))
 
 
 def interpolation_outputs(cfg: WorkflowConfig) -> list[str]:
     """Output patterns of rule ``interpolate`` (``{sequence}`` left in): the Parquet table and,
     with ``interpolation.write_csv``, its CSV twin."""
     parquet = interpolated_bias_path("{sequence}")
-    write_csv = bool(cfg.section("interpolation").get("write_csv", InterpolationConfig.write_csv))
+    write_csv = stage_config("interpolation", cfg.section("interpolation")).write_csv
     return [parquet] + ([parquet[: -len(".parquet")] + ".csv"] if write_csv else [])
 
 
@@ -633,18 +640,6 @@ def validation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     poses = merged.pop("poses", None)
     gravity = merged.pop("gravity_mps2", None)
     return {"poses": poses, "gravity_mps2": gravity, "config": merged}
-
-
-def make_validation_config(options: dict[str, Any]) -> Any:
-    """A :class:`validation.validate.ValidationConfig` from a config mapping (imports torch).
-
-    Raises:
-        ConfigError: Unknown option or invalid value.
-    """
-    from validation.validate import ValidationConfig  # torch: only where a validation runs or is checked
-
-    return dataclass_from_mapping(ValidationConfig, options, what="validation option", field="validation",
-                                  also_allowed=VALIDATION_EXTRA_KEYS)
 
 
 def windowed_sequences(cfg: WorkflowConfig) -> list[SequenceEntry]:
@@ -676,25 +671,14 @@ def window_outputs(cfg: WorkflowConfig) -> list[str]:
     return [windows_dataset_dir()]
 
 
-def _schema_section_keys(section: str) -> set[str]:
-    return set((load_schema()["properties"].get(section) or {}).get("properties") or {})
-
-
 def _check_stage_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
-    """Raise a ConfigError naming the entry when its stage overrides or merged options are invalid."""
+    """Raise a ConfigError naming the entry when its stage overrides (merged over the sections) are invalid."""
     for section in ENTRY_OVERRIDE_SECTIONS:
-        own = entry.raw.get(section) or {}
-        allowed = _schema_section_keys(section)
-        unknown = sorted(set(own) - allowed)
-        if unknown:
-            raise ConfigError(f"{entry.where}: unknown {section} option(s) {', '.join(unknown)}",
-                              path=cfg.config_file, field=f"{section}.{unknown[0]}",
-                              hint=f"allowed: {', '.join(sorted(allowed))}")
-    try:
-        make_recovery_config(recovery_settings(cfg, entry.name)["config"])
-    except ConfigError as exc:
-        raise ConfigError(f"{entry.where}: recovery option: {exc.problem}", path=cfg.config_file,
-                          field=f"recovery.{exc.field}" if exc.field else "recovery", hint=exc.hint) from None
+        try:
+            resolved_section(section, _merged_section(cfg, entry, section))
+        except ConfigError as exc:
+            raise ConfigError(f"{entry.where}: {exc.problem}", path=cfg.config_file, field=exc.field,
+                              hint=exc.hint) from None
 
 
 @dataclass(frozen=True)
@@ -803,7 +787,7 @@ def recover_step(store_dir: str | Path, out_dir: str | Path, settings: dict[str,
     ``trajectory_tum.txt`` (settings: :func:`recovery_settings`)."""
     from recovery.recover import recover, write_recovery  # gtsam: only in the job that runs the step
 
-    config = make_recovery_config(dict(settings.get("config") or {}))
+    config = stage_config("recovery", settings.get("config") or {})
     sequence = read_store(store_dir)
     log.info("recovering the bias of '%s' from pose stream %s", sequence.name,
              settings.get("pose_stream") or "(default)")
@@ -823,7 +807,7 @@ def interpolate_step(recovery_dir: str | Path, store_dir: str | Path, out_path: 
     :func:`interpolation_settings`)."""
     from interpolation.pipeline import interpolate_recovery  # pandas: only in the job that runs the step
 
-    config = dataclass_from_mapping(InterpolationConfig, settings, what="interpolation option", field="interpolation")
+    config = stage_config("interpolation", settings)
     written = interpolate_recovery(recovery_dir, store_dir, out_path, config)
     log.info("wrote %s", ", ".join(map(str, written)))
     return written
@@ -841,7 +825,7 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
     """
     from validation.validate import Verdict, validate_inputs, write_validation  # torch: only in this step's job
 
-    config = make_validation_config(dict(settings.get("config") or {}))
+    config = stage_config("validation", settings.get("config") or {})
     sequence = read_store(store_dir)
     result = validate_inputs(sequence, recovery_dir=recovery_dir, pose_stream=settings.get("poses"),
                              gravity_mps2=settings.get("gravity_mps2"), config=config)
@@ -871,23 +855,12 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
                           field="windows", hint="a bug in the workflow wiring; please report it")
     sources = [WindowSource(name, split, str(store), str(rec))
                for (name, split), store, rec in zip(named, stores, recoveries)]
-    config = make_window_config(dict(settings.get("config") or {}))
+    config = stage_config("windows", settings.get("config") or {})
     log.info("cutting windows of %d sequence(s): %s", len(sources),
              ", ".join(f"{s.name} ({s.split})" for s in sources))
     build_window_dataset(sources, out_dir, config)
     log.info("wrote %s", out_dir)
     return Path(out_dir)
-
-
-def make_window_config(options: dict[str, Any]) -> Any:
-    """A :class:`training.windows.WindowConfig` from the ``windows:`` section.
-
-    Raises:
-        ConfigError: Unknown option or invalid value.
-    """
-    from training.windows import WindowConfig  # torch: only where the windows stage runs or is checked
-
-    return WindowConfig.from_dict(dict(options))
 
 
 def report_step(ingest_dir: str | Path, recovery_dir: str | Path | None, validation_dir: str | Path | None,

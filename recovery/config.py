@@ -14,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from pipeline.configs import dataclass_from_mapping
 from pipeline.errors import ConfigError
 from pipeline.types import PoseSourceKind
 
@@ -302,15 +303,10 @@ class RecoveryConfig:
         if not isinstance(d, dict):
             raise ConfigError("recovery config must be a mapping of option: value", path=path)
         d = dict(d.get("recovery", d)) if isinstance(d.get("recovery"), dict) else dict(d)
-        known = set(cls.field_names())
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"unknown recovery option {unknown[0]!r}", path=path, field=unknown[0],
-                              hint=f"valid options: {', '.join(sorted(known))}")
         try:
-            return cls(**d)
-        except TypeError as exc:
-            raise ConfigError(f"invalid recovery option: {exc}", path=path) from None
+            return dataclass_from_mapping(cls, d, what="recovery option", field="recovery")
+        except ConfigError as exc:
+            raise ConfigError(exc.problem, path=path, field=exc.field, hint=exc.hint) from None
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "RecoveryConfig":

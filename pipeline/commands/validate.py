@@ -9,6 +9,7 @@ from typing import Any
 
 from pipeline.errors import ValidationError
 from pipeline.ingest import add_reader_arguments, load, reader_kwargs_from_args
+from validation.config import ValidationConfig
 
 log = logging.getLogger(__name__)
 
@@ -42,9 +43,8 @@ examples:
 """
 
 
-#: Defaults shown by the parser; equal to :class:`validation.validate.ValidationConfig`'s (a test checks).
-#: Kept here so that building the CLI does not import torch (validation.validate costs ~4 s to import).
-DEFAULTS = argparse.Namespace(window_s=1.0, overlap=0.5, margin=0.10, flag_k=5.0)
+#: The options' defaults, shown by the parser (validation.config is light: no torch at start-up).
+DEFAULTS = ValidationConfig()
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -77,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"relative margin of the FAIL rule (default {d.margin:g})")
     p.add_argument("--flag-k", type=float, default=d.flag_k, metavar="K",
                    help=f"flag windows whose error exceeds K x the median (default {d.flag_k:g})")
-    p.add_argument("--velocity-cutoff-hz", type=float, default=None, metavar="HZ",
+    p.add_argument("--velocity-cutoff-hz", type=float, default=d.velocity_cutoff_hz, metavar="HZ",
                    help="smoothing cutoff for pose-derived velocity (default: chosen from the pose noise)")
     add_reader_arguments(p)
     p.set_defaults(func=run)
@@ -103,7 +103,7 @@ def _format_table(result: Any) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation  # torch: on use
+    from validation.validate import Verdict, validate_inputs, write_validation  # torch: off the CLI start-up path
 
     if not args.bias and args.recovery is None:
         raise ValidationError("nothing to validate", field="--bias",

@@ -8,6 +8,7 @@ from pathlib import Path
 
 from pipeline.errors import ConfigError
 from pipeline.types import Split
+from training.windows_config import WindowConfig
 
 log = logging.getLogger(__name__)
 
@@ -58,19 +59,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--results", type=Path, metavar="DIR",
                    help="workflow results folder holding ingest/NAME and recovery/NAME (with --splits)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="dataset folder (written atomically)")
-    p.add_argument("--window-s", type=float, default=1.0, metavar="S", help="window length in seconds (default 1)")
-    p.add_argument("--overlap", type=float, default=0.5, metavar="F",
-                   help="overlap of consecutive windows, in [0, 1) (default 0.5)")
-    p.add_argument("--resample-hz", type=float, default=None, metavar="HZ",
+    d = WindowConfig()  # the defaults, defined once
+    p.add_argument("--window-s", type=float, default=d.window_s, metavar="S",
+                   help=f"window length in seconds (default {d.window_s:g})")
+    p.add_argument("--overlap", type=float, default=d.overlap, metavar="F",
+                   help=f"overlap of consecutive windows, in [0, 1) (default {d.overlap:g})")
+    p.add_argument("--resample-hz", type=float, default=d.resample_hz, metavar="HZ",
                    help="resample IMU streams not at HZ onto a uniform HZ grid (default: refuse other rates)")
-    p.add_argument("--gap-factor", type=float, default=2.0, metavar="K",
-                   help="an IMU interval longer than K x the nominal one is a gap (default 2)")
+    p.add_argument("--gap-factor", type=float, default=d.gap_factor, metavar="K",
+                   help=f"an IMU interval longer than K x the nominal one is a gap (default {d.gap_factor:g})")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     from training.windows import (  # torch: off the CLI start-up path
-        WindowConfig,
         WindowSource,
         build_window_dataset,
         format_summary,
