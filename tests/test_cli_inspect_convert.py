@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -295,3 +299,28 @@ def test_inspect_and_convert_v101(shared_data, tmp_path, capsys):
     assert len(back.imu) == 29120
     assert back.imu.t_ns[0] == 1403715273262142976 and back.imu.t_ns[-1] == 1403715418857143040
     assert back.metadata["repairs"] == []
+
+
+# ------------------------------------------------------------------------------------------ CLI
+
+
+def test_commands_registered_are_the_modules_that_exist():
+    from pipeline.cli import COMMANDS, build_parser
+
+    commands_dir = Path(pipeline.ingest.__file__).parent / "commands"
+    modules = {p.stem for p in commands_dir.glob("*.py") if p.stem != "__init__"}
+    assert {c.__name__.rsplit(".", 1)[1] for c in COMMANDS} == modules
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(sub.choices) == modules
+
+
+@pytest.mark.parametrize("flag, debug, info", [("", False, True), ("-v", True, True), ("-q", False, False)])
+def test_verbose_and_quiet_change_the_log_level(tmp_path, flag, debug, info):
+    """-v shows debug messages, -q hides the progress (info) messages (a real process: real stderr)."""
+    poses = tmp_path / "poses.txt"
+    poses.write_text("".join(f"{i * 0.01:.2f} 0 0 0 0 0 0 1\n" for i in range(50)), encoding="utf-8")
+    cmd = [sys.executable, "-m", "pipeline.cli", *([flag] if flag else []), "inspect", str(poses)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(Path(pipeline.ingest.__file__).parents[1])})
+    assert ("DEBUG pipeline.io: loading" in proc.stderr) is debug, proc.stderr
+    assert ("INFO pipeline.io.tum: read TUM" in proc.stderr) is info, proc.stderr
