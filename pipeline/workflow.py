@@ -31,6 +31,7 @@ Layout of a workflow run (relative to the working directory)::
 from __future__ import annotations
 
 import copy
+import importlib.resources
 import enum
 import logging
 import os
@@ -71,11 +72,22 @@ from validation.config import ValidationConfig
 
 log = logging.getLogger(__name__)
 
-#: Root of the (editable) repository: the parent of the ``pipeline`` package.
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SNAKEFILE = REPO_ROOT / "Snakefile"
-SCHEMA_FILE = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
-DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
+
+
+def _workflow_root() -> Path:
+    """The folder holding the Snakefile, ``workflow/`` and ``config/config.yaml``: the copy an
+    installed package ships (``pipeline/workflow_files``, see setup.py), else the source checkout
+    the package runs from (an editable install or ``PYTHONPATH``)."""
+    shipped = importlib.resources.files("pipeline") / "workflow_files"
+    if shipped.joinpath("Snakefile").is_file():
+        return Path(str(shipped))
+    return Path(__file__).resolve().parents[1]
+
+
+WORKFLOW_ROOT = _workflow_root()
+SNAKEFILE = WORKFLOW_ROOT / "Snakefile"
+SCHEMA_FILE = WORKFLOW_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+DEFAULT_CONFIG = WORKFLOW_ROOT / "config" / "config.yaml"
 
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 
