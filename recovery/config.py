@@ -51,6 +51,23 @@ class ExtrinsicMode(str, enum.Enum):
     ESTIMATE = "estimate"
 
 
+class CalibrationSolve(str, enum.Enum):
+    """The decimated calibration solves; each has its ``<value>_keyframe_rate_hz`` option."""
+
+    OFFSET_REFINE = "offset_refine"
+    EXTRINSIC = "extrinsic"
+    GRAVITY = "gravity"
+    NOISE = "noise"
+
+
+class PoseSigmaMethod(str, enum.Enum):
+    """How the pose sigmas were chosen (``recovery.json`` ``noise.pose_sigma_method``)."""
+
+    EVIDENCE = "evidence"  # a common scale of both sigmas by maximum evidence
+    WITHIN_BIN_RESIDUALS = "within_bin_residuals"  # closed form from the scatter of fused samples
+    FIXED = "fixed"  # as given (noise_estimation: fixed)
+
+
 class RobustLoss(str, enum.Enum):
     """M-estimator on pose factors."""
 
@@ -230,9 +247,9 @@ class RecoveryConfig:
         "imu_gap_policy": ImuGapPolicy,
     }
 
-    def calibration_rate_hz(self, name: str, fused: bool) -> float:
-        """Keyframe rate of a calibration solve (``name``: offset_refine, extrinsic, gravity, noise)."""
-        value = getattr(self, f"{name}_keyframe_rate_hz")
+    def calibration_rate_hz(self, solve: CalibrationSolve | str, fused: bool) -> float:
+        """Keyframe rate of a calibration solve: its option, else the automatic rate."""
+        value = getattr(self, f"{CalibrationSolve(solve).value}_keyframe_rate_hz")
         if value is not None:
             return float(value)
         return CALIBRATION_RATE_FUSED_HZ if fused else CALIBRATION_RATE_HZ
