@@ -822,7 +822,8 @@ def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, off
     if problem.fuse and problem.bias is None:
         # fusion moves samples with the IMU: linearise it at a first bias estimate (a gyro-bias
         # error is absorbed by the fit, an acc-bias error of 0.5 m/s^2 would add ~1e-4 m of scatter)
-        w = problem.window(offset_s, calib[0], calib[1], config.calibration_rate_hz(CalibrationSolve.NOISE, problem.fuse))
+        rate = config.calibration_rate_hz(CalibrationSolve.NOISE, problem.fuse)
+        w = problem.window(offset_s, calib[0], calib[1], rate)
         if w is not None:
             sol0 = solve_window(w[0], w[1], inputs.calibration_noise, T, replace(inputs.opts, reject_outliers=False))
             problem.set_linearisation(gravity_unit=sol0.gravity_unit, bias=_bias_function(sol0))

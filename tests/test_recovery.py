@@ -148,7 +148,8 @@ def test_accuracy_floor_is_reported_and_not_beaten(clean_run):
     and, on a short clean run, within a small factor of it."""
     sim, res = clean_run
     floor = res.report["accuracy_floor"]
-    # FAST fixes the noise at the simulator's truth: 10x EuRoC walks, 0.5 mm / 0.5 mrad at 100 Hz
+    # FAST fixes the noise at the simulator's truth: 10x EuRoC walks, 0.5 mm / 0.5 mrad at 100 Hz; the values
+    # are recovery.bounds' for that noise (regression values there, checked against an RTS smoother)
     assert floor["acc_mps2"] == pytest.approx(6.66e-3, rel=0.02)
     assert floor["gyro_radps"] == pytest.approx(1.304e-4, rel=0.02)
     eg, ea = _errors(res, sim.truth)

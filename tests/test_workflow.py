@@ -203,7 +203,8 @@ def test_stage_sections_take_options_and_defaults_from_the_dataclasses():
 def test_rejects_unknown_and_invalid_stage_options(tmp_path):
     seqs = [sim_entry("a")]
     msg = _error(tmp_path, {"sequences": seqs, "recovery": {"keyframe_rat_hz": 5}})
-    assert "recovery: unknown key 'keyframe_rat_hz' (did you mean 'keyframe_rate_hz'?) (field 'recovery'); allowed: " in msg
+    assert ("recovery: unknown key 'keyframe_rat_hz' (did you mean 'keyframe_rate_hz'?) (field 'recovery'); "
+            "allowed: ") in msg
     assert "pose_stream" in msg and "time_offset_mode" in msg
     msg = _error(tmp_path, {"sequences": seqs, "validation": {"window": 2, "margn": 0.2}})
     assert "validation: unknown keys 'window' (did you mean 'window_s'?), 'margn' (did you mean 'margin'?)" in msg
@@ -221,7 +222,8 @@ def test_rejects_unknown_and_invalid_stage_options(tmp_path):
     msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"pose_strem": "mocap0"})]})
     assert "sequences[0] ('a'): unknown key 'pose_strem' (did you mean 'pose_stream'?) (field 'recovery')" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"segment_s": 60, "segment_overlap_s": 40})]})
-    assert "sequences[0] ('a'): must be >= 0 and less than half of segment_s (field 'recovery.segment_overlap_s')" in msg
+    assert ("sequences[0] ('a'): must be >= 0 and less than half of segment_s "
+            "(field 'recovery.segment_overlap_s')") in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", validation={"refernce": "x"})]})
     assert "sequences[0] ('a'): unknown key 'refernce' (field 'validation')" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", split="training")]})

@@ -10,7 +10,13 @@ import argparse
 from pathlib import Path
 
 from pipeline.checks import Repair, parse_repairs
-from pipeline.ingest import add_check_arguments, add_reader_arguments, check_options_from_args, ingest, reader_kwargs_from_args
+from pipeline.ingest import (
+    add_check_arguments,
+    add_reader_arguments,
+    check_options_from_args,
+    ingest,
+    reader_kwargs_from_args,
+)
 from pipeline.types import Severity
 
 

@@ -23,9 +23,9 @@ offset and T_imu_pose), its stamps and the sequence name. Windows crossing an IM
 recovered bias span or without a reference are dropped and counted.
 
 Sequences come from --seq NAME SPLIT STORE RECOVERY_DIR (repeatable), and/or from --splits FILE.yaml
-({train: [NAME, ...], val: [...], test: [...], none: [...]}; split none: not windowed) with --results DIR, which takes each
-NAME's store from DIR/ingest/NAME and its recovery from DIR/recovery/NAME (the workflow layout).
-A sequence belongs to exactly one split; naming it twice is an error. Normalisation statistics
+({train: [NAME, ...], val: [...], test: [...], none: [...]}; split none: not windowed) with
+--results DIR, which takes each NAME's store from DIR/ingest/NAME and its recovery from
+DIR/recovery/NAME (the workflow layout). A sequence belongs to exactly one split; naming it twice is an error. Normalisation statistics
 come from the train split only.
 
 All sequences must share one uniform IMU rate; --resample-hz HZ resamples those that do not
