@@ -9,12 +9,26 @@ from __future__ import annotations
 import enum
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from pipeline.errors import InputFormatError
+
+
+class JsonRecord:
+    """Base of the typed record of a JSON file: typed fields for what code reads, plus ``data``,
+    the whole object, which ``record["key"]`` and ``record.get("key")`` read (display code)."""
+
+    data: Mapping[str, Any]
+
+    def __getitem__(self, key: str) -> Any:
+        return self.data[key]
+
+    def get(self, key: str, default: Any = None) -> Any:
+        return self.data.get(key, default)
 
 
 def to_plain(obj: Any, *, finite_only: bool = False) -> Any:

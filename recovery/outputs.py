@@ -23,7 +23,7 @@ from pipeline.atomic import atomic_dir
 from pipeline.bias_table import CSV_HEADER, BiasTrack, read_bias_csv
 from pipeline.errors import BiasgtError, InputFormatError
 from pipeline.io.tum import read_tum_poses, write_tum
-from pipeline.jsonio import dumps, number, read_json_object
+from pipeline.jsonio import JsonRecord, dumps, number, read_json_object
 from pipeline.pose_transform import transform_from_json
 from pipeline.types import PoseSeries, PoseSourceKind
 
@@ -38,7 +38,7 @@ _RERUN = "re-run 'biasgt recover' (or the workflow's recover stage) to write the
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare .data / the fields
-class RecoveryReport:
+class RecoveryReport(JsonRecord):
     """``recovery.json``: the typed fields every later stage reads, plus the whole object.
 
     Attributes:
@@ -63,12 +63,6 @@ class RecoveryReport:
     random_walk: np.ndarray | None
     outlier_t_ns: np.ndarray
     warnings: tuple[str, ...]
-
-    def __getitem__(self, key: str) -> Any:
-        return self.data[key]
-
-    def get(self, key: str, default: Any = None) -> Any:
-        return self.data.get(key, default)
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], path: str | Path | None = None) -> RecoveryReport:

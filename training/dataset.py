@@ -36,7 +36,7 @@ import torch
 from pipeline import __version__
 from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
-from pipeline.jsonio import dumps, read_json_object, to_plain
+from pipeline.jsonio import JsonRecord, dumps, read_json_object, to_plain
 from pipeline.types import Split
 
 log = logging.getLogger(__name__)
@@ -254,7 +254,7 @@ class ManifestEntry:
 
 
 @dataclass(frozen=True, eq=False)  # holds arrays: compare .data / the fields
-class WindowManifest:
+class WindowManifest(JsonRecord):
     """``manifest.json`` of a window dataset: the typed fields plus the whole object.
 
     Attributes:
@@ -272,12 +272,6 @@ class WindowManifest:
     rate_hz: float | None
     sequences: dict[str, ManifestEntry]
     normalization: dict[str, np.ndarray]
-
-    def __getitem__(self, key: str) -> Any:
-        return self.data[key]
-
-    def get(self, key: str, default: Any = None) -> Any:
-        return self.data.get(key, default)
 
     def names(self, split: Split | str) -> list[str]:
         """The sequences of ``split``, in manifest order."""

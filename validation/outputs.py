@@ -21,7 +21,7 @@ import pyarrow.parquet as pq
 
 from pipeline.atomic import atomic_dir, atomic_path
 from pipeline.errors import InputFormatError, ValidationError
-from pipeline.jsonio import dumps, read_json_object
+from pipeline.jsonio import JsonRecord, dumps, read_json_object
 
 SCHEMA_VERSION = 1
 VALIDATION_JSON = "validation.json"
@@ -40,7 +40,7 @@ class Verdict(str, enum.Enum):
 
 
 @dataclass(frozen=True)
-class ValidationSummary:
+class ValidationSummary(JsonRecord):
     """``validation.json``: the typed fields plus the whole object.
 
     Attributes:
@@ -59,12 +59,6 @@ class ValidationSummary:
     reasons: tuple[str, ...]
     candidate: str
     notes: tuple[str, ...]
-
-    def __getitem__(self, key: str) -> Any:
-        return self.data[key]
-
-    def get(self, key: str, default: Any = None) -> Any:
-        return self.data.get(key, default)
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], path: str | Path | None = None) -> ValidationSummary:
