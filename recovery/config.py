@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
 from pipeline.configs import dataclass_from_mapping
 from pipeline.errors import ConfigError
@@ -327,8 +328,6 @@ class RecoveryConfig:
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "RecoveryConfig":
-        import yaml
-
         path = Path(path)
         try:
             data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}
