@@ -55,7 +55,6 @@ from pipeline.types import NS_PER_S, ImuSeries, Sequence, Split
 from recovery.outputs import REPORT_JSON, RecoveryOutputs
 from validation.validate import (
     ReferenceStates,
-    ValidationConfig,
     build_reference,
     gap_free_mask,
     plan_windows,
@@ -64,6 +63,7 @@ from validation.validate import (
 )
 from training.dataset import ARRAYS, SequenceWindows, WindowManifest, write_dataset
 from training.windows_config import WindowConfig
+from validation.config import ValidationConfig
 
 log = logging.getLogger(__name__)
 
