@@ -212,7 +212,7 @@ def _speed_child(store: str, setting: str, out: str) -> None:
     t0 = time.perf_counter()
     c0 = time.process_time()
     from pipeline.io import load_sequence
-    from recovery.outputs import write_recovery
+    from recovery.recover import write_recovery
     from recovery.recover import recover
 
     seq = load_sequence(store)

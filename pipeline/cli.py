@@ -8,32 +8,22 @@ Known errors (:class:`pipeline.errors.BiasgtError`) print one line and exit 2.
 from __future__ import annotations
 
 import argparse
-import importlib
 import logging
+import os
 import signal
 import sys
 from collections.abc import Sequence
 
 from pipeline import __version__
 from pipeline.atomic import check_output_location
+from pipeline.commands import convert, inspect, interpolate, recover, report, run, simulate, validate, windows
 from pipeline.errors import BiasgtError
 
 log = logging.getLogger("biasgt")
 
-# Order is the order of the help text: the workflow's order.
-COMMANDS = (
-    "inspect",
-    "convert",
-    "simulate",
-    "recover",
-    "interpolate",
-    "validate",
-    "windows",
-    "train",
-    "evaluate",
-    "report",
-    "run",
-)
+#: Every command, in the order of the help text (the workflow's order). A command is a module of
+#: pipeline/commands with ``register(subparsers)``; add one by importing it above and listing it here.
+COMMANDS = (inspect, convert, simulate, recover, interpolate, validate, windows, report, run)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -46,25 +36,25 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Run 'biasgt COMMAND --help' for the options of one command.",
     )
     parser.add_argument("--version", action="version", version=f"biasgt {__version__}")
-    parser.add_argument("-v", "--verbose", action="count", default=0, help="more log output (-vv for debug)")
+    parser.add_argument("-v", "--verbose", action="count", default=0,
+                        help="more log output: debug messages too (the default shows progress: info)")
     parser.add_argument("-q", "--quiet", action="store_true", help="only warnings and errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        try:
-            module = importlib.import_module(f"pipeline.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"pipeline.commands.{name}":
-                continue  # command not available in this build
-            raise
-        module.register(sub)
+    for command in COMMANDS:
+        command.register(sub)
     return parser
 
 
+def log_level(verbose: int, quiet: bool) -> int:
+    """The log level of ``-v`` (count) / ``-q``: DEBUG, WARNING, else INFO."""
+    if quiet:
+        return logging.WARNING
+    return logging.DEBUG if verbose > 0 else logging.INFO
+
+
 def _setup_logging(verbose: int, quiet: bool) -> None:
-    level = logging.WARNING if quiet else (logging.INFO if verbose <= 1 else logging.DEBUG)
-    if verbose == 0 and not quiet:
-        level = logging.INFO
-    logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.basicConfig(format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+    logging.getLogger().setLevel(log_level(verbose, quiet))  # also when a host application set up logging
 
 
 class Terminated(BaseException):
@@ -95,8 +85,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 128 + signal.SIGTERM
     except BrokenPipeError:
         # Output piped into e.g. `head`, which closed early: not an error of ours.
-        import os
-
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
 

@@ -31,6 +31,8 @@ from pipeline.checks import (
     verdict,
 )
 from pipeline.errors import ConfigError, FatalCheckError
+from pipeline.io import load_sequence
+from pipeline.store import write_store
 from pipeline.types import Finding, Sequence, Severity
 
 log = logging.getLogger(__name__)
@@ -46,8 +48,6 @@ def load(input_path: str | Path, reader_kwargs: Mapping[str, Any] | None = None)
         input_path: File or folder.
         reader_kwargs: Keyword arguments for the reader (``None`` values are dropped).
     """
-    from pipeline.io import load_sequence  # the readers are heavy (rosbags): import on use
-
     kwargs = {k: v for k, v in (reader_kwargs or {}).items() if v is not None}
     return load_sequence(Path(input_path), **kwargs)
 
@@ -190,8 +190,6 @@ def ingest(
         FatalCheckError: When a fatal or an unrepaired repairable problem remains;
             nothing is written then.
     """
-    from pipeline.store import write_store
-
     seq = load(input_path, reader_kwargs)
     checked = check_and_repair(seq, repairs, check_options)
     refusal = refusal_message(checked.findings)

@@ -52,7 +52,6 @@ gyro, acc, biases, dt and the initial state).
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -62,15 +61,9 @@ import torch
 
 from pipeline.errors import DataError
 from pipeline.so3 import so3_exp_entries
+from pipeline.types import IntegrationScheme
 
 __all__ = ["IntegrationScheme", "IntegrationResult", "integrate", "integrate_numpy"]
-
-
-class IntegrationScheme(str, enum.Enum):
-    """How samples are integrated between two stamps (see the module docstring)."""
-
-    EULER = "euler"  # sample k held over [t_k, t_{k+1}] (AirIMU / GTSAM), first order
-    MIDPOINT = "midpoint"  # mid-point rotation, trapezoid velocity, second order
 
 
 @dataclass(frozen=True)

@@ -25,6 +25,7 @@ import yaml
 
 from pipeline.atomic import atomic_dir
 from pipeline.errors import InputFormatError
+from pipeline.jsonio import to_plain
 from pipeline.types import Finding, ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence, StateSeries
 
 STORE_VERSION = 1
@@ -129,21 +130,10 @@ def write_store(sequence: Sequence, out_dir: str | Path) -> Path:
                 **_vec_cols("ba_", gt.bias_acc_mps2),
             }
             pq.write_table(_table(gt.t_ns, cols), tmp / "ground_truth.parquet")
-        (tmp / META_FILE).write_text(yaml.safe_dump(_plain(meta), sort_keys=False), encoding="utf-8")
+        (tmp / META_FILE).write_text(yaml.safe_dump(to_plain(meta), sort_keys=False), encoding="utf-8")
     return out_dir
 
 
-def _plain(obj: Any) -> Any:
-    """Make ``obj`` YAML-safe (numpy scalars and arrays to Python types)."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
 
 
 def read_store(path: str | Path) -> Sequence:

@@ -23,6 +23,28 @@ from pipeline.errors import DataError
 NS_PER_S = 1_000_000_000
 
 
+class Split(str, enum.Enum):
+    """Role of a sequence for training: one value, one meaning everywhere (workflow config,
+    ``biasgt windows``, the window dataset)."""
+
+    TRAIN = "train"  # windowed; its windows train the model and give the normalisation statistics
+    VAL = "val"  # windowed; model selection
+    TEST = "test"  # windowed; final evaluation
+    NONE = "none"  # no role in training: not windowed
+
+    @property
+    def windowed(self) -> bool:
+        """Whether the sequence's windows go into the window dataset."""
+        return self is not Split.NONE
+
+
+class IntegrationScheme(str, enum.Enum):
+    """How samples are integrated between two stamps (see :mod:`pipeline.integration`)."""
+
+    EULER = "euler"  # sample k held over [t_k, t_{k+1}] (AirIMU / GTSAM), first order
+    MIDPOINT = "midpoint"  # mid-point rotation, trapezoid velocity, second order
+
+
 class PoseSourceKind(str, enum.Enum):
     """Where a pose stream comes from; decides how recovery weights it."""
 

@@ -32,6 +32,7 @@ Layout of a workflow run (relative to the working directory)::
 from __future__ import annotations
 
 import copy
+import importlib.resources
 import enum
 import logging
 import os
@@ -39,27 +40,59 @@ import re
 import socket
 import subprocess
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
+import jsonschema
 import yaml
+from jsonschema import Draft202012Validator, validators
 
+from interpolation.config import InterpolationConfig
+from pipeline.checks import CheckOptions, parse_repairs
+from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping, unknown_keys_message
 from pipeline.errors import BiasgtError, ConfigError
+from pipeline.ingest import READER_KWARGS, ingest
+from pipeline.layout import (  # the .smk files read these as wf.<name>
+    LOGS_DIR,
+    RESULTS_DIR,
+    WINDOWS_DATASET,
+    Stage,
+    interpolated_bias_path,
+    log_file,
+    report_path,
+    stage_dir,
+    windows_dataset_dir,
+)
+from pipeline.sim.config import SimConfig
+from pipeline.store import read_store
+from pipeline.types import Split
+from recovery.config import RecoveryConfig
+from training.windows_config import WindowConfig
+from validation.config import ValidationConfig
 
 log = logging.getLogger(__name__)
 
-#: Root of the (editable) repository: the parent of the ``pipeline`` package.
-REPO_ROOT = Path(__file__).resolve().parents[1]
-SNAKEFILE = REPO_ROOT / "Snakefile"
-SCHEMA_FILE = REPO_ROOT / "workflow" / "schemas" / "config.schema.yaml"
-DEFAULT_CONFIG = REPO_ROOT / "config" / "config.yaml"
-#: Snakemake profiles shipped with the workflow (``biasgt run --profile NAME``), e.g. ``slurm``.
-PROFILES_DIR = REPO_ROOT / "workflow" / "profiles"
 
-RESULTS_DIR = "results"
-LOGS_DIR = "logs"
+
+def _workflow_root() -> Path:
+    """The folder holding the Snakefile, ``workflow/`` and ``config/config.yaml``: the copy an
+    installed package ships (``pipeline/workflow_files``, see setup.py), else the source checkout
+    the package runs from (an editable install or ``PYTHONPATH``)."""
+    shipped = importlib.resources.files("pipeline") / "workflow_files"
+    if shipped.joinpath("Snakefile").is_file():
+        return Path(str(shipped))
+    return Path(__file__).resolve().parents[1]
+
+
+WORKFLOW_ROOT = _workflow_root()
+SNAKEFILE = WORKFLOW_ROOT / "Snakefile"
+SCHEMA_FILE = WORKFLOW_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+DEFAULT_CONFIG = WORKFLOW_ROOT / "config" / "config.yaml"
+#: Snakemake profiles shipped with the workflow (``biasgt run --profile NAME``), e.g. ``slurm``.
+PROFILES_DIR = WORKFLOW_ROOT / "workflow" / "profiles"
+
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
 
 # SimConfig fields set by an entry's shorthand keys; ``overrides`` must not set them again.
@@ -90,60 +123,6 @@ READER_FORMAT: dict[SourceKind, str] = {
     SourceKind.CSV: "csv",
     SourceKind.BAG: "rosbag",
 }
-
-
-class Split(str, enum.Enum):
-    """Role of a sequence for training (TRAIN / VAL / TEST sequences are windowed)."""
-
-    TRAIN = "train"
-    VAL = "val"
-    TEST = "test"
-    NONE = "none"
-
-    @property
-    def windowed(self) -> bool:
-        """Whether the sequence's windows go into the window dataset."""
-        return self is not Split.NONE
-
-
-class Stage(str, enum.Enum):
-    """Stages with a results folder, in workflow order; the value is the rule's name."""
-
-    SIMULATE = "simulate"
-    INGEST = "ingest"
-    RECOVER = "recover"
-    INTERPOLATE = "interpolate"
-    VALIDATE = "validate"
-    WINDOWS = "windows"
-    TRAIN = "train"
-    EVALUATE = "evaluate"
-    REPORT = "report"
-
-    @property
-    def folder(self) -> str:
-        """Folder name under ``results/`` and ``logs/``: the name of the stage's config section
-        (``recovery``, ``interpolation``, ``validation``, ...), else the rule's name."""
-        return _STAGE_FOLDERS.get(self, self.value)
-
-
-_STAGE_FOLDERS = {
-    Stage.RECOVER: "recovery",
-    Stage.INTERPOLATE: "interpolation",
-    Stage.VALIDATE: "validation",
-    Stage.TRAIN: "training",
-    Stage.EVALUATE: "evaluation",
-}
-
-#: The window dataset (one for the whole config) and its job name in ``logs/windows/``.
-WINDOWS_DATASET = "dataset"
-#: File names inside the stage folders.
-INTERPOLATED_BIAS = "bias_imu.parquet"
-REPORT_HTML = "report.html"
-
-
-# --------------------------------------------------------------------------------------------
-# Config: schema, defaults, semantic checks
-# --------------------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -237,23 +216,6 @@ def _json_path(parts: Iterable[Any]) -> str:
     return out or "(top level)"
 
 
-def _unknown_keys_message(instance: dict[str, Any], allowed: set[str]) -> str | None:
-    """``unknown key 'x' (did you mean 'y'?): allowed here: ...`` for the keys of ``instance`` not in ``allowed``."""
-    import difflib
-
-    extra = [k for k in instance if k not in allowed]
-    if not extra:
-        return None
-    plural = "s" if len(extra) > 1 else ""
-    if not allowed:
-        return f"unknown key{plural} {', '.join(map(repr, extra))}: this section has no options"
-    named = []
-    for k in extra:
-        close = difflib.get_close_matches(str(k), sorted(allowed), n=1)
-        named.append(f"'{k}' (did you mean '{close[0]}'?)" if close else f"'{k}'")
-    return f"unknown key{plural} {', '.join(named)}: allowed here: {', '.join(sorted(allowed))}"
-
-
 def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
     """(field, problem) of a jsonschema error, naming the sequence where there is one."""
     where = _json_path(error.absolute_path)
@@ -265,7 +227,11 @@ def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
             where += f" (sequence '{entry['name']}')"
     message = error.message
     if error.validator == "additionalProperties" and isinstance(error.instance, dict):
-        message = _unknown_keys_message(error.instance, set(error.schema.get("properties") or {})) or message
+        allowed = set(error.schema.get("properties") or {})
+        unknown = unknown_keys_message(error.instance, allowed)
+        if unknown:
+            message = f"{unknown}: " + (f"allowed here: {', '.join(sorted(allowed))}" if allowed
+                                        else "this section has no options")
     if error.validator == "enum":
         message = f"{error.instance!r} is not one of {', '.join(map(str, error.validator_value))}"
     elif error.validator == "pattern":
@@ -293,9 +259,6 @@ def validate_schema(
     Raises:
         ConfigError: The first (most relevant) schema violation, with its location.
     """
-    import jsonschema
-    from jsonschema import Draft202012Validator, validators
-
     if not isinstance(data, dict):
         raise ConfigError(f"the config must be a mapping, got {type(data).__name__}", path=config_file,
                           hint="see config/config.yaml for an example")
@@ -385,7 +348,7 @@ def check_config(
     files exist); reader options, repairs and check options are known to the ingest stage.
 
     Args:
-        data: Config already passed through :func:`validate_schema` (or Snakemake's ``validate``).
+        data: Config already passed through :func:`validate_schema`.
         config_file: The config file; relative paths resolve against its folder.
         check_paths: Check that input paths exist (also switched off by the config's
             ``check_input_paths: false``).
@@ -428,12 +391,12 @@ def check_config(
                         hint=f"fix '{field_name}' (relative paths are resolved against data_root = {root})",
                     )
         entries.append(SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw))
+    for section in STAGE_CONFIGS:  # the top-level sections first, so that their errors name them
+        try:
+            data[section] = resolved_section(section, data.get(section) or {})
+        except ConfigError as exc:
+            raise ConfigError(f"{section}: {exc.problem}", path=config_file, field=exc.field, hint=exc.hint) from None
     cfg = WorkflowConfig(data, config_file, tuple(entries))
-    try:  # the top-level section alone first, so that its errors name it and not an entry
-        make_recovery_config({k: v for k, v in cfg.section("recovery").items() if k not in RECOVERY_EXTRA_KEYS})
-    except ConfigError as exc:
-        raise ConfigError(f"recovery.{exc.field}: {exc.problem}" if exc.field else f"recovery: {exc.problem}",
-                          path=config_file, hint=exc.hint) from None
     for entry in cfg.sequences:
         _check_ingest_settings(cfg, entry)
         _check_stage_settings(cfg, entry)
@@ -441,8 +404,6 @@ def check_config(
 
 
 def _check_sim_config(sim: dict[str, Any], config_file: Path | None, where: str, check_paths: bool) -> None:
-    from pipeline.sim.config import SimConfig
-
     try:
         cfg = SimConfig.from_dict(sim)
     except ConfigError as exc:
@@ -488,31 +449,6 @@ def load_config(path: str | Path, *, check_paths: bool = True) -> WorkflowConfig
 # --------------------------------------------------------------------------------------------
 # Paths and rule parameters (what the get_* functions in workflow/rules/common.smk return)
 # --------------------------------------------------------------------------------------------
-
-
-def stage_dir(stage: Stage | str, sequence: str) -> str:
-    """``results/<folder>/<sequence>`` (folder: :attr:`Stage.folder`), relative to the working directory."""
-    return f"{RESULTS_DIR}/{Stage(stage).folder}/{sequence}"
-
-
-def log_file(stage: Stage | str, sequence: str) -> str:
-    """``logs/<folder>/<sequence>.log`` (folder: :attr:`Stage.folder`), relative to the working directory."""
-    return f"{LOGS_DIR}/{Stage(stage).folder}/{sequence}.log"
-
-
-def interpolated_bias_path(sequence: str) -> str:
-    """``results/interpolation/<sequence>/bias_imu.parquet`` (its CSV twin lies next to it)."""
-    return f"{stage_dir(Stage.INTERPOLATE, sequence)}/{INTERPOLATED_BIAS}"
-
-
-def report_path(sequence: str) -> str:
-    """``results/report/<sequence>/report.html`` (where ``biasgt report results --sequence NAME`` writes)."""
-    return f"{stage_dir(Stage.REPORT, sequence)}/{REPORT_HTML}"
-
-
-def windows_dataset_dir() -> str:
-    """``results/windows/dataset``: the window dataset of all train / val / test sequences."""
-    return stage_dir(Stage.WINDOWS, WINDOWS_DATASET)
 
 
 def workdir_relative(path: str | Path, workdir: str | Path | None = None) -> str:
@@ -603,9 +539,6 @@ def make_check_options(options: dict[str, Any]) -> Any:
     Raises:
         ConfigError: Unknown key or invalid value.
     """
-    from pipeline.checks import CheckOptions
-    from pipeline.configs import dataclass_from_mapping
-
     kwargs = dict(options)
     if "ignore" in kwargs:
         ignore = kwargs["ignore"]
@@ -615,21 +548,17 @@ def make_check_options(options: dict[str, Any]) -> Any:
 
 def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
     """Raise a ConfigError naming the entry when its ingest settings are invalid."""
-    from pipeline.checks import parse_repairs
-    from pipeline.ingest import READER_KWARGS
-
     reader = entry.raw.get("reader") or {}
     reserved = sorted({"fmt", "name"} & set(reader))
     if reserved:
         raise ConfigError(f"{entry.where}: reader option(s) {', '.join(reserved)} cannot be set here",
                           path=cfg.config_file, field="reader",
                           hint="'source' sets the format and 'name' the sequence name")
-    unknown = sorted(set(reader) - set(READER_KWARGS))
+    allowed = [k for k in READER_KWARGS if k not in ("fmt", "name")]
+    unknown = unknown_keys_message(reader, allowed)
     if unknown:
-        raise ConfigError(
-            f"{entry.where}: unknown reader option(s) {', '.join(unknown)}", path=cfg.config_file, field="reader",
-            hint="allowed: " + ", ".join(k for k in READER_KWARGS if k not in ("fmt", "name")),
-        )
+        raise ConfigError(f"{entry.where}: reader option: {unknown}", path=cfg.config_file, field="reader",
+                          hint="allowed: " + ", ".join(allowed))
     settings = ingest_settings(cfg, entry.name)
     try:
         parse_repairs(settings["repairs"])
@@ -643,12 +572,43 @@ def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
 # Parameters of the later stages (recover, interpolate, validate, windows, report)
 # --------------------------------------------------------------------------------------------
 
-#: Keys of a ``recovery:`` section (top level or per sequence) that are not RecoveryConfig options.
-RECOVERY_EXTRA_KEYS = ("pose_stream",)
-#: Keys of a ``validation:`` section that are not ValidationConfig options.
-VALIDATION_EXTRA_KEYS = ("poses", "gravity_mps2")
+#: The config dataclass of each stage section of the workflow config: the one source of the
+#: section's options and their defaults (the schema leaves these sections open). check_config
+#: checks each section with it (an unknown key is named, with the allowed ones) and fills in every
+#: default, so the rules' params hold the whole resolved config. A stage adds its section with one
+#: line here, e.g. ``"training": TrainConfig``.
+STAGE_CONFIGS: dict[str, type] = {
+    "recovery": RecoveryConfig,
+    "interpolation": InterpolationConfig,
+    "validation": ValidationConfig,
+    "windows": WindowConfig,
+}
+#: Keys of a stage section that the workflow reads itself (not options of its dataclass), with defaults.
+SECTION_EXTRA_KEYS: dict[str, dict[str, Any]] = {
+    "recovery": {"pose_stream": None},
+    "validation": {"poses": None, "gravity_mps2": None},
+}
 #: Sections a sequence entry may override (merged over the top-level section of the same name).
 ENTRY_OVERRIDE_SECTIONS = ("recovery", "validation")
+
+
+def stage_config(section: str, options: Mapping[str, Any]) -> Any:
+    """The config dataclass of stage section ``section`` (:data:`STAGE_CONFIGS`) from ``options``;
+    the section's extra keys (:data:`SECTION_EXTRA_KEYS`) are left out.
+
+    Raises:
+        ConfigError: Unknown key (naming it and the allowed ones) or an invalid value.
+    """
+    extra = SECTION_EXTRA_KEYS.get(section, {})
+    return dataclass_from_mapping(STAGE_CONFIGS[section], {k: v for k, v in options.items() if k not in extra},
+                                  what=f"{section} option", field=section, also_allowed=extra)
+
+
+def resolved_section(section: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    """``options`` of a stage section, checked, with every default filled in (extra keys first)."""
+    extra = SECTION_EXTRA_KEYS.get(section, {})
+    return {**{k: options.get(k, default) for k, default in extra.items()},
+            **dataclass_to_mapping(stage_config(section, options))}
 
 
 def _merged_section(cfg: WorkflowConfig, entry: SequenceEntry, section: str) -> dict[str, Any]:
@@ -669,33 +629,17 @@ def recovery_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     return {"pose_stream": pose_stream, "config": merged}
 
 
-def make_recovery_config(options: dict[str, Any]) -> Any:
-    """A :class:`recovery.config.RecoveryConfig` from a config mapping.
-
-    Raises:
-        ConfigError: Unknown option or invalid value (naming the option).
-    """
-    from recovery.config import RecoveryConfig
-
-    return RecoveryConfig.from_dict(dict(options))
-
-
 def interpolation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     """Parameters of rule ``interpolate``: ``{"method": "linear"|"cubic", "clamp": bool, "write_csv": bool}``."""
     cfg.sequence(sequence)  # a known sequence
-    section = cfg.section("interpolation")
-    return {
-        "method": str(section.get("method", "linear")),
-        "clamp": bool(section.get("clamp", True)),
-        "write_csv": bool(section.get("write_csv", True)),
-    }
+    return resolved_section("interpolation", cfg.section("interpolation"))
 
 
 def interpolation_outputs(cfg: WorkflowConfig) -> list[str]:
     """Output patterns of rule ``interpolate`` (``{sequence}`` left in): the Parquet table and,
     with ``interpolation.write_csv``, its CSV twin."""
     parquet = interpolated_bias_path("{sequence}")
-    write_csv = bool(cfg.section("interpolation").get("write_csv", True))
+    write_csv = stage_config("interpolation", cfg.section("interpolation")).write_csv
     return [parquet] + ([parquet[: -len(".parquet")] + ".csv"] if write_csv else [])
 
 
@@ -712,19 +656,6 @@ def validation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     poses = merged.pop("poses", None)
     gravity = merged.pop("gravity_mps2", None)
     return {"poses": poses, "gravity_mps2": gravity, "config": merged}
-
-
-def make_validation_config(options: dict[str, Any]) -> Any:
-    """A :class:`validation.validate.ValidationConfig` from a config mapping (imports torch).
-
-    Raises:
-        ConfigError: Unknown option or invalid value.
-    """
-    from pipeline.configs import dataclass_from_mapping
-    from validation.validate import ValidationConfig
-
-    return dataclass_from_mapping(ValidationConfig, options, what="validation option", field="validation",
-                                  also_allowed=VALIDATION_EXTRA_KEYS)
 
 
 def windowed_sequences(cfg: WorkflowConfig) -> list[SequenceEntry]:
@@ -758,25 +689,14 @@ def window_outputs(cfg: WorkflowConfig) -> list[str]:
     return [windows_dataset_dir()]
 
 
-def _schema_section_keys(section: str) -> set[str]:
-    return set((load_schema()["properties"].get(section) or {}).get("properties") or {})
-
-
 def _check_stage_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
-    """Raise a ConfigError naming the entry when its stage overrides or merged options are invalid."""
+    """Raise a ConfigError naming the entry when its stage overrides (merged over the sections) are invalid."""
     for section in ENTRY_OVERRIDE_SECTIONS:
-        own = entry.raw.get(section) or {}
-        allowed = _schema_section_keys(section)
-        unknown = sorted(set(own) - allowed)
-        if unknown:
-            raise ConfigError(f"{entry.where}: unknown {section} option(s) {', '.join(unknown)}",
-                              path=cfg.config_file, field=f"{section}.{unknown[0]}",
-                              hint=f"allowed: {', '.join(sorted(allowed))}")
-    try:
-        make_recovery_config(recovery_settings(cfg, entry.name)["config"])
-    except ConfigError as exc:
-        raise ConfigError(f"{entry.where}: recovery option: {exc.problem}", path=cfg.config_file,
-                          field=f"recovery.{exc.field}" if exc.field else "recovery", hint=exc.hint) from None
+        try:
+            resolved_section(section, _merged_section(cfg, entry, section))
+        except ConfigError as exc:
+            raise ConfigError(f"{entry.where}: {exc.problem}", path=cfg.config_file, field=exc.field,
+                              hint=exc.hint) from None
 
 
 @dataclass(frozen=True)
@@ -855,8 +775,8 @@ def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwarg
 
 def simulate_step(settings: dict[str, Any], out_dir: str | Path) -> Path:
     """Simulate one sequence from a :class:`SimConfig` dict and write it as an ASL folder."""
-    from pipeline.sim import simulate, write_simulation
-    from pipeline.sim.config import SimConfig
+    from pipeline.sim.simulator import simulate  # scipy.signal: only in the job that runs the step
+    from pipeline.sim.writer import write_simulation  # rosbags: only in the job that runs the step
 
     config = SimConfig.from_dict(dict(settings))
     log.info("simulating '%s': %.1f s, preset %s, poses %s, seed %d", config.name, config.duration_s or -1,
@@ -870,8 +790,6 @@ def simulate_step(settings: dict[str, Any], out_dir: str | Path) -> Path:
 
 def ingest_step(input_path: str | Path, out_dir: str | Path, settings: dict[str, Any]) -> Path:
     """Read, check (and, where allowed, repair) one input and write the canonical store."""
-    from pipeline.ingest import ingest
-
     reader_kwargs = dict(settings.get("reader_kwargs") or {})
     log.info("ingesting %s (format %s) -> %s", input_path, reader_kwargs.get("fmt", "auto"), out_dir)
     ingest(
@@ -887,11 +805,9 @@ def ingest_step(input_path: str | Path, out_dir: str | Path, settings: dict[str,
 def recover_step(store_dir: str | Path, out_dir: str | Path, settings: dict[str, Any]) -> Path:
     """Recover the bias of one canonical store and write ``bias.csv``, ``recovery.json``,
     ``trajectory_tum.txt`` (settings: :func:`recovery_settings`)."""
-    from pipeline.store import read_store
-    from recovery.outputs import write_recovery
-    from recovery.recover import recover
+    from recovery.recover import recover, write_recovery  # gtsam: only in the job that runs the step
 
-    config = make_recovery_config(dict(settings.get("config") or {}))
+    config = stage_config("recovery", settings.get("config") or {})
     sequence = read_store(store_dir)
     log.info("recovering the bias of '%s' from pose stream %s", sequence.name,
              settings.get("pose_stream") or "(default)")
@@ -909,17 +825,10 @@ def interpolate_step(recovery_dir: str | Path, store_dir: str | Path, out_path: 
                      settings: dict[str, Any]) -> list[Path]:
     """Interpolate a recovery's keyframe bias to the store's IMU stamps (settings:
     :func:`interpolation_settings`)."""
-    from interpolation.bias import InterpolationMethod
-    from interpolation.pipeline import interpolate_recovery
+    from interpolation.pipeline import interpolate_recovery  # pandas: only in the job that runs the step
 
-    try:
-        method = InterpolationMethod(settings.get("method", "linear"))
-    except ValueError:
-        raise ConfigError(f"unknown interpolation method {settings.get('method')!r}", field="interpolation.method",
-                          hint="use " + ", ".join(m.value for m in InterpolationMethod)) from None
-    written = interpolate_recovery(recovery_dir, store_dir, out_path, method=method,
-                                   clamp=bool(settings.get("clamp", True)),
-                                   write_csv_twin=bool(settings.get("write_csv", True)))
+    config = stage_config("interpolation", settings)
+    written = interpolate_recovery(recovery_dir, store_dir, out_path, config)
     log.info("wrote %s", ", ".join(map(str, written)))
     return written
 
@@ -934,10 +843,9 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
     Returns:
         The :class:`validation.validate.ValidationResult`.
     """
-    from pipeline.store import read_store
-    from validation.validate import Verdict, validate_inputs, write_validation
+    from validation.validate import Verdict, validate_inputs, write_validation  # torch: only in this step's job
 
-    config = make_validation_config(dict(settings.get("config") or {}))
+    config = stage_config("validation", settings.get("config") or {})
     sequence = read_store(store_dir)
     result = validate_inputs(sequence, recovery_dir=recovery_dir, pose_stream=settings.get("poses"),
                              gravity_mps2=settings.get("gravity_mps2"), config=config)
@@ -959,7 +867,7 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
         out_dir: The dataset folder.
         settings: :func:`windows_settings`.
     """
-    from training.windows import WindowSource, build_window_dataset
+    from training.windows import WindowSource, build_window_dataset  # torch: only in the job of this step
 
     named = list(settings.get("sequences") or [])
     if not (len(named) == len(stores) == len(recoveries) == len(validations)):
@@ -968,7 +876,7 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
                           hint="a bug in the workflow wiring; please report it")
     sources = [WindowSource(name, split, str(store), str(rec), str(val))
                for (name, split), store, rec, val in zip(named, stores, recoveries, validations)]
-    config = make_window_config(dict(settings.get("config") or {}))
+    config = stage_config("windows", settings.get("config") or {})
     log.info("cutting windows of %d sequence(s): %s", len(sources),
              ", ".join(f"{s.name} ({s.split})" for s in sources))
     build_window_dataset(sources, out_dir, config)
@@ -976,21 +884,10 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
     return Path(out_dir)
 
 
-def make_window_config(options: dict[str, Any]) -> Any:
-    """A :class:`training.windows.WindowConfig` from the ``windows:`` section.
-
-    Raises:
-        ConfigError: Unknown option or invalid value.
-    """
-    from training.windows import WindowConfig
-
-    return WindowConfig.from_dict(dict(options))
-
-
 def report_step(ingest_dir: str | Path, recovery_dir: str | Path | None, validation_dir: str | Path | None,
                 out_path: str | Path) -> Path:
     """Write the quality report (one self-contained HTML file) of one sequence."""
-    from reports.quality import build_quality_report
+    from reports.quality import build_quality_report  # matplotlib: only in the job that runs the step
 
     return build_quality_report(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir,
                                 out_path=out_path)

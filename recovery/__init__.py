@@ -3,10 +3,11 @@
 Public API::
 
     from recovery.config import RecoveryConfig
-    from recovery.outputs import write_recovery
-    from recovery.recover import recover        # (``recovery.recover`` is also the module's name)
+    from recovery.outputs import RecoveryOutputs
+    from recovery.recover import recover, write_recovery  # (``recovery.recover`` is also a module)
     result = recover(sequence, pose_stream="vicon0", config=RecoveryConfig())
-    write_recovery(result, "out/recovery")   # bias.csv, recovery.json, trajectory_tum.txt
+    write_recovery(result, "out/recovery")   # bias.csv, recovery.json, trajectory_tum.txt, residuals.csv
+    back = RecoveryOutputs.read("out/recovery")  # the same folder, typed
 
 Modules: :mod:`recovery.config` (options and mode enums), :mod:`recovery.preintegration`
 (midpoint preintegration at keyframes off the IMU stamps), :mod:`recovery.graph` (one

@@ -59,6 +59,8 @@ import warnings
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import sparse
+from scipy.fft import irfft, next_fast_len, rfft
 from scipy.ndimage import gaussian_filter1d
 from scipy.optimize import minimize_scalar
 from scipy.spatial.transform import Rotation, Slerp
@@ -208,8 +210,6 @@ def _cumtrapz(y: np.ndarray, x: np.ndarray, axis: int = 0, initial: float = 0.0)
 def _correlate_valid(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``scipy.signal.correlate(a, v)`` for real 1-D, len(a) >= len(v):
     ``out[k] = sum_l a[l + k] v[l]``, [len(a) - len(v) + 1]."""
-    from scipy.fft import irfft, next_fast_len, rfft  # scipy.fft is light (already loaded by ndimage)
-
     n, m = len(a), len(v)
     size = next_fast_len(n + m - 1, real=True)
     full = irfft(rfft(a, size) * np.conj(rfft(v, size)), size)
@@ -707,8 +707,6 @@ def _acc_lstsq(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_imu_pose: n
         blocks_r.append(np.repeat(rows[:, :, None], 3, axis=2))
         blocks_c.append(np.broadcast_to((n_r + 3 + 3 * knot)[:, None, None] + np.arange(3)[None, None, :], (M, 3, 3)))
         blocks_v.append(J_b * (wk * scale)[:, None, None])
-    from scipy import sparse  # only for the extrinsic / lever-arm solves
-
     A = sparse.csr_array((np.concatenate([v.ravel() for v in blocks_v]),
                           (np.concatenate([r.ravel() for r in blocks_r]),
                            np.concatenate([c.ravel() for c in blocks_c]))), shape=(3 * M, nx))

@@ -13,7 +13,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import yaml
 
+from pipeline.configs import dataclass_from_mapping
 from pipeline.errors import ConfigError
 from pipeline.types import PoseSourceKind
 
@@ -48,6 +50,23 @@ class ExtrinsicMode(str, enum.Enum):
     AUTO = "auto"
     KNOWN = "known"
     ESTIMATE = "estimate"
+
+
+class CalibrationSolve(str, enum.Enum):
+    """The decimated calibration solves; each has its ``<value>_keyframe_rate_hz`` option."""
+
+    OFFSET_REFINE = "offset_refine"
+    EXTRINSIC = "extrinsic"
+    GRAVITY = "gravity"
+    NOISE = "noise"
+
+
+class PoseSigmaMethod(str, enum.Enum):
+    """How the pose sigmas were chosen (``recovery.json`` ``noise.pose_sigma_method``)."""
+
+    EVIDENCE = "evidence"  # a common scale of both sigmas by maximum evidence
+    WITHIN_BIN_RESIDUALS = "within_bin_residuals"  # closed form from the scatter of fused samples
+    FIXED = "fixed"  # as given (noise_estimation: fixed)
 
 
 class RobustLoss(str, enum.Enum):
@@ -247,9 +266,9 @@ class RecoveryConfig:
         "intrinsics": IntrinsicsMode,
     }
 
-    def calibration_rate_hz(self, name: str, fused: bool) -> float:
-        """Keyframe rate of a calibration solve (``name``: offset_refine, extrinsic, gravity, noise)."""
-        value = getattr(self, f"{name}_keyframe_rate_hz")
+    def calibration_rate_hz(self, solve: CalibrationSolve | str, fused: bool) -> float:
+        """Keyframe rate of a calibration solve: its option, else the automatic rate."""
+        value = getattr(self, f"{CalibrationSolve(solve).value}_keyframe_rate_hz")
         if value is not None:
             return float(value)
         return CALIBRATION_RATE_FUSED_HZ if fused else CALIBRATION_RATE_HZ
@@ -320,20 +339,13 @@ class RecoveryConfig:
         if not isinstance(d, dict):
             raise ConfigError("recovery config must be a mapping of option: value", path=path)
         d = dict(d.get("recovery", d)) if isinstance(d.get("recovery"), dict) else dict(d)
-        known = set(cls.field_names())
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"unknown recovery option {unknown[0]!r}", path=path, field=unknown[0],
-                              hint=f"valid options: {', '.join(sorted(known))}")
         try:
-            return cls(**d)
-        except TypeError as exc:
-            raise ConfigError(f"invalid recovery option: {exc}", path=path) from None
+            return dataclass_from_mapping(cls, d, what="recovery option", field="recovery")
+        except ConfigError as exc:
+            raise ConfigError(exc.problem, path=path, field=exc.field, hint=exc.hint) from None
 
     @classmethod
     def from_yaml(cls, path: str | Path) -> "RecoveryConfig":
-        import yaml
-
         path = Path(path)
         try:
             data = yaml.safe_load(path.read_text(encoding="utf-8")) or {}

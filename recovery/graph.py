@@ -22,6 +22,8 @@ from typing import Any
 import gtsam
 import numpy as np
 from gtsam.symbol_shorthand import B, E, G, L, V, X
+from scipy.signal import savgol_filter
+from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, PoseSourceKind
@@ -307,8 +309,6 @@ def propagate_orientations(
     Returns:
         Orientations [K, 4] (wxyz).
     """
-    from scipy.spatial.transform import Rotation
-
     out = np.array(q_wxyz, dtype=float, copy=True)
     K = len(out)
     cur = None
@@ -337,8 +337,6 @@ def initial_orientations(
     Wahba's problem between world accelerations (second differences of the
     positions plus gravity) and the gyro-propagated specific force.
     """
-    from scipy.spatial.transform import Rotation
-
     K = len(kf)
     # Gyro-propagated relative orientations at keyframes and specific force at keyframes.
     f_kf = np.zeros((K, 3))
@@ -355,8 +353,6 @@ def initial_orientations(
     f_kf[-1] = f_kf[-2] if K > 1 else f_kf[-1]
     t = (kf.t_ns - kf.t_ns[0]) / NS_PER_S
     # world acceleration by smoothed differences
-    from scipy.signal import savgol_filter
-
     if K >= 9:
         dt = float(np.median(np.diff(t))) if K > 1 else 0.05
         win = max(5, int(round(0.5 / max(dt, 1e-3))) | 1)
@@ -425,58 +421,73 @@ def build_window(
     init: WindowInit | None = None,
     skip: np.ndarray | None = None,
 ) -> _Built:
-    """Build the factor graph and initial values of one window."""
+    """Build the factor graph and initial values of one window.
+
+    In order: the initial states, the IMU factors (with the gravity direction when estimated)
+    and the bias prior, the pose factors of the stream's kind (:func:`_add_pose_factors`), and
+    the fused keyframes' velocity priors. ``skip``: keyframes whose pose factors are left out.
+    """
     init = init or WindowInit()
-    K = len(kf)
     fixed_g = None if opts.estimate_gravity else init.gravity_unit
     params = make_params(imu_noise, opts.gravity_mps2, fixed_g)
     bias0 = np.zeros(6) if init.bias is None else np.asarray(init.bias, dtype=float)
-    bias_lin = bias0 if bias0.ndim == 1 else bias0[:-1]
-    pims = preintegrate(samples, params, bias_lin)
-    graph = gtsam.NonlinearFactorGraph()
-    nlc = 0.0
-    Ep = _pose3(T_imu_pose)
-    Einv = Ep.inverse()
-    has_rot = kf.quat_wxyz is not None
-    position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or not has_rot
+    pims = preintegrate(samples, params, bias0 if bias0.ndim == 1 else bias0[:-1])
+    Xs, Z = _initial_poses(samples, kf, T_imu_pose, opts, init)
+    built = _Built(gtsam.NonlinearFactorGraph(), _bias_values(bias0, len(kf)), [], [], 0.0)
+    vel = _initial_velocities(kf, Xs, init)
+    for k in range(len(kf)):
+        built.values.insert(X(k), Xs[k])
+        built.values.insert(V(k), vel[k])
+    _add_imu_factors(built, pims, opts, init, bias0)
     skip_set = set() if skip is None else set(int(i) for i in skip)
+    _add_pose_factors(built, kf, Xs, Z, T_imu_pose, opts, skip_set)
+    position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or kf.quat_wxyz is None
+    if (kf.v_mps is not None and not position_only and opts.pose_mode != PoseFactorMode.RELATIVE
+            and not opts.estimate_extrinsic and not opts.estimate_lever_arm):
+        _add_velocity_priors(built, kf, opts, skip_set)
+    return built
 
-    # --- initial states
-    if has_rot:
-        Z = [gtsam.Pose3(_quat_to_rot3(kf.quat_wxyz[k]), kf.p_m[k]) for k in range(K)]
-        Xs = [z.compose(Einv) for z in Z]
-    else:
-        Z = None
-        rq = init.rot_wxyz if init.rot_wxyz is not None else initial_orientations(samples, kf, opts.gravity_mps2)
-        lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
-        Xs = []
-        for k in range(K):
-            R = _quat_to_rot3(rq[k])
-            Xs.append(gtsam.Pose3(R, kf.p_m[k] - R.rotate(lever)))
-    P = np.array([x.translation() for x in Xs])
-    t = (kf.t_ns - kf.t_ns[0]) / NS_PER_S
+
+def _initial_poses(samples: MidpointSamples, kf: KeyframePoses, T_imu_pose: np.ndarray, opts: SolveOptions,
+                   init: WindowInit) -> tuple[list[Any], list[Any] | None]:
+    """Initial IMU poses ``Xs`` [K] and the measured poses ``Z`` [K] (None for position-only streams,
+    whose orientations come from ``init`` or :func:`initial_orientations`)."""
+    if kf.quat_wxyz is not None:
+        Z = [gtsam.Pose3(_quat_to_rot3(kf.quat_wxyz[k]), kf.p_m[k]) for k in range(len(kf))]
+        Einv = _pose3(T_imu_pose).inverse()
+        return [z.compose(Einv) for z in Z], Z
+    rq = init.rot_wxyz if init.rot_wxyz is not None else initial_orientations(samples, kf, opts.gravity_mps2)
+    lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
+    Xs = []
+    for k in range(len(kf)):
+        R = _quat_to_rot3(rq[k])
+        Xs.append(gtsam.Pose3(R, kf.p_m[k] - R.rotate(lever)))
+    return Xs, None
+
+
+def _initial_velocities(kf: KeyframePoses, Xs: list[Any], init: WindowInit) -> np.ndarray:
+    """Initial velocities [K, 3]: ``init``'s, else from the positions (fused keyframes: measured)."""
     if init.velocity is not None:
-        Vel = np.asarray(init.velocity, dtype=float)
-    else:
-        Vel = initial_velocity(t, P)
-        if kf.v_mps is not None:  # fused keyframes measured their velocity: a better start for LM
-            Vel[kf.dt2_s2 > 0] = kf.v_mps[kf.dt2_s2 > 0]
-    values = _bias_values(bias0, K)
-    Vel = np.ascontiguousarray(Vel, dtype=float)
-    for k in range(K):
-        values.insert(X(k), Xs[k])
-        values.insert(V(k), Vel[k])
+        return np.ascontiguousarray(init.velocity, dtype=float)
+    t = (kf.t_ns - kf.t_ns[0]) / NS_PER_S
+    vel = initial_velocity(t, np.array([x.translation() for x in Xs]))
+    if kf.v_mps is not None:  # fused keyframes measured their velocity: a better start for LM
+        vel[kf.dt2_s2 > 0] = kf.v_mps[kf.dt2_s2 > 0]
+    return np.ascontiguousarray(vel, dtype=float)
 
-    # --- IMU factors
-    imu_factors = []
+
+def _add_imu_factors(built: _Built, pims: list[Any], opts: SolveOptions, init: WindowInit, bias0: np.ndarray) -> None:
+    """The IMU factors between consecutive keyframes (gravity direction as a variable when estimated,
+    with its prior) and the prior on the first bias."""
+    graph, values = built.graph, built.values
     if opts.estimate_gravity:
         gu = np.array([0.0, 0.0, -1.0]) if init.gravity_unit is None else np.asarray(init.gravity_unit, float)
         values.insert(G(0), gtsam.Unit3(gu / np.linalg.norm(gu)))
         if opts.gravity_prior_cov is not None:
             prior_g = gtsam.noiseModel.Gaussian.Covariance(np.asarray(opts.gravity_prior_cov, dtype=float))
             graph.add(gtsam.PriorFactorUnit3(G(0), gtsam.Unit3(gu / np.linalg.norm(gu)), prior_g))
-            nlc += prior_g.negLogConstant()
-    for k in range(K - 1):
+            built.neg_log_const += prior_g.negLogConstant()
+    for k in range(len(pims)):
         if opts.estimate_gravity:
             f = gtsam.CombinedImuFactorWithGravityDirection(
                 X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), G(0), pims[k], opts.gravity_mps2
@@ -484,123 +495,143 @@ def build_window(
         else:
             f = gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
         graph.add(f)
-        imu_factors.append(f)
-        nlc += f.noiseModel().negLogConstant()
+        built.imu_factors.append(f)
+        built.neg_log_const += f.noiseModel().negLogConstant()
     prior_b = gtsam.noiseModel.Diagonal.Sigmas(BIAS_PRIOR_SIGMAS)
     b0 = bias0 if bias0.ndim == 1 else bias0[0]
     graph.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(b0[3:], b0[:3]), prior_b))
 
-    # --- pose factors (fused keyframes: covariance / samples fused; one model per distinct count)
-    pose_factors: list[tuple[int, Any, Any]] = []
-    sr, sp = opts.rotation_sigma_rad, opts.position_sigma_m
-    cache: dict[tuple[str, int], tuple[Any, Any]] = {}
 
-    def models(kind: str, k: int, make: Any) -> tuple[Any, Any]:
-        """(base, robust) noise models of keyframe k's factor ``kind``; ``make(n)`` builds the base
-        model for n fused samples (one model per distinct n)."""
-        n = 1 if kf.count is None else int(kf.count[k])
-        if (kind, n) not in cache:
+def _add_pose(built: _Built, k: int, factor: Any, base: Any) -> None:
+    """Add keyframe ``k``'s pose factor (``base``: its Gaussian model, for residuals and the evidence)."""
+    built.graph.add(factor)
+    built.pose_factors.append((k, factor, base))
+    built.neg_log_const += base.negLogConstant()
+
+
+class _FusedModels:
+    """(base, robust) noise models per factor kind and number of fused samples (one model per
+    distinct count: fused keyframes carry the information of ``n`` samples)."""
+
+    def __init__(self, kf: KeyframePoses, opts: SolveOptions) -> None:
+        self.kf, self.opts = kf, opts
+        self.cache: dict[tuple[str, int], tuple[Any, Any]] = {}
+
+    def get(self, kind: str, k: int, make: Any) -> tuple[Any, Any]:
+        """``make(n)`` builds the base model of keyframe ``k``'s factor ``kind`` for ``n`` samples."""
+        n = 1 if self.kf.count is None else int(self.kf.count[k])
+        if (kind, n) not in self.cache:
             base = make(n)
-            cache[(kind, n)] = (base, _robust(base, opts.robust_loss, opts.robust_k))
-        return cache[(kind, n)]
+            self.cache[(kind, n)] = (base, _robust(base, self.opts.robust_loss, self.opts.robust_k))
+        return self.cache[(kind, n)]
+
+
+def _add_pose_factors(built: _Built, kf: KeyframePoses, Xs: list[Any], Z: list[Any] | None, T_imu_pose: np.ndarray,
+                      opts: SolveOptions, skip: set[int]) -> None:
+    """The pose factors: position-only, lever arm only, relative (VIO), or absolute 6-DoF."""
+    position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or kf.quat_wxyz is None
     if position_only:
-        base = gtsam.noiseModel.Isotropic.Sigma(3, sp)
-        model = _robust(base, opts.robust_loss, opts.robust_k)
-        lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
-        if opts.estimate_extrinsic:
-            values.insert(L(0), lever.copy())
-        for k in range(K):
-            if k in skip_set:
-                continue
-            if opts.estimate_extrinsic:
-                f = gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model)
-            else:
-                f = gtsam.GPSFactorArm(X(k), kf.p_m[k], lever, model)
-            graph.add(f)
-            pose_factors.append((k, f, base))
-            nlc += base.negLogConstant()
+        _add_position_factors(built, kf, T_imu_pose, opts, skip)
     elif opts.estimate_lever_arm and not opts.estimate_extrinsic:
-        # z = X E with R_E fixed: rotation prior on X (R_z R_E^T, isotropic noise stays isotropic) and a
-        # position-with-lever-arm factor on (X, L) -- both native GTSAM factors, cheap at any rate.
-        lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
-        values.insert(L(0), lever.copy())
-        R_Et = Ep.rotation().inverse()
-        for k in range(K):
-            if k in skip_set:
-                continue
-            base_r, model_r = models("r", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sr / math.sqrt(n)))
-            base_p, model_p = models("p", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(n)))
-            fr = gtsam.PoseRotationPrior3D(X(k), Z[k].rotation().compose(R_Et), model_r)
-            fp = gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model_p)
-            graph.add(fr)
-            graph.add(fp)
-            pose_factors.append((k, fr, base_r))
-            pose_factors.append((k, fp, base_p))
-            nlc += base_r.negLogConstant() + base_p.negLogConstant()
+        _add_lever_arm_factors(built, kf, Z, T_imu_pose, opts, skip)
     elif opts.pose_mode == PoseFactorMode.RELATIVE:
-        cov = _pose_cov_in_imu(Ep, sr, sp)
-        first = gtsam.noiseModel.Gaussian.Covariance(cov)
-        graph.add(gtsam.PriorFactorPose3(X(0), Xs[0], first))
-        # Weak absolute anchors (1 rad, 1 m): relative factors fix the trajectory only up to a
-        # random walk from X(0); against the IMU factors' information (1e10 on position over
-        # 30 ms) the Hessian is then numerically singular (LM needs huge damping, Marginals
-        # fail). At 1 m the anchors carry ~1e-4 of a relative factor's weight: no drift leaks in.
-        weak = gtsam.noiseModel.Diagonal.Sigmas(np.array([RELATIVE_ANCHOR_SIGMAS[0]] * 3 + [RELATIVE_ANCHOR_SIGMAS[1]] * 3))
-        for k in range(1, K):
-            graph.add(gtsam.PriorFactorPose3(X(k), Xs[k], weak))
-            nlc += weak.negLogConstant()
-        h = opts.relative_horizon
-        # Each pose enters up to 2h factors; inflate so the information is not counted 2h times.
-        base = gtsam.noiseModel.Gaussian.Covariance(cov * 2.0 * h)
-        model = _robust(base, opts.robust_loss, opts.robust_k)
-        for k in range(K):
-            if k in skip_set:
-                continue
-            for j in range(k + 1, min(K, k + h + 1)):
-                if j in skip_set:
-                    continue
-                f = gtsam.BetweenFactorPose3(X(k), X(j), Xs[k].between(Xs[j]), model)
-                graph.add(f)
-                pose_factors.append((j, f, base))
-                nlc += base.negLogConstant()
+        _add_relative_factors(built, Xs, T_imu_pose, opts, skip)
     else:
+        _add_absolute_factors(built, kf, Xs, Z, T_imu_pose, opts, skip)
+
+
+def _add_position_factors(built: _Built, kf: KeyframePoses, T_imu_pose: np.ndarray, opts: SolveOptions,
+                          skip: set[int]) -> None:
+    """Position-only streams: the tracked point at the lever arm (a variable with ``estimate_extrinsic``)."""
+    base = gtsam.noiseModel.Isotropic.Sigma(3, opts.position_sigma_m)
+    model = _robust(base, opts.robust_loss, opts.robust_k)
+    lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
+    if opts.estimate_extrinsic:
+        built.values.insert(L(0), lever.copy())
+    for k in range(len(kf)):
+        if k in skip:
+            continue
         if opts.estimate_extrinsic:
-            values.insert(E(0), Ep)
-            for k in range(K):
-                if k in skip_set:
-                    continue
-                base, model = models("e", k, lambda n: gtsam.noiseModel.Diagonal.Sigmas(
-                    np.array([sr] * 3 + [sp] * 3) / math.sqrt(n)))
-                f = gtsam.CustomFactor(model, [X(k), E(0)], _extrinsic_error(Z[k]))
-                graph.add(f)
-                pose_factors.append((k, f, base))
-                nlc += base.negLogConstant()
+            f = gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model)
         else:
-            cov = _pose_cov_in_imu(Ep, sr, sp)
-            for k in range(K):
-                if k in skip_set:
-                    continue
-                base, model = models("x", k, lambda n: gtsam.noiseModel.Gaussian.Covariance(cov / n))
-                f = gtsam.PriorFactorPose3(X(k), Xs[k], model)
-                graph.add(f)
-                pose_factors.append((k, f, base))
-                nlc += base.negLogConstant()
-    use_velocity = (kf.v_mps is not None and not position_only
-                    and opts.pose_mode != PoseFactorMode.RELATIVE
-                    and not opts.estimate_extrinsic and not opts.estimate_lever_arm)
-    if use_velocity:
-        # the bin's line fit: velocity std sigma_p / sqrt(sum dt^2) (decoupled from the position
-        # because the keyframe sits at the bins' mean sample time). Not while the lever arm is
-        # a variable: the fused velocity was computed with a fixed one (omega x lever).
-        for k in range(K):
-            if k in skip_set or kf.dt2_s2[k] <= 0.0:
-                continue
-            base = gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(float(kf.dt2_s2[k])))
-            f = gtsam.PriorFactorVector(V(k), kf.v_mps[k], _robust(base, opts.robust_loss, opts.robust_k))
-            graph.add(f)
-            pose_factors.append((k, f, base))
-            nlc += base.negLogConstant()
-    return _Built(graph, values, pose_factors, imu_factors, nlc)
+            f = gtsam.GPSFactorArm(X(k), kf.p_m[k], lever, model)
+        _add_pose(built, k, f, base)
+
+
+def _add_lever_arm_factors(built: _Built, kf: KeyframePoses, Z: list[Any], T_imu_pose: np.ndarray,
+                           opts: SolveOptions, skip: set[int]) -> None:
+    """z = X E with R_E fixed: rotation prior on X (R_z R_E^T, isotropic noise stays isotropic) and a
+    position-with-lever-arm factor on (X, L) -- both native GTSAM factors, cheap at any rate."""
+    sr, sp = opts.rotation_sigma_rad, opts.position_sigma_m
+    models = _FusedModels(kf, opts)
+    built.values.insert(L(0), np.asarray(T_imu_pose, dtype=float)[:3, 3].copy())
+    R_Et = _pose3(T_imu_pose).rotation().inverse()
+    for k in range(len(kf)):
+        if k in skip:
+            continue
+        base_r, model_r = models.get("r", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sr / math.sqrt(n)))
+        base_p, model_p = models.get("p", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(n)))
+        _add_pose(built, k, gtsam.PoseRotationPrior3D(X(k), Z[k].rotation().compose(R_Et), model_r), base_r)
+        _add_pose(built, k, gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model_p), base_p)
+
+
+def _add_relative_factors(built: _Built, Xs: list[Any], T_imu_pose: np.ndarray, opts: SolveOptions,
+                          skip: set[int]) -> None:
+    """VIO: BetweenFactors from every keyframe to the next ``relative_horizon`` ones, weakly anchored."""
+    K = len(Xs)
+    cov = _pose_cov_in_imu(_pose3(T_imu_pose), opts.rotation_sigma_rad, opts.position_sigma_m)
+    built.graph.add(gtsam.PriorFactorPose3(X(0), Xs[0], gtsam.noiseModel.Gaussian.Covariance(cov)))
+    # Weak absolute anchors (1 rad, 1 m): relative factors fix the trajectory only up to a
+    # random walk from X(0); against the IMU factors' information (1e10 on position over
+    # 30 ms) the Hessian is then numerically singular (LM needs huge damping, Marginals
+    # fail). At 1 m the anchors carry ~1e-4 of a relative factor's weight: no drift leaks in.
+    weak = gtsam.noiseModel.Diagonal.Sigmas(np.array([RELATIVE_ANCHOR_SIGMAS[0]] * 3 + [RELATIVE_ANCHOR_SIGMAS[1]] * 3))
+    for k in range(1, K):
+        built.graph.add(gtsam.PriorFactorPose3(X(k), Xs[k], weak))
+        built.neg_log_const += weak.negLogConstant()
+    h = opts.relative_horizon
+    # Each pose enters up to 2h factors; inflate so the information is not counted 2h times.
+    base = gtsam.noiseModel.Gaussian.Covariance(cov * 2.0 * h)
+    model = _robust(base, opts.robust_loss, opts.robust_k)
+    for k in range(K):
+        if k in skip:
+            continue
+        for j in range(k + 1, min(K, k + h + 1)):
+            if j not in skip:
+                _add_pose(built, j, gtsam.BetweenFactorPose3(X(k), X(j), Xs[k].between(Xs[j]), model), base)
+
+
+def _add_absolute_factors(built: _Built, kf: KeyframePoses, Xs: list[Any], Z: list[Any], T_imu_pose: np.ndarray,
+                          opts: SolveOptions, skip: set[int]) -> None:
+    """6-DoF absolute poses: a prior on each IMU pose, or (extrinsic estimated) z = X E with E a variable."""
+    sr, sp = opts.rotation_sigma_rad, opts.position_sigma_m
+    models = _FusedModels(kf, opts)
+    Ep = _pose3(T_imu_pose)
+    if opts.estimate_extrinsic:
+        built.values.insert(E(0), Ep)
+    cov = _pose_cov_in_imu(Ep, sr, sp)
+    for k in range(len(kf)):
+        if k in skip:
+            continue
+        if opts.estimate_extrinsic:
+            base, model = models.get("e", k, lambda n: gtsam.noiseModel.Diagonal.Sigmas(
+                np.array([sr] * 3 + [sp] * 3) / math.sqrt(n)))
+            _add_pose(built, k, gtsam.CustomFactor(model, [X(k), E(0)], _extrinsic_error(Z[k])), base)
+        else:
+            base, model = models.get("x", k, lambda n: gtsam.noiseModel.Gaussian.Covariance(cov / n))
+            _add_pose(built, k, gtsam.PriorFactorPose3(X(k), Xs[k], model), base)
+
+
+def _add_velocity_priors(built: _Built, kf: KeyframePoses, opts: SolveOptions, skip: set[int]) -> None:
+    """The fused keyframes' velocities (the bins' line fits): std sigma_p / sqrt(sum dt^2), decoupled
+    from the position because the keyframe sits at the bin's mean sample time. Not while the lever
+    arm is a variable: the fused velocity was computed with a fixed one (omega x lever)."""
+    for k in range(len(kf)):
+        if k in skip or kf.dt2_s2[k] <= 0.0:
+            continue
+        base = gtsam.noiseModel.Isotropic.Sigma(3, opts.position_sigma_m / math.sqrt(float(kf.dt2_s2[k])))
+        f = gtsam.PriorFactorVector(V(k), kf.v_mps[k], _robust(base, opts.robust_loss, opts.robust_k))
+        _add_pose(built, k, f, base)
 
 
 def _optimize(built: _Built, opts: SolveOptions) -> tuple[gtsam.Values, int]:

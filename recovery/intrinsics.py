@@ -45,7 +45,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.types import ImuSeries, NS_PER_S, Sequence
+from pipeline.types import NS_PER_S, ImuSeries, Sequence
+from recovery.outputs import RecoveryReport
 
 log = logging.getLogger(__name__)
 
@@ -369,10 +370,11 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     assert fit is not None
     bias, std = raw_bias(total, np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]),
                          np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]))
-    report = dict(result.report)
-    report["intrinsics"] = intrinsics_report(total, fit, rounds)
+    data = dict(result.report.data)
+    data["intrinsics"] = intrinsics_report(total, fit, rounds)
     warning = unobservable_warning(fit)
     if warning:
-        report["warnings"] = [*report.get("warnings", []), warning]
+        data["warnings"] = [*data.get("warnings", []), warning]
+    report = RecoveryReport.from_json(data)
     return replace(result, bias_gyro_radps=bias[:, :3], bias_acc_mps2=bias[:, 3:], bias_gyro_std_radps=std[:, :3],
                    bias_acc_std_mps2=std[:, 3:], report=report)

@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from recovery.config import NoiseEstimation, PoseSigmaMethod
 from recovery.graph import KeyframePoses, SolveOptions, WindowInit, solve_window
 from recovery.preintegration import ImuNoise, MidpointSamples
 
@@ -43,9 +44,8 @@ class NoiseChoice:
         position_sigma_m / rotation_sigma_rad: Pose noise actually used.
         gyro_rw_scale / acc_rw_scale / pose_scale: Chosen factors relative to the
             calibration / defaults.
-        pose_method: ``"evidence"`` (common scale of both pose sigmas by evidence) or
-            ``"within_bin_residuals"`` (closed form from fused samples, see recovery.recover).
-        method: ``"evidence"`` or ``"fixed"``.
+        pose_method: How the pose sigmas were chosen (with ``method`` FIXED: as given).
+        method: Evidence search or fixed (as given).
         table: Every evaluated candidate with its log evidence.
     """
 
@@ -55,9 +55,9 @@ class NoiseChoice:
     gyro_rw_scale: float = 1.0
     acc_rw_scale: float = 1.0
     pose_scale: float = 1.0
-    method: str = "fixed"
+    method: NoiseEstimation = NoiseEstimation.FIXED
     table: list[dict[str, float]] = field(default_factory=list)
-    pose_method: str = "evidence"
+    pose_method: PoseSigmaMethod = PoseSigmaMethod.EVIDENCE
 
     def to_dict(self) -> dict:
         return {
@@ -67,8 +67,9 @@ class NoiseChoice:
             "gyro_random_walk_scale": float(self.gyro_rw_scale),
             "acc_random_walk_scale": float(self.acc_rw_scale),
             "pose_sigma_scale": float(self.pose_scale),
-            "pose_sigma_method": self.pose_method if self.method == "evidence" else "fixed",
-            "method": self.method,
+            "pose_sigma_method": (self.pose_method if self.method is NoiseEstimation.EVIDENCE
+                                  else PoseSigmaMethod.FIXED).value,
+            "method": self.method.value,
             "candidates": self.table,
         }
 
@@ -185,4 +186,4 @@ def estimate_noise(
     log.info("noise by evidence: gyro rw x%.3g, acc rw x%.3g, pose sigma x%.3g (%d candidates)",
              state["g"], state["a"], state["p"], len(table))
     return NoiseChoice(noise, base_position_sigma_m * state["p"], base_rotation_sigma_rad * state["p"],
-                       state["g"], state["a"], state["p"], "evidence", table)
+                       state["g"], state["a"], state["p"], NoiseEstimation.EVIDENCE, table)

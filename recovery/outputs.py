@@ -1,104 +1,195 @@
-"""Writing a recovery result: ``bias.csv``, ``recovery.json``, ``trajectory_tum.txt``, ``residuals.csv``.
+"""The recovery stage's output folder, written and read in one place.
 
-The folder is written through :func:`pipeline.atomic.atomic_dir`: it appears
-complete or not at all.
+Files (names defined here only): ``bias.csv`` (keyframe bias + sigma, :mod:`pipeline.bias_table`
+columns), ``recovery.json`` (:class:`RecoveryReport`), ``trajectory_tum.txt`` (the optimised IMU
+trajectory) and ``residuals.csv`` (per keyframe: whitened residuals and the outlier flag).
+
+:meth:`RecoveryOutputs.write` writes the folder through :func:`pipeline.atomic.atomic_dir` (it
+appears complete or not at all, and replaces only these files in an existing folder); :meth:`RecoveryOutputs.read` reads it back. Every consumer
+(interpolation, validation, windows, the report, the CLI and the workflow) reads through here.
 """
 
 from __future__ import annotations
 
-import json
-import math
+from collections.abc import Mapping
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from interpolation.bias import CSV_HEADER as BIAS_COLUMNS  # the bias.csv contract, defined once
 from pipeline.atomic import atomic_dir
+from pipeline.bias_table import CSV_HEADER, BiasTrack, read_bias_csv
+from pipeline.errors import BiasgtError, InputFormatError
+from pipeline.io.tum import read_tum_poses, write_tum
+from pipeline.jsonio import JsonRecord, dumps, number, read_json_object
+from pipeline.pose_transform import transform_from_json
 from pipeline.types import PoseSeries, PoseSourceKind
-from recovery.recover import RecoveryResult
+
 BIAS_CSV = "bias.csv"
 REPORT_JSON = "recovery.json"
 TRAJECTORY_TUM = "trajectory_tum.txt"
 RESIDUALS_CSV = "residuals.csv"
-#: Every name the recovery writes (an existing output folder keeps all others).
-RECOVERY_FILES = frozenset({BIAS_CSV, REPORT_JSON, TRAJECTORY_TUM, RESIDUALS_CSV})
+#: Every file of the folder, in the order they are described above.
+FILES = (BIAS_CSV, REPORT_JSON, TRAJECTORY_TUM, RESIDUALS_CSV)
+
+_RERUN = "re-run 'biasgt recover' (or the workflow's recover stage) to write the folder again"
 
 
-def bias_frame(result: RecoveryResult) -> pd.DataFrame:
-    """The ``bias.csv`` table (columns :data:`BIAS_COLUMNS`)."""
-    data = np.hstack([result.bias_gyro_radps, result.bias_acc_mps2, result.bias_gyro_std_radps,
-                      result.bias_acc_std_mps2])
-    frame = pd.DataFrame(data, columns=list(BIAS_COLUMNS[1:]))
-    frame.insert(0, "t_ns", np.asarray(result.t_ns, dtype=np.int64))
+@dataclass(frozen=True, eq=False)  # holds arrays: compare .data / the fields
+class RecoveryReport(JsonRecord):
+    """``recovery.json``: the typed fields every later stage reads, plus the whole object.
+
+    Attributes:
+        data: The whole JSON object (display fields of the quality report, benchmarks);
+            ``report["key"]`` reads it.
+        pose_stream: The pose stream fitted, or None when unnamed.
+        time_offset_s: ``pose_time_offset_s``: seconds to add to the pose stamps (IMU clock).
+        T_imu_pose: The pose-to-IMU extrinsic ``T_imu_pose``, 4x4.
+        gravity_world_mps2: Gravity in the pose world frame, [3], or None.
+        random_walk: The bias random walks used (``noise``), [6] = gyro x3 (rad/s^2/sqrt(Hz)),
+            acc x3 (m/s^3/sqrt(Hz)), or None when absent.
+        outlier_t_ns: Stamps (IMU clock) of the pose samples and keyframe poses rejected as outliers,
+            int64 [M].
+        warnings: Plain sentences.
+    """
+
+    data: Mapping[str, Any]
+    pose_stream: str | None
+    time_offset_s: float
+    T_imu_pose: np.ndarray
+    gravity_world_mps2: np.ndarray | None
+    random_walk: np.ndarray | None
+    outlier_t_ns: np.ndarray
+    warnings: tuple[str, ...]
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], path: str | Path | None = None) -> RecoveryReport:
+        """Parse the JSON object (as written by :func:`recovery.recover.recover`).
+
+        Raises:
+            InputFormatError: A field has the wrong form (naming it).
+        """
+        field = "T_imu_pose"
+        try:
+            T = transform_from_json(data.get("T_imu_pose"))
+            field = "gravity_world_mps2"
+            g = data.get("gravity_world_mps2")
+            gravity = None if g is None else np.asarray(g, dtype=np.float64).reshape(3)
+            field = "noise"
+            noise = data.get("noise") if isinstance(data.get("noise"), Mapping) else {}
+            g_rw, a_rw = noise.get("gyro_random_walk"), noise.get("acc_random_walk")
+            rw = None if g_rw is None or a_rw is None else np.array([float(g_rw)] * 3 + [float(a_rw)] * 3)
+            field = "pose_time_offset_s"
+            offset_s = number(data.get("pose_time_offset_s", 0.0))
+            field = "outlier_t_ns"
+            outliers = np.asarray(data.get("outlier_t_ns") or [], dtype=np.int64).reshape(-1)
+        except (BiasgtError, TypeError, ValueError) as exc:
+            raise InputFormatError(f"recovery.json field {field} is malformed ({exc})", path=path, field=field,
+                                   hint=_RERUN) from None
+        stream = data.get("pose_stream")
+        return cls(data=dict(data), pose_stream=stream if isinstance(stream, str) else None,
+                   time_offset_s=offset_s, T_imu_pose=T, gravity_world_mps2=gravity, random_walk=rw,
+                   outlier_t_ns=outliers, warnings=tuple(str(w) for w in data.get("warnings") or ()))
+
+    def require_random_walk(self, path: str | Path | None = None) -> np.ndarray:
+        """:attr:`random_walk`, which interpolation needs.
+
+        Raises:
+            InputFormatError: recovery.json names no random walks.
+        """
+        if self.random_walk is None:
+            raise InputFormatError("recovery.json has no bias random walks (noise.gyro_random_walk, "
+                                   "noise.acc_random_walk)", path=path, field="noise", hint=_RERUN)
+        return self.random_walk
+
+
+def read_report(folder: str | Path) -> RecoveryReport:
+    """``folder/recovery.json``.
+
+    Raises:
+        InputFormatError: Missing, unreadable or malformed.
+    """
+    path = Path(folder) / REPORT_JSON
+    return RecoveryReport.from_json(read_json_object(path, hint=_RERUN + " (or give the folder it wrote)"), path)
+
+
+def read_trajectory(folder: str | Path) -> PoseSeries:
+    """``folder/trajectory_tum.txt``: the optimised IMU trajectory (frame ``imu``, IMU clock)."""
+    path = Path(folder) / TRAJECTORY_TUM
+    return read_tum_poses(path, source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu", stream="recovered")[0]
+
+
+def read_residuals(folder: str | Path) -> pd.DataFrame | None:
+    """``folder/residuals.csv`` (``t_ns`` int64, whitened residuals, ``outlier``), None when absent.
+
+    Raises:
+        InputFormatError: Present but without a ``t_ns`` column.
+    """
+    path = Path(folder) / RESIDUALS_CSV
+    if not path.is_file():
+        return None
+    frame = pd.read_csv(path)
+    if "t_ns" not in frame.columns:
+        raise InputFormatError("residual table has no t_ns column", path=path, hint=_RERUN)
+    frame["t_ns"] = frame["t_ns"].astype(np.int64)
     return frame
 
 
-def _json_safe(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    if isinstance(obj, (np.floating, float)):
-        v = float(obj)
-        return v if math.isfinite(v) else None
-    if isinstance(obj, (np.integer,)):
-        return int(obj)
-    if isinstance(obj, (np.bool_,)):
-        return bool(obj)
-    return obj
+@dataclass(frozen=True, eq=False)  # holds arrays: compare .data / the fields
+class RecoveryOutputs:
+    """The content of a recovery folder.
+
+    Attributes:
+        bias: Keyframe bias and marginal sigma (``bias.csv``).
+        report: ``recovery.json``.
+        trajectory: The optimised IMU trajectory (``trajectory_tum.txt``).
+        residuals: Per keyframe: ``t_ns``, ``pose_whitened_rms``, ``imu_whitened_rms``, ``outlier``
+            (``residuals.csv``), or None.
+    """
+
+    bias: BiasTrack
+    report: RecoveryReport
+    trajectory: PoseSeries
+    residuals: pd.DataFrame | None = None
+
+    def write(self, out_dir: str | Path) -> Path:
+        """Write the folder atomically; returns it as a Path.
+
+        An existing folder gets these files replaced and keeps what other stages wrote there
+        (e.g. ``bias_imu.parquet``, ``validation/`` in the README's single-folder layout).
+        """
+        out_dir = Path(out_dir)
+        with atomic_dir(out_dir, owned=FILES) as tmp:
+            _write_bias_csv(tmp / BIAS_CSV, self.bias)
+            (tmp / REPORT_JSON).write_text(dumps(self.report.data), encoding="utf-8")
+            write_tum(tmp / TRAJECTORY_TUM, self.trajectory)
+            if self.residuals is not None:
+                self.residuals.to_csv(tmp / RESIDUALS_CSV, index=False, float_format="%.6g", na_rep="nan")
+        return out_dir
+
+    @classmethod
+    def read(cls, folder: str | Path) -> RecoveryOutputs:
+        """Read a folder written by :meth:`write`.
+
+        Raises:
+            InputFormatError: Not a recovery folder, or a file is missing or malformed.
+        """
+        folder = Path(folder)
+        for name in (REPORT_JSON, BIAS_CSV, TRAJECTORY_TUM):
+            if not (folder / name).is_file():
+                raise InputFormatError(f"recovery output lacks {name}", path=folder,
+                                       hint="give the folder written by 'biasgt recover --out DIR'")
+        return cls(read_bias_csv(folder / BIAS_CSV), read_report(folder), read_trajectory(folder),
+                   read_residuals(folder))
 
 
-def _write_tum(path: Path, result: RecoveryResult) -> None:
-    poses = PoseSeries(result.t_ns, result.p_m, result.quat_wxyz, "imu", PoseSourceKind.GROUND_TRUTH)
-    try:
-        from pipeline.io.tum import write_tum
-    except ImportError:  # pragma: no cover - io package always ships tum
-        write_tum = None
-    if write_tum is not None:
-        write_tum(path, poses)
-        return
-    q = result.quat_wxyz  # pragma: no cover
-    with open(path, "w", encoding="utf-8") as fh:  # pragma: no cover
-        for i in range(len(result.t_ns)):
-            fh.write(f"{result.t_ns[i] / 1e9:.9f} {result.p_m[i, 0]!r} {result.p_m[i, 1]!r} {result.p_m[i, 2]!r} "
-                     f"{q[i, 1]!r} {q[i, 2]!r} {q[i, 3]!r} {q[i, 0]!r}\n")
-
-
-def _write_bias_csv(path: Path, result: RecoveryResult) -> None:
-    """``bias.csv`` as :func:`bias_frame` would write with ``to_csv(float_format="%.9g", na_rep="nan")``,
-    formatted with one %-format per row (pandas' CSV writer takes ~1 s for 18000 rows)."""
-    data = np.hstack([result.bias_gyro_radps, result.bias_acc_mps2, result.bias_gyro_std_radps,
-                      result.bias_acc_std_mps2]).astype(float)
-    t = np.asarray(result.t_ns, dtype=np.int64)
+def _write_bias_csv(path: Path, bias: BiasTrack) -> None:
+    """``bias.csv`` as ``BiasTrack.to_frame().to_csv(float_format="%.9g", na_rep="nan")`` would write
+    it, formatted with one %-format per row (pandas' CSV writer takes ~1 s for 18000 rows)."""
+    data = np.hstack([bias.bias, bias.std]).astype(float)
     fmt = "%d" + ",%.9g" * data.shape[1] + "\n"
     with open(path, "w", encoding="utf-8", newline="") as fh:
-        fh.write(",".join(BIAS_COLUMNS) + "\n")
-        fh.writelines(fmt % (ti, *row) for ti, row in zip(t.tolist(), data.tolist()))
-
-
-def write_recovery(result: RecoveryResult, out_dir: str | Path) -> Path:
-    """Write ``bias.csv``, ``recovery.json`` and ``trajectory_tum.txt`` into ``out_dir`` atomically.
-
-    Args:
-        result: From :func:`recovery.recover.recover`.
-        out_dir: Output folder; an existing one gets these files replaced, and keeps what other
-            stages wrote there (e.g. ``bias_imu.parquet``, ``validation/``).
-
-    Returns:
-        ``out_dir`` as a Path.
-    """
-    out_dir = Path(out_dir)
-    with atomic_dir(out_dir, owned=RECOVERY_FILES) as tmp:
-        _write_bias_csv(tmp / BIAS_CSV, result)
-        (tmp / REPORT_JSON).write_text(json.dumps(_json_safe(result.report), indent=2, allow_nan=False) + "\n",
-                                       encoding="utf-8")
-        _write_tum(tmp / TRAJECTORY_TUM, result)
-        if result.residuals:
-            frame = pd.DataFrame({"t_ns": np.asarray(result.t_ns, dtype=np.int64),
-                                  **{k: np.asarray(v) for k, v in result.residuals.items()}})
-            frame.to_csv(tmp / RESIDUALS_CSV, index=False, float_format="%.6g", na_rep="nan")
-    return out_dir
+        fh.write(",".join(CSV_HEADER) + "\n")
+        fh.writelines(fmt % (ti, *row) for ti, row in zip(np.asarray(bias.t_ns, np.int64).tolist(), data.tolist()))

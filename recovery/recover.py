@@ -31,26 +31,35 @@ import logging
 import math
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 from scipy.spatial.transform import Rotation
 
+from pipeline.bias_table import BiasTrack
 from pipeline.errors import BiasgtError, RecoveryError
+from pipeline.io import select_pose_stream
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import (
     DEFAULT_POSE_SIGMAS,
+    CalibrationSolve,
     ExtrinsicMode,
     ImuGapPolicy,
     IntrinsicsMode,
     NoiseEstimation,
     PoseFactorMode,
+    PoseSigmaMethod,
     RecoveryConfig,
     TimeOffsetMode,
 )
+from recovery import calibration_init as ci
+from recovery.bounds import bias_rmse_floor
 from recovery.fusion import fuse_poses
-from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, solve_window
+from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, propagate_orientations, solve_window
 from recovery.noise import NoiseChoice, estimate_noise
+from recovery.outputs import RecoveryOutputs, RecoveryReport
 from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
 from recovery.segments import plan_segments, stitch
 
@@ -68,7 +77,7 @@ class RecoveryResult:
         bias_gyro_radps / bias_acc_mps2: [K, 3].
         bias_gyro_std_radps / bias_acc_std_mps2: Marginal 1-sigma, [K, 3].
         p_m / quat_wxyz / v_mps: Optimised IMU trajectory in the pose world frame, [K, 3] / [K, 4] / [K, 3].
-        report: The content of ``recovery.json``.
+        report: ``recovery.json`` (:class:`recovery.outputs.RecoveryReport`).
         residuals: Per keyframe [K]: ``pose_whitened_rms``, ``imu_whitened_rms`` (NaN where a keyframe
             has no such factor) and ``outlier`` (its pose was rejected); written as ``residuals.csv``.
     """
@@ -81,12 +90,23 @@ class RecoveryResult:
     p_m: np.ndarray
     quat_wxyz: np.ndarray
     v_mps: np.ndarray
-    report: dict[str, Any] = field(default_factory=dict)
+    report: RecoveryReport
     residuals: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def warnings(self) -> list[str]:
-        return list(self.report.get("warnings", []))
+        return list(self.report.warnings)
+
+    def outputs(self) -> RecoveryOutputs:
+        """What the output folder holds of this result (:class:`recovery.outputs.RecoveryOutputs`)."""
+        t_ns = np.asarray(self.t_ns, dtype=np.int64)
+        bias = BiasTrack(t_ns, np.hstack([self.bias_gyro_radps, self.bias_acc_mps2]).astype(float),
+                         np.hstack([self.bias_gyro_std_radps, self.bias_acc_std_mps2]).astype(float))
+        trajectory = PoseSeries(t_ns, self.p_m, self.quat_wxyz, "imu", PoseSourceKind.GROUND_TRUTH)
+        residuals = None
+        if self.residuals:
+            residuals = pd.DataFrame({"t_ns": t_ns, **{k: np.asarray(v) for k, v in self.residuals.items()}})
+        return RecoveryOutputs(bias, self.report, trajectory, residuals)
 
     def bias_at(self, t_ns: np.ndarray) -> np.ndarray:
         """Bias linearly interpolated at ``t_ns``, [M, 6] (gyro, acc); clamped at the ends."""
@@ -101,6 +121,11 @@ class RecoveryResult:
         x = (self.t_ns - self.t_ns[0]).astype(float)
         xq = (np.asarray(t_ns, dtype=np.int64) - self.t_ns[0]).astype(float)
         return np.stack([np.interp(xq, x, s[:, c]) for c in range(6)], axis=1)
+
+
+def write_recovery(result: RecoveryResult, out_dir: str | Path) -> Path:
+    """Write the recovery folder of ``result`` atomically (:meth:`recovery.outputs.RecoveryOutputs.write`)."""
+    return result.outputs().write(out_dir)
 
 
 def agreement_z(a: RecoveryResult, b: RecoveryResult) -> np.ndarray:
@@ -121,8 +146,6 @@ def agreement_z(a: RecoveryResult, b: RecoveryResult) -> np.ndarray:
 
 def _select_stream(sequence: Sequence, pose_stream: str | None) -> tuple[str, PoseSeries]:
     """The pose stream to fit: ``pose_stream``, else the io package's default priority."""
-    from pipeline.io import select_pose_stream
-
     return select_pose_stream(sequence, pose_stream)
 
 
@@ -289,7 +312,7 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
     Also returns the gravity and median bias of the last solve (a linearisation point for fusion).
     """
     o = replace(opts, reject_outliers=False, compute_marginals=False, marginal_extras=False)
-    rate = config.calibration_rate_hz("offset_refine", problem.fuse)
+    rate = config.calibration_rate_hz(CalibrationSolve.OFFSET_REFINE, problem.fuse)
     cache: dict[int, float] = {}
     init: dict[str, WindowInit] = {}
 
@@ -377,8 +400,6 @@ def _continue_from(prev: WindowSolution, w: tuple[MidpointSamples, KeyframePoses
     large gyro bias). Overlap keyframes take the previous solution; later ones are
     propagated with the gyro minus the previous bias.
     """
-    from recovery.graph import propagate_orientations
-
     samples, kf = w
     K = len(kf)
     q = np.zeros((K, 4))
@@ -513,11 +534,46 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         ) from exc
 
 
-def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryConfig) -> RecoveryResult:
-    t_start = time.perf_counter()
+@dataclass(frozen=True)
+class _Inputs:
+    """Stage 1, the checked inputs and what follows from them alone.
+
+    Attributes:
+        imu: The IMU. stream / poses / kind: The pose stream fitted (cleaned; orientations dropped
+            for position trackers), its name and source kind.
+        has_rot: The pose stream measures orientation.
+        pieces: Gap-free IMU spans ``[(t0_ns, t1_ns)]``.
+        pose_mode: Absolute or relative pose factors (AUTO resolved).
+        estimate_gravity: Estimate the gravity direction (AUTO resolved).
+        position_sigma_m / rotation_sigma_rad: Pose noise before any estimation.
+        imu_noise: IMU noise before any estimation (calibration, or the config's overrides).
+        calibration_noise: ``imu_noise`` with the random walks at the middle of the evidence grid:
+            the noise of the calibration solves before the noise is estimated.
+        opts: Solve options common to every solve.
+        fuse: Fuse the pose samples between keyframes into them.
+        warnings: Plain sentences.
+    """
+
+    imu: ImuSeries
+    stream: str
+    poses: PoseSeries
+    kind: PoseSourceKind
+    has_rot: bool
+    pieces: list[tuple[int, int]]
+    pose_mode: PoseFactorMode
+    estimate_gravity: bool
+    position_sigma_m: float
+    rotation_sigma_rad: float
+    imu_noise: ImuNoise
+    calibration_noise: ImuNoise
+    opts: SolveOptions
+    fuse: bool
+    warnings: tuple[str, ...]
+
+
+def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: RecoveryConfig) -> _Inputs:
+    """Stage 1: select and clean the pose stream, split the IMU at gaps, resolve the AUTO modes."""
     warnings: list[str] = []
-    flags: dict[str, Any] = {}
-    timings: dict[str, float] = {}
     imu = sequence.imu
     if imu is None or len(imu) < 10:
         raise RecoveryError(f"sequence '{sequence.name}' has no IMU data (or fewer than 10 samples)")
@@ -527,11 +583,10 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     if len(poses) < config.min_poses:
         raise RecoveryError(f"pose stream '{name}' has {len(poses)} samples, fewer than min_poses={config.min_poses}")
     pieces = _imu_pieces(imu, config, warnings)
-    cal = sequence.calibration
+    imu_calibration = sequence.calibration
     has_rot = poses.quat_wxyz is not None and kind != PoseSourceKind.POSITION_TRACKER
     if kind == PoseSourceKind.POSITION_TRACKER and poses.quat_wxyz is not None:
         poses = PoseSeries(poses.t_ns, poses.p_m, None, poses.frame, kind, poses.world_frame)
-
     pose_mode = config.pose_factor_mode
     if pose_mode == PoseFactorMode.AUTO:
         pose_mode = PoseFactorMode.RELATIVE if kind == PoseSourceKind.VIO else PoseFactorMode.ABSOLUTE
@@ -546,11 +601,11 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     default_sp, default_sr = DEFAULT_POSE_SIGMAS[kind]
     base_sp = config.position_sigma_m or default_sp
     base_sr = config.rotation_sigma_rad or default_sr
-    base_imu = ImuNoise(
-        gyro_noise_density=config.gyro_noise_density or cal.gyro_noise_density,
-        acc_noise_density=config.acc_noise_density or cal.acc_noise_density,
-        gyro_random_walk=config.gyro_random_walk or cal.gyro_random_walk,
-        acc_random_walk=config.acc_random_walk or cal.acc_random_walk,
+    imu_noise = ImuNoise(
+        gyro_noise_density=config.gyro_noise_density or imu_calibration.gyro_noise_density,
+        acc_noise_density=config.acc_noise_density or imu_calibration.acc_noise_density,
+        gyro_random_walk=config.gyro_random_walk or imu_calibration.gyro_random_walk,
+        acc_random_walk=config.acc_random_walk or imu_calibration.acc_random_walk,
         integration_sigma=config.integration_sigma,
     )
     opts = SolveOptions(
@@ -562,254 +617,405 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     )
     # the noise scales during calibration start at the middle of the candidate grid
     start_scale = 10.0 if config.noise_estimation == NoiseEstimation.EVIDENCE else 1.0
-    calib_imu = replace(base_imu, gyro_random_walk=base_imu.gyro_random_walk * start_scale,
-                        acc_random_walk=base_imu.acc_random_walk * start_scale)
+    calibration_noise = replace(imu_noise, gyro_random_walk=imu_noise.gyro_random_walk * start_scale,
+                                acc_random_walk=imu_noise.acc_random_walk * start_scale)
     fuse = bool(config.pose_fusion and has_rot and pose_mode == PoseFactorMode.ABSOLUTE)
-    problem = _Problem(imu, poses, pieces, fuse=fuse, gravity_mps2=config.gravity_mps2)
+    return _Inputs(imu, name, poses, kind, has_rot, pieces, pose_mode, bool(estimate_g), base_sp, base_sr, imu_noise,
+                   calibration_noise, opts, fuse, tuple(warnings))
 
-    # --- clock offset, coarse
-    from recovery import calibration_init as ci
 
-    t0 = time.perf_counter()
-    off_mode = config.time_offset_mode
-    if off_mode == TimeOffsetMode.AUTO:
-        off_mode = TimeOffsetMode.FIXED if kind == PoseSourceKind.GROUND_TRUTH else TimeOffsetMode.ESTIMATE
-    offset_s, offset_std, offset_method = float(config.time_offset_s), 0.0, "fixed"
-    coarse = None
-    if off_mode == TimeOffsetMode.ESTIMATE:
-        try:
-            imu_c, poses_c = _coarse_offset_inputs(imu, poses, pieces, config.max_time_offset_s)
-            coarse = ci.estimate_time_offset(imu_c, poses_c, max_offset_s=config.max_time_offset_s)
-            offset_s, offset_std, offset_method = coarse.offset_s, coarse.std_s, f"correlation_{coarse.method}"
-        except BiasgtError as exc:
-            offset_std = config.offset_refine_step_s  # search with the widest grid step
-            warnings.append(f"coarse clock offset failed ({exc}); starting from time_offset_s={config.time_offset_s}")
-    timings["offset_coarse_s"] = time.perf_counter() - t0
+@dataclass(frozen=True)
+class _ClockOffset:
+    """Stages 2 and 5, the pose stream's clock offset (seconds to add to its stamps).
 
-    t_pose = _shifted_stamps(poses, offset_s)
+    Attributes:
+        mode: FIXED or ESTIMATE (AUTO resolved).
+        offset_s / std_s: The offset and its 1-sigma.
+        coarse_method: The cross-correlation's signal (:func:`recovery.calibration_init.estimate_time_offset`),
+            None when not estimated or when it failed.
+        refined: The graph-cost parabola refined it.
+        search: The refinement's cost per offset (``recovery.json`` ``pose_time_offset_search``).
+        warnings: Plain sentences.
+    """
+
+    mode: TimeOffsetMode
+    offset_s: float
+    std_s: float
+    coarse_method: str | None = None
+    refined: bool = False
+    search: tuple[dict[str, float], ...] = ()
+    warnings: tuple[str, ...] = ()
+
+    @property
+    def method(self) -> str:
+        """``recovery.json`` ``pose_time_offset_method``: e.g. ``correlation_gyro+graph_cost_parabola``."""
+        if self.mode != TimeOffsetMode.ESTIMATE:
+            return "fixed"
+        coarse = f"correlation_{self.coarse_method}" if self.coarse_method else "fixed"
+        return coarse + ("+graph_cost_parabola" if self.refined else "")
+
+
+def _coarse_offset(inputs: _Inputs, config: RecoveryConfig) -> _ClockOffset:
+    """Stage 2: the clock offset by cross-correlation (ESTIMATE), else as configured."""
+    mode = config.time_offset_mode
+    if mode == TimeOffsetMode.AUTO:
+        mode = TimeOffsetMode.FIXED if inputs.kind == PoseSourceKind.GROUND_TRUTH else TimeOffsetMode.ESTIMATE
+    fixed = _ClockOffset(mode, float(config.time_offset_s), 0.0)
+    if mode != TimeOffsetMode.ESTIMATE:
+        return fixed
+    try:
+        imu_c, poses_c = _coarse_offset_inputs(inputs.imu, inputs.poses, inputs.pieces, config.max_time_offset_s)
+        coarse = ci.estimate_time_offset(imu_c, poses_c, max_offset_s=config.max_time_offset_s)
+    except BiasgtError as exc:
+        # search with the widest grid step
+        return replace(fixed, std_s=config.offset_refine_step_s, warnings=(
+            f"coarse clock offset failed ({exc}); starting from time_offset_s={config.time_offset_s}",))
+    return replace(fixed, offset_s=coarse.offset_s, std_s=coarse.std_s, coarse_method=coarse.method)
+
+
+@dataclass(frozen=True)
+class _CalibrationWindows:
+    """Stage 3: ``overlap`` of the IMU and the (shifted) poses, and ``calib_window``, the
+    ``calib_window_s`` inside it with the most rotation, where the calibration solves run."""
+
+    overlap: tuple[int, int]
+    calib_window: tuple[int, int]
+
+
+def _calibration_windows(inputs: _Inputs, offset_s: float, config: RecoveryConfig) -> _CalibrationWindows:
+    """Stage 3 (see :class:`_CalibrationWindows`).
+
+    Raises:
+        RecoveryError: The IMU and the pose stream do not overlap by ``min_poses`` samples.
+    """
+    imu = inputs.imu
+    t_pose = _shifted_stamps(inputs.poses, offset_s)
     overlap = (max(int(imu.t_ns[0]), int(t_pose[0])), min(int(imu.t_ns[-1]), int(t_pose[-1])))
     n_overlap = int(((t_pose > imu.t_ns[0]) & (t_pose < imu.t_ns[-1])).sum())
     if overlap[1] <= overlap[0] or n_overlap < config.min_poses:
         raise RecoveryError(
-            f"no usable time overlap between the IMU and pose stream '{name}' ({n_overlap} poses inside the IMU span)",
-            hint="check that both come from the same recording and that the stamps use the same epoch")
-    calib = _calibration_window(imu, pieces, overlap, config.calib_window_s)
+            f"no usable time overlap between the IMU and pose stream '{inputs.stream}' ({n_overlap} poses inside "
+            "the IMU span)", hint="check that both come from the same recording and that the stamps use the same epoch")
+    return _CalibrationWindows(overlap, _calibration_window(imu, inputs.pieces, overlap, config.calib_window_s))
 
-    # --- extrinsic
+
+@dataclass(frozen=True)
+class _ExtrinsicInit:
+    """Stage 4, the extrinsic ``T_imu_pose`` before the joint solve.
+
+    Attributes:
+        mode: KNOWN or ESTIMATE (AUTO resolved). known: The calibration's (or identity for IMU /
+            ground-truth frames), or None.
+        T_imu_pose: The initial value, 4x4.
+        info: ``recovery.json`` ``extrinsic`` so far (mode, source, initialisation residual).
+        excitation_deg: Spread of the orientations (NaN without them).
+        rotation_observable: Whether the rotation can be estimated (None: position-only stream).
+        opts: Options of the joint extrinsic solve (``estimate_extrinsic``: whether it runs).
+        estimate_lever: The lever arm is estimated (refined again by the gravity solve).
+        warnings: Plain sentences.
+    """
+
+    mode: ExtrinsicMode
+    known: np.ndarray | None
+    T_imu_pose: np.ndarray
+    info: dict[str, Any]
+    excitation_deg: float
+    rotation_observable: bool | None
+    opts: SolveOptions
+    estimate_lever: bool
+    warnings: tuple[str, ...]
+
+
+def _extrinsic_init(sequence: Sequence, inputs: _Inputs, offset_s: float, config: RecoveryConfig) -> _ExtrinsicInit:
+    """Stage 4: the calibration's extrinsic, or a closed-form rotation and lever arm from the data."""
+    imu, poses, warnings = inputs.imu, inputs.poses, []
     known_T = _known_extrinsic(sequence, poses)
-    ext_mode = config.extrinsic_mode
-    if ext_mode == ExtrinsicMode.AUTO:
-        ext_mode = ExtrinsicMode.KNOWN if known_T is not None else ExtrinsicMode.ESTIMATE
+    mode = config.extrinsic_mode
+    if mode == ExtrinsicMode.AUTO:
+        mode = ExtrinsicMode.KNOWN if known_T is not None else ExtrinsicMode.ESTIMATE
     T = known_T.copy() if known_T is not None else np.eye(4)
-    ext_info: dict[str, Any] = {"mode": ext_mode.value, "source": "calibration" if known_T is not None else "identity"}
-    excitation = _rotation_excitation_deg(poses) if has_rot else float("nan")
-    flags["rotation_excitation_deg"] = excitation
-    rot_observable = True
-    estimate_rotation = False
-    estimate_lever = False
-    if ext_mode == ExtrinsicMode.ESTIMATE:
-        if has_rot:
-            try:
-                rot = ci.estimate_extrinsic_rotation(imu, poses, offset_s)
-                rot_observable = bool(rot.observable) and excitation >= config.min_rotation_excitation_deg
-                if rot_observable:
-                    T[:3, :3] = rot.R_imu_pose
-                    ext_info["rotation_init_residual"] = float(rot.residual_deg)
-            except BiasgtError as exc:
-                rot_observable = False
-                warnings.append(f"extrinsic rotation initialisation failed: {exc}")
-            if not rot_observable:
-                warnings.append(
-                    f"extrinsic rotation unobservable (rotation excitation {excitation:.1f} deg): using the "
-                    f"{'calibration' if known_T is not None else 'identity'} rotation")
-            else:
-                try:
-                    lev = ci.estimate_lever_arm(imu, poses, offset_s, T[:3, :3])
-                    if lev.observable:
-                        T[:3, 3] = lev.p_imu_pose_m
-                except BiasgtError as exc:
-                    warnings.append(f"lever-arm initialisation failed: {exc}")
-            estimate_rotation = rot_observable
-            estimate_lever = rot_observable
-        else:
-            estimate_lever = True
-    flags["extrinsic_rotation_observable"] = bool(rot_observable) if has_rot else None
-    ext_opts = replace(opts, estimate_extrinsic=estimate_rotation or estimate_lever, marginal_extras=True)
-    problem.set_linearisation(T_imu_pose=T)
-
-    def solve_extrinsic(off: float) -> WindowSolution | None:
-        """Joint extrinsic solve on the calibration window; adopts its T (and linearises fusion there)."""
-        nonlocal T
-        w = problem.window(off, calib[0], calib[1], config.calibration_rate_hz("extrinsic", problem.fuse))
-        if w is None:
-            return None
-        sol = solve_window(w[0], w[1], calib_imu, T, ext_opts)
-        T = sol.T_imu_pose
-        problem.set_linearisation(T_imu_pose=T, gravity_unit=sol.gravity_unit, bias=np.median(sol.bias, axis=0))
-        return sol
-
-    t0 = time.perf_counter()
-    ext_sol = solve_extrinsic(offset_s) if ext_opts.estimate_extrinsic else None
-    timings["extrinsic_s"] = time.perf_counter() - t0
-
-    # --- clock offset, refined
-    t0 = time.perf_counter()
-    offset_table: list[dict[str, float]] = []
-    if off_mode == TimeOffsetMode.ESTIMATE:
+    info: dict[str, Any] = {"mode": mode.value, "source": "calibration" if known_T is not None else "identity"}
+    excitation = _rotation_excitation_deg(poses) if inputs.has_rot else float("nan")
+    rot_observable, estimate_rotation, estimate_lever = True, False, False
+    if mode == ExtrinsicMode.ESTIMATE and not inputs.has_rot:
+        estimate_lever = True
+    elif mode == ExtrinsicMode.ESTIMATE:
         try:
-            off_win = calib
-            if config.offset_window_s(problem.fuse) < config.calib_window_s:
-                off_win = _calibration_window(imu, pieces, (calib[0], calib[1]), config.offset_window_s(problem.fuse))
-            offset_s, offset_std, offset_table, last = _refine_offset(problem, offset_s, offset_std, off_win, calib_imu,
-                                                                      T, opts, config)
-            if last is not None and problem.bias is None:
-                problem.set_linearisation(gravity_unit=last.gravity_unit, bias=last.bias)
-            offset_method += "+graph_cost_parabola"
-        except (BiasgtError, ValueError, np.linalg.LinAlgError) as exc:
-            warnings.append(f"clock offset refinement failed ({exc}); using the coarse estimate")
-        if ext_opts.estimate_extrinsic:
-            ext_sol = solve_extrinsic(offset_s)
-    timings["offset_refine_s"] = time.perf_counter() - t0
-    if ext_sol is not None:
-        if "extrinsic_cov" in ext_sol.extras:
-            c = np.sqrt(np.diag(ext_sol.extras["extrinsic_cov"]))
-            ext_info["rotation_std_deg"] = [float(np.degrees(x)) for x in c[:3]]
-            ext_info["translation_std_m"] = [float(x) for x in c[3:]]
-        if "lever_arm_cov" in ext_sol.extras:
-            ext_info["translation_std_m"] = [float(x) for x in np.sqrt(np.diag(ext_sol.extras["lever_arm_cov"]))]
-        ext_info["source"] = "estimated"
-    elif ext_mode == ExtrinsicMode.ESTIMATE and not rot_observable:
-        ext_info["source"] = "fallback_" + ext_info["source"]
+            rot = ci.estimate_extrinsic_rotation(imu, poses, offset_s)
+            rot_observable = bool(rot.observable) and excitation >= config.min_rotation_excitation_deg
+            if rot_observable:
+                T[:3, :3] = rot.R_imu_pose
+                info["rotation_init_residual"] = float(rot.residual_deg)
+        except BiasgtError as exc:
+            rot_observable = False
+            warnings.append(f"extrinsic rotation initialisation failed: {exc}")
+        if not rot_observable:
+            warnings.append(
+                f"extrinsic rotation unobservable (rotation excitation {excitation:.1f} deg): using the "
+                f"{'calibration' if known_T is not None else 'identity'} rotation")
+        else:
+            try:
+                lev = ci.estimate_lever_arm(imu, poses, offset_s, T[:3, :3])
+                if lev.observable:
+                    T[:3, 3] = lev.p_imu_pose_m
+            except BiasgtError as exc:
+                warnings.append(f"lever-arm initialisation failed: {exc}")
+        estimate_rotation = estimate_lever = rot_observable
+    opts = replace(inputs.opts, estimate_extrinsic=estimate_rotation or estimate_lever, marginal_extras=True)
+    return _ExtrinsicInit(mode, known_T, T, info, excitation, bool(rot_observable) if inputs.has_rot else None,
+                          opts, estimate_lever, tuple(warnings))
 
-    # --- noise
-    t0 = time.perf_counter()
+
+def _solve_extrinsic(problem: _Problem, inputs: _Inputs, calib_window: tuple[int, int], T: np.ndarray,
+                     opts: SolveOptions, offset_s: float, config: RecoveryConfig) -> WindowSolution | None:
+    """The joint extrinsic solve on the calibration window; fusion is then linearised at its
+    extrinsic, gravity and median bias. None when the window holds too few poses."""
+    rate = config.calibration_rate_hz(CalibrationSolve.EXTRINSIC, problem.fuse)
+    w = problem.window(offset_s, calib_window[0], calib_window[1], rate)
+    if w is None:
+        return None
+    sol = solve_window(w[0], w[1], inputs.calibration_noise, T, opts)
+    problem.set_linearisation(T_imu_pose=sol.T_imu_pose, gravity_unit=sol.gravity_unit,
+                              bias=np.median(sol.bias, axis=0))
+    return sol
+
+
+def _refined_offset(problem: _Problem, inputs: _Inputs, coarse: _ClockOffset, windows: _CalibrationWindows,
+                    T: np.ndarray, config: RecoveryConfig) -> _ClockOffset:
+    """Stage 5: the offset at the vertex of the graph cost (ESTIMATE), else ``coarse``."""
+    if coarse.mode != TimeOffsetMode.ESTIMATE:
+        return coarse
+    try:
+        off_win = windows.calib_window
+        if config.offset_window_s(problem.fuse) < config.calib_window_s:
+            off_win = _calibration_window(inputs.imu, inputs.pieces, off_win, config.offset_window_s(problem.fuse))
+        offset_s, std_s, table, last = _refine_offset(problem, coarse.offset_s, coarse.std_s, off_win,
+                                                      inputs.calibration_noise, T, inputs.opts, config)
+    except (BiasgtError, ValueError, np.linalg.LinAlgError) as exc:
+        return replace(coarse, warnings=coarse.warnings + (
+            f"clock offset refinement failed ({exc}); using the coarse estimate",))
+    if last is not None and problem.bias is None:
+        problem.set_linearisation(gravity_unit=last.gravity_unit, bias=last.bias)
+    return replace(coarse, offset_s=offset_s, std_s=std_s, refined=True, search=tuple(table))
+
+
+def _extrinsic_info(init: _ExtrinsicInit, sol: WindowSolution | None) -> dict[str, Any]:
+    """``recovery.json`` ``extrinsic`` after the joint solve: its 1-sigma and where T came from."""
+    info = dict(init.info)
+    if sol is not None:
+        if "extrinsic_cov" in sol.extras:
+            c = np.sqrt(np.diag(sol.extras["extrinsic_cov"]))
+            info["rotation_std_deg"] = [float(np.degrees(x)) for x in c[:3]]
+            info["translation_std_m"] = [float(x) for x in c[3:]]
+        if "lever_arm_cov" in sol.extras:
+            info["translation_std_m"] = [float(x) for x in np.sqrt(np.diag(sol.extras["lever_arm_cov"]))]
+        info["source"] = "estimated"
+    elif init.mode == ExtrinsicMode.ESTIMATE and init.rotation_observable is False:
+        info["source"] = "fallback_" + info["source"]
+    return info
+
+
+@dataclass(frozen=True)
+class _Noise:
+    """Stage 6: the noise model (``choice``), the position-only chained solution the segments may
+    start from (``chain``), the evidence window's length and the grid-edge warnings."""
+
+    choice: NoiseChoice
+    chain: Any
+    window_s: float | None
+    warnings: tuple[str, ...]
+
+
+def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, offset_s: float, T: np.ndarray,
+           config: RecoveryConfig) -> _Noise:
+    """Stage 6: bias random walks and pose sigmas by maximum evidence (EVIDENCE), else as given."""
+    calib = windows.calib_window
     if problem.fuse and problem.bias is None:
         # fusion moves samples with the IMU: linearise it at a first bias estimate (a gyro-bias
         # error is absorbed by the fit, an acc-bias error of 0.5 m/s^2 would add ~1e-4 m of scatter)
-        w = problem.window(offset_s, calib[0], calib[1], config.calibration_rate_hz("noise", problem.fuse))
+        rate = config.calibration_rate_hz(CalibrationSolve.NOISE, problem.fuse)
+        w = problem.window(offset_s, calib[0], calib[1], rate)
         if w is not None:
-            sol0 = solve_window(w[0], w[1], calib_imu, T, replace(opts, reject_outliers=False))
+            sol0 = solve_window(w[0], w[1], inputs.calibration_noise, T, replace(inputs.opts, reject_outliers=False))
             problem.set_linearisation(gravity_unit=sol0.gravity_unit, bias=_bias_function(sol0))
-    chain = None
-    if config.noise_estimation == NoiseEstimation.EVIDENCE:
-        noise_rate = config.calibration_rate_hz("noise", problem.fuse)
-        noise_win, noise_init = calib, None
-        if not has_rot and config.position_only_window_s > config.calib_window_s:
-            # position-only: the gyro random walk needs minutes to show (see position_only_window_s)
-            noise_win = _calibration_window(imu, pieces, overlap, config.position_only_window_s)
-            if noise_win != calib:
-                chain = _chained_solution(problem, offset_s, noise_win, noise_rate, calib_imu, T, opts,
-                                          np.array([0.0, 0.0, -1.0]), config.calib_window_s, config.calib_window_s / 6)
-        flags["noise_window_s"] = float((noise_win[1] - noise_win[0]) / NS_PER_S)
-        w = problem.window(offset_s, noise_win[0], noise_win[1], noise_rate)
-        if w is not None and chain is not None:
-            noise_init = _continue_from(chain, w, np.array([0.0, 0.0, -1.0]))
-        if w is None:
-            raise RecoveryError("too few poses in the calibration window to estimate the noise",
-                                hint="set noise_estimation: fixed and give the random walks")
-        sp, sr, pose_method = _pose_sigmas_from_fusion(w[1], base_sp, base_sr, config)
-        choice = estimate_noise(w[0], w[1], base_imu, sp, sr, T, opts, config.random_walk_scales,
-                                estimate_pose=config.position_sigma_m is None and pose_method == "evidence",
-                                pose_scales=config.pose_sigma_scales, init=noise_init)
-        if pose_method != "evidence":
-            choice.pose_scale = sp / base_sp
-            choice.pose_method = pose_method
-    else:
-        choice = NoiseChoice(base_imu, base_sp, base_sr)
-    for nm, scale, grid in (("gyro", choice.gyro_rw_scale, config.random_walk_scales),
-                            ("acc", choice.acc_rw_scale, config.random_walk_scales),
-                            ("pose sigma", choice.pose_scale, config.pose_sigma_scales)):
-        if nm == "pose sigma" and (config.position_sigma_m is not None or kind == PoseSourceKind.GROUND_TRUTH):
-            continue  # smoothed ground-truth poses legitimately hit the lower edge
-        if config.noise_estimation == NoiseEstimation.EVIDENCE and (scale <= min(grid) or scale >= max(grid)):
-            if nm == "pose sigma":
-                warnings.append(f"{nm} scale {scale:g} is at the edge of its candidate grid "
-                                "(pose_sigma_scales); widen the grid")
-            else:
-                warnings.append(
-                    f"{nm} random walk: the evidence search hit its bound ({scale:g}x the calibration; "
-                    f"random_walk_scales spans {min(grid):g}x-{max(grid):g}x). Either the calibration's random "
-                    "walk is far off or the pose stream has artefacts the bias would absorb; widen "
-                    "random_walk_scales only if the calibration is known to be wrong")
-    timings["noise_s"] = time.perf_counter() - t0
+    if config.noise_estimation != NoiseEstimation.EVIDENCE:
+        choice = NoiseChoice(inputs.imu_noise, inputs.position_sigma_m, inputs.rotation_sigma_rad)
+        return _Noise(choice, None, None, ())
+    rate = config.calibration_rate_hz(CalibrationSolve.NOISE, problem.fuse)
+    noise_win, init, chain = calib, None, None
+    down = np.array([0.0, 0.0, -1.0])
+    if not inputs.has_rot and config.position_only_window_s > config.calib_window_s:
+        # position-only: the gyro random walk needs minutes to show (see position_only_window_s)
+        noise_win = _calibration_window(inputs.imu, inputs.pieces, windows.overlap, config.position_only_window_s)
+        if noise_win != calib:
+            chain = _chained_solution(problem, offset_s, noise_win, rate, inputs.calibration_noise, T, inputs.opts,
+                                      down, config.calib_window_s, config.calib_window_s / 6)
+    w = problem.window(offset_s, noise_win[0], noise_win[1], rate)
+    if w is None:
+        raise RecoveryError("too few poses in the calibration window to estimate the noise",
+                            hint="set noise_estimation: fixed and give the random walks")
+    if chain is not None:
+        init = _continue_from(chain, w, down)
+    sp, sr, pose_method = _pose_sigmas_from_fusion(w[1], inputs.position_sigma_m, inputs.rotation_sigma_rad, config)
+    choice = estimate_noise(w[0], w[1], inputs.imu_noise, sp, sr, T, inputs.opts, config.random_walk_scales,
+                            estimate_pose=config.position_sigma_m is None and pose_method is PoseSigmaMethod.EVIDENCE,
+                            pose_scales=config.pose_sigma_scales, init=init)
+    if pose_method is not PoseSigmaMethod.EVIDENCE:
+        choice.pose_scale = sp / inputs.position_sigma_m
+        choice.pose_method = pose_method
+    window_s = float((noise_win[1] - noise_win[0]) / NS_PER_S)
+    return _Noise(choice, chain, window_s, _grid_edge_warnings(choice, inputs.kind, config))
 
-    # --- gravity direction: one decimated solve over a long window (the prior of the segments' gravity)
-    t0 = time.perf_counter()
-    t_pose = _shifted_stamps(poses, offset_s)
-    grav_info: dict[str, Any] = {}
-    gravity_unit = np.array([0.0, 0.0, -1.0])
-    gsol: WindowSolution | None = None
-    gopts = replace(opts, position_sigma_m=choice.position_sigma_m, rotation_sigma_rad=choice.rotation_sigma_rad,
+
+def _grid_edge_warnings(choice: NoiseChoice, kind: PoseSourceKind, config: RecoveryConfig) -> tuple[str, ...]:
+    """Warnings for evidence searches that ended on an edge of their candidate grid."""
+    out = []
+    grid = config.random_walk_scales
+    for sensor, scale in (("gyro", choice.gyro_rw_scale), ("acc", choice.acc_rw_scale)):
+        if scale <= min(grid) or scale >= max(grid):
+            out.append(
+                f"{sensor} random walk: the evidence search hit its bound ({scale:g}x the calibration; "
+                f"random_walk_scales spans {min(grid):g}x-{max(grid):g}x). Either the calibration's random "
+                "walk is far off or the pose stream has artefacts the bias would absorb; widen "
+                "random_walk_scales only if the calibration is known to be wrong")
+    grid = config.pose_sigma_scales
+    # a fixed pose sigma is not searched; smoothed ground-truth poses legitimately hit the lower edge
+    searched = config.position_sigma_m is None and kind != PoseSourceKind.GROUND_TRUTH
+    if searched and (choice.pose_scale <= min(grid) or choice.pose_scale >= max(grid)):
+        out.append(f"pose sigma scale {choice.pose_scale:g} is at the edge of its candidate grid "
+                   "(pose_sigma_scales); widen the grid")
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class _Gravity:
+    """Stage 7, the gravity direction and the segment plan.
+
+    Attributes:
+        unit: Gravity direction in the pose world frame, [3].
+        solution: The decimated long-window solve (the prior of the segments' gravity), or None.
+        window: Its span ``(t0_ns, t1_ns)``, or None.
+        T_imu_pose: The extrinsic, its lever arm refined by that solve when it is estimated.
+        info: ``recovery.json`` ``gravity`` so far. extrinsic_info: Additions to ``extrinsic``.
+        segment_s / segment_overlap_s: The segment plan of the full solve.
+    """
+
+    unit: np.ndarray
+    solution: WindowSolution | None
+    window: tuple[int, int] | None
+    T_imu_pose: np.ndarray
+    info: dict[str, Any]
+    extrinsic_info: dict[str, Any]
+    segment_s: float
+    segment_overlap_s: float
+
+
+def _gravity(problem: _Problem, inputs: _Inputs, offset_s: float, T: np.ndarray, ext_sol: WindowSolution | None,
+             estimate_lever: bool, choice: NoiseChoice, config: RecoveryConfig) -> _Gravity:
+    """Stage 7: one decimated solve over a long window for the gravity direction (and the lever arm)."""
+    t_pose = _shifted_stamps(inputs.poses, offset_s)
+    info: dict[str, Any] = {}
+    ext_info: dict[str, Any] = {}
+    unit = np.array([0.0, 0.0, -1.0])
+    gsol, gwin = None, None
+    gopts = replace(inputs.opts, position_sigma_m=choice.position_sigma_m, rotation_sigma_rad=choice.rotation_sigma_rad,
                     marginal_extras=True)
-    refine_lever = ext_sol is not None and has_rot and estimate_lever
+    refine_lever = ext_sol is not None and inputs.has_rot and estimate_lever
     seg_s, seg_overlap_s = config.segment_plan(_solve_rate_hz(config, problem))
-    if not has_rot and config.position_only_window_s > seg_s:  # see position_only_window_s
+    if not inputs.has_rot and config.position_only_window_s > seg_s:  # see position_only_window_s
         seg_s, seg_overlap_s = config.position_only_window_s, config.position_only_window_s / 6
-    spans = [(max(a, int(t_pose[0])), min(b, int(t_pose[-1]))) for a, b in pieces]
+    spans = [(max(a, int(t_pose[0])), min(b, int(t_pose[-1]))) for a, b in inputs.pieces]
     spans = [(a, b) for a, b in spans if b > a]
     # one piece solved as one segment: it estimates gravity itself, a separate solve adds nothing
     one_segment = len(spans) == 1 and len(plan_segments(spans[0][0], spans[0][1], seg_s, seg_overlap_s)) == 1
-    if refine_lever or (estimate_g and not one_segment):
-        longest = max(pieces, key=lambda ab: min(ab[1], int(t_pose[-1])) - max(ab[0], int(t_pose[0])))
+    if refine_lever or (inputs.estimate_gravity and not one_segment):
+        longest = max(inputs.pieces, key=lambda ab: min(ab[1], int(t_pose[-1])) - max(ab[0], int(t_pose[0])))
         ga, gb = max(longest[0], int(t_pose[0])), min(longest[1], int(t_pose[-1]))
         gb = min(gb, ga + int(config.gravity_window_s * NS_PER_S))
-        w = problem.window(offset_s, ga, gb, config.calibration_rate_hz("gravity", problem.fuse))
+        w = problem.window(offset_s, ga, gb, config.calibration_rate_hz(CalibrationSolve.GRAVITY, problem.fuse))
         gwin = (ga, gb)
         if w is not None:
-            g_init = ext_sol.gravity_unit if ext_sol is not None and estimate_g else None
+            g_init = ext_sol.gravity_unit if ext_sol is not None and inputs.estimate_gravity else None
             gsol = solve_window(w[0], w[1], choice.imu, T, replace(gopts, estimate_lever_arm=refine_lever),
                                 WindowInit(gravity_unit=g_init))
-            gravity_unit = gsol.gravity_unit
+            unit = gsol.gravity_unit
             if refine_lever:
                 T = gsol.T_imu_pose
                 if "lever_arm_cov" in gsol.extras:
                     ext_info["translation_std_m"] = [float(x) for x in np.sqrt(np.diag(gsol.extras["lever_arm_cov"]))]
                 ext_info["lever_arm_refined_window_s"] = float((gb - ga) / NS_PER_S)
-            problem.set_linearisation(T_imu_pose=T, gravity_unit=gravity_unit, bias=_bias_function(gsol))
+            problem.set_linearisation(T_imu_pose=T, gravity_unit=unit, bias=_bias_function(gsol))
             if "gravity_cov_tangent" in gsol.extras:
-                grav_info["tilt_std_rad"] = float(np.sqrt(np.trace(gsol.extras["gravity_cov_tangent"]) / 2))
-            grav_info["window_s"] = float((gb - ga) / NS_PER_S)
-    elif estimate_g:
-        gravity_unit = problem.gravity_world / np.linalg.norm(problem.gravity_world)
-        grav_info["window_s"] = float((spans[0][1] - spans[0][0]) / NS_PER_S) if spans else 0.0
-    grav_info["estimated"] = bool(estimate_g)
-    timings["gravity_s"] = time.perf_counter() - t0
+                info["tilt_std_rad"] = float(np.sqrt(np.trace(gsol.extras["gravity_cov_tangent"]) / 2))
+            info["window_s"] = float((gb - ga) / NS_PER_S)
+    elif inputs.estimate_gravity:
+        unit = problem.gravity_world / np.linalg.norm(problem.gravity_world)
+        info["window_s"] = float((spans[0][1] - spans[0][0]) / NS_PER_S) if spans else 0.0
+    info["estimated"] = bool(inputs.estimate_gravity)
+    return _Gravity(unit, gsol, gwin, T, info, ext_info, seg_s, seg_overlap_s)
 
-    # --- full solve by segments (gravity: a variable per segment with the calibration solve as prior)
-    t0 = time.perf_counter()
-    full_opts = replace(opts, position_sigma_m=choice.position_sigma_m, rotation_sigma_rad=choice.rotation_sigma_rad,
-                        compute_marginals=config.compute_marginals, estimate_gravity=False,
-                        marginal_rate_hz=config.marginal_rate_hz)
-    if gsol is not None and estimate_g and "gravity_cov_tangent" in gsol.extras:
+
+@dataclass(frozen=True)
+class _FullSolve:
+    """Stage 8, the full-rate solve by segments.
+
+    Attributes:
+        solutions: Per gap-free IMU piece, its segments' solutions.
+        stitched: Per piece, the segments blended into one solution.
+        gravity_unit: Gravity direction (the single segment's own estimate where there was no prior solve).
+        info: Additions to ``recovery.json`` ``gravity``.
+        fusion_rejected / fusion_counts / fusion_within: Per segment, what pose fusion did.
+    """
+
+    solutions: list[list[WindowSolution]]
+    stitched: list[Any]
+    gravity_unit: np.ndarray
+    info: dict[str, Any]
+    fusion_rejected: list[np.ndarray]
+    fusion_counts: list[np.ndarray]
+    fusion_within: list[Any]
+
+    @property
+    def flat(self) -> list[WindowSolution]:
+        return [s for ps in self.solutions for s in ps]
+
+
+def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _Gravity, noise: _Noise,
+                config: RecoveryConfig) -> _FullSolve:
+    """Stage 8: every keyframe, segment by segment (gravity: a variable per segment with the gravity
+    solve as prior)."""
+    t_pose = _shifted_stamps(inputs.poses, offset_s)
+    choice, gsol, gwin, T = noise.choice, gravity.solution, gravity.window, gravity.T_imu_pose
+    info: dict[str, Any] = {}
+    full_opts = replace(inputs.opts, position_sigma_m=choice.position_sigma_m,
+                        rotation_sigma_rad=choice.rotation_sigma_rad, compute_marginals=config.compute_marginals,
+                        estimate_gravity=False, marginal_rate_hz=config.marginal_rate_hz)
+    if gsol is not None and inputs.estimate_gravity and "gravity_cov_tangent" in gsol.extras:
         # Gravity stays a variable in every segment, with the calibration solve's estimate as a
         # prior: its uncertainty then reaches the bias marginals (held fixed, a ~1 mrad tilt
         # error leaked into the x/y accelerometer bias unreported: acc NEES ~2 at 60 s, ~1.2 now).
         full_opts = replace(full_opts, estimate_gravity=True, gravity_prior_cov=gsol.extras["gravity_cov_tangent"])
-        grav_info["per_segment"] = True
-    elif estimate_g and gsol is None:
+        info["per_segment"] = True
+    elif inputs.estimate_gravity and gsol is None:
         full_opts = replace(full_opts, estimate_gravity=True, marginal_extras=True)  # the single segment estimates it
-        grav_info["per_segment"] = True
-    solutions: list[list[WindowSolution]] = []
-    fusion_rejected: list[np.ndarray] = []
-    fusion_counts: list[np.ndarray] = []
-    fusion_within: list[Any] = []
-    for a, b in pieces:
+        info["per_segment"] = True
+    out = _FullSolve([], [], gravity.unit, info, [], [], [])
+    for a, b in inputs.pieces:
         a2, b2 = max(a, int(t_pose[0])), min(b, int(t_pose[-1]))
         if b2 <= a2:
             continue
-        piece_solutions = []
-        for s_ns, e_ns in plan_segments(a2, b2, seg_s, seg_overlap_s):
+        piece_solutions: list[WindowSolution] = []
+        for s_ns, e_ns in plan_segments(a2, b2, gravity.segment_s, gravity.segment_overlap_s):
             w = problem.window(offset_s, s_ns, e_ns, config.keyframe_rate_hz)
             if w is None or len(w[1]) < 3:
                 continue
-            guess = _bias_guess(w[1].t_ns, gsol, piece_solutions[-1] if piece_solutions else None)
+            prev = piece_solutions[-1] if piece_solutions else None
+            guess = _bias_guess(w[1].t_ns, gsol, prev)
             if guess is None and callable(problem.bias):
                 guess = problem.bias(w[1].t_ns)
-            init = WindowInit(gravity_unit=gravity_unit, bias=guess)
-            if not has_rot and piece_solutions:
-                init = _continue_from(piece_solutions[-1], w, gravity_unit)
-            elif not has_rot and chain is not None:
-                init = _continue_from(chain, w, gravity_unit)
+            init = WindowInit(gravity_unit=gravity.unit, bias=guess)
+            if not inputs.has_rot and (prev is not None or noise.chain is not None):
+                init = _continue_from(prev if prev is not None else noise.chain, w, gravity.unit)
             seg_opts = full_opts
             if full_opts.gravity_prior_cov is not None:
                 # the calibration solve saw this segment's data too: keep only the information
@@ -817,96 +1023,150 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
                 seen = max(0, min(e_ns, gwin[1]) - max(s_ns, gwin[0])) / max(gwin[1] - gwin[0], 1)
                 seg_opts = replace(full_opts, gravity_prior_cov=None if seen > 0.9
                                    else np.asarray(full_opts.gravity_prior_cov) / (1.0 - seen))
-            sol = solve_window(w[0], w[1], choice.imu, T, seg_opts, init)
-            piece_solutions.append(sol)
+            piece_solutions.append(solve_window(w[0], w[1], choice.imu, T, seg_opts, init))
             if w[1].rejected_t_ns is not None:
-                fusion_rejected.append(w[1].rejected_t_ns)
+                out.fusion_rejected.append(w[1].rejected_t_ns)
             if w[1].count is not None:
-                fusion_counts.append(w[1].count)
-                fusion_within.append(w[1].within_bin())
+                out.fusion_counts.append(w[1].count)
+                out.fusion_within.append(w[1].within_bin())
         if piece_solutions:
-            solutions.append(piece_solutions)
-    if not solutions:
-        raise RecoveryError(f"too few poses of '{name}' inside the IMU span to build a graph")
-    stitched_pieces = [stitch(ps) for ps in solutions]
-    if grav_info.get("per_segment"):
-        cosang = [float(np.clip(np.dot(s.gravity_unit, gravity_unit), -1.0, 1.0)) for ps in solutions for s in ps]
-        grav_info["segment_max_tilt_change_rad"] = float(np.max(np.arccos(cosang)))
-    flat = [s for ps in solutions for s in ps]
-    if estimate_g and gsol is None and len(flat) == 1:
-        gravity_unit = flat[0].gravity_unit
+            out.solutions.append(piece_solutions)
+    if not out.solutions:
+        raise RecoveryError(f"too few poses of '{inputs.stream}' inside the IMU span to build a graph")
+    out.stitched.extend(stitch(ps) for ps in out.solutions)
+    if info.get("per_segment"):
+        cosang = [float(np.clip(np.dot(s.gravity_unit, gravity.unit), -1.0, 1.0)) for s in out.flat]
+        info["segment_max_tilt_change_rad"] = float(np.max(np.arccos(cosang)))
+    flat = out.flat
+    if inputs.estimate_gravity and gsol is None and len(flat) == 1:
         if "gravity_cov_tangent" in flat[0].extras:
-            grav_info["tilt_std_rad"] = float(np.sqrt(np.trace(flat[0].extras["gravity_cov_tangent"]) / 2))
+            info["tilt_std_rad"] = float(np.sqrt(np.trace(flat[0].extras["gravity_cov_tangent"]) / 2))
+        return replace(out, gravity_unit=flat[0].gravity_unit)
+    return out
+
+
+def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryConfig) -> RecoveryResult:
+    """The stages in order (each returns a frozen record); ``problem`` carries the fusion's
+    linearisation point (extrinsic, gravity, bias), which the calibration solves update."""
+    t_start = time.perf_counter()
+    timings: dict[str, float] = {}
+    inputs = _checked_inputs(sequence, pose_stream, config)
+    problem = _Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse, gravity_mps2=config.gravity_mps2)
+
+    t0 = time.perf_counter()
+    coarse = _coarse_offset(inputs, config)
+    timings["offset_coarse_s"] = time.perf_counter() - t0
+    windows = _calibration_windows(inputs, coarse.offset_s, config)
+
+    ext_init = _extrinsic_init(sequence, inputs, coarse.offset_s, config)
+    problem.set_linearisation(T_imu_pose=ext_init.T_imu_pose)
+    t0 = time.perf_counter()
+    T, ext_sol = ext_init.T_imu_pose, None
+    if ext_init.opts.estimate_extrinsic:
+        ext_sol = _solve_extrinsic(problem, inputs, windows.calib_window, T, ext_init.opts, coarse.offset_s, config)
+        T = ext_sol.T_imu_pose if ext_sol is not None else T
+    timings["extrinsic_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    offset = _refined_offset(problem, inputs, coarse, windows, T, config)
+    if offset.mode == TimeOffsetMode.ESTIMATE and ext_init.opts.estimate_extrinsic:
+        ext_sol = _solve_extrinsic(problem, inputs, windows.calib_window, T, ext_init.opts, offset.offset_s, config)
+        T = ext_sol.T_imu_pose if ext_sol is not None else T
+    timings["offset_refine_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    noise = _noise(problem, inputs, windows, offset.offset_s, T, config)
+    timings["noise_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    gravity = _gravity(problem, inputs, offset.offset_s, T, ext_sol, ext_init.estimate_lever, noise.choice, config)
+    timings["gravity_s"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    full = _full_solve(problem, inputs, offset.offset_s, gravity, noise, config)
     timings["solve_s"] = time.perf_counter() - t0
 
-    t_ns = np.concatenate([s.t_ns for s in stitched_pieces])
-    bias = np.concatenate([s.bias for s in stitched_pieces])
-    bias_std = np.concatenate([s.bias_std for s in stitched_pieces])
-    seams = [j for s in stitched_pieces for j in s.seam_jumps]
+    extrinsic_info = {**_extrinsic_info(ext_init, ext_sol), **gravity.extrinsic_info}
+    refine_warnings = offset.warnings[len(coarse.warnings):]
+    warnings = [*inputs.warnings, *coarse.warnings, *ext_init.warnings, *refine_warnings, *noise.warnings]
+    return _result(sequence, config, inputs, offset, windows.calib_window, ext_init, extrinsic_info, noise, gravity,
+                   full, warnings, timings, t_start)
+
+
+def _result(sequence: Sequence, config: RecoveryConfig, inputs: _Inputs, offset: _ClockOffset,
+            calib_window: tuple[int, int], ext_init: _ExtrinsicInit, extrinsic_info: dict[str, Any], noise: _Noise,
+            gravity: _Gravity, full: _FullSolve, warnings: list[str], timings: dict[str, float],
+            t_start: float) -> RecoveryResult:
+    """Stage 9: the stitched keyframes, the last warnings and ``recovery.json``."""
+    stitched, flat, choice = full.stitched, full.flat, noise.choice
+    t_ns = np.concatenate([s.t_ns for s in stitched])
+    bias = np.concatenate([s.bias for s in stitched])
+    bias_std = np.concatenate([s.bias_std for s in stitched])
     n_kf = len(t_ns)
     outlier_t = np.unique(np.concatenate([s.t_ns[s.outliers] for s in flat])) if flat else np.zeros(0)
     # samples rejected while fusing (the same sample may sit in two overlapping segments)
-    rejected_samples = np.unique(np.concatenate(fusion_rejected)) if fusion_rejected else np.zeros(0, np.int64)
+    rejected = np.unique(np.concatenate(full.fusion_rejected)) if full.fusion_rejected else np.zeros(0, np.int64)
     if len(outlier_t) > 0.05 * n_kf:
         warnings.append(f"{len(outlier_t)} of {n_kf} poses rejected as outliers: check the pose noise / the stream")
-
     weights = np.array([len(s.t_ns) for s in flat], dtype=float)
     pose_rms = float(np.sqrt(np.average([s.pose_whitened_rms**2 for s in flat], weights=weights)))
     imu_rms = float(np.sqrt(np.average([s.imu_whitened_rms**2 for s in flat], weights=weights)))
     if pose_rms > 3.0:
         warnings.append(f"pose residuals are {pose_rms:.1f} sigma RMS: the pose stream disagrees with the IMU "
                         "(wrong extrinsic, clock offset, or noise)")
-    gravity = gravity_unit * config.gravity_mps2
     if flat and any(s.iterations >= config.max_iterations for s in flat):
         warnings.append("the optimiser hit max_iterations in at least one segment (may not have converged)")
-    for wmsg in warnings:
-        log.warning("%s", wmsg)
-
-    duration = float((t_ns[-1] - t_ns[0]) / NS_PER_S) if n_kf > 1 else 0.0
+    for message in warnings:
+        log.warning("%s", message)
+    flags: dict[str, Any] = {"rotation_excitation_deg": ext_init.excitation_deg,
+                             "extrinsic_rotation_observable": ext_init.rotation_observable}
+    if noise.window_s is not None:
+        flags["noise_window_s"] = noise.window_s
     source_kind = sequence.metadata.get("source_format") or sequence.metadata.get("source_kind")
     report: dict[str, Any] = {
         "sequence": sequence.name,
-        "pose_stream": name,
-        "pose_source_kind": kind.value,
-        "pose_frame": poses.frame,
+        "pose_stream": inputs.stream,
+        "pose_source_kind": inputs.kind.value,
+        "pose_frame": inputs.poses.frame,
         "input_format": source_kind if isinstance(source_kind, str) else None,
-        "pose_factor_mode": pose_mode.value,
-        "pose_time_offset_s": float(offset_s),
-        "pose_time_offset_std_s": float(offset_std),
-        "pose_time_offset_method": offset_method if off_mode == TimeOffsetMode.ESTIMATE else "fixed",
-        "pose_time_offset_search": offset_table,
-        "T_imu_pose": _matrix_to_dict(T),
-        "extrinsic": ext_info,
-        "gravity_world_mps2": [float(x) for x in gravity],
-        "gravity": grav_info,
+        "pose_factor_mode": inputs.pose_mode.value,
+        "pose_time_offset_s": float(offset.offset_s),
+        "pose_time_offset_std_s": float(offset.std_s),
+        "pose_time_offset_method": offset.method,
+        "pose_time_offset_search": list(offset.search),
+        "T_imu_pose": _matrix_to_dict(gravity.T_imu_pose),
+        "extrinsic": extrinsic_info,
+        "gravity_world_mps2": [float(x) for x in full.gravity_unit * config.gravity_mps2],
+        "gravity": {**gravity.info, **full.info},
         "noise": choice.to_dict(),
         "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
-        "outliers_rejected": int(len(outlier_t) + len(rejected_samples)),
-        "pose_fusion": _fusion_report(fuse, config, fusion_counts, fusion_within, len(rejected_samples)),
-        "accuracy_floor": _accuracy_floor(choice, poses, pose_mode, has_rot),
+        "outliers_rejected": int(len(outlier_t) + len(rejected)),
+        "outlier_t_ns": [int(t) for t in np.union1d(outlier_t, rejected)],  # IMU clock
+        "pose_fusion": _fusion_report(inputs.fuse, config, full.fusion_counts, full.fusion_within, len(rejected)),
+        "accuracy_floor": _accuracy_floor(choice, inputs.poses, inputs.pose_mode, inputs.has_rot),
         "keyframes": int(n_kf),
         "keyframe_rate_hz": config.keyframe_rate_hz,
         "segments": len(flat),
-        "segment_s": seg_s,
-        "segment_overlap_s": seg_overlap_s,
-        "segment_seams": seams,
-        "imu_pieces": len(pieces),
-        "calibration_window_ns": [int(calib[0]), int(calib[1])],
-        "duration_s": duration,
+        "segment_s": gravity.segment_s,
+        "segment_overlap_s": gravity.segment_overlap_s,
+        "segment_seams": [j for s in stitched for j in s.seam_jumps],
+        "imu_pieces": len(inputs.pieces),
+        "calibration_window_ns": [int(calib_window[0]), int(calib_window[1])],
+        "duration_s": float((t_ns[-1] - t_ns[0]) / NS_PER_S) if n_kf > 1 else 0.0,
         "runtime_s": float(time.perf_counter() - t_start),
         "timings_s": {k: float(v) for k, v in timings.items()},
         "flags": flags,
-        "extrinsic_rotation_observable": flags.get("extrinsic_rotation_observable"),
+        "extrinsic_rotation_observable": ext_init.rotation_observable,
         "warnings": warnings,
         "config": config.to_dict(),
     }
     return RecoveryResult(
         t_ns=t_ns, bias_gyro_radps=bias[:, :3], bias_acc_mps2=bias[:, 3:],
         bias_gyro_std_radps=bias_std[:, :3], bias_acc_std_mps2=bias_std[:, 3:],
-        p_m=np.concatenate([s.p_m for s in stitched_pieces]),
-        quat_wxyz=np.concatenate([s.quat_wxyz for s in stitched_pieces]),
-        v_mps=np.concatenate([s.v_mps for s in stitched_pieces]),
-        report=report,
+        p_m=np.concatenate([s.p_m for s in stitched]),
+        quat_wxyz=np.concatenate([s.quat_wxyz for s in stitched]),
+        v_mps=np.concatenate([s.v_mps for s in stitched]),
+        report=RecoveryReport.from_json(report),
         residuals=_residuals_at(t_ns, flat, outlier_t),
     )
 
@@ -931,7 +1191,7 @@ MIN_WITHIN_BIN_DOF = 300  # residual degrees of freedom for the closed-form pose
 
 
 def _pose_sigmas_from_fusion(kf: KeyframePoses, base_sp: float, base_sr: float, config: RecoveryConfig
-                             ) -> tuple[float, float, str]:
+                             ) -> tuple[float, float, PoseSigmaMethod]:
     """Pose sigmas from the scatter of fused samples about their keyframes, when there is enough.
 
     The residuals orthogonal to each bin's model depend on the pose noise alone, so
@@ -941,19 +1201,17 @@ def _pose_sigmas_from_fusion(kf: KeyframePoses, base_sp: float, base_sr: float, 
     """
     within = kf.within_bin()
     if config.position_sigma_m is not None or within is None or min(within.pos_dof, within.rot_dof) < MIN_WITHIN_BIN_DOF:
-        return base_sp, base_sr, "evidence"
+        return base_sp, base_sr, PoseSigmaMethod.EVIDENCE
     lo, hi = min(config.pose_sigma_scales), max(config.pose_sigma_scales)
     sp = float(np.clip(math.sqrt(within.pos_sq_m2 / within.pos_dof), lo * base_sp, hi * base_sp))
     sr = float(np.clip(math.sqrt(within.rot_sq_rad2 / within.rot_dof), lo * base_sr, hi * base_sr))
-    return sp, sr, "within_bin_residuals"
+    return sp, sr, PoseSigmaMethod.WITHIN_BIN_RESIDUALS
 
 
 def _accuracy_floor(choice: NoiseChoice, poses: PoseSeries, pose_mode: PoseFactorMode, has_rot: bool
                     ) -> dict[str, float | None]:
     """The optimal smoother's per-axis bias RMSE for the noise used (:mod:`recovery.bounds`): what
     no estimator beats with this IMU and pose stream; absolute pose streams only."""
-    from recovery.bounds import bias_rmse_floor
-
     rate = _pose_rate_hz(poses)
     if pose_mode != PoseFactorMode.ABSOLUTE or rate is None:
         return {"gyro_radps": None, "acc_mps2": None}

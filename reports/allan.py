@@ -33,6 +33,7 @@ import numpy as np
 
 from pipeline.errors import DataError
 from pipeline.types import NS_PER_S, ImuSeries
+from recovery.calibration_init import find_static_segments
 
 #: Default number of log-spaced cluster times (fewer after removing duplicate cluster sizes).
 DEFAULT_NUM_TAUS = 60
@@ -278,8 +279,6 @@ class ImuAllan:
 
 def _find_static_segments(imu: ImuSeries, min_duration_s: float) -> list[tuple[int, int]]:
     """Static intervals ``[(t0_ns, t1_ns)]`` from the recovery's detector."""
-    from recovery.calibration_init import find_static_segments
-
     return find_static_segments(imu, min_duration_s=min_duration_s)
 
 

@@ -5,9 +5,9 @@ missing, and the page then says so plainly and shows the rest):
 
 * ingest: the canonical store (:func:`pipeline.store.read_store`), its stream summaries and
   input checks (:mod:`pipeline.checks`) and the repairs applied at conversion;
-* recovery: ``bias.csv`` (:func:`interpolation.bias.read_bias_csv`), ``recovery.json``
+* recovery: ``bias.csv`` (:func:`pipeline.bias_table.read_bias_csv`), ``recovery.json``
   (clock offset, extrinsic, gravity, noise used, residual statistics, warnings),
-  ``trajectory_tum.txt`` (:func:`pipeline.io.tum.read_tum_poses`) and, when the recovery
+  ``trajectory_tum.txt`` (:mod:`recovery.outputs`) and, when the recovery
   writes one, a per-keyframe residual table (``residuals.parquet`` or ``residuals.csv``);
 * validation: ``validation.json`` and ``windows.parquet`` (:mod:`validation.validate`).
 
@@ -22,7 +22,6 @@ It is written atomically (:func:`pipeline.atomic.atomic_path`): a failure leaves
 from __future__ import annotations
 
 import datetime as _dt
-import json
 import logging
 import math
 from dataclasses import dataclass, field, replace
@@ -36,27 +35,36 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline import __version__
 from pipeline.atomic import atomic_path
+from pipeline.bias_table import BiasTrack, read_bias_csv
+from pipeline.checks import CHECK_CODES, run_checks, stream_summaries
 from pipeline.errors import BiasgtError, ConfigError, InputFormatError
-from pipeline.pose_transform import offset_ns, poses_in_imu_frame, transform_from_json
-from pipeline.types import NS_PER_S, Finding, PoseSeries, PoseSourceKind, Sequence, Severity
+from pipeline.layout import Stage
+from pipeline.pose_transform import offset_ns, poses_in_imu_frame
+from pipeline.store import is_store, read_store
+from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity
+from recovery.outputs import (
+    BIAS_CSV,
+    REPORT_JSON,
+    RESIDUALS_CSV,
+    TRAJECTORY_TUM,
+    RecoveryReport,
+    read_report,
+    read_residuals,
+    read_trajectory,
+)
 from reports import plots
+from validation.outputs import VALIDATION_JSON, WINDOWS_PARQUET, ValidationSummary, read_summary, read_windows
 from reports.allan import ImuAllan, imu_allan
 from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
 
 log = logging.getLogger(__name__)
 
-#: Stage folder names under a results folder; the first that exists is used.
+#: Stage folder names under a results folder (the workflow's, else the rule's); the first that exists is used.
 STAGE_FOLDERS = {
-    "ingest": ("ingest",),
-    "recovery": ("recovery", "recover"),
-    "validation": ("validation", "validate"),
+    "ingest": (Stage.INGEST.folder,),
+    "recovery": (Stage.RECOVER.folder, Stage.RECOVER.value),
+    "validation": (Stage.VALIDATE.folder, Stage.VALIDATE.value),
 }
-RECOVERY_JSON = "recovery.json"
-BIAS_CSV = "bias.csv"
-TRAJECTORY_TUM = "trajectory_tum.txt"
-RESIDUAL_FILES = ("residuals.parquet", "residuals.csv")
-VALIDATION_JSON = "validation.json"
-WINDOWS_PARQUET = "windows.parquet"
 #: Rows of the flagged-window table shown (the rest are counted).
 MAX_FLAGGED_ROWS = 40
 
@@ -84,7 +92,7 @@ class ReportInputs:
         ingest_dir / recovery_dir / validation_dir: Where the inputs came from (None: not given).
         sequence: The canonical store's sequence.
         recovery: ``recovery.json`` content, or None.
-        bias: The recovered bias (``interpolation.bias.BiasTrack``), or None.
+        bias: The recovered bias (``pipeline.bias_table.BiasTrack``), or None.
         trajectory: The recovered IMU trajectory, or None.
         residuals: Per-keyframe residual table (``t_ns`` + numeric columns), or None.
         validation: ``validation.json`` content, or None.
@@ -97,11 +105,11 @@ class ReportInputs:
     sequence: Sequence
     recovery_dir: Path | None = None
     validation_dir: Path | None = None
-    recovery: dict[str, Any] | None = None
-    bias: Any = None
+    recovery: RecoveryReport | None = None
+    bias: BiasTrack | None = None
     trajectory: PoseSeries | None = None
     residuals: pd.DataFrame | None = None
-    validation: dict[str, Any] | None = None
+    validation: ValidationSummary | None = None
     windows: pd.DataFrame | None = None
     missing: list[str] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
@@ -138,24 +146,6 @@ def stage_dirs(results_dir: str | Path, sequence: str) -> dict[str, Path | None]
     return out
 
 
-def _read_json(path: Path) -> dict[str, Any]:
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputFormatError(f"cannot read JSON ({exc})", path=path) from None
-    if not isinstance(data, dict):
-        raise InputFormatError("not a JSON object", path=path)
-    return data
-
-
-def _read_residuals(path: Path) -> pd.DataFrame:
-    frame = pd.read_parquet(path) if path.suffix == ".parquet" else pd.read_csv(path)
-    if "t_ns" not in frame.columns:
-        raise InputFormatError("residual table has no t_ns column", path=path)
-    frame["t_ns"] = frame["t_ns"].astype(np.int64)
-    return frame
-
-
 def gather_inputs(
     ingest_dir: str | Path,
     *,
@@ -167,8 +157,6 @@ def gather_inputs(
     Raises:
         InputFormatError: ``ingest_dir`` is not a canonical store (the report needs it).
     """
-    from pipeline.store import is_store, read_store
-
     ingest_dir = Path(ingest_dir)
     if not is_store(ingest_dir):
         raise InputFormatError(
@@ -200,10 +188,11 @@ def gather_inputs(
             inputs.missing.append(f"Validation: {vj} does not exist (the validation stage has not run or failed), "
                                   "so there is no verdict and no integration-error statistics.")
         else:
-            inputs.validation = _read_noting_problems(inputs, "Validation", vj, _read_json)
+            inputs.validation = _read_noting_problems(inputs, "Validation", vj, lambda _: read_summary(vdir))
             wp = vdir / WINDOWS_PARQUET
             if wp.is_file():
-                inputs.windows = _read_noting_problems(inputs, "Validation", wp, pd.read_parquet, (OSError, ValueError))
+                inputs.windows = _read_noting_problems(inputs, "Validation", wp, lambda _: read_windows(vdir),
+                                                       (OSError, ValueError))
             else:
                 inputs.missing.append(f"Validation: {wp} does not exist, so the per-window error "
                                       "distributions cannot be drawn (the summary table is shown).")
@@ -227,28 +216,17 @@ def _read_noting_problems(inputs: ReportInputs, stage: str, path: Path, reader: 
 
 
 def _gather_recovery(inputs: ReportInputs, rdir: Path) -> None:
-    from interpolation.bias import read_bias_csv
-    from pipeline.io.tum import read_tum_poses
-
-    def read_trajectory(path: Path) -> PoseSeries:
-        return read_tum_poses(path, source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu", stream="recovered")[0]
-
-    rj, bc, tt = rdir / RECOVERY_JSON, rdir / BIAS_CSV, rdir / TRAJECTORY_TUM
-    for path, attr, reader, absent in (
-        (rj, "recovery", _read_json, "so the estimated calibration is not shown"),
-        (bc, "bias", read_bias_csv, "so the recovered bias is not shown"),
-        (tt, "trajectory", read_trajectory, None),
+    for name, attr, reader, absent in (
+        (REPORT_JSON, "recovery", lambda _: read_report(rdir), "so the estimated calibration is not shown"),
+        (BIAS_CSV, "bias", read_bias_csv, "so the recovered bias is not shown"),
+        (TRAJECTORY_TUM, "trajectory", lambda _: read_trajectory(rdir), None),
+        (RESIDUALS_CSV, "residuals", lambda _: read_residuals(rdir), None),
     ):
+        path = rdir / name
         if path.is_file():
-            setattr(inputs, attr, _read_noting_problems(inputs, "Recovery", path, reader))
+            setattr(inputs, attr, _read_noting_problems(inputs, "Recovery", path, reader, (OSError, ValueError)))
         elif absent is not None:
             inputs.missing.append(f"Recovery: {path} does not exist, {absent}.")
-    for name in RESIDUAL_FILES:
-        rp = rdir / name
-        if rp.is_file():
-            inputs.residuals = _read_noting_problems(inputs, "Recovery", rp, _read_residuals,
-                                                     (BiasgtError, OSError, ValueError))
-            break
 
 
 # ----------------------------------------------------------------------------- small helpers
@@ -428,8 +406,6 @@ def _verdict_section(inp: ReportInputs) -> Html:
 
 
 def _current_findings(seq: Sequence) -> list[Finding]:
-    from pipeline.checks import run_checks
-
     try:
         return run_checks(seq)
     except BiasgtError as exc:  # checks of a store should not fail; show it rather than crash
@@ -437,8 +413,6 @@ def _current_findings(seq: Sequence) -> list[Finding]:
 
 
 def _streams_section(inp: ReportInputs) -> Html:
-    from pipeline.checks import CHECK_CODES, stream_summaries
-
     seq = inp.sequence
     rows = []
     for s in stream_summaries(seq):
@@ -511,7 +485,7 @@ def gravity_tilt_deg(gravity_world_mps2: Any) -> float:
 
 
 def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
-    rec = inp.recovery
+    rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     cal = inp.sequence.calibration
     if rec is None:
         return section("calibration", _TITLE["calibration"],
@@ -656,18 +630,6 @@ def _bias_section(inp: ReportInputs) -> Html:
 # ----------------------------------------------------------------------------- section 5: residuals
 
 
-def transform_from_report(value: Any) -> np.ndarray:
-    """4x4 ``T_imu_pose`` from ``recovery.json``: ``{p_m, quat_wxyz}``, ``{matrix}`` or a 4x4 list.
-
-    The forms :func:`validation.validate.read_recovery_dir` accepts, read by the same
-    (torch-free) :func:`pipeline.pose_transform.transform_from_json`.
-
-    Raises:
-        DataError: Not one of these forms, or not finite.
-    """
-    return transform_from_json(value)
-
-
 def pose_residuals(
     trajectory: PoseSeries,
     poses: PoseSeries,
@@ -717,7 +679,7 @@ def pose_residuals(
 
 
 def _residuals_section(inp: ReportInputs) -> Html:
-    rec = inp.recovery
+    rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     if rec is None and inp.residuals is None and inp.trajectory is None:
         return section("residuals", _TITLE["residuals"],
                        _missing_box("Not available: the recovery output is missing."))
@@ -774,8 +736,7 @@ def _pose_residual_figure(inp: ReportInputs) -> Html | None:
         return _missing_box(f"The pose stream '{name}' used by the recovery is not in the store: the trajectory "
                             "cannot be compared with it.")
     try:
-        T = transform_from_report(rec.get("T_imu_pose"))
-        t_ns, pos_err, rot_err = pose_residuals(traj, poses, T, _num(rec, "pose_time_offset_s") or 0.0)
+        t_ns, pos_err, rot_err = pose_residuals(traj, poses, rec.T_imu_pose, rec.time_offset_s)
     except (BiasgtError, ValueError, TypeError) as exc:
         return _missing_box(f"The trajectory could not be compared with the pose stream ({exc}).")
     if len(t_ns) == 0:
@@ -784,10 +745,9 @@ def _pose_residual_figure(inp: ReportInputs) -> Html | None:
     caption = (f"Distance between the recovered IMU trajectory and the pose stream '{name}' moved into the IMU frame "
                f"and clock: position RMS {fmt(1e3 * np.sqrt(np.mean(pos_err ** 2)), 3)} mm, max "
                f"{fmt(1e3 * pos_err.max(), 3)} mm{rot_txt} ({len(t_ns):,} keyframes).")
-    outliers = next((rec[k] for k in ("outliers_t_ns", "outlier_t_ns") if isinstance(rec.get(k), list)), None)
     outlier_t_s = None
-    if outliers:
-        outlier_t_s = _rel_s(np.asarray(outliers, dtype=np.int64), inp.t0_ns)
+    if len(rec.outlier_t_ns):
+        outlier_t_s = _rel_s(rec.outlier_t_ns, inp.t0_ns)
         caption += " Red lines: poses rejected as outliers."
     return figure_img(plots.pose_residual_figure(_rel_s(t_ns, inp.t0_ns), pos_err, rot_err, outlier_t_s),
                       "pose residuals over time", caption)

@@ -48,3 +48,21 @@ def make_sequence(duration_s: float = 10.0, imu_rate_hz: float = 200.0, pose_rat
     return Sequence(name=name, imu=make_imu(duration_s, imu_rate_hz, **kw),
                     poses={"vicon0": make_poses(duration_s, pose_rate_hz, **kw)},
                     metadata={"source_kind": "synthetic"})
+
+
+def write_recovery_folder(folder, bias, report: dict, trajectory: PoseSeries | None = None):
+    """A recovery folder of known content (e.g. the true bias), written by the stage's own writer.
+
+    Args:
+        folder: Output folder.
+        bias: Keyframe bias (:class:`pipeline.bias_table.BiasTrack`).
+        report: ``recovery.json`` fields (the random walks under ``noise``, ``T_imu_pose``, ...).
+        trajectory: The IMU trajectory; default: at rest at the origin at the bias stamps.
+    """
+    from recovery.outputs import RecoveryOutputs, RecoveryReport
+
+    if trajectory is None:
+        n = len(bias.t_ns)
+        trajectory = PoseSeries(bias.t_ns, np.zeros((n, 3)), np.tile([1.0, 0.0, 0.0, 0.0], (n, 1)), "imu",
+                                PoseSourceKind.GROUND_TRUTH)
+    return RecoveryOutputs(bias, RecoveryReport.from_json(report), trajectory).write(folder)

@@ -58,6 +58,7 @@ def test_golden_values_and_the_issue_targets():
     1.30e-4 rad/s sits where its 1.6e-4 target says (1.2x)."""
     acc = bias_rmse_floor(**ACC, derivative_order=2)
     gyro = bias_rmse_floor(**GYRO, derivative_order=1)
+    # regression values of bias_rmse_floor (its independent reference: the RTS smoother test above)
     assert acc == pytest.approx(6.659e-3, rel=1e-3)
     assert gyro == pytest.approx(1.3039e-4, rel=1e-3)
     assert 4.5e-3 < acc and 1.6e-4 / gyro == pytest.approx(1.227, abs=0.01)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
+import subprocess
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -10,6 +14,7 @@ import numpy as np
 import pytest
 from synth import T0_NS, make_imu, make_poses, make_sequence
 
+import pipeline.ingest
 import pipeline.io
 from pipeline.checks import STREAM_SUMMARY_KEYS, CheckOptions, Repair, detect_acc_in_g, detect_gyro_degps
 from pipeline.cli import main
@@ -40,7 +45,7 @@ class FakeLoader:
 def fake(monkeypatch):
     def install(seq):
         loader = FakeLoader(seq)
-        monkeypatch.setattr(pipeline.io, "load_sequence", loader, raising=False)
+        monkeypatch.setattr(pipeline.ingest, "load_sequence", loader)
         return loader
     return install
 
@@ -219,11 +224,6 @@ def test_ingest_library_function(fake, tmp_path):
 # ------------------------------------------------------------------------------------------ real readers
 
 
-def _need_reader():
-    if not hasattr(pipeline.io, "load_sequence"):
-        pytest.skip("pipeline.io.load_sequence is not available yet")
-
-
 def _write_asl_imu(root: Path, t_ns: np.ndarray, gyro: np.ndarray, acc: np.ndarray) -> Path:
     d = root / "mav0" / "imu0"
     d.mkdir(parents=True)
@@ -235,7 +235,6 @@ def _write_asl_imu(root: Path, t_ns: np.ndarray, gyro: np.ndarray, acc: np.ndarr
 
 
 def test_asl_file_with_unsorted_degps_rows_inspected_and_converted(tmp_path, capsys):
-    _need_reader()
     imu = make_imu(duration_s=5.0)
     idx = np.arange(len(imu))
     idx[[100, 101]] = idx[[101, 100]]
@@ -260,7 +259,6 @@ def test_asl_file_with_unsorted_degps_rows_inspected_and_converted(tmp_path, cap
 
 
 def test_unit_heuristics_on_real_data(shared_data):
-    _need_reader()
     for folder, rule in (("V1_01_easy", "p99_magnitude"), ("V1_02_medium_kimera_excerpt", "pose_rate_ratio")):
         seq = pipeline.io.load_sequence(shared_data / "euroc" / folder)
         assert detect_gyro_degps(seq) is None
@@ -276,7 +274,6 @@ def test_unit_heuristics_on_real_data(shared_data):
 
 
 def test_inspect_mh01_reports_skipped_lines(shared_data, capsys):
-    _need_reader()
     assert main(["inspect", str(shared_data / "euroc" / "MH_01_easy"), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     skipped = [f for f in report["findings"] if f["code"] == "PARSE_SKIPPED_LINES"]
@@ -291,7 +288,6 @@ def test_inspect_mh01_reports_skipped_lines(shared_data, capsys):
 
 
 def test_inspect_and_convert_v101(shared_data, tmp_path, capsys):
-    _need_reader()
     src = shared_data / "euroc" / "V1_01_easy"
     assert main(["inspect", str(src)]) == 0
     out = capsys.readouterr().out
@@ -304,3 +300,28 @@ def test_inspect_and_convert_v101(shared_data, tmp_path, capsys):
     assert len(back.imu) == 29120
     assert back.imu.t_ns[0] == 1403715273262142976 and back.imu.t_ns[-1] == 1403715418857143040
     assert back.metadata["repairs"] == []
+
+
+# ------------------------------------------------------------------------------------------ CLI
+
+
+def test_commands_registered_are_the_modules_that_exist():
+    from pipeline.cli import COMMANDS, build_parser
+
+    commands_dir = Path(pipeline.ingest.__file__).parent / "commands"
+    modules = {p.stem for p in commands_dir.glob("*.py") if p.stem != "__init__"}
+    assert {c.__name__.rsplit(".", 1)[1] for c in COMMANDS} == modules
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+    assert set(sub.choices) == modules
+
+
+@pytest.mark.parametrize("flag, debug, info", [("", False, True), ("-v", True, True), ("-q", False, False)])
+def test_verbose_and_quiet_change_the_log_level(tmp_path, flag, debug, info):
+    """-v shows debug messages, -q hides the progress (info) messages (a real process: real stderr)."""
+    poses = tmp_path / "poses.txt"
+    poses.write_text("".join(f"{i * 0.01:.2f} 0 0 0 0 0 0 1\n" for i in range(50)), encoding="utf-8")
+    cmd = [sys.executable, "-m", "pipeline.cli", *([flag] if flag else []), "inspect", str(poses)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120,
+                          env={**os.environ, "PYTHONPATH": str(Path(pipeline.ingest.__file__).parents[1])})
+    assert ("DEBUG pipeline.io: loading" in proc.stderr) is debug, proc.stderr
+    assert ("INFO pipeline.io.tum: read TUM" in proc.stderr) is info, proc.stderr

@@ -388,7 +388,7 @@ def test_recover_cli_on_independent_folder(clean_recovery, tmp_path, capsys):
     """``biasgt recover INPUT --out DIR`` on the independent folder writes the same result files."""
     import pandas as pd
 
-    from recovery.outputs import BIAS_COLUMNS
+    from pipeline.bias_table import CSV_HEADER
 
     s, root, res = clean_recovery
     cfg = tmp_path / "fast.yaml"
@@ -396,7 +396,7 @@ def test_recover_cli_on_independent_folder(clean_recovery, tmp_path, capsys):
     out = tmp_path / "rec"
     assert cli_main(["-q", "recover", str(root), "--out", str(out), "--config", str(cfg)]) == 0
     bias = pd.read_csv(out / "bias.csv")
-    assert tuple(bias.columns) == BIAS_COLUMNS and bias["t_ns"].dtype == np.int64
+    assert tuple(bias.columns) == CSV_HEADER and bias["t_ns"].dtype == np.int64
     np.testing.assert_array_equal(bias["t_ns"].to_numpy(), res.t_ns)
     np.testing.assert_allclose(bias[["bg_x", "bg_y", "bg_z"]].to_numpy(), res.bias_gyro_radps, rtol=1e-6, atol=1e-9)
     rep = json.loads((out / "recovery.json").read_text())

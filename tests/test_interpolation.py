@@ -5,15 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from interpolation.bias import (
-    CSV_HEADER,
-    BiasTrack,
-    InterpolationMethod,
-    interpolate_bias,
-    read_bias_csv,
-    write_bias_table,
-)
+from interpolation.bias import interpolate_bias
+from interpolation.config import InterpolationMethod
+from pipeline.bias_table import CSV_HEADER, BiasTrack, read_bias_csv, write_bias_table
 from pipeline.errors import DataError, InputFormatError
+from synth import write_recovery_folder
 
 
 def _keyframes(t_s: np.ndarray, bias: np.ndarray, std: float = 0.0) -> BiasTrack:
@@ -109,16 +105,13 @@ def test_malformed_bias_files(tmp_path):
 # --- the stage and its CLI ----------------------------------------------------------------------
 
 
-def _fake_recovery(tmp_path, imu_t_ns, *, margin_ns=0):
-    import json
-
+def _known_recovery(tmp_path, imu_t_ns, *, margin_ns=0):
+    """A recovery folder holding a bias linear in time (known, so interpolation is exact)."""
     t0, t1 = int(imu_t_ns[0]) - margin_ns, int(imu_t_ns[-1]) + margin_ns
     t = np.array([t0 + (t1 - t0) * i // 10 for i in range(11)], dtype=np.int64)
     bias = np.column_stack([np.linspace(0, 1e-3, 11)] * 3 + [np.linspace(0.1, 0.2, 11)] * 3)
-    rec = tmp_path / "recovery"
-    rec.mkdir()
-    write_bias_table(BiasTrack(t, bias, np.full_like(bias, 1e-5)), rec / "bias.csv")
-    (rec / "recovery.json").write_text(json.dumps({"noise": {"gyro_random_walk": 2e-5, "acc_random_walk": 3e-3}}))
+    rec = write_recovery_folder(tmp_path / "recovery", BiasTrack(t, bias, np.full_like(bias, 1e-5)),
+                                {"noise": {"gyro_random_walk": 2e-5, "acc_random_walk": 3e-3}})
     return rec, t, bias
 
 
@@ -129,7 +122,7 @@ def test_interpolate_cli_writes_parquet_and_csv(tmp_path):
 
     sim = simulate(SimConfig(duration_s=3.0, seed=2))
     store = write_store(sim.sequence, tmp_path / "store")
-    rec, t, bias = _fake_recovery(tmp_path, sim.sequence.imu.t_ns)
+    rec, t, bias = _known_recovery(tmp_path, sim.sequence.imu.t_ns)
     out = tmp_path / "bias_imu.parquet"
     assert main(["interpolate", str(rec), "--imu", str(store), "--out", str(out)]) == 0
     back = read_bias_csv(out)
@@ -149,11 +142,16 @@ def test_interpolate_cli_refuses_uncovered_span(tmp_path, capsys):
 
     sim = simulate(SimConfig(duration_s=3.0, seed=2))
     store = write_store(sim.sequence, tmp_path / "store")
-    rec, _, _ = _fake_recovery(tmp_path, sim.sequence.imu.t_ns, margin_ns=-500_000_000)
+    rec, t, bias = _known_recovery(tmp_path, sim.sequence.imu.t_ns, margin_ns=-500_000_000)
     out = tmp_path / "bias_imu.parquet"
-    assert main(["interpolate", str(rec), "--imu", str(store), "--out", str(out)]) == 2
+    assert main(["interpolate", str(rec), "--imu", str(store), "--out", str(out), "--no-clamp"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "outside the recovered bias span" in err[0] and "--clamp" in err[0]
     assert not out.exists() and not out.with_suffix(".csv").exists()
-    assert main(["interpolate", str(rec), "--imu", str(store), "--out", str(out), "--clamp"]) == 0
+    # the default (like --clamp, and the workflow) holds the end values, flagged
+    assert main(["interpolate", str(rec), "--imu", str(store), "--out", str(out)]) == 0
     assert out.exists()
+    held = read_bias_csv(out.with_suffix(".csv"))
+    outside = (held.t_ns < t[0]) | (held.t_ns > t[-1])
+    assert outside.any()
+    np.testing.assert_allclose(held.bias[held.t_ns < t[0]], np.tile(bias[0], (int((held.t_ns < t[0]).sum()), 1)))

@@ -1,10 +1,11 @@
-"""Tests of the quality report (reports/) and ``biasgt report``, on synthetic stage outputs made here."""
+"""Tests of the quality report (reports/) and ``biasgt report``, on stage outputs the stages write from a simulation."""
 
 from __future__ import annotations
 
 import functools
 import json
 import re
+import shutil
 from dataclasses import replace
 from pathlib import Path
 
@@ -13,18 +14,16 @@ import pandas as pd
 import pytest
 
 from pipeline.cli import main as cli_main
-from pipeline.errors import BiasgtError, DataError, InputFormatError
+from pipeline.errors import DataError, InputFormatError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind
+from reports.html import fmt
 from reports.allan import allan_deviation, fit_noise_parameters, imu_allan, white_noise_upper_bound
 from reports.quality import SECTIONS, build_quality_report, flagged_stretches, gravity_tilt_deg, pose_residuals, \
     stage_dirs, verdict_summary
 
 SEQ = "simseq"
-CLOCK_OFFSET_S = 0.012345  # the report must show 12.345 ms
-GRAVITY = [0.3, -0.2, -9.80]
-PRMSE_RECOVERED_M = 0.0041
-PRMSE_CONSTANT_M = 0.0053
-REPAIR_TEXT = "imu: sorted 6001 rows by time (3 backward steps)"
+CLOCK_OFFSET_S = 0.012345
+OUTLIERS = 3  # pose samples displaced by 10 cm
 
 
 @functools.lru_cache(maxsize=1)
@@ -33,91 +32,59 @@ def _simulation(duration_s: float = 20.0):
 
     return simulate(SimConfig(duration_s=duration_s, seed=3, name=SEQ,
                               poses=PoseStreamConfig(clock_offset_s=CLOCK_OFFSET_S, extrinsic_rotation_deg=5.0,
-                                                     extrinsic_translation_m=0.05)))
+                                                     extrinsic_translation_m=0.05, outliers=OUTLIERS)))
 
 
-def write_stage_outputs(root: Path, *, recovery: bool = True, validation: bool = True) -> Path:
-    """A results folder with ingest/recovery/validation outputs of one simulated sequence (the contracts)."""
-    from pipeline.io.tum import write_tum
-    from pipeline.store import write_store
+def _run_stages(root: Path) -> Path:
+    """``root/results`` written by the stages themselves from one simulated sequence: the simulator's
+    EuRoC folder (two IMU rows swapped) -> ingest with the sort repair -> recover -> validate (flag
+    threshold 1.5 x the median error, so that the flagged-window table has rows)."""
+    from pipeline.ingest import ingest
+    from pipeline.sim import write_simulation
+    from recovery.recover import recover, write_recovery
+    from validation.validate import ValidationConfig, validate_inputs, write_validation
 
-    sim = _simulation()
-    seq = sim.sequence
-    seq = replace(seq, metadata={**seq.metadata, "repairs": [REPAIR_TEXT], "source_kind": "simulation"})
+    raw = write_simulation(_simulation(), root / "raw")
+    imu_csv = next(raw.rglob("imu0/data.csv"))
+    lines = imu_csv.read_text(encoding="utf-8").splitlines(keepends=True)
+    lines[10], lines[11] = lines[11], lines[10]
+    imu_csv.write_text("".join(lines), encoding="utf-8")
     results = root / "results"
-    write_store(seq, results / "ingest" / SEQ)
-    gt = seq.ground_truth
-    k = np.arange(0, len(gt.t_ns), 10)  # 20 Hz keyframes
-    t_kf = gt.t_ns[k]
-    if recovery:
-        rdir = results / "recovery" / SEQ
-        rdir.mkdir(parents=True)
-        bias = np.hstack([gt.bias_gyro_radps[k], gt.bias_acc_mps2[k]]) + 1e-5
-        std = np.tile([2e-5, 2e-5, 2e-5, 3e-4, 3e-4, 3e-4], (len(k), 1))
-        cols = ["bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z"]
-        frame = pd.DataFrame(np.hstack([bias, std]), columns=cols + [c + "_std" for c in cols])
-        frame.insert(0, "t_ns", t_kf)
-        frame.to_csv(rdir / "bias.csv", index=False)
-        T = sim.truth.T_imu_frame
-        from scipy.spatial.transform import Rotation
-
-        q = Rotation.from_matrix(T[:3, :3]).as_quat(scalar_first=True)
-        report = {
-            "sequence": SEQ, "pose_stream": "mocap0", "pose_source_kind": "mocap", "pose_frame": "mocap_marker",
-            "pose_factor_mode": "absolute",
-            "pose_time_offset_s": CLOCK_OFFSET_S, "pose_time_offset_std_s": 0.00021,
-            "pose_time_offset_method": "correlation_gyro+graph_cost_parabola",
-            "T_imu_pose": {"p_m": T[:3, 3].tolist(), "quat_wxyz": q.tolist()},
-            "extrinsic": {"mode": "estimate", "source": "estimated", "rotation_std_deg": [0.05, 0.05, 0.07],
-                          "translation_std_m": [0.001, 0.001, 0.002]},
-            "gravity_world_mps2": GRAVITY, "gravity": {"estimated": True, "tilt_std_rad": 0.001},
-            "noise": {"gyro_noise_density": 1.7e-4, "acc_noise_density": 2.0e-3, "gyro_random_walk": 3.9e-5,
-                      "acc_random_walk": 6.0e-3, "position_sigma_m": 0.001, "rotation_sigma_rad": 0.002,
-                      "gyro_random_walk_scale": 2.0, "acc_random_walk_scale": 2.0, "method": "evidence",
-                      "pose_sigma_method": "within_bin_residuals"},
-            "pose_fusion": {"enabled": True, "keyframe_rate_hz": 10.0, "samples_per_keyframe_mean": 9.98,
-                            "samples_fused": 1996, "samples_rejected": 2, "within_bin_position_rms_m": 0.000501,
-                            "within_bin_rotation_rms_rad": 0.000498},
-            "accuracy_floor": {"gyro_radps": 0.00013, "acc_mps2": 0.00666},
-            "residuals": {"pose_whitened_rms": 1.07, "imu_whitened_rms": 0.93},
-            "outliers_rejected": 3, "outliers_t_ns": [int(t_kf[40]), int(t_kf[41]), int(t_kf[200])],
-            "keyframes": int(len(k)), "segments": 1, "segment_seams": [],
-            "duration_s": float((t_kf[-1] - t_kf[0]) / NS_PER_S), "runtime_s": 4.2,
-            "warnings": ["gyro random-walk scale 100 is at the edge of random_walk_scales; widen the grid"],
-        }
-        (rdir / "recovery.json").write_text(json.dumps(report), encoding="utf-8")
-        write_tum(rdir / "trajectory_tum.txt", PoseSeries(t_kf, gt.p_m[k], gt.quat_wxyz[k], "imu",
-                                                          PoseSourceKind.GROUND_TRUTH))
-    if validation:
-        vdir = results / "validation" / SEQ
-        vdir.mkdir(parents=True)
-        rng = np.random.default_rng(0)
-        t0 = gt.t_ns[0] + np.arange(38) * NS_PER_S // 2
-        rows, sources = [], {}
-        for name, kind, scale in (("recovered", "recovered", PRMSE_RECOVERED_M),
-                                  ("constant_first_window", "constant_first_window", PRMSE_CONSTANT_M),
-                                  ("zero", "zero", 0.02), ("dataset", "dataset", 0.0042)):
-            pos = np.abs(rng.normal(0, scale, len(t0)))
-            rot = np.abs(rng.normal(0, 0.01, len(t0)))
-            flagged = np.zeros(len(t0), bool)
-            if name == "recovered":
-                flagged[[5, 17]] = True
-            rows.append(pd.DataFrame({"t0_ns": t0, "source": name, "pos_err_m": pos, "rot_err_deg": rot,
-                                      "flagged": flagged}))
-            sources[name] = {"kind": kind, "prmse_m": scale, "roe_deg": 0.011 if name == "recovered" else 0.02,
-                             "windows": len(t0),
-                             "flagged": [{"t0_ns": int(t0[i]), "pos_err_m": float(pos[i]),
-                                          "rot_err_deg": float(rot[i])} for i in np.flatnonzero(flagged)]}
-        pd.concat(rows, ignore_index=True).to_parquet(vdir / "windows.parquet", index=False)
-        doc = {"schema_version": 1, "sequence": SEQ, "verdict": "PASS", "reasons": [], "candidate": "recovered",
-               "sources": sources, "windows_dropped": {"candidates": 40, "kept": 38, "dropped": 2, "fraction": 0.05}}
-        (vdir / "validation.json").write_text(json.dumps(doc), encoding="utf-8")
+    seq = ingest(raw, results / "ingest" / SEQ, repairs=["sort"], reader_kwargs={"name": SEQ})
+    write_recovery(recover(seq), results / "recovery" / SEQ)
+    validation = validate_inputs(seq, recovery_dir=results / "recovery" / SEQ, config=ValidationConfig(flag_k=1.5))
+    write_validation(validation, results / "validation" / SEQ)
     return results
 
 
 @pytest.fixture(scope="module")
-def results_dir(tmp_path_factory) -> Path:
-    return write_stage_outputs(tmp_path_factory.mktemp("full"))
+def stage_outputs(tmp_path_factory) -> Path:
+    return _run_stages(tmp_path_factory.mktemp("stages"))
+
+
+def write_stage_outputs(src: Path, root: Path, *, recovery: bool = True, validation: bool = True) -> Path:
+    """A copy of the stage outputs ``src`` under ``root/results`` (without recovery / validation if asked)."""
+    results = root / "results"
+    shutil.copytree(src / "ingest", results / "ingest")
+    for stage, keep in (("recovery", recovery), ("validation", validation)):
+        if keep:
+            shutil.copytree(src / stage, results / stage)
+    return results
+
+
+@pytest.fixture(scope="module")
+def results_dir(stage_outputs) -> Path:
+    return stage_outputs
+
+
+@pytest.fixture(scope="module")
+def recovery_json(results_dir) -> dict:
+    return json.loads((results_dir / "recovery" / SEQ / "recovery.json").read_text(encoding="utf-8"))
+
+
+@pytest.fixture(scope="module")
+def validation_json(results_dir) -> dict:
+    return json.loads((results_dir / "validation" / SEQ / "validation.json").read_text(encoding="utf-8"))
 
 
 @pytest.fixture(scope="module")
@@ -256,47 +223,67 @@ def test_report_is_self_contained(full_report):
     assert not re.search(r"""(src|href)\s*=\s*["']?\s*(https?:)?//""", full_report, re.I)
     assert "<link" not in full_report and "@import" not in full_report and "url(" not in full_report
     imgs = re.findall(r"<img\b[^>]*>", full_report)
-    assert len(imgs) == 7  # bias x2, pose residuals, error boxes, errors over time, Allan x2
+    # bias x2, residual table, pose residuals, error boxes, errors over time, Allan x2
+    assert len(imgs) == 8
     for img in imgs:
         assert re.search(r'src="data:image/png;base64,[A-Za-z0-9+/=]{100,}"', img), img[:80]
         assert 'alt="' in img
 
 
-def test_report_sections_in_order_and_verdict_first(full_report):
+def test_report_sections_in_order_and_verdict_first(full_report, validation_json):
     positions = [full_report.find(f"<h2>{title}</h2>") for _, title in SECTIONS]
     assert all(p > 0 for p in positions), positions
     assert positions == sorted(positions)
-    verdict = full_report.find("The recovered bias integrates 23% better than a constant bias")
+    src = validation_json["sources"]
+    better = 1.0 - src["recovered"]["prmse_m"] / src["constant"]["prmse_m"]
+    verdict = full_report.find(f"The recovered bias integrates {better:.0%} better than a constant bias")
     assert 0 < verdict < full_report.find(SECTIONS[1][1])
-    assert "usable for training." in full_report[:positions[1]]
-    assert 'class="verdict v-pass"' in full_report
+    word = validation_json["verdict"]
+    assert f'class="verdict v-{word.lower()}"' in full_report
+    assert {"PASS": "usable for training.", "WARN": "usable with care"}[word] in full_report[:positions[1]]
 
 
-def test_report_shows_the_numbers(full_report):
-    text = full_report
-    assert "12.345 ms" in text  # clock offset
-    assert "0.210 ms" in text  # its std
-    assert "[0.3, -0.2, -9.8] m/s²" in text  # gravity
-    tilt = gravity_tilt_deg(GRAVITY)
-    assert f"{tilt:.3f} deg" in text
+def test_recovery_finds_the_injected_outliers_and_the_report_shows_them(full_report, recovery_json):
+    """The outliers of a real recovery (sim with 3 displaced pose samples) reach the report."""
+    truth = _simulation().truth
+    expect_ns = truth.poses.outlier_stamps_ns + round(truth.clock_offset_s * NS_PER_S)  # on the IMU clock
+    found = np.asarray(recovery_json["outlier_t_ns"], dtype=np.int64)
+    assert len(found) == OUTLIERS == recovery_json["outliers_rejected"]
+    assert np.max(np.abs(np.sort(found) - np.sort(expect_ns))) < 1_000_000  # within 1 ms (offset estimate)
+    assert "Red lines: poses rejected as outliers." in full_report
+    assert f"{OUTLIERS} of {recovery_json['keyframes']} keyframes" in full_report
+    assert f"{OUTLIERS} samples rejected as outliers" in full_report  # pose fusion rejected them
+
+
+def test_report_shows_the_numbers(full_report, recovery_json, validation_json):
+    text, rec = full_report, recovery_json
+    offset_s = rec["pose_time_offset_s"]
+    assert abs(offset_s - CLOCK_OFFSET_S) < 5e-4  # the estimate is near the truth
+    assert f"{fmt(offset_s * 1e3, 5)} ms" in text  # clock offset
+    assert f"{fmt(rec['pose_time_offset_std_s'] * 1e3, 2)} ms" in text  # its std
+    tilt = gravity_tilt_deg(rec["gravity_world_mps2"])
+    assert tilt < 0.5 and f"{tilt:.3f} deg" in text  # the simulated world is z-up
     assert "about axis" in text and "roll" in text
-    assert "4.1" in text and "5.3" in text  # PRMSE in mm
-    assert "Flagged windows" in text and text.count("<td class=\"num\">") > 20
-    assert "Every flagged window (2)" in text
-    assert REPAIR_TEXT in text
-    assert "gyro random-walk scale 100 is at the edge" in text  # recovery warning
-    assert "Per-keyframe residuals are not available" in text
-    assert "Red lines: poses rejected as outliers." in text and "3 of 401 keyframes" in text
+    src = validation_json["sources"]
+    assert f"PRMSE {fmt(src['recovered']['prmse_m'] * 1e3, 3)} mm vs {fmt(src['constant']['prmse_m'] * 1e3, 3)} mm" \
+        in text
+    flagged = src["recovered"]["flagged"]
+    assert flagged and "Flagged windows" in text and f"Every flagged window ({len(flagged)})" in text
+    assert "imu: sorted 4001 rows by time (1 backward steps)" in text  # the one swapped pair, 20 s at 200 Hz
+    assert "Warnings of the recovery" in text
+    assert "Residuals per keyframe, as written by the recovery" in text
     assert "dataset&#x27;s own bias" in text  # ground truth overlaid
     assert "whole recording" in text  # simulated handheld motion: no rest
     assert "4,001" in text  # IMU samples (20 s at 200 Hz)
-    assert "Pose fusion: 9.98 pose samples per 10-Hz keyframe" in text and "2 samples rejected" in text
+    fusion = rec["pose_fusion"]
+    assert f"Pose fusion: {fmt(fusion['samples_per_keyframe_mean'], 3)} pose samples per 10-Hz keyframe" in text
     assert "pose sigmas from: within bin residuals" in text
-    assert "Accuracy floor for this noise (optimal smoother, per axis): gyro 0.00013 rad/s" in text
+    floor = rec["accuracy_floor"]["gyro_radps"]
+    assert f"Accuracy floor for this noise (optimal smoother, per axis): gyro {fmt(floor, 3)} rad/s" in text
 
 
-def test_missing_stages_are_reported(tmp_path):
-    results = write_stage_outputs(tmp_path, recovery=False, validation=False)
+def test_missing_stages_are_reported(stage_outputs, tmp_path):
+    results = write_stage_outputs(stage_outputs, tmp_path, recovery=False, validation=False)
     out = build_quality_report(results / "ingest" / SEQ, recovery_dir=results / "recovery" / SEQ,
                                validation_dir=None, out_path=tmp_path / "r.html")
     text = out.read_text(encoding="utf-8")
@@ -309,14 +296,11 @@ def test_missing_stages_are_reported(tmp_path):
     assert "Gyroscope Allan deviation" in text  # the IMU part is still shown
 
 
-def test_renamed_stage_folders_and_residual_table(tmp_path, capsys):
-    """results/recover + results/validate (the workflow's stage names), a per-keyframe residual table."""
-    results = write_stage_outputs(tmp_path, validation=False)
+def test_renamed_stage_folders(stage_outputs, tmp_path, capsys):
+    """results/recover + results/validate (the workflow's rule names)."""
+    results = write_stage_outputs(stage_outputs, tmp_path, validation=False)
     (results / "recovery").rename(results / "recover")
     rdir = results / "recover" / SEQ
-    bias = pd.read_csv(rdir / "bias.csv")
-    pd.DataFrame({"t_ns": bias["t_ns"], "pose_whitened": np.linspace(0.5, 1.5, len(bias)),
-                  "imu_whitened": np.ones(len(bias))}).to_csv(rdir / "residuals.csv", index=False)
     found = stage_dirs(tmp_path, SEQ)  # the folder holding results/
     assert found["recovery"] == rdir and found["validation"] is None
     assert cli_main(["report", str(tmp_path), "--sequence", SEQ]) == 0
@@ -324,14 +308,16 @@ def test_renamed_stage_folders_and_residual_table(tmp_path, capsys):
     assert out == results / "report" / SEQ / "report.html"
     text = out.read_text(encoding="utf-8")
     assert "Residuals per keyframe, as written by the recovery" in text
-    assert "Per-keyframe residuals are not available" not in text
     assert "NO VERDICT" in text and "no validation folder was given or found" in text
     assert len(re.findall(r"<img\b", text)) == 6  # bias x2, residual table, pose residuals, Allan x2
+    (rdir / "residuals.csv").unlink()
+    assert cli_main(["report", str(tmp_path), "--sequence", SEQ]) == 0
+    assert "Per-keyframe residuals are not available" in out.read_text(encoding="utf-8")
 
 
-def test_partial_and_malformed_inputs(tmp_path):
+def test_partial_and_malformed_inputs(stage_outputs, recovery_json, tmp_path):
     """Unreadable bias.csv, no trajectory, a minimal validation.json without windows.parquet: still a report."""
-    results = write_stage_outputs(tmp_path)
+    results = write_stage_outputs(stage_outputs, tmp_path)
     rdir, vdir = results / "recovery" / SEQ, results / "validation" / SEQ
     (rdir / "bias.csv").write_text("t_ns,foo\n1,2\n", encoding="utf-8")
     (rdir / "trajectory_tum.txt").unlink()
@@ -350,8 +336,8 @@ def test_partial_and_malformed_inputs(tmp_path):
     assert "3 of 38 windows &lt;flagged&gt;" in text  # data is escaped
     assert "missing columns" in text  # the bias.csv reader's message, shown in the page
     assert "bias.csv is missing or could not be read" in text
-    assert "windows.parquet" in text and "12.345 ms" in text
-    assert len(re.findall(r"<img\b", text)) == 2  # Allan only
+    assert "windows.parquet" in text and f"{fmt(recovery_json['pose_time_offset_s'] * 1e3, 5)} ms" in text
+    assert len(re.findall(r"<img\b", text)) == 3  # residual table, Allan x2
 
 
 def test_missing_ingest_is_one_line_error(tmp_path):
@@ -386,11 +372,12 @@ def test_failure_leaves_no_file(results_dir, tmp_path, monkeypatch):
     assert not new.exists() and list(new.parent.iterdir()) == []
 
 
-def test_cli_report(results_dir, tmp_path, capsys):
+def test_cli_report(results_dir, recovery_json, tmp_path, capsys):
+    offset_text = f"{fmt(recovery_json['pose_time_offset_s'] * 1e3, 5)} ms"
     out = tmp_path / "cli.html"
     assert cli_main(["report", str(results_dir), "--sequence", SEQ, "--out", str(out)]) == 0
     assert capsys.readouterr().out.strip() == str(out)
-    assert "12.345 ms" in out.read_text(encoding="utf-8")
+    assert offset_text in out.read_text(encoding="utf-8")
     # explicit stage folders, no validation: still a report
     out2 = tmp_path / "cli2.html"
     assert cli_main(["report", "--ingest", str(results_dir / "ingest" / SEQ), "--recovery",
@@ -401,4 +388,3 @@ def test_cli_report(results_dir, tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "no ingest store" in err
     assert cli_main(["report", str(results_dir)]) == 2  # no --sequence
-    assert isinstance(BiasgtError("x"), Exception)

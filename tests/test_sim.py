@@ -463,5 +463,5 @@ def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
 
     cfg_file.write_text("imu: {noise: 1}\n")
     assert main(["simulate", str(tmp_path / "cli3"), "--config", str(cfg_file)]) == 2
-    assert "unknown key(s) imu.noise" in capsys.readouterr().err
+    assert "unknown key 'imu.noise'" in capsys.readouterr().err
     assert not (tmp_path / "cli3").exists()

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from interpolation.bias import BIAS_COLUMNS, STD_COLUMNS
+from pipeline.bias_table import BIAS_COLUMNS, STD_COLUMNS
 from pipeline.errors import ConfigError, InputFormatError
 from pipeline.io import PoseInput
 from validation.validate import read_bias_file
@@ -69,10 +69,11 @@ def wrong_datasheet(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Pat
 
 def test_random_walk_at_the_search_bound_is_a_limitation_with_a_next_step(wrong_datasheet, tmp_path, capsys) -> None:
     from pipeline.cli import main
-    from validation.validate import read_recovery_dir, recovery_limitations
+    from recovery.outputs import RecoveryOutputs
+    from validation.validate import recovery_limitations
 
     sim, rec = wrong_datasheet
-    (lim,) = recovery_limitations(read_recovery_dir(rec))
+    (lim,) = recovery_limitations(RecoveryOutputs.read(rec))
     assert "gyro bias random walk was chosen at the edge of its search" in lim.text
     assert "sensor.yaml" in lim.next_step
     rc = main(["validate", str(sim), "--recovery", str(rec), "--out", str(tmp_path / "val")])

@@ -11,12 +11,14 @@ import pyarrow.parquet as pq
 import pytest
 from scipy.spatial.transform import Rotation
 
-from interpolation.bias import BiasTrack, write_bias_table
-from pipeline.errors import DataError, ValidationError
+from pipeline.bias_table import BiasTrack, write_bias_table
+from pipeline.errors import DataError, InputFormatError, ValidationError
 from pipeline.pose_transform import IMU_FRAME, poses_in_imu_frame, transform_from_json
 from pipeline.sim import PoseStreamConfig, SimConfig, simulate
 from pipeline.store import write_store
 from pipeline.types import ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence
+from recovery.outputs import RecoveryOutputs
+from synth import write_recovery_folder
 from validation.validate import (
     BiasSourceKind,
     ReferenceKind,
@@ -28,7 +30,6 @@ from validation.validate import (
     gap_free_mask,
     read_bias_file,
     sigma_window_errors,
-    read_recovery_dir,
     reference_from_poses,
     reference_from_states,
     validate_sequence,
@@ -535,27 +536,25 @@ def test_read_bias_file_formats(tmp_path):
         read_bias_file(tmp_path / "junk.csv")
 
 
-def _fake_recovery(sim, folder: Path, bias: BiasTrack) -> Path:
-    folder.mkdir(parents=True)
-    write_bias_table(bias, folder / "bias.csv")
+def _true_recovery(sim, folder: Path, bias: BiasTrack) -> Path:
+    """A recovery folder holding the simulator's truth (a perfect recovery), by the stage's writer."""
     T = sim.truth.T_imu_frame
     q = Rotation.from_matrix(T[:3, :3]).as_quat(scalar_first=True)
     report = {"pose_stream": "mocap0", "pose_time_offset_s": sim.truth.clock_offset_s,
               "T_imu_pose": {"p_m": T[:3, 3].tolist(), "quat_wxyz": q.tolist()},
               "gravity_world_mps2": sim.truth.gravity_mps2.tolist(),
               "noise": {"gyro_random_walk": 1e-4, "acc_random_walk": 1e-3}}
-    (folder / "recovery.json").write_text(json.dumps(report))
-    return folder
+    return write_recovery_folder(folder, bias, report)
 
 
-def test_read_recovery_dir(noisy_sim, tmp_path):
-    rec = read_recovery_dir(_fake_recovery(noisy_sim, tmp_path / "rec", _true_track(noisy_sim)))
+def test_recovery_folder_round_trip(noisy_sim, tmp_path):
+    rec = RecoveryOutputs.read(_true_recovery(noisy_sim, tmp_path / "rec", _true_track(noisy_sim))).report
     np.testing.assert_allclose(rec.T_imu_pose, noisy_sim.truth.T_imu_frame, atol=1e-12)
     assert rec.time_offset_s == pytest.approx(0.0123)
     np.testing.assert_allclose(rec.random_walk, [1e-4] * 3 + [1e-3] * 3)
     assert rec.pose_stream == "mocap0"
-    with pytest.raises(Exception, match="lacks recovery.json"):
-        read_recovery_dir(tmp_path)
+    with pytest.raises(InputFormatError, match="lacks recovery.json"):
+        RecoveryOutputs.read(tmp_path)
 
 
 # ----------------------------------------------------------------------------- CLI
@@ -567,7 +566,7 @@ def test_cli_recovery_poses_reference_pass_and_fail(noisy_sim, tmp_path, capsys)
     store = write_store(dataclasses.replace(noisy_sim.sequence, ground_truth=None), tmp_path / "store")
     true = _true_track(noisy_sim)
     k = np.arange(0, len(true), 2)  # 100 Hz keyframes
-    rec = _fake_recovery(noisy_sim, tmp_path / "rec", BiasTrack(true.t_ns[k], true.bias[k], true.std[k]))
+    rec = _true_recovery(noisy_sim, tmp_path / "rec", BiasTrack(true.t_ns[k], true.bias[k], true.std[k]))
     rc = main(["validate", str(store), "--recovery", str(rec), "--out", str(tmp_path / "val")])
     out = capsys.readouterr().out
     assert rc == 0, out

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from interpolation.bias import BiasTrack
+from pipeline.bias_table import BiasTrack
 from pipeline.io import load_sequence
 from pipeline.io.tum import read_tum_poses
 from pipeline.types import NS_PER_S, PoseSourceKind, Sequence
@@ -67,7 +67,7 @@ def mh01_ref(mh01):
 
 def test_v101_zero_constant_openvins(v101, v101_ref, shared_data):
     ov = read_bias_file(shared_data / EUROC / "V1_01_easy" / "ov_data" / "V1_01_easy.csv")
-    assert len(ov) == 2895 and ov.bias[0, 4] == pytest.approx(0.0659796)
+    assert len(ov) == 2895 and ov.bias[0, 4] == pytest.approx(0.0659796)  # the file's first row, ba_y (as written)
     assert v101_ref.kind is ReferenceKind.POSES and v101_ref.info["stream"] == GT_STREAM
     # EuRoC GT poses are a smoothed estimate: ~2 um of noise, so the spline barely smooths.
     assert v101_ref.info["position_noise_m"] < 1e-5

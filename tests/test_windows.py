@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 import pickle
 from pathlib import Path
 
@@ -13,14 +12,16 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from interpolation.bias import BIAS_COLUMNS, interpolate_bias, read_bias_csv
-from interpolation.pipeline import recovery_random_walk
+from interpolation.bias import interpolate_bias
+from pipeline.bias_table import BiasTrack, read_bias_csv
+from recovery.outputs import read_report
 from pipeline import __version__
 from pipeline.cli import main
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.sim import ImuNoiseConfig, PoseStreamConfig, SimConfig, simulate
 from pipeline.store import write_store
 from pipeline.types import ImuSeries
+from synth import write_recovery_folder
 from training.dataset import ARRAYS, TEMPERATURE, Split, WindowDataset, read_manifest
 from training.windows import (
     WindowConfig,
@@ -54,12 +55,7 @@ def _write_recovery(folder: Path, sim, *, every: int = 10, span_s: tuple[float, 
         rel = (tr.t_ns[k] - tr.t_ns[0]) / NS
         k = k[(rel >= span_s[0] - 1e-9) & (rel <= span_s[1] + 1e-9)]
     bias = np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])[k]
-    frame = pd.DataFrame(bias, columns=list(BIAS_COLUMNS))
-    frame.insert(0, "t_ns", tr.t_ns[k])
-    for i, c in enumerate(BIAS_COLUMNS):
-        frame[f"{c}_std"] = 1e-4 * (1 + i) * (1 + 0.1 * np.sin(np.arange(len(k))))
-    folder.mkdir(parents=True, exist_ok=True)
-    frame.to_csv(folder / "bias.csv", index=False, float_format="%.12g")
+    std = 1e-4 * (1 + np.arange(6))[None, :] * (1 + 0.1 * np.sin(np.arange(len(k))))[:, None]
     T = np.eye(4) if T_imu_pose is None else T_imu_pose
     report = {
         "noise": {"gyro_random_walk": RW[0], "acc_random_walk": RW[1]},
@@ -68,8 +64,7 @@ def _write_recovery(folder: Path, sim, *, every: int = 10, span_s: tuple[float, 
         "T_imu_pose": {"p_m": T[:3, 3].tolist(),
                        "quat_wxyz": Rotation.from_matrix(T[:3, :3]).as_quat(scalar_first=True).tolist()},
     }
-    (folder / "recovery.json").write_text(json.dumps(report), encoding="utf-8")
-    return folder
+    return write_recovery_folder(folder, BiasTrack(tr.t_ns[k], bias, std), report)
 
 
 def _source(tmp: Path, sim, name: str, split: str, **rec_kw) -> WindowSource:
@@ -105,7 +100,7 @@ def test_count_shapes_spacing_bias_and_states(sim10, tmp_path):
     np.testing.assert_array_equal(a["imu"], sim10.sequence.imu.imu_6[idx])
     np.testing.assert_array_equal(a[TEMPERATURE], sim10.sequence.imu.temperature_degc[idx])
     # the bias and its sigma are the interpolation stage's numbers at the IMU stamps
-    expect = interpolate_bias(read_bias_csv(rec / "bias.csv"), t, random_walk=recovery_random_walk(rec))
+    expect = interpolate_bias(read_bias_csv(rec / "bias.csv"), t, random_walk=read_report(rec).require_random_walk())
     np.testing.assert_array_equal(a["bias"], expect.bias[idx])
     np.testing.assert_array_equal(a["bias_std"], expect.std[idx])
     assert np.all(a["bias_std"] > 0)
@@ -232,7 +227,7 @@ def test_window_config_dict_round_trip_and_errors():
     assert cfg == WindowConfig(window_s=2.0, overlap=0.5, resample_hz=100.0, gap_factor=2.0)
     assert WindowConfig.from_dict(cfg.to_dict()) == cfg
     assert WindowConfig.from_dict(None) == WindowConfig()
-    with pytest.raises(ConfigError, match="unknown window setting.*window_len"):
+    with pytest.raises(ConfigError, match="unknown key 'window_len'"):
         WindowConfig.from_dict({"window_len": 1.0})
     for bad in ({"overlap": 1.0}, {"window_s": 0}, {"resample_hz": -5}, {"gap_factor": 1.0}):
         with pytest.raises(ConfigError):
@@ -299,7 +294,7 @@ def dataset(sim10, tmp_path_factory):
 
 def test_manifest_content(dataset, tmp_path):
     root, m, sources = dataset
-    assert read_manifest(root) == m
+    assert read_manifest(root).data == m.data
     assert m["code_version"] == __version__ and m["format_version"] == 1
     assert m["config"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0, "accept_warn": False}
     assert len(m["config_hash"]) == 16
@@ -395,7 +390,7 @@ def test_a_failure_leaves_no_output(sim10, tmp_path):
     first = build_window_dataset([good], tmp_path / "out" / "ds")
     with pytest.raises(InputFormatError):
         build_window_dataset([good, broken], tmp_path / "out" / "ds", WindowConfig(window_s=2.0))
-    assert read_manifest(tmp_path / "out" / "ds") == first  # the previous dataset is untouched
+    assert read_manifest(tmp_path / "out" / "ds").data == first.data  # the previous dataset is untouched
     assert [p.name for p in (tmp_path / "out").iterdir()] == ["ds"]
 
 
@@ -438,6 +433,15 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
     assert not (tmp_path / "ds3").exists()
     rc = main(["windows", "--splits", str(splits), "--out", str(tmp_path / "ds3")])
     assert rc == 2 and "--splits and --results go together" in capsys.readouterr().err
+
+
+def test_split_none_is_not_windowed(sim10, tmp_path):
+    """'none' means "no role in training" everywhere: such a sequence gets no windows."""
+    train = _source(tmp_path, sim10, "a", "train")
+    unused = _source(tmp_path, sim10, "b", "none")
+    manifest = build_window_dataset([train, unused], tmp_path / "ds")
+    assert list(manifest.sequences) == ["a"] and manifest.names(Split.NONE) == []
+    assert not (tmp_path / "ds" / "sequences" / "b").exists()
 
 
 # ----------------------------------------------------------------------------- verdict gate

@@ -164,83 +164,70 @@ def test_rejects_bad_names_and_unknown_keys(tmp_path):
 
 def test_rejects_bad_simulator_and_ingest_settings(tmp_path):
     msg = _error(tmp_path, {"sequences": [sim_entry("a", overrides={"imu": {"rate_hzz": 100}})]})
-    assert "sequences[0] ('a'): simulator setting: unknown key(s) imu.rate_hzz" in msg
+    assert "sequences[0] ('a'): simulator setting: unknown key 'imu.rate_hzz' (did you mean 'imu.rate_hz'?)" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", overrides={"motion": {"preset": "slow_cart"}})]})
     assert "overrides.motion.preset repeats the entry's 'preset'" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", repairs=["sortt"])]})
     assert "sequences[0] ('a'): unknown repair 'sortt'" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a")], "ingest": {"check_options": {"gap_factr": 3}}})
-    assert "sequences[0] ('a'): unknown check option(s) gap_factr" in msg
+    assert "sequences[0] ('a'): unknown key 'gap_factr' (did you mean 'gap_factor'?)" in msg
     (tmp_path / "x.bag").write_bytes(b"")
     msg = _error(tmp_path, {"sequences": [{"name": "r", "source": "bag", "path": "x.bag",
                                            "reader": {"imu_topics": "/imu"}}]})
-    assert "sequences[0] ('r'): unknown reader option(s) imu_topics" in msg and "imu_topic" in msg
+    assert "sequences[0] ('r'): reader option: unknown key 'imu_topics' (did you mean 'imu_topic'?)" in msg
     msg = _error(tmp_path, {"sequences": [{"name": "r", "source": "bag", "path": "x.bag", "reader": {"fmt": "asl"}}]})
     assert "sequences[0] ('r'): reader option(s) fmt cannot be set here (field 'reader'); 'source' sets the format" in msg
 
 
-def test_stage_section_defaults_match_the_libraries():
-    """The schema documents every option of recovery / validation / windows with the library's default."""
-    import dataclasses
-    import enum
-
-    from validation.validate import ValidationConfig
+def test_stage_sections_take_options_and_defaults_from_the_dataclasses():
+    """The schema leaves the stage sections open; their options and defaults are the dataclasses'."""
+    from interpolation.config import InterpolationConfig
     from recovery.config import RecoveryConfig
-    from training.windows import WindowConfig
+    from training.windows_config import WindowConfig
+    from validation.config import ValidationConfig
 
     props = wf.load_schema()["properties"]
-    for section, cls, extra in (("recovery", RecoveryConfig, wf.RECOVERY_EXTRA_KEYS),
-                                ("validation", ValidationConfig, wf.VALIDATION_EXTRA_KEYS),
-                                ("windows", WindowConfig, ())):
-        schema = props[section]
-        assert schema["additionalProperties"] is False
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        assert set(schema["properties"]) == set(fields) | set(extra), section
-        default = cls()
-        for name in fields:
-            value = getattr(default, name)
-            doc = schema["properties"][name]
-            assert doc["description"], (section, name)
-            if isinstance(value, enum.Enum):
-                assert doc["enum"] == [e.value for e in type(value)] and doc["default"] == value.value, (section, name)
-            else:
-                assert doc["default"] == value, (section, name)
-        for name in extra:
-            assert schema["properties"][name]["default"] is None
-    from interpolation.bias import InterpolationMethod
-
-    assert props["interpolation"]["properties"]["method"]["enum"] == [m.value for m in InterpolationMethod]
-    # the schema's defaults build the libraries' default configs
-    cfg = wf.validate_schema({"sequences": [sim_entry("a")]})
-    assert wf.make_recovery_config(wf.recovery_settings(wf.check_config(cfg), "a")["config"]) == RecoveryConfig()
-    assert wf.make_validation_config(wf.validation_settings(wf.check_config(cfg), "a")["config"]) == ValidationConfig()
-    assert wf.make_window_config(cfg["windows"]) == WindowConfig()
+    assert set(wf.STAGE_CONFIGS) <= set(props)
+    for section in wf.STAGE_CONFIGS:
+        assert "properties" not in props[section] and "additionalProperties" not in props[section], section
+    cfg = wf.check_config(wf.validate_schema({"sequences": [sim_entry("a")]}))
+    assert wf.stage_config("recovery", wf.recovery_settings(cfg, "a")["config"]) == RecoveryConfig()
+    assert wf.stage_config("validation", wf.validation_settings(cfg, "a")["config"]) == ValidationConfig()
+    assert wf.stage_config("windows", wf.windows_settings(cfg)["config"]) == WindowConfig()
+    assert wf.stage_config("interpolation", wf.interpolation_settings(cfg, "a")) == InterpolationConfig()
+    # a changed option reaches the stage; the others keep their defaults
+    cfg = wf.check_config(wf.validate_schema({"sequences": [sim_entry("a", recovery={"keyframe_rate_hz": 20})],
+                                              "windows": {"window_s": 2}}))
+    assert wf.stage_config("recovery", wf.recovery_settings(cfg, "a")["config"]) == RecoveryConfig(keyframe_rate_hz=20)
+    assert wf.stage_config("windows", wf.windows_settings(cfg)["config"]) == WindowConfig(window_s=2)
 
 
 def test_rejects_unknown_and_invalid_stage_options(tmp_path):
     seqs = [sim_entry("a")]
     msg = _error(tmp_path, {"sequences": seqs, "recovery": {"keyframe_rat_hz": 5}})
-    assert "recovery: unknown key 'keyframe_rat_hz' (did you mean 'keyframe_rate_hz'?): allowed here: " in msg
+    assert ("recovery: unknown key 'keyframe_rat_hz' (did you mean 'keyframe_rate_hz'?) (field 'recovery'); "
+            "allowed: ") in msg
     assert "pose_stream" in msg and "time_offset_mode" in msg
     msg = _error(tmp_path, {"sequences": seqs, "validation": {"window": 2, "margn": 0.2}})
     assert "validation: unknown keys 'window' (did you mean 'window_s'?), 'margn' (did you mean 'margin'?)" in msg
     msg = _error(tmp_path, {"sequences": seqs, "interpolation": {"method": "spline"}})
-    assert "interpolation.method: 'spline' is not one of linear, cubic" in msg
+    assert "interpolation: method 'spline' is not one of linear, cubic" in msg
     msg = _error(tmp_path, {"sequences": seqs, "windows": {"window_len": 2}})
     assert "windows: unknown key 'window_len' (did you mean 'window_s'?)" in msg
     msg = _error(tmp_path, {"sequences": seqs, "report": {"theme": "dark"}})
     assert "report: unknown key 'theme': this section has no options" in msg
     msg = _error(tmp_path, {"sequences": seqs, "recovery": {"keyframe_rate_hz": -1}})
-    assert "recovery.keyframe_rate_hz: must be > 0 or null, got -1" in msg
+    assert "recovery: must be > 0 or null, got -1 (field 'recovery.keyframe_rate_hz')" in msg
     msg = _error(tmp_path, {"sequences": seqs, "recovery": {"robust_loss": "tukey"}})
-    assert "recovery.robust_loss: 'tukey' is not one of huber, cauchy, none" in msg
+    assert "recovery: robust_loss 'tukey' is not one of huber, cauchy, none" in msg
     # per-sequence overrides: same keys, checked at start-up, naming the entry
     msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"pose_strem": "mocap0"})]})
-    assert "sequences[0] ('a'): unknown recovery option(s) pose_strem (field 'recovery.pose_strem')" in msg
+    assert "sequences[0] ('a'): unknown key 'pose_strem' (did you mean 'pose_stream'?) (field 'recovery')" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"segment_s": 60, "segment_overlap_s": 40})]})
-    assert "sequences[0] ('a'): recovery option: must be >= 0 and less than half of segment_s" in msg
+    assert ("sequences[0] ('a'): must be >= 0 and less than half of segment_s "
+            "(field 'recovery.segment_overlap_s')") in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", validation={"refernce": "x"})]})
-    assert "sequences[0] ('a'): unknown validation option(s) refernce" in msg
+    assert "sequences[0] ('a'): unknown key 'refernce' (field 'validation')" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", split="training")]})
     assert "'training' is not one of train, val, test, none" in msg
 
@@ -368,7 +355,7 @@ def test_stage_settings_merge_entry_overrides(tmp_path):
     assert a["config"]["keyframe_rate_hz"] == 20 and b["config"]["keyframe_rate_hz"] == 50
     assert a["config"]["robust_loss"] == b["config"]["robust_loss"] == "cauchy"
     assert "pose_stream" not in a["config"]
-    rc = wf.make_recovery_config(a["config"])
+    rc = wf.stage_config("recovery", a["config"])
     assert rc.keyframe_rate_hz == 20 and rc.robust_loss.value == "cauchy"
     va, vb = wf.validation_settings(cfg, "a"), wf.validation_settings(cfg, "b")
     assert va["poses"] == "mocap0" and vb["poses"] is None
@@ -390,10 +377,10 @@ def test_stage_settings_merge_entry_overrides(tmp_path):
     assert wf.window_outputs(no_train) == []  # no train split: no dataset (normalisation needs train)
     assert wf.interpolation_outputs(no_train) == ["results/interpolation/{sequence}/bias_imu.parquet",
                                                   "results/interpolation/{sequence}/bias_imu.csv"]
-    with pytest.raises(ConfigError, match="unknown validation option"):
-        wf.make_validation_config({"windw_s": 1})
+    with pytest.raises(ConfigError, match="unknown key 'windw_s' .did you mean 'window_s'"):
+        wf.stage_config("validation", {"windw_s": 1})
     with pytest.raises(ConfigError, match="invalid overlap"):
-        wf.make_validation_config({"overlap": 1.5})
+        wf.stage_config("validation", {"overlap": 1.5})
 
 
 def test_final_outputs_registry(mixed_cfg):
@@ -616,7 +603,7 @@ def test_other_step_functions_in_process(e2e_run, tmp_path):
     assert pq.read_table(out).num_rows == len(read_store(store).imu)
     with pytest.raises(SystemExit) as info:
         wf.run_step(log_path, wf.interpolate_step, recovery, store, tmp_path / "x.parquet", {"method": "spline"})
-    assert info.value.code == 2 and "unknown interpolation method 'spline'" in log_path.read_text()
+    assert info.value.code == 2 and "method 'spline' is not one of linear, cubic" in log_path.read_text()
     # recover: an unknown pose stream is a one-line input error naming the streams
     with pytest.raises(SystemExit) as info:
         wf.run_step(log_path, wf.recover_step, store, tmp_path / "rec", {"pose_stream": "vicon9", "config": {}})
@@ -630,7 +617,7 @@ def test_other_step_functions_in_process(e2e_run, tmp_path):
     with pytest.raises(ConfigError, match="1 sequences but 2 stores"):
         wf.windows_step([store, store], [recovery, recovery], [recovery, recovery], tmp_path / "ds", {"sequences": [["tiny_a", "train"]]})
     with pytest.raises(ConfigError, match="window_len"):
-        wf.make_window_config({"window_len": 2})
+        wf.stage_config("windows", {"window_len": 2})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -713,7 +700,7 @@ def e2e_run(tmp_path_factory) -> E2E:
 @pytest.mark.slow
 def test_real_run_writes_every_stage(e2e_run):
     from pipeline.store import read_store
-    from recovery.outputs import BIAS_COLUMNS
+    from pipeline.bias_table import CSV_HEADER
 
     workdir, printed = e2e_run.workdir, e2e_run.printed
     results = workdir / "results"
@@ -730,7 +717,7 @@ def test_real_run_writes_every_stage(e2e_run):
         seq = read_store(results / "ingest" / name)
         assert seq.name == name and seq.imu is not None and 8 * 200 - 2 <= len(seq.imu) <= 8 * 200 + 2
         header = (results / "recovery" / name / "bias.csv").read_text().splitlines()[0]
-        assert header == ",".join(BIAS_COLUMNS)
+        assert header == ",".join(CSV_HEADER)
         assert header == "t_ns,bg_x,bg_y,bg_z,ba_x,ba_y,ba_z,bg_x_std,bg_y_std,bg_z_std,ba_x_std,ba_y_std,ba_z_std"
         rec = json.loads((results / "recovery" / name / "recovery.json").read_text())
         assert rec["pose_stream"] == "mocap0" and rec["keyframes"] >= 70  # 8 s of 10-Hz fused keyframes

@@ -23,12 +23,11 @@ recording. Normalisation statistics come from the train split only.
 
 from __future__ import annotations
 
-import enum
 import hashlib
 import json
 import logging
 import re
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,6 +38,8 @@ import torch
 from pipeline import __version__
 from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
+from pipeline.jsonio import JsonRecord, dumps, read_json_object, to_plain
+from pipeline.types import Split
 
 log = logging.getLogger(__name__)
 
@@ -48,15 +49,6 @@ MANIFEST = "manifest.json"
 ARRAYS = ("imu", "bias", "bias_std", "t_ns", "start_R", "start_v", "start_p", "end_R", "end_v", "end_p")
 #: The optional array: the IMU temperature [W, T] (degC).
 TEMPERATURE = "temperature_degc"
-
-
-class Split(str, enum.Enum):
-    """Which part of the dataset a sequence belongs to."""
-
-    TRAIN = "train"
-    VAL = "val"
-    TEST = "test"
-    NONE = "none"  # windowed but not used for training or testing
 
 
 @dataclass
@@ -97,7 +89,7 @@ class SequenceWindows:
 
 def config_hash(config: dict[str, Any]) -> str:
     """Stable short hash of a JSON-serialisable config."""
-    text = json.dumps(config, sort_keys=True, separators=(",", ":"), default=str)
+    text = json.dumps(to_plain(config, finite_only=True), sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -152,20 +144,6 @@ def normalization_stats(windows: Iterable[SequenceWindows]) -> dict[str, list[fl
     return stats
 
 
-def _json_safe(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {str(k): _json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_json_safe(v) for v in obj]
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, np.ndarray):
-        return _json_safe(obj.tolist())
-    if isinstance(obj, np.generic):
-        return obj.item()
-    return obj
 
 
 def _load_arrays(folder: Path, temperature: bool = False) -> dict[str, np.ndarray]:
@@ -184,7 +162,7 @@ def write_dataset(
     *,
     config: dict[str, Any],
     extra: dict[str, Any] | None = None,
-) -> dict[str, Any]:
+) -> WindowManifest:
     """Write a window dataset atomically and return its manifest.
 
     ``sequences`` may be a generator: each sequence is written to the temporary folder as it
@@ -215,7 +193,7 @@ def write_dataset(
     manifest: dict[str, Any] = {
         "format_version": FORMAT_VERSION,
         "code_version": __version__,
-        "config": _json_safe(config),
+        "config": to_plain(config),
         "config_hash": config_hash(config),
         "window_samples": 0,
         "rate_hz": None,
@@ -224,7 +202,7 @@ def write_dataset(
         "totals": {},
     }
     if extra:
-        manifest.update(_json_safe(extra))
+        manifest.update(to_plain(extra))
     with atomic_dir(out_dir) as tmp:
         lengths: dict[int, str] = {}
         without_temperature: list[str] = []
@@ -260,7 +238,7 @@ def write_dataset(
                 "candidates": seq.candidates,
                 "dropped": {k: int(v) for k, v in seq.dropped.items()},
                 "path": f"sequences/{seq.name}",
-                "info": _json_safe(seq.info),
+                "info": to_plain(seq.info),
             }
             manifest["splits"].setdefault(seq.split.value, []).append(seq.name)
             log.info("%s (%s): %d windows kept of %d", seq.name, seq.split.value, len(seq), seq.candidates)
@@ -279,8 +257,8 @@ def write_dataset(
         ]
         manifest["normalization"] = normalization_stats(train)
         del train  # close the memory maps before the folder is renamed
-        (tmp / MANIFEST).write_text(json.dumps(manifest, indent=2) + "\n", encoding="utf-8")
-    return manifest
+        (tmp / MANIFEST).write_text(dumps(manifest), encoding="utf-8")
+    return WindowManifest.from_json(manifest)
 
 
 def _keep_temperature(tmp: Path, manifest: dict[str, Any], without: list[str]) -> bool:
@@ -294,22 +272,74 @@ def _keep_temperature(tmp: Path, manifest: dict[str, Any], without: list[str]) -
     return False
 
 
-def read_manifest(root: str | Path) -> dict[str, Any]:
-    """Load and check a dataset manifest."""
+@dataclass(frozen=True)
+class ManifestEntry:
+    """One sequence of the manifest: its split, kept / planned windows and its folder (relative)."""
+
+    split: Split
+    windows: int
+    candidates: int
+    path: str
+
+
+@dataclass(frozen=True, eq=False)  # holds arrays: compare .data / the fields
+class WindowManifest(JsonRecord):
+    """``manifest.json`` of a window dataset: the typed fields plus the whole object.
+
+    Attributes:
+        data: The whole JSON object (see :func:`write_dataset`); ``manifest["key"]`` reads it.
+        config_hash: Hash of the windowing config.
+        window_samples: Samples per window (T).
+        rate_hz: IMU rate of every window.
+        sequences: Name -> entry, in the order written.
+        normalization: ``imu_mean``, ``imu_std``, ``bias_mean``, ``bias_std`` -> [6] (train split).
+    """
+
+    data: Mapping[str, Any]
+    config_hash: str
+    window_samples: int
+    rate_hz: float | None
+    sequences: dict[str, ManifestEntry]
+    normalization: dict[str, np.ndarray]
+
+    def names(self, split: Split | str) -> list[str]:
+        """The sequences of ``split``, in manifest order."""
+        split = Split(split)
+        return [name for name, entry in self.sequences.items() if entry.split is split]
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any], path: str | Path | None = None) -> WindowManifest:
+        """Parse the JSON object.
+
+        Raises:
+            InputFormatError: Another format version, or a malformed field.
+        """
+        if data.get("format_version") != FORMAT_VERSION:
+            raise InputFormatError(f"unsupported dataset format {data.get('format_version')}", path=path,
+                                   hint="re-create the dataset with this version's 'biasgt windows'")
+        try:
+            sequences = {str(name): ManifestEntry(Split(e["split"]), int(e["windows"]), int(e["candidates"]),
+                                                  str(e["path"])) for name, e in data["sequences"].items()}
+            norm = {str(k): np.asarray(v, dtype=np.float64) for k, v in (data.get("normalization") or {}).items()}
+            rate = data.get("rate_hz")
+            return cls(dict(data), str(data["config_hash"]), int(data["window_samples"]),
+                       None if rate is None else float(rate), sequences, norm)
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise InputFormatError(f"malformed manifest ({type(exc).__name__}: {exc})", path=path,
+                                   hint="re-create the dataset with 'biasgt windows'") from None
+
+
+def read_manifest(root: str | Path) -> WindowManifest:
+    """Load and check a dataset manifest (``root/manifest.json``).
+
+    Raises:
+        InputFormatError: Not a dataset, unreadable, or another format version.
+    """
     path = Path(root) / MANIFEST
     if not path.is_file():
         raise InputFormatError("not a biasgt window dataset (no manifest.json)", path=root,
                                hint="create one with 'biasgt windows'")
-    try:
-        manifest = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputFormatError(f"cannot read the manifest ({exc})", path=path,
-                               hint="re-create the dataset with 'biasgt windows'") from None
-    if not isinstance(manifest, dict) or manifest.get("format_version") != FORMAT_VERSION:
-        version = manifest.get("format_version") if isinstance(manifest, dict) else None
-        raise InputFormatError(f"unsupported dataset format {version}", path=path,
-                               hint="re-create the dataset with this version's 'biasgt windows'")
-    return manifest
+    return WindowManifest.from_json(read_json_object(path, hint="re-create the dataset with 'biasgt windows'"), path)
 
 
 class WindowDataset(torch.utils.data.Dataset):
@@ -336,23 +366,24 @@ class WindowDataset(torch.utils.data.Dataset):
         self.split = Split(split)
         self.manifest = read_manifest(self.root)
         self.dtype = dtype or torch.float32
-        self.normalization = {k: np.asarray(v) for k, v in self.manifest["normalization"].items()}
-        self.window_samples = int(self.manifest["window_samples"])
+        self.normalization = dict(self.manifest.normalization)
+        self.window_samples = self.manifest.window_samples
         self.has_temperature = bool(self.manifest.get("has_temperature", False))
         self._arrays: list[dict[str, np.ndarray]] = []
         self._names: list[str] = []
         index: list[tuple[int, int]] = []
-        for name, entry in self.manifest["sequences"].items():
-            if Split(entry["split"]) is not self.split or entry["windows"] == 0:
+        for name in self.manifest.names(self.split):
+            entry = self.manifest.sequences[name]
+            if entry.windows == 0:
                 continue
-            arrays = _load_arrays(self.root / entry["path"], self.has_temperature)
-            if len(arrays["imu"]) != entry["windows"]:
+            arrays = _load_arrays(self.root / entry.path, self.has_temperature)
+            if len(arrays["imu"]) != entry.windows:
                 raise InputFormatError(f"sequence '{name}' holds {len(arrays['imu'])} windows, the manifest says "
-                                       f"{entry['windows']}", path=self.root / entry["path"],
+                                       f"{entry.windows}", path=self.root / entry.path,
                                        hint="re-create the dataset with 'biasgt windows'")
             self._arrays.append(arrays)
             self._names.append(name)
-            index.extend((len(self._arrays) - 1, i) for i in range(entry["windows"]))
+            index.extend((len(self._arrays) - 1, i) for i in range(entry.windows))
         self._index = index
 
     def __getstate__(self) -> dict[str, Any]:
@@ -364,8 +395,8 @@ class WindowDataset(torch.utils.data.Dataset):
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
-        seqs = self.manifest["sequences"]
-        self._arrays = [_load_arrays(self.root / seqs[name]["path"], self.has_temperature) for name in self._names]
+        seqs = self.manifest.sequences
+        self._arrays = [_load_arrays(self.root / seqs[name].path, self.has_temperature) for name in self._names]
 
     @property
     def sequences(self) -> list[str]:

@@ -41,7 +41,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import json
 import logging
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
@@ -51,21 +50,23 @@ from typing import Any
 import numpy as np
 import yaml
 
-from interpolation.bias import read_bias_csv
-from interpolation.pipeline import recovery_random_walk
 from pipeline.errors import ConfigError, DataError, InputFormatError
-from pipeline.types import NS_PER_S, ImuSeries, Sequence
+from pipeline.ingest import load
+from pipeline.store import is_store, read_store
+from pipeline.types import NS_PER_S, ImuSeries, Sequence, Split
+from recovery.outputs import REPORT_JSON, RecoveryOutputs
 from validation.validate import (
     ReferenceStates,
-    ValidationConfig,
     build_reference,
     gap_free_mask,
     plan_windows,
-    read_recovery_dir,
     recovered_bias_at_imu,
     windows_with_any,
 )
-from training.dataset import ARRAYS, TEMPERATURE, SequenceWindows, Split, write_dataset
+from training.dataset import ARRAYS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
+from training.windows_config import WindowConfig
+from validation.config import ValidationConfig
+from validation.outputs import Verdict, read_summary
 
 log = logging.getLogger(__name__)
 
@@ -96,65 +97,6 @@ class DropReason(str, enum.Enum):
     IMU_NONFINITE = "imu_nonfinite"
     OUTSIDE_RECOVERY = "outside_recovery"
     NO_REFERENCE = "no_reference"
-
-
-@dataclass(frozen=True)
-class WindowConfig:
-    """How sequences are cut into windows.
-
-    Attributes:
-        window_s: Window length in seconds (``n = round(window_s * rate)`` intervals, n + 1 samples).
-        overlap: Fraction of a window shared with the next, in [0, 1) (0.5: stride window_s / 2).
-        resample_hz: Resample IMU streams onto a uniform grid at this rate (Hz) where needed;
-            None refuses sequences at another rate (see the module docstring).
-        gap_factor: An IMU interval longer than this times the nominal one is a gap.
-        accept_warn: Take sequences whose validation verdict is WARN too (PASS always, FAIL never;
-            a sequence without a validation is taken, and the manifest says it was not validated).
-    """
-
-    window_s: float = 1.0
-    overlap: float = 0.5
-    resample_hz: float | None = None
-    gap_factor: float = 2.0
-    accept_warn: bool = False
-
-    def __post_init__(self) -> None:
-        try:
-            for name in ("window_s", "overlap", "gap_factor"):
-                object.__setattr__(self, name, float(getattr(self, name)))
-            if self.resample_hz is not None:
-                object.__setattr__(self, "resample_hz", float(self.resample_hz))
-        except (TypeError, ValueError):
-            raise ConfigError(f"window settings must be numbers, got {self.__dict__}",
-                              hint="give window_s, overlap, gap_factor (and resample_hz) as numbers") from None
-        checks = (
-            ("window_s", np.isfinite(self.window_s) and self.window_s > 0, "give a positive length in seconds"),
-            ("overlap", 0.0 <= self.overlap < 1.0, "give an overlap in [0, 1), e.g. 0.5"),
-            ("resample_hz", self.resample_hz is None or (np.isfinite(self.resample_hz) and self.resample_hz > 0),
-             "give a positive rate in Hz, e.g. 200"),
-            ("gap_factor", self.gap_factor > 1.0, "give a factor > 1, e.g. 2"),
-        )
-        for name, ok, hint in checks:
-            if not ok:
-                raise ConfigError(f"invalid window setting {name} = {getattr(self, name)!r}", field=name, hint=hint)
-
-    def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any] | None, *, path: str | Path | None = None) -> "WindowConfig":
-        """Build from a (possibly partial) mapping; unknown keys raise :class:`ConfigError`."""
-        d = dict(d or {})
-        known = {f.name for f in dataclasses.fields(cls)}
-        unknown = sorted(set(d) - known)
-        if unknown:
-            raise ConfigError(f"unknown window setting(s) {', '.join(map(str, unknown))}", path=path,
-                              field=str(unknown[0]), hint=f"known settings: {', '.join(sorted(known))}")
-        return cls(**d)
-
-    def validation_config(self) -> ValidationConfig:
-        """The validation config that cuts the same windows."""
-        return ValidationConfig(window_s=self.window_s, overlap=self.overlap, gap_factor=self.gap_factor)
 
 
 @dataclass(frozen=True)
@@ -319,8 +261,8 @@ def extract_windows(
                         hint="give the store of a recording with IMU readings")
     split = Split(split)
     recovery_dir = Path(recovery_dir)
-    recovery = read_recovery_dir(recovery_dir)
-    random_walk = recovery_random_walk(recovery_dir)
+    recovery = RecoveryOutputs.read(recovery_dir)
+    random_walk = recovery.report.require_random_walk(recovery_dir / REPORT_JSON)
     imu, info = _uniform_imu(sequence, config, rate_hz)
     if info["resampled"]:
         sequence = dataclasses.replace(sequence, imu=imu)
@@ -332,7 +274,7 @@ def extract_windows(
     dropped = {DropReason.IMU_GAP.value: plan.dropped["imu_gap"],
                DropReason.IMU_NONFINITE.value: plan.dropped["imu_nonfinite"]}
 
-    bias = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), imu.t_ns, random_walk)
+    bias = recovered_bias_at_imu(recovery.bias, imu.t_ns, random_walk)
     outside = windows_with_any(np.asarray(bias.clamped, bool), starts, n + 1)
     dropped[DropReason.OUTSIDE_RECOVERY.value] = int(outside.sum())
     keep &= ~outside
@@ -381,15 +323,11 @@ def extract_windows(
 
 
 def _load_source(source: WindowSource) -> Sequence:
-    from pipeline.store import is_store, read_store
-
     if is_store(source.store_dir):
         return read_store(source.store_dir)
     if not source.store_dir.exists():
         raise InputFormatError(f"input of sequence '{source.name}' does not exist", path=source.store_dir,
                                hint="give the store folder written by 'biasgt convert' (or the workflow's ingest)")
-    from pipeline.ingest import load
-
     return load(source.store_dir)
 
 
@@ -411,7 +349,7 @@ def _check_sources(sources: list[WindowSource]) -> None:
 
 
 def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
-                         config: WindowConfig = WindowConfig()) -> dict[str, Any]:
+                         config: WindowConfig = WindowConfig()) -> WindowManifest:
     """Window every source and write the dataset atomically (:func:`training.dataset.write_dataset`).
 
     Sequences are loaded, cut and written one at a time. The dataset rate is ``config.resample_hz``
@@ -432,6 +370,10 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
     """
     sources = list(sources)
     _check_sources(sources)
+    for src in sources:
+        if not src.split.windowed:
+            log.info("%s: split %s, not windowed", src.name, src.split.value)
+    sources = [s for s in sources if s.split.windowed]
     excluded = {src.name: reason for src in sources if (reason := verdict_exclusion(src, config)) is not None}
     for name, reason in excluded.items():
         log.warning("sequence '%s' left out of the window dataset: %s", name, reason)
@@ -466,19 +408,11 @@ def verdict_exclusion(source: WindowSource, config: WindowConfig) -> str | None:
     """
     if source.validation_dir is None:
         return None
-    from validation.validate import VALIDATION_JSON, Verdict
-
-    path = source.validation_dir / VALIDATION_JSON
-    try:
-        result = json.loads(path.read_text(encoding="utf-8"))
-        verdict = Verdict(result["verdict"])
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputFormatError(f"cannot read the validation verdict ({exc})", path=path,
-                               hint=f"run 'biasgt validate' for '{source.name}' first") from None
-    if verdict is Verdict.PASS or (verdict is Verdict.WARN and config.accept_warn):
+    summary = read_summary(source.validation_dir)
+    if summary.verdict is Verdict.PASS or (summary.verdict is Verdict.WARN and config.accept_warn):
         return None
-    first = (result.get("reasons") or ["no reason given"])[0]
-    return f"validation {verdict.value}: {first}"
+    first = summary.reasons[0] if summary.reasons else "no reason given"
+    return f"validation {summary.verdict.value}: {first}"
 
 
 # ----------------------------------------------------------------------------- splits and results layout
@@ -545,11 +479,11 @@ def sources_from_results(splits: Mapping[Split | str, Iterable[str]], results_di
     return out
 
 
-def format_summary(manifest: Mapping[str, Any]) -> str:
+def format_summary(manifest: WindowManifest) -> str:
     """Per-split table: sequences, windows kept, windows dropped (and the reasons)."""
     rows = [("split", "sequences", "windows", "dropped", "reasons")]
     for split in Split:
-        names = manifest.get("splits", {}).get(split.value)
+        names = manifest.names(split)
         if not names:
             continue
         entries = [manifest["sequences"][n] for n in names]

@@ -95,42 +95,40 @@ Verdict (:class:`Verdict`) per sequence, reasons in plain words
 from __future__ import annotations
 
 import enum
-import json
 import logging
 import math
 from collections.abc import Mapping
 from collections.abc import Sequence as Sequence_
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
-import pyarrow as pa
-import pyarrow.parquet as pq
 import torch
 from scipy.interpolate import make_smoothing_spline
 from scipy.spatial.transform import Rotation, Slerp
 
-from interpolation.bias import BiasTrack, interpolate_bias, read_bias_csv
-from pipeline.atomic import atomic_dir, atomic_path
+from interpolation.bias import interpolate_bias
+from pipeline.bias_table import BiasTrack, read_bias_csv
 from pipeline.errors import BiasgtError, DataError, InputFormatError, ValidationError
-from pipeline.integration import IntegrationScheme, integrate
-from pipeline.pose_transform import as_transform, poses_in_imu_frame, transform_from_json
+from pipeline.integration import integrate
+from pipeline.io import select_pose_stream
+from pipeline.io.asl import read_asl_state_csv
+from pipeline.pose_transform import as_transform, poses_in_imu_frame
 from pipeline.so3 import rotation_angle_deg
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence, Severity, StateSeries
+from recovery.outputs import RecoveryOutputs
+from validation.config import ValidationConfig
+from validation.outputs import SCHEMA_VERSION, Verdict, write_folder
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
-VALIDATION_JSON = "validation.json"
-WINDOWS_PARQUET = "windows.parquet"
 DEFAULT_GRAVITY_MPS2 = (0.0, 0.0, -9.81)
 
 __all__ = [
     "BiasSource",
     "BiasSourceKind",
-    "RecoveryInfo",
     "ReferenceKind",
     "ReferenceStates",
     "SourceMetrics",
@@ -179,87 +177,6 @@ class BiasSourceKind(str, enum.Enum):
     DATASET = "dataset"
     RECOVERED = "recovered"
     FILE = "file"
-
-
-class Verdict(str, enum.Enum):
-    """Outcome of a validation (see the module docstring for the rules)."""
-
-    PASS = "PASS"
-    WARN = "WARN"
-    FAIL = "FAIL"
-
-
-@dataclass(frozen=True)
-class ValidationConfig:
-    """Knobs of the validation (every default is documented in the module docstring).
-
-    Attributes:
-        window_s: Window length (s).
-        overlap: Fraction of a window shared with the next, in [0, 1) (0.5: stride window_s/2).
-        gap_factor: An IMU interval longer than this times the nominal one is a gap.
-        flag_k: A window is flagged above ``flag_k`` x the source's median error.
-        flag_min_pos_m / flag_min_rot_deg: Floors of the flag thresholds.
-        margin: Relative margin of the FAIL rule (0.10 = 10 %).
-        tie_prmse_m / tie_roe_deg: Differences below these count as equal.
-        warn_flagged_fraction: WARN above this fraction of flagged candidate windows.
-        warn_dropped_fraction: WARN above this fraction of dropped windows.
-        chunk_windows: Windows per batched integration call.
-        scheme: Integration scheme (MIDPOINT, second order).
-        include_zero / include_constant / include_dataset: Add these sources automatically.
-        velocity_cutoff_hz: Smoothing-spline cutoff of a POSES reference (None: automatic).
-        reference_gap_factor: A reference interval longer than this times its median one is a gap.
-        significance: One-sided level of the paired test that makes "worse" a FAIL.
-        sigma_k: How many of its own sigmas the candidate may be off before it counts as worse.
-        max_random_walk_scale: A recovery whose bias random walk is more than this times (or less
-            than 1/this of) the calibration's is only good for WARN.
-    """
-
-    window_s: float = 1.0
-    overlap: float = 0.5
-    gap_factor: float = 2.0
-    flag_k: float = 5.0
-    flag_min_pos_m: float = 1e-3
-    flag_min_rot_deg: float = 1e-2
-    margin: float = 0.10
-    tie_prmse_m: float = 1e-4
-    tie_roe_deg: float = 1e-3
-    warn_flagged_fraction: float = 0.05
-    warn_dropped_fraction: float = 0.20
-    chunk_windows: int = 2048
-    scheme: IntegrationScheme = IntegrationScheme.MIDPOINT
-    include_zero: bool = True
-    include_constant: bool = True
-    include_dataset: bool = True
-    velocity_cutoff_hz: float | None = None
-    reference_gap_factor: float = 4.0
-    significance: float = 0.01
-    sigma_k: float = 2.0
-    max_random_walk_scale: float = 30.0
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "scheme", IntegrationScheme(self.scheme))
-        checks = (
-            ("window_s", self.window_s > 0, "give a positive window length in seconds"),
-            ("overlap", 0.0 <= self.overlap < 1.0, "give an overlap in [0, 1), e.g. 0.5"),
-            ("gap_factor", self.gap_factor > 1.0, "give a factor > 1, e.g. 2"),
-            ("flag_k", self.flag_k > 1.0, "give a factor > 1, e.g. 5"),
-            ("margin", self.margin >= 0.0, "give a relative margin >= 0, e.g. 0.1"),
-            ("chunk_windows", self.chunk_windows >= 1, "give a positive number of windows"),
-            ("velocity_cutoff_hz", self.velocity_cutoff_hz is None or self.velocity_cutoff_hz > 0,
-             "give a positive frequency (Hz) or None for the automatic choice"),
-            ("reference_gap_factor", self.reference_gap_factor > 1.0, "give a factor > 1, e.g. 4"),
-            ("significance", 0.0 < self.significance < 0.5, "give a test level in (0, 0.5), e.g. 0.01"),
-            ("sigma_k", self.sigma_k >= 0.0, "give a number of sigmas >= 0, e.g. 2"),
-            ("max_random_walk_scale", self.max_random_walk_scale > 1.0, "give a factor > 1, e.g. 30"),
-        )
-        for name, ok, hint in checks:
-            if not ok:
-                raise ValidationError(f"invalid {name} = {getattr(self, name)!r}", field=name, hint=hint)
-
-    def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["scheme"] = self.scheme.value
-        return d
 
 
 # ----------------------------------------------------------------------------- reference states
@@ -506,77 +423,6 @@ def reference_from_poses(
 # ----------------------------------------------------------------------------- recovery output and bias files
 
 
-@dataclass(frozen=True)
-class RecoveryInfo:
-    """What validation takes from a recovery output folder (``recovery.json``).
-
-    Attributes:
-        path: The folder.
-        bias_csv: ``DIR/bias.csv``.
-        time_offset_s: ``pose_time_offset_s`` (seconds to add to pose stamps).
-        T_imu_pose: 4x4 ``T_imu_pose``.
-        gravity_mps2: ``gravity_world_mps2`` [3] or None.
-        random_walk: Bias random walks used, [6] (gyro x3, acc x3), or None.
-        pose_stream: The pose stream the recovery used, if named.
-        report: The whole ``recovery.json``.
-    """
-
-    path: Path
-    bias_csv: Path
-    time_offset_s: float
-    T_imu_pose: np.ndarray
-    gravity_mps2: np.ndarray | None
-    random_walk: np.ndarray | None
-    pose_stream: str | None
-    report: dict[str, Any]
-
-
-def _parse_T(value: Any, path: Path) -> np.ndarray:
-    try:
-        return transform_from_json(value)
-    except DataError as exc:
-        raise ValidationError(f"cannot read T_imu_pose ({exc})", path=path, field="T_imu_pose",
-                              hint="give a 4x4 matrix or {p_m, quat_wxyz}") from None
-
-
-def read_recovery_dir(path: str | Path) -> RecoveryInfo:
-    """Read ``DIR/recovery.json`` (offset, extrinsic, gravity, random walks) and locate ``DIR/bias.csv``.
-
-    Raises:
-        InputFormatError: Missing folder/files or unreadable JSON.
-    """
-    path = Path(path)
-    rj, bias = path / "recovery.json", path / "bias.csv"
-    for f in (rj, bias):
-        if not f.is_file():
-            raise InputFormatError(f"recovery output lacks {f.name}", path=path,
-                                   hint="give the folder written by 'biasgt recover --out DIR'")
-    try:
-        report = json.loads(rj.read_text(encoding="utf-8"))
-    except (OSError, json.JSONDecodeError) as exc:
-        raise InputFormatError(f"cannot read recovery.json ({exc})", path=rj, hint="re-run the recovery") from None
-    if not isinstance(report, dict):
-        raise InputFormatError("recovery.json is not a JSON object", path=rj, hint="re-run the recovery")
-    noise = report.get("noise") if isinstance(report.get("noise"), dict) else {}
-    rw = None
-    g_rw = noise.get("gyro_random_walk", report.get("gyro_random_walk"))
-    a_rw = noise.get("acc_random_walk", report.get("acc_random_walk"))
-    if g_rw is not None and a_rw is not None:
-        rw = np.array([float(g_rw)] * 3 + [float(a_rw)] * 3)
-    g = report.get("gravity_world_mps2")
-    gravity = None if g is None else np.asarray(g, dtype=float).reshape(3)
-    return RecoveryInfo(
-        path=path,
-        bias_csv=bias,
-        time_offset_s=float(report.get("pose_time_offset_s", 0.0) or 0.0),
-        T_imu_pose=_parse_T(report.get("T_imu_pose"), rj),
-        gravity_mps2=gravity,
-        random_walk=rw,
-        pose_stream=report.get("pose_stream") if isinstance(report.get("pose_stream"), str) else None,
-        report=report,
-    )
-
-
 def _header_line(path: Path) -> str:
     try:
         with path.open("r", encoding="utf-8", errors="replace") as fh:
@@ -605,8 +451,6 @@ def read_bias_file(path: str | Path) -> BiasTrack:
         raise InputFormatError("bias file does not exist", path=path, hint="check the path")
     if path.suffix == ".parquet" or "bg_x" in _header_line(path):
         return read_bias_csv(path, require_std=False)
-    from pipeline.io.asl import read_asl_state_csv
-
     try:
         state, _ = read_asl_state_csv(path, stream="bias")
     except InputFormatError as exc:
@@ -1250,48 +1094,10 @@ def validate_sequence(
 # ----------------------------------------------------------------------------- output
 
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON-serialisable: {type(obj).__name__}")
-
-
-def _write_files(result: ValidationResult, folder: Path, json_path: Path | None = None,
-                 parquet_path: Path | None = None) -> None:
-    text = json.dumps(result.to_dict(), indent=2, default=_json_default, allow_nan=True) + "\n"
-    table = pa.Table.from_pandas(result.windows_frame(), preserve_index=False)
-    pq.write_table(table, parquet_path or folder / WINDOWS_PARQUET)
-    (json_path or folder / VALIDATION_JSON).write_text(text, encoding="utf-8")
-
-
 def write_validation(result: ValidationResult, out_dir: str | Path) -> Path:
-    """Write ``out_dir/validation.json`` and ``out_dir/windows.parquet`` atomically.
-
-    A new or validation-only folder is replaced as a whole (:func:`atomic_dir`); a folder that
-    holds other files (e.g. the recovery's) keeps them and gets both files through temporary
-    siblings, ``validation.json`` renamed last.
-
-    Returns:
-        ``out_dir``.
-    """
-    out_dir = Path(out_dir)
-    ours = {VALIDATION_JSON, WINDOWS_PARQUET}
-    if not out_dir.exists() or (out_dir.is_dir() and {p.name for p in out_dir.iterdir()} <= ours):
-        with atomic_dir(out_dir) as tmp:
-            _write_files(result, tmp)
-    else:
-        if not out_dir.is_dir():
-            raise ValidationError("output path exists and is not a folder", path=out_dir,
-                                  hint="give a folder for --out")
-        with atomic_path(out_dir / VALIDATION_JSON) as tj, atomic_path(out_dir / WINDOWS_PARQUET) as tp:
-            _write_files(result, out_dir, tj, tp)
-    return out_dir
+    """Write ``out_dir/validation.json`` and ``out_dir/windows.parquet`` atomically
+    (:func:`validation.outputs.write_folder`); returns ``out_dir``."""
+    return write_folder(result.to_dict(), result.windows_frame(), out_dir)
 
 
 # ----------------------------------------------------------------------------- reference selection
@@ -1301,7 +1107,7 @@ def build_reference(
     sequence: Sequence,
     *,
     pose_stream: str | None = None,
-    recovery: RecoveryInfo | None = None,
+    recovery: RecoveryOutputs | None = None,
     config: ValidationConfig = ValidationConfig(),
 ) -> ReferenceStates:
     """The reference for ``sequence``: its ground-truth state, else a pose stream.
@@ -1320,10 +1126,9 @@ def build_reference(
         raise ValidationError(f"sequence '{sequence.name}' has no IMU", hint="give an input with IMU readings")
     if (pose_stream is None or pose_stream == "ground_truth") and sequence.ground_truth is not None:
         return reference_from_states(sequence.ground_truth, imu.t_ns, gap_factor=config.reference_gap_factor)
-    from pipeline.io import select_pose_stream
-
-    if pose_stream is None and recovery is not None and recovery.pose_stream in sequence.poses:
-        pose_stream = recovery.pose_stream
+    fitted = recovery.report.pose_stream if recovery is not None else None
+    if pose_stream is None and fitted in sequence.poses:
+        pose_stream = fitted
     try:
         name, poses = select_pose_stream(sequence, pose_stream)
     except BiasgtError as exc:
@@ -1340,9 +1145,9 @@ def build_reference(
                        "validate against them with --poses")
         raise ValidationError(f"pose stream '{pose_stream or name}' has positions only: the 1-s integration "
                               "check needs the orientation at each window's start", field="--poses", hint=instead)
-    if recovery is not None and (recovery.pose_stream is None or recovery.pose_stream == name):
+    if recovery is not None and (fitted is None or fitted == name):
         # the recovery's extrinsic and clock offset belong to the stream it fitted
-        T, offset = recovery.T_imu_pose, recovery.time_offset_s
+        T, offset = recovery.report.T_imu_pose, recovery.report.time_offset_s
     else:
         T = sequence.calibration.T_imu_frames.get(poses.frame)
         offset = 0.0
@@ -1367,7 +1172,7 @@ def build_reference(
 def bias_sources(
     sequence: Sequence,
     *,
-    recovery: RecoveryInfo | None = None,
+    recovery: RecoveryOutputs | None = None,
     bias_files: Sequence_[tuple[str | None, str | Path]] = (),
 ) -> dict[str, BiasSource]:
     """The bias sources of a validation: the recovery's bias and any bias files.
@@ -1379,7 +1184,7 @@ def bias_sources(
 
     Args:
         sequence: The sequence (its IMU stamps and calibration are used).
-        recovery: From :func:`read_recovery_dir`, or None.
+        recovery: The recovery folder (:meth:`recovery.outputs.RecoveryOutputs.read`), or None.
         bias_files: ``(name or None, path)`` pairs.
 
     Raises:
@@ -1395,8 +1200,8 @@ def bias_sources(
     rw_cal = np.array([cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3, dtype=float)
     sources: dict[str, BiasSource] = {}
     if recovery is not None:
-        rw = recovery.random_walk if recovery.random_walk is not None else rw_cal
-        track = recovered_bias_at_imu(read_bias_csv(recovery.bias_csv), sequence.imu.t_ns, rw)
+        rw = recovery.report.random_walk if recovery.report.random_walk is not None else rw_cal
+        track = recovered_bias_at_imu(recovery.bias, sequence.imu.t_ns, rw)
         sources["recovered"] = BiasSource("recovered", BiasSourceKind.RECOVERED, track)
     unnamed = 0
     for name, path in bias_files:
@@ -1429,7 +1234,7 @@ class Limitation:
     next_step: str
 
 
-def recovery_limitations(recovery: RecoveryInfo, config: ValidationConfig = ValidationConfig()) -> list[Limitation]:
+def recovery_limitations(recovery: RecoveryOutputs, config: ValidationConfig = ValidationConfig()) -> list[Limitation]:
     """What limits a recovered bias though its integration errors may pass, from ``recovery.json``.
 
     Each item makes a PASS a WARN (:func:`decide_verdict`): a random walk chosen at the edge of
@@ -1438,7 +1243,7 @@ def recovery_limitations(recovery: RecoveryInfo, config: ValidationConfig = Vali
     absorbs, or a wrong datasheet), and an extrinsic rotation that could not be estimated.
     """
     report = recovery.report
-    noise = report.get("noise") if isinstance(report.get("noise"), dict) else {}
+    noise = report.get("noise") if isinstance(report.get("noise"), Mapping) else {}
     grid = (report.get("config") or {}).get("random_walk_scales") or []
     out: list[Limitation] = []
     noise_step = ("check the IMU noise values of the calibration (sensor.yaml: random walks) against the "
@@ -1507,19 +1312,19 @@ def validate_inputs(
     Raises:
         ValidationError / InputFormatError / DataError: Bad or insufficient inputs.
     """
-    recovery = read_recovery_dir(recovery_dir) if recovery_dir is not None else None
+    recovery = RecoveryOutputs.read(recovery_dir) if recovery_dir is not None else None
     sources = bias_sources(sequence, recovery=recovery, bias_files=bias_files)
     if gravity_mps2 is not None:
         gravity = np.asarray(gravity_mps2, dtype=float)
-    elif recovery is not None and recovery.gravity_mps2 is not None:
-        gravity = recovery.gravity_mps2
+    elif recovery is not None and recovery.report.gravity_world_mps2 is not None:
+        gravity = recovery.report.gravity_world_mps2
     else:
         gravity = np.asarray(DEFAULT_GRAVITY_MPS2)
     reference = build_reference(sequence, pose_stream=pose_stream, recovery=recovery, config=config)
     limitations = input_limitations(sequence)
     limitations += recovery_limitations(recovery, config) if recovery is not None else []
     if recovery is not None and reference.kind is ReferenceKind.POSES and (
-            recovery.pose_stream is None or reference.info.get("stream") == recovery.pose_stream):
+            recovery.report.pose_stream is None or reference.info.get("stream") == recovery.report.pose_stream):
         limitations.append(Limitation(
             "not an independent test: the reference poses are those the recovery fitted, so pose errors that "
             "the bias absorbed are not seen",
@@ -1528,7 +1333,7 @@ def validate_inputs(
                                limitations=[lim.text for lim in limitations])
     result.next_steps = next_steps(result, limitations)
     if recovery is not None:
-        result.notes.append(f"recovery: {recovery.path}")
+        result.notes.append(f"recovery: {recovery_dir}")
     return result
 
 

@@ -9,10 +9,18 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pipeline.checks import parse_repairs
+from pipeline.ingest import (
+    add_check_arguments,
+    add_reader_arguments,
+    check_options_from_args,
+    ingest,
+    reader_kwargs_from_args,
+)
+from pipeline.types import Severity
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_check_arguments, add_reader_arguments
-
     p = subparsers.add_parser(
         "convert",
         help="check an input, apply allowed repairs, and write the canonical Parquet store",
@@ -32,9 +40,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.checks import parse_repairs
-    from pipeline.ingest import check_options_from_args, ingest, reader_kwargs_from_args
-    from pipeline.types import Severity
 
     repairs = parse_repairs(args.repair)
     seq = ingest(args.input, args.out, repairs=repairs, reader_kwargs=reader_kwargs_from_args(args),

@@ -8,13 +8,22 @@ bad options).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 from typing import Any
 
-import numpy as np
-
-from pipeline.types import Finding, Sequence
+from pipeline.checks import Verdict, run_checks, stream_summaries, verdict
+from pipeline.errors import BiasgtError
+from pipeline.ingest import (
+    add_check_arguments,
+    add_reader_arguments,
+    check_options_from_args,
+    input_format,
+    load,
+    reader_kwargs_from_args,
+    severity_rank,
+)
+from pipeline.jsonio import dumps, to_plain
+from pipeline.types import Finding, Sequence, Severity
 
 #: Version of the ``--json`` output; bump when a key changes meaning or disappears.
 SCHEMA_VERSION = 1
@@ -23,7 +32,6 @@ JSON_KEYS = ("schema_version", "input", "format", "streams", "findings", "verdic
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_check_arguments, add_reader_arguments
 
     p = subparsers.add_parser(
         "inspect",
@@ -45,32 +53,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def inspect_report(input_path: str, seq: Sequence, findings: list[Finding]) -> dict[str, Any]:
     """The ``--json`` object (keys :data:`JSON_KEYS`)."""
-    from pipeline.checks import stream_summaries, verdict
-    from pipeline.ingest import input_format
-
-    return json_safe({
+    return to_plain({
         "schema_version": SCHEMA_VERSION,
         "input": str(input_path),
         "format": input_format(seq),
         "streams": stream_summaries(seq),
         "findings": [f.to_dict() for f in findings],
         "verdict": verdict(findings).value,
-    })
+    }, finite_only=True)
 
 
-def json_safe(obj: Any) -> Any:
-    """``obj`` with non-finite floats as ``None`` and numpy values as Python ones (strict JSON)."""
-    if isinstance(obj, dict):
-        return {str(k): json_safe(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [json_safe(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return json_safe(obj.tolist())
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    return obj
 
 
 def _fmt(x: Any, spec: str) -> str:
@@ -93,8 +85,6 @@ def format_report(report: dict[str, Any]) -> str:
             f"{_fmt(s['rate_hz'], '10.2f')} {_fmt(s['dt_std_ms'], '11.3f')} {_fmt(s['dt_max_ms'], '11.3f')}"
         )
     lines.append("")
-    from pipeline.ingest import severity_rank
-    from pipeline.types import Severity
 
     findings = sorted(report["findings"], key=lambda f: severity_rank(Severity(f["severity"])))
     if findings:
@@ -118,23 +108,19 @@ def format_report(report: dict[str, Any]) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.checks import Verdict, run_checks
-    from pipeline.errors import BiasgtError
-    from pipeline.ingest import check_options_from_args, load, reader_kwargs_from_args
-
     options = check_options_from_args(args)
     try:
         seq = load(args.input, {**reader_kwargs_from_args(args), "all_pose_topics": True})
     except BiasgtError as exc:
         if args.json:  # --json always prints a JSON document
-            print(json.dumps({"input": str(args.input), "verdict": "error", "error": {
+            print(dumps({"schema_version": SCHEMA_VERSION, "input": str(args.input), "verdict": "error", "error": {
                 "type": type(exc).__name__, "message": str(exc), "path": exc.path, "line": exc.line,
-                "field": exc.field, "hint": exc.hint}}, indent=2))
+                "field": exc.field, "hint": exc.hint}}), end="")
         raise
     findings = run_checks(seq, options)
     report = inspect_report(args.input, seq, findings)
     if args.json:
-        print(json.dumps(report, indent=2, allow_nan=False))
+        print(dumps(report), end="")
     else:
         print(format_report(report))
     return 1 if report["verdict"] == Verdict.FATAL.value else 0

@@ -6,15 +6,34 @@ Thin adapter over :func:`recovery.recover.recover` and :func:`recovery.outputs.w
 from __future__ import annotations
 
 import argparse
+import enum
 import logging
 from pathlib import Path
+
+from pipeline.ingest import (
+    add_check_arguments,
+    add_reader_arguments,
+    check_options_from_args,
+    load_checked,
+    reader_kwargs_from_args,
+)
+from recovery.config import (
+    ExtrinsicMode,
+    NoiseEstimation,
+    PoseFactorMode,
+    RecoveryConfig,
+    RobustLoss,
+    TimeOffsetMode,
+)
 
 log = logging.getLogger(__name__)
 
 
-def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_check_arguments, add_reader_arguments
+def _values(kind: type[enum.Enum]) -> list[str]:
+    return [m.value for m in kind]
 
+
+def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "recover",
         help="recover the IMU bias trajectory (with marginal std) from IMU + poses",
@@ -43,13 +62,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="seconds to add to pose stamps to put them on the IMU clock (fixes the offset)")
     p.add_argument("--estimate-time-offset", dest="estimate_time_offset", action=argparse.BooleanOptionalAction,
                    default=None, help="estimate the clock offset (default: yes, except for ground-truth poses)")
-    p.add_argument("--extrinsic", choices=["auto", "known", "estimate"], default=None,
+    p.add_argument("--extrinsic", choices=_values(ExtrinsicMode), default=None,
                    help="T_imu_pose from the calibration (known) or from the data (estimate); "
                         "default auto: known when the calibration has it")
-    p.add_argument("--pose-factors", choices=["auto", "absolute", "relative"], default=None,
+    p.add_argument("--pose-factors", choices=_values(PoseFactorMode), default=None,
                    help="absolute pose priors or relative (VIO) constraints; default by source kind")
-    p.add_argument("--robust", choices=["huber", "cauchy", "none"], default=None, help="robust loss on pose factors")
-    p.add_argument("--noise", choices=["evidence", "fixed"], default=None,
+    p.add_argument("--robust", choices=_values(RobustLoss), default=None, help="robust loss on pose factors")
+    p.add_argument("--noise", choices=_values(NoiseEstimation), default=None,
                    help="bias random walks / pose sigma by maximum evidence (default) or as given")
     p.add_argument("--no-marginals", action="store_true", help="skip the bias std columns (faster; NaN)")
     p.add_argument("--no-pose-fusion", action="store_true",
@@ -62,7 +81,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def config_from_args(args: argparse.Namespace):
     """RecoveryConfig from ``--config`` plus command-line overrides."""
-    from recovery.config import RecoveryConfig
 
     cfg = RecoveryConfig.from_yaml(args.config) if args.config is not None else RecoveryConfig()
     changes = {}
@@ -70,9 +88,9 @@ def config_from_args(args: argparse.Namespace):
         changes["keyframe_rate_hz"] = args.keyframe_rate
     if args.time_offset_s is not None:
         changes["time_offset_s"] = args.time_offset_s
-        changes["time_offset_mode"] = "estimate" if args.estimate_time_offset else "fixed"
+        changes["time_offset_mode"] = TimeOffsetMode.ESTIMATE if args.estimate_time_offset else TimeOffsetMode.FIXED
     elif args.estimate_time_offset is not None:
-        changes["time_offset_mode"] = "estimate" if args.estimate_time_offset else "fixed"
+        changes["time_offset_mode"] = TimeOffsetMode.ESTIMATE if args.estimate_time_offset else TimeOffsetMode.FIXED
     if args.extrinsic is not None:
         changes["extrinsic_mode"] = args.extrinsic
     if args.pose_factors is not None:
@@ -93,9 +111,7 @@ def config_from_args(args: argparse.Namespace):
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.ingest import check_options_from_args, load_checked, reader_kwargs_from_args
-    from recovery.outputs import write_recovery
-    from recovery.recover import recover
+    from recovery.recover import recover, write_recovery  # gtsam: off the CLI start-up path
 
     config = config_from_args(args)
     seq = load_checked(args.input, reader_kwargs_from_args(args), repairs=args.repair,

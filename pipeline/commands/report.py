@@ -50,7 +50,7 @@ def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | 
     Raises:
         ConfigError: Neither RESULTS_DIR with --sequence nor --ingest given, or no --out.
     """
-    from reports.quality import stage_dirs
+    from reports.quality import stage_dirs  # matplotlib: off the CLI start-up path
 
     ingest, recovery, validation, out = args.ingest, args.recovery, args.validation, args.out
     if args.results is not None:
@@ -73,7 +73,7 @@ def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | 
 
 
 def run(args: argparse.Namespace) -> int:
-    from reports.quality import build_quality_report
+    from reports.quality import build_quality_report  # matplotlib: off the CLI start-up path
 
     ingest, recovery, validation, out = resolve_inputs(args)
     path = build_quality_report(ingest, recovery_dir=recovery, validation_dir=validation, out_path=out)

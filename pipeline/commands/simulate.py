@@ -8,6 +8,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from pipeline.sim.config import MotionPreset, PoseFormat, SimConfig
 
 log = logging.getLogger(__name__)
@@ -116,14 +118,13 @@ def build_config(args: argparse.Namespace) -> SimConfig:
 
 
 def _raw_keys(path: Path) -> set[str]:
-    import yaml
-
     data = yaml.safe_load(Path(path).read_text(encoding="utf-8")) or {}
     return set(data) if isinstance(data, dict) else set()
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.sim import simulate, write_simulation
+    from pipeline.sim.simulator import simulate  # scipy.signal: off the CLI start-up path
+    from pipeline.sim.writer import write_simulation  # rosbags: off the CLI start-up path
 
     config = build_config(args)
     t0 = time.perf_counter()

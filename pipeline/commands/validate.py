@@ -7,6 +7,16 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from pipeline.errors import ValidationError
+from pipeline.ingest import (
+    add_check_arguments,
+    add_reader_arguments,
+    check_options_from_args,
+    load_checked,
+    reader_kwargs_from_args,
+)
+from validation.config import ValidationConfig
+
 log = logging.getLogger(__name__)
 
 DESCRIPTION = """\
@@ -40,14 +50,11 @@ examples:
 """
 
 
-#: Defaults shown by the parser; equal to :class:`validation.validate.ValidationConfig`'s (a test checks).
-#: Kept here so that building the CLI does not import torch (validation.validate costs ~4 s to import).
-DEFAULTS = argparse.Namespace(window_s=1.0, overlap=0.5, margin=0.10, flag_k=5.0)
+#: The options' defaults, shown by the parser (validation.config is light: no torch at start-up).
+DEFAULTS = ValidationConfig()
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from pipeline.ingest import add_check_arguments, add_reader_arguments
-
     d = DEFAULTS
     p = subparsers.add_parser(
         "validate",
@@ -76,7 +83,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"relative margin of the FAIL rule (default {d.margin:g})")
     p.add_argument("--flag-k", type=float, default=d.flag_k, metavar="K",
                    help=f"flag windows whose error exceeds K x the median (default {d.flag_k:g})")
-    p.add_argument("--velocity-cutoff-hz", type=float, default=None, metavar="HZ",
+    p.add_argument("--velocity-cutoff-hz", type=float, default=d.velocity_cutoff_hz, metavar="HZ",
                    help="smoothing cutoff for pose-derived velocity (default: chosen from the pose noise)")
     add_reader_arguments(p)
     add_check_arguments(p)
@@ -103,9 +110,7 @@ def _format_table(result: Any) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.errors import ValidationError
-    from pipeline.ingest import check_options_from_args, load_checked, reader_kwargs_from_args
-    from validation.validate import ValidationConfig, Verdict, validate_inputs, write_validation
+    from validation.validate import Verdict, validate_inputs, write_validation  # torch: off the CLI start-up path
 
     if not args.bias and args.recovery is None:
         raise ValidationError("nothing to validate", field="--bias",

@@ -6,9 +6,13 @@ import argparse
 import logging
 from pathlib import Path
 
+from pipeline.errors import ConfigError
+from pipeline.types import Split
+from training.windows_config import WindowConfig
+
 log = logging.getLogger(__name__)
 
-SPLITS = ("train", "val", "test", "none")
+SPLITS = tuple(s.value for s in Split)
 
 DESCRIPTION = """\
 Cut sequences into fixed-length IMU windows for training, exactly as 'biasgt validate' cuts them
@@ -19,9 +23,9 @@ offset and T_imu_pose), its stamps and the sequence name. Windows crossing an IM
 recovered bias span or without a reference are dropped and counted.
 
 Sequences come from --seq NAME SPLIT STORE RECOVERY_DIR (repeatable), and/or from --splits FILE.yaml
-({train: [NAME, ...], val: [...], test: [...], none: [...]}) with --results DIR, which takes each
-NAME's store from DIR/ingest/NAME and its recovery from DIR/recovery/NAME (the workflow layout).
-A sequence belongs to exactly one split; naming it twice is an error. Normalisation statistics
+({train: [NAME, ...], val: [...], test: [...], none: [...]}; split none: not windowed) with
+--results DIR, which takes each NAME's store from DIR/ingest/NAME and its recovery from
+DIR/recovery/NAME (the workflow layout). A sequence belongs to exactly one split; naming it twice is an error. Normalisation statistics
 come from the train split only.
 
 All sequences must share one uniform IMU rate; --resample-hz HZ resamples those that do not
@@ -55,25 +59,26 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--results", type=Path, metavar="DIR",
                    help="workflow results folder holding ingest/NAME and recovery/NAME (with --splits)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="dataset folder (written atomically)")
-    p.add_argument("--window-s", type=float, default=1.0, metavar="S", help="window length in seconds (default 1)")
-    p.add_argument("--overlap", type=float, default=0.5, metavar="F",
-                   help="overlap of consecutive windows, in [0, 1) (default 0.5)")
-    p.add_argument("--resample-hz", type=float, default=None, metavar="HZ",
+    d = WindowConfig()  # the defaults, defined once
+    p.add_argument("--window-s", type=float, default=d.window_s, metavar="S",
+                   help=f"window length in seconds (default {d.window_s:g})")
+    p.add_argument("--overlap", type=float, default=d.overlap, metavar="F",
+                   help=f"overlap of consecutive windows, in [0, 1) (default {d.overlap:g})")
+    p.add_argument("--resample-hz", type=float, default=d.resample_hz, metavar="HZ",
                    help="resample IMU streams not at HZ onto a uniform HZ grid (default: refuse other rates)")
-    p.add_argument("--gap-factor", type=float, default=2.0, metavar="K",
-                   help="an IMU interval longer than K x the nominal one is a gap (default 2)")
+    p.add_argument("--gap-factor", type=float, default=d.gap_factor, metavar="K",
+                   help=f"an IMU interval longer than K x the nominal one is a gap (default {d.gap_factor:g})")
     p.add_argument("--validation", action="append", default=[], metavar="NAME=DIR",
                    help="the 'biasgt validate' folder of a --seq sequence: its verdict decides whether the "
                         "sequence enters the dataset (PASS; WARN with --accept-warn; never FAIL); repeatable. "
                         "With --results, results/validation/NAME is used when it exists")
-    p.add_argument("--accept-warn", action="store_true", help="take sequences whose verdict is WARN too")
+    p.add_argument("--accept-warn", action="store_true", default=d.accept_warn,
+                   help="take sequences whose verdict is WARN too")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipeline.errors import ConfigError
-    from training.windows import (
-        WindowConfig,
+    from training.windows import (  # torch: off the CLI start-up path
         WindowSource,
         build_window_dataset,
         format_summary,
@@ -103,17 +108,15 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("no sequence given", field="--seq",
                           hint="give --seq NAME SPLIT STORE RECOVERY_DIR or --splits FILE --results DIR")
     manifest = build_window_dataset(sources, args.out, config)
-    print(f"{len(manifest['sequences'])} sequences, {manifest['window_samples']} samples per window "
-          f"({config.window_s:g} s at {manifest['rate_hz']:g} Hz, overlap {config.overlap:g}), "
-          f"config {manifest['config_hash']}")
+    print(f"{len(manifest.sequences)} sequences, {manifest.window_samples} samples per window "
+          f"({config.window_s:g} s at {manifest.rate_hz:g} Hz, overlap {config.overlap:g}), "
+          f"config {manifest.config_hash}")
     print(format_summary(manifest))
     print(f"wrote {args.out}")
     return 0
 
 
 def _split_validation(value: str) -> tuple[str, Path]:
-    from pipeline.errors import ConfigError
-
     name, sep, folder = value.partition("=")
     if not sep or not name or not folder:
         raise ConfigError(f"--validation {value!r} is not NAME=DIR", field="--validation",

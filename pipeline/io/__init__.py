@@ -28,6 +28,7 @@ from pipeline.io._text import TimeUnit
 from pipeline.io.asl import (
     CODE_CALIBRATION_DEFAULTED,
     AslTable,
+    find_mav0,
     read_asl,
     read_asl_csv,
     read_asl_pose_csv,
@@ -35,6 +36,7 @@ from pipeline.io.asl import (
 )
 from pipeline.io.csv_generic import AccUnit, CsvMapping, GyroUnit, QuatOrder, read_csv_generic
 from pipeline.io.tum import read_tum, write_tum
+from pipeline.store import is_store, read_store
 from pipeline.types import Finding, PoseSeries, PoseSourceKind, Sequence, Severity
 
 log = logging.getLogger(__name__)
@@ -110,9 +112,6 @@ def detect_format(path: str | Path) -> SourceFormat:
         InputFormatError: ``path`` does not exist.
         UnsupportedInputError: Nothing fits.
     """
-    from pipeline.store import is_store
-    from pipeline.io.asl import find_mav0
-
     path = Path(path)
     if not path.exists():
         raise InputFormatError("does not exist", path=path, hint="check the path")
@@ -214,8 +213,8 @@ def load_sequence(
                     pose_topic=pose_topic, tf_parent=tf_parent, tf_child=tf_child, all_pose_topics=all_pose_topics)
     extras = [PoseInput.coerce(p) for p in extra_poses]
     seq = add_pose_inputs(seq, extras) if extras else seq
-    is_store = (parse_format(fmt) if fmt is not None else detect_format(Path(path))) is SourceFormat.STORE
-    return seq if is_store else _with_calibration_finding(seq)
+    from_store = (parse_format(fmt) if fmt is not None else detect_format(Path(path))) is SourceFormat.STORE
+    return seq if from_store else _with_calibration_finding(seq)
 
 
 def _with_calibration_finding(seq: Sequence) -> Sequence:
@@ -269,8 +268,6 @@ def _load_one(
                           field="csv_mapping", hint="drop the mapping or force --format csv")
     log.debug("loading %s as %s", path, fmt.value)
     if fmt is SourceFormat.STORE:
-        from pipeline.store import read_store
-
         seq = read_store(path)
         if name:
             seq.name = name
@@ -287,13 +284,8 @@ def _load_one(
                      + SUPPORTED_HINT,
             )
         return read_csv_generic(path, mapping, name=name)
-    try:
-        from pipeline.io.rosbag import read_bag
-    except ModuleNotFoundError as exc:
-        if exc.name in ("pipeline.io.rosbag",):
-            raise UnsupportedInputError("ROS bag support is not available in this build", path=path,
-                                        hint=SUPPORTED_HINT) from exc
-        raise
+    from pipeline.io.rosbag import read_bag  # rosbags takes ~0.3 s to import: load it for bags only
+
     return read_bag(path, name=name, all_pose_topics=all_pose_topics, **bag_opts)
 
 

@@ -408,7 +408,7 @@ class _Raw:
 
 def _read_csv(data: str, ncols: int, stamp_col: int, value_cols: list[int], delimiter: Delimiter,
               int_stamps: bool, strict: bool) -> _Raw:
-    import pandas as pd
+    import pandas as pd  # slow to import: only for tables pyarrow's reader rejects
 
     dtypes: dict[int, object] = {c: np.float64 for c in value_cols}
     dtypes[stamp_col] = np.int64 if int_stamps else str
@@ -432,7 +432,7 @@ def _read_csv(data: str, ncols: int, stamp_col: int, value_cols: list[int], deli
 
 def _read_arrow(data: str, ncols: int, stamp_col: int, value_cols: list[int], delimiter: Delimiter) -> _Raw | None:
     """Parse a clean table with pyarrow (int64 stamps, float64 values); ``None`` if it is not clean."""
-    import pyarrow.csv as pacsv
+    import pyarrow.csv as pacsv  # pyarrow.csv adds ~0.1 s: only when a table is read
 
     names = [f"c{i}" for i in range(ncols)]
     types = {names[stamp_col]: pa.int64(), **{names[c]: pa.float64() for c in value_cols}}
@@ -464,7 +464,7 @@ def _read_fast(data: str, ncols: int, stamp_col: int, value_cols: list[int], del
     multithreaded CSV reader, several times faster than pandas on long recordings; anything it
     rejects (spaces after delimiters, comment lines, text stamps) falls back to pandas.
     """
-    import pandas as pd
+    import pandas as pd  # slow to import: only for tables pyarrow's reader rejects
 
     if int_stamps and delimiter is not Delimiter.WHITESPACE:
         raw = _read_arrow(data, ncols, stamp_col, value_cols, delimiter)
@@ -506,7 +506,7 @@ def _read_validated(
         ``(raw, bad_lines, n_data)``: parsed good lines, 1-based numbers of bad lines,
         number of data lines (good + bad; blank and ``'#'`` lines do not count).
     """
-    import pandas as pd
+    import pandas as pd  # slow to import: only for tables pyarrow's reader rejects
 
     pattern = _line_regex(ncols, stamp_col, set(value_cols), delimiter)
     lines = pc.list_flatten(pc.split_pattern(pa.array([data], type=pa.string()), "\n"))
@@ -641,7 +641,7 @@ def parse_table(
     Raises:
         InputFormatError: No data, more than 10 % bad lines, or unconvertible stamps.
     """
-    import pandas as pd
+    import pandas as pd  # slow to import: only for tables pyarrow's reader rejects
 
     data = text[header.data_offset:]
     if not data.strip():

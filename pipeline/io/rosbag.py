@@ -466,6 +466,150 @@ def read_bag(
         raise InputFormatError(f"cannot read bag: {err}", path=path, hint=_BAG_HINT) from err
 
 
+class _PoseJobKind(enum.Enum):
+    """Where a pose stream of a bag comes from."""
+
+    TOPIC = "topic"  # a pose-typed topic
+    TF = "tf"  # a parent -> child chain of /tf (+ /tf_static)
+
+
+@dataclass(frozen=True)
+class _PoseJob:
+    """One pose stream to read: a topic, or a /tf chain (``topic``: its TFMessage topic, None = every
+    dynamic one; ``parent`` / ``child``: None = the only dynamic pair)."""
+
+    kind: _PoseJobKind
+    topic: str | None
+    parent: str | None = None
+    child: str | None = None
+
+
+def _is_static_tf(topic: str) -> bool:
+    return topic.rstrip("/").endswith("tf_static")
+
+
+def _find_topic(requested: str, option: str, topics: dict[str, tuple[str, int]], path: Path) -> str:
+    """The bag's topic matching ``requested`` (see :func:`_match_topic`).
+
+    Raises:
+        AmbiguousInputError: No such topic (the bag's topics are listed).
+    """
+    got = _match_topic(requested, topics)
+    if got is None:
+        raise AmbiguousInputError(f"topic '{requested}' is not in the bag", path=path, field=requested,
+                                  hint=f"choose one with {option} TOPIC from: {_topic_list(topics)}")
+    return got
+
+
+def _imu_topic(topics: dict[str, tuple[str, int]], imu_topic: str | None, path: Path) -> str | None:
+    """The IMU topic: the requested one (it must be sensor_msgs/Imu), else the only Imu topic."""
+    if imu_topic is not None:
+        name = _find_topic(imu_topic, "--imu-topic", topics, path)
+        if topics[name][0] != IMU_TYPE:
+            raise UnsupportedInputError(
+                f"topic '{name}' has type {topics[name][0]}, not sensor_msgs/Imu", path=path,
+                field=name, hint=f"choose an Imu topic with --imu-topic TOPIC from: {_topic_list(topics)}",
+            )
+        return name
+    cands = sorted(n for n, (t, _) in topics.items() if t == IMU_TYPE)
+    if len(cands) > 1:
+        raise AmbiguousInputError(f"the bag has {len(cands)} sensor_msgs/Imu topics: {', '.join(cands)}", path=path,
+                                  hint="choose one with --imu-topic TOPIC")
+    return cands[0] if cands else None
+
+
+def _plan_pose_jobs(topics: dict[str, tuple[str, int]], pose_topic: str | None, tf_parent: str | None,
+                    tf_child: str | None, path: Path, *, all_pose_topics: bool = False,
+                    findings: list[Finding] | None = None) -> list[_PoseJob]:
+    """The pose streams to read (metadata only): the requested topic and / or /tf chain, else the
+    only pose topic (every one, with a POSE_STREAM_CHOICE finding, when ``all_pose_topics``), else
+    the dynamic /tf pair."""
+    tf_topics = sorted(n for n, (t, _) in topics.items() if t == TF_MESSAGE)
+
+    def tf_job(topic: str | None) -> _PoseJob:
+        if not tf_topics:
+            raise AmbiguousInputError(
+                "the bag has no tf2_msgs/TFMessage topic", path=path, field="/tf",
+                hint=f"choose a pose topic with --pose-topic TOPIC from: {_topic_list(topics)}",
+            )
+        return _PoseJob(_PoseJobKind.TF, topic, tf_parent, tf_child)
+
+    def topic_job(topic: str) -> _PoseJob:
+        typ = topics[topic][0]
+        if typ == TF_MESSAGE:
+            return tf_job(topic)
+        if typ in POSE_TYPES:
+            return _PoseJob(_PoseJobKind.TOPIC, topic)
+        raise UnsupportedInputError(
+            f"topic '{topic}' has type {typ}, which is not a pose type", path=path, field=topic,
+            hint="choose a PoseStamped, PoseWithCovarianceStamped, TransformStamped, Odometry or "
+                 f"TFMessage topic with --pose-topic TOPIC from: {_topic_list(topics)}",
+        )
+
+    if pose_topic is not None:
+        chosen = _find_topic(pose_topic, "--pose-topic", topics, path)
+        jobs = [topic_job(chosen)]
+        if tf_parent is not None and topics[chosen][0] != TF_MESSAGE:
+            jobs.append(tf_job(None))
+        return jobs
+    if tf_parent is not None:
+        return [tf_job(None)]
+    cands = sorted(n for n, (t, _) in topics.items() if t in POSE_TYPES)
+    if len(cands) > 1 and all_pose_topics:
+        if findings is not None:
+            findings.append(_choice_finding(f"{len(cands)} pose topics ({', '.join(cands)})", "--pose-topic TOPIC"))
+        return [topic_job(c) for c in cands]
+    if len(cands) > 1:
+        raise AmbiguousInputError(
+            f"the bag has {len(cands)} pose topics: "
+            + ", ".join(f"{c} ({topics[c][0].replace('/msg/', '/')}, {topics[c][1]} msgs)" for c in cands),
+            path=path,
+            hint="choose one with --pose-topic TOPIC" + (" (or a /tf chain with --tf-parent P --tf-child C)"
+                                                       if tf_topics else ""),
+        )
+    if cands:
+        return [topic_job(cands[0])]
+    if any(not _is_static_tf(t) for t in tf_topics):
+        return [tf_job(None)]
+    return []
+
+
+def _tf_sources(topic: str | None, tf_topics: list[str]) -> list[str]:
+    """Dynamic tf from the chosen (or every non-static) TFMessage topic, static links from */tf_static."""
+    dyn = [topic] if topic else [t for t in tf_topics if not _is_static_tf(t)]
+    return dyn + [t for t in tf_topics if _is_static_tf(t) and t not in dyn]
+
+
+def _read_tf_job(reader: AnyReader, job: _PoseJob, messages: list, path: Path, findings: list[Finding],
+                 pose_kind: PoseSourceKind | None, all_pairs: bool = False
+                 ) -> tuple[dict[str, PoseSeries], dict[str, Any]]:
+    """``({stream name: poses}, {"parent->child": {topic, count}})`` of a /tf chain job: its chain, or
+    the only dynamic pair (every one, with a POSE_STREAM_CHOICE finding, when ``all_pairs``)."""
+    edges = _read_tf(reader, sorted(messages, key=lambda m: m[1]))
+    pairs = {f"{e.parent}->{e.child}": {"topic": e.topic, "count": len(e.sec)} for e in edges.values()}
+    chains = [(job.parent, job.child)]
+    if job.parent is None:
+        chains = [k for k, e in edges.items() if not e.static]
+        if len(chains) > 1 and all_pairs:
+            findings.append(_choice_finding(f"{len(chains)} tf pairs ({_pair_list(edges, dynamic_only=True)})",
+                                            "--tf-parent P --tf-child C"))
+        elif len(chains) != 1:
+            raise AmbiguousInputError(
+                f"{job.topic or '/tf'} holds {len(chains)} parent->child pairs: "
+                f"{_pair_list(edges, dynamic_only=True) or 'none'}",
+                path=path, field=job.topic or "/tf", hint="choose one with --tf-parent P --tf-child C",
+            )
+    streams: dict[str, PoseSeries] = {}
+    for parent, child in chains:
+        assert parent is not None and child is not None
+        parent, child = parent.lstrip("/"), child.lstrip("/")
+        s, dyn_topic = _tf_chain(path, edges, parent, child)
+        stream = f"{dyn_topic}:{parent}->{child}"
+        t_ns = _choose_stamps(stream, s, findings)
+        streams[stream] = _pose_series(s, t_ns, pose_kind or PoseSourceKind.MOCAP, child)
+    return streams, pairs
+
+
 def _read_open_bag(
     reader: AnyReader,
     path: Path,
@@ -478,96 +622,17 @@ def _read_open_bag(
     pose_kind: PoseSourceKind | None,
     all_pose_topics: bool = False,
 ) -> Sequence:
+    """Plan the topics to read (metadata only), read every needed topic in one pass, build the sequence."""
     topics = {n: (info.msgtype or "?", int(info.msgcount)) for n, info in reader.topics.items()}
-    findings: list[Finding] = []
-
-    def find(requested: str, option: str) -> str:
-        got = _match_topic(requested, topics)
-        if got is None:
-            raise AmbiguousInputError(
-                f"topic '{requested}' is not in the bag", path=path, field=requested,
-                hint=f"choose one with {option} TOPIC from: {_topic_list(topics)}",
-            )
-        return got
-
-    # --- IMU ---
-    if imu_topic is not None:
-        imu_name: str | None = find(imu_topic, "--imu-topic")
-        if topics[imu_name][0] != IMU_TYPE:
-            raise UnsupportedInputError(
-                f"topic '{imu_name}' has type {topics[imu_name][0]}, not sensor_msgs/Imu", path=path,
-                field=imu_name, hint=f"choose an Imu topic with --imu-topic TOPIC from: {_topic_list(topics)}",
-            )
-    else:
-        cands = sorted(n for n, (t, _) in topics.items() if t == IMU_TYPE)
-        if len(cands) > 1:
-            raise AmbiguousInputError(
-                f"the bag has {len(cands)} sensor_msgs/Imu topics: {', '.join(cands)}", path=path,
-                hint="choose one with --imu-topic TOPIC",
-            )
-        imu_name = cands[0] if cands else None
-
-    # --- plan the pose streams (metadata only), then read every needed topic in one pass ---
     tf_topics = sorted(n for n, (t, _) in topics.items() if t == TF_MESSAGE)
-    is_static = lambda t: t.rstrip("/").endswith("tf_static")  # noqa: E731
-    jobs: list[tuple[str, str | None, str | None, str | None]] = []  # (kind, topic, parent, child)
-
-    def plan_tf(topic: str | None) -> None:
-        if not tf_topics:
-            raise AmbiguousInputError(
-                "the bag has no tf2_msgs/TFMessage topic", path=path, field="/tf",
-                hint=f"choose a pose topic with --pose-topic TOPIC from: {_topic_list(topics)}",
-            )
-        jobs.append(("tf", topic, tf_parent, tf_child))
-
-    def plan_topic(topic: str) -> None:
-        typ = topics[topic][0]
-        if typ == TF_MESSAGE:
-            plan_tf(topic)
-        elif typ in POSE_TYPES:
-            jobs.append(("topic", topic, None, None))
-        else:
-            raise UnsupportedInputError(
-                f"topic '{topic}' has type {typ}, which is not a pose type", path=path, field=topic,
-                hint="choose a PoseStamped, PoseWithCovarianceStamped, TransformStamped, Odometry or "
-                     f"TFMessage topic with --pose-topic TOPIC from: {_topic_list(topics)}",
-            )
-
-    if pose_topic is not None:
-        chosen = find(pose_topic, "--pose-topic")
-        plan_topic(chosen)
-        if tf_parent is not None and topics[chosen][0] != TF_MESSAGE:
-            plan_tf(None)
-    elif tf_parent is not None:
-        plan_tf(None)
-    else:
-        cands = sorted(n for n, (t, _) in topics.items() if t in POSE_TYPES)
-        if len(cands) > 1 and all_pose_topics:
-            findings.append(_choice_finding(f"{len(cands)} pose topics ({', '.join(cands)})",
-                                            "--pose-topic TOPIC"))
-            for c in cands:
-                plan_topic(c)
-        elif len(cands) > 1:
-            raise AmbiguousInputError(
-                f"the bag has {len(cands)} pose topics: "
-                + ", ".join(f"{c} ({topics[c][0].replace('/msg/', '/')}, {topics[c][1]} msgs)" for c in cands),
-                path=path,
-                hint="choose one with --pose-topic TOPIC" + (" (or a /tf chain with --tf-parent P --tf-child C)"
-                                                           if tf_topics else ""),
-            )
-        elif cands:
-            plan_topic(cands[0])
-        elif any(not is_static(t) for t in tf_topics):
-            plan_tf(None)
-
-    def tf_sources(topic: str | None) -> list[str]:
-        # dynamic tf from the chosen (or every non-static) TFMessage topic, static links from */tf_static
-        dyn = [topic] if topic else [t for t in tf_topics if not is_static(t)]
-        return dyn + [t for t in tf_topics if is_static(t) and t not in dyn]
+    findings: list[Finding] = []
+    imu_name = _imu_topic(topics, imu_topic, path)
+    jobs = _plan_pose_jobs(topics, pose_topic, tf_parent, tf_child, path, all_pose_topics=all_pose_topics,
+                           findings=findings)
 
     needed = {imu_name} if imu_name else set()
-    for kind, topic, _, _ in jobs:
-        needed.update(tf_sources(topic) if kind == "tf" else [topic])
+    for job in jobs:
+        needed.update(_tf_sources(job.topic, tf_topics) if job.kind is _PoseJobKind.TF else [job.topic])
     by_topic: dict[str, list] = {t: [] for t in needed}
     if needed:
         for item in reader.messages([c for c in reader.connections if c.topic in needed]):
@@ -578,54 +643,40 @@ def _read_open_bag(
         s = _read_imu(reader, by_topic[imu_name])
         t_ns = _choose_stamps(imu_name, s, findings)
         imu = ImuSeries(t_ns, s.values[:, :3], s.values[:, 3:6])
-
     poses: dict[str, PoseSeries] = {}
     read_tf_pairs: dict[str, Any] = {}
-    for kind, topic, parent, child in jobs:
-        if kind == "topic":
-            assert topic is not None
-            typ = topics[topic][0]
-            s = _read_pose_topic(reader, by_topic[topic], typ)
-            t_ns = _choose_stamps(topic, s, findings)
+    for job in jobs:
+        if job.kind is _PoseJobKind.TOPIC:
+            typ = topics[job.topic][0]
+            s = _read_pose_topic(reader, by_topic[job.topic], typ)
+            t_ns = _choose_stamps(job.topic, s, findings)
             src = pose_kind or (PoseSourceKind.VIO if typ == ODOMETRY else PoseSourceKind.MOCAP)
-            poses[topic] = _pose_series(s, t_ns, src, "pose")
-            continue
-        srcs = tf_sources(topic)
-        msgs = sorted((m for t in srcs for m in by_topic[t]), key=lambda m: m[1])
-        edges = _read_tf(reader, msgs)
-        read_tf_pairs.update({f"{e.parent}->{e.child}": {"topic": e.topic, "count": len(e.sec)}
-                              for e in edges.values()})
-        if parent is None:
-            dynamic_pairs = [k for k, e in edges.items() if not e.static]
-            if len(dynamic_pairs) > 1 and all_pose_topics:
-                findings.append(_choice_finding(f"{len(dynamic_pairs)} tf pairs ({_pair_list(edges, dynamic_only=True)})",
-                                                "--tf-parent P --tf-child C"))
-                for p, c in dynamic_pairs:
-                    p, c = p.lstrip("/"), c.lstrip("/")
-                    s, dyn_topic = _tf_chain(path, edges, p, c)
-                    stream = f"{dyn_topic}:{p}->{c}"
-                    poses[stream] = _pose_series(s, _choose_stamps(stream, s, findings),
-                                                 pose_kind or PoseSourceKind.MOCAP, c)
-                continue
-            if len(dynamic_pairs) != 1:
-                raise AmbiguousInputError(
-                    f"{topic or '/tf'} holds {len(dynamic_pairs)} parent->child pairs: "
-                    f"{_pair_list(edges, dynamic_only=True) or 'none'}",
-                    path=path, field=topic or "/tf", hint="choose one with --tf-parent P --tf-child C",
-                )
-            parent, child = dynamic_pairs[0]
-        assert child is not None
-        parent, child = parent.lstrip("/"), child.lstrip("/")
-        s, dyn_topic = _tf_chain(path, edges, parent, child)
-        stream = f"{dyn_topic}:{parent}->{child}"
-        t_ns = _choose_stamps(stream, s, findings)
-        poses[stream] = _pose_series(s, t_ns, pose_kind or PoseSourceKind.MOCAP, child)
+            poses[job.topic] = _pose_series(s, t_ns, src, "pose")
+        else:
+            messages = [m for t in _tf_sources(job.topic, tf_topics) for m in by_topic[t]]
+            streams, pairs = _read_tf_job(reader, job, messages, path, findings, pose_kind, all_pose_topics)
+            read_tf_pairs.update(pairs)
+            poses.update(streams)
 
-    # --- metadata for `biasgt inspect` ---
+    calibration = ImuCalibration()
+    if imu is not None and np.isfinite(imu.rate_hz):
+        calibration = ImuCalibration(rate_hz=imu.rate_hz)
+    logger.info("read %s: imu=%s (%d msgs), poses=%s", path, imu_name, 0 if imu is None else len(imu),
+                {k: len(v) for k, v in poses.items()})
+    bag_meta = _bag_metadata(reader, path, open_path, topics, imu_name, poses, read_tf_pairs)
+    return Sequence(
+        name=seq_name, imu=imu, poses=poses, calibration=calibration, findings=findings,
+        metadata={"source_path": str(path), "source_kind": "rosbag", "bag": bag_meta},
+    )
+
+
+def _bag_metadata(reader: AnyReader, path: Path, open_path: Path, topics: dict[str, tuple[str, int]],
+                  imu_name: str | None, poses: dict[str, PoseSeries], tf_pairs: dict[str, Any]) -> dict[str, Any]:
+    """What ``biasgt inspect`` shows of a bag: storage, span, topics, what was read."""
     start, end = int(reader.start_time), int(reader.end_time)
     storage = "rosbag1" if not reader.is2 else (
         "rosbag2-mcap" if (open_path.suffix == ".mcap" or any(open_path.glob("*.mcap"))) else "rosbag2-sqlite3")
-    bag_meta = {
+    meta = {
         "path": str(path),
         "format": storage,
         "message_count": int(reader.message_count),
@@ -636,17 +687,9 @@ def _read_open_bag(
         "imu_topic": imu_name,
         "pose_streams": sorted(poses),
     }
-    if read_tf_pairs:
-        bag_meta["tf_pairs"] = read_tf_pairs
-    calibration = ImuCalibration()
-    if imu is not None and np.isfinite(imu.rate_hz):
-        calibration = ImuCalibration(rate_hz=imu.rate_hz)
-    logger.info("read %s: imu=%s (%d msgs), poses=%s", path, imu_name, 0 if imu is None else len(imu),
-                {k: len(v) for k, v in poses.items()})
-    return Sequence(
-        name=seq_name, imu=imu, poses=poses, calibration=calibration, findings=findings,
-        metadata={"source_path": str(path), "source_kind": "rosbag", "bag": bag_meta},
-    )
+    if tf_pairs:
+        meta["tf_pairs"] = tf_pairs
+    return meta
 
 
 # ---------------------------------------------------------------------------------------------

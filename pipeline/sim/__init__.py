@@ -9,6 +9,8 @@ Public API::
     write_simulation(sim, "out/sim01")   # EuRoC/ASL folder + simulation.yaml
 """
 
+import importlib
+
 from pipeline.sim.config import (
     ImuNoiseConfig,
     MotionConfig,
@@ -32,8 +34,6 @@ _LAZY = {
 
 def __getattr__(name: str):
     if name in _LAZY:
-        import importlib
-
         return getattr(importlib.import_module(_LAZY[name]), name)
     raise AttributeError(f"module 'pipeline.sim' has no attribute {name!r}")
 

@@ -31,6 +31,7 @@ from typing import Any
 
 import yaml
 
+from pipeline.configs import unknown_keys_message
 from pipeline.errors import ConfigError
 
 # EuRoC / ADIS16448 datasheet values (mav0/imu0/sensor.yaml).
@@ -406,12 +407,9 @@ def _from_plain(cls: type, d: dict[str, Any], *, prefix: str, path: str | Path |
         raise ConfigError(f"must be a mapping, got {type(d).__name__}", path=path, field=prefix.rstrip(".") or None)
     hints = typing.get_type_hints(cls)
     names = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(d) - names)
+    unknown = unknown_keys_message([prefix + str(k) for k in d], [prefix + n for n in names])
     if unknown:
-        raise ConfigError(
-            f"unknown key(s) {', '.join(prefix + str(k) for k in unknown)}",
-            path=path,
-            hint=f"allowed keys in {prefix.rstrip('.') or 'the top level'}: {', '.join(sorted(names))}",
-        )
+        raise ConfigError(unknown, path=path,
+                          hint=f"allowed keys in {prefix.rstrip('.') or 'the top level'}: {', '.join(sorted(names))}")
     kwargs = {k: _convert(hints[k], v, prefix + k, path) for k, v in d.items()}
     return cls(**kwargs)

@@ -261,7 +261,7 @@ def write_simulation(
 
 
 def _write_bag(sim: Simulation, tmp: Path, bag: Any, pose_format: PoseFormat) -> None:
-    from pipeline.io.rosbag import PoseMsgType, RosVersion, write_bag
+    from pipeline.io.rosbag import PoseMsgType, RosVersion, write_bag  # rosbags (~0.3 s): only to write a bag
 
     version = RosVersion(bag)
     seq = sim.sequence

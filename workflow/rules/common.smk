@@ -3,12 +3,7 @@
 
 import os
 
-from snakemake.utils import validate
-
 from pipeline import workflow as wf
-
-
-validate(config, schema="../schemas/config.schema.yaml")
 
 
 def _config_file():
@@ -17,7 +12,8 @@ def _config_file():
     return files[-1] if files else None
 
 
-WF_CONFIG = wf.check_config(config, _config_file())
+# One validator for 'biasgt run' and Snakemake: the schema, then the stage sections' dataclasses.
+WF_CONFIG = wf.check_config(wf.validate_schema(config, config_file=_config_file()), _config_file())
 SEQUENCES = WF_CONFIG.names
 SIMULATED = [s.name for s in WF_CONFIG.select(sources=["simulate"])]
 
