@@ -42,7 +42,9 @@ __all__ = ["NoiseScheduler"]
 class NoiseScheduler:
     """Linear-beta diffusion schedule with ``add_noise``, ``set_timesteps`` and the three steps.
 
-    The schedule is kept in float64 and cast to the sample's dtype and device at use.
+    The schedule is computed in float32 as in diffusers and the released code (``linspace`` then
+    ``cumprod``), so the steps agree with theirs to float32 rounding, and is cast to the sample's
+    dtype and device at use.
 
     Args:
         train_timesteps: ``N``, steps of the forward process.
@@ -52,7 +54,7 @@ class NoiseScheduler:
 
     def __init__(self, train_timesteps: int = 1000, beta_start: float = 1e-4, beta_end: float = 0.02) -> None:
         self.train_timesteps = int(train_timesteps)
-        self.betas = torch.linspace(beta_start, beta_end, self.train_timesteps, dtype=torch.float64)
+        self.betas = torch.linspace(beta_start, beta_end, self.train_timesteps, dtype=torch.float32)
         self.alphas = 1.0 - self.betas
         self.alphas_cumprod = torch.cumprod(self.alphas, dim=0)
         self.num_inference_steps = 0
@@ -63,7 +65,7 @@ class NoiseScheduler:
         """``alpha_bar_t`` as a tensor of ``like``'s dtype/device (1 where t < 0), shaped [B, 1, 1]
         for a [B] ``t`` or a scalar for an int."""
         t = torch.as_tensor(t).cpu()
-        ab = torch.where(t >= 0, self.alphas_cumprod[t.clamp_min(0)], torch.ones((), dtype=torch.float64))
+        ab = torch.where(t >= 0, self.alphas_cumprod[t.clamp_min(0)], torch.ones((), dtype=torch.float32))
         ab = ab.to(device=like.device, dtype=like.dtype)
         return ab.reshape(-1, *([1] * (like.dim() - 1))) if ab.dim() else ab
 
