@@ -106,6 +106,10 @@ class BiasModel(nn.Module):
         weights = torch.tensor(self.indirect_weights, dtype=f64, device=terms.device)
         return ((weights * terms).sum() / len(batch)).to(batch.imu.dtype)
 
+    def forward(self, batch: WindowBatch, generator: torch.Generator | None = None) -> torch.Tensor:
+        """The training loss (so that DistributedDataParallel's hooks wrap it)."""
+        return self.loss(batch, generator)
+
     @torch.no_grad()
     def sample(self, batch: WindowBatch, num_samples: int = 1, *, sampler: Sampler = Sampler.DDIM,
                steps: int = 25, generator: torch.Generator | None = None, eta: float = 0.0) -> torch.Tensor:
