@@ -678,11 +678,18 @@ def _run_provenance(run: Any, checkpoint: Path) -> dict[str, Any]:
     info = {"path": str(checkpoint), "method": Method(run.config.method).value,
             "preset": getattr(run.config.preset, "value", run.config.preset), "seed": run.config.seed,
             "parameters": int(count_parameters(run.model))}
-    meta = getattr(run, "meta", None) or {}
+    meta = _read_json(Path(run.path).parent / "run.json")
     for key in ("steps", "best_step", "best_val_loss", "train_seconds", "windows_per_s"):
         if key in meta:
             info[key] = meta[key]
     return info
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
 
 
 def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str | Path | None = None,
