@@ -42,7 +42,7 @@ def write_truth_recovery(folder: Path, sim, every: int = 10) -> Path:
 
 
 def make_window_dataset(root: Path, *, splits: dict[str, int] | None = None, duration_s: float = 8.0,
-                        rate_hz: float = 200.0) -> Path:
+                        rate_hz: float = 200.0, window_s: float = 1.0) -> Path:
     """Simulate sequences (``splits``: split -> count), recover them from truth, window them into ``root/dataset``."""
     splits = splits or {"train": 2, "val": 1, "test": 2}
     sources, seed = [], 0
@@ -55,5 +55,5 @@ def make_window_dataset(root: Path, *, splits: dict[str, int] | None = None, dur
             rec = write_truth_recovery(root / "rec" / name, sim)
             sources.append(WindowSource(name, split, store, rec))
     out = root / "dataset"
-    build_window_dataset(sources, out, WindowConfig(window_s=1.0, overlap=0.5))
+    build_window_dataset(sources, out, WindowConfig(window_s=window_s, overlap=0.5))
     return out

@@ -651,6 +651,7 @@ def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method
         ConfigError: The checkpoint holds another method than ``method``.
         InputFormatError: Another dataset format version, window length or IMU rate.
     """
+    checkpoint = Path(getattr(run, "path", checkpoint))  # the .pt file itself
     got = Method(run.config.method)
     if method is not None and got is not Method(method):
         raise ConfigError(f"the checkpoint holds a {got.value} model, not {Method(method).value}", path=checkpoint,
