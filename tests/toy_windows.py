@@ -43,14 +43,16 @@ class Toy:
     offset: float = 0.6  # d (BIMODAL)
     p_plus: float = 0.3
     imu_noise: float = 0.02
+    shared: bool = True  # one draw per window for all 6 channels (else one per channel)
 
     def bias(self, c: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Bias [W, 6] (constant per window) for conditions ``c`` [W]."""
         base = self.slope * c[:, None] * np.ones((1, 6))
+        shape = (len(c), 1) if self.shared else base.shape
         if self.kind is Kind.GAUSSIAN:
-            return base + self.std * rng.standard_normal(base.shape)
+            return base + self.std * rng.standard_normal(shape)
         if self.kind is Kind.BIMODAL:
-            return base + np.where(rng.random(base.shape) < self.p_plus, self.offset, -self.offset)
+            return base + np.where(rng.random(shape) < self.p_plus, self.offset, -self.offset)
         return base
 
 

@@ -231,6 +231,7 @@ class _Run:
     seconds: float = 0.0  # training time (without validation and writing)
     windows: int = 0
     metrics: list[dict[str, Any]] = field(default_factory=list)
+    losses: list[float] = field(default_factory=list)  # train losses since the last metrics row
 
 
 def _write_metrics(out_dir: Path, rows: list[dict[str, Any]]) -> None:
@@ -274,7 +275,8 @@ class _Trainer:
             "config": self.config.to_dict(), "model_config": self.model.config.to_dict(),
             "normalizer": self.data.normalizer.stats(), "dataset": self.data.info,
             "best": {"step": r.best_step, "val_loss": r.best_val_loss},
-            "progress": {"seconds": r.seconds, "windows": r.windows}, "metrics": list(r.metrics),
+            "progress": {"seconds": r.seconds, "windows": r.windows, "losses": list(r.losses)},
+            "metrics": list(r.metrics),
         }
 
     def restore(self, state: dict[str, Any], path: Path) -> None:
@@ -295,6 +297,7 @@ class _Trainer:
         r = self.run
         r.step, r.best_step, r.best_val_loss = int(state["step"]), int(state["best"]["step"]), float(state["best"]["val_loss"])
         r.seconds, r.windows = float(state["progress"]["seconds"]), int(state["progress"]["windows"])
+        r.losses = list(state["progress"]["losses"])
         r.metrics = list(state["metrics"])
 
     # -- steps -------------------------------------------------------------------------------------
@@ -325,10 +328,10 @@ class _Trainer:
     def eval_model(self) -> BiasModel:
         return self.ema.model if self.ema is not None else self.model
 
-    def validate_and_record(self, train_losses: list[float]) -> float:
+    def validate_and_record(self) -> float:
         r = self.run
         val = _validate(self.eval_model(), self.data, self.config, self.device)
-        r.metrics.append({"step": r.step, "train_loss": float(np.mean(train_losses)) if train_losses else float("nan"),
+        r.metrics.append({"step": r.step, "train_loss": float(np.mean(r.losses)) if r.losses else float("nan"),
                           "val_loss": val, "lr": self.lr_schedule.get_last_lr()[0], "seconds": round(r.seconds, 3)})
         if val < r.best_val_loss:
             r.best_val_loss, r.best_step = val, r.step
@@ -407,27 +410,29 @@ def _fit(tr: _Trainer) -> None:
     log.info("training %s (%s preset, %d parameters) on %d windows, %d validation windows, %s",
              config.method.value, config.preset.value, count_parameters(tr.model), len(tr.data.train),
              len(tr.data.val), tr.device)
-    losses: list[float] = []
     tick = time.perf_counter()
     for batch in loader:
-        losses.append(tr.train_step(batch.to(tr.device)))
+        run.losses.append(tr.train_step(batch.to(tr.device)))
         run.windows += order.batch_size
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(loss=f"{losses[-1]:.4g}")
+            bar.set_postfix(loss=f"{run.losses[-1]:.4g}")
         end = run.step == config.max_steps
-        if run.step % config.val_every == 0 or run.step % config.checkpoint_every == 0 or end:
-            run.seconds += time.perf_counter() - tick
-            if writer:
-                if run.step % config.val_every == 0 or end:
-                    val = tr.validate_and_record(losses)
-                    if bar is None:
-                        log.info("step %d/%d  train loss %.5g  val loss %.5g  lr %.3g", run.step, config.max_steps,
-                                 np.mean(losses), val, tr.lr_schedule.get_last_lr()[0])
-                    losses = []
-                if run.step % config.checkpoint_every == 0 or end:
-                    save_checkpoint(tr.state(), tr.out_dir / LAST)
-            tick = time.perf_counter()
+        validate, save = run.step % config.val_every == 0 or end, run.step % config.checkpoint_every == 0 or end
+        if not (validate or save):
+            continue
+        run.seconds += time.perf_counter() - tick
+        if writer and validate:
+            train_loss = float(np.mean(run.losses))
+            val = tr.validate_and_record()
+            if bar is None:
+                log.info("step %d/%d  train loss %.5g  val loss %.5g  lr %.3g", run.step, config.max_steps,
+                         train_loss, val, tr.lr_schedule.get_last_lr()[0])
+        if validate:
+            run.losses = []
+        if writer and save:
+            save_checkpoint(tr.state(), tr.out_dir / LAST)
+        tick = time.perf_counter()
     if bar is not None:
         bar.close()
     if writer:
