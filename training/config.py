@@ -143,8 +143,8 @@ _PRESETS: dict[Preset, dict[str, Any]] = {
     Preset.PAPER: {},  # the dataclass defaults are the released code's sizes
     Preset.SMALL: dict(tcn_channels=(32, 32, 32, 32, 64, 64, 64), cond_dim=64, step_embed_dim=64, hidden=64,
                        gru_layers=2, unet_dims=(32, 64, 128)),
-    Preset.TINY: dict(tcn_channels=(16, 16, 16, 16), tcn_dropout=0.0, cond_dim=32, step_embed_dim=32, hidden=32,
-                      gru_layers=1, unet_dims=(16, 32, 64)),
+    Preset.TINY: dict(tcn_channels=(16, 16, 16, 16), tcn_dropout=0.0, cond_dim=32, step_embed_dim=32, hidden=64,
+                      gru_layers=2, unet_dims=(16, 32, 64)),
 }
 
 
