@@ -98,7 +98,9 @@ def test_euroc_config_is_valid(shared_data):
     assert wf.recovery_settings(cfg, "V1_02_medium_excerpt")["pose_stream"] == "ground_truth"  # GT state only
     # every entry goes through every per-sequence stage; the windowed ones all have 6-DoF references
     assert mh01.split is wf.Split.NONE
-    assert [s.name for s in wf.windowed_sequences(cfg)] == [s.name for s in cfg.sequences if s.is_simulated]
+    assert [s.name for s in wf.windowed_sequences(cfg)] == ["V1_01_easy"] + [
+        s.name for s in cfg.sequences if s.is_simulated]  # V1_01 (real, GT poses): the validation split
+    assert [s.name for s in cfg.select(splits=["val"])] == ["V1_01_easy"]
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
 
 
