@@ -165,4 +165,4 @@ def learning_outputs(cfg: Any, wf: Any) -> list[str]:
     nothing (the rest of the workflow still runs)."""
     if not all(cfg.select(splits=[split]) for split in ("train", "val", "test")):
         return []
-    return table_outputs()
+    return table_outputs() + [TRAINING_REPORT]

@@ -36,7 +36,7 @@ from training.evaluate import EvaluationSummary, read_summary
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TableColumn", "build_table", "format_markdown", "table_columns", "write_table"]
+__all__ = ["TableColumn", "build_table", "cell_marks", "format_markdown", "table_columns", "write_table"]
 
 TABLE_CSV = "table.csv"
 TABLE_MD = "table.md"
@@ -108,7 +108,8 @@ def _cell(values: list[float], digits: int) -> str:
     return text + (f" ± {np.std(values):.{digits}f}" if len(values) > 1 else "")
 
 
-def _marks(columns: list[TableColumn], row: str, metric: str) -> dict[str, str]:
+def cell_marks(columns: list[TableColumn], row: str, metric: str) -> dict[str, str]:
+    """Column name -> "best" / "second" for ``metric`` ("prmse_m" or "roe_deg") in ``row``, among ranked columns."""
     ranked = sorted((float(np.mean(getattr(c, metric)[row])), c.name) for c in columns if c.ranked)
     out = {}
     if ranked:
@@ -127,7 +128,7 @@ def format_markdown(columns: list[TableColumn], title: str = "Table I") -> str:
                                                      else "") for c in columns) + " |",
              "|---|" + "---|" * len(columns)]
     for row in table.index:
-        mp, mr = _marks(columns, row, "prmse_m"), _marks(columns, row, "roe_deg")
+        mp, mr = cell_marks(columns, row, "prmse_m"), cell_marks(columns, row, "roe_deg")
         cells = [wrap[mp.get(c.name)].format(_cell(c.prmse_m[row], 4)) + " / "
                  + wrap[mr.get(c.name)].format(_cell(c.roe_deg[row], 4)) for c in columns]
         name = f"**{row}**" if row == AVERAGE else row
