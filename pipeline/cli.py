@@ -29,6 +29,8 @@ COMMANDS = (
     "windows",
     "train",
     "evaluate",
+    "predict",
+    "export",
     "report",
     "run",
 )
