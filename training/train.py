@@ -54,7 +54,7 @@ __all__ = ["TrainingError", "BatchOrder", "train", "METRIC_COLUMNS"]
 
 METRIC_COLUMNS = ("step", "train_loss", "val_loss", "lr", "seconds")
 #: Options that may differ between a run and its resumption (they do not change the result).
-_RESUMABLE_CHANGES = ("max_steps", "device", "num_workers")
+_RESUMABLE_CHANGES = ("max_steps", "device", "num_workers", "threads")
 
 
 class TrainingError(BiasgtError):
@@ -381,6 +381,8 @@ def train(config: TrainConfig, dataset_dir: str | Path, out_dir: str | Path, *, 
             normaliser statistics or temperature.
     """
     dataset_dir, out_dir = Path(dataset_dir), Path(out_dir)
+    if config.threads:
+        torch.set_num_threads(config.threads)
     data = _open_data(config, dataset_dir)
     last = out_dir / LAST
     if last.exists() and not resume:

@@ -55,6 +55,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--max-steps", type=int, metavar="N", help="optimiser steps")
     p.add_argument("--seed", type=int, metavar="S", help="random seed")
     p.add_argument("--device", metavar="DEV", help="auto (default), cpu, cuda or cuda:N")
+    p.add_argument("--threads", type=int, metavar="N", help="CPU threads (default: one per core)")
     p.set_defaults(func=run)
 
 
@@ -81,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
 
     options = _read_config(args.config) if args.config else {}
     for key, value in (("method", args.method), ("preset", args.preset), ("max_steps", args.max_steps),
-                       ("seed", args.seed), ("device", args.device)):
+                       ("seed", args.seed), ("device", args.device), ("threads", args.threads)):
         if value is not None:
             options[key] = value
     config = TrainConfig.from_mapping(options, path=args.config)
