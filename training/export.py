@@ -29,7 +29,7 @@ from training.config import IMU_CHANNELS, Sampler
 
 log = logging.getLogger(__name__)
 
-__all__ = ["ExportFormat", "ExportedSampler", "export_run", "onnx_session"]
+__all__ = ["ExportFormat", "ExportedSampler", "example_inputs", "export_run", "onnx_session", "write_export"]
 
 ONNX_OPSET = 17
 
@@ -86,13 +86,35 @@ class ExportedSampler(nn.Module):
         return nz.unbias(x).reshape(B, K, T, IMU_CHANNELS)
 
 
-def _example(run, k: int) -> tuple[torch.Tensor, ...]:
-    model = run.model
-    T = int(run.dataset["window_samples"])
-    imu = torch.randn(2, T, model.config.condition_channels)
-    if not model.method.is_diffusion:
-        return (imu,)
-    return imu, torch.randn(2 * k, T, IMU_CHANNELS)
+def example_inputs(module: ExportedSampler, window_samples: int, k: int = 3) -> tuple[torch.Tensor, ...]:
+    """Tracing inputs: 2 windows (and ``k`` samples each for a diffusion model)."""
+    imu = torch.randn(2, window_samples, module.model.config.condition_channels)
+    return (imu, torch.randn(2 * k, window_samples, IMU_CHANNELS)) if module.diffusion else (imu,)
+
+
+def write_export(module: ExportedSampler, example: tuple[torch.Tensor, ...], path: str | Path,
+                 fmt: ExportFormat | str) -> None:
+    """Trace ``module`` on ``example`` and save it as TorchScript or ONNX at ``path`` (not atomic).
+
+    Raises:
+        ExportError: ONNX asked and the 'onnx' package is missing.
+    """
+    fmt = ExportFormat(fmt)
+    with torch.no_grad():
+        if fmt is ExportFormat.TORCHSCRIPT:
+            torch.jit.trace(module, example, check_trace=False).save(str(path))
+            return
+        try:
+            import onnx  # noqa: F401
+        except ImportError:
+            raise ExportError("ONNX export needs the 'onnx' package", path=path,
+                              hint="pip install onnx onnxruntime (pinned in requirements.lock)") from None
+        names = ["imu", "noise"] if module.diffusion else ["imu"]
+        axes = {"imu": {0: "windows"}, "bias": {0: "windows", 1: "samples"}}
+        if module.diffusion:
+            axes["noise"] = {0: "windows_x_samples"}
+        torch.onnx.export(module, example, str(path), input_names=names, output_names=["bias"],
+                          dynamic_axes=axes, opset_version=ONNX_OPSET, dynamo=False)
 
 
 def export_run(checkpoint: str | Path, out_path: str | Path, fmt: ExportFormat | str, *,
@@ -109,33 +131,13 @@ def export_run(checkpoint: str | Path, out_path: str | Path, fmt: ExportFormat |
     fmt = ExportFormat(fmt)
     run = load_run(checkpoint, device="cpu")
     module = ExportedSampler(run.model, Sampler(sampler), steps).eval()
-    example = _example(run, k=3)
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    diffusion = module.diffusion
-    with torch.no_grad(), atomic_path(out) as tmp:
-        if fmt is ExportFormat.TORCHSCRIPT:
-            torch.jit.trace(module, example, check_trace=False).save(str(tmp))
-        else:
-            _export_onnx(module, example, tmp, diffusion, checkpoint)
+    with atomic_path(out) as tmp:
+        write_export(module, example_inputs(module, int(run.dataset["window_samples"])), tmp, fmt)
     log.info("exported %s (%s, %s sampler, %d steps) to %s", run.config.method.value, fmt.value,
-             Sampler(sampler).value if diffusion else "no", steps, out)
+             Sampler(sampler).value if module.diffusion else "no", steps, out)
     return out
-
-
-def _export_onnx(module: nn.Module, example: tuple[torch.Tensor, ...], path: Path, diffusion: bool,
-                 checkpoint: str | Path) -> None:
-    try:
-        import onnx  # noqa: F401
-    except ImportError:
-        raise ExportError("ONNX export needs the 'onnx' package", path=checkpoint,
-                          hint="pip install onnx onnxruntime (pinned in requirements.lock)") from None
-    names = ["imu", "noise"] if diffusion else ["imu"]
-    axes = {"imu": {0: "windows"}, "bias": {0: "windows", 1: "samples"}}
-    if diffusion:
-        axes["noise"] = {0: "windows_x_samples"}
-    torch.onnx.export(module, example, str(path), input_names=names, output_names=["bias"],
-                      dynamic_axes=axes, opset_version=ONNX_OPSET, dynamo=False)
 
 
 def onnx_session(path: str | Path, threads: int | None = None):
