@@ -303,7 +303,7 @@ class _Trainer:
     # -- steps -------------------------------------------------------------------------------------
     def train_step(self, batch: WindowBatch) -> float:
         loss = self._loss(batch)
-        value = float(loss.detach())
+        value = float(loss.detach()) if self.world == 1 else _global_mean(loss.detach())
         if not math.isfinite(value):
             kept = self.out_dir / LAST
             raise TrainingError(
@@ -323,7 +323,12 @@ class _Trainer:
     def _loss(self, batch: WindowBatch) -> torch.Tensor:
         if self.ddp is None:
             return self.model.loss(batch, self.noise)
-        return self.ddp(batch, self.noise)  # DDP's hooks run on forward(), which is BiasModel.loss
+        noise = t = None
+        if self.model.method.is_diffusion:  # every rank draws the global batch's noise and takes its share
+            shape = (min(self.config.batch_size, len(self.data.train)), *batch.bias.shape[1:])
+            noise, t = self.model.draw_noise(shape, self.noise, self.device)
+            noise, t = noise[self.rank::self.world], t[self.rank::self.world]
+        return self.ddp(batch, noise=noise, t=t)  # DDP's hooks run on forward(), which is BiasModel.loss
 
     def eval_model(self) -> BiasModel:
         return self.ema.model if self.ema is not None else self.model
@@ -340,6 +345,15 @@ class _Trainer:
         return val
 
 
+def _global_mean(x: torch.Tensor) -> float:
+    """Mean of a scalar over the processes (the global batch's loss)."""
+    import torch.distributed as dist
+
+    y = x.clone()
+    dist.all_reduce(y)
+    return float(y) / dist.get_world_size()
+
+
 def _progress(total: int, initial: int):
     """A tqdm bar on a terminal, else None (plain log lines)."""
     if not sys.stderr.isatty():
@@ -349,17 +363,17 @@ def _progress(total: int, initial: int):
     return tqdm(total=total, initial=initial, unit="step", dynamic_ncols=True)
 
 
-def _distributed() -> tuple[int, int]:
-    """(rank, world size); initialises the process group under torchrun."""
+def _distributed(device: str) -> tuple[int, int, bool]:
+    """(rank, world size, whether this call started the process group) under torchrun."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if world <= 1:
-        return 0, 1
+        return 0, 1, False
     import torch.distributed as dist
 
-    if not dist.is_initialized():
-        backend = "nccl" if torch.cuda.is_available() else "gloo"
-        dist.init_process_group(backend)
-    return dist.get_rank(), dist.get_world_size()
+    started = not dist.is_initialized()
+    if started:
+        dist.init_process_group("nccl" if _device(device).type == "cuda" else "gloo")
+    return dist.get_rank(), dist.get_world_size(), started
 
 
 def train(config: TrainConfig, dataset_dir: str | Path, out_dir: str | Path, *, resume: bool = False) -> Path:
@@ -388,17 +402,23 @@ def train(config: TrainConfig, dataset_dir: str | Path, out_dir: str | Path, *, 
     if last.exists() and not resume:
         raise TrainingError("the run folder already holds a training run", path=last,
                             hint="pass --resume to continue it, or choose another --out")
-    rank, world = _distributed()
+    rank, world, started = _distributed(config.device)
     if config.batch_size % world:
         raise TrainingError(f"batch_size {config.batch_size} is not divisible by {world} processes",
                             field="batch_size", hint="choose a global batch size divisible by the process count")
-    trainer = _Trainer(config, data, out_dir, rank, world)
-    if resume and last.exists():
-        trainer.restore(load_checkpoint(last, trainer.device), last)
-        log.info("resuming %s from step %d", out_dir, trainer.run.step)
-    elif resume:
-        log.info("nothing to resume in %s: starting afresh", out_dir)
-    _fit(trainer)
+    try:
+        trainer = _Trainer(config, data, out_dir, rank, world)
+        if resume and last.exists():
+            trainer.restore(load_checkpoint(last, trainer.device), last)
+            log.info("resuming %s from step %d", out_dir, trainer.run.step)
+        elif resume:
+            log.info("nothing to resume in %s: starting afresh", out_dir)
+        _fit(trainer)
+    finally:
+        if started:
+            import torch.distributed as dist
+
+            dist.destroy_process_group()
     return out_dir
 
 

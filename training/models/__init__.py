@@ -64,15 +64,30 @@ class BiasModel(nn.Module):
         """Normalised condition [B, T, 6 or 7]."""
         return self.normalizer.condition(batch.condition(self.use_temperature))
 
-    def loss(self, batch: WindowBatch, generator: torch.Generator | None = None) -> torch.Tensor:
-        """Training loss of one batch (scalar); ``generator`` draws the diffusion noise and steps."""
+    def draw_noise(self, shape: tuple[int, ...], generator: torch.Generator | None = None,
+                   device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
+        """Diffusion noise [B, T, 6] and steps [B] for a batch of ``shape`` (noise drawn first)."""
+        dev = generator.device if generator is not None else device
+        noise = torch.randn(shape, generator=generator, device=dev).to(device)
+        t = torch.randint(0, self.scheduler.train_timesteps, (shape[0],), generator=generator, device=dev).to(device)
+        return noise, t
+
+    def loss(self, batch: WindowBatch, generator: torch.Generator | None = None, *,
+             noise: torch.Tensor | None = None, t: torch.Tensor | None = None) -> torch.Tensor:
+        """Training loss of one batch (scalar).
+
+        Args:
+            batch: The windows.
+            generator: Draws the diffusion noise and steps (:meth:`draw_noise`) unless given.
+            noise: Diffusion noise [B, T, 6] (data-parallel training draws it for the global batch).
+            t: Diffusion steps [B].
+        """
         cond = self._condition(batch)
         if self.method.is_diffusion:
             x0 = self.normalizer.bias(batch.bias)
-            dev = generator.device if generator is not None else x0.device
-            noise = torch.randn(x0.shape, generator=generator, device=dev, dtype=x0.dtype).to(x0.device)
-            t = torch.randint(0, self.scheduler.train_timesteps, (len(batch),), generator=generator,
-                              device=dev).to(x0.device)
+            if noise is None or t is None:
+                noise, t = self.draw_noise(tuple(x0.shape), generator, x0.device)
+            noise, t = noise.to(x0), t.to(x0.device)
             eps = self.net.denoise(self.scheduler.add_noise(x0, noise, t), t, self.net.encode(cond))
             return F.mse_loss(eps, noise)
         pred = self.net(cond)
@@ -106,9 +121,10 @@ class BiasModel(nn.Module):
         weights = torch.tensor(self.indirect_weights, dtype=f64, device=terms.device)
         return ((weights * terms).sum() / len(batch)).to(batch.imu.dtype)
 
-    def forward(self, batch: WindowBatch, generator: torch.Generator | None = None) -> torch.Tensor:
+    def forward(self, batch: WindowBatch, generator: torch.Generator | None = None, *,
+                noise: torch.Tensor | None = None, t: torch.Tensor | None = None) -> torch.Tensor:
         """The training loss (so that DistributedDataParallel's hooks wrap it)."""
-        return self.loss(batch, generator)
+        return self.loss(batch, generator, noise=noise, t=t)
 
     @torch.no_grad()
     def sample(self, batch: WindowBatch, num_samples: int = 1, *, sampler: Sampler = Sampler.DDIM,
