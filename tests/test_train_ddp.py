@@ -4,9 +4,9 @@ Same seed, same global batch (16 windows: 8 per process), 300 tiny steps. Not bi
 all-reduce averages two half-batch gradient means where one process takes one full-batch mean,
 so float32 sums are rounded in another order (~1e-8 relative after a few steps), and training
 carries such differences forward and can amplify them: here ~3e-7 after 300 steps at lr 1e-3,
-but ~1e-3 after 200 steps at lr 3e-3 on the same data (the trajectory itself is that sensitive;
-The tolerance: the whole weight vector agrees to
-1e-5 relative (norm of the difference over norm of the weights).
+but ~1e-3 after 200 steps at lr 3e-3 on the same data (the trajectory itself is that
+sensitive). The tolerance: the whole weight vector agrees to 1e-5 relative (norm of the
+difference over norm of the weights).
 """
 
 from __future__ import annotations
