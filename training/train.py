@@ -428,10 +428,10 @@ def _fit(tr: _Trainer) -> None:
     loader = DataLoader(tr.data.train, batch_sampler=_StepBatches(order, run.step, config.max_steps),
                         collate_fn=tr.data.collate, num_workers=config.num_workers)
     writer = tr.rank == 0
-    bar = _progress(config.max_steps, run.step) if writer else None
     log.info("training %s (%s preset, %d parameters) on %d windows, %d validation windows, %s",
              config.method.value, config.preset.value, count_parameters(tr.model), len(tr.data.train),
              len(tr.data.val), tr.device)
+    bar = _progress(config.max_steps, run.step) if writer else None
     tick = time.perf_counter()
     for batch in loader:
         run.losses.append(tr.train_step(batch.to(tr.device)))
