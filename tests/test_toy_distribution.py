@@ -23,9 +23,9 @@ from training.dataset import Split, WindowDataset
 from training.train import train
 
 sys.path.insert(0, str(Path(__file__).parent))
-from toy_windows import Kind, Toy, write_toy_dataset  # noqa: E402
+from toy_windows import Kind, Toy, one_torch_thread, write_toy_dataset  # noqa: E402,F401 (a fixture)
 
-pytestmark = pytest.mark.slow
+pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("one_torch_thread")]
 SAMPLES = 20  # K per test window
 
 
@@ -38,20 +38,10 @@ def _residuals(tmp: Path, toy: Toy, method: Method, steps: int) -> np.ndarray:
                          warmup_steps=20, ema_decay=0.99, val_every=steps, checkpoint_every=steps)
     run = load_run(train(config, ds, tmp / f"{toy.kind.value}_{method.value}"))
     test = WindowDataset(ds, Split.TEST)
-
-
-    items = WindowBatch.from_items(torch.utils.data.default_collate(test.__getitems__(list(range(len(test))))))
-    s = run.model.sample(items, SAMPLES, generator=torch.Generator().manual_seed(0)).numpy()
+    batch = WindowBatch.from_items(torch.utils.data.default_collate(test.__getitems__(list(range(len(test))))))
+    s = run.model.sample(batch, SAMPLES, generator=torch.Generator().manual_seed(0)).numpy()
     c = np.asarray(test.manifest["sequences"]["toy_test"]["info"]["condition"])
     return s - toy.slope * c[:, None, None, None]
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def test_bimodal_diffusion_keeps_both_modes_where_regression_collapses(tmp_path):

@@ -22,9 +22,10 @@ from training.dataset import Split, WindowDataset
 from training.train import TrainingError, train
 
 sys.path.insert(0, str(Path(__file__).parent))
-from toy_windows import Kind, Toy, write_toy_dataset  # noqa: E402
+from toy_windows import Kind, Toy, one_torch_thread, write_toy_dataset  # noqa: E402,F401 (a fixture)
 
 REPO = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 TINY = dict(preset=Preset.TINY, batch_size=16, lr=3e-3, warmup_steps=5, val_every=10, checkpoint_every=10)
 
 
@@ -32,14 +33,6 @@ TINY = dict(preset=Preset.TINY, batch_size=16, lr=3e-3, warmup_steps=5, val_ever
 def toy_ds(tmp_path_factory) -> Path:
     return write_toy_dataset(tmp_path_factory.mktemp("toy") / "ds", Toy(kind=Kind.LINEAR, samples=16),
                              train=96, val=32, test=32)
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
 
 
 def _env() -> dict[str, str]:

@@ -20,6 +20,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import pytest
+import torch
 
 from pipeline.integration import integrate_numpy
 from training.dataset import SequenceWindows, Split, write_dataset
@@ -87,3 +89,12 @@ def write_toy_dataset(out: Path, toy: Toy = Toy(), *, train: int = 256, val: int
             for i, (split, n) in enumerate(((Split.TRAIN, train), (Split.VAL, val), (Split.TEST, test))) if n]
     write_dataset(seqs, out, config={"toy": toy.kind.value, "samples": toy.samples}, extra={"rate_hz": toy.rate_hz})
     return out
+
+
+@pytest.fixture
+def one_torch_thread():
+    """Run a test on one torch thread (deterministic and not oversubscribing the cores)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
