@@ -36,7 +36,15 @@ import torch
 
 from training.config import Sampler
 
-__all__ = ["NoiseScheduler"]
+__all__ = ["NoiseScheduler", "randn"]
+
+
+def randn(shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device | str,
+          dtype: torch.dtype) -> torch.Tensor:
+    """Standard normal noise drawn on the generator's device and moved to ``device`` (so a CPU
+    generator serves a CUDA model, and the same seed gives the same noise on every device)."""
+    where = generator.device if generator is not None else device
+    return torch.randn(shape, generator=generator, device=where, dtype=dtype).to(device)
 
 
 class NoiseScheduler:
@@ -105,8 +113,7 @@ class NoiseScheduler:
         if int(t) <= 0:
             return mean
         var = ((1.0 - ab_prev) / (1.0 - ab_t) * beta_t).clamp_min(1e-20)
-        z = torch.randn(x_t.shape, generator=generator, device=x_t.device, dtype=x_t.dtype)
-        return mean + var.sqrt() * z
+        return mean + var.sqrt() * randn(x_t.shape, generator, x_t.device, x_t.dtype)
 
     def ddim_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor, eta: float = 0.0,
                   generator: torch.Generator | None = None) -> torch.Tensor:
@@ -117,8 +124,7 @@ class NoiseScheduler:
         sigma = eta * ((1.0 - ab_prev) / (1.0 - ab_t) * (1.0 - ab_t / ab_prev)).sqrt()
         x_prev = ab_prev.sqrt() * x0 + (1.0 - ab_prev - sigma**2).sqrt() * eps
         if eta > 0:
-            z = torch.randn(x_t.shape, generator=generator, device=x_t.device, dtype=x_t.dtype)
-            x_prev = x_prev + sigma * z
+            x_prev = x_prev + sigma * randn(x_t.shape, generator, x_t.device, x_t.dtype)
         return x_prev
 
     def released_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor,
@@ -160,7 +166,7 @@ class NoiseScheduler:
         Returns:
             ``x_0`` samples of ``shape``.
         """
-        x = torch.randn(shape, generator=generator, device=device, dtype=dtype)
+        x = randn(shape, generator, device, dtype)
         for t in self.set_timesteps(steps, sampler).tolist():
             eps = predict_eps(x, torch.full((shape[0],), t, dtype=torch.int64, device=device))
             if sampler is Sampler.DDIM:

@@ -27,7 +27,7 @@ from pipeline.so3 import so3_log
 from training.batch import WindowBatch
 from training.config import IMU_CHANNELS, Method, ModelConfig, Sampler
 from training.normalizer import Normalizer
-from training.scheduler import NoiseScheduler
+from training.scheduler import NoiseScheduler, randn
 from training.models.rnn import GruDenoiser, GruRegressor
 from training.models.unet import UnetDenoiser, UnetRegressor
 
@@ -67,8 +67,8 @@ class BiasModel(nn.Module):
     def draw_noise(self, shape: tuple[int, ...], generator: torch.Generator | None = None,
                    device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
         """Diffusion noise [B, T, 6] and steps [B] for a batch of ``shape`` (noise drawn first)."""
+        noise = randn(shape, generator, device, torch.float32)
         dev = generator.device if generator is not None else device
-        noise = torch.randn(shape, generator=generator, device=dev).to(device)
         t = torch.randint(0, self.scheduler.train_timesteps, (shape[0],), generator=generator, device=dev).to(device)
         return noise, t
 
