@@ -20,6 +20,7 @@ install: $(STAMP)
 
 run: $(STAMP)
 	$(VENV)/bin/biasgt run --cores $(CORES)
+	@test ! -f results/evaluation/table.md || cat results/evaluation/table.md
 
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(CORES) --dist loadgroup

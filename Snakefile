@@ -5,7 +5,8 @@
 #   biasgt run --profile slurm                          (SLURM: workflow/profiles/slurm, docs/cluster.md)
 #
 # Outputs: results/<stage>/<sequence>/..., logs: logs/<stage>/<sequence>.log (<stage>: simulate,
-# ingest, recovery, interpolation, validation, windows (one 'dataset'), report).
+# ingest, recovery, interpolation, validation, windows (one 'dataset'), training and evaluation
+# (results/{training,evaluation}/{method}/...; Table I in results/evaluation/table.md), report).
 # A stage is one .smk file under workflow/rules/: add it with one 'include:' line below; it
 # registers its final outputs with final_output(...) (see workflow/rules/common.smk).
 
@@ -48,4 +49,8 @@ include: "workflow/rules/recover.smk"
 include: "workflow/rules/interpolate.smk"
 include: "workflow/rules/validate.smk"
 include: "workflow/rules/windows.smk"
+include: "workflow/rules/train.smk"
+include: "workflow/rules/evaluate.smk"
+include: "workflow/rules/table.smk"
+include: "workflow/rules/training_report.smk"
 include: "workflow/rules/report.smk"

@@ -16,14 +16,29 @@ from collections.abc import Sequence
 
 from pipeline import __version__
 from pipeline.atomic import check_output_location
-from pipeline.commands import convert, inspect, interpolate, recover, report, run, simulate, validate, windows
+from pipeline.commands import (
+    convert,
+    evaluate,
+    export,
+    inspect,
+    interpolate,
+    predict,
+    recover,
+    report,
+    run,
+    simulate,
+    train,
+    validate,
+    windows,
+)
 from pipeline.errors import BiasgtError
 
 log = logging.getLogger("biasgt")
 
 #: Every command, in the order of the help text (the workflow's order). A command is a module of
 #: pipeline/commands with ``register(subparsers)``; add one by importing it above and listing it here.
-COMMANDS = (inspect, convert, simulate, recover, interpolate, validate, windows, report, run)
+COMMANDS = (inspect, convert, simulate, recover, interpolate, validate, windows, train, evaluate, predict, export,
+            report, run)
 
 
 def build_parser() -> argparse.ArgumentParser:

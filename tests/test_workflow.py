@@ -45,8 +45,13 @@ def test_default_config_is_valid_with_defaults():
     assert [s.name for s in cfg.select(splits=["val"])] == ["sim_handheld_val_01"]
     assert len(cfg.select(splits=["train"])) == 3
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
-    for section in ("training", "evaluation", "report"):
-        assert cfg.data[section] == {}
+    assert cfg.data["report"] == {}
+    from training.evaluate import EvaluationConfig
+    from training.stages import TrainingPlan
+
+    # schema defaults filled in = the dataclasses' view of the same sections
+    assert cfg.data["training"] == TrainingPlan.from_mapping(cfg.data["training"]).to_dict()
+    assert cfg.data["evaluation"] == EvaluationConfig.from_mapping(cfg.data["evaluation"]).to_dict()
     assert cfg.data["interpolation"] == {"method": "linear", "clamp": True, "write_csv": True}
     assert cfg.data["windows"] == {"window_s": 1.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0,
                                    "accept_warn": False}
@@ -69,7 +74,11 @@ def test_defaults_filled_like_snakemake_validate(tmp_path):
                  "seed": 0, "pose_format": "mocap", "overrides": {}}
     assert b == {"name": "b", "source": "tum", "path": "x.txt", "split": "none", "poses": [], "reader": {}}
     assert mine["data_root"] == "." and mine["check_input_paths"] is True
-    assert mine["training"] == {}
+    from training.evaluate import EvaluationConfig
+    from training.stages import TrainingPlan
+
+    assert mine["training"] == TrainingPlan().to_dict()  # the schema's defaults are the dataclasses'
+    assert mine["evaluation"] == EvaluationConfig().to_dict()
 
 
 def test_euroc_config_is_valid(shared_data):
@@ -91,7 +100,9 @@ def test_euroc_config_is_valid(shared_data):
     assert wf.recovery_settings(cfg, "V1_02_medium_excerpt")["pose_stream"] == "ground_truth"  # GT state only
     # every entry goes through every per-sequence stage; the windowed ones all have 6-DoF references
     assert mh01.split is wf.Split.NONE
-    assert [s.name for s in wf.windowed_sequences(cfg)] == [s.name for s in cfg.sequences if s.is_simulated]
+    assert [s.name for s in wf.windowed_sequences(cfg)] == ["V1_01_easy"] + [
+        s.name for s in cfg.sequences if s.is_simulated]  # V1_01 (real, GT poses): the validation split
+    assert [s.name for s in cfg.select(splits=["val"])] == ["V1_01_easy"]
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
 
 

@@ -411,7 +411,27 @@ class WindowDataset(torch.utils.data.Dataset):
 
     def __getitem__(self, item: int) -> dict[str, Any]:
         s, i = self._index[item]
-        a = self._arrays[s]
+        return self._item(self._arrays[s], i, self._names[s])
+
+    def __getitems__(self, items: list[int]) -> list[dict[str, Any]]:
+        """The items of a batch (``DataLoader`` calls this): one read per sequence and array of
+        the rows asked for (in file order) instead of one per window and array, which is several
+        times faster on memory maps. Equal to ``[self[i] for i in items]``."""
+        out: list[Any] = [None] * len(items)
+        by_seq: dict[int, list[tuple[int, int]]] = {}
+        for pos, item in enumerate(items):
+            s, i = self._index[item]
+            by_seq.setdefault(s, []).append((pos, i))
+        for s, members in by_seq.items():
+            members.sort(key=lambda m: m[1])
+            rows = np.array([i for _, i in members])
+            loaded = {k: np.asarray(v[rows]) for k, v in self._arrays[s].items()}
+            for j, (pos, _) in enumerate(members):
+                out[pos] = self._item(loaded, j, self._names[s])
+        return out
+
+    def _item(self, a: dict[str, np.ndarray], i: int, name: str) -> dict[str, Any]:
+        """Item ``i`` of one sequence's arrays ``a``."""
         t_ns = np.asarray(a["t_ns"][i])
         out: dict[str, Any] = {
             k: torch.as_tensor(np.array(a[k][i]), dtype=self.dtype)
@@ -419,5 +439,5 @@ class WindowDataset(torch.utils.data.Dataset):
         }
         out["dt_s"] = torch.as_tensor(np.diff(t_ns) * 1e-9, dtype=self.dtype)
         out["t0_ns"] = int(t_ns[0])
-        out["sequence"] = self._names[s]
+        out["sequence"] = name
         return out

@@ -19,6 +19,10 @@ exactly ``window_s``) and starts every ``round(n * (1 - overlap))`` samples. For
 * ``temperature_degc`` [T]: the IMU's temperature, when the sequence's IMU carries one (the
   dataset keeps it only when every sequence does, see :func:`training.dataset.write_dataset`).
 
+The manifest entry of each sequence keeps its provenance (``info``): rates, reference kind,
+the recovery folder, the bias random walks the recovery used (``bias_random_walk``, [6]) and
+the recovery's gravity estimate in the reference world frame (``gravity_mps2``, [3] or None).
+
 Dropped windows (counted per reason in the manifest; a window counts under every reason that
 applies): ``imu_gap`` (an IMU interval > ``gap_factor`` x the nominal one inside the window),
 ``imu_nonfinite``, ``outside_recovery`` (a sample outside the recovered bias span: the bias is
@@ -309,6 +313,7 @@ def extract_windows(
         reference_info=dict(reference.info),
         recovery_dir=str(recovery_dir),
         bias_random_walk=random_walk.tolist(),
+        gravity_mps2=None if recovery.gravity_mps2 is None else recovery.gravity_mps2.tolist(),
     )
     if not len(s):
         log.warning("sequence '%s': all %d windows dropped (%s)", sequence.name, len(starts),

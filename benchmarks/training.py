@@ -1,0 +1,155 @@
+"""Speed of the learning stage on CPU threads, and Table I of a results folder.
+
+Prints:
+
+1. Training throughput (windows/s) per method at a preset (default ``small``): ``biasgt train``
+   for ``--train-steps`` optimiser steps on a simulated window dataset (built in a temporary
+   folder: 3 simulated 20-s sequences, train / val / test); the figure is ``run.json``'s
+   ``windows_per_s`` (windows through the optimiser per second of training).
+2. Latency of DDIM-25 (eta 0) for ONE window of 201 samples: one sample, and 50 samples
+   batched, for the paper-size RNN (2,192,710 parameters) and U-Net (42,814,022), in PyTorch
+   eager, TorchScript (``torch.jit.trace`` of :class:`training.export.ExportedSampler`) and
+   onnxruntime (the ONNX export of the same module), with ``--threads`` (default 2) intra-op
+   threads. Weights are freshly initialised (latency does not depend on their values). Each
+   figure is the median of ``--repeats`` runs after one warm-up run; runs longer than 20 s
+   are timed once (no warm-up), and stated so.
+3. With ``--results DIR``: Table I from ``DIR/evaluation`` (the workflow's results folder).
+
+Wall-clock time: on a shared machine the figures are pessimistic. The paper's goals, for
+comparison: RNN 145 ms (one sample, DDIM-25, Jetson AGX Orin GPU); 50 samples within 1 s.
+
+Run: ``.venv/bin/python benchmarks/training.py [--threads 2] [--train-steps 20] [--skip-train]
+[--skip-latency] [--methods diffusion_rnn ...] [--latency-samples 1 50] [--latency-methods diffusion_rnn
+diffusion_unet] [--results results]``
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
+
+import torch
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+sys.path.insert(0, str(REPO / "tests"))
+
+from training.config import Method, ModelConfig, Preset, Sampler, TrainConfig  # noqa: E402
+from training.export import ExportedSampler, ExportFormat, example_inputs, onnx_session, write_export  # noqa: E402,E501
+from training.models import build_model, count_parameters  # noqa: E402
+from training.normalizer import Normalizer  # noqa: E402
+
+T = 201
+STEPS = 25
+#: A run longer than this (s) is timed once, without a warm-up run.
+LONG_S = 20.0
+
+
+def train_throughput(methods: list[Method], preset: Preset, steps: int, batch: int, threads: int) -> None:
+    from training.train import train
+    from window_data import make_window_dataset
+
+    torch.set_num_threads(threads)
+    with tempfile.TemporaryDirectory() as tmp:
+        data = make_window_dataset(Path(tmp), splits={"train": 1, "val": 1, "test": 1}, duration_s=20.0)
+        print(f"training throughput ({preset.value} preset, batch {batch}, {steps} steps, {threads} threads):")
+        for method in methods:
+            cfg = TrainConfig(method=method, preset=preset, max_steps=steps, batch_size=batch,
+                              val_every=steps, checkpoint_every=steps, warmup_steps=1, device="cpu")
+            t0 = time.perf_counter()
+            out = train(cfg, data, Path(tmp) / method.value)
+            wall = time.perf_counter() - t0
+            run = json.loads((out / "run.json").read_text())
+            print(f"  {method.value:<16} {run.get('windows_per_s', float('nan')):8.1f} windows/s "
+                  f"({run.get('parameters', 0):,} parameters; {wall:.1f} s for the run incl. validation)")
+
+
+def _paper_model(method: Method) -> torch.nn.Module:
+    stats = {k: [0.0] * 6 for k in ("imu_mean", "bias_mean")} | {k: [1.0] * 6 for k in ("imu_std", "bias_std")}
+    torch.manual_seed(0)
+    return build_model(ModelConfig.for_preset(method, Preset.PAPER), Normalizer(stats)).eval()
+
+
+def _time(fn, repeats: int) -> tuple[float, str]:
+    t0 = time.perf_counter()
+    fn()
+    first = time.perf_counter() - t0
+    if first > LONG_S:
+        return first, " (one run, no warm-up)"
+    runs = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        runs.append(time.perf_counter() - t0)
+    return statistics.median(runs), ""
+
+
+def latency(threads: int, repeats: int, samples: tuple[int, ...] = (1, 50),
+            methods: tuple[Method, ...] = (Method.DIFFUSION_RNN, Method.DIFFUSION_UNET)) -> None:
+    torch.set_num_threads(threads)
+    print(f"DDIM-{STEPS} latency, one window of {T} samples, paper-size models, {threads} threads:")
+    for method in methods:
+        model = _paper_model(method)
+        module = ExportedSampler(model, Sampler.DDIM, STEPS).eval()
+        imu = torch.randn(1, T, 6)
+        with tempfile.TemporaryDirectory() as tmp, torch.no_grad(), warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            example = example_inputs(module, T)
+            write_export(module, example, Path(tmp) / "m.pt", ExportFormat.TORCHSCRIPT)
+            write_export(module, example, Path(tmp) / "m.onnx", ExportFormat.ONNX)
+            ts = torch.jit.load(str(Path(tmp) / "m.pt"))
+            sess = onnx_session(Path(tmp) / "m.onnx", threads)
+            print(f"  {method.value} ({count_parameters(model):,} parameters)")
+            for k in samples:
+                noise = torch.randn(k, T, 6)
+                feeds = {"imu": imu.numpy(), "noise": noise.numpy()}
+                for name, fn in (("eager", lambda: module(imu, noise)), ("torchscript", lambda: ts(imu, noise)),
+                                 ("onnxruntime", lambda: sess.run(None, feeds))):
+                    sec, note = _time(fn, repeats)
+                    print(f"    {k:>2} sample(s)  {name:<12} {1000 * sec:10.1f} ms{note}")
+
+
+def print_table(results: Path) -> None:
+    from training.evaluate import SUMMARY_JSON, read_summary
+    from training.table import format_markdown, table_columns
+
+    paths = sorted((results / "evaluation").glob(f"**/{SUMMARY_JSON}"))
+    if not paths:
+        print(f"no evaluation summaries under {results / 'evaluation'}")
+        return
+    print(format_markdown(table_columns(read_summary(p) for p in paths)))
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--preset", default="small", choices=[p.value for p in Preset])
+    parser.add_argument("--train-steps", type=int, default=20)
+    parser.add_argument("--batch", type=int, default=32)
+    parser.add_argument("--methods", nargs="*", default=[m.value for m in Method], choices=[m.value for m in Method])
+    parser.add_argument("--skip-train", action="store_true")
+    parser.add_argument("--skip-latency", action="store_true")
+    parser.add_argument("--latency-samples", type=int, nargs="+", default=[1, 50])
+    parser.add_argument("--latency-methods", nargs="+", default=["diffusion_rnn", "diffusion_unet"],
+                        choices=["diffusion_rnn", "diffusion_unet"])
+    parser.add_argument("--results", type=Path, help="a workflow results folder: print its Table I")
+    args = parser.parse_args()
+    if not args.skip_train:
+        train_throughput([Method(m) for m in args.methods], Preset(args.preset), args.train_steps, args.batch,
+                         args.threads)
+    if not args.skip_latency:
+        latency(args.threads, args.repeats, tuple(args.latency_samples), tuple(Method(m) for m in args.latency_methods))
+    if args.results is not None:
+        print_table(args.results)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,251 @@
+"""The training report: one self-contained HTML page about the learning stage.
+
+Sections (:data:`SECTIONS`): Table I (PRMSE / ROE per test sequence and method, best and second
+best marked as in the paper), the training curves (``metrics.csv`` of every run), predicted vs
+ground-truth bias on random test windows (the paper's Fig. 3 analogue: diffusion with its
+sample spread, regression and indirect; from each evaluation's ``examples.parquet``), the
+calibration of the diffusion models' spread (coverage of the ground truth by the central
+intervals of the K samples against the nominal level), and parameters, training time and
+evaluation latency per method.
+
+Inputs are the workflow's folders (``results/evaluation/...`` written by
+:func:`training.evaluate.write_evaluation`, ``results/training/...`` written by
+``biasgt train``); :func:`build_training_report` writes the page atomically.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from matplotlib.figure import Figure
+
+from pipeline.atomic import write_text_atomic
+from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag
+from training.evaluate import CHANNELS, EXAMPLES_PARQUET, EvaluationSummary, read_summary
+from training.table import AVERAGE, TableColumn, cell_marks, build_table, table_columns
+
+log = logging.getLogger(__name__)
+
+__all__ = ["SECTIONS", "build_training_report"]
+
+SECTIONS = (
+    ("table", "Table I: integration error on the test split"),
+    ("curves", "Training curves"),
+    ("examples", "Predicted vs ground-truth bias on test windows"),
+    ("calibration", "Calibration of the diffusion models' spread"),
+    ("cost", "Parameters, training time and latency"),
+)
+METHOD_COLORS = {"diffusion_rnn": "#1f77b4", "diffusion_unet": "#9467bd", "regression_rnn": "#ff7f0e",
+                 "regression_unet": "#8c564b", "indirect_rnn": "#2ca02c"}
+CHANNEL_UNITS = ("rad/s",) * 3 + ("m/s²",) * 3
+#: How far below the nominal level a coverage may be before the spread is called overconfident.
+COVERAGE_TOLERANCE = 0.10
+
+
+# ----------------------------------------------------------------------------- sections
+
+
+def _table_section(columns: list[TableColumn]) -> Html:
+    frame = build_table(columns)
+    rows = []
+    for row in frame.index:
+        mp, mr = cell_marks(columns, row, "prmse_m"), cell_marks(columns, row, "roe_deg")
+        cells = []
+        for c in columns:
+            pr = tag({"best": "strong", "second": "u"}.get(mp.get(c.name), "span"), f"{np.mean(c.prmse_m[row]):.4f}")
+            ro = tag({"best": "strong", "second": "u"}.get(mr.get(c.name), "span"), f"{np.mean(c.roe_deg[row]):.4f}")
+            cells.append(Html(pr + " / " + ro))
+        rows.append([tag("strong", row) if row == AVERAGE else row, *cells])
+    headers = ["sequence"] + [c.name + ("" if c.ranked else " (oracle)") for c in columns]
+    note = p("PRMSE (m) / ROE (deg) of non-overlapping 1-s test windows, each integrated from the reference "
+             "start state with the predicted bias subtracted; Average = mean over test sequences. Best bold, "
+             "second best underlined among usable methods; oracle columns read the ground truth at test time "
+             "and are not ranked. A diffusion column without suffix averages each metric over the K samples "
+             "(the paper); 'mean' / 'median' use the sample mean / median as the prediction; 'released' uses the "
+             "released code's sampler.", class_="small")
+    return Html(tag("div", table(headers, rows), style="overflow-x:auto") + note)
+
+
+def _curves_figure(runs: Sequence[Path]) -> Figure | None:
+    frames = [(r, pd.read_csv(r / "metrics.csv")) for r in runs if (r / "metrics.csv").is_file()]
+    if not frames:
+        return None
+    fig = Figure(figsize=(10, 4))
+    ax_t, ax_v = fig.subplots(1, 2)
+    for run, f in frames:
+        name = f"{run.parent.name}/{run.name}"
+        color = METHOD_COLORS.get(run.parent.name)
+        ax_t.plot(f["step"], f["train_loss"], color=color, linewidth=1.0, label=name)
+        val = f.dropna(subset=["val_loss"])
+        ax_v.plot(val["step"], val["val_loss"], color=color, marker="o", markersize=3, linewidth=1.0, label=name)
+    for ax, title in ((ax_t, "train loss"), (ax_v, "validation loss")):
+        ax.set_yscale("log")
+        ax.set_xlabel("step")
+        ax.set_title(title)
+        ax.grid(True, alpha=0.3)
+    ax_v.legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def _example_figure(examples: dict[str, pd.DataFrame], window: int) -> Figure:
+    fig = Figure(figsize=(11, 6.5))
+    axes = fig.subplots(2, 3, sharex=True).reshape(-1)
+    truth_drawn = False
+    for name, ex in examples.items():
+        w = ex[ex["window"] == window]
+        color = METHOD_COLORS.get(name, "#7f7f7f")
+        for i, ch in enumerate(CHANNELS):
+            c = w[w["channel"] == ch]
+            if not truth_drawn:
+                axes[i].plot(c["t_s"], c["truth"], color="black", linewidth=1.6, label="recovered GT bias")
+            if (c["q0.975"] > c["q0.025"]).any():
+                axes[i].fill_between(c["t_s"], c["q0.025"], c["q0.975"], color=color, alpha=0.18, linewidth=0,
+                                     label=f"{name} 95% of samples")
+            axes[i].plot(c["t_s"], c["mean"], color=color, linewidth=1.1, label=f"{name} (mean)")
+        truth_drawn = True
+    for i, ax in enumerate(axes):
+        ax.set_title(f"{CHANNELS[i]} [{CHANNEL_UNITS[i]}]", fontsize=9)
+        ax.grid(True, alpha=0.3)
+    for ax in axes[3:]:
+        ax.set_xlabel("time in window [s]")
+    axes[0].legend(fontsize=6.5, loc="best")
+    fig.tight_layout()
+    return fig
+
+
+def _examples_section(summaries: list[tuple[Path, EvaluationSummary]]) -> Html:
+    examples: dict[str, pd.DataFrame] = {}
+    for folder, s in summaries:
+        f = folder / EXAMPLES_PARQUET
+        if s.kind != "learned" or s.method in examples or not f.is_file():
+            continue
+        ex = pd.read_parquet(f)
+        if "sampler" in ex and (ex["sampler"] == "ddim").any():
+            ex = ex[ex["sampler"] == "ddim"]
+        examples[s.method] = ex
+    if not examples:
+        return tag("div", "No learned method was evaluated: nothing to show.", class_="missing")
+    windows = sorted(set.intersection(*(set(e["window"]) for e in examples.values())))
+    parts = []
+    for w in windows[:2]:
+        seq = next(iter(examples.values()))
+        seq = seq[seq["window"] == w]["sequence"].iloc[0]
+        parts.append(figure_img(_example_figure(examples, w), f"bias of test window {w}",
+                                f"Test window {w} of {seq}: recovered ground-truth bias (black), each method's "
+                                "prediction (the sample mean for diffusion models, with the band holding the "
+                                "central 95% of the samples). Windows drawn at random, the same for every method."))
+    return join(parts)
+
+
+def _calibration_figure(calibrations: list[tuple[str, object]]) -> Figure:
+    fig = Figure(figsize=(11, 4.2))
+    axes = fig.subplots(1, len(calibrations), squeeze=False)[0]
+    for ax, (name, cal) in zip(axes, calibrations):
+        levels = np.asarray(cal.levels)
+        cov = np.asarray(cal.coverage)
+        ax.plot([0, 1], [0, 1], color="black", linestyle="--", linewidth=0.8, label="calibrated")
+        for i, ch in enumerate(CHANNELS):
+            ax.plot(levels, cov[:, i], marker="o", markersize=3, linewidth=1.0, label=ch)
+        ax.set_title(name, fontsize=9)
+        ax.set_xlabel("nominal level of the central interval")
+        ax.set_xlim(0, 1)
+        ax.set_ylim(0, 1)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("fraction of GT bias inside")
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    return fig
+
+
+def _calibration_verdict(cal: object) -> str:
+    cov = np.asarray(cal.coverage)
+    i68, i95 = cal.levels.index(0.68), cal.levels.index(0.95)
+    short = [CHANNELS[i] for i in range(6) if cov[i95, i] < 0.95 - COVERAGE_TOLERANCE]
+    wide = [CHANNELS[i] for i in range(6) if cov[i68, i] > 0.68 + COVERAGE_TOLERANCE]
+    words = []
+    if short:
+        words.append(f"overconfident on {', '.join(short)} (95% interval covers < {0.95 - COVERAGE_TOLERANCE:.0%})")
+    if wide:
+        words.append(f"too wide on {', '.join(wide)} (68% interval covers > {0.68 + COVERAGE_TOLERANCE:.0%})")
+    return "; ".join(words) if words else f"calibrated within {COVERAGE_TOLERANCE:.0%} at 68% and 95%"
+
+
+def _calibration_section(summaries: list[tuple[Path, EvaluationSummary]]) -> Html:
+    cals = [(f"{s.method} {folder.name if folder.name.startswith('seed') else ''} {c.sampler.value}".replace("  ", " "),
+             c) for folder, s in summaries for c in s.calibration]
+    if not cals:
+        return tag("div", "No diffusion model was evaluated: no sample spread to calibrate.", class_="missing")
+    rows = [[name, *(f"{x:.2f}" for x in c.at(0.68)), *(f"{x:.2f}" for x in c.at(0.95)), _calibration_verdict(c)]
+            for name, c in cals]
+    headers = ["model / sampler", *(f"68% {c}" for c in CHANNELS), *(f"95% {c}" for c in CHANNELS), "finding"]
+    shown = cals[:4]
+    return Html(p("Per channel, the fraction of ground-truth bias values (every sample of every test window) that "
+                  "fall inside the central interval of the K samples. A calibrated model follows the diagonal; "
+                  "below it the spread is too narrow (overconfident).")
+                + figure_img(_calibration_figure(shown), "calibration curves",
+                             "Coverage against nominal level" + (" (first four shown)" if len(cals) > 4 else ""))
+                + table(headers, rows, text_cols=[len(headers) - 1]))
+
+
+def _cost_section(summaries: list[tuple[Path, EvaluationSummary]]) -> Html:
+    rows = []
+    for folder, s in summaries:
+        if s.kind != "learned":
+            continue
+        ck = s.checkpoint
+        passes = s.windows * s.samples * max(1, len(s.calibration))
+        per = 1000.0 * s.seconds / passes if passes else float("nan")
+        rows.append([s.method, folder.name, fmt(ck.get("parameters"), 7), ck.get("preset", "n/a"),
+                     fmt(ck.get("steps")), fmt(ck.get("train_seconds"), 4, "s"), fmt(ck.get("windows_per_s"), 4),
+                     fmt(s.seconds, 4, "s"), fmt(per, 3, "ms")])
+    if not rows:
+        return tag("div", "No learned method was evaluated.", class_="missing")
+    headers = ["method", "run", "parameters", "preset", "steps", "train time", "train windows/s", "evaluation time",
+               "evaluation per window and sample"]
+    return Html(table(headers, rows, text_cols=[1, 3])
+                + p("Evaluation time covers every sampler and the metrics; a diffusion sample is "
+                    "'steps' denoising passes. Latency of one window on 2 CPU threads, in PyTorch eager, TorchScript "
+                    "and onnxruntime, is printed by benchmarks/training.py.", class_="small"))
+
+
+# ----------------------------------------------------------------------------- page
+
+
+def build_training_report(evaluation_dirs: Sequence[str | Path], run_dirs: Sequence[str | Path],
+                          out_path: str | Path, *, title: str = "biasgt training report") -> Path:
+    """Write the training report (one self-contained HTML file) atomically.
+
+    Args:
+        evaluation_dirs: Evaluation folders (``summary.json``, ``examples.parquet``).
+        run_dirs: Training run folders (``metrics.csv``); missing ones are skipped.
+        out_path: The HTML file.
+        title: Page title.
+    """
+    summaries = [(Path(d), read_summary(d)) for d in evaluation_dirs]
+    columns = table_columns(s for _, s in summaries)
+    curves = _curves_figure([Path(r) for r in run_dirs])
+    bodies = {
+        "table": _table_section(columns),
+        "curves": (figure_img(curves, "training curves", "Train loss per step and validation loss (validation "
+                                                        "split: it chooses best.pt) per run.")
+                   if curves is not None else tag("div", "No training run to show.", class_="missing")),
+        "examples": _examples_section(summaries),
+        "calibration": _calibration_section(summaries),
+        "cost": _cost_section(summaries),
+    }
+    toc = tag("nav", tag("ol", join(tag("li", tag("a", t, href=f"#{a}")) for a, t in SECTIONS)), class_="toc")
+    dataset = summaries[0][1].dataset if summaries else {}
+    meta = p(f"Dataset {dataset.get('path', 'n/a')} (config hash {dataset.get('config_hash', 'n/a')}), "
+             f"{summaries[0][1].windows if summaries else 0} test windows of {dataset.get('window_samples', 'n/a')} "
+             f"samples at {fmt(dataset.get('rate_hz'))} Hz.", class_="meta")
+    body = join([tag("h1", title), meta, toc, *(section(a, t, bodies[a]) for a, t in SECTIONS)])
+    out = Path(out_path)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out, page(title, body))
+    log.info("wrote %s", out)
+    return out

@@ -1,0 +1,119 @@
+"""Learned rows end to end at the tiny preset: train -> evaluate -> table through the workflow steps; bad inputs."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from pipeline.cli import main
+from pipeline.errors import ConfigError, InputFormatError
+from training.baselines import Baseline
+from training.config import Method, Sampler
+from training.evaluate import (
+    CALIBRATION_LEVELS,
+    Aggregation,
+    EvaluationConfig,
+    evaluate_run,
+    load_test_windows,
+    read_summary,
+)
+from training.stages import TrainingPlan, evaluate_step, table_step, train_step
+from training.table import TABLE_MD
+from window_data import make_window_dataset
+
+PLAN = {"methods": ["diffusion_rnn", "regression_rnn"], "preset": "tiny",
+        "options": {"max_steps": 6, "batch_size": 8, "val_every": 3, "checkpoint_every": 3, "device": "cpu",
+                    "warmup_steps": 1}}
+EVAL = {"samples": 4, "steps": 3, "samplers": ["ddim", "released"], "examples": 2}
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("learned")
+    data = make_window_dataset(root, splits={"train": 1, "val": 1, "test": 1}, duration_s=5.0)
+    for method in PLAN["methods"]:
+        train_step(data, root / "training" / method, PLAN, method, 0, threads=1)
+        evaluate_step(data, root / "evaluation" / method, EVAL, run_dir=root / "training" / method, method=method)
+    for ref in (Baseline.ZERO, Baseline.GROUND_TRUTH):
+        evaluate_step(data, root / "evaluation" / ref.value, EVAL, reference=ref.value)
+    return root
+
+
+def test_diffusion_summary_rows_and_calibration(trained):
+    s = read_summary(trained / "evaluation" / "diffusion_rnn")
+    assert s.kind == "learned" and s.samples == 4 and s.steps == 3
+    assert [(r.sampler, r.aggregation) for r in s.rows] == [
+        (smp, agg) for smp in (Sampler.DDIM, Sampler.RELEASED) for agg in Aggregation]
+    assert s.checkpoint["method"] == "diffusion_rnn" and s.checkpoint["parameters"] > 0
+    frame = pd.read_parquet(trained / "evaluation" / "diffusion_rnn" / "windows.parquet")
+    w = load_test_windows(trained / "dataset")
+    samples = frame[(frame["aggregation"] == "samples") & (frame["sampler"] == "ddim")]
+    assert len(samples) == 4 * len(w)
+    # the headline figure is the mean over samples of the per-sample PRMSE (closed form from the frame)
+    per_sample = samples.groupby("sample")["pos_err_m"].apply(lambda e: np.sqrt(np.mean(e**2)))
+    assert s.row(Sampler.DDIM).average.prmse_m == pytest.approx(per_sample.mean(), rel=1e-12)
+    assert s.row(Sampler.DDIM).average.prmse_std_m == pytest.approx(per_sample.std(ddof=0), rel=1e-9)
+    for cal in s.calibration:
+        cov = np.asarray(cal.coverage)
+        assert cov.shape == (len(CALIBRATION_LEVELS), 6) and np.all((0 <= cov) & (cov <= 1))
+        assert np.all(np.diff(cov, axis=0) >= 0)  # wider intervals cover at least as much
+    ex = pd.read_parquet(trained / "evaluation" / "diffusion_rnn" / "examples.parquet")
+    assert ex["window"].nunique() == 2 and set(ex["sampler"]) == {"ddim", "released"}
+    assert np.all(ex["q0.025"] <= ex["q0.975"])
+
+
+def test_regression_is_deterministic_one_row(trained):
+    s = read_summary(trained / "evaluation" / "regression_rnn")
+    assert s.samples == 1 and len(s.rows) == 1 and s.rows[0].sampler is None and not s.calibration
+
+
+def test_table_has_every_column(trained):
+    dirs = [trained / "evaluation" / n for n in ("diffusion_rnn", "regression_rnn", "zero", "ground_truth")]
+    table_step(dirs, trained / "evaluation")
+    md = (trained / "evaluation" / TABLE_MD).read_text()
+    header = md.splitlines()[2]
+    for col in ("diffusion_rnn", "diffusion_rnn mean", "diffusion_rnn median", "diffusion_rnn released",
+                "regression_rnn", "Zero bias", "Recovered GT bias"):
+        assert f"| {col} " in header or f"| {col} (" in header, col
+
+
+def test_cli_evaluate_and_bad_inputs(trained, tmp_path, capsys):
+    data = trained / "dataset"
+    run = trained / "training" / "regression_rnn"
+    assert main(["evaluate", "--checkpoint", str(run), "--dataset", str(data), "--out", str(tmp_path / "ev")]) == 0
+    assert "regression_rnn" in capsys.readouterr().out and (tmp_path / "ev" / "summary.json").is_file()
+    # checkpoint of another method
+    with pytest.raises(ConfigError, match="holds a regression_rnn model, not diffusion_rnn"):
+        evaluate_run(run, data, tmp_path / "x", method=Method.DIFFUSION_RNN)
+    assert main(["evaluate", "--checkpoint", str(run), "--dataset", str(data), "--method", "diffusion_rnn",
+                 "--out", str(tmp_path / "x")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "best.pt" in err and not (tmp_path / "x").exists()
+    # an evaluation dataset with another rate
+    other = tmp_path / "rate"
+    shutil.copytree(data, other)
+    m = json.loads((other / "manifest.json").read_text())
+    (other / "manifest.json").write_text(json.dumps({**m, "rate_hz": 100.0}))
+    with pytest.raises(InputFormatError, match="IMU rate 100 Hz, the checkpoint was trained at 200 Hz"):
+        evaluate_run(run, other, tmp_path / "x")
+    # another window length (a real 2-s dataset)
+    two = make_window_dataset(tmp_path / "two", splits={"train": 1, "test": 1}, duration_s=5.0, window_s=2.0)
+    with pytest.raises(InputFormatError, match="windows of 401 samples, the checkpoint was trained on 201"):
+        evaluate_run(run, two, tmp_path / "x")
+    assert not (tmp_path / "x").exists()
+
+
+def test_training_plan_rejects_bad_sections():
+    with pytest.raises(ConfigError, match="unknown training option"):
+        TrainingPlan.from_mapping({"method": "diffusion_rnn"})
+    with pytest.raises(ConfigError, match="options sets seed"):
+        TrainingPlan.from_mapping({"options": {"seed": 3}})
+    with pytest.raises(ConfigError, match="max_steps"):
+        TrainingPlan.from_mapping({"options": {"max_steps": 0}})
+    with pytest.raises(ConfigError, match="unknown evaluation option"):
+        EvaluationConfig.from_mapping({"sampler": "ddim"})

@@ -1,0 +1,102 @@
+"""The noise scheduler against closed forms and against diffusers' schedulers."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from training.config import Sampler
+from training.scheduler import NoiseScheduler
+
+diffusers = pytest.importorskip("diffusers")  # a test dependency (pyproject 'test' extra); guard only
+
+
+def test_alpha_bar_closed_form():
+    s = NoiseScheduler()
+    betas = [1e-4 + (0.02 - 1e-4) * i / 999 for i in range(1000)]
+    expected = math.prod(1.0 - b for b in betas)
+    assert float(s.alphas_cumprod[999]) == pytest.approx(expected, rel=1e-5)  # float32 schedule
+    assert float(s.alphas_cumprod[999]) == pytest.approx(4.04e-5, rel=5e-3)
+
+
+def test_ddim_with_oracle_noise_returns_x0_exactly():
+    s = NoiseScheduler()
+    g = torch.Generator().manual_seed(0)
+    x0 = torch.randn(4, 50, 6, generator=g, dtype=torch.float64)
+    eps_true = torch.randn(x0.shape, generator=g, dtype=torch.float64)
+    timesteps = s.set_timesteps(25, Sampler.DDIM)
+    assert timesteps.tolist() == list(range(960, -1, -40))
+    x = s.add_noise(x0, eps_true, torch.full((4,), int(timesteps[0])))
+    for t in timesteps.tolist():
+        # the oracle: the noise that, with x0, gives the current x_t
+        ab = s.alphas_cumprod[t].double()
+        eps = (x - ab.sqrt() * x0) / (1 - ab).sqrt()
+        x = s.ddim_step(eps, t, x)
+    assert torch.allclose(x, x0, atol=1e-12, rtol=0)
+
+
+def _ours_and_theirs(kind: str, steps: int):
+    ours = NoiseScheduler()
+    common = dict(num_train_timesteps=1000, beta_start=1e-4, beta_end=0.02, beta_schedule="linear",
+                  clip_sample=False, prediction_type="epsilon")
+    if kind == "ddim":
+        theirs = diffusers.DDIMScheduler(**common, set_alpha_to_one=True, steps_offset=0,
+                                         timestep_spacing="leading")
+        ours.set_timesteps(steps, Sampler.DDIM)
+    else:
+        theirs = diffusers.DDPMScheduler(**common, variance_type="fixed_small", timestep_spacing="leading")
+        ours.set_timesteps(steps, Sampler.DDPM)
+    theirs.set_timesteps(steps)
+    assert ours.timesteps.tolist() == theirs.timesteps.tolist()
+    return ours, theirs
+
+
+@pytest.mark.parametrize("eta", [0.0, 0.5, 1.0])
+def test_ddim_step_equals_diffusers(eta):
+    ours, theirs = _ours_and_theirs("ddim", 25)
+    g = torch.Generator().manual_seed(1)
+    x = torch.randn(3, 40, 6, generator=g)
+    for t in ours.timesteps.tolist():
+        eps = torch.randn(x.shape, generator=g)
+        mine = ours.ddim_step(eps, t, x, eta=eta, generator=torch.Generator().manual_seed(t))
+        ref = theirs.step(eps, t, x, eta=eta, generator=torch.Generator().manual_seed(t)).prev_sample
+        assert torch.allclose(mine, ref, atol=1e-6, rtol=0), t
+        x = ref
+
+
+@pytest.mark.parametrize("steps", [1000, 25])
+def test_ddpm_step_equals_diffusers(steps):
+    ours, theirs = _ours_and_theirs("ddpm", steps)
+    g = torch.Generator().manual_seed(2)
+    x = torch.randn(2, 30, 6, generator=g)
+    for t in ours.timesteps.tolist()[:: max(1, steps // 50)] + [0]:
+        eps = torch.randn(x.shape, generator=g)
+        mine = ours.ddpm_step(eps, t, x, generator=torch.Generator().manual_seed(t))
+        ref = theirs.step(eps, t, x, generator=torch.Generator().manual_seed(t)).prev_sample
+        assert torch.allclose(mine, ref, atol=1e-6, rtol=0), t
+
+
+def test_add_noise_equals_diffusers():
+    ours, theirs = _ours_and_theirs("ddpm", 1000)
+    g = torch.Generator().manual_seed(3)
+    x0, noise = torch.randn(8, 20, 6, generator=g), torch.randn(8, 20, 6, generator=g)
+    t = torch.tensor([0, 1, 10, 100, 500, 900, 998, 999])
+    assert torch.allclose(ours.add_noise(x0, noise, t), theirs.add_noise(x0, noise, t), atol=1e-6, rtol=0)
+
+
+def test_released_sampler_visits_t_below_steps_and_returns_clipped_x0():
+    """The published code's DDIM: t = S-1..0 and each step is the clipped x0 estimate."""
+    s = NoiseScheduler()
+    assert s.set_timesteps(25, Sampler.RELEASED).tolist() == list(range(24, -1, -1))
+    g = torch.Generator().manual_seed(4)
+    x, eps = torch.randn(2, 10, 6, generator=g), torch.randn(2, 10, 6, generator=g)
+    ab = s.alphas_cumprod[24].float()
+    x0 = (x - (1 - ab).sqrt() * eps) / ab.sqrt()
+    assert torch.allclose(s.released_step(eps, 24, x), x0.clamp(-1, 1), atol=1e-6)
+    # the released DDIM formula with its alpha_bar_prev = 1 (t_prev = 24 - 1000 // 25 < 0) is the same
+    ref = diffusers.DDIMScheduler(clip_sample=True, set_alpha_to_one=True)
+    ref.set_timesteps(25)
+    ref.num_inference_steps = 25  # t_prev = t - 40 as in the released code
+    assert torch.allclose(ref.step(eps, 24, x, eta=0.0).prev_sample, x0.clamp(-1, 1), atol=1e-6)

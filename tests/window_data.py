@@ -1,0 +1,59 @@
+"""A tiny simulated window dataset (train / val / test sequences) for the learning-stage tests."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.spatial.transform import Rotation
+
+from interpolation.bias import BIAS_COLUMNS
+from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
+from pipeline.store import write_store
+from training.windows import WindowConfig, WindowSource, build_window_dataset
+
+#: Random walks (gyro, acc) written to recovery.json, as a recovery would.
+RW = (2e-4, 3e-3)
+GRAVITY = (0.0, 0.0, -9.81)
+
+
+def write_truth_recovery(folder: Path, sim, every: int = 10) -> Path:
+    """A recovery folder holding the simulator's true bias as keyframes every ``every`` IMU samples."""
+    tr = sim.truth
+    k = np.arange(0, len(tr.t_ns), every)
+    frame = pd.DataFrame(np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])[k], columns=list(BIAS_COLUMNS))
+    frame.insert(0, "t_ns", tr.t_ns[k])
+    for c in BIAS_COLUMNS:
+        frame[f"{c}_std"] = 1e-5
+    folder.mkdir(parents=True, exist_ok=True)
+    frame.to_csv(folder / "bias.csv", index=False, float_format="%.12g")
+    report = {
+        "noise": {"gyro_random_walk": RW[0], "acc_random_walk": RW[1]},
+        "gravity_world_mps2": list(GRAVITY),
+        "pose_time_offset_s": 0.0,
+        "T_imu_pose": {"p_m": [0.0, 0.0, 0.0],
+                       "quat_wxyz": Rotation.identity().as_quat(scalar_first=True).tolist()},
+    }
+    (folder / "recovery.json").write_text(json.dumps(report), encoding="utf-8")
+    return folder
+
+
+def make_window_dataset(root: Path, *, splits: dict[str, int] | None = None, duration_s: float = 8.0,
+                        rate_hz: float = 200.0, window_s: float = 1.0) -> Path:
+    """Simulate sequences (``splits``: split -> count), recover them from truth, window them into ``root/dataset``."""
+    splits = splits or {"train": 2, "val": 1, "test": 2}
+    sources, seed = [], 0
+    for split, count in splits.items():
+        for i in range(count):
+            seed += 1
+            name = f"{split}{i}"
+            sim = simulate(SimConfig(duration_s=duration_s, seed=seed, name=name, imu=ImuNoiseConfig(rate_hz=rate_hz)))
+            store = write_store(dataclasses.replace(sim.sequence, name=name), root / "stores" / name)
+            rec = write_truth_recovery(root / "rec" / name, sim)
+            sources.append(WindowSource(name, split, store, rec))
+    out = root / "dataset"
+    build_window_dataset(sources, out, WindowConfig(window_s=window_s, overlap=0.5))
+    return out

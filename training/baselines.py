@@ -1,0 +1,120 @@
+"""Reference rows of the evaluation that need no training.
+
+:class:`Baseline` names them (they are not learned :class:`training.config.Method` values):
+
+``zero``
+    No bias correction: the raw readings are integrated.
+``train_mean``
+    The train split's mean bias, held constant: the manifest's ``normalization.bias_mean``
+    (computed from the train windows only, :func:`training.dataset.normalization_stats`).
+``ground_truth``
+    The recovered ground-truth bias of each window itself (the dataset's ``bias`` array): what
+    the labels allow; no learned model should beat it.
+``random_walk_oracle``
+    The ground-truth bias at each window's first sample, continued by ``K`` random-walk paths
+    ``b_k(t_{j+1}) = b_k(t_j) + sigma_rw sqrt(h_j) n_j`` (``n_j ~ N(0, I)``), of which the one
+    with the smallest end-of-window position error against the ground-truth end pose is kept.
+    It uses the ground truth twice (start bias and end pose): an **oracle upper bound**, not a
+    usable method, as in the paper's Table I. The random-walk strengths ``sigma_rw`` [6]
+    (gyro rad/s/sqrt(s), acc m/s^2/sqrt(s)) are those the recovery of each sequence used
+    (``recovery.json`` ``noise``), kept by ``biasgt windows`` in the manifest entry of the
+    sequence (``info.bias_random_walk``): the sensor model behind the labels themselves.
+"""
+
+from __future__ import annotations
+
+import enum
+
+import numpy as np
+
+from pipeline.errors import InputFormatError
+from validation.validate import window_end_errors
+
+__all__ = ["Baseline", "ORACLE_CANDIDATES", "baseline_bias", "random_walk_paths"]
+
+#: Random-walk candidates per window of the oracle (the paper's 50).
+ORACLE_CANDIDATES = 50
+
+
+class Baseline(str, enum.Enum):
+    """Evaluation rows without training (see the module docstring)."""
+
+    ZERO = "zero"
+    TRAIN_MEAN = "train_mean"
+    GROUND_TRUTH = "ground_truth"
+    RANDOM_WALK_ORACLE = "random_walk_oracle"
+
+    @property
+    def label(self) -> str:
+        """Name in tables and reports."""
+        return {
+            Baseline.ZERO: "Zero bias",
+            Baseline.TRAIN_MEAN: "Train-mean bias",
+            Baseline.GROUND_TRUTH: "Recovered GT bias",
+            Baseline.RANDOM_WALK_ORACLE: "Random walk (oracle)",
+        }[self]
+
+    @property
+    def is_oracle(self) -> bool:
+        """Uses ground truth at test time (a bound, not a method)."""
+        return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE)
+
+
+def random_walk_paths(start_bias: np.ndarray, random_walk: np.ndarray, dt_s: np.ndarray, k: int,
+                      rng: np.random.Generator) -> np.ndarray:
+    """``k`` random-walk bias paths per window starting at ``start_bias``.
+
+    Args:
+        start_bias: Bias at the first sample, [B, 6].
+        random_walk: Random-walk strengths per channel, [B, 6] (unit/sqrt(s)).
+        dt_s: Sample intervals, [B, T-1] (s).
+        k: Paths per window.
+        rng: Source of the increments.
+
+    Returns:
+        [B, k, T, 6] paths (sample 0 equals ``start_bias``).
+    """
+    B, n = dt_s.shape
+    steps = rng.standard_normal((B, k, n, 6)) * (random_walk[:, None, None, :] * np.sqrt(dt_s)[:, None, :, None])
+    walk = np.concatenate([np.zeros((B, k, 1, 6)), np.cumsum(steps, axis=2)], axis=2)
+    return start_bias[:, None, None, :] + walk
+
+
+def baseline_bias(baseline: Baseline, items: dict, *, bias_mean: np.ndarray, random_walk: np.ndarray,
+                  gravity_mps2: np.ndarray, rng: np.random.Generator,
+                  candidates: int = ORACLE_CANDIDATES) -> np.ndarray:
+    """The bias a reference row subtracts from each window, [B, 1, T, 6] (one prediction).
+
+    Args:
+        baseline: Which row.
+        items: Collated window items (:class:`training.dataset.WindowDataset`, float64):
+            ``imu``, ``bias``, ``dt_s``, ``start_*``, ``end_*``.
+        bias_mean: The train split's mean bias, [6].
+        random_walk: Random-walk strengths of each window's sequence, [B, 6].
+        gravity_mps2: Gravity in the world frame of the windows' sequence, [3].
+        rng: Random source of the oracle's paths.
+        candidates: Oracle paths per window.
+
+    Raises:
+        InputFormatError: The oracle without finite random-walk strengths.
+    """
+    gt = np.asarray(items["bias"], dtype=np.float64)
+    B, T, _ = gt.shape
+    if baseline is Baseline.ZERO:
+        return np.zeros((B, 1, T, 6))
+    if baseline is Baseline.TRAIN_MEAN:
+        return np.broadcast_to(np.asarray(bias_mean, dtype=np.float64), (B, 1, T, 6)).copy()
+    if baseline is Baseline.GROUND_TRUTH:
+        return gt[:, None].copy()
+    rw = np.asarray(random_walk, dtype=np.float64)
+    if rw.shape != (B, 6) or not np.all(np.isfinite(rw)):
+        raise InputFormatError("the dataset has no bias random walks for the oracle (info.bias_random_walk)",
+                               hint="re-create the dataset with 'biasgt windows' from recovery folders")
+    dt = np.asarray(items["dt_s"], dtype=np.float64)
+    paths = random_walk_paths(gt[:, 0], rw, dt, candidates, rng)  # [B, K, T, 6]
+    rep = lambda key: np.repeat(np.asarray(items[key], dtype=np.float64), candidates, axis=0)  # noqa: E731
+    pos, _ = window_end_errors(rep("imu"), paths.reshape(B * candidates, T, 6), rep("dt_s"), rep("start_R"),
+                               rep("start_v"), rep("start_p"), rep("end_R"), rep("end_p"),
+                               gravity_mps2=gravity_mps2)
+    best = pos.reshape(B, candidates).argmin(axis=1)
+    return paths[np.arange(B), best][:, None]

@@ -1,0 +1,270 @@
+"""Typed configuration of the learning stage: methods, size presets, samplers, training options.
+
+Every option and its default is defined once, here. ``ModelConfig`` holds the network sizes
+(:meth:`ModelConfig.for_preset` gives a preset's values); ``TrainConfig`` holds every training
+option (a YAML ``training:`` section or a ``--config`` file maps onto it with
+:meth:`TrainConfig.from_mapping`).
+
+Presets:
+    * ``paper``: the released code's sizes (ShenghaoZhou/ioo_diffusion): the RNN denoiser has
+      2,192,710 parameters (GRU with 3 layers; the paper text says 2), the U-Net 42,814,022.
+      Meant for a GPU.
+    * ``small``: a CPU preset; trains a ``make run``-sized dataset in about a minute per method
+      on 2 cores.
+    * ``tiny``: for tests; trains in seconds.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from pipeline.configs import dataclass_from_mapping
+from pipeline.errors import ConfigError
+
+__all__ = ["Method", "Preset", "Sampler", "ModelConfig", "TrainConfig", "IMU_CHANNELS"]
+
+#: Channels of one IMU sample and of one bias sample: gyro x, y, z (rad/s), acc x, y, z (m/s^2).
+IMU_CHANNELS = 6
+
+
+class Method(str, enum.Enum):
+    """A learned bias model (section 1 of the design)."""
+
+    DIFFUSION_RNN = "diffusion_rnn"  # the paper's model: TCN condition + GRU noise predictor
+    REGRESSION_RNN = "regression_rnn"  # same encoder and GRU, regresses the bias (MSE)
+    DIFFUSION_UNET = "diffusion_unet"  # TCN condition + diffusion_policy's ConditionalUnet1D
+    REGRESSION_UNET = "regression_unet"  # same U-Net, regresses the bias (MSE)
+    INDIRECT_RNN = "indirect_rnn"  # AirIMU-style: trained through the integrator, no bias labels
+
+    @property
+    def is_diffusion(self) -> bool:
+        return self in (Method.DIFFUSION_RNN, Method.DIFFUSION_UNET)
+
+    @property
+    def is_unet(self) -> bool:
+        return self in (Method.DIFFUSION_UNET, Method.REGRESSION_UNET)
+
+
+class Preset(str, enum.Enum):
+    """Named network sizes (see the module docstring)."""
+
+    PAPER = "paper"
+    SMALL = "small"
+    TINY = "tiny"
+
+
+class Sampler(str, enum.Enum):
+    """How a diffusion model draws samples."""
+
+    DDIM = "ddim"  # correct DDIM (Song et al. 2021), eta 0 by default, spread over the 1000 steps
+    RELEASED = "released"  # the released code's sampler: t = S-1..0, each step the clipped x0 estimate
+    DDPM = "ddpm"  # ancestral DDPM over the given number of steps
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Network sizes and the diffusion schedule of one model.
+
+    Attributes:
+        method: Which model.
+        preset: Which size preset the values came from (informative).
+        condition_channels: Input channels of the condition encoder: 6 (gyro, acc) or 7 (plus
+            the IMU temperature).
+        tcn_channels: Output channels of the TCN's temporal blocks (dilation 2^i in block i).
+        tcn_kernel: TCN kernel size.
+        tcn_dropout: Dropout inside the TCN blocks (the released code uses 0.2).
+        cond_dim: Size of the condition code (last TCN timestep, projected).
+        step_embed_dim: Size of the sinusoidal diffusion-step embedding (its MLP is 4x wider).
+        hidden: GRU hidden size (also the fused input size).
+        gru_layers: GRU layers.
+        unet_dims: ConditionalUnet1D down dims.
+        unet_kernel: ConditionalUnet1D kernel size.
+        unet_groups: GroupNorm groups in the U-Net.
+        train_timesteps: Diffusion steps of the forward process.
+        beta_start: First beta of the linear schedule.
+        beta_end: Last beta of the linear schedule.
+        clip_sample: Clip range of the x0 estimate in the RELEASED sampler, in raw units (rad/s,
+            m/s^2) as the released code does.
+    """
+
+    method: Method
+    preset: Preset = Preset.SMALL
+    condition_channels: int = IMU_CHANNELS
+    tcn_channels: tuple[int, ...] = (64, 64, 64, 64, 128, 128, 128)
+    tcn_kernel: int = 2
+    tcn_dropout: float = 0.2
+    cond_dim: int = 256
+    step_embed_dim: int = 256
+    hidden: int = 256
+    gru_layers: int = 3
+    unet_dims: tuple[int, ...] = (256, 512, 1024)
+    unet_kernel: int = 3
+    unet_groups: int = 8
+    train_timesteps: int = 1000
+    beta_start: float = 1e-4
+    beta_end: float = 0.02
+    clip_sample: float = 1.0
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "method", Method(self.method))
+        object.__setattr__(self, "preset", Preset(self.preset))
+        object.__setattr__(self, "tcn_channels", tuple(int(c) for c in self.tcn_channels))
+        object.__setattr__(self, "unet_dims", tuple(int(c) for c in self.unet_dims))
+        if self.condition_channels not in (IMU_CHANNELS, IMU_CHANNELS + 1):
+            raise ConfigError(f"condition_channels is {self.condition_channels}", field="condition_channels",
+                              hint="use 6 (gyro, acc) or 7 (plus temperature)")
+        bad = [d for d in self.unet_dims if d % self.unet_groups]
+        if bad:
+            raise ConfigError(f"U-Net dims {bad} are not multiples of unet_groups {self.unet_groups}",
+                              field="unet_dims", hint="choose dims divisible by the GroupNorm groups")
+
+    @classmethod
+    def for_preset(cls, method: Method | str, preset: Preset | str, **overrides: Any) -> ModelConfig:
+        """The sizes of ``preset`` for ``method`` (``overrides`` replace single values)."""
+        preset = Preset(preset)
+        values = dict(_PRESETS[preset])
+        values.update(overrides)
+        return cls(method=Method(method), preset=preset, **values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return _plain(dataclasses.asdict(self))
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> ModelConfig:
+        return cls(**dict(d))
+
+
+_PRESETS: dict[Preset, dict[str, Any]] = {
+    Preset.PAPER: {},  # the dataclass defaults are the released code's sizes
+    Preset.SMALL: dict(tcn_channels=(32, 32, 32, 32, 64, 64, 64), cond_dim=64, step_embed_dim=64, hidden=64,
+                       gru_layers=2, unet_dims=(32, 64, 128)),
+    Preset.TINY: dict(tcn_channels=(16, 16, 16, 16), tcn_dropout=0.0, cond_dim=32, step_embed_dim=32, hidden=64,
+                      gru_layers=2, unet_dims=(16, 32, 64)),
+}
+
+
+def _plain(obj: Any) -> Any:
+    if isinstance(obj, dict):
+        return {k: _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, enum.Enum):
+        return obj.value
+    return obj
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """Every training option, once.
+
+    The defaults train the CPU ``small`` preset on a ``make run``-sized dataset (a few hundred
+    1-s windows) in about a minute per method on 2 cores; raise ``max_steps`` for real data.
+
+    Attributes:
+        method: Which model to train.
+        preset: Network size preset (:class:`Preset`).
+        seed: Seed of weights, batch order, noise and timesteps.
+        max_steps: Optimiser steps.
+        batch_size: Windows per step (global batch; split across processes under torchrun).
+        lr: Peak learning rate of AdamW (the released code: 8e-5 at batch 1024).
+        weight_decay: AdamW weight decay.
+        warmup_steps: Linear warm-up steps of the cosine schedule.
+        grad_clip: Gradient-norm clip.
+        ema_decay: Maximum decay of the exponential moving average of the weights (diffusion
+            models; evaluation uses the EMA weights).
+        ema_power: Warm-up power of the EMA decay (diffusion_policy: ``1 - (1 + step)^-power``).
+        val_every: Validation (and best-checkpoint choice) every this many steps.
+        checkpoint_every: ``last.pt`` every this many steps (and at the end).
+        use_temperature: Condition on the IMU temperature as a 7th channel (the dataset must
+            carry ``temperature_degc``).
+        num_workers: DataLoader worker processes.
+        threads: CPU threads of torch in this process (0: torch's default, one per core). Give
+            each of several parallel jobs its share of the cores: oversubscribed threads slow
+            CPU training down many times.
+        device: ``auto`` (CUDA when available), ``cpu``, ``cuda`` or ``cuda:N``.
+        val_batches: At most this many validation batches per validation (0: all).
+        indirect_weights: Weights of the rotation (rad), velocity (m/s) and position (m) errors
+            in the indirect loss.
+        model_overrides: Single :class:`ModelConfig` values replacing the preset's.
+    """
+
+    method: Method = Method.DIFFUSION_RNN
+    preset: Preset = Preset.SMALL
+    seed: int = 0
+    max_steps: int = 300
+    batch_size: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 1e-6
+    warmup_steps: int = 100
+    grad_clip: float = 1.0
+    ema_decay: float = 0.999
+    ema_power: float = 0.75
+    val_every: int = 50
+    checkpoint_every: int = 50
+    use_temperature: bool = False
+    num_workers: int = 0
+    threads: int = 0
+    device: str = "auto"
+    val_batches: int = 0
+    indirect_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)
+    model_overrides: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "method", Method(self.method))
+        except ValueError:
+            raise ConfigError(f"unknown method '{self.method}'", field="method",
+                              hint=f"choose one of {', '.join(m.value for m in Method)}") from None
+        try:
+            object.__setattr__(self, "preset", Preset(self.preset))
+        except ValueError:
+            raise ConfigError(f"unknown preset '{self.preset}'", field="preset",
+                              hint=f"choose one of {', '.join(p.value for p in Preset)}") from None
+        object.__setattr__(self, "indirect_weights", tuple(float(w) for w in self.indirect_weights))
+        object.__setattr__(self, "model_overrides", dict(self.model_overrides))
+        for name in ("max_steps", "batch_size", "val_every", "checkpoint_every"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"{name} is {getattr(self, name)}", field=name, hint="use a positive integer")
+        for name in ("warmup_steps", "num_workers", "val_batches", "threads"):
+            if int(getattr(self, name)) < 0:
+                raise ConfigError(f"{name} is {getattr(self, name)}", field=name, hint="use 0 or more")
+        if not 0.0 <= self.ema_decay < 1.0:
+            raise ConfigError(f"ema_decay is {self.ema_decay}", field="ema_decay", hint="use a value in [0, 1)")
+        if self.lr <= 0 or self.grad_clip <= 0:
+            raise ConfigError("lr and grad_clip must be positive", field="lr")
+        if len(self.indirect_weights) != 3:
+            raise ConfigError("indirect_weights needs 3 values (rotation, velocity, position)",
+                              field="indirect_weights")
+        self.model_config()  # unknown or invalid overrides fail here, at load time
+
+    def model_config(self) -> ModelConfig:
+        """The network sizes this training uses (preset, temperature channel, overrides)."""
+        known = {f.name for f in dataclasses.fields(ModelConfig)} - {"method", "preset", "condition_channels"}
+        unknown = sorted(set(self.model_overrides) - known)
+        if unknown:
+            raise ConfigError(f"unknown model option(s) {', '.join(unknown)}", field="model_overrides",
+                              hint=f"allowed: {', '.join(sorted(known))}")
+        channels = IMU_CHANNELS + (1 if self.use_temperature else 0)
+        return ModelConfig.for_preset(self.method, self.preset, condition_channels=channels,
+                                      **self.model_overrides)
+
+    @classmethod
+    def from_mapping(cls, d: Mapping[str, Any] | None, *, path: str | Path | None = None) -> TrainConfig:
+        """Build from a plain mapping (YAML), with one-line :class:`ConfigError` naming ``path``."""
+        try:
+            return dataclass_from_mapping(cls, d, what="training option", field="training")
+        except ConfigError as exc:
+            if path is None:
+                raise
+            raise ConfigError(exc.problem, path=path, field=exc.field, hint=exc.hint) from None
+
+    def replace(self, **changes: Any) -> TrainConfig:
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        return _plain(dataclasses.asdict(self))

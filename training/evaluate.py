@@ -1,0 +1,723 @@
+"""Evaluation of bias predictors on the test split (the paper's protocol, after AirIMU).
+
+Protocol (AirIMU's ``evaluation/evaluate_state.py``: ``step_size = seqlen``, the integrator
+reset to the ground-truth state of every segment):
+
+* **Windows**: the test split of a window dataset, made **non-overlapping**: the dataset cuts
+  windows with 50 % overlap, so per sequence the windows are taken in time order and one is
+  kept when its first stamp is at or after the last stamp of the previously kept one (every
+  other window when none was dropped; consecutive kept windows share their boundary sample,
+  as AirIMU's segments do).
+* Each window is integrated from the reference position, velocity and orientation at its
+  first sample with ``imu - bias_pred`` (the learned bias is subtracted from the readings),
+  with :func:`validation.validate.window_end_errors`, the project's one metric; gravity is the
+  recovery's estimate kept in the manifest (``info.gravity_mps2``), else
+  :data:`validation.validate.DEFAULT_GRAVITY_MPS2`.
+* Per sequence: ``PRMSE = sqrt(mean_w |p_end - p_gt|^2)`` (m) and ``ROE = mean_w |Log(R_gt^T
+  R_end)|`` (deg) (:func:`validation.validate.prmse_m`, :func:`~validation.validate.roe_deg`);
+  the **Average** row is the mean over test sequences, as in the paper's Table I.
+* A diffusion model draws ``K`` samples per window (default 50). Three rows
+  (:class:`Aggregation`): ``samples``: each metric computed per sample and averaged over the
+  K samples (the paper's figure; the spread over samples is kept too); ``mean`` and
+  ``median``: the per-time-step mean / median of the K samples used as one prediction.
+  Deterministic predictors (regression, indirect, references) have one ``samples`` row.
+* **Calibration** of a diffusion model's spread, per channel: the fraction of ground-truth
+  bias values (every sample of every test window) inside the central interval of the K
+  samples, for nominal levels in :data:`CALIBRATION_LEVELS` (68 % and 95 % among them).
+  A calibrated model has coverage = level.
+
+Outputs (``OUT/``, written atomically): ``summary.json`` (:class:`EvaluationSummary`),
+``windows.parquet`` (one row per window, sampler, aggregation and sample: ``pos_err_m``,
+``rot_err_deg``) and ``examples.parquet`` (a few randomly chosen test windows, the same for
+every method: ground truth and the sample mean and quantiles per time step and channel, for
+the report's figure).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import json
+import logging
+import time
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import pandas as pd
+import torch
+from torch.utils.data import default_collate
+
+from pipeline.atomic import atomic_dir
+from pipeline.configs import dataclass_from_mapping
+from pipeline.errors import ConfigError, DataError, InputFormatError
+from training.baselines import Baseline, baseline_bias
+from training.config import Method, Sampler
+from training.dataset import FORMAT_VERSION, Split, WindowDataset
+from validation.validate import DEFAULT_GRAVITY_MPS2, prmse_m, roe_deg, window_end_errors
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "Aggregation",
+    "CALIBRATION_LEVELS",
+    "EvaluationConfig",
+    "EvaluationResult",
+    "EvaluationSummary",
+    "TestWindows",
+    "evaluate_predictor",
+    "evaluate_reference",
+    "evaluate_run",
+    "read_summary",
+    "write_evaluation",
+]
+
+SCHEMA_VERSION = 1
+SUMMARY_JSON = "summary.json"
+WINDOWS_PARQUET = "windows.parquet"
+EXAMPLES_PARQUET = "examples.parquet"
+CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
+#: Nominal central-interval levels of the calibration curve.
+CALIBRATION_LEVELS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.68, 0.7, 0.8, 0.9, 0.95)
+#: Quantiles of the samples kept per time step for the report's example windows.
+EXAMPLE_QUANTILES = (0.025, 0.16, 0.5, 0.84, 0.975)
+PROTOCOL = ("non-overlapping windows of the test split (every other 50%-overlap window), each integrated "
+            "from the reference start state; end-point PRMSE (m) and ROE (deg) per sequence; Average = "
+            "mean over sequences")
+
+
+class Aggregation(str, enum.Enum):
+    """How the K samples of a window become figures (see the module docstring)."""
+
+    SAMPLES = "samples"  # metrics per sample, averaged over the K samples (the paper)
+    MEAN = "mean"  # the per-time-step mean of the K samples as the prediction
+    MEDIAN = "median"  # the per-time-step median of the K samples as the prediction
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """Options of an evaluation (the workflow's ``evaluation:`` section maps onto it).
+
+    Attributes:
+        samples: Samples per window of a diffusion model (K).
+        samplers: Samplers of a diffusion model, each evaluated (correct DDIM and the
+            released code's, for the ablation).
+        steps: Denoising steps of the sampler.
+        seed: Seed of the sampling noise and of the oracle's random walks.
+        batch_windows: Windows per model call (times K samples).
+        examples: Test windows kept for the report's figure.
+        references: Reference rows evaluated by the workflow.
+    """
+
+    samples: int = 50
+    samplers: tuple[Sampler, ...] = (Sampler.DDIM, Sampler.RELEASED)
+    steps: int = 25
+    seed: int = 0
+    batch_windows: int = 32
+    examples: int = 4
+    references: tuple[Baseline, ...] = tuple(Baseline)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "samplers", tuple(Sampler(s) for s in self.samplers))
+        object.__setattr__(self, "references", tuple(Baseline(b) for b in self.references))
+        for name in ("samples", "steps", "batch_windows"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"evaluation {name} must be >= 1, got {getattr(self, name)!r}", field=name,
+                                  hint=f"give a positive {name}")
+        if not self.samplers:
+            raise ConfigError("no sampler to evaluate", field="samplers", hint="list at least 'ddim'")
+
+    @classmethod
+    def from_mapping(cls, d: Mapping[str, Any] | None) -> EvaluationConfig:
+        """From a (partial) ``evaluation:`` mapping; one-line :class:`ConfigError` on bad keys."""
+        return dataclass_from_mapping(cls, d, what="evaluation option", field="evaluation")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["samplers"] = [s.value for s in self.samplers]
+        d["references"] = [b.value for b in self.references]
+        return d
+
+
+# ----------------------------------------------------------------------------- test windows
+
+
+@dataclass(frozen=True)
+class TestWindows:
+    """The non-overlapping test windows of a dataset.
+
+    Attributes:
+        dataset: The test split, float64 items.
+        index: Dataset item of each kept window, [W].
+        sequence: Sequence name of each kept window, [W].
+        t0_ns: First stamp of each kept window, [W].
+        gravity_mps2: Sequence -> gravity in its world frame, [3].
+        gravity_source: Sequence -> "recovery" or "default".
+        random_walk: Sequence -> bias random-walk strengths, [6] (NaN when unknown).
+        bias_mean: The train split's mean bias, [6].
+    """
+
+    dataset: WindowDataset
+    index: np.ndarray
+    sequence: np.ndarray
+    t0_ns: np.ndarray
+    gravity_mps2: dict[str, np.ndarray]
+    gravity_source: dict[str, str]
+    random_walk: dict[str, np.ndarray]
+    bias_mean: np.ndarray
+
+    @property
+    def root(self) -> Path:
+        return self.dataset.root
+
+    @property
+    def manifest(self) -> dict[str, Any]:
+        return self.dataset.manifest
+
+    def __len__(self) -> int:
+        return len(self.index)
+
+    def sequences(self) -> list[str]:
+        """Test sequences with at least one window, in dataset order."""
+        return [s for s in self.dataset.sequences if np.any(self.sequence == s)]
+
+    def items(self, rows: np.ndarray) -> dict[str, Any]:
+        """Collated float64 items of the kept windows ``rows`` (positions in ``index``)."""
+        return default_collate([self.dataset[int(i)] for i in self.index[rows]])
+
+
+def _non_overlapping(t_ns: np.ndarray) -> np.ndarray:
+    """Positions of the windows kept greedily in time order so that no two overlap (see module docstring)."""
+    keep, last_end = [], None
+    for w in np.argsort(t_ns[:, 0], kind="stable"):
+        if last_end is None or t_ns[w, 0] >= last_end:
+            keep.append(int(w))
+            last_end = t_ns[w, -1]
+    return np.asarray(keep, dtype=np.int64)
+
+
+def load_test_windows(root: str | Path) -> TestWindows:
+    """The non-overlapping test windows of the dataset at ``root``.
+
+    Raises:
+        InputFormatError: Not a dataset, another format version.
+        DataError: The test split has no window.
+    """
+    ds = WindowDataset(root, Split.TEST, dtype=torch.float64)
+    if len(ds) == 0:
+        raise DataError("the dataset has no test window", hint="assign sequences to split 'test' in 'biasgt windows' "
+                        f"(--splits) and re-create {Path(root)}")
+    index, names, t0 = [], [], []
+    gravity, gsource, walk = {}, {}, {}
+    offset = 0
+    for name in ds.sequences:
+        t_ns = np.asarray(ds.arrays(name)["t_ns"])
+        keep = _non_overlapping(t_ns)
+        index.append(offset + keep)
+        names.append(np.full(len(keep), name, dtype=object))
+        t0.append(t_ns[keep, 0])
+        offset += len(t_ns)
+        info = ds.manifest["sequences"][name].get("info", {})
+        g = info.get("gravity_mps2")
+        gravity[name] = np.asarray(DEFAULT_GRAVITY_MPS2 if g is None else g, dtype=np.float64)
+        gsource[name] = "default" if g is None else "recovery"
+        rw = info.get("bias_random_walk")
+        walk[name] = np.full(6, np.nan) if rw is None else np.asarray(rw, dtype=np.float64)
+    return TestWindows(ds, np.concatenate(index), np.concatenate(names), np.concatenate(t0), gravity, gsource, walk,
+                       np.asarray(ds.manifest["normalization"]["bias_mean"], dtype=np.float64))
+
+
+# ----------------------------------------------------------------------------- predictors
+
+
+class Predictor(Protocol):
+    """What the evaluation asks of a bias predictor."""
+
+    name: str  # folder / column name (a Method or Baseline value)
+    label: str
+    stochastic: bool  # draws different samples (a diffusion model)
+
+    def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
+                seed: int) -> np.ndarray:
+        """Bias [B, K, T, 6] (rad/s, m/s^2) for windows of one sequence (K = 1 unless stochastic)."""
+
+
+@dataclass
+class ReferencePredictor:
+    """A :class:`Baseline` row as a predictor."""
+
+    baseline: Baseline
+    windows: TestWindows
+    stochastic: bool = False
+
+    @property
+    def name(self) -> str:
+        return self.baseline.value
+
+    @property
+    def label(self) -> str:
+        return self.baseline.label
+
+    def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
+                seed: int) -> np.ndarray:
+        rng = np.random.default_rng([seed, int(items["t0_ns"][0]) % (2**62)])
+        B = len(items["imu"])
+        return baseline_bias(self.baseline, items, bias_mean=self.windows.bias_mean,
+                             random_walk=np.tile(self.windows.random_walk[sequence], (B, 1)),
+                             gravity_mps2=self.windows.gravity_mps2[sequence], rng=rng)
+
+
+@dataclass
+class ModelPredictor:
+    """A trained model (:func:`training.checkpoint.load_run`) as a predictor."""
+
+    run: Any  # training.checkpoint.LoadedRun
+    steps: int = 25
+
+    @property
+    def method(self) -> Method:
+        return Method(self.run.config.method)
+
+    @property
+    def name(self) -> str:
+        return self.method.value
+
+    @property
+    def label(self) -> str:
+        return self.method.value
+
+    @property
+    def stochastic(self) -> bool:
+        return self.method.is_diffusion
+
+    def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
+                seed: int) -> np.ndarray:
+        from training.batch import WindowBatch
+
+        model = self.run.model
+        device = next(model.parameters()).device
+        dtype = next(model.parameters()).dtype
+        cast = {key: (v.to(dtype) if torch.is_tensor(v) and v.is_floating_point() else v) for key, v in items.items()}
+        batch = WindowBatch.from_items(cast).to(device)
+        gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + int(items["t0_ns"][0]) % 1_000_003)
+        kwargs = {"sampler": sampler, "steps": self.steps} if self.stochastic else {}
+        out = model.sample(batch, num_samples=k, generator=gen, **kwargs)
+        return out.detach().to("cpu", torch.float64).numpy()
+
+
+# ----------------------------------------------------------------------------- records
+
+
+@dataclass(frozen=True)
+class Metrics:
+    """PRMSE (m) and ROE (deg); with K samples, their mean over samples and std over samples."""
+
+    prmse_m: float
+    roe_deg: float
+    prmse_std_m: float = 0.0
+    roe_std_deg: float = 0.0
+    windows: int = 0
+
+
+@dataclass(frozen=True)
+class RowResult:
+    """One row of figures: a sampler (None: not a diffusion model) and an aggregation."""
+
+    sampler: Sampler | None
+    aggregation: Aggregation
+    sequences: dict[str, Metrics]
+    average: Metrics
+
+    @property
+    def key(self) -> str:
+        """Column suffix: '' for the headline row, else 'released', 'mean', 'released mean', ..."""
+        parts = []
+        if self.sampler not in (None, Sampler.DDIM):
+            parts.append(self.sampler.value)
+        if self.aggregation is not Aggregation.SAMPLES:
+            parts.append(self.aggregation.value)
+        return " ".join(parts)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Coverage of the ground truth by the central intervals of the K samples, per channel."""
+
+    sampler: Sampler
+    levels: tuple[float, ...]
+    coverage: tuple[tuple[float, ...], ...]  # [level][channel]
+
+    def at(self, level: float) -> tuple[float, ...]:
+        return self.coverage[self.levels.index(level)]
+
+
+@dataclass(frozen=True)
+class EvaluationSummary:
+    """What ``summary.json`` holds (``schema_version`` 1)."""
+
+    method: str
+    label: str
+    kind: str  # "learned", "reference" or "oracle"
+    samples: int
+    seed: int
+    steps: int | None
+    windows: int
+    windows_per_sequence: dict[str, int]
+    protocol: str
+    gravity_source: dict[str, str]
+    rows: tuple[RowResult, ...]
+    calibration: tuple[Calibration, ...] = ()
+    checkpoint: dict[str, Any] = field(default_factory=dict)
+    dataset: dict[str, Any] = field(default_factory=dict)
+    seconds: float = 0.0
+    schema_version: int = SCHEMA_VERSION
+
+    def row(self, sampler: Sampler | None = None, aggregation: Aggregation = Aggregation.SAMPLES) -> RowResult:
+        """The row of ``sampler`` (default: the first) and ``aggregation``."""
+        for r in self.rows:
+            if (sampler is None or r.sampler in (None, sampler)) and r.aggregation is aggregation:
+                return r
+        raise KeyError((sampler, aggregation))
+
+    def to_dict(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self), default=_json_default))
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> EvaluationSummary:
+        d = dict(d)
+        d["rows"] = tuple(
+            RowResult(None if r["sampler"] is None else Sampler(r["sampler"]), Aggregation(r["aggregation"]),
+                      {k: Metrics(**v) for k, v in r["sequences"].items()}, Metrics(**r["average"]))
+            for r in d["rows"])
+        d["calibration"] = tuple(
+            Calibration(Sampler(c["sampler"]), tuple(c["levels"]), tuple(tuple(x) for x in c["coverage"]))
+            for c in d.get("calibration", ()))
+        return cls(**d)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, enum.Enum):
+        return obj.value
+    if isinstance(obj, (np.generic,)):
+        return obj.item()
+    if isinstance(obj, (np.ndarray, tuple)):
+        return list(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    raise TypeError(f"not JSON-serialisable: {type(obj)}")
+
+
+@dataclass
+class EvaluationResult:
+    """A summary and its per-window and example frames."""
+
+    summary: EvaluationSummary
+    windows: pd.DataFrame
+    examples: pd.DataFrame
+
+
+# ----------------------------------------------------------------------------- evaluation
+
+
+@dataclass
+class _Accumulator:
+    """Per-window errors of one sampler, and the calibration counts."""
+
+    pos: list[np.ndarray] = field(default_factory=list)  # [B, K] per batch, then mean/median [B]
+    rot: list[np.ndarray] = field(default_factory=list)
+    agg_pos: dict[Aggregation, list[np.ndarray]] = field(default_factory=dict)
+    agg_rot: dict[Aggregation, list[np.ndarray]] = field(default_factory=dict)
+    inside: np.ndarray = field(default_factory=lambda: np.zeros((len(CALIBRATION_LEVELS), 6)))
+    count: int = 0
+
+
+def _errors(items: dict[str, Any], bias: np.ndarray, gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """pos_err, rot_err [B, K] of predictions ``bias`` [B, K, T, 6]."""
+    B, K, T, _ = bias.shape
+    rep = lambda key: np.repeat(items[key].numpy(), K, axis=0)  # noqa: E731
+    pos, rot = window_end_errors(rep("imu"), bias.reshape(B * K, T, 6), rep("dt_s"), rep("start_R"),
+                                 rep("start_v"), rep("start_p"), rep("end_R"), rep("end_p"), gravity_mps2=gravity)
+    return pos.reshape(B, K), rot.reshape(B, K)
+
+
+def _coverage_counts(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """[levels, 6] counts of ground-truth values inside the central intervals of the samples."""
+    levels = np.asarray(CALIBRATION_LEVELS)
+    q = np.quantile(pred, np.concatenate([(1 - levels) / 2, (1 + levels) / 2]), axis=1)  # [2L, B, T, 6]
+    lo, hi = q[:len(levels)], q[len(levels):]
+    inside = (gt[None] >= lo) & (gt[None] <= hi)
+    return inside.sum(axis=(1, 2))
+
+
+def _batches(windows: TestWindows, size: int) -> Iterator[tuple[str, np.ndarray]]:
+    for name in windows.sequences():
+        rows = np.flatnonzero(windows.sequence == name)
+        for i in range(0, len(rows), size):
+            yield name, rows[i:i + size]
+
+
+def _example_rows(windows: TestWindows, n: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return np.sort(rng.choice(len(windows), size=min(n, len(windows)), replace=False))
+
+
+def _example_frame(pred: np.ndarray, items: dict[str, Any], rows: np.ndarray, sampler: Sampler | None,
+                   windows: TestWindows) -> pd.DataFrame:
+    """Long frame of example windows: per time step and channel, truth, sample mean and quantiles."""
+    gt = items["bias"].numpy()
+    t_s = np.concatenate([np.zeros((len(gt), 1)), np.cumsum(items["dt_s"].numpy(), axis=1)], axis=1)
+    q = np.quantile(pred, EXAMPLE_QUANTILES, axis=1)  # [Q, B, T, 6]
+    B, T, _ = gt.shape
+    frame = {
+        "window": np.repeat(rows, T * 6), "sequence": np.repeat(windows.sequence[rows], T * 6).astype(str),
+        "t_s": np.repeat(t_s.reshape(-1), 6), "channel": np.tile(np.array(CHANNELS), B * T),
+        "sampler": "" if sampler is None else sampler.value,
+        "truth": gt.reshape(-1), "mean": pred.mean(axis=1).reshape(-1),
+    }
+    for level, qq in zip(EXAMPLE_QUANTILES, q):
+        frame[f"q{level:g}"] = qq.reshape(-1)
+    return pd.DataFrame(frame)
+
+
+def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | None, k: int,
+                 config: EvaluationConfig) -> tuple[_Accumulator, pd.DataFrame]:
+    acc = _Accumulator()
+    examples = _example_rows(windows, config.examples, config.seed)
+    ex_frames = []
+    aggs = (Aggregation.MEAN, Aggregation.MEDIAN) if k > 1 else ()
+    for name, rows in _batches(windows, config.batch_windows):
+        items = windows.items(rows)
+        pred = predictor.predict(items, name, k, sampler, config.seed)  # [B, K, T, 6]
+        g = windows.gravity_mps2[name]
+        pos, rot = _errors(items, pred, g)
+        acc.pos.append(pos)
+        acc.rot.append(rot)
+        for agg in aggs:
+            point = pred.mean(axis=1) if agg is Aggregation.MEAN else np.median(pred, axis=1)
+            p, r = _errors(items, point[:, None], g)
+            acc.agg_pos.setdefault(agg, []).append(p[:, 0])
+            acc.agg_rot.setdefault(agg, []).append(r[:, 0])
+        if k > 1:
+            acc.inside += _coverage_counts(pred, items["bias"].numpy())
+            acc.count += pred.shape[0] * pred.shape[2]
+        sel = np.isin(rows, examples)
+        if sel.any():
+            sub = {key: (v[sel] if torch.is_tensor(v) else v) for key, v in items.items()}
+            ex_frames.append(_example_frame(pred[sel], sub, rows[sel], sampler, windows))
+    return acc, (pd.concat(ex_frames, ignore_index=True) if ex_frames else pd.DataFrame())
+
+
+def _metrics_samples(pos: np.ndarray, rot: np.ndarray) -> Metrics:
+    """Per-sample PRMSE / ROE over windows [W, K], averaged over the K samples."""
+    p = np.array([prmse_m(pos[:, j]) for j in range(pos.shape[1])])
+    r = np.array([roe_deg(rot[:, j]) for j in range(rot.shape[1])])
+    return Metrics(float(p.mean()), float(r.mean()), float(p.std()), float(r.std()), int(pos.shape[0]))
+
+
+def _average(per_seq: Mapping[str, Metrics]) -> Metrics:
+    vals = list(per_seq.values())
+    return Metrics(float(np.mean([m.prmse_m for m in vals])), float(np.mean([m.roe_deg for m in vals])),
+                   float(np.mean([m.prmse_std_m for m in vals])), float(np.mean([m.roe_std_deg for m in vals])),
+                   int(sum(m.windows for m in vals)))
+
+
+def _rows_of(acc: _Accumulator, windows: TestWindows, sampler: Sampler | None) -> list[RowResult]:
+    order = np.concatenate([rows for _, rows in _batches(windows, 1 << 30)])
+    seq = windows.sequence[order]
+    names = windows.sequences()
+    out = []
+    pos, rot = np.concatenate(acc.pos), np.concatenate(acc.rot)
+    per = {n: _metrics_samples(pos[seq == n], rot[seq == n]) for n in names}
+    out.append(RowResult(sampler, Aggregation.SAMPLES, per, _average(per)))
+    for agg in acc.agg_pos:
+        p, r = np.concatenate(acc.agg_pos[agg]), np.concatenate(acc.agg_rot[agg])
+        per = {n: _metrics_samples(p[seq == n][:, None], r[seq == n][:, None]) for n in names}
+        out.append(RowResult(sampler, agg, per, _average(per)))
+    return out
+
+
+def _windows_frame(acc: _Accumulator, windows: TestWindows, sampler: Sampler | None) -> pd.DataFrame:
+    order = np.concatenate([rows for _, rows in _batches(windows, 1 << 30)])
+    pos, rot = np.concatenate(acc.pos), np.concatenate(acc.rot)
+    W, K = pos.shape
+    parts = [pd.DataFrame({
+        "window": np.repeat(order, K), "sample": np.tile(np.arange(K), W), "aggregation": Aggregation.SAMPLES.value,
+        "pos_err_m": pos.reshape(-1), "rot_err_deg": rot.reshape(-1)})]
+    for agg in acc.agg_pos:
+        parts.append(pd.DataFrame({"window": order, "sample": -1, "aggregation": agg.value,
+                                   "pos_err_m": np.concatenate(acc.agg_pos[agg]),
+                                   "rot_err_deg": np.concatenate(acc.agg_rot[agg])}))
+    frame = pd.concat(parts, ignore_index=True)
+    frame.insert(0, "sampler", "" if sampler is None else sampler.value)
+    frame.insert(1, "sequence", windows.sequence[frame["window"].to_numpy()].astype(str))
+    frame.insert(2, "t0_ns", windows.t0_ns[frame["window"].to_numpy()].astype(np.int64))
+    return frame
+
+
+def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: EvaluationConfig = EvaluationConfig(),
+                       *, kind: str, checkpoint: Mapping[str, Any] | None = None) -> EvaluationResult:
+    """Evaluate one predictor on the test windows (see the module docstring).
+
+    Args:
+        predictor: A :class:`ReferencePredictor` or :class:`ModelPredictor`.
+        windows: From :func:`load_test_windows`.
+        config: Samples, samplers, seed.
+        kind: "learned", "reference" or "oracle" (stored).
+        checkpoint: Provenance of a learned model (stored).
+    """
+    t_start = time.perf_counter()
+    k = config.samples if predictor.stochastic else 1
+    samplers: tuple[Sampler | None, ...] = config.samplers if predictor.stochastic else (None,)
+    rows, calib, frames, examples = [], [], [], []
+    for sampler in samplers:
+        acc, ex = _run_sampler(predictor, windows, sampler, k, config)
+        rows.extend(_rows_of(acc, windows, sampler))
+        frames.append(_windows_frame(acc, windows, sampler))
+        examples.append(ex)
+        if acc.count:
+            cov = acc.inside / acc.count
+            calib.append(Calibration(sampler, CALIBRATION_LEVELS, tuple(tuple(map(float, c)) for c in cov)))
+        for r in rows[-(3 if k > 1 else 1):]:
+            log.info("%s %s: average PRMSE %.4f m, ROE %.4f deg", predictor.name, r.key or "samples",
+                     r.average.prmse_m, r.average.roe_deg)
+    m = windows.manifest
+    summary = EvaluationSummary(
+        method=predictor.name, label=predictor.label, kind=kind, samples=k, seed=config.seed,
+        steps=config.steps if predictor.stochastic else None, windows=len(windows),
+        windows_per_sequence={n: int(np.sum(windows.sequence == n)) for n in windows.sequences()},
+        protocol=PROTOCOL, gravity_source=dict(windows.gravity_source), rows=tuple(rows), calibration=tuple(calib),
+        checkpoint=dict(checkpoint or {}),
+        dataset={"path": str(windows.root), "format_version": m.get("format_version"),
+                 "config_hash": m.get("config_hash"), "rate_hz": m.get("rate_hz"),
+                 "window_samples": m.get("window_samples")},
+        seconds=time.perf_counter() - t_start,
+    )
+    return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True))
+
+
+def write_evaluation(result: EvaluationResult, out_dir: str | Path) -> Path:
+    """Write ``summary.json``, ``windows.parquet`` and ``examples.parquet`` atomically into ``out_dir``."""
+    out_dir = Path(out_dir)
+    with atomic_dir(out_dir) as tmp:
+        result.windows.to_parquet(tmp / WINDOWS_PARQUET, index=False)
+        result.examples.to_parquet(tmp / EXAMPLES_PARQUET, index=False)
+        (tmp / SUMMARY_JSON).write_text(json.dumps(result.summary.to_dict(), indent=2) + "\n", encoding="utf-8")
+    return out_dir
+
+
+def read_summary(path: str | Path) -> EvaluationSummary:
+    """Load ``summary.json`` (a file or its folder).
+
+    Raises:
+        InputFormatError: Missing, unreadable or of another schema version.
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / SUMMARY_JSON
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+        if d.get("schema_version") != SCHEMA_VERSION:
+            raise InputFormatError(f"evaluation summary of schema {d.get('schema_version')}, expected "
+                                   f"{SCHEMA_VERSION}", path=path, hint="re-run 'biasgt evaluate'")
+        return EvaluationSummary.from_dict(d)
+    except FileNotFoundError:
+        raise InputFormatError("no evaluation summary", path=path, hint="run 'biasgt evaluate --out DIR' first") from None
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise InputFormatError(f"cannot read the evaluation summary ({exc})", path=path,
+                               hint="re-run 'biasgt evaluate'") from None
+
+
+# ----------------------------------------------------------------------------- entry points
+
+
+def evaluate_reference(baseline: Baseline | str, dataset_dir: str | Path, out_dir: str | Path | None = None,
+                       config: EvaluationConfig = EvaluationConfig()) -> EvaluationResult:
+    """Evaluate a reference row (:class:`training.baselines.Baseline`); write it when ``out_dir`` is given."""
+    baseline = Baseline(baseline)
+    windows = load_test_windows(dataset_dir)
+    kind = "oracle" if baseline.is_oracle else "reference"
+    result = evaluate_predictor(ReferencePredictor(baseline, windows), windows, config, kind=kind)
+    if out_dir is not None:
+        write_evaluation(result, out_dir)
+    return result
+
+
+def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method: Method | None = None) -> None:
+    """Refuse a checkpoint that does not fit the evaluation dataset (one line naming file and fix).
+
+    Raises:
+        ConfigError: The checkpoint holds another method than ``method``.
+        InputFormatError: Another dataset format version, window length or IMU rate.
+    """
+    checkpoint = Path(getattr(run, "path", checkpoint))  # the .pt file itself
+    got = Method(run.config.method)
+    if method is not None and got is not Method(method):
+        raise ConfigError(f"the checkpoint holds a {got.value} model, not {Method(method).value}", path=checkpoint,
+                          field="method", hint=f"give the run trained with --method {Method(method).value}")
+    trained = dict(run.dataset or {})
+    m = windows.manifest
+    if trained.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
+        raise InputFormatError(f"the checkpoint was trained on dataset format {trained.get('format_version')}, "
+                               f"this version reads {FORMAT_VERSION}", path=checkpoint,
+                               hint="re-create the dataset with 'biasgt windows' and retrain")
+    t_w, e_w = trained.get("window_samples"), m.get("window_samples")
+    if t_w is not None and int(t_w) != int(e_w):
+        raise InputFormatError(f"windows of {e_w} samples, the checkpoint was trained on {t_w}",
+                               path=windows.root, hint="cut the evaluation dataset with the training window_s "
+                                                       "('biasgt windows --window-s') or retrain")
+    t_r, e_r = trained.get("rate_hz"), m.get("rate_hz")
+    if t_r is not None and e_r is not None and abs(float(e_r) / float(t_r) - 1.0) > 0.01:
+        raise InputFormatError(f"IMU rate {float(e_r):g} Hz, the checkpoint was trained at {float(t_r):g} Hz",
+                               path=windows.root, hint=f"re-create the dataset with --resample-hz {float(t_r):g}")
+
+
+def _run_provenance(run: Any, checkpoint: Path) -> dict[str, Any]:
+    from training.models import count_parameters
+
+    info = {"path": str(checkpoint), "method": Method(run.config.method).value,
+            "preset": getattr(run.config.preset, "value", run.config.preset), "seed": run.config.seed,
+            "parameters": int(count_parameters(run.model))}
+    meta = _read_json(Path(run.path).parent / "run.json")
+    for key in ("steps", "best_step", "best_val_loss", "train_seconds", "windows_per_s"):
+        if key in meta:
+            info[key] = meta[key]
+    return info
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return {}
+
+
+def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str | Path | None = None,
+                 config: EvaluationConfig = EvaluationConfig(), *, method: Method | None = None,
+                 device: str = "cpu") -> EvaluationResult:
+    """Evaluate a trained run, rebuilt from its checkpoint alone (:func:`training.checkpoint.load_run`).
+
+    Args:
+        checkpoint: A run folder (its ``best.pt``) or a ``.pt`` file.
+        dataset_dir: Window dataset whose test split is evaluated.
+        out_dir: Write the outputs here (atomically) when given.
+        config: Samples, samplers, steps, seed.
+        method: Expected method (the workflow's job), checked against the checkpoint.
+        device: Torch device of the model.
+
+    Raises:
+        CheckpointError / ConfigError / InputFormatError / DataError: see :func:`check_compatible`.
+    """
+    from training.checkpoint import load_run
+
+    checkpoint = Path(checkpoint)
+    windows = load_test_windows(dataset_dir)
+    run = load_run(checkpoint, device=device)
+    check_compatible(run, windows, checkpoint, method=method)
+    predictor = ModelPredictor(run, steps=config.steps)
+    result = evaluate_predictor(predictor, windows, config, kind="learned",
+                                checkpoint=_run_provenance(run, checkpoint))
+    if out_dir is not None:
+        write_evaluation(result, out_dir)
+    return result

@@ -1,0 +1,160 @@
+"""Bias models: one ``BiasModel`` wrapper per :class:`training.config.Method`.
+
+Every model reads the IMU window (and optionally the IMU temperature), normalised with the
+train-split statistics held by its :class:`training.normalizer.Normalizer` submodule, and predicts
+the bias at IMU rate in raw units (rad/s, m/s^2).
+
+* Diffusion (``diffusion_rnn``, ``diffusion_unet``): DDPM with epsilon prediction and an MSE
+  loss. biasgt diffuses the **normalised** bias (zero mean, unit std per channel over the train
+  split), so one noise schedule suits gyro and accelerometer alike; the released code diffuses
+  the bias in raw units. Its RELEASED sampler's [-1, 1] clip is applied in raw units, as there.
+* Regression (``regression_rnn``, ``regression_unet``): MSE on the normalised bias.
+* Indirect (``indirect_rnn``): AirIMU-style. The regressor's output is a bias correction; it is
+  subtracted from the readings, which :func:`pipeline.integration.integrate` integrates from the
+  reference start state; the loss compares the end state with the reference end state
+  (rotation error ``||Log(R_gt^T R)||^2`` in rad^2, velocity and position errors squared), so no
+  bias label is read.
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from pipeline.integration import integrate
+from pipeline.so3 import so3_log
+from training.batch import WindowBatch
+from training.config import IMU_CHANNELS, Method, ModelConfig, Sampler
+from training.normalizer import Normalizer
+from training.scheduler import NoiseScheduler, randn
+from training.models.rnn import GruDenoiser, GruRegressor
+from training.models.unet import UnetDenoiser, UnetRegressor
+
+__all__ = ["BiasModel", "build_model", "count_parameters", "DEFAULT_GRAVITY_MPS2"]
+
+#: Gravity used by the indirect loss when a batch carries none (validation's default, world z up).
+DEFAULT_GRAVITY_MPS2 = (0.0, 0.0, -9.81)
+
+
+class BiasModel(nn.Module):
+    """A bias predictor with its normaliser (see the module docstring).
+
+    Args:
+        config: Sizes and method.
+        normalizer: Train-split statistics (a submodule: saved in the ``state_dict``).
+        indirect_weights: Weights of the rotation, velocity and position terms (``indirect_rnn``).
+    """
+
+    def __init__(self, config: ModelConfig, normalizer: Normalizer,
+                 indirect_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> None:
+        super().__init__()
+        self.config = config
+        self.method = config.method
+        self.normalizer = normalizer
+        self.indirect_weights = tuple(float(w) for w in indirect_weights)
+        self.use_temperature = config.condition_channels > IMU_CHANNELS
+        nets = {Method.DIFFUSION_RNN: GruDenoiser, Method.DIFFUSION_UNET: UnetDenoiser,
+                Method.REGRESSION_RNN: GruRegressor, Method.INDIRECT_RNN: GruRegressor,
+                Method.REGRESSION_UNET: UnetRegressor}
+        self.net = nets[config.method](config)
+        self.scheduler = NoiseScheduler(config.train_timesteps, config.beta_start, config.beta_end)
+
+    def _condition(self, batch: WindowBatch) -> torch.Tensor:
+        """Normalised condition [B, T, 6 or 7]."""
+        return self.normalizer.condition(batch.condition(self.use_temperature))
+
+    def draw_noise(self, shape: tuple[int, ...], generator: torch.Generator | None = None,
+                   device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
+        """Diffusion noise [B, T, 6] and steps [B] for a batch of ``shape`` (noise drawn first)."""
+        noise = randn(shape, generator, device, torch.float32)
+        dev = generator.device if generator is not None else device
+        t = torch.randint(0, self.scheduler.train_timesteps, (shape[0],), generator=generator, device=dev).to(device)
+        return noise, t
+
+    def loss(self, batch: WindowBatch, generator: torch.Generator | None = None, *,
+             noise: torch.Tensor | None = None, t: torch.Tensor | None = None) -> torch.Tensor:
+        """Training loss of one batch (scalar).
+
+        Args:
+            batch: The windows.
+            generator: Draws the diffusion noise and steps (:meth:`draw_noise`) unless given.
+            noise: Diffusion noise [B, T, 6] (data-parallel training draws it for the global batch).
+            t: Diffusion steps [B].
+        """
+        cond = self._condition(batch)
+        if self.method.is_diffusion:
+            x0 = self.normalizer.bias(batch.bias)
+            if noise is None or t is None:
+                noise, t = self.draw_noise(tuple(x0.shape), generator, x0.device)
+            noise, t = noise.to(x0), t.to(x0.device)
+            eps = self.net.denoise(self.scheduler.add_noise(x0, noise, t), t, self.net.encode(cond))
+            return F.mse_loss(eps, noise)
+        pred = self.net(cond)
+        if self.method is Method.INDIRECT_RNN:
+            return self._integration_loss(batch, self.normalizer.unbias(pred))
+        return F.mse_loss(pred, self.normalizer.bias(batch.bias))
+
+    def _integration_loss(self, batch: WindowBatch, bias: torch.Tensor) -> torch.Tensor:
+        """End-state error of the windows integrated (float64) with ``bias`` [B, T, 6] removed.
+
+        Windows are integrated in groups of equal gravity (``batch.gravity_mps2`` [B, 3], else
+        :data:`DEFAULT_GRAVITY_MPS2`), since the integrator takes one gravity vector per call.
+        """
+        f64 = torch.float64
+        gravity = batch.gravity_mps2
+        if gravity is None:
+            gravity = torch.tensor(DEFAULT_GRAVITY_MPS2, dtype=f64).expand(len(batch), 3)
+        gravity = gravity.to(device=batch.imu.device, dtype=f64)
+        values, group = torch.unique(gravity, dim=0, return_inverse=True)
+        terms = torch.zeros(3, dtype=f64, device=batch.imu.device)
+        for g in range(len(values)):
+            i = (group == g).nonzero().squeeze(1)
+            imu, b = batch.imu[i].to(f64), bias[i].to(f64)
+            res = integrate(imu[..., :3], imu[..., 3:], batch.dt_s[i].to(f64), batch.start_R[i].to(f64),
+                            batch.start_v[i].to(f64), batch.start_p[i].to(f64), gravity_mps2=values[g],
+                            bias_gyro_radps=b[..., :3], bias_acc_mps2=b[..., 3:])
+            rot = so3_log(batch.end_R[i].to(f64).transpose(-1, -2) @ res.R).square().sum(-1)
+            vel = (res.v - batch.end_v[i].to(f64)).square().sum(-1)
+            pos = (res.p - batch.end_p[i].to(f64)).square().sum(-1)
+            terms = terms + torch.stack([rot.sum(), vel.sum(), pos.sum()])
+        weights = torch.tensor(self.indirect_weights, dtype=f64, device=terms.device)
+        return ((weights * terms).sum() / len(batch)).to(batch.imu.dtype)
+
+    def forward(self, batch: WindowBatch, generator: torch.Generator | None = None, *,
+                noise: torch.Tensor | None = None, t: torch.Tensor | None = None) -> torch.Tensor:
+        """The training loss (so that DistributedDataParallel's hooks wrap it)."""
+        return self.loss(batch, generator, noise=noise, t=t)
+
+    @torch.no_grad()
+    def sample(self, batch: WindowBatch, num_samples: int = 1, *, sampler: Sampler = Sampler.DDIM,
+               steps: int = 25, generator: torch.Generator | None = None, eta: float = 0.0) -> torch.Tensor:
+        """Predicted bias [B, K, T, 6] in raw units (rad/s, m/s^2).
+
+        Regression and indirect models return K identical copies. Only ``batch.imu`` (and the
+        temperature) are read. ``generator`` (on the model's device) draws the initial noise.
+        """
+        cond = self._condition(batch)
+        B, T, _ = cond.shape
+        K = int(num_samples)
+        if not self.method.is_diffusion:
+            return self.normalizer.unbias(self.net(cond))[:, None].expand(B, K, T, IMU_CHANNELS).clone()
+        code = self.net.encode(cond).repeat_interleave(K, dim=0)  # [B*K, C], window b's samples adjacent
+        nz = self.normalizer
+        clip = ((-self.config.clip_sample - nz.bias_mean) / nz.bias_std,
+                (self.config.clip_sample - nz.bias_mean) / nz.bias_std)
+        z = self.scheduler.sample(lambda x, t: self.net.denoise(x, t, code), (B * K, T, IMU_CHANNELS),
+                                  sampler=Sampler(sampler), steps=steps, eta=eta, generator=generator,
+                                  device=cond.device, dtype=cond.dtype, clip=clip)
+        return nz.unbias(z).reshape(B, K, T, IMU_CHANNELS)
+
+
+def build_model(config: ModelConfig, normalizer: Normalizer,
+                indirect_weights: tuple[float, float, float] = (1.0, 1.0, 1.0)) -> BiasModel:
+    """A freshly initialised :class:`BiasModel` (seed torch before calling for reproducibility)."""
+    return BiasModel(config, normalizer, indirect_weights)
+
+
+def count_parameters(model: nn.Module) -> int:
+    """Trainable parameters of ``model``."""
+    return sum(p.numel() for p in model.parameters() if p.requires_grad)

@@ -1,0 +1,39 @@
+# Stage evaluate: PRMSE / ROE on the test split's non-overlapping 1-s windows (training.evaluate):
+# results/evaluation/{method}/seed{seed}/ for each trained run and results/evaluation/{reference}/
+# for the rows that need no training (zero, train mean, recovered GT bias, random-walk oracle).
+# params: the 'evaluation:' section (samples, samplers, steps, seed, references).
+
+
+rule evaluate:
+    input:
+        dataset=wf.windows_dataset_dir(),
+        run=ts.training_run_dir("{method}", "{seed}"),
+    output:
+        directory(ts.evaluation_dir("{method}", "{seed}")),
+    log:
+        wf.log_file("evaluate", "{method}_seed{seed}"),
+    params:
+        settings=WF_CONFIG.section("evaluation"),
+    threads: 2
+    resources:
+        mem_mb=lambda wildcards, attempt: 4000 * attempt,
+        runtime=lambda wildcards, attempt: 60 * attempt,
+    script:
+        "../scripts/evaluate.py"
+
+
+rule evaluate_reference:
+    input:
+        dataset=wf.windows_dataset_dir(),
+    output:
+        directory(ts.evaluation_dir("{reference}")),
+    log:
+        wf.log_file("evaluate", "{reference}"),
+    params:
+        settings=WF_CONFIG.section("evaluation"),
+    threads: 1
+    resources:
+        mem_mb=lambda wildcards, attempt: 4000 * attempt,
+        runtime=lambda wildcards, attempt: 30 * attempt,
+    script:
+        "../scripts/evaluate.py"

@@ -1,0 +1,17 @@
+# Stage table: Table I from every evaluation (results/evaluation/table.csv and table.md); built
+# when the window dataset has a train and a test sequence.
+
+
+rule table:
+    input:
+        evaluations=ts.evaluation_summaries(TRAINING_PLAN, EVALUATION),
+    output:
+        ts.table_outputs(),
+    log:
+        ts.TABLE_LOG,
+    threads: 1
+    script:
+        "../scripts/table.py"
+
+
+final_output("table", lambda cfg: ts.learning_outputs(cfg, wf))

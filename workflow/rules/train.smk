@@ -1,0 +1,32 @@
+# Stage train: one job per learned method and seed of the 'training:' section (training.stages.
+# TrainingPlan): results/training/{method}/seed{seed}/ ('biasgt train': best.pt chosen on the
+# validation split, last.pt, metrics.csv, run.json), from the window dataset.
+# params: the 'training:' section, so that a changed option retrains.
+
+from training import stages as ts
+
+TRAINING_PLAN = ts.TrainingPlan.from_mapping(WF_CONFIG.section("training"))
+EVALUATION = ts.EvaluationConfig.from_mapping(WF_CONFIG.section("evaluation"))
+
+
+wildcard_constraints:
+    method=wf.names_regex(m.value for m in ts.Method),
+    seed=r"\d+",
+    reference=wf.names_regex(b.value for b in ts.Baseline),
+
+
+rule train:
+    input:
+        dataset=wf.windows_dataset_dir(),
+    output:
+        directory(ts.training_run_dir("{method}", "{seed}")),
+    log:
+        wf.log_file("train", "{method}_seed{seed}"),
+    params:
+        plan=WF_CONFIG.section("training"),
+    threads: 2
+    resources:
+        mem_mb=lambda wildcards, attempt: 4000 * attempt,
+        runtime=lambda wildcards, attempt: 120 * attempt,
+    script:
+        "../scripts/train.py"

@@ -1,0 +1,13 @@
+"""Adapter of rule table: all work is training.stages.table_step (unit-tested)."""
+
+from pathlib import Path
+
+from pipeline.workflow import run_step
+from training.stages import table_step
+
+run_step(
+    snakemake.log[0],  # noqa: F821
+    table_step,
+    list(snakemake.input.evaluations),  # noqa: F821
+    str(Path(snakemake.output[0]).parent),  # noqa: F821
+)

@@ -1,0 +1,15 @@
+"""Adapter of rule train: all work is training.stages.train_step (unit-tested)."""
+
+from pipeline.workflow import run_step
+from training.stages import train_step
+
+run_step(
+    snakemake.log[0],  # noqa: F821
+    train_step,
+    snakemake.input.dataset,  # noqa: F821
+    snakemake.output[0],  # noqa: F821
+    snakemake.params.plan,  # noqa: F821
+    snakemake.wildcards.method,  # noqa: F821
+    int(snakemake.wildcards.seed),  # noqa: F821
+    threads=snakemake.threads,  # noqa: F821
+)
