@@ -117,7 +117,7 @@ from pipeline.io import select_pose_stream
 from pipeline.io.asl import read_asl_state_csv
 from pipeline.pose_transform import as_transform, poses_in_imu_frame
 from pipeline.so3 import rotation_angle_deg
-from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence, Severity, StateSeries
+from pipeline.types import NS_PER_S, ImuSeries, IntegrationScheme, PoseSeries, Sequence, Severity, StateSeries
 from recovery.outputs import RecoveryOutputs
 from validation.config import ValidationConfig
 from validation.outputs import SCHEMA_VERSION, Verdict, write_folder
