@@ -307,13 +307,14 @@ def extract_windows(
         else:
             log.warning("sequence '%s': non-finite IMU temperatures in the windows; temperature left out",
                         sequence.name)
+    gravity = recovery.report.gravity_world_mps2
     info.update(
         window_samples=n + 1,
         reference=reference.kind.value,
         reference_info=dict(reference.info),
         recovery_dir=str(recovery_dir),
         bias_random_walk=random_walk.tolist(),
-        gravity_mps2=None if recovery.gravity_mps2 is None else recovery.gravity_mps2.tolist(),
+        gravity_mps2=None if gravity is None else gravity.tolist(),
     )
     if not len(s):
         log.warning("sequence '%s': all %d windows dropped (%s)", sequence.name, len(starts),
