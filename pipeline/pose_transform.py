@@ -18,7 +18,7 @@ recovered trajectory) to remove the lever arm ``p_imu_pose``.
 
 This module needs only NumPy and SciPy (no torch), so the report can use it without the
 validation's integration stack. Users: :func:`validation.validate.reference_from_poses`,
-:func:`validation.validate.read_recovery_dir`, :func:`reports.quality.pose_residuals` and
+:func:`recovery.outputs.RecoveryOutputs.read`, :func:`reports.quality.pose_residuals` and
 :func:`reports.quality.transform_from_report`.
 """
 

@@ -109,11 +109,11 @@ def test_cli_evaluate_and_bad_inputs(trained, tmp_path, capsys):
 
 
 def test_training_plan_rejects_bad_sections():
-    with pytest.raises(ConfigError, match="unknown training option"):
+    with pytest.raises(ConfigError, match="unknown key 'method'"):
         TrainingPlan.from_mapping({"method": "diffusion_rnn"})
     with pytest.raises(ConfigError, match="options sets seed"):
         TrainingPlan.from_mapping({"options": {"seed": 3}})
     with pytest.raises(ConfigError, match="max_steps"):
         TrainingPlan.from_mapping({"options": {"max_steps": 0}})
-    with pytest.raises(ConfigError, match="unknown evaluation option"):
+    with pytest.raises(ConfigError, match="unknown key 'sampler' \(did you mean 'samplers'"):
         EvaluationConfig.from_mapping({"sampler": "ddim"})

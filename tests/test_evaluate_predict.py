@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 import torch
 
-from interpolation.bias import CSV_HEADER
+from pipeline.bias_table import CSV_HEADER
 from pipeline.cli import main
 from pipeline.errors import DataError
 from pipeline.store import read_store

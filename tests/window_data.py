@@ -3,16 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 from scipy.spatial.transform import Rotation
 
-from interpolation.bias import BIAS_COLUMNS
+from pipeline.bias_table import BiasTrack
 from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
 from pipeline.store import write_store
+from synth import write_recovery_folder
 from training.windows import WindowConfig, WindowSource, build_window_dataset
 
 #: Random walks (gyro, acc) written to recovery.json, as a recovery would.
@@ -21,15 +20,11 @@ GRAVITY = (0.0, 0.0, -9.81)
 
 
 def write_truth_recovery(folder: Path, sim, every: int = 10) -> Path:
-    """A recovery folder holding the simulator's true bias as keyframes every ``every`` IMU samples."""
+    """A recovery folder holding the simulator's true bias as keyframes every ``every`` IMU samples,
+    written by the recovery stage's own writer."""
     tr = sim.truth
     k = np.arange(0, len(tr.t_ns), every)
-    frame = pd.DataFrame(np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])[k], columns=list(BIAS_COLUMNS))
-    frame.insert(0, "t_ns", tr.t_ns[k])
-    for c in BIAS_COLUMNS:
-        frame[f"{c}_std"] = 1e-5
-    folder.mkdir(parents=True, exist_ok=True)
-    frame.to_csv(folder / "bias.csv", index=False, float_format="%.12g")
+    bias = np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])[k]
     report = {
         "noise": {"gyro_random_walk": RW[0], "acc_random_walk": RW[1]},
         "gravity_world_mps2": list(GRAVITY),
@@ -37,8 +32,7 @@ def write_truth_recovery(folder: Path, sim, every: int = 10) -> Path:
         "T_imu_pose": {"p_m": [0.0, 0.0, 0.0],
                        "quat_wxyz": Rotation.identity().as_quat(scalar_first=True).tolist()},
     }
-    (folder / "recovery.json").write_text(json.dumps(report), encoding="utf-8")
-    return folder
+    return write_recovery_folder(folder, BiasTrack(tr.t_ns[k], bias, np.full_like(bias, 1e-5)), report)
 
 
 def make_window_dataset(root: Path, *, splits: dict[str, int] | None = None, duration_s: float = 8.0,

@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from interpolation.bias import BIAS_COLUMNS, STD_COLUMNS
+from pipeline.bias_table import BIAS_COLUMNS, STD_COLUMNS
 from pipeline.atomic import atomic_path
 from pipeline.errors import DataError
 from pipeline.types import NS_PER_S, Sequence

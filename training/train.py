@@ -149,8 +149,9 @@ def _open_data(config: TrainConfig, dataset_dir: Path) -> _Data:
                                  "use_temperature: false")
         stats = manifest.get("normalization", {})
         key_m, key_s = "temperature_mean", "temperature_std"
-        temperature = ((float(stats[key_m]), float(stats[key_s])) if key_m in stats and key_s in stats
-                       else _temperature_stats(train_ds))
+        # the windows stage stores them as one-element lists (normalisation_stats: every channel a list)
+        temperature = ((float(np.ravel(stats[key_m])[0]), float(np.ravel(stats[key_s])[0]))
+                       if key_m in stats and key_s in stats else _temperature_stats(train_ds))
     normalizer = Normalizer.from_manifest(manifest, path=mpath, temperature_degc=temperature)
     gravity = {name: e["info"]["gravity_mps2"] for name, e in manifest["sequences"].items()
                if isinstance(e.get("info"), dict) and e["info"].get("gravity_mps2") is not None}
