@@ -69,6 +69,7 @@ from pipeline.sim.config import SimConfig
 from pipeline.store import read_store
 from pipeline.types import Split
 from recovery.config import RecoveryConfig
+from training.config import EvaluationConfig, TrainingPlan
 from training.windows_config import WindowConfig
 from validation.config import ValidationConfig
 
@@ -576,12 +577,14 @@ def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
 #: section's options and their defaults (the schema leaves these sections open). check_config
 #: checks each section with it (an unknown key is named, with the allowed ones) and fills in every
 #: default, so the rules' params hold the whole resolved config. A stage adds its section with one
-#: line here, e.g. ``"training": TrainConfig``.
+#: line here (each dataclass module is light: no torch at import).
 STAGE_CONFIGS: dict[str, type] = {
     "recovery": RecoveryConfig,
     "interpolation": InterpolationConfig,
     "validation": ValidationConfig,
     "windows": WindowConfig,
+    "training": TrainingPlan,
+    "evaluation": EvaluationConfig,
 }
 #: Keys of a stage section that the workflow reads itself (not options of its dataclass), with defaults.
 SECTION_EXTRA_KEYS: dict[str, dict[str, Any]] = {

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from reports.training import SECTIONS, build_training_report
-from training.baselines import Baseline
+from training.config import Baseline
 from training.stages import evaluate_step, train_step
 from window_data import make_window_dataset
 

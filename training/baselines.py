@@ -23,41 +23,16 @@
 
 from __future__ import annotations
 
-import enum
-
 import numpy as np
 
 from pipeline.errors import InputFormatError
+from training.config import Baseline
 from validation.validate import window_end_errors
 
 __all__ = ["Baseline", "ORACLE_CANDIDATES", "baseline_bias", "random_walk_paths"]
 
 #: Random-walk candidates per window of the oracle (the paper's 50).
 ORACLE_CANDIDATES = 50
-
-
-class Baseline(str, enum.Enum):
-    """Evaluation rows without training (see the module docstring)."""
-
-    ZERO = "zero"
-    TRAIN_MEAN = "train_mean"
-    GROUND_TRUTH = "ground_truth"
-    RANDOM_WALK_ORACLE = "random_walk_oracle"
-
-    @property
-    def label(self) -> str:
-        """Name in tables and reports."""
-        return {
-            Baseline.ZERO: "Zero bias",
-            Baseline.TRAIN_MEAN: "Train-mean bias",
-            Baseline.GROUND_TRUTH: "Recovered GT bias",
-            Baseline.RANDOM_WALK_ORACLE: "Random walk (oracle)",
-        }[self]
-
-    @property
-    def is_oracle(self) -> bool:
-        """Uses ground truth at test time (a bound, not a method)."""
-        return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE)
 
 
 def random_walk_paths(start_bias: np.ndarray, random_walk: np.ndarray, dt_s: np.ndarray, k: int,

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -268,3 +268,137 @@ class TrainConfig:
 
     def to_dict(self) -> dict[str, Any]:
         return _plain(dataclasses.asdict(self))
+
+
+# ----------------------------------------------------------------------------- workflow sections
+
+
+class Baseline(str, enum.Enum):
+    """Evaluation rows without training (see the module docstring)."""
+
+    ZERO = "zero"
+    TRAIN_MEAN = "train_mean"
+    GROUND_TRUTH = "ground_truth"
+    RANDOM_WALK_ORACLE = "random_walk_oracle"
+
+    @property
+    def label(self) -> str:
+        """Name in tables and reports."""
+        return {
+            Baseline.ZERO: "Zero bias",
+            Baseline.TRAIN_MEAN: "Train-mean bias",
+            Baseline.GROUND_TRUTH: "Recovered GT bias",
+            Baseline.RANDOM_WALK_ORACLE: "Random walk (oracle)",
+        }[self]
+
+    @property
+    def is_oracle(self) -> bool:
+        """Uses ground truth at test time (a bound, not a method)."""
+        return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE)
+
+
+@dataclass(frozen=True)
+class TrainingPlan:
+    """The workflow's ``training:`` section: which runs to train.
+
+    Attributes:
+        methods: Learned methods, one job per method and seed.
+        seeds: Training seeds (Table I shows mean and spread over seeds).
+        preset: Network size preset of every run.
+        options: Further :class:`training.config.TrainConfig` options (``max_steps``,
+            ``batch_size``, ``lr``, ...; not ``method``, ``seed``, ``preset``).
+        processes: Data-parallel processes per training job: more than 1 launches ``biasgt
+            train`` under ``torchrun --standalone --nproc-per-node N`` inside the job (one per GPU
+            on a GPU node, gloo processes on CPU); the global batch stays ``batch_size``.
+    """
+
+    methods: tuple[Method, ...] = tuple(Method)
+    seeds: tuple[int, ...] = (0,)
+    preset: Preset = Preset.SMALL
+    options: Mapping[str, Any] = field(default_factory=dict)
+    processes: int = 1
+
+    def __post_init__(self) -> None:
+        try:
+            object.__setattr__(self, "methods", tuple(Method(m) for m in self.methods))
+        except ValueError as exc:
+            raise ConfigError(f"unknown training method ({exc})", field="training.methods",
+                              hint=f"choose from {', '.join(m.value for m in Method)}") from None
+        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+        object.__setattr__(self, "preset", Preset(self.preset))
+        object.__setattr__(self, "options", dict(self.options))
+        reserved = sorted({"method", "seed", "preset"} & set(self.options))
+        if reserved:
+            raise ConfigError(f"training.options sets {', '.join(reserved)}", field="training.options",
+                              hint="give methods, seeds and preset at the top of the training section")
+        if int(self.processes) < 1:
+            raise ConfigError(f"training.processes must be >= 1, got {self.processes!r}", field="training.processes",
+                              hint="give the number of data-parallel processes per job, e.g. 1 or the GPUs per node")
+        object.__setattr__(self, "processes", int(self.processes))
+        if len(set(self.seeds)) != len(self.seeds):
+            raise ConfigError(f"training seeds repeat: {list(self.seeds)}", field="training.seeds",
+                              hint="list each seed once")
+        for m in self.methods:
+            self.train_config(m, self.seeds[0] if self.seeds else 0)  # bad options fail at load time
+
+    @classmethod
+    def from_mapping(cls, d: Mapping[str, Any] | None) -> TrainingPlan:
+        """From the (partial) ``training:`` section; one-line :class:`ConfigError` on bad keys or values."""
+        return dataclass_from_mapping(cls, d, what="training option", field="training")
+
+    def train_config(self, method: Method | str, seed: int) -> TrainConfig:
+        """The :class:`TrainConfig` of one run."""
+        return TrainConfig.from_mapping({**self.options, "method": Method(method), "seed": int(seed),
+                                         "preset": self.preset})
+
+    def runs(self) -> list[tuple[Method, int]]:
+        return [(m, s) for m in self.methods for s in self.seeds]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"methods": [m.value for m in self.methods], "seeds": list(self.seeds), "preset": self.preset.value,
+                "options": dict(self.options), "processes": self.processes}
+
+
+@dataclass(frozen=True)
+class EvaluationConfig:
+    """Options of an evaluation (the workflow's ``evaluation:`` section maps onto it).
+
+    Attributes:
+        samples: Samples per window of a diffusion model (K).
+        samplers: Samplers of a diffusion model, each evaluated (correct DDIM and the
+            released code's, for the ablation).
+        steps: Denoising steps of the sampler.
+        seed: Seed of the sampling noise and of the oracle's random walks.
+        batch_windows: Windows per model call (times K samples).
+        examples: Test windows kept for the report's figure.
+        references: Reference rows evaluated by the workflow.
+    """
+
+    samples: int = 50
+    samplers: tuple[Sampler, ...] = (Sampler.DDIM, Sampler.RELEASED)
+    steps: int = 25
+    seed: int = 0
+    batch_windows: int = 32
+    examples: int = 4
+    references: tuple[Baseline, ...] = tuple(Baseline)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "samplers", tuple(Sampler(s) for s in self.samplers))
+        object.__setattr__(self, "references", tuple(Baseline(b) for b in self.references))
+        for name in ("samples", "steps", "batch_windows"):
+            if int(getattr(self, name)) < 1:
+                raise ConfigError(f"evaluation {name} must be >= 1, got {getattr(self, name)!r}", field=name,
+                                  hint=f"give a positive {name}")
+        if not self.samplers:
+            raise ConfigError("no sampler to evaluate", field="samplers", hint="list at least 'ddim'")
+
+    @classmethod
+    def from_mapping(cls, d: Mapping[str, Any] | None) -> EvaluationConfig:
+        """From a (partial) ``evaluation:`` mapping; one-line :class:`ConfigError` on bad keys."""
+        return dataclass_from_mapping(cls, d, what="evaluation option", field="evaluation")
+
+    def to_dict(self) -> dict[str, Any]:
+        d = dataclasses.asdict(self)
+        d["samplers"] = [s.value for s in self.samplers]
+        d["references"] = [b.value for b in self.references]
+        return d

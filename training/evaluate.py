@@ -51,10 +51,9 @@ import torch
 from torch.utils.data import default_collate
 
 from pipeline.atomic import atomic_dir
-from pipeline.configs import dataclass_from_mapping
 from pipeline.errors import ConfigError, DataError, InputFormatError
-from training.baselines import Baseline, baseline_bias
-from training.config import Method, Sampler
+from training.baselines import baseline_bias
+from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, Split, WindowDataset
 from validation.validate import DEFAULT_GRAVITY_MPS2, prmse_m, roe_deg, window_end_errors
 
@@ -94,51 +93,6 @@ class Aggregation(str, enum.Enum):
     SAMPLES = "samples"  # metrics per sample, averaged over the K samples (the paper)
     MEAN = "mean"  # the per-time-step mean of the K samples as the prediction
     MEDIAN = "median"  # the per-time-step median of the K samples as the prediction
-
-
-@dataclass(frozen=True)
-class EvaluationConfig:
-    """Options of an evaluation (the workflow's ``evaluation:`` section maps onto it).
-
-    Attributes:
-        samples: Samples per window of a diffusion model (K).
-        samplers: Samplers of a diffusion model, each evaluated (correct DDIM and the
-            released code's, for the ablation).
-        steps: Denoising steps of the sampler.
-        seed: Seed of the sampling noise and of the oracle's random walks.
-        batch_windows: Windows per model call (times K samples).
-        examples: Test windows kept for the report's figure.
-        references: Reference rows evaluated by the workflow.
-    """
-
-    samples: int = 50
-    samplers: tuple[Sampler, ...] = (Sampler.DDIM, Sampler.RELEASED)
-    steps: int = 25
-    seed: int = 0
-    batch_windows: int = 32
-    examples: int = 4
-    references: tuple[Baseline, ...] = tuple(Baseline)
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "samplers", tuple(Sampler(s) for s in self.samplers))
-        object.__setattr__(self, "references", tuple(Baseline(b) for b in self.references))
-        for name in ("samples", "steps", "batch_windows"):
-            if int(getattr(self, name)) < 1:
-                raise ConfigError(f"evaluation {name} must be >= 1, got {getattr(self, name)!r}", field=name,
-                                  hint=f"give a positive {name}")
-        if not self.samplers:
-            raise ConfigError("no sampler to evaluate", field="samplers", hint="list at least 'ddim'")
-
-    @classmethod
-    def from_mapping(cls, d: Mapping[str, Any] | None) -> EvaluationConfig:
-        """From a (partial) ``evaluation:`` mapping; one-line :class:`ConfigError` on bad keys."""
-        return dataclass_from_mapping(cls, d, what="evaluation option", field="evaluation")
-
-    def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["samplers"] = [s.value for s in self.samplers]
-        d["references"] = [b.value for b in self.references]
-        return d
 
 
 # ----------------------------------------------------------------------------- test windows

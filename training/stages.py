@@ -16,18 +16,16 @@ training_report); each is an ordinary function, importable and tested without Sn
 from __future__ import annotations
 
 import logging
+import sys
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import torch
 
-from pipeline.configs import dataclass_from_mapping
-from pipeline.errors import ConfigError
-from training.baselines import Baseline
-from training.config import Method, Preset, TrainConfig
-from training.evaluate import SUMMARY_JSON, EvaluationConfig, evaluate_reference, evaluate_run
+from pipeline.errors import DataError
+from training.config import Baseline, EvaluationConfig, Method, TrainConfig, TrainingPlan
+from training.evaluate import SUMMARY_JSON, evaluate_reference, evaluate_run
 from training.table import TABLE_CSV, TABLE_MD, write_table
 
 log = logging.getLogger(__name__)
@@ -45,60 +43,6 @@ RESULTS = "results"
 TABLE_DIR = f"{RESULTS}/evaluation"
 TRAINING_REPORT = f"{RESULTS}/report/training.html"
 TABLE_LOG = "logs/table/table.log"
-
-
-@dataclass(frozen=True)
-class TrainingPlan:
-    """The workflow's ``training:`` section: which runs to train.
-
-    Attributes:
-        methods: Learned methods, one job per method and seed.
-        seeds: Training seeds (Table I shows mean and spread over seeds).
-        preset: Network size preset of every run.
-        options: Further :class:`training.config.TrainConfig` options (``max_steps``,
-            ``batch_size``, ``lr``, ...; not ``method``, ``seed``, ``preset``).
-    """
-
-    methods: tuple[Method, ...] = tuple(Method)
-    seeds: tuple[int, ...] = (0,)
-    preset: Preset = Preset.SMALL
-    options: Mapping[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        try:
-            object.__setattr__(self, "methods", tuple(Method(m) for m in self.methods))
-        except ValueError as exc:
-            raise ConfigError(f"unknown training method ({exc})", field="training.methods",
-                              hint=f"choose from {', '.join(m.value for m in Method)}") from None
-        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
-        object.__setattr__(self, "preset", Preset(self.preset))
-        object.__setattr__(self, "options", dict(self.options))
-        reserved = sorted({"method", "seed", "preset"} & set(self.options))
-        if reserved:
-            raise ConfigError(f"training.options sets {', '.join(reserved)}", field="training.options",
-                              hint="give methods, seeds and preset at the top of the training section")
-        if len(set(self.seeds)) != len(self.seeds):
-            raise ConfigError(f"training seeds repeat: {list(self.seeds)}", field="training.seeds",
-                              hint="list each seed once")
-        for m in self.methods:
-            self.train_config(m, self.seeds[0] if self.seeds else 0)  # bad options fail at load time
-
-    @classmethod
-    def from_mapping(cls, d: Mapping[str, Any] | None) -> TrainingPlan:
-        """From the (partial) ``training:`` section; one-line :class:`ConfigError` on bad keys or values."""
-        return dataclass_from_mapping(cls, d, what="training option", field="training")
-
-    def train_config(self, method: Method | str, seed: int) -> TrainConfig:
-        """The :class:`TrainConfig` of one run."""
-        return TrainConfig.from_mapping({**self.options, "method": Method(method), "seed": int(seed),
-                                         "preset": self.preset})
-
-    def runs(self) -> list[tuple[Method, int]]:
-        return [(m, s) for m in self.methods for s in self.seeds]
-
-    def to_dict(self) -> dict[str, Any]:
-        return {"methods": [m.value for m in self.methods], "seeds": list(self.seeds), "preset": self.preset.value,
-                "options": dict(self.options)}
 
 
 def training_run_dir(method: Method | str, seed: int | str) -> str:
@@ -133,9 +77,48 @@ def train_step(dataset_dir: str | Path, out_dir: str | Path, plan: Mapping[str, 
     from training.train import train
 
     _set_threads(threads)
-    config = TrainingPlan.from_mapping(plan).train_config(method, seed)
+    training_plan = TrainingPlan.from_mapping(plan)
+    config = training_plan.train_config(method, seed)
     log.info("training %s (preset %s, seed %d) on %s", config.method.value, config.preset.value, seed, dataset_dir)
+    if training_plan.processes > 1:
+        return _train_under_torchrun(config, Path(dataset_dir), Path(out_dir), training_plan.processes)
     return train(config, Path(dataset_dir), Path(out_dir))
+
+
+def torchrun_command(config: TrainConfig, dataset_dir: Path, out_dir: Path, processes: int,
+                     config_file: Path) -> list[str]:
+    """``torchrun --standalone --nproc-per-node N -m pipeline.cli train ...`` for one run.
+
+    ``config_file`` must hold ``config``'s options (YAML); the command line adds nothing else.
+    """
+    return [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc-per-node={processes}",
+            "-m", "pipeline.cli", "-q", "train", "--dataset", str(dataset_dir), "--out", str(out_dir),
+            "--config", str(config_file)]
+
+
+def _train_under_torchrun(config: TrainConfig, dataset_dir: Path, out_dir: Path, processes: int) -> Path:
+    """Run one training job as ``processes`` data-parallel processes (DDP) and wait for them.
+
+    Raises:
+        DataError: A process failed (its output is in the job's log).
+    """
+    import subprocess
+    import tempfile
+
+    import yaml
+
+    with tempfile.TemporaryDirectory(prefix="biasgt-train-") as tmp:
+        config_file = Path(tmp) / "train.yaml"
+        config_file.write_text(yaml.safe_dump(config.to_dict(), sort_keys=False), encoding="utf-8")
+        command = torchrun_command(config, dataset_dir, out_dir, processes, config_file)
+        log.info("launching %d data-parallel processes: %s", processes, " ".join(command))
+        run = subprocess.run(command, capture_output=True, text=True)
+    for line in (run.stdout + run.stderr).splitlines():
+        log.info("torchrun: %s", line)
+    if run.returncode != 0:
+        raise DataError(f"data-parallel training of {config.method.value} failed (torchrun exit {run.returncode})",
+                        path=out_dir, hint="see the torchrun lines in this job's log")
+    return out_dir
 
 
 def evaluate_step(dataset_dir: str | Path, out_dir: str | Path, settings: Mapping[str, Any], *,

@@ -30,7 +30,7 @@ import pandas as pd
 
 from pipeline.atomic import write_text_atomic
 from pipeline.errors import DataError
-from training.baselines import Baseline
+from training.config import Baseline
 from training.config import Method
 from training.evaluate import EvaluationSummary, read_summary
 
