@@ -31,7 +31,6 @@ import statistics
 import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
 
 import torch
@@ -98,8 +97,7 @@ def latency(threads: int, repeats: int, samples: tuple[int, ...] = (1, 50),
         model = _paper_model(method)
         module = ExportedSampler(model, Sampler.DDIM, STEPS).eval()
         imu = torch.randn(1, T, 6)
-        with tempfile.TemporaryDirectory() as tmp, torch.no_grad(), warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with tempfile.TemporaryDirectory() as tmp, torch.no_grad():
             example = example_inputs(module, T)
             write_export(module, example, Path(tmp) / "m.pt", ExportFormat.TORCHSCRIPT)
             write_export(module, example, Path(tmp) / "m.onnx", ExportFormat.ONNX)
