@@ -115,3 +115,17 @@ def test_training_plan_rejects_bad_sections():
         TrainingPlan.from_mapping({"options": {"max_steps": 0}})
     with pytest.raises(ConfigError, match="unknown evaluation option"):
         EvaluationConfig.from_mapping({"sampler": "ddim"})
+
+
+def test_job_parameters_change_only_with_the_run():
+    """A train job's parameters are its resolved TrainConfig: adding seeds or methods leaves them alone;
+    an evaluate job's exclude the list of references."""
+    from training.config import TrainConfig
+    from training.stages import evaluation_settings
+
+    one = TrainingPlan.from_mapping({"methods": ["diffusion_rnn"], "seeds": [0]})
+    more = TrainingPlan.from_mapping({"methods": ["diffusion_rnn", "regression_rnn"], "seeds": [0, 1]})
+    assert one.run_settings("diffusion_rnn", "0") == more.run_settings("diffusion_rnn", 0)
+    assert one.run_settings("diffusion_rnn", 0) != more.run_settings("diffusion_rnn", 1)
+    assert TrainConfig.from_mapping(more.run_settings("regression_rnn", 1)) == more.train_config("regression_rnn", 1)
+    assert evaluation_settings({"samples": 8, "references": ["zero"]}) == {"samples": 8}

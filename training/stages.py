@@ -93,6 +93,11 @@ class TrainingPlan:
         return TrainConfig.from_mapping({**self.options, "method": Method(method), "seed": int(seed),
                                          "preset": self.preset})
 
+    def run_settings(self, method: Method | str, seed: int | str) -> dict[str, Any]:
+        """Parameters of one train job: its resolved :class:`TrainConfig` as a plain mapping (so that
+        adding a method or a seed retrains nothing else)."""
+        return self.train_config(method, int(seed)).to_dict()
+
     def runs(self) -> list[tuple[Method, int]]:
         return [(m, s) for m in self.methods for s in self.seeds]
 
@@ -127,15 +132,21 @@ def _set_threads(threads: int | None) -> None:
         torch.set_num_threads(int(threads))
 
 
-def train_step(dataset_dir: str | Path, out_dir: str | Path, plan: Mapping[str, Any], method: str, seed: int,
+def train_step(dataset_dir: str | Path, out_dir: str | Path, config: Mapping[str, Any],
                threads: int | None = None) -> Path:
-    """Train one run of the plan (``plan``: the ``training:`` section)."""
+    """Train one run from its resolved :class:`TrainConfig` mapping (:meth:`TrainingPlan.run_settings`)."""
     from training.train import train
 
     _set_threads(threads)
-    config = TrainingPlan.from_mapping(plan).train_config(method, seed)
-    log.info("training %s (preset %s, seed %d) on %s", config.method.value, config.preset.value, seed, dataset_dir)
-    return train(config, Path(dataset_dir), Path(out_dir))
+    cfg = TrainConfig.from_mapping(config)
+    log.info("training %s (preset %s, seed %d) on %s", cfg.method.value, cfg.preset.value, cfg.seed, dataset_dir)
+    return train(cfg, Path(dataset_dir), Path(out_dir))
+
+
+def evaluation_settings(section: Mapping[str, Any]) -> dict[str, Any]:
+    """Parameters of an evaluate job: the ``evaluation:`` section without ``references`` (which
+    only says which reference jobs exist), so that listing another reference re-evaluates nothing."""
+    return {k: v for k, v in section.items() if k != "references"}
 
 
 def evaluate_step(dataset_dir: str | Path, out_dir: str | Path, settings: Mapping[str, Any], *,
