@@ -2,10 +2,10 @@
 
 Prints:
 
-1. Training throughput (windows/s) per method at a preset (default ``small``): ``biasgt train``
-   for ``--train-steps`` optimiser steps on a simulated window dataset (built in a temporary
-   folder: 3 simulated 20-s sequences, train / val / test); the figure is ``run.json``'s
-   ``windows_per_s`` (windows through the optimiser per second of training).
+1. Training throughput (windows/s) per method at a preset (default ``small``): optimiser steps
+   (loss, backward, clipping, AdamW) on synthetic 201-sample windows
+   (:func:`training.speed.training_throughput`; data loading excluded; ``run.json`` of a real
+   run holds the figure with loading).
 2. Latency of DDIM-25 (eta 0) for ONE window of 201 samples: one sample, and 50 samples
    batched, for the paper-size RNN (2,192,710 parameters) and U-Net (42,814,022), in PyTorch
    eager, TorchScript (``torch.jit.trace`` of :class:`training.export.ExportedSampler`) and
@@ -26,24 +26,21 @@ diffusion_unet] [--results results]``
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import tempfile
 import time
-import warnings
 from pathlib import Path
 
 import torch
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
 
-from training.config import Method, ModelConfig, Preset, Sampler, TrainConfig  # noqa: E402
+from training.config import Method, Preset, Sampler  # noqa: E402
 from training.export import ExportedSampler, ExportFormat, example_inputs, onnx_session, write_export  # noqa: E402,E501
-from training.models import build_model, count_parameters  # noqa: E402
-from training.normalizer import Normalizer  # noqa: E402
+from training.models import count_parameters  # noqa: E402
+from training.speed import probe_model, training_throughput  # noqa: E402
 
 T = 201
 STEPS = 25
@@ -52,28 +49,13 @@ LONG_S = 20.0
 
 
 def train_throughput(methods: list[Method], preset: Preset, steps: int, batch: int, threads: int) -> None:
-    from training.train import train
-    from window_data import make_window_dataset
-
     torch.set_num_threads(threads)
-    with tempfile.TemporaryDirectory() as tmp:
-        data = make_window_dataset(Path(tmp), splits={"train": 1, "val": 1, "test": 1}, duration_s=20.0)
-        print(f"training throughput ({preset.value} preset, batch {batch}, {steps} steps, {threads} threads):")
-        for method in methods:
-            cfg = TrainConfig(method=method, preset=preset, max_steps=steps, batch_size=batch,
-                              val_every=steps, checkpoint_every=steps, warmup_steps=1, device="cpu")
-            t0 = time.perf_counter()
-            out = train(cfg, data, Path(tmp) / method.value)
-            wall = time.perf_counter() - t0
-            run = json.loads((out / "run.json").read_text())
-            print(f"  {method.value:<16} {run.get('windows_per_s', float('nan')):8.1f} windows/s "
-                  f"({run.get('parameters', 0):,} parameters; {wall:.1f} s for the run incl. validation)")
-
-
-def _paper_model(method: Method) -> torch.nn.Module:
-    stats = {k: [0.0] * 6 for k in ("imu_mean", "bias_mean")} | {k: [1.0] * 6 for k in ("imu_std", "bias_std")}
-    torch.manual_seed(0)
-    return build_model(ModelConfig.for_preset(method, Preset.PAPER), Normalizer(stats)).eval()
+    print(f"training throughput ({preset.value} preset, batch {batch}, {steps} steps after 2 warm-up steps, "
+          f"{threads} threads; loss, backward, clipping, AdamW on synthetic windows):")
+    for method in methods:
+        rate = training_throughput(method, preset, batch_size=batch, steps=steps)
+        params = count_parameters(probe_model(method, preset))
+        print(f"  {method.value:<16} {rate:8.1f} windows/s ({params:,} parameters)")
 
 
 def _time(fn, repeats: int) -> tuple[float, str]:
@@ -95,11 +77,10 @@ def latency(threads: int, repeats: int, samples: tuple[int, ...] = (1, 50),
     torch.set_num_threads(threads)
     print(f"DDIM-{STEPS} latency, one window of {T} samples, paper-size models, {threads} threads:")
     for method in methods:
-        model = _paper_model(method)
+        model = probe_model(method, Preset.PAPER).eval()
         module = ExportedSampler(model, Sampler.DDIM, STEPS).eval()
         imu = torch.randn(1, T, 6)
-        with tempfile.TemporaryDirectory() as tmp, torch.no_grad(), warnings.catch_warnings():
-            warnings.simplefilter("ignore")
+        with tempfile.TemporaryDirectory() as tmp, torch.no_grad():
             example = example_inputs(module, T)
             write_export(module, example, Path(tmp) / "m.pt", ExportFormat.TORCHSCRIPT)
             write_export(module, example, Path(tmp) / "m.onnx", ExportFormat.ONNX)

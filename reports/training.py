@@ -24,9 +24,9 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from pipeline.atomic import write_text_atomic
-from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag
+from reports.html import Html, figure_img, fmt, join, p, page, section, table, tag
 from training.evaluate import CHANNELS, EXAMPLES_PARQUET, EvaluationSummary, read_summary
-from training.table import AVERAGE, TableColumn, cell_marks, build_table, table_columns
+from training.table import AVERAGE, TableColumn, build_table, cell_marks, table_columns
 
 log = logging.getLogger(__name__)
 

@@ -12,11 +12,8 @@ from training.checkpoint import load_run
 from training.config import Sampler
 from training.export import export_run, onnx_session
 from training.predict import _batch
-from training.stages import train_step
-from window_data import make_window_dataset
+from window_data import make_window_dataset, train_tiny
 
-PLAN = {"preset": "tiny", "options": {"max_steps": 4, "batch_size": 8, "val_every": 2, "checkpoint_every": 2,
-                                      "device": "cpu", "warmup_steps": 1}}
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +21,7 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("export")
     data = make_window_dataset(root, splits={"train": 1, "val": 1}, duration_s=4.0)
     for m in ("diffusion_rnn", "regression_rnn"):
-        train_step(data, root / m, {**PLAN, "methods": [m]}, m, 0, threads=1)
+        train_tiny(data, root / m, m)
     return root
 
 

@@ -22,13 +22,11 @@ from training.evaluate import (
     load_test_windows,
     read_summary,
 )
-from training.stages import TrainingPlan, evaluate_step, table_step, train_step
+from training.stages import TrainingPlan, evaluate_step, table_step
 from training.table import TABLE_MD
-from window_data import make_window_dataset
+from window_data import make_window_dataset, train_tiny
 
-PLAN = {"methods": ["diffusion_rnn", "regression_rnn"], "preset": "tiny",
-        "options": {"max_steps": 6, "batch_size": 8, "val_every": 3, "checkpoint_every": 3, "device": "cpu",
-                    "warmup_steps": 1}}
+METHODS = ("diffusion_rnn", "regression_rnn")
 EVAL = {"samples": 4, "steps": 3, "samplers": ["ddim", "released"], "examples": 2}
 
 
@@ -36,8 +34,8 @@ EVAL = {"samples": 4, "steps": 3, "samplers": ["ddim", "released"], "examples": 
 def trained(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("learned")
     data = make_window_dataset(root, splits={"train": 1, "val": 1, "test": 1}, duration_s=5.0)
-    for method in PLAN["methods"]:
-        train_step(data, root / "training" / method, PLAN, method, 0, threads=1)
+    for method in METHODS:
+        train_tiny(data, root / "training" / method, method, steps=6)
         evaluate_step(data, root / "evaluation" / method, EVAL, run_dir=root / "training" / method, method=method)
     for ref in (Baseline.ZERO, Baseline.GROUND_TRUTH):
         evaluate_step(data, root / "evaluation" / ref.value, EVAL, reference=ref.value)
@@ -117,3 +115,17 @@ def test_training_plan_rejects_bad_sections():
         TrainingPlan.from_mapping({"options": {"max_steps": 0}})
     with pytest.raises(ConfigError, match="unknown key 'sampler' \(did you mean 'samplers'"):
         EvaluationConfig.from_mapping({"sampler": "ddim"})
+
+
+def test_job_parameters_change_only_with_the_run():
+    """A train job's parameters are its resolved TrainConfig: adding seeds or methods leaves them alone;
+    an evaluate job's exclude the list of references."""
+    from training.config import TrainConfig
+    from training.stages import evaluation_settings
+
+    one = TrainingPlan.from_mapping({"methods": ["diffusion_rnn"], "seeds": [0]})
+    more = TrainingPlan.from_mapping({"methods": ["diffusion_rnn", "regression_rnn"], "seeds": [0, 1]})
+    assert one.run_settings("diffusion_rnn", "0") == more.run_settings("diffusion_rnn", 0)
+    assert one.run_settings("diffusion_rnn", 0) != more.run_settings("diffusion_rnn", 1)
+    assert TrainConfig.from_mapping(more.run_settings("regression_rnn", 1)) == more.train_config("regression_rnn", 1)
+    assert evaluation_settings({"samples": 8, "references": ["zero"]}) == {"samples": 8}

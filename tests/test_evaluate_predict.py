@@ -13,12 +13,9 @@ from pipeline.errors import DataError
 from pipeline.store import read_store
 from training.checkpoint import load_run
 from training.predict import _batch, predict_sequence, window_starts
-from training.stages import train_step
 from validation.validate import read_bias_file, validate_inputs
-from window_data import make_window_dataset
+from window_data import make_window_dataset, train_tiny
 
-PLAN = {"preset": "tiny", "options": {"max_steps": 4, "batch_size": 8, "val_every": 2, "checkpoint_every": 2,
-                                      "device": "cpu", "warmup_steps": 1}}
 
 
 @pytest.fixture(scope="module")
@@ -26,7 +23,7 @@ def runs(tmp_path_factory):
     root = tmp_path_factory.mktemp("predict")
     data = make_window_dataset(root, splits={"train": 1, "val": 1, "test": 1}, duration_s=5.0)
     for m in ("regression_rnn", "diffusion_rnn"):
-        train_step(data, root / m, {**PLAN, "methods": [m]}, m, 0, threads=1)
+        train_tiny(data, root / m, m)
     return root
 
 

@@ -6,13 +6,12 @@ import dataclasses
 import json
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 import pytest
 
 from pipeline.errors import DataError
 from training.baselines import Baseline
-from training.evaluate import Metrics, evaluate_reference, read_summary, write_evaluation
+from training.evaluate import Metrics, evaluate_reference, read_summary
 from training.table import AVERAGE, TABLE_CSV, TABLE_MD, table_columns, write_table
 from window_data import make_window_dataset
 

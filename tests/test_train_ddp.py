@@ -46,3 +46,18 @@ def test_two_gloo_processes_match_one_process(tmp_path):
     summary = json.loads((tmp_path / "two" / "run.json").read_text())
     assert summary["processes"] == 2 and summary["steps"] == 300
     assert not list((tmp_path / "two").glob("*.tmp"))  # one writer, every write completed
+
+
+def test_workflow_train_step_launches_torchrun_for_several_processes(tmp_path, monkeypatch):
+    """training.processes > 1: the train job runs 'biasgt train' under torchrun inside the job."""
+    from training.config import TrainingPlan
+    from training.stages import train_step
+
+    monkeypatch.setenv("OMP_NUM_THREADS", "1")
+    monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))
+    ds = write_toy_dataset(tmp_path / "ds", Toy(kind=Kind.LINEAR, samples=16), train=32, val=16, test=0)
+    plan = TrainingPlan.from_mapping({"preset": "tiny", "processes": 2, "options": {
+        "max_steps": 20, "batch_size": 8, "val_every": 10, "checkpoint_every": 10, "device": "cpu"}})
+    out = train_step(ds, tmp_path / "run", plan.run_settings("regression_rnn", 0), processes=plan.processes)
+    summary = json.loads((out / "run.json").read_text())
+    assert summary["processes"] == 2 and summary["steps"] == 20 and summary["method"] == "regression_rnn"

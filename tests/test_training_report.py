@@ -10,12 +10,10 @@ import pytest
 
 from reports.training import SECTIONS, build_training_report
 from training.config import Baseline
-from training.stages import evaluate_step, train_step
-from window_data import make_window_dataset
+from training.stages import evaluate_step
+from window_data import make_window_dataset, train_tiny
 
-PLAN = {"methods": ["diffusion_rnn", "regression_rnn", "indirect_rnn"], "preset": "tiny",
-        "options": {"max_steps": 4, "batch_size": 8, "val_every": 2, "checkpoint_every": 2, "device": "cpu",
-                    "warmup_steps": 1}}
+METHODS = ("diffusion_rnn", "regression_rnn", "indirect_rnn")
 EVAL = {"samples": 4, "steps": 3, "samplers": ["ddim", "released"], "examples": 2}
 
 
@@ -24,9 +22,9 @@ def report(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("training_report")
     data = make_window_dataset(root, splits={"train": 1, "val": 1, "test": 1}, duration_s=5.0)
     evals, runs = [], []
-    for method in PLAN["methods"]:
+    for method in METHODS:
         run = root / "training" / method / "seed0"
-        train_step(data, run, PLAN, method, 0, threads=1)
+        train_tiny(data, run, method)
         evaluate_step(data, root / "evaluation" / method / "seed0", EVAL, run_dir=run, method=method)
         runs.append(run)
         evals.append(root / "evaluation" / method / "seed0")

@@ -51,3 +51,16 @@ def make_window_dataset(root: Path, *, splits: dict[str, int] | None = None, dur
     out = root / "dataset"
     build_window_dataset(sources, out, WindowConfig(window_s=window_s, overlap=0.5))
     return out
+
+
+#: A training plan (the workflow's ``training:`` section) that trains in seconds: tiny preset, a few steps.
+TINY_PLAN = {"preset": "tiny", "options": {"max_steps": 4, "batch_size": 8, "val_every": 2, "checkpoint_every": 2,
+                                           "device": "cpu", "warmup_steps": 1}}
+
+
+def train_tiny(dataset: Path, out_dir: Path, method: str, steps: int = 4) -> Path:
+    """Train ``method`` for ``steps`` steps at the tiny preset through the workflow's step."""
+    from training.stages import TrainingPlan, train_step
+
+    plan = {**TINY_PLAN, "methods": [method], "options": {**TINY_PLAN["options"], "max_steps": steps}}
+    return train_step(dataset, out_dir, TrainingPlan.from_mapping(plan).run_settings(method, 0), threads=1)

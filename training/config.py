@@ -351,6 +351,11 @@ class TrainingPlan:
         return TrainConfig.from_mapping({**self.options, "method": Method(method), "seed": int(seed),
                                          "preset": self.preset})
 
+    def run_settings(self, method: Method | str, seed: int | str) -> dict[str, Any]:
+        """Parameters of one train job: its resolved :class:`TrainConfig` as a plain mapping (so that
+        adding a method or a seed retrains nothing else)."""
+        return self.train_config(method, int(seed)).to_dict()
+
     def runs(self) -> list[tuple[Method, int]]:
         return [(m, s) for m in self.methods for s in self.seeds]
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import enum
 import logging
+import warnings
 from pathlib import Path
 
 import torch
@@ -100,7 +101,9 @@ def write_export(module: ExportedSampler, example: tuple[torch.Tensor, ...], pat
         ExportError: ONNX asked and the 'onnx' package is missing.
     """
     fmt = ExportFormat(fmt)
-    with torch.no_grad():
+    with torch.no_grad(), warnings.catch_warnings():
+        # the sampler's clip range and timesteps are constants of the graph, as the tracer warns
+        warnings.simplefilter("ignore", torch.jit.TracerWarning)
         if fmt is ExportFormat.TORCHSCRIPT:
             torch.jit.trace(module, example, check_trace=False).save(str(path))
             return

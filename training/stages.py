@@ -71,18 +71,24 @@ def _set_threads(threads: int | None) -> None:
         torch.set_num_threads(int(threads))
 
 
-def train_step(dataset_dir: str | Path, out_dir: str | Path, plan: Mapping[str, Any], method: str, seed: int,
-               threads: int | None = None) -> Path:
-    """Train one run of the plan (``plan``: the ``training:`` section)."""
+def train_step(dataset_dir: str | Path, out_dir: str | Path, config: Mapping[str, Any],
+               threads: int | None = None, processes: int = 1) -> Path:
+    """Train one run from its resolved :class:`TrainConfig` mapping (:meth:`TrainingPlan.run_settings`),
+    as ``processes`` data-parallel processes under torchrun when more than 1."""
     from training.train import train
 
     _set_threads(threads)
-    training_plan = TrainingPlan.from_mapping(plan)
-    config = training_plan.train_config(method, seed)
-    log.info("training %s (preset %s, seed %d) on %s", config.method.value, config.preset.value, seed, dataset_dir)
-    if training_plan.processes > 1:
-        return _train_under_torchrun(config, Path(dataset_dir), Path(out_dir), training_plan.processes)
-    return train(config, Path(dataset_dir), Path(out_dir))
+    cfg = TrainConfig.from_mapping(config)
+    log.info("training %s (preset %s, seed %d) on %s", cfg.method.value, cfg.preset.value, cfg.seed, dataset_dir)
+    if processes > 1:
+        return _train_under_torchrun(cfg, Path(dataset_dir), Path(out_dir), processes)
+    return train(cfg, Path(dataset_dir), Path(out_dir))
+
+
+def evaluation_settings(section: Mapping[str, Any]) -> dict[str, Any]:
+    """Parameters of an evaluate job: the ``evaluation:`` section without ``references`` (which
+    only says which reference jobs exist), so that listing another reference re-evaluates nothing."""
+    return {k: v for k, v in section.items() if k != "references"}
 
 
 def torchrun_command(config: TrainConfig, dataset_dir: Path, out_dir: Path, processes: int,

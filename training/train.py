@@ -384,7 +384,10 @@ def train(config: TrainConfig, dataset_dir: str | Path, out_dir: str | Path, *, 
         config: Every training option.
         dataset_dir: A window dataset (``biasgt windows``); train and val splits are read.
         out_dir: Run folder (``last.pt``, ``best.pt``, ``metrics.csv``, ``run.json``).
-        resume: Continue from ``out_dir/last.pt`` (a fresh start when there is none).
+        resume: Continue from ``out_dir/last.pt`` (a fresh start when there is none). With the
+            same options the result is bit-identical to an uninterrupted run; a larger
+            ``max_steps`` continues with the cosine schedule stretched to the new total (not the
+            run a first start with that total would give).
 
     Returns:
         ``out_dir``.

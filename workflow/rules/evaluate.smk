@@ -1,7 +1,7 @@
 # Stage evaluate: PRMSE / ROE on the test split's non-overlapping 1-s windows (training.evaluate):
 # results/evaluation/{method}/seed{seed}/ for each trained run and results/evaluation/{reference}/
 # for the rows that need no training (zero, train mean, recovered GT bias, random-walk oracle).
-# params: the 'evaluation:' section (samples, samplers, steps, seed, references).
+# params: the 'evaluation:' section without 'references' (samples, samplers, steps, seed, ...).
 
 
 rule evaluate:
@@ -13,11 +13,8 @@ rule evaluate:
     log:
         wf.log_file("evaluate", "{method}_seed{seed}"),
     params:
-        settings=WF_CONFIG.section("evaluation"),
+        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation")),
     threads: 2
-    resources:
-        mem_mb=lambda wildcards, attempt: 4000 * attempt,
-        runtime=lambda wildcards, attempt: 60 * attempt,
     script:
         "../scripts/evaluate.py"
 
@@ -30,10 +27,7 @@ rule evaluate_reference:
     log:
         wf.log_file("evaluate", "{reference}"),
     params:
-        settings=WF_CONFIG.section("evaluation"),
+        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation")),
     threads: 1
-    resources:
-        mem_mb=lambda wildcards, attempt: 4000 * attempt,
-        runtime=lambda wildcards, attempt: 30 * attempt,
     script:
         "../scripts/evaluate.py"

@@ -1,7 +1,8 @@
 # Stage train: one job per learned method and seed of the 'training:' section (training.stages.
 # TrainingPlan): results/training/{method}/seed{seed}/ ('biasgt train': best.pt chosen on the
 # validation split, last.pt, metrics.csv, run.json), from the window dataset.
-# params: the 'training:' section, so that a changed option retrains.
+# params: the run's resolved TrainConfig, so that a changed option retrains, and adding a method
+# or a seed trains only the new runs.
 
 from training import stages as ts
 
@@ -23,10 +24,8 @@ rule train:
     log:
         wf.log_file("train", "{method}_seed{seed}"),
     params:
-        plan=WF_CONFIG.section("training"),
+        config=lambda wildcards: TRAINING_PLAN.run_settings(wildcards.method, wildcards.seed),
+        processes=TRAINING_PLAN.processes,
     threads: 2
-    resources:
-        mem_mb=lambda wildcards, attempt: 4000 * attempt,
-        runtime=lambda wildcards, attempt: 120 * attempt,
     script:
         "../scripts/train.py"

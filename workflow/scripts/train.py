@@ -8,8 +8,7 @@ run_step(
     train_step,
     snakemake.input.dataset,  # noqa: F821
     snakemake.output[0],  # noqa: F821
-    snakemake.params.plan,  # noqa: F821
-    snakemake.wildcards.method,  # noqa: F821
-    int(snakemake.wildcards.seed),  # noqa: F821
+    snakemake.params.config,  # noqa: F821
     threads=snakemake.threads,  # noqa: F821
+    processes=snakemake.params.processes,  # noqa: F821
 )
