@@ -80,6 +80,22 @@ def _raise_terminated(signum: int, frame: object) -> None:
     raise Terminated()
 
 
+def _terminated(command: str) -> int:
+    print(f"biasgt {command}: terminated (SIGTERM); nothing half-written was left", file=sys.stderr)
+    return 128 + signal.SIGTERM
+
+
+def _caused_by_termination(exc: BaseException) -> bool:
+    seen: set[int] = set()
+    cause: BaseException | None = exc
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, Terminated):
+            return True
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return False
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -96,8 +112,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"biasgt {args.command}: interrupted", file=sys.stderr)
         return 130
     except Terminated:
-        print(f"biasgt {args.command}: terminated (SIGTERM); nothing half-written was left", file=sys.stderr)
-        return 128 + signal.SIGTERM
+        return _terminated(args.command)
+    except Exception as exc:
+        # SIGTERM inside an extension module's code (e.g. while gtsam initialises) surfaces as
+        # that module's error, caused by Terminated: still a termination, not a crash.
+        if _caused_by_termination(exc):
+            return _terminated(args.command)
+        raise
     except BrokenPipeError:
         # Output piped into e.g. `head`, which closed early: not an error of ours.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())

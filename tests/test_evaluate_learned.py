@@ -113,7 +113,7 @@ def test_training_plan_rejects_bad_sections():
         TrainingPlan.from_mapping({"options": {"seed": 3}})
     with pytest.raises(ConfigError, match="max_steps"):
         TrainingPlan.from_mapping({"options": {"max_steps": 0}})
-    with pytest.raises(ConfigError, match="unknown key 'sampler' \(did you mean 'samplers'"):
+    with pytest.raises(ConfigError, match=r"unknown key 'sampler' \(did you mean 'samplers'"):
         EvaluationConfig.from_mapping({"sampler": "ddim"})
 
 

@@ -177,3 +177,24 @@ def test_read_only_output_folder_is_refused_before_any_work(tmp_path: Path) -> N
     assert run.returncode == 2, run.stderr
     assert run.stderr.count("\n") == 1 and "is not writable" in run.stderr
     assert list(ro.iterdir()) == []
+
+
+def test_sigterm_inside_an_extension_import_is_a_termination_not_a_traceback(capsys, monkeypatch) -> None:
+    """A signal while a C extension initialises comes back as that module's ImportError, caused by
+    Terminated (seen with gtsam): the CLI still reports a termination, in one line."""
+    from pipeline import cli
+
+    def import_interrupted(args):
+        try:
+            raise cli.Terminated()
+        except cli.Terminated as exc:
+            raise ImportError("initialization failed") from exc
+
+    parser = cli.build_parser()
+    monkeypatch.setattr(cli, "build_parser", lambda: parser)
+    args = parser.parse_args(["inspect", "x"])
+    monkeypatch.setattr(parser, "parse_args", lambda argv=None: args)
+    monkeypatch.setattr(args, "func", import_interrupted)
+    assert cli.main([]) == 128 + signal.SIGTERM
+    err = capsys.readouterr().err
+    assert err.strip() == "biasgt inspect: terminated (SIGTERM); nothing half-written was left"
