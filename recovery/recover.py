@@ -1093,6 +1093,13 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
                    full, warnings, timings, t_start)
 
 
+def calibration_sources(sequence: Sequence, config: RecoveryConfig) -> dict[str, str]:
+    """Where each IMU noise value the recovery started from came from: the recovery config, the
+    input's calibration file, the simulator, or the EuRoC default nobody gave."""
+    sources = sequence.calibration.value_sources()
+    return {k: ("recovery config" if getattr(config, k) is not None else v) for k, v in sources.items()}
+
+
 def _result(sequence: Sequence, config: RecoveryConfig, inputs: _Inputs, offset: _ClockOffset,
             calib_window: tuple[int, int], ext_init: _ExtrinsicInit, extrinsic_info: dict[str, Any], noise: _Noise,
             gravity: _Gravity, full: _FullSolve, warnings: list[str], timings: dict[str, float],
@@ -1139,6 +1146,7 @@ def _result(sequence: Sequence, config: RecoveryConfig, inputs: _Inputs, offset:
         "gravity_world_mps2": [float(x) for x in full.gravity_unit * config.gravity_mps2],
         "gravity": {**gravity.info, **full.info},
         "noise": choice.to_dict(),
+        "calibration_sources": calibration_sources(sequence, config),
         "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
         "outliers_rejected": int(len(outlier_t) + len(rejected)),
         "outlier_t_ns": [int(t) for t in np.union1d(outlier_t, rejected)],  # IMU clock

@@ -220,3 +220,25 @@ def test_degenerate_wheel_odometry_hint_works(shared_data: Path, tmp_path: Path,
     rc = main(["-q", "recover", str(bag), "--out", str(tmp_path / "rec"), "--keyframe-rate", "10"])
     assert rc == 0, capsys.readouterr().err
     assert (tmp_path / "rec" / "bias.csv").exists()
+
+
+def test_recovery_json_says_where_each_noise_value_came_from(wrong_datasheet) -> None:
+    import json
+
+    from pipeline.types import CALIBRATION_NOISE_FIELDS
+
+    sim, rec = wrong_datasheet
+    sources = json.loads((rec / "recovery.json").read_text())["calibration_sources"]
+    yaml_path = str(sim / "mav0" / "imu0" / "sensor.yaml")
+    assert sources == dict.fromkeys(CALIBRATION_NOISE_FIELDS, yaml_path)
+
+
+def test_calibration_sources_name_the_recovery_config_when_it_overrides() -> None:
+    from pipeline.types import CALIBRATION_DEFAULT_SOURCE, ImuCalibration, Sequence
+    from recovery.config import RecoveryConfig
+    from recovery.recover import calibration_sources
+
+    seq = Sequence("s", calibration=ImuCalibration(sources={"gyro_noise_density": "imu0/sensor.yaml"}))
+    got = calibration_sources(seq, RecoveryConfig(acc_random_walk=0.01))
+    assert got == {"gyro_noise_density": "imu0/sensor.yaml", "gyro_random_walk": CALIBRATION_DEFAULT_SOURCE,
+                   "acc_noise_density": CALIBRATION_DEFAULT_SOURCE, "acc_random_walk": "recovery config"}
