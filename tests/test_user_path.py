@@ -74,7 +74,7 @@ def test_random_walk_at_the_search_bound_is_a_limitation_with_a_next_step(wrong_
 
     sim, rec = wrong_datasheet
     (lim,) = recovery_limitations(RecoveryOutputs.read(rec))
-    assert "gyro bias random walk was chosen at the edge of its search" in lim.text
+    assert "gyro bias random walk was chosen at the upper edge of its search" in lim.text
     assert "sensor.yaml" in lim.next_step
     rc = main(["validate", str(sim), "--recovery", str(rec), "--out", str(tmp_path / "val")])
     out = capsys.readouterr().out
@@ -242,3 +242,20 @@ def test_calibration_sources_name_the_recovery_config_when_it_overrides() -> Non
     got = calibration_sources(seq, RecoveryConfig(acc_random_walk=0.01))
     assert got == {"gyro_noise_density": "imu0/sensor.yaml", "gyro_random_walk": CALIBRATION_DEFAULT_SOURCE,
                    "acc_noise_density": CALIBRATION_DEFAULT_SOURCE, "acc_random_walk": "recovery config"}
+
+
+def test_only_the_upper_edge_of_the_noise_search_limits_the_bias() -> None:
+    """A walk at the lower edge (a nearly constant bias) errs on the safe side; at the upper edge the
+    bias may absorb other errors."""
+    from types import SimpleNamespace
+
+    from validation.validate import recovery_limitations
+
+    def limits(gyro_scale: float) -> list[str]:
+        report = {"noise": {"method": "evidence", "gyro_random_walk_scale": gyro_scale, "acc_random_walk_scale": 1.0},
+                  "config": {"random_walk_scales": [0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0]}}
+        return [lim.text for lim in recovery_limitations(SimpleNamespace(report=report))]
+
+    assert limits(0.3) == [] and limits(10.0) == []
+    assert len(limits(300.0)) == 1 and "upper edge" in limits(300.0)[0]
+    assert len(limits(100.0)) == 1 and "100x the calibration" in limits(100.0)[0]  # > 30x the datasheet
