@@ -676,8 +676,10 @@ def windows_inputs(cfg: WorkflowConfig) -> dict[str, list[str]]:
 
 
 def windows_settings(cfg: WorkflowConfig) -> dict[str, Any]:
-    """Parameters of rule ``windows``: ``{"sequences": [[name, split], ...], "config": windows section}``."""
-    return {"sequences": [[s.name, s.split.value] for s in windowed_sequences(cfg)],
+    """Parameters of rule ``windows``: ``{"sequences": [[name, split, reference pose stream], ...],
+    "config": windows section}``; the reference is the validation's (``validation.poses``)."""
+    return {"sequences": [[s.name, s.split.value, validation_settings(cfg, s.name)["poses"]]
+                          for s in windowed_sequences(cfg)],
             "config": cfg.section("windows")}
 
 
@@ -877,8 +879,8 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
         raise ConfigError(f"windows: {len(named)} sequences but {len(stores)} stores, {len(recoveries)} recoveries "
                           f"and {len(validations)} validations", field="windows",
                           hint="a bug in the workflow wiring; please report it")
-    sources = [WindowSource(name, split, str(store), str(rec), str(val))
-               for (name, split), store, rec, val in zip(named, stores, recoveries, validations)]
+    sources = [WindowSource(name, split, str(store), str(rec), str(val), *reference)
+               for (name, split, *reference), store, rec, val in zip(named, stores, recoveries, validations)]
     config = stage_config("windows", settings.get("config") or {})
     log.info("cutting windows of %d sequence(s): %s", len(sources),
              ", ".join(f"{s.name} ({s.split})" for s in sources))

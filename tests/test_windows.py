@@ -474,3 +474,47 @@ def test_windows_take_only_sequences_whose_verdict_allows_it(sim10, tmp_path):
     with pytest.raises(ConfigError, match="every train sequence was left out"):
         build_window_dataset([bad, test], tmp_path / "ds2", WindowConfig())
     assert not (tmp_path / "ds2").exists()
+
+
+def test_windows_take_the_validations_reference_stream(sim10, tmp_path):
+    """A bias recovered from positions only (no orientation): the windows' states come from the stream
+    the validation used (here ground-truth poses of the IMU), as MH_01's Leica recovery needs."""
+    from pipeline.errors import ValidationError
+    from pipeline.types import PoseSeries, PoseSourceKind
+
+    seq = sim10.sequence
+    gt = seq.ground_truth
+    poses = {"leica0": PoseSeries(gt.t_ns[::10], gt.p_m[::10], None, "prism", PoseSourceKind.POSITION_TRACKER),
+             "gt_poses": PoseSeries(gt.t_ns, gt.p_m, gt.quat_wxyz, "imu", PoseSourceKind.GROUND_TRUTH)}
+    no_state = dataclasses.replace(seq, name="m", ground_truth=None, poses=poses)
+    store = write_store(no_state, tmp_path / "stores" / "m")
+    rec = _write_recovery(tmp_path / "rec" / "m", sim10)
+    with pytest.raises(ValidationError, match="positions only"):
+        extract_windows(no_state, rec, "train", WindowConfig(), reference_stream="leica0")
+    sw = extract_windows(no_state, rec, "train", WindowConfig(), reference_stream="gt_poses")
+    assert len(sw) > 10 and sw.info["reference"] == "poses"
+    np.testing.assert_allclose(sw.arrays["start_p"], gt.p_m[np.searchsorted(gt.t_ns, sw.arrays["t_ns"][:, 0])],
+                               atol=2e-3)
+    m = build_window_dataset([WindowSource("m", "train", store, rec, reference_stream="gt_poses")],
+                             tmp_path / "ds")
+    assert m.sequences["m"].windows == len(sw)
+
+
+def test_cli_reference_option_and_its_hint(sim10, tmp_path, capsys):
+    from pipeline.types import PoseSeries, PoseSourceKind
+
+    gt = sim10.sequence.ground_truth
+    poses = {"leica0": PoseSeries(gt.t_ns[::10], gt.p_m[::10], None, "prism", PoseSourceKind.POSITION_TRACKER),
+             "gt_poses": PoseSeries(gt.t_ns, gt.p_m, gt.quat_wxyz, "imu", PoseSourceKind.GROUND_TRUTH)}
+    store = write_store(dataclasses.replace(sim10.sequence, name="m", ground_truth=None, poses=poses),
+                        tmp_path / "stores" / "m")
+    rec = write_recovery_folder(tmp_path / "rec" / "m", BiasTrack(gt.t_ns[::10], np.zeros((len(gt.t_ns[::10]), 6)),
+                                np.full((len(gt.t_ns[::10]), 6), 1e-3)),
+                                {"noise": {"gyro_random_walk": RW[0], "acc_random_walk": RW[1]},
+                                 "pose_stream": "leica0", "T_imu_pose": {"p_m": [0, 0, 0], "quat_wxyz": [1, 0, 0, 0]}})
+    args = ["windows", "--seq", "m", "train", str(store), str(rec), "--out", str(tmp_path / "ds")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "has positions only" in err and "--reference m=gt_poses" in err
+    assert main([*args, "--reference", "m=gt_poses"]) == 0
+    assert read_manifest(tmp_path / "ds").sequences["m"].windows > 10

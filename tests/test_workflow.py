@@ -92,10 +92,12 @@ def test_euroc_config_is_valid(shared_data):
     assert wf.validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
     assert wf.ingest_settings(cfg, "MH_01_easy")["reader_kwargs"]["extra_poses"][0]["kind"] == "ground_truth"
     assert wf.recovery_settings(cfg, "V1_02_medium_excerpt")["pose_stream"] == "ground_truth"  # GT state only
-    # every entry goes through every per-sequence stage; the windowed ones all have 6-DoF references
-    assert mh01.split is wf.Split.NONE
-    assert [s.name for s in wf.windowed_sequences(cfg)] == ["V1_01_easy"] + [
+    # every entry goes through every per-sequence stage; MH_01's real windows take the validation's
+    # reference (its GT poses: Leica positions have no orientation)
+    assert mh01.split is wf.Split.TRAIN
+    assert [s.name for s in wf.windowed_sequences(cfg)] == ["MH_01_easy", "V1_01_easy"] + [
         s.name for s in cfg.sequences if s.is_simulated]  # V1_01 (real, GT poses): the validation split
+    assert wf.windows_settings(cfg)["sequences"][0] == ["MH_01_easy", "train", "groundtruth_poses"]
     assert [s.name for s in cfg.select(splits=["val"])] == ["V1_01_easy"]
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
 
@@ -369,7 +371,7 @@ def test_stage_settings_merge_entry_overrides(tmp_path):
     assert wf.interpolation_settings(cfg, "a") == {"method": "cubic", "clamp": True, "write_csv": False}
     assert wf.interpolation_outputs(cfg) == ["results/interpolation/{sequence}/bias_imu.parquet"]
     assert wf.windows_settings(cfg) == {
-        "sequences": [["a", "train"], ["b", "val"], ["d", "test"]],
+        "sequences": [["a", "train", "mocap0"], ["b", "val", None], ["d", "test", None]],  # the validation's poses
         "config": {"window_s": 2.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0, "accept_warn": False},
     }
     assert wf.windows_inputs(cfg) == {

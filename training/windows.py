@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from pipeline.errors import ConfigError, DataError, InputFormatError
+from pipeline.errors import ConfigError, DataError, InputFormatError, ValidationError
 from pipeline.ingest import load
 from pipeline.store import is_store, read_store
 from pipeline.types import NS_PER_S, ImuSeries, Sequence, Split
@@ -114,6 +114,8 @@ class WindowSource:
         recovery_dir: Folder written by ``biasgt recover`` (``bias.csv``, ``recovery.json``).
         validation_dir: Folder written by ``biasgt validate`` for that recovery (its verdict gates
             the sequence), or None (not validated).
+        reference_stream: The pose stream the windows' start and end states come from, as in the
+            validation's ``--poses`` (None: the ground-truth state, else the recovery's stream).
     """
 
     name: str
@@ -121,6 +123,7 @@ class WindowSource:
     store_dir: Path
     recovery_dir: Path
     validation_dir: Path | None = None
+    reference_stream: str | None = None
 
     def __post_init__(self) -> None:
         try:
@@ -240,6 +243,7 @@ def extract_windows(
     config: WindowConfig = WindowConfig(),
     *,
     rate_hz: float | None = None,
+    reference_stream: str | None = None,
 ) -> SequenceWindows:
     """Cut one sequence into training windows (see the module docstring).
 
@@ -283,7 +287,19 @@ def extract_windows(
     dropped[DropReason.OUTSIDE_RECOVERY.value] = int(outside.sum())
     keep &= ~outside
 
-    reference: ReferenceStates = build_reference(sequence, recovery=recovery, config=vcfg)
+    # the validation's reference: the ground-truth state, else ``reference_stream`` (e.g. ground-truth
+    # poses when the bias was recovered from position-only Leica data), else the recovery's stream
+    try:
+        reference: ReferenceStates = build_reference(sequence, pose_stream=reference_stream, recovery=recovery,
+                                                     config=vcfg)
+    except ValidationError as exc:
+        if exc.field != "--poses":
+            raise
+        raise ValidationError(f"sequence '{sequence.name}': no reference for its windows: {exc.problem}",
+                              field="reference",
+                              hint=(exc.hint or "").replace("validate against", "take the states from")
+                              .replace("--poses ", f"--reference {sequence.name}=")
+                              + " (workflow: the entry's validation: {poses: STREAM})") from None
     no_ref = ~(reference.valid[starts] & reference.valid[starts + n])
     dropped[DropReason.NO_REFERENCE.value] = int(no_ref.sum())
     keep &= ~no_ref
@@ -396,7 +412,8 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
         for src in sources:
             seq = _load_source(src)
             seq = dataclasses.replace(seq, name=src.name)
-            sw = extract_windows(seq, src.recovery_dir, src.split, config, rate_hz=rate)
+            sw = extract_windows(seq, src.recovery_dir, src.split, config, rate_hz=rate,
+                                 reference_stream=src.reference_stream)
             sw.info["store_dir"] = str(src.store_dir)
             if rate is None:
                 rate = float(sw.info["rate_hz"])

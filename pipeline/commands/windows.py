@@ -72,6 +72,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="the 'biasgt validate' folder of a --seq sequence: its verdict decides whether the "
                         "sequence enters the dataset (PASS; WARN with --accept-warn; never FAIL); repeatable. "
                         "With --results, results/validation/NAME is used when it exists")
+    p.add_argument("--reference", action="append", default=[], metavar="NAME=STREAM",
+                   help="the pose stream a --seq sequence's windows take their start and end states from, as "
+                        "'biasgt validate --poses' (default: the ground-truth state, else the recovery's stream; "
+                        "needed when the recovery fitted positions only, e.g. Leica); repeatable")
     p.add_argument("--accept-warn", action="store_true", default=d.accept_warn,
                    help="take sequences whose verdict is WARN too")
     p.set_defaults(func=run)
@@ -88,17 +92,20 @@ def run(args: argparse.Namespace) -> int:
 
     config = WindowConfig(window_s=args.window_s, overlap=args.overlap, resample_hz=args.resample_hz,
                           gap_factor=args.gap_factor, accept_warn=args.accept_warn)
-    validations = dict(_split_validation(v) for v in args.validation)
-    unknown = sorted(set(validations) - {name for name, *_ in args.seq})
-    if unknown:
-        raise ConfigError(f"--validation names '{unknown[0]}', which no --seq gives", field="--validation",
-                          hint="write NAME=DIR with the NAME of a --seq sequence")
+    validations = {name: Path(folder) for name, folder in (_name_value(v, "--validation") for v in args.validation)}
+    references = dict(_name_value(v, "--reference") for v in args.reference)
+    for option, given in (("--validation", validations), ("--reference", references)):
+        unknown = sorted(set(given) - {name for name, *_ in args.seq})
+        if unknown:
+            raise ConfigError(f"{option} names '{unknown[0]}', which no --seq gives", field=option,
+                              hint="write NAME=VALUE with the NAME of a --seq sequence")
     sources = []
     for name, split, store, recovery in args.seq:
         if split not in SPLITS:
             raise ConfigError(f"unknown split '{split}' for sequence '{name}'", field="--seq",
                               hint=f"use one of {', '.join(SPLITS)}")
-        sources.append(WindowSource(name, split, Path(store), Path(recovery), validations.get(name)))
+        sources.append(WindowSource(name, split, Path(store), Path(recovery), validations.get(name),
+                                    references.get(name)))
     if (args.splits is None) != (args.results is None):
         raise ConfigError("--splits and --results go together", field="--splits" if args.results is None
                           else "--results", hint="give both, e.g. --splits splits.yaml --results results")
@@ -116,9 +123,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _split_validation(value: str) -> tuple[str, Path]:
-    name, sep, folder = value.partition("=")
-    if not sep or not name or not folder:
-        raise ConfigError(f"--validation {value!r} is not NAME=DIR", field="--validation",
-                          hint="e.g. --validation rec01=out/rec01/validation")
-    return name, Path(folder)
+def _name_value(value: str, option: str) -> tuple[str, str]:
+    name, sep, rest = value.partition("=")
+    if not sep or not name or not rest:
+        raise ConfigError(f"{option} {value!r} is not NAME=VALUE", field=option,
+                          hint=f"e.g. {option} rec01=" + ("out/rec01/validation" if option == "--validation"
+                                                           else "groundtruth_poses"))
+    return name, rest
