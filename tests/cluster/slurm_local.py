@@ -6,7 +6,9 @@ What it does, in a fresh temporary folder:
 
 1. Installs Debian's ``slurmctld``, ``slurmd``, ``slurm-client`` and ``munge`` when missing
    (apt-get, as root).
-2. Runs a small workflow config (two 10-s simulated sequences) locally: the reference.
+2. Runs a small workflow config locally, the reference: three 10-s simulated sequences (train,
+   val, test) through every stage, and the learning stage at a tiny preset (one method, one
+   seed, 10 steps; one reference row) up to Table I and the training report.
 3. Starts a one-node cluster: ``munged`` (as the munge user) with its own socket, then
    ``slurmctld`` and ``slurmd`` with a config written to ``/etc/slurm/slurm.conf`` (no cgroups, no
    accounting database; state, spool, pid and log files in the temporary folder); waits until
@@ -19,14 +21,16 @@ What it does, in a fresh temporary folder:
    twice (the profile's ``retries: 1``), ``biasgt run`` exited 2 naming the rule and its log and
    nothing of that sequence was left half-written.
 5. Compares the outputs file by file with the local run (every file under ``results/``; the
-   fields allowed to differ are listed in ``ALLOWED_DIFFERENCES``).
+   fields allowed to differ are listed in ``ALLOWED_DIFFERENCES``; trained runs and evaluation
+   folders hold wall-clock times, so of those the evaluation table must match: Table I).
 6. Repairs the IMU file and reruns: only that sequence's 5 jobs run, every finished file is
    untouched.
 7. Stops the daemons by their pid files (also on failure), removes the config and the
    temporary folder (kept with --keep or on failure).
 
 Exits 0 when every check holds, 1 otherwise; prints the timings and the checks. Takes about
-4.5 minutes on 2 busy cores (20 SLURM jobs of 10-15 s each, mostly Snakemake's start-up in the job).
+5 minutes on 2 cores (measured 314 s: 26 + 5 SLURM jobs of 5-15 s each, mostly Snakemake's start-up
+in the job).
 """
 
 from __future__ import annotations
@@ -50,7 +54,7 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 PACKAGES = {"slurmctld": "slurmctld", "slurmd": "slurmd", "sbatch": "slurm-client", "munged": "munge"}
-RUN_TIMEOUT_S = 240  # one 'biasgt run'; Snakemake ignores SIGTERM while jobs run: timeout -k
+RUN_TIMEOUT_S = 480  # one 'biasgt run'; Snakemake ignores SIGTERM while jobs run: timeout -k
 INIT_SECONDS = 5  # --slurm-init-seconds-before-status-checks; MinJobAge below is 3x or more
 MIN_JOB_AGE_S = 300
 SLURM_CONF = Path("/etc/slurm/slurm.conf")
@@ -60,12 +64,26 @@ CONFIG = """\
 sequences:
   - {name: sim_a, source: simulate, split: train, preset: handheld, duration_s: 10, seed: 1, pose_format: mocap}
   - {name: sim_b, source: simulate, split: test, preset: aggressive_drone, duration_s: 10, seed: 2, pose_format: mocap}
+  - {name: sim_c, source: simulate, split: val, preset: handheld, duration_s: 10, seed: 3, pose_format: mocap}
+"""
+#: The learning stage at a tiny, deterministic setting (one thread, one method, one reference row).
+LEARNING = """\
+windows: {accept_warn: true}
+training:
+  methods: [regression_rnn]
+  preset: tiny
+  options: {max_steps: 10, batch_size: 8, val_every: 5, checkpoint_every: 5, warmup_steps: 2, threads: 1,
+            device: cpu}
+evaluation: {samples: 2, samplers: [ddim], references: [zero]}
 """
 #: A recorded sequence whose IMU file holds no samples: its ingest job fails.
 BROKEN = """\
   - {name: broken, source: asl, split: none, path: broken}
 """
 BROKEN_RULES = ("ingest", "recover", "interpolate", "validate", "report")
+#: SLURM jobs of the good sequences: 3 x (simulate, ingest, recover, interpolate, validate, report),
+#: windows, and the learning stage's train, evaluate, evaluate_reference, table, training_report.
+GOOD_JOBS = 3 * 6 + 1 + 5
 
 #: Files whose content may legitimately differ between two runs, and what may differ in them.
 ALLOWED_DIFFERENCES = {
@@ -273,22 +291,25 @@ _SUBMITTED = re.compile(r"Job (\d+) has been submitted with SLURM jobid (\d+)")
 
 
 def submitted_jobs(workdir: Path) -> list[tuple[str, str, str]]:
-    """(rule, sequence or dataset, SLURM job id) of every job the last Snakemake run submitted."""
+    """(rule, job name, SLURM job id) of every job the last Snakemake run submitted; the job name is
+    its log file's name (the sequence, ``dataset``, ``regression_rnn_seed0``, a reference row...)."""
     log = sorted((workdir / ".snakemake" / "log").glob("*.snakemake.log"))[-1].read_text()
     rules = {}
     for block in re.split(r"\n(?=\[[A-Z][a-z]{2} )", log):
         m = re.search(r"^\s*rule (\w+):", block, re.M)
         j = re.search(r"^\s*jobid: (\d+)", block, re.M)
-        w = re.search(r"^\s*wildcards: sequence=(\S+)", block, re.M)
+        lg = re.search(r"^\s*log: (\S+)", block, re.M)
         if m and j:
-            rules[j.group(1)] = (m.group(1), w.group(1) if w else "dataset")
+            rules[j.group(1)] = (m.group(1), Path(lg.group(1).rstrip(",")).stem if lg else "dataset")
     return [(*rules[job], slurm_id) for job, slurm_id in _SUBMITTED.findall(log)]
 
 
 def check_slurm_jobs(c: Cluster, workdir: Path, jobs: list[tuple[str, str, str]], state: str) -> None:
     """Each job's own log names its SLURM job id; SLURM's completion log lists it in ``state``."""
     finished = c.finished_jobs()
-    folders = {"recover": "recovery", "interpolate": "interpolation", "validate": "validation"}
+    folders = {"recover": "recovery", "interpolate": "interpolation", "validate": "validation",
+               "train": "training", "evaluate": "evaluation", "evaluate_reference": "evaluation",
+               "training_report": "report"}
     for rule, name, slurm_id in jobs:
         job_log = workdir / "logs" / folders.get(rule, rule) / f"{name}.log"
         text = job_log.read_text() if job_log.exists() else ""
@@ -310,6 +331,15 @@ def same_content(a: Path, b: Path) -> bool:
     return False
 
 
+def _holds_wall_clock_times(path: Path) -> bool:
+    """A trained run, an evaluation folder or the training report: they record training and sampling
+    times (run.json, metrics.csv, checkpoints, summary.json, training.html); Table I does not."""
+    parts = path.parts
+    if parts[:2] == ("results", "evaluation") and path.name in ("table.csv", "table.md"):
+        return False
+    return parts[:2] in (("results", "training"), ("results", "evaluation")) or path.name == "training.html"
+
+
 def compare_results(local: Path, remote: Path) -> int:
     """Check that both runs wrote the same files with the same content; returns the file count."""
     def files(root: Path) -> set[Path]:
@@ -320,11 +350,13 @@ def compare_results(local: Path, remote: Path) -> int:
     check(mine == theirs, f"same {len(mine)} files under results/ (only local: {sorted(map(str, mine - theirs))[:3]}, "
                           f"only SLURM: {sorted(map(str, theirs - mine))[:3]})")
     exact = sum((local / p).read_bytes() == (remote / p).read_bytes() for p in mine)
-    differing = sorted(str(p) for p in mine if not same_content(local / p, remote / p))
+    compared = [p for p in mine if not _holds_wall_clock_times(p)]
+    differing = sorted(str(p) for p in compared if not same_content(local / p, remote / p))
     check(not differing, f"same content: {exact} of {len(mine)} files byte-identical, the others equal "
                          f"but for {'; '.join(f'{k}: {v}' for k, v in ALLOWED_DIFFERENCES.items())}"
                          + (f"; DIFFERENT: {differing[:5]}" if differing else ""))
-    for key in ("recovery/sim_a/bias.csv", "validation/sim_a/validation.json", "windows/dataset/manifest.json"):
+    for key in ("recovery/sim_a/bias.csv", "validation/sim_a/validation.json", "windows/dataset/manifest.json",
+                "evaluation/table.csv", "evaluation/table.md"):
         check((local / "results" / key).read_bytes() == (remote / "results" / key).read_bytes(),
               f"results/{key} byte-identical")
     return len(mine)
@@ -374,21 +406,22 @@ def main(argv: list[str] | None = None) -> int:
     print(f"working folder: {tmp}", flush=True)
     try:
         ensure_packages()
-        (tmp / "local.yaml").write_text(CONFIG)
+        (tmp / "local.yaml").write_text(CONFIG + LEARNING)
         rc, out, seconds = biasgt_run(tmp / "local.yaml", tmp / "local", "--cores", "2")
         check(rc == 0, f"local run: exit {rc} in {seconds:.0f} s")
         good_imu = tmp / "local" / "results" / "simulate" / "sim_a" / "mav0" / "imu0" / "data.csv"
         shutil.copytree(tmp / "local" / "results" / "simulate" / "sim_a", tmp / "broken")
         imu = break_imu(tmp / "broken")
-        (tmp / "slurm.yaml").write_text(CONFIG + BROKEN)
+        (tmp / "slurm.yaml").write_text(CONFIG + BROKEN + LEARNING)
         with cluster(tmp / "slurm") as c:
             remote = tmp / "remote"
             rc, out, seconds = biasgt_run(tmp / "slurm.yaml", remote, *slurm_args())
             jobs = submitted_jobs(remote)
             good = [job for job in jobs if job[1] != "broken"]
             print(f"SLURM run: exit {rc} in {seconds:.0f} s, {len(jobs)} SLURM jobs", flush=True)
-            check(len(good) == 13, f"13 SLURM jobs of the good sequences (2 x 6 stages + windows; 'all' is "
-                                   f"local): {len(good)}")
+            check(len(good) == GOOD_JOBS, f"{GOOD_JOBS} SLURM jobs of the good sequences (3 x 6 stages + windows "
+                                          f"+ train, evaluate, evaluate_reference, table, training_report; 'all' "
+                                          f"is local): {len(good)}")
             check_slurm_jobs(c, remote, good, "COMPLETED")
             check_failed_ingest(c, remote, rc, out, jobs)
             n_files = compare_results(tmp / "local", remote)
