@@ -432,6 +432,9 @@ def test_verdict_difference_explained_by_the_candidates_own_sigma_passes():
     assert v is Verdict.PASS, reasons
     cand = _metrics("recovered", BiasSourceKind.RECOVERED, 0.0025, 0.05, n=200, sigma=(0.0002, 0.0))
     assert _judge(cand, truth)[0] is Verdict.FAIL
+    # a large sigma does not excuse a bias 20x off the truth (a slow cart recovered from positions only)
+    cand = _metrics("recovered", BiasSourceKind.RECOVERED, 0.0412, 0.05, n=200, sigma=(0.045, 0.0))
+    assert _judge(cand, truth)[0] is Verdict.FAIL
 
 
 def test_verdict_limitations_make_a_pass_a_warn_listed_first():

@@ -75,7 +75,9 @@ Verdict (:class:`Verdict`) per sequence, reasons in plain words
     tilt it leaks into gravity, ``|g| s_g T^3 / 6``) and turns it by ``s_g T``
     (:func:`sigma_window_errors`), so with ``k = sigma_k`` (2):
 
-    * equal: ``cand <= sqrt(base^2 + (k sigma_prmse)^2) + tie`` (ROE: ``base + k sigma_roe + tie``);
+    * equal: ``cand <= sqrt(base^2 + (k sigma_prmse)^2) + tie`` (ROE: ``base + k sigma_roe + tie``),
+      where ``k sigma`` counts for at most ``base`` (a large sigma does not excuse a bias that is far
+      off: an unobservable recovery still FAILs against the truth);
     * worse within the margin (WARN): up to ``sqrt((base (1 + margin))^2 + (k sigma_prmse)^2) + tie``;
     * beyond that, FAIL only when a one-sided paired t-test of the per-window errors (squared end
       distances for PRMSE, angles for ROE) over non-overlapping windows says "worse" at
@@ -874,10 +876,13 @@ def decide_verdict(
                  and m.kind in (BiasSourceKind.CONSTANT_FIRST_WINDOW, BiasSourceKind.DATASET)]
     for base in baselines:
         where = f"'{candidate}' against '{base.name}' ({base.kind.value})"
-        prmse_allowed = tuple(float(np.hypot(base.prmse_m * f, k * cand.sigma_prmse_m)) + config.tie_prmse_m
+        # its own sigma explains at most the baseline's error: a bias that is far off stays far off
+        # however large the sigma it reports (an unobservable position-only recovery, say)
+        sigma_pos = min(k * cand.sigma_prmse_m, base.prmse_m)
+        sigma_rot = min(k * cand.sigma_roe_deg, base.roe_deg)
+        prmse_allowed = tuple(float(np.hypot(base.prmse_m * f, sigma_pos)) + config.tie_prmse_m
                               for f in (1.0, 1.0 + config.margin))
-        roe_allowed = tuple(base.roe_deg * f + k * cand.sigma_roe_deg + config.tie_roe_deg
-                            for f in (1.0, 1.0 + config.margin))
+        roe_allowed = tuple(base.roe_deg * f + sigma_rot + config.tie_roe_deg for f in (1.0, 1.0 + config.margin))
         for fail, warn in (
             _compare("PRMSE", "m", cand.prmse_m, base.prmse_m, prmse_allowed,
                      _paired_p_value(cand.pos_err_m**2, base.pos_err_m**2, stride), config),
