@@ -52,6 +52,7 @@ from torch.utils.data import default_collate
 
 from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
+from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
 from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, Split, WindowDataset
@@ -336,7 +337,7 @@ class EvaluationSummary:
         raise KeyError((sampler, aggregation))
 
     def to_dict(self) -> dict[str, Any]:
-        return json.loads(json.dumps(dataclasses.asdict(self), default=_json_default))
+        return to_plain(dataclasses.asdict(self))
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> EvaluationSummary:
@@ -349,18 +350,6 @@ class EvaluationSummary:
             Calibration(Sampler(c["sampler"]), tuple(c["levels"]), tuple(tuple(x) for x in c["coverage"]))
             for c in d.get("calibration", ()))
         return cls(**d)
-
-
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    if isinstance(obj, (np.generic,)):
-        return obj.item()
-    if isinstance(obj, (np.ndarray, tuple)):
-        return list(obj)
-    if isinstance(obj, Path):
-        return str(obj)
-    raise TypeError(f"not JSON-serialisable: {type(obj)}")
 
 
 @dataclass
