@@ -26,11 +26,13 @@ from pipeline.sim import (
     write_simulation,
 )
 from pipeline.sim.motion import read_ground_truth_file
+from pipeline.sim.simulator import BiasSource, MotionSource
 from pipeline.sim.writer import GT_HEADER, IMU_HEADER, MOCAP_HEADER, POSITION_HEADER
 from pipeline.types import PoseSourceKind
 
 NS = 1_000_000_000
 V102_GT = "euroc/V1_02_medium/mav0/state_groundtruth_estimate0/data.csv"
+MH02_POSES = "euroc/MH_02_easy/ov_data/MH_02_easy.txt"  # EuRoC ground-truth poses only (TUM text)
 
 
 def _rot(quat_wxyz: np.ndarray) -> Rotation:
@@ -422,6 +424,33 @@ def test_semi_real_mode_reproduces_the_ground_truth_file(shared_data: Path) -> N
     # the whole file when duration_s is None
     whole = simulate(dataclasses.replace(cfg, duration_s=None))
     assert whole.config.duration_s == pytest.approx((gt_file.t_ns[-1] - gt_file.t_ns[0]) / NS - 1.0, abs=0.01)
+
+
+def test_semi_real_from_poses_only_draws_the_bias_from_the_imu_model(shared_data: Path, tmp_path: Path) -> None:
+    """A TUM pose file gives the motion; the bias is the IMU model's, labelled as simulated."""
+    from pipeline.io.tum import read_tum_poses
+
+    path = shared_data / MH02_POSES
+    cfg = SimConfig(duration_s=20.0, seed=4, motion=MotionConfig(ground_truth_path=str(path)))
+    sim = simulate(cfg)
+    poses, _ = read_tum_poses(path)  # the file, read independently of the simulator's reader
+    imu_t = sim.sequence.imu.t_ns
+    inside = (poses.t_ns >= imu_t[0]) & (poses.t_ns <= imu_t[-1])
+    t_s = (poses.t_ns[inside] - imu_t[0]) / NS
+    p_err = np.linalg.norm(sim.trajectory.position(t_s) - poses.p_m[inside], axis=1)
+    assert p_err.max() < 5e-3 and np.sqrt(np.mean(p_err**2)) < 1e-3
+    r_err = np.rad2deg((sim.trajectory.rotation(t_s).inv() * _rot(poses.quat_wxyz[inside])).magnitude())
+    assert np.percentile(r_err, 95) < 0.1
+    # the bias does not depend on where the motion came from: the same seed's random-motion
+    # simulation of the same length draws the same bias (the IMU model's turn-on + random walk)
+    random_motion = simulate(dataclasses.replace(cfg, motion=MotionConfig()))
+    assert len(random_motion.truth.t_ns) == len(imu_t)
+    np.testing.assert_array_equal(sim.truth.bias_gyro_radps, random_motion.truth.bias_gyro_radps)
+    np.testing.assert_array_equal(sim.truth.bias_acc_mps2, random_motion.truth.bias_acc_mps2)
+    assert np.ptp(sim.truth.bias_acc_mps2, axis=0).min() > 0  # a walk, not a constant
+    assert (sim.truth.motion_source, sim.truth.bias_source) == (MotionSource.GROUND_TRUTH_POSES, BiasSource.SIMULATED)
+    truth = yaml.safe_load((write_simulation(sim, tmp_path / "s") / "simulation.yaml").read_text())["truth"]
+    assert (truth["motion_source"], truth["bias_source"]) == ("ground_truth_poses", "simulated")
 
 
 def test_ground_truth_file_errors(tmp_path: Path) -> None:

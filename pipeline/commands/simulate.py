@@ -25,7 +25,8 @@ and write it as a EuRoC/ASL folder that every biasgt reader accepts:
   OUT/simulation.yaml                             resolved config, seed and the truth
 
 Motion is a smooth random trajectory (--preset) or, with --ground-truth, the motion AND the bias
-of a real EuRoC ground-truth file ("semi-real"). The same seed gives byte-identical files.
+of a real EuRoC ground-truth state file ("semi-real"); a TUM pose file there gives the motion
+only, and the bias is then drawn from the IMU model (labelled 'bias_source: simulated'). The same seed gives byte-identical files.
 Options override the --config file; the config file holds every knob (see pipeline/sim/config.py).
 """
 
@@ -78,7 +79,8 @@ def register(subparsers: Any) -> None:
     p.add_argument("--noise-free", action="store_true", help="no IMU white noise and no pose noise (bias is kept)")
     p.add_argument(
         "--ground-truth", metavar="FILE", type=Path,
-        help="EuRoC state_groundtruth_estimate0/data.csv: take the motion AND the bias from it (semi-real)",
+        help="EuRoC state_groundtruth_estimate0/data.csv: take the motion AND the bias from it (semi-real); "
+             "a TUM pose file of the IMU: the motion only (the bias is simulated)",
     )
     p.add_argument("--bag", choices=["ros1", "ros2"], help="also write a ROS1 sim.bag or ROS2 sim_ros2/ bag")
     p.set_defaults(func=run)

@@ -190,6 +190,8 @@ class MotionConfig:
         gravity_mps2: Gravity vector in the world frame.
         ground_truth_path: A EuRoC ``state_groundtruth_estimate0/data.csv``: when set, the
             motion AND the bias come from that file ("semi-real" mode) and the preset is unused.
+            A TUM pose file of the IMU (``t[s] x y z qx qy qz qw``) gives the motion only; the
+            bias is then the IMU model's (``SimTruth.bias_source`` says which).
         gt_position_knot_interval_s: Knot spacing of the least-squares position spline fitted
             to the file (larger = smoother derived accelerometer).
         gt_orientation_key_interval_s: Spacing of the file's orientations used as spline keys.

@@ -26,8 +26,9 @@ from scipy.spatial.transform import Rotation, RotationSpline
 
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.io.asl import read_asl_state_csv
+from pipeline.io.tum import read_tum_poses
 from pipeline.sim.config import PresetParams
-from pipeline.types import StateSeries
+from pipeline.types import PoseSeries, PoseSourceKind, StateSeries
 
 log = logging.getLogger(__name__)
 
@@ -143,31 +144,54 @@ def random_trajectory(params: PresetParams, t_end_s: float, rng: np.random.Gener
     return Trajectory(position, RotationSpline(t_keys, keys), t_keys[0], t_keys[-1])
 
 
-def read_ground_truth_file(path: str | Path) -> StateSeries:
-    """Read a EuRoC ground-truth state CSV with :func:`pipeline.io.asl.read_asl_state_csv`.
+def _is_tum_text(path: Path) -> bool:
+    """Whether the first data line is whitespace-separated (TUM text) rather than a comma-separated CSV."""
+    with path.open("r", encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            stripped = line.strip()
+            if stripped and not stripped.startswith("#"):
+                return "," not in stripped
+    return False
+
+
+def read_ground_truth_file(path: str | Path) -> StateSeries | PoseSeries:
+    """Read the motion of a semi-real simulation.
+
+    Two kinds of file are accepted:
+
+    * a EuRoC ground-truth state CSV (``state_groundtruth_estimate0/data.csv``, read with
+      :func:`pipeline.io.asl.read_asl_state_csv`): motion and bias -> :class:`StateSeries`;
+    * a TUM pose file of the IMU (``t[s] x y z qx qy qz qw``, read with
+      :func:`pipeline.io.tum.read_tum_poses`), e.g. EuRoC's ground truth of a sequence whose state
+      file is not at hand: motion only -> :class:`PoseSeries` (the simulator then draws the bias
+      from the IMU's random-walk model).
 
     Rows are sorted by stamp and repeated stamps dropped (the simulator needs a function of time).
 
     Raises:
         ConfigError: The file does not exist.
-        InputFormatError: It is not a EuRoC ground-truth state CSV.
+        InputFormatError: It is neither kind of file, or holds fewer than 10 rows.
     """
     path = Path(path)
     if not path.is_file():
         raise ConfigError("ground-truth file not found", path=path, field="motion.ground_truth_path")
-    state, findings = read_asl_state_csv(path)
+    motion: StateSeries | PoseSeries
+    if _is_tum_text(path):
+        motion, findings = read_tum_poses(path, source_kind=PoseSourceKind.GROUND_TRUTH)
+    else:
+        motion, findings = read_asl_state_csv(path)
     for finding in findings:
         log.warning("%s: %s", path, finding.message)
-    if len(state) < 10:
-        raise InputFormatError(f"only {len(state)} ground-truth rows", path=path,
-                               hint="give a mav0/state_groundtruth_estimate0/data.csv")
-    order = np.argsort(state.t_ns, kind="stable")
-    keep = np.r_[True, np.diff(state.t_ns[order]) > 0]
-    return state.take(order[keep])
+    if len(motion) < 10:
+        raise InputFormatError(f"only {len(motion)} ground-truth rows", path=path,
+                               hint="give a mav0/state_groundtruth_estimate0/data.csv or a TUM pose file of the IMU")
+    order = np.argsort(motion.t_ns, kind="stable")
+    keep = np.r_[True, np.diff(motion.t_ns[order]) > 0]
+    return motion.take(order[keep])
 
 
 def ground_truth_trajectory(
-    gt: StateSeries,
+    gt: StateSeries | PoseSeries,
     t0_ns: int,
     *,
     position_knot_interval_s: float,

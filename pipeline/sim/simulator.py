@@ -50,6 +50,21 @@ class _Stream(int, enum.Enum):
     VIO = 12
 
 
+class MotionSource(str, enum.Enum):
+    """Where a simulation's motion comes from (``motion.ground_truth_path`` decides)."""
+
+    RANDOM = "random"  # the motion preset's random splines
+    GROUND_TRUTH_STATE = "ground_truth_state"  # semi-real: a EuRoC state file (motion and bias)
+    GROUND_TRUTH_POSES = "ground_truth_poses"  # semi-real: a TUM pose file (motion only)
+
+
+class BiasSource(str, enum.Enum):
+    """Where a simulation's true bias comes from."""
+
+    GROUND_TRUTH_FILE = "ground_truth_file"  # the state file's bias (real, recorded)
+    SIMULATED = "simulated"  # the IMU model: turn-on + random walk + temperature terms
+
+
 @dataclass(frozen=True)
 class SimTruth:
     """Everything the simulation knows that a recovery stage must find.
@@ -61,6 +76,8 @@ class SimTruth:
         matrices: Scale/misalignment/g-sensitivity actually applied.
         poses: Pose-stream truth (clock offset, extrinsic, dropouts, outliers, VIO drift).
         gravity_mps2: Gravity in the world frame, [3].
+        motion_source: Random splines, or a ground-truth state or pose file (semi-real).
+        bias_source: The ground-truth file's bias, or the IMU model's simulated one.
     """
 
     t_ns: np.ndarray
@@ -70,6 +87,8 @@ class SimTruth:
     matrices: SensorMatrices
     poses: PoseTruth
     gravity_mps2: np.ndarray
+    motion_source: MotionSource = MotionSource.RANDOM
+    bias_source: BiasSource = BiasSource.SIMULATED
 
     @property
     def clock_offset_s(self) -> float:
@@ -163,7 +182,7 @@ def simulate(config: SimConfig) -> Simulation:
     motion = trajectory.sample(t_s)
     f_body = motion.specific_force(gravity)
 
-    if gt_file is not None:
+    if isinstance(gt_file, StateSeries):
         # interpolate on times relative to t0 (int64 epoch ns do not fit float64 exactly)
         t_file = (gt_file.t_ns - t0_ns).astype(np.float64)
         t_rel = rel_ns.astype(np.float64)
@@ -233,5 +252,8 @@ def simulate(config: SimConfig) -> Simulation:
         matrices=matrices,
         poses=pose_truth,
         gravity_mps2=gravity,
+        motion_source=(MotionSource.RANDOM if gt_file is None else MotionSource.GROUND_TRUTH_STATE
+                       if isinstance(gt_file, StateSeries) else MotionSource.GROUND_TRUTH_POSES),
+        bias_source=BiasSource.GROUND_TRUTH_FILE if isinstance(gt_file, StateSeries) else BiasSource.SIMULATED,
     )
     return Simulation(config=config, sequence=sequence, truth=truth, trajectory=trajectory)
