@@ -10,7 +10,9 @@ Prints:
    batched, for the paper-size RNN (2,192,710 parameters) and U-Net (42,814,022), in PyTorch
    eager, TorchScript (``torch.jit.trace`` of :class:`training.export.ExportedSampler`) and
    onnxruntime (the ONNX export of the same module), with ``--threads`` (default 2) intra-op
-   threads. Weights are freshly initialised (latency does not depend on their values). Each
+   threads; and, for reference, eager with PyTorch's dynamic int8 quantisation of the GRU and
+   Linear layers (``torch.ao.quantization.quantize_dynamic``), printed with its largest sample
+   difference from float32 for the same noise (a deployment option, not what ``export`` writes). Weights are freshly initialised (latency does not depend on their values). Each
    figure is the median of ``--repeats`` runs after one warm-up run; runs longer than 20 s
    are timed once (no warm-up), and stated so.
 3. With ``--results DIR``: Table I from ``DIR/evaluation`` (the workflow's results folder).
@@ -30,6 +32,7 @@ import statistics
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import torch
@@ -86,14 +89,26 @@ def latency(threads: int, repeats: int, samples: tuple[int, ...] = (1, 50),
             write_export(module, example, Path(tmp) / "m.onnx", ExportFormat.ONNX)
             ts = torch.jit.load(str(Path(tmp) / "m.pt"))
             sess = onnx_session(Path(tmp) / "m.onnx", threads)
+            int8 = _dynamic_int8(module)
             print(f"  {method.value} ({count_parameters(model):,} parameters)")
             for k in samples:
                 noise = torch.randn(k, T, 6)
                 feeds = {"imu": imu.numpy(), "noise": noise.numpy()}
                 for name, fn in (("eager", lambda: module(imu, noise)), ("torchscript", lambda: ts(imu, noise)),
-                                 ("onnxruntime", lambda: sess.run(None, feeds))):
+                                 ("onnxruntime", lambda: sess.run(None, feeds)),
+                                 ("eager int8", lambda: int8(imu, noise))):
                     sec, note = _time(fn, repeats)
                     print(f"    {k:>2} sample(s)  {name:<12} {1000 * sec:10.1f} ms{note}")
+                diff = (module(imu, noise) - int8(imu, noise)).abs().amax(dim=(0, 1, 2))
+                print(f"    {k:>2} sample(s)  int8 - float32, largest |difference| per channel: "
+                      + " ".join(f"{v:.1e}" for v in diff.tolist()) + " (rad/s x3, m/s^2 x3)")
+
+
+def _dynamic_int8(module: torch.nn.Module) -> torch.nn.Module:
+    """``module`` with int8 weights in its GRU and Linear layers (activations quantised on the fly)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # torch.ao.quantization announces its move to torchao
+        return torch.ao.quantization.quantize_dynamic(module, {torch.nn.GRU, torch.nn.Linear}, dtype=torch.qint8)
 
 
 def print_table(results: Path) -> None:
