@@ -761,28 +761,7 @@ def solve_window(
     bias_std = np.full((K, 6), np.nan)
     extras: dict[str, Any] = {}
     if opts.compute_marginals or opts.marginal_extras:
-        gfg = built.graph.linearize(result)
-        marg = gtsam.Marginals(gfg, result)
-        if opts.compute_marginals:
-            idx = marginal_keyframes(kf.t_ns, opts.marginal_rate_hz)
-            var = np.array([np.diag(marg.marginalCovariance(B(int(k)))) for k in idx])  # [acc, gyro]
-            var = np.hstack([var[:, 3:], var[:, :3]])
-            added = _calibration_variance(gfg, built, result, samples, kf, bias, T_used, opts, idx)
-            if added is not None:
-                extras["calibration_std_ratio"] = np.sqrt((var + added) / var)  # [len(idx), 6]
-                var = var + added
-            bias_std[idx] = np.sqrt(var)
-            if len(idx) < K:
-                x = kf.t_ns - kf.t_ns[0]
-                for c in range(6):
-                    bias_std[:, c] = np.interp(x, x[idx], bias_std[idx, c])
-        if opts.marginal_extras:
-            if opts.estimate_gravity:
-                extras["gravity_cov_tangent"] = marg.marginalCovariance(G(0))
-            if result.exists(E(0)):
-                extras["extrinsic_cov"] = marg.marginalCovariance(E(0))
-            if result.exists(L(0)):
-                extras["lever_arm_cov"] = marg.marginalCovariance(L(0))
+        bias_std = _marginals(built, result, samples, kf, bias, T_used, opts, extras)
     ev = log_evidence(built, result) if want_evidence else float("nan")
     return WindowSolution(
         t_ns=kf.t_ns.copy(), p_m=P, quat_wxyz=Q, v_mps=Vv, bias=bias, bias_std=bias_std, gravity_unit=gu,
@@ -790,6 +769,40 @@ def solve_window(
         outliers=outliers, iterations=iters, log_evidence=ev, extras=extras,
         pose_residual=pose_res, imu_residual=imu_res,
     )
+
+
+def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf: KeyframePoses, bias: np.ndarray,
+               T_imu_pose: np.ndarray, opts: SolveOptions, extras: dict[str, Any]) -> np.ndarray:
+    """Bias 1-sigma [K, 6] (NaN without ``compute_marginals``; including the fixed calibration's
+    uncertainty with ``calibration_cov``) and the shared variables' covariances into ``extras``
+    (``marginal_extras``), from one linearisation at the optimum."""
+    K = len(kf)
+    bias_std = np.full((K, 6), np.nan)
+    gfg = built.graph.linearize(result)
+    marg = gtsam.Marginals(gfg, result)
+    if opts.marginal_extras:
+        if opts.estimate_gravity:
+            extras["gravity_cov_tangent"] = marg.marginalCovariance(G(0))
+        if result.exists(E(0)):
+            extras["extrinsic_cov"] = marg.marginalCovariance(E(0))
+        if result.exists(L(0)):
+            extras["lever_arm_cov"] = marg.marginalCovariance(L(0))
+    if not opts.compute_marginals:
+        return bias_std
+    idx = marginal_keyframes(kf.t_ns, opts.marginal_rate_hz)
+    var = np.array([np.diag(marg.marginalCovariance(B(int(k)))) for k in idx])  # [acc, gyro]
+    var = np.hstack([var[:, 3:], var[:, :3]])
+    del marg  # the propagation below needs the linearisation only (peak memory)
+    added = _calibration_variance(gfg, built, result, samples, kf, bias, T_imu_pose, opts, idx)
+    if added is not None:
+        extras["calibration_std_ratio"] = np.sqrt((var + added) / var)  # [len(idx), 6]
+        var = var + added
+    bias_std[idx] = np.sqrt(var)
+    if len(idx) < K:
+        x = kf.t_ns - kf.t_ns[0]
+        for c in range(6):
+            bias_std[:, c] = np.interp(x, x[idx], bias_std[idx, c])
+    return bias_std
 
 
 def _calibration_variance(gfg: gtsam.GaussianFactorGraph, built: _Built, result: gtsam.Values,

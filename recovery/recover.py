@@ -15,8 +15,10 @@ Stages (each logged; all results and choices land in ``recovery.json``):
 5. noise: bias random walks by maximum evidence (:mod:`recovery.noise`); pose sigmas
    in closed form from the scatter of fused samples (else by evidence too).
 6. the full solve, by overlapping segments (bounded memory), with robust
-   pose factors, outlier rejection, gravity direction and bias marginals;
-   stitched without seams (:mod:`recovery.segments`).
+   pose factors, outlier rejection, gravity direction and bias marginals
+   that include the uncertainty of the estimated clock offset and extrinsic
+   (:mod:`recovery.calibration_uncertainty`); stitched without seams
+   (:mod:`recovery.segments`).
 
 Keyframes: for 6-DoF absolute streams every pose sample is used through
 10-Hz keyframes that fuse the samples of their bin (:mod:`recovery.fusion`,
