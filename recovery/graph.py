@@ -27,6 +27,8 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, PoseSourceKind
+from recovery.calibration_uncertainty import CalibrationCovariance, KeyframeKinematics, added_bias_variance, \
+    measurement_columns
 from recovery.config import PoseFactorMode, RobustLoss
 from recovery.fusion import FusedPoses, PerBin, WithinBinStats
 from recovery.preintegration import ImuNoise, MidpointSamples, make_params, preintegrate
@@ -111,6 +113,9 @@ class SolveOptions:
     marginal_extras: bool = False  # gravity / extrinsic covariances
     marginal_rate_hz: float | None = 20.0  # bias marginals at this rate (+ ends, gap edges), interpolated
     gravity_prior_cov: np.ndarray | None = None  # [2, 2] Unit3-tangent prior on G(0) around init.gravity_unit
+    # the calibration held fixed and its covariance: propagated into the bias marginals
+    # (recovery.calibration_uncertainty; 6-DoF absolute pose factors only)
+    calibration_cov: CalibrationCovariance | None = None
 
 
 @dataclass
@@ -238,6 +243,7 @@ class _Built:
     pose_factors: list[tuple[int, Any, Any]]  # (keyframe index, factor, gaussian model)
     imu_factors: list[Any]
     neg_log_const: float  # sum of the Gaussian normalisers (for the evidence)
+    pose_index: list[int] = field(default_factory=list)  # graph index of each pose_factors entry
 
 
 def _savgol_slope(y: np.ndarray, win: int, dt: float) -> np.ndarray:
@@ -504,6 +510,7 @@ def _add_imu_factors(built: _Built, pims: list[Any], opts: SolveOptions, init: W
 
 def _add_pose(built: _Built, k: int, factor: Any, base: Any) -> None:
     """Add keyframe ``k``'s pose factor (``base``: its Gaussian model, for residuals and the evidence)."""
+    built.pose_index.append(int(built.graph.size()))
     built.graph.add(factor)
     built.pose_factors.append((k, factor, base))
     built.neg_log_const += base.negLogConstant()
@@ -754,24 +761,7 @@ def solve_window(
     bias_std = np.full((K, 6), np.nan)
     extras: dict[str, Any] = {}
     if opts.compute_marginals or opts.marginal_extras:
-        marg = gtsam.Marginals(built.graph, result)
-        if opts.compute_marginals:
-            idx = marginal_keyframes(kf.t_ns, opts.marginal_rate_hz)
-            for k in idx:
-                c = np.diag(marg.marginalCovariance(B(int(k))))
-                bias_std[k, :3] = np.sqrt(c[3:])
-                bias_std[k, 3:] = np.sqrt(c[:3])
-            if len(idx) < K:
-                x = kf.t_ns - kf.t_ns[0]
-                for c in range(6):
-                    bias_std[:, c] = np.interp(x, x[idx], bias_std[idx, c])
-        if opts.marginal_extras:
-            if opts.estimate_gravity:
-                extras["gravity_cov_tangent"] = marg.marginalCovariance(G(0))
-            if result.exists(E(0)):
-                extras["extrinsic_cov"] = marg.marginalCovariance(E(0))
-            if result.exists(L(0)):
-                extras["lever_arm_cov"] = marg.marginalCovariance(L(0))
+        bias_std = _marginals(built, result, samples, kf, bias, T_used, opts, extras)
     ev = log_evidence(built, result) if want_evidence else float("nan")
     return WindowSolution(
         t_ns=kf.t_ns.copy(), p_m=P, quat_wxyz=Q, v_mps=Vv, bias=bias, bias_std=bias_std, gravity_unit=gu,
@@ -779,6 +769,61 @@ def solve_window(
         outliers=outliers, iterations=iters, log_evidence=ev, extras=extras,
         pose_residual=pose_res, imu_residual=imu_res,
     )
+
+
+def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf: KeyframePoses, bias: np.ndarray,
+               T_imu_pose: np.ndarray, opts: SolveOptions, extras: dict[str, Any]) -> np.ndarray:
+    """Bias 1-sigma [K, 6] (NaN without ``compute_marginals``; including the fixed calibration's
+    uncertainty with ``calibration_cov``) and the shared variables' covariances into ``extras``
+    (``marginal_extras``), from one linearisation at the optimum."""
+    K = len(kf)
+    bias_std = np.full((K, 6), np.nan)
+    gfg = built.graph.linearize(result)
+    marg = gtsam.Marginals(gfg, result)
+    if opts.marginal_extras:
+        if opts.estimate_gravity:
+            extras["gravity_cov_tangent"] = marg.marginalCovariance(G(0))
+        if result.exists(E(0)):
+            extras["extrinsic_cov"] = marg.marginalCovariance(E(0))
+        if result.exists(L(0)):
+            extras["lever_arm_cov"] = marg.marginalCovariance(L(0))
+    if not opts.compute_marginals:
+        return bias_std
+    idx = marginal_keyframes(kf.t_ns, opts.marginal_rate_hz)
+    var = np.array([np.diag(marg.marginalCovariance(B(int(k)))) for k in idx])  # [acc, gyro]
+    var = np.hstack([var[:, 3:], var[:, :3]])
+    del marg  # the propagation below needs the linearisation only (peak memory)
+    added = _calibration_variance(gfg, built, result, samples, kf, bias, T_imu_pose, opts, idx)
+    if added is not None:
+        extras["calibration_std_ratio"] = np.sqrt((var + added) / var)  # [len(idx), 6]
+        var = var + added
+    bias_std[idx] = np.sqrt(var)
+    if len(idx) < K:
+        x = kf.t_ns - kf.t_ns[0]
+        for c in range(6):
+            bias_std[:, c] = np.interp(x, x[idx], bias_std[idx, c])
+    return bias_std
+
+
+def _calibration_variance(gfg: gtsam.GaussianFactorGraph, built: _Built, result: gtsam.Values,
+                          samples: MidpointSamples, kf: KeyframePoses, bias: np.ndarray, T_imu_pose: np.ndarray,
+                          opts: SolveOptions, idx: np.ndarray) -> np.ndarray | None:
+    """Bias variance [len(idx), 6] (gyro, acc) added by the uncertainty of the fixed calibration
+    (:mod:`recovery.calibration_uncertainty`); None when there is none or the factors are not 6-DoF absolute."""
+    if (opts.calibration_cov is None or opts.pose_mode != PoseFactorMode.ABSOLUTE or opts.estimate_extrinsic
+            or opts.estimate_lever_arm or kf.quat_wxyz is None or not built.pose_index):
+        return None
+    K = len(kf)
+    R = np.array([result.atPose3(X(k)).rotation().matrix() for k in range(K)])
+    v = np.array([result.atVector(V(k)) for k in range(K)])
+    first = np.minimum(samples.start, len(samples.dt_s) - 1)  # the sub-interval after each keyframe
+    kin = KeyframeKinematics(R, v, samples.gyro_radps[first] - bias[:, :3],
+                             np.gradient(v, (kf.t_ns - kf.t_ns[0]) / NS_PER_S, axis=0))
+    factors = [(i, k, chr(gtsam.Symbol(f.keys()[0]).chr()))
+               for i, (k, f, _) in zip(built.pose_index, built.pose_factors)]
+    factors = [f for f in factors if f[2] in ("x", "v")]
+    return added_bias_variance(gfg, factors, measurement_columns(kin, T_imu_pose), opts.calibration_cov,
+                               [B(int(k)) for k in idx])
 
 
 def _init_from(result: gtsam.Values, K: int, opts: SolveOptions, init: WindowInit | None) -> WindowInit:

@@ -15,8 +15,10 @@ Stages (each logged; all results and choices land in ``recovery.json``):
 5. noise: bias random walks by maximum evidence (:mod:`recovery.noise`); pose sigmas
    in closed form from the scatter of fused samples (else by evidence too).
 6. the full solve, by overlapping segments (bounded memory), with robust
-   pose factors, outlier rejection, gravity direction and bias marginals;
-   stitched without seams (:mod:`recovery.segments`).
+   pose factors, outlier rejection, gravity direction and bias marginals
+   that include the uncertainty of the estimated clock offset and extrinsic
+   (:mod:`recovery.calibration_uncertainty`); stitched without seams
+   (:mod:`recovery.segments`).
 
 Keyframes: for 6-DoF absolute streams every pose sample is used through
 10-Hz keyframes that fuse the samples of their bin (:mod:`recovery.fusion`,
@@ -56,6 +58,7 @@ from recovery.config import (
 )
 from recovery import calibration_init as ci
 from recovery.bounds import bias_rmse_floor
+from recovery.calibration_uncertainty import OFFSET_INDEX, CalibrationCovariance
 from recovery.fusion import fuse_poses
 from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, propagate_orientations, solve_window
 from recovery.noise import NoiseChoice, estimate_noise
@@ -965,6 +968,7 @@ class _FullSolve:
         gravity_unit: Gravity direction (the single segment's own estimate where there was no prior solve).
         info: Additions to ``recovery.json`` ``gravity``.
         fusion_rejected / fusion_counts / fusion_within: Per segment, what pose fusion did.
+        calibration: The covariance of the calibration held fixed, propagated into the bias sigmas.
     """
 
     solutions: list[list[WindowSolution]]
@@ -974,22 +978,34 @@ class _FullSolve:
     fusion_rejected: list[np.ndarray]
     fusion_counts: list[np.ndarray]
     fusion_within: list[Any]
+    calibration: CalibrationCovariance | None = None
 
     @property
     def flat(self) -> list[WindowSolution]:
         return [s for ps in self.solutions for s in ps]
 
 
+def _calibration_covariance(offset: _ClockOffset, ext_sol: WindowSolution | None,
+                            gravity: _Gravity) -> CalibrationCovariance | None:
+    """Covariance of the estimated calibration the full solve holds fixed (None: all of it given)."""
+    lever = gravity.solution.extras.get("lever_arm_cov") if gravity.solution is not None else None
+    return CalibrationCovariance.assemble(
+        extrinsic_cov=None if ext_sol is None else ext_sol.extras.get("extrinsic_cov"),
+        lever_arm_cov=lever, R_imu_pose=gravity.T_imu_pose[:3, :3],
+        offset_std_s=offset.std_s if offset.mode == TimeOffsetMode.ESTIMATE and offset.refined else None)
+
+
 def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _Gravity, noise: _Noise,
-                config: RecoveryConfig) -> _FullSolve:
+                config: RecoveryConfig, calibration: CalibrationCovariance | None = None) -> _FullSolve:
     """Stage 8: every keyframe, segment by segment (gravity: a variable per segment with the gravity
-    solve as prior)."""
+    solve as prior; the uncertainty of ``calibration`` propagated into the bias marginals)."""
     t_pose = _shifted_stamps(inputs.poses, offset_s)
     choice, gsol, gwin, T = noise.choice, gravity.solution, gravity.window, gravity.T_imu_pose
     info: dict[str, Any] = {}
     full_opts = replace(inputs.opts, position_sigma_m=choice.position_sigma_m,
                         rotation_sigma_rad=choice.rotation_sigma_rad, compute_marginals=config.compute_marginals,
-                        estimate_gravity=False, marginal_rate_hz=config.marginal_rate_hz)
+                        estimate_gravity=False, marginal_rate_hz=config.marginal_rate_hz,
+                        calibration_cov=calibration)
     if gsol is not None and inputs.estimate_gravity and "gravity_cov_tangent" in gsol.extras:
         # Gravity stays a variable in every segment, with the calibration solve's estimate as a
         # prior: its uncertainty then reaches the bias marginals (held fixed, a ~1 mrad tilt
@@ -999,7 +1015,7 @@ def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _G
     elif inputs.estimate_gravity and gsol is None:
         full_opts = replace(full_opts, estimate_gravity=True, marginal_extras=True)  # the single segment estimates it
         info["per_segment"] = True
-    out = _FullSolve([], [], gravity.unit, info, [], [], [])
+    out = _FullSolve([], [], gravity.unit, info, [], [], [], calibration)
     for a, b in inputs.pieces:
         a2, b2 = max(a, int(t_pose[0])), min(b, int(t_pose[-1]))
         if b2 <= a2:
@@ -1083,7 +1099,8 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     timings["gravity_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    full = _full_solve(problem, inputs, offset.offset_s, gravity, noise, config)
+    calibration = _calibration_covariance(offset, ext_sol, gravity)
+    full = _full_solve(problem, inputs, offset.offset_s, gravity, noise, config, calibration)
     timings["solve_s"] = time.perf_counter() - t0
 
     extrinsic_info = {**_extrinsic_info(ext_init, ext_sol), **gravity.extrinsic_info}
@@ -1143,6 +1160,7 @@ def _result(sequence: Sequence, config: RecoveryConfig, inputs: _Inputs, offset:
         "pose_time_offset_search": list(offset.search),
         "T_imu_pose": _matrix_to_dict(gravity.T_imu_pose),
         "extrinsic": extrinsic_info,
+        "calibration_uncertainty": _calibration_report(full),
         "gravity_world_mps2": [float(x) for x in full.gravity_unit * config.gravity_mps2],
         "gravity": {**gravity.info, **full.info},
         "noise": choice.to_dict(),
@@ -1240,6 +1258,24 @@ def _bias_function(sol: WindowSolution) -> Any:
         return np.stack([np.interp(xq, x, b[:, c]) for c in range(6)], axis=1)
 
     return at
+
+
+def _calibration_report(full: _FullSolve) -> dict[str, Any]:
+    """``recovery.json`` ``calibration_uncertainty``: whether the bias sigmas include the uncertainty of
+    the estimated calibration (:mod:`recovery.calibration_uncertainty`), and how much it inflated them."""
+    ratios = [s.extras["calibration_std_ratio"] for s in full.flat if "calibration_std_ratio" in s.extras]
+    cal = full.calibration
+    out: dict[str, Any] = {"included_in_bias_std": bool(ratios), "parameters": list(cal.parameters) if cal else []}
+    if cal is not None:
+        out["calibration_std"] = {"extrinsic_rotation_rad": np.sqrt(np.diag(cal.cov)[:3]).tolist(),
+                                  "extrinsic_translation_m": np.sqrt(np.diag(cal.cov)[3:6]).tolist(),
+                                  "clock_offset_s": float(np.sqrt(cal.cov[OFFSET_INDEX, OFFSET_INDEX]))}
+    if ratios:
+        r = np.concatenate(ratios)
+        # std with / without the calibration's uncertainty, per axis (gyro xyz, acc xyz)
+        out["std_inflation_mean"] = [float(x) for x in r.mean(0)]
+        out["std_inflation_max"] = [float(x) for x in r.max(0)]
+    return out
 
 
 def _fusion_report(enabled: bool, config: RecoveryConfig, counts: list[np.ndarray], within: list[Any],

@@ -624,7 +624,26 @@ def _bias_section(inp: ReportInputs) -> Html:
         rows.append(row)
     headers = ["axis", "mean", "min", "max", "mean σ"] + (["RMS diff. to dataset"] if gt_b is not None else [])
     parts.append(table(headers + ["unit"], rows, numeric_from=1, text_cols=[len(headers)]))
+    note = _calibration_uncertainty_note(inp.recovery.data if inp.recovery is not None else None)
+    if note is not None:
+        parts.append(note)
     return section("bias", _TITLE["bias"], join(parts))
+
+
+def _calibration_uncertainty_note(rec: dict[str, Any] | None) -> Html | None:
+    """Whether the σ include the estimated calibration's uncertainty (recovery.json ``calibration_uncertainty``)."""
+    cu = rec.get("calibration_uncertainty") if isinstance(rec, dict) else None
+    if not isinstance(cu, dict):
+        return None
+    params = ", ".join(str(x).replace("_", " ") for x in cu.get("parameters") or [])
+    if not cu.get("included_in_bias_std"):
+        return p("The σ treat the calibration as exact" + (f" ({params} estimated: not propagated for this pose "
+                                                           "stream)." if params else " (all of it given)."),
+                 class_="small")
+    mean, peak = cu.get("std_inflation_mean") or [], cu.get("std_inflation_max") or []
+    growth = ", ".join(f"{(m - 1) * 100:.1f} % ({(x - 1) * 100:.0f} % max)" for m, x in zip(mean, peak))
+    return p(f"The σ include the uncertainty of the estimated {params} (first-order propagation); it grew them per "
+             f"axis (gyro x, y, z, acc x, y, z) by {growth}.", class_="small")
 
 
 # ----------------------------------------------------------------------------- section 5: residuals

@@ -503,6 +503,7 @@ class RecoveryFigures:
     offset_error_s: float
     extrinsic_rot_error_deg: float
     extrinsic_trans_error_m: float
+    nees_per_axis: np.ndarray | None = None  # [6] gyro xyz, acc xyz
 
     def lines(self, name: str) -> list[str]:
         return [
@@ -532,4 +533,6 @@ def recovery_figures(result, seq: IndependentSequence) -> RecoveryFigures:
         nees_acc=float(((ea / result.bias_acc_std_mps2) ** 2).mean()),
         offset_error_s=float(rep["pose_time_offset_s"] - seq.clock_offset_s),
         extrinsic_rot_error_deg=rot_err, extrinsic_trans_error_m=trans_err,
+        nees_per_axis=np.concatenate([((eg / result.bias_gyro_std_radps) ** 2).mean(0),
+                                      ((ea / result.bias_acc_std_mps2) ** 2).mean(0)]),
     )

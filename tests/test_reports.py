@@ -280,6 +280,9 @@ def test_report_shows_the_numbers(full_report, recovery_json, validation_json):
     assert "pose sigmas from: within bin residuals" in text
     floor = rec["accuracy_floor"]["gyro_radps"]
     assert f"Accuracy floor for this noise (optimal smoother, per axis): gyro {fmt(floor, 3)} rad/s" in text
+    cu = rec["calibration_uncertainty"]  # offset and extrinsic estimated: their uncertainty is in the sigmas
+    assert cu["included_in_bias_std"] and "extrinsic_rotation" in cu["parameters"]
+    assert f"(gyro x, y, z, acc x, y, z) by {(cu['std_inflation_mean'][0] - 1) * 100:.1f} %" in text
 
 
 def test_missing_stages_are_reported(stage_outputs, tmp_path):

@@ -1,0 +1,185 @@
+"""The estimated calibration's uncertainty in the bias sigmas (first-order propagation).
+
+The full solve holds the clock offset and the extrinsic ``T_imu_pose`` at their estimates, so
+its bias marginals are the covariance *given* the calibration. An error ``dc`` of the
+calibration moves the solve's optimum by ``J dc`` (``J = d bias* / d c``), hence
+
+    Cov_b = Cov_b|c + J Cov_c J^T,
+
+with ``Cov_c`` the covariance of the values used, from the solves that estimated them: the
+joint extrinsic solve's marginal (rotation; translation too unless refined later), the lever-arm
+solve's marginal, the clock-offset search's curvature.
+
+Why this rather than calibration variables in the final solve:
+
+* the clock offset is no variable GTSAM's factors know (a time shift of every pose sample); the
+  extrinsic as a variable needs a Python ``CustomFactor`` per keyframe (each linearisation
+  calls back into Python) and rules out the fused keyframes' velocity priors, which were computed
+  through the extrinsic;
+* the calibration used was estimated on the calibration windows, not on the full data: a
+  variable in the full graph would re-estimate it (a different value) and report the full data's
+  smaller uncertainty, not the uncertainty of the value used;
+* ``J`` by re-solving with each parameter perturbed costs a solve per parameter (7).
+
+``J`` here costs one elimination. The solve's linear system at its optimum (the one the
+marginals come from) is augmented with one variable ``C = dc`` = [extrinsic rotation (3),
+extrinsic translation (3) as the right-perturbation tangent of ``T_imu_pose`` (GTSAM Pose3
+order), clock offset (s)]. The measurements depend on ``c`` in closed form:
+
+* IMU pose measured through the extrinsic, ``X_meas = Z E^-1``: ``E -> E Exp(xi)`` moves it to
+  ``X_meas Exp(-Ad_E xi)``, an error column ``Ad_E``;
+* a pose stamped ``d`` later is the pose ``d`` later, ``X_meas Exp(d zeta)`` with ``zeta =
+  [omega; R^T v]`` the body twist: an error column ``-zeta``;
+* the fused keyframe velocity (of the IMU origin): ``v - R (omega x eta_t)`` with ``eta =
+  Ad_E xi``, a column ``[0, R [omega]_x] Ad_E``; and ``v + d a``, a column ``-a``.
+
+At the optimum a pose (velocity) factor's error has the identity as its Jacobian in ``X``
+(``V``), so the whitened block of ``C`` is the factor's whitened block times its column.
+Eliminating every variable but ``C`` (GTSAM's partial sequential elimination) leaves the Bayes
+net ``x = R^-1 (d - S c)``; back-substitution with ``C`` = each column ``l_i`` of a square root
+of ``Cov_c`` gives ``J l_i``, and ``sum_i (J l_i)^2`` is the added variance per keyframe and
+axis. Neglected: the correlation between the calibration's error and the full solve's noise
+(the calibration windows are part of the data), and the cross-covariance between the offset and
+the extrinsic (separate solves). Validated by NEES on the hard simulated and the independent
+hard cases (``tests/test_calibration_uncertainty.py``, ``benchmarks/recovery.py --only hard``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import gtsam
+import numpy as np
+
+#: The augmented variable's key and its layout.
+C_KEY = gtsam.Symbol("c", 0).key()
+CALIBRATION_DIM = 7  # extrinsic rotation (3), extrinsic translation (3), clock offset (1)
+OFFSET_INDEX = 6
+
+
+@dataclass(frozen=True)
+class CalibrationCovariance:
+    """Covariance of the calibration held fixed in the full solve.
+
+    Attributes:
+        cov: [7, 7], rows/columns ``CALIBRATION_DIM`` (zero for what is known).
+        parameters: Names of the uncertain parts (``extrinsic_rotation``, ``extrinsic_translation``,
+            ``clock_offset``), for ``recovery.json``.
+    """
+
+    cov: np.ndarray
+    parameters: tuple[str, ...]
+
+    @classmethod
+    def assemble(cls, *, extrinsic_cov: np.ndarray | None = None, lever_arm_cov: np.ndarray | None = None,
+                 R_imu_pose: np.ndarray | None = None, offset_std_s: float | None = None
+                 ) -> "CalibrationCovariance | None":
+        """From the estimating solves' marginals; None when nothing was estimated.
+
+        Args:
+            extrinsic_cov: [6, 6] Pose3-tangent marginal of the joint extrinsic solve.
+            lever_arm_cov: [3, 3] marginal of a later lever-arm solve (IMU frame; replaces the
+                translation block); needs ``R_imu_pose`` [3, 3] to map it into the tangent.
+            offset_std_s: 1-sigma of the estimated clock offset.
+        """
+        cov = np.zeros((CALIBRATION_DIM, CALIBRATION_DIM))
+        names: list[str] = []
+        if extrinsic_cov is not None:
+            cov[:6, :6] = np.asarray(extrinsic_cov, dtype=float)
+            names += ["extrinsic_rotation", "extrinsic_translation"]
+        if lever_arm_cov is not None and R_imu_pose is not None:
+            R = np.asarray(R_imu_pose, dtype=float)
+            cov[:3, 3:6] = cov[3:6, :3] = 0.0
+            cov[3:6, 3:6] = R.T @ np.asarray(lever_arm_cov, dtype=float) @ R  # tangent t = R_E^T dp
+            names += [] if "extrinsic_translation" in names else ["extrinsic_translation"]
+        if offset_std_s is not None and offset_std_s > 0:
+            cov[OFFSET_INDEX, OFFSET_INDEX] = float(offset_std_s) ** 2
+            names.append("clock_offset")
+        return cls(0.5 * (cov + cov.T), tuple(names)) if names else None
+
+    def sqrt_columns(self) -> np.ndarray:
+        """``L`` [7, r] with ``L L^T = cov`` (eigen-decomposition, positive part)."""
+        w, U = np.linalg.eigh(self.cov)
+        keep = w > 1e-12 * max(float(w.max()), 1e-300)
+        return U[:, keep] * np.sqrt(w[keep])
+
+
+@dataclass(frozen=True)
+class KeyframeKinematics:
+    """What the measurement columns need per keyframe (from the solve's optimum).
+
+    Attributes:
+        R_world_imu: [K, 3, 3]. v_mps: World velocity [K, 3]. omega_radps: Body rate, bias-corrected
+        [K, 3]. a_mps2: World acceleration [K, 3].
+    """
+
+    R_world_imu: np.ndarray
+    v_mps: np.ndarray
+    omega_radps: np.ndarray
+    a_mps2: np.ndarray
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """[K, 3] -> [K, 3, 3] cross-product matrices."""
+    S = np.zeros((len(w), 3, 3))
+    S[:, 0, 1], S[:, 0, 2], S[:, 1, 2] = -w[:, 2], w[:, 1], -w[:, 0]
+    S[:, 1, 0], S[:, 2, 0], S[:, 2, 1] = w[:, 2], -w[:, 1], w[:, 0]
+    return S
+
+
+def measurement_columns(kin: KeyframeKinematics, T_imu_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """d(error)/dc of the pose factors [K, 6, 7] and of the fused velocity priors [K, 3, 7]."""
+    Ad = gtsam.Pose3(np.asarray(T_imu_pose, dtype=float)).AdjointMap()
+    K = len(kin.v_mps)
+    pose = np.zeros((K, 6, CALIBRATION_DIM))
+    pose[:, :, :6] = Ad
+    v_body = np.einsum("kji,kj->ki", kin.R_world_imu, kin.v_mps)  # R^T v
+    pose[:, :3, OFFSET_INDEX] = -kin.omega_radps
+    pose[:, 3:, OFFSET_INDEX] = -v_body
+    vel = np.zeros((K, 3, CALIBRATION_DIM))
+    d_eta_t = np.einsum("kij,kjl->kil", kin.R_world_imu, _skew(kin.omega_radps))  # d v_err / d eta_t
+    vel[:, :, :6] = np.einsum("kij,jl->kil", d_eta_t, Ad[3:, :])
+    vel[:, :, OFFSET_INDEX] = -kin.a_mps2
+    return pose, vel
+
+
+def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int, int, str]],
+                        columns: tuple[np.ndarray, np.ndarray], cal: CalibrationCovariance,
+                        bias_keys: list[int]) -> np.ndarray:
+    """``diag(J Cov_c J^T)`` at ``bias_keys``, [M, 6] in (gyro, acc) order.
+
+    Args:
+        gfg: The solve's linearisation at its optimum (whitened JacobianFactors).
+        factors: ``(graph index, keyframe, kind)`` of each pose (``"x"``) and velocity (``"v"``) factor.
+        columns: :func:`measurement_columns`.
+        cal: The calibration covariance.
+        bias_keys: Keys of the biases wanted.
+    """
+    pose_col, vel_col = columns
+    replaced: dict[int, Any] = {}
+    for index, k, kind in factors:
+        jf = gfg.at(index)
+        A, b = jf.jacobian()
+        col = pose_col[k] if kind == "x" else vel_col[k]
+        replaced[index] = gtsam.JacobianFactor(jf.keys()[0], A, C_KEY, A @ col, b,
+                                               gtsam.noiseModel.Unit.Create(len(b)))
+    aug = gtsam.GaussianFactorGraph()
+    for i in range(gfg.size()):
+        f = gfg.at(i)
+        if f is not None:
+            aug.push_back(replaced.get(i, f))
+    keys = [key for key in aug.keyVector() if key != C_KEY]
+    bayes_net, _ = aug.eliminatePartialSequential(keys)
+    given = gtsam.VectorValues()
+    given.insert(C_KEY, np.zeros(CALIBRATION_DIM))
+    base = bayes_net.optimize(given)
+    x0 = np.array([base.at(key) for key in bias_keys])
+    out = np.zeros((len(bias_keys), 6))
+    for l_i in cal.sqrt_columns().T:
+        given = gtsam.VectorValues()
+        given.insert(C_KEY, l_i)
+        sol = bayes_net.optimize(given)
+        d = np.array([sol.at(key) for key in bias_keys]) - x0  # ConstantBias tangent: [acc, gyro]
+        out += np.hstack([d[:, 3:], d[:, :3]]) ** 2
+    return out
