@@ -6,31 +6,38 @@ What it does, in a fresh temporary folder:
 
 1. Installs Debian's ``slurmctld``, ``slurmd``, ``slurm-client`` and ``munge`` when missing
    (apt-get, as root).
-2. Runs a small workflow config locally, the reference: three 10-s simulated sequences (train,
-   val, test) through every stage, and the learning stage at a tiny preset (one method, one
-   seed, 10 steps) up to Table I and the training report.
-3. Starts a one-node cluster: ``munged`` (as the munge user) with its own socket, then
+2. Simulates a recording with ``biasgt simulate`` and cuts its IMU file to the header (a
+   recording that lost its samples).
+3. Starts the reference, a local run of a small workflow config, in the background at the lowest
+   CPU priority (it takes the cores while the SLURM run below waits for status checks): three
+   10-s simulated sequences (train, val, test) through every stage, and the learning stage at a
+   tiny preset (one method, one seed, 10 steps) up to Table I and the training report.
+4. Starts a one-node cluster: ``munged`` (as the munge user) with its own socket, then
    ``slurmctld`` and ``slurmd`` with a config written to ``/etc/slurm/slurm.conf`` (no cgroups, no
    accounting database; state, spool, pid and log files in the temporary folder); waits until
    the node is idle.
-4. Runs the same config plus a third, recorded sequence whose IMU file has lost its samples,
-   with ``biasgt run --profile slurm`` (the repository's profile) and ``--slurm-status-command
-   squeue``. Checks that every job was a SLURM job (Snakemake's log names its SLURM job id, the
-   job's own log ``logs/<stage>/<sequence>.log`` says it ran under that id, and SLURM's
-   job-completion log lists it COMPLETED); that the broken sequence's ingest FAILED in SLURM
-   twice (the profile's ``retries: 1``), ``biasgt run`` exited 2 naming the rule and its log and
-   nothing of that sequence was left half-written.
-5. Compares the outputs file by file with the local run (every file under ``results/``; the
-   fields allowed to differ are listed in ``ALLOWED_DIFFERENCES``; trained runs and evaluation
-   folders hold wall-clock times, so of those the evaluation table must match: Table I).
-6. Repairs the IMU file and reruns: only that sequence's 5 jobs run, every finished file is
+5. Runs the same config plus the broken recording as a fourth sequence with ``biasgt run
+   --profile slurm`` (the repository's profile, whose groups make one SLURM job of each
+   sequence's six stages and one of train + evaluate) and ``--slurm-status-command squeue``.
+   Checks that every job ran in a SLURM job (Snakemake's log names the SLURM job id of the job,
+   or of the group job holding it; the job's own log ``logs/<stage>/<name>.log`` says it ran under
+   that id; SLURM's job-completion log lists it COMPLETED); that the broken sequence's job FAILED
+   in SLURM twice at ingest (the profile's ``retries: 1``), ``biasgt run`` exited 2 naming the
+   rule and its log and nothing of that sequence was left half-written.
+6. Waits for the local run and compares the outputs file by file (every file under ``results/``;
+   the fields allowed to differ are listed in ``ALLOWED_DIFFERENCES``; trained runs and
+   evaluation folders hold wall-clock times, so of those the evaluation table must match: Table I).
+7. Repairs the IMU file and reruns: only that sequence's 5 jobs run, every finished file is
    untouched.
-7. Stops the daemons by their pid files (also on failure), removes the config and the
+8. Stops the daemons by their pid files (also on failure), removes the config and the
    temporary folder (kept with --keep or on failure).
 
 Exits 0 when every check holds, 1 otherwise; prints the timings and the checks. Takes about
-5.5 minutes on 2 cores (measured 314-325 s: 25 + 5 SLURM jobs of 5-15 s each, mostly Snakemake's
-start-up in the job).
+3 minutes on 2 cores (measured 181 s with another process busy on one core: SLURM run 127 s with
+23 + 10 jobs in 7 + 2 SLURM jobs, rerun 45 s with 5 jobs in one; the local run ended while the
+SLURM run was still going). Most of a SLURM job's time is Snakemake's start-up in it (twice per
+rule: the job's Snakemake and one per srun step) and the plugin's status-check interval (it
+notices a finished job 5-25 s after its end).
 """
 
 from __future__ import annotations
@@ -81,9 +88,9 @@ BROKEN = """\
   - {name: broken, source: asl, split: none, path: broken}
 """
 BROKEN_RULES = ("ingest", "recover", "interpolate", "validate", "report")
-#: SLURM jobs of the good sequences: 3 x (simulate, ingest, recover, interpolate, validate, report),
-#: windows, and the learning stage's train, evaluate, table, training_report (no reference row:
-#: each would be one more job of ~10 s; their evaluation is tested in the suite).
+#: Jobs (rule instances) of the good sequences: 3 x (simulate, ingest, recover, interpolate, validate,
+#: report), windows, and the learning stage's train, evaluate, table, training_report (no reference
+#: row: each would be one more SLURM job of ~10 s; their evaluation is tested in the suite).
 GOOD_JOBS = 3 * 6 + 1 + 4
 #: ... in SLURM jobs: the profile groups a sequence's 6 stages into one job, and train with evaluate:
 #: 3 sequences, windows, train+evaluate, table, training_report.
