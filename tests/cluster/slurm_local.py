@@ -32,12 +32,12 @@ What it does, in a fresh temporary folder:
 8. Stops the daemons by their pid files (also on failure), removes the config and the
    temporary folder (kept with --keep or on failure).
 
-Exits 0 when every check holds, 1 otherwise; prints the timings and the checks. Takes about
-3 minutes on 2 cores (measured 181 s with another process busy on one core: SLURM run 127 s with
-23 + 10 jobs in 7 + 2 SLURM jobs, rerun 45 s with 5 jobs in one; the local run ended while the
-SLURM run was still going). Most of a SLURM job's time is Snakemake's start-up in it (twice per
-rule: the job's Snakemake and one per srun step) and the plugin's status-check interval (it
-notices a finished job 5-25 s after its end).
+Exits 0 when every check holds, 1 otherwise; prints the timings and the checks. Takes 2.5-3
+minutes on 2 cores: measured 141 s on idle cores (SLURM run 111 s, 23 + 10 jobs in 7 + 2 SLURM
+jobs; rerun 22 s, 5 jobs in one SLURM job; the local run, 58 s at the lowest priority, ended
+inside the SLURM run), 181 s with another process busy on one core. Most of a SLURM job's time is
+Snakemake's start-up in it (once for the job, once per rule's srun step) and the plugin's
+status-check interval (it noticed finished jobs 3-12 s after their end).
 """
 
 from __future__ import annotations
