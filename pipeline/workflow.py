@@ -988,8 +988,27 @@ def describe_failure(lines: Sequence[str], workdir: str | Path) -> str:
     """One line saying why Snakemake failed, from the tail of its output.
 
     Names the failed rule, its wildcards and log file, and the last line of that log when it
-    exists; otherwise the last informative line Snakemake printed.
+    exists; otherwise the last informative line Snakemake printed. A failed group job (several
+    rules in one cluster job) lists every rule of the group as failed: the one named is the first
+    whose log holds an error.
     """
+    failed = _failed_jobs(lines)
+    if not failed:
+        informative = [ln.strip() for ln in lines if not _NOISE.match(ln)]
+        return informative[-1] if informative else "snakemake failed without a message"
+    logs = {log_rel: Path(workdir) / log_rel for _, _, log_rel in failed if log_rel}
+    rule, wildcards, log_rel = next((job for job in failed if job[2] and _logged_error(logs[job[2]])), failed[0])
+    text = f"rule '{rule}'" + (f" ({wildcards})" if wildcards else "") + " failed"
+    if log_rel:
+        last = _last_line(logs[log_rel])
+        if last:
+            text += f": {last}"
+        text += f" (log: {logs[log_rel]})"
+    return text
+
+
+def _failed_jobs(lines: Sequence[str]) -> list[tuple[str, str | None, str | None]]:
+    """(rule, wildcards, log path as printed) of each 'Error in rule' block of Snakemake's output."""
     # Snakemake's error block names the job id; its wildcards are in the job's announcement.
     wildcards_of_job: dict[str, str] = {}
     current_job: str | None = None
@@ -1000,11 +1019,12 @@ def describe_failure(lines: Sequence[str], workdir: str | Path) -> str:
             wildcards_of_job.setdefault(current_job, w.group(1).strip())
         elif _JOB_HEADER.match(line) or _ERROR_IN_RULE.match(line):
             current_job = None
+    failed = []
     for i, line in enumerate(lines):
         m = _ERROR_IN_RULE.match(line)
         if not m:
             continue
-        rule, wildcards, log_rel = m.group(1), None, None
+        wildcards, log_rel = None, None
         for follow in lines[i + 1:i + 20]:
             if _ERROR_IN_RULE.match(follow):
                 break
@@ -1014,16 +1034,16 @@ def describe_failure(lines: Sequence[str], workdir: str | Path) -> str:
                 wildcards = wildcards_of_job.get(j.group(1))
             if (lg := _LOG_LINE.match(follow)) and log_rel is None:
                 log_rel = lg.group(1).rstrip(",")  # executor plugins append their own logs
-        text = f"rule '{rule}'" + (f" ({wildcards})" if wildcards else "") + " failed"
-        if log_rel:
-            log_abs = Path(workdir) / log_rel
-            last = _last_line(log_abs)
-            if last:
-                text += f": {last}"
-            text += f" (log: {log_abs})"
-        return text
-    informative = [ln.strip() for ln in lines if not _NOISE.match(ln)]
-    return informative[-1] if informative else "snakemake failed without a message"
+        failed.append((m.group(1), wildcards, log_rel))
+    return failed
+
+
+def _logged_error(path: Path) -> bool:
+    """Whether a job's log holds an ERROR line (the job that failed, not one that never ran)."""
+    try:
+        return any(" ERROR " in ln for ln in path.read_text(encoding="utf-8", errors="replace").splitlines())
+    except OSError:
+        return False
 
 
 def _last_line(path: Path) -> str | None:

@@ -462,6 +462,15 @@ def test_run_step_names_the_slurm_job(tmp_path, monkeypatch):
     assert ", SLURM job 4711" in log_path.read_text()
 
 
+def test_snakefile_imports_no_torch():
+    """The Snakefile's imports (pipeline.workflow, training.stages) leave PyTorch out: Snakemake
+    parses the Snakefile twice in every cluster job, and importing torch cost 1.3 s each time."""
+    code = "import sys; import pipeline.workflow, training.stages; print('torch' in sys.modules)"
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True,
+                         env={"PYTHONPATH": str(REPO)})
+    assert out.stdout.strip() == "False"
+
+
 def test_resolve_profile(tmp_path):
     assert wf.resolve_profile("slurm") == REPO / "workflow" / "profiles" / "slurm"
     (tmp_path / "mine").mkdir()
@@ -483,7 +492,7 @@ def test_slurm_profile_sets_each_rules_resources(tmp_path, capsys):
     resources = {}  # rule -> its jobs' "resources:" line
     rule = None
     for line in capsys.readouterr().err.splitlines():
-        if m := re.match(r"^(?:local)?rule (\w+):", line):
+        if m := re.match(r"^\s*(?:local)?rule (\w+):", line):  # indented: a job of a group job
             rule = m.group(1)
         elif (m := re.match(r"^\s+resources: (.*)$", line)) and rule:
             resources[rule] = m.group(1)
@@ -539,6 +548,39 @@ def test_describe_failure(tmp_path):
     assert wf.describe_failure(slurm, tmp_path) == msg
     assert wf.describe_failure(["WorkflowError:", "Target rules may not contain wildcards.", ""], tmp_path) == (
         "Target rules may not contain wildcards.")
+
+
+def test_describe_failure_of_a_group_job(tmp_path):
+    """A failed group job (the SLURM profile's 'sequence' group) lists all its rules as failed: the
+    one named is the rule whose log holds the error, not the first in Snakemake's (alphabetical) list."""
+    for stage, text in (("ingest", "INFO pipeline.workflow: wrote results/ingest/b\n"),
+                        ("recovery", "INFO pipeline.workflow: recovering\n"
+                                     "2026-01-01 00:00:00,000 ERROR pipeline.workflow: no pose stream in b\n")):
+        (tmp_path / "logs" / stage).mkdir(parents=True)
+        (tmp_path / "logs" / stage / "b.log").write_text(text)
+
+    def error_block(rule, jobid, log):
+        return [f"    Error in rule {rule}:", f"        jobid: {jobid}", f"        output: results/{rule}/b",
+                f"        log: {log} (check log file(s) for error details)"]
+
+    lines = [  # what Snakemake 9 with the SLURM executor prints for a failed group job (trimmed)
+        "[Tue Dec  1 19:30:00 2026] Group job sequence (jobs in lexicogr. order):",
+        "    rule ingest:", "        jobid: 3", "        wildcards: sequence=b",
+        "    rule interpolate:", "        jobid: 5", "        wildcards: sequence=b",
+        "    rule recover:", "        jobid: 4", "        wildcards: sequence=b",
+        "[Tue Dec  1 19:31:00 2026]",
+        "    message: Error in group sequence",
+        "    log: /x/.snakemake/slurm_logs/group_sequence_ingest_interpolate_recover/9.log (check log file(s) ...)",
+        "    jobs:",
+        "        rule recover:", "            jobid: 4", "            log: logs/recovery/b.log (check log file(s) ...)",
+        "        rule interpolate:", "            jobid: 5", "            log: logs/interpolation/b.log (check ...)",
+        "        rule ingest:", "            jobid: 3", "            log: logs/ingest/b.log (check log file(s) ...)",
+        *error_block("ingest", 3, "logs/ingest/b.log"),
+        *error_block("interpolate", 5, "logs/interpolation/b.log"),  # never ran: no log
+        *error_block("recover", 4, "logs/recovery/b.log"),
+    ]
+    assert wf.describe_failure(lines, tmp_path) == (
+        f"rule 'recover' (sequence=b) failed: no pose stream in b (log: {tmp_path / 'logs' / 'recovery' / 'b.log'})")
 
 
 def test_parse_dry_run_jobs():

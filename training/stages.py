@@ -21,12 +21,12 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import torch
-
 from pipeline.errors import DataError
 from training.config import Baseline, EvaluationConfig, Method, TrainConfig, TrainingPlan
-from training.evaluate import SUMMARY_JSON, evaluate_reference, evaluate_run
 from training.table import TABLE_CSV, TABLE_MD, write_table
+
+# torch and the evaluation are imported by the steps that use them: the Snakefile imports this
+# module for its paths, and Snakemake parses the Snakefile twice in every cluster job.
 
 log = logging.getLogger(__name__)
 
@@ -67,6 +67,8 @@ def table_outputs() -> list[str]:
 
 
 def _set_threads(threads: int | None) -> None:
+    import torch
+
     if threads:
         torch.set_num_threads(int(threads))
 
@@ -131,6 +133,8 @@ def evaluate_step(dataset_dir: str | Path, out_dir: str | Path, settings: Mappin
                   run_dir: str | Path | None = None, method: str | None = None, reference: str | None = None,
                   threads: int | None = None) -> Path:
     """Evaluate a trained run (``run_dir``, ``method``) or a reference row (``reference``)."""
+    from training.evaluate import evaluate_reference, evaluate_run
+
     _set_threads(threads)
     config = EvaluationConfig.from_mapping(settings)
     if reference is not None:
@@ -143,6 +147,8 @@ def evaluate_step(dataset_dir: str | Path, out_dir: str | Path, settings: Mappin
 
 def table_step(evaluation_dirs: Sequence[str | Path], out_dir: str | Path) -> Path:
     """Write Table I from the evaluation folders and log it."""
+    from training.evaluate import SUMMARY_JSON
+
     write_table([Path(d) / SUMMARY_JSON for d in evaluation_dirs], out_dir)
     log.info("Table I:\n%s", (Path(out_dir) / TABLE_MD).read_text(encoding="utf-8"))
     return Path(out_dir)

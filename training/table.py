@@ -24,6 +24,7 @@ import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -32,7 +33,9 @@ from pipeline.atomic import write_text_atomic
 from pipeline.errors import DataError
 from training.config import Baseline
 from training.config import Method
-from training.evaluate import EvaluationSummary, read_summary
+
+if TYPE_CHECKING:  # the evaluation (and torch) is imported when a table is written, not with the paths
+    from training.evaluate import EvaluationSummary
 
 log = logging.getLogger(__name__)
 
@@ -146,6 +149,8 @@ def write_table(summary_paths: Iterable[str | Path], out_dir: str | Path) -> pd.
     Returns:
         The numeric table (see :func:`build_table`).
     """
+    from training.evaluate import read_summary
+
     columns = table_columns(read_summary(p) for p in summary_paths)
     table = build_table(columns)
     out_dir = Path(out_dir)
