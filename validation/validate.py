@@ -159,6 +159,7 @@ __all__ = [
     "validate_inputs",
     "validate_sequence",
     "window_end_errors",
+    "window_errors",
     "windows_with_any",
     "write_validation",
 ]
@@ -678,7 +679,7 @@ def _flags(pos: np.ndarray, rot: np.ndarray, config: ValidationConfig) -> tuple[
     return (pos > thr_p) | (rot > thr_r), thr_p, thr_r
 
 
-def _window_errors(
+def window_errors(
     imu: ImuSeries,
     bias: np.ndarray,
     ref: ReferenceStates,
@@ -1125,7 +1126,7 @@ def validate_sequence(
     t0 = imu.t_ns[starts]
     window_s = plan.n / plan.rate_hz
     for src in evaluated:
-        pos, rot = _window_errors(imu, at_imu[src.name], reference, starts, plan.n, gravity, config)
+        pos, rot = window_errors(imu, at_imu[src.name], reference, starts, plan.n, gravity, config)
         flagged, thr_p, thr_r = _flags(pos, rot, config)
         sigma_pos, sigma_rot = sigma_window_errors(_std_at(src.track, t0), reference.R[starts], window_s, gravity)
         metrics[src.name] = SourceMetrics(
