@@ -56,9 +56,7 @@ class BlockFolds:
 def without_fold(poses: PoseSeries, folds: BlockFolds, k: int, time_offset_s: float = 0.0) -> PoseSeries:
     """The pose stream without its samples in fold ``k`` (stamps moved by ``time_offset_s`` to the IMU clock
     to decide the fold)."""
-    keep = folds.fold(poses.t_ns + int(round(time_offset_s * NS_PER_S))) != k
-    quat = poses.quat_wxyz[keep] if poses.quat_wxyz is not None else None
-    return dataclasses.replace(poses, t_ns=poses.t_ns[keep], p_m=poses.p_m[keep], quat_wxyz=quat)
+    return poses.take(folds.fold(poses.t_ns + int(round(time_offset_s * NS_PER_S))) != k)
 
 
 def imu_and_bias_of(imu: ImuSeries, result) -> tuple[ImuSeries, np.ndarray]:
