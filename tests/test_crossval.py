@@ -19,7 +19,14 @@ from pipeline.sim.config import (
 )
 from recovery.recover import recover
 from validation.config import ValidationConfig
-from validation.crossval import BlockFolds, crossvalidate_recovery, held_out_errors, held_out_windows, without_fold
+from validation.crossval import (
+    BlockFolds,
+    crossvalidate_recovery,
+    held_constant,
+    held_out_errors,
+    held_out_windows,
+    without_fold,
+)
 from validation.validate import plan_windows, reference_from_states
 
 S = 1_000_000_000
@@ -105,3 +112,17 @@ def test_crossvalidated_recovery_integrates_nearly_like_the_truth(handheld):
     assert e_cv.prmse_m <= 3.0 * e_true.prmse_m, (e_cv.prmse_m, e_true.prmse_m)
     assert e_cv.roe_deg <= 1.2 * e_true.roe_deg, (e_cv.roe_deg, e_true.roe_deg)
     assert e_cv.prmse_m < 0.15 * e_zero.prmse_m
+
+
+def test_held_constant_is_the_fold_mean_over_its_training_samples(handheld):
+    seq = handheld.sequence
+    folds = BlockFolds(int(seq.imu.t_ns[0]), 5.0, 2)
+    ramp = (seq.imu.t_ns - seq.imu.t_ns[0]) / S  # a bias that grows 1 per second, the same in every fold
+
+    def fake_recover(s, stream):
+        return SimpleNamespace(bias_at=lambda t: np.repeat(((t - seq.imu.t_ns[0]) / S)[:, None], 6, 1), report={})
+
+    cv = held_constant(crossvalidate_recovery(seq, "mocap0", folds, fake_recover), seq.imu, folds)
+    f = folds.fold(seq.imu.t_ns)
+    for k in range(2):
+        np.testing.assert_allclose(cv.bias[f == k, 3], ramp[f != k].mean())

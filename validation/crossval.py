@@ -27,8 +27,8 @@ from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence
 from validation.config import ValidationConfig
 from validation.validate import ReferenceStates, WindowPlan, prmse_m, roe_deg, window_errors
 
-__all__ = ["BlockFolds", "CrossValidatedBias", "HeldOutErrors", "crossvalidate_recovery", "held_out_errors",
-           "held_out_windows", "imu_and_bias_of", "without_fold"]
+__all__ = ["BlockFolds", "CrossValidatedBias", "HeldOutErrors", "crossvalidate_recovery", "held_constant",
+           "held_out_errors", "held_out_windows", "imu_and_bias_of", "without_fold"]
 
 
 @dataclass(frozen=True)
@@ -121,6 +121,17 @@ def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
         m = fold_of_imu == k
         gyro[m], acc[m], bias[m] = imu_k.gyro_radps[m], imu_k.acc_mps2[m], bias_k[m]
     return CrossValidatedBias(dataclasses.replace(imu, gyro_radps=gyro, acc_mps2=acc), bias, tuple(results))
+
+
+def held_constant(cv: CrossValidatedBias, imu: ImuSeries, folds: BlockFolds) -> CrossValidatedBias:
+    """The cross-validated bias held constant per fold: in fold ``k``'s blocks, the mean of fold ``k``'s recovery
+    over the samples it was fitted on (the cross-validated counterpart of a sequence-constant bias estimate)."""
+    fold_of_imu = folds.fold(imu.t_ns)
+    bias = np.empty_like(cv.bias)
+    for k, res in enumerate(cv.recoveries):
+        m = fold_of_imu == k
+        bias[m] = imu_and_bias_of(imu, res)[1][~m].mean(axis=0)
+    return CrossValidatedBias(cv.imu, bias, cv.recoveries)
 
 
 def held_out_windows(imu: ImuSeries, plan: WindowPlan, folds: BlockFolds, reference: ReferenceStates) -> np.ndarray:

@@ -625,6 +625,8 @@ class SourceMetrics:
         flag_pos_m / flag_rot_deg: The thresholds used.
         sigma_pos_m / sigma_rot_deg: Per window, the end-point error that the source's own bias
             sigma explains (:func:`sigma_window_errors`), [W]; zeros for a source without sigma.
+        mean_bias: The source's bias averaged over the windows' first samples, [6] (gyro rad/s, acc
+            m/s^2), or None: what two sources' errors differ by (a tilt and an acc bias trade off).
     """
 
     name: str
@@ -639,6 +641,7 @@ class SourceMetrics:
     flag_rot_deg: float
     sigma_pos_m: np.ndarray | None = None
     sigma_rot_deg: np.ndarray | None = None
+    mean_bias: np.ndarray | None = None
 
     @property
     def sigma_prmse_m(self) -> float:
@@ -665,6 +668,7 @@ class SourceMetrics:
             "sigma_roe_deg": self.sigma_roe_deg,
             "flag_threshold_pos_m": float(self.flag_pos_m),
             "flag_threshold_rot_deg": float(self.flag_rot_deg),
+            **({} if self.mean_bias is None else {"mean_bias": [float(x) for x in self.mean_bias]}),
             "flagged": [
                 {"t0_ns": int(self.t0_ns[i]), "pos_err_m": float(self.pos_err_m[i]),
                  "rot_err_deg": float(self.rot_err_deg[i])}
@@ -1131,7 +1135,7 @@ def validate_sequence(
         sigma_pos, sigma_rot = sigma_window_errors(_std_at(src.track, t0), reference.R[starts], window_s, gravity)
         metrics[src.name] = SourceMetrics(
             src.name, src.kind, t0, pos, rot, prmse_m(pos), roe_deg(rot),
-            flagged, thr_p, thr_r, sigma_pos, sigma_rot,
+            flagged, thr_p, thr_r, sigma_pos, sigma_rot, at_imu[src.name][starts].mean(axis=0),
         )
         log.info("%-12s PRMSE %.4f m  ROE %.4f deg  (%d windows, %d flagged)", src.name,
                  metrics[src.name].prmse_m, metrics[src.name].roe_deg, len(pos), int(flagged.sum()))
