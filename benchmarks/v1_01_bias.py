@@ -286,7 +286,8 @@ def verdict(m: dict) -> str:
     parts.append(
         f"The only attitude measured independently of the accelerometer is the Vicon one (OpenVINS's tilt comes from "
         f"the same accelerometer, through its VIO), so the bias consistent with these IMU readings is the one that "
-        f"integrates best against EuRoC's poses: '{best_gt}' (ba_y {mean_ba[best_gt][1]:.3f}, {e[best_gt][GT]:.1f} mm), "
+        f"integrates best against EuRoC's poses: '{best_gt}' (ba_y {mean_ba[best_gt][1]:.3f}, "
+        f"{e[best_gt][GT]:.1f} mm), "
         f"expressed in EuRoC's ground-truth frame; OpenVINS's {mean_ba['openvins'][1]:.3f} is consistent only with "
         f"OpenVINS's own, {abs(m['attitude_deg'][2]):.1f}-deg different, attitude.")
     return " ".join(parts)
@@ -319,11 +320,14 @@ def report(m: dict) -> None:
         for k, r in enumerate(c.recoveries):
             rv, sd = rotation_deg(r)
             g = np.asarray(r.report.gravity_world_mps2, dtype=float)
-            print(f"    fold {k}: rotation imu<-pose {fmt_vec(rv)} deg" + (" (given)" if sd is None else f" +- {fmt_vec(sd)}")
-                  + f"; gravity {fmt_vec(g)} m/s^2 (tilt {np.degrees(np.arctan2(np.linalg.norm(g[:2]), -g[2])):.2f} deg); "
+            tilt = np.degrees(np.arctan2(np.linalg.norm(g[:2]), -g[2]))
+            given = " (given)" if sd is None else f" +- {fmt_vec(sd)}"
+            print(f"    fold {k}: rotation imu<-pose {fmt_vec(rv)} deg{given}"
+                  + f"; gravity {fmt_vec(g)} m/s^2 (tilt {tilt:.2f} deg); "
                   f"acc random walk {r.report['noise']['acc_random_walk_scale']:.3g}x")
     print(f"Attitude of OpenVINS's poses against EuRoC's (up direction in the body frame): "
-          f"{fmt_vec(m['attitude_deg'])} deg, implying acc bias EuRoC minus OpenVINS {fmt_vec(m['attitude_bias_mps2'])} m/s^2")
+          f"{fmt_vec(m['attitude_deg'])} deg, implying acc bias EuRoC minus OpenVINS "
+          f"{fmt_vec(m['attitude_bias_mps2'])} m/s^2")
     print()
     print("Verdict: " + verdict(m))
 

@@ -671,7 +671,8 @@ def _validation_bias_files(cfg: WorkflowConfig, bias: Any) -> list[list[str]]:
         return []
     if not isinstance(bias, Mapping) or not all(isinstance(k, str) and isinstance(v, str) for k, v in bias.items()):
         raise ConfigError(f"validation.bias must map source names to bias files, got {bias!r}", path=cfg.config_file,
-                          field="validation.bias", hint="e.g. bias: {openvins: euroc/V1_01_easy/ov_data/V1_01_easy.csv}")
+                          field="validation.bias",
+                          hint="e.g. bias: {openvins: euroc/V1_01_easy/ov_data/V1_01_easy.csv}")
     root = data_root(cfg.data, cfg.config_file)
     return [[name, str(resolve_input_path(path, root))] for name, path in bias.items()]
 

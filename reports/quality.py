@@ -53,7 +53,14 @@ from recovery.outputs import (
     read_trajectory,
 )
 from reports import plots
-from validation.outputs import VALIDATION_JSON, WINDOWS_PARQUET, ValidationSummary, read_summary, read_windows
+from validation.outputs import (
+    HELDOUT_SOURCE,
+    VALIDATION_JSON,
+    WINDOWS_PARQUET,
+    ValidationSummary,
+    read_summary,
+    read_windows,
+)
 from reports.allan import ImuAllan, imu_allan
 from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
 
@@ -312,6 +319,13 @@ def other_estimates_sentence(validation: dict[str, Any]) -> str | None:
     for name in others:
         s = sources[name]
         prmse = _num(s, "prmse_m")
+        if name == HELDOUT_SOURCE:
+            parts.append(f"'{name}', the recovery cross-validated by time blocks (recovered again without the "
+                         f"poses of each block, used on that block only), integrates to "
+                         f"{fmt(None if prmse is None else 1e3 * prmse, 4)} mm"
+                         + (f", {prmse / base:.2g}x the judged bias's {fmt(1e3 * base, 4)} mm: what the recovery "
+                            "is worth on poses it was not fitted to" if prmse is not None and base else ""))
+            continue
         text = f"'{name}' integrates to {fmt(None if prmse is None else 1e3 * prmse, 4)} mm"
         if prmse is not None and base:
             text += f", {prmse / base:.2g}x the judged bias's {fmt(1e3 * base, 4)} mm"
@@ -321,10 +335,11 @@ def other_estimates_sentence(validation: dict[str, Any]) -> str | None:
             text += (f"; its mean accelerometer bias differs by ({', '.join(f'{x:+.3f}' for x in d)}) m/s^2, what "
                      f"a {math.degrees(float(np.linalg.norm(d)) / g):.2f}-deg tilt of the attitude would explain")
         parts.append(text)
+    frame_note = (" A bias is only meaningful with the attitude and gravity it was estimated against: an estimate "
+                  "made against another pose source fits this reference only as well as the two sources' attitudes "
+                  "agree." if any(n != HELDOUT_SOURCE for n in others) else "")
     return ("Other estimates of this sequence's bias, integrated on the same windows against the same reference: "
-            + "; ".join(parts) + ". A bias is only meaningful with the attitude and gravity it was estimated "
-            "against: an estimate made against another pose source fits this reference only as well as the two "
-            "sources' attitudes agree.")
+            + "; ".join(parts) + "." + frame_note)
 
 
 # ----------------------------------------------------------------------------- section 1: verdict

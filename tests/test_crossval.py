@@ -126,3 +126,22 @@ def test_held_constant_is_the_fold_mean_over_its_training_samples(handheld):
     f = folds.fold(seq.imu.t_ns)
     for k in range(2):
         np.testing.assert_allclose(cv.bias[f == k, 3], ramp[f != k].mean())
+
+
+def test_validate_inputs_adds_the_held_out_source(handheld, tmp_path):
+    """validation.crossval_block_s: the recovery is cross-validated with its own options and compared as
+    'recovered_heldout' on the same windows; against the true state it is worse than the in-sample recovered
+    bias but far better than none."""
+    from recovery.recover import write_recovery
+    from validation.validate import validate_inputs
+
+    seq = handheld.sequence
+    rec_dir = write_recovery(recover(seq, pose_stream="mocap0"), tmp_path / "rec")
+    config = ValidationConfig(crossval_block_s=5.0, crossval_folds=2)
+    res = validate_inputs(seq, recovery_dir=rec_dir, config=config)
+    held, rec, zero = (res.sources[n] for n in ("recovered_heldout", "recovered", "zero"))
+    assert res.candidate == "recovered" and held.kind.value == "file"
+    assert held.windows == rec.windows
+    assert rec.prmse_m <= held.prmse_m < 0.15 * zero.prmse_m
+    with pytest.raises(ValidationError, match="crossval_block_s needs the recovery"):
+        validate_inputs(seq, bias_files=[(None, rec_dir / "bias.csv")], config=config)

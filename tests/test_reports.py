@@ -193,7 +193,13 @@ def test_other_estimates_sentence():
     assert "'openvins' integrates to 200 mm, 4x the judged bias's 50 mm" in text
     # |(-0.01, -0.4, 0)| = 0.4001 m/s^2 = 0.04079 rad of a 9.81 m/s^2 gravity
     assert "differs by (-0.010, -0.400, +0.000) m/s^2, what a 2.34-deg tilt" in text
+    v["sources"]["recovered_heldout"] = {"kind": "file", "prmse_m": 0.054}
+    text = other_estimates_sentence(v)
+    assert "'recovered_heldout', the recovery cross-validated by time blocks" in text
+    assert "integrates to 54 mm, 1.1x the judged bias's 50 mm: what the recovery is worth on poses" in text
     del v["sources"]["openvins"]
+    assert "attitudes agree" not in other_estimates_sentence(v)
+    del v["sources"]["recovered_heldout"]
     assert other_estimates_sentence(v) is None
 
 

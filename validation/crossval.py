@@ -22,13 +22,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from pipeline.bias_table import BiasTrack
 from pipeline.errors import ValidationError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence
 from validation.config import ValidationConfig
 from validation.validate import ReferenceStates, WindowPlan, prmse_m, roe_deg, window_errors
 
-__all__ = ["BlockFolds", "CrossValidatedBias", "HeldOutErrors", "crossvalidate_recovery", "held_constant",
-           "held_out_errors", "held_out_windows", "imu_and_bias_of", "without_fold"]
+__all__ = ["BlockFolds", "CrossValidatedBias", "HeldOutErrors", "crossvalidate_recovery",
+           "held_constant", "held_out_errors", "held_out_windows", "heldout_track", "imu_and_bias_of", "without_fold"]
 
 
 @dataclass(frozen=True)
@@ -75,7 +76,8 @@ def imu_and_bias_of(imu: ImuSeries, result) -> tuple[ImuSeries, np.ndarray]:
     intr = ImuIntrinsics(np.array(rep["gyro_matrix"]), np.array(rep["acc_matrix"]),
                          np.array(rep["gyro_g_sensitivity"]))
     corrected = intr.correct(imu, bias[:, 3:])
-    b = np.hstack([np.linalg.solve(intr.gyro_matrix, bias[:, :3].T).T, np.linalg.solve(intr.acc_matrix, bias[:, 3:].T).T])
+    b = np.hstack([np.linalg.solve(intr.gyro_matrix, bias[:, :3].T).T,
+                   np.linalg.solve(intr.acc_matrix, bias[:, 3:].T).T])
     return corrected, b
 
 
@@ -85,13 +87,16 @@ class CrossValidatedBias:
 
     Attributes:
         imu: Readings to integrate (corrected per fold when the recovery estimated intrinsics).
-        bias: Bias at the IMU stamps, [N, 6] (gyro rad/s, acc m/s^2).
+        bias: Bias at the IMU stamps, [N, 6] (gyro rad/s, acc m/s^2), in the convention of ``imu``.
         recoveries: Each fold's recovery result, in fold order.
+        raw_bias: The bias as the recoveries report it (raw readings' convention), [N, 6]; None when
+            not spliced from recoveries.
     """
 
     imu: ImuSeries
     bias: np.ndarray
     recoveries: tuple
+    raw_bias: np.ndarray | None = None
 
 
 def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
@@ -110,7 +115,7 @@ def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
     imu = sequence.imu
     fold_of_imu = folds.fold(imu.t_ns)
     gyro, acc = imu.gyro_radps.copy(), imu.acc_mps2.copy()
-    bias = np.full((len(imu), 6), np.nan)
+    bias, raw = np.full((len(imu), 6), np.nan), np.full((len(imu), 6), np.nan)
     results = []
     for k in range(folds.n_folds):
         poses = sequence.poses[stream]
@@ -120,7 +125,8 @@ def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
         imu_k, bias_k = imu_and_bias_of(imu, res)
         m = fold_of_imu == k
         gyro[m], acc[m], bias[m] = imu_k.gyro_radps[m], imu_k.acc_mps2[m], bias_k[m]
-    return CrossValidatedBias(dataclasses.replace(imu, gyro_radps=gyro, acc_mps2=acc), bias, tuple(results))
+        raw[m] = res.bias_at(imu.t_ns[m])
+    return CrossValidatedBias(dataclasses.replace(imu, gyro_radps=gyro, acc_mps2=acc), bias, tuple(results), raw)
 
 
 def held_constant(cv: CrossValidatedBias, imu: ImuSeries, folds: BlockFolds) -> CrossValidatedBias:
@@ -175,3 +181,20 @@ def held_out_errors(imu: ImuSeries, bias: np.ndarray, reference: ReferenceStates
     pos, rot = window_errors(imu, np.asarray(bias, dtype=np.float64), reference, plan.starts[windows], plan.n,
                              np.asarray(gravity_mps2, dtype=np.float64), config)
     return HeldOutErrors(pos, rot)
+
+
+def heldout_track(sequence: Sequence, stream: str, recovery_options: dict, folds: BlockFolds) -> BiasTrack:
+    """The recovered bias cross-validated by blocks, at the IMU stamps (raw readings' convention, std 0).
+
+    Args:
+        sequence: IMU + pose streams.
+        stream: The pose stream the recovery fitted.
+        recovery_options: The recovery's options (``recovery.json`` ``config``), used for every fold.
+        folds: The blocks and folds.
+    """
+    from recovery.config import RecoveryConfig
+    from recovery.recover import recover
+
+    config = RecoveryConfig.from_dict(recovery_options)
+    cv = crossvalidate_recovery(sequence, stream, folds, lambda s, st: recover(s, pose_stream=st, config=config))
+    return BiasTrack(sequence.imu.t_ns, cv.raw_bias, np.zeros_like(cv.raw_bias))

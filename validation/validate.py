@@ -122,7 +122,7 @@ from pipeline.so3 import rotation_angle_deg
 from pipeline.types import NS_PER_S, ImuSeries, IntegrationScheme, PoseSeries, Sequence, Severity, StateSeries
 from recovery.outputs import RecoveryOutputs
 from validation.config import ValidationConfig
-from validation.outputs import SCHEMA_VERSION, Verdict, write_folder
+from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, Verdict, write_folder
 
 log = logging.getLogger(__name__)
 
@@ -1373,6 +1373,8 @@ def validate_inputs(
     """
     recovery = RecoveryOutputs.read(recovery_dir) if recovery_dir is not None else None
     sources = bias_sources(sequence, recovery=recovery, bias_files=bias_files)
+    if config.crossval_block_s is not None:
+        sources.update(_heldout_source(sequence, recovery, config))
     if gravity_mps2 is not None:
         gravity = np.asarray(gravity_mps2, dtype=float)
     elif recovery is not None and recovery.report.gravity_world_mps2 is not None:
@@ -1394,6 +1396,25 @@ def validate_inputs(
     if recovery is not None:
         result.notes.append(f"recovery: {recovery_dir}")
     return result
+
+
+def _heldout_source(sequence: Sequence, recovery: RecoveryOutputs | None,
+                    config: ValidationConfig) -> dict[str, BiasSource]:
+    """``{"recovered_heldout": source}``: the recovery cross-validated by blocks (``crossval_block_s``), a FILE
+    source (compared with the recovered bias on the same windows, not judged)."""
+    from validation.crossval import BlockFolds, heldout_track
+
+    stream = recovery.report.pose_stream if recovery is not None else None
+    if recovery is None or stream not in sequence.poses:
+        raise ValidationError("crossval_block_s needs the recovery and the pose stream it fitted" + (
+            f" ('{stream}' is not among the sequence's pose streams)" if recovery is not None else ""),
+            field="crossval_block_s",
+            hint="give the recovery folder of a pose-stream recovery, or drop crossval_block_s")
+    folds = BlockFolds(int(sequence.imu.t_ns[0]), float(config.crossval_block_s), int(config.crossval_folds))
+    log.info("cross-validating the recovery from '%s' by %d folds of %g-s blocks", stream, folds.n_folds,
+             folds.block_s)
+    track = heldout_track(sequence, stream, dict(recovery.report.get("config") or {}), folds)
+    return {HELDOUT_SOURCE: BiasSource(HELDOUT_SOURCE, BiasSourceKind.FILE, track)}
 
 
 def next_steps(result: ValidationResult, limitations: Sequence_[Limitation] = ()) -> list[str]:
