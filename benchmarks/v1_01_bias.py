@@ -49,13 +49,11 @@ from validation.config import ValidationConfig  # noqa: E402
 from validation.crossval import (  # noqa: E402
     BlockFolds,
     CrossValidatedBias,
-    HeldOutErrors,
     crossvalidate_recovery,
     held_constant,
-    held_out_errors,
-    held_out_windows,
     imu_and_bias_of,
 )
+from validation.heldout import HeldOutErrors, held_out_errors, held_out_windows  # noqa: E402
 from validation.validate import WindowPlan, plan_windows, read_bias_file, reference_from_poses  # noqa: E402
 
 DEFAULT_DATA = Path(os.environ.get("BIASGT_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -74,10 +72,14 @@ class Frame:
 
     T_imu_pose: np.ndarray
     gravity_mps2: np.ndarray
-    text: str
 
 
-NOMINAL = Frame(np.eye(4), NOMINAL_G, "as given (identity, g = -9.81 z)")
+def frame_of(r: RecoveryResult) -> Frame:
+    """The frame a recovery estimated its bias against: its extrinsic and gravity."""
+    return Frame(r.report.T_imu_pose, np.asarray(r.report.gravity_world_mps2, dtype=float))
+
+
+NOMINAL = Frame(np.eye(4), NOMINAL_G)  # a pose stream as given
 
 
 @dataclass
@@ -144,8 +146,7 @@ def recovered_candidate(spec: Spec, seq: Sequence, folds: BlockFolds) -> Candida
         return recover(s, pose_stream=stream, config=spec.config)
 
     cv = crossvalidate_recovery(seq, spec.stream, folds, rec)
-    frames = [Frame(r.report.T_imu_pose, np.asarray(r.report.gravity_world_mps2, dtype=float), "fold's estimate")
-              for r in cv.recoveries]
+    frames = [frame_of(r) for r in cv.recoveries]
     return Candidate(spec.name, spec.how, cv.bias, cv.imu, spec.stream, frames, cv.recoveries, rec(seq, spec.stream))
 
 
@@ -233,8 +234,7 @@ def in_sample(c: Candidate, seq: Sequence, folds: BlockFolds, plan: WindowPlan, 
               cfg: ValidationConfig) -> HeldOutErrors:
     """The full-data recovery's errors on the same windows against the stream it was fitted to (NOT held out)."""
     imu, bias = imu_and_bias_of(seq.imu, c.full)
-    frame = Frame(c.full.report.T_imu_pose, np.asarray(c.full.report.gravity_world_mps2, dtype=float), "full data")
-    full = Candidate(c.name, c.how, bias, imu, c.fitted_to, [frame] * folds.n_folds)
+    full = Candidate(c.name, c.how, bias, imu, c.fitted_to, [frame_of(c.full)] * folds.n_folds)
     return errors(full, seq, c.fitted_to, folds, plan, refs, cfg)
 
 

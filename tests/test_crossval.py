@@ -1,4 +1,4 @@
-"""Cross-validation of a recovered bias by time blocks (validation.crossval)."""
+"""Cross-validation of a recovered bias by time blocks (validation.crossval, validation.heldout)."""
 
 from __future__ import annotations
 
@@ -19,14 +19,8 @@ from pipeline.sim.config import (
 )
 from recovery.recover import recover
 from validation.config import ValidationConfig
-from validation.crossval import (
-    BlockFolds,
-    crossvalidate_recovery,
-    held_constant,
-    held_out_errors,
-    held_out_windows,
-    without_fold,
-)
+from validation.crossval import BlockFolds, crossvalidate_recovery, held_constant, without_fold
+from validation.heldout import held_out_errors, held_out_windows
 from validation.validate import plan_windows, reference_from_states
 
 S = 1_000_000_000

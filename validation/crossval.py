@@ -8,7 +8,7 @@ recovered from the rest, and that recovery's bias (and, when estimated, its IMU 
 in fold ``k``'s blocks only. Every IMU sample's bias then comes from a recovery that never saw the
 poses around it. The windows judged are those wholly inside one block (no window mixes two
 recoveries), integrated against the FULL pose stream with the project's one metric
-(:func:`validation.validate.window_errors`: PRMSE, ROE).
+(:mod:`validation.heldout`: :func:`validation.validate.window_errors`, PRMSE, ROE).
 
 A recovery sees a held-out block as a pose gap bridged by one preintegrated IMU interval: the block's
 own IMU readings still enter through it, its poses do not.
@@ -25,11 +25,9 @@ import numpy as np
 from pipeline.bias_table import BiasTrack
 from pipeline.errors import ValidationError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence
-from validation.config import ValidationConfig
-from validation.validate import ReferenceStates, WindowPlan, prmse_m, roe_deg, window_errors
 
-__all__ = ["BlockFolds", "CrossValidatedBias", "HeldOutErrors", "crossvalidate_recovery",
-           "held_constant", "held_out_errors", "held_out_windows", "heldout_track", "imu_and_bias_of", "without_fold"]
+__all__ = ["BlockFolds", "CrossValidatedBias", "crossvalidate_recovery", "held_constant", "heldout_track",
+           "imu_and_bias_of", "without_fold"]
 
 
 @dataclass(frozen=True)
@@ -138,49 +136,6 @@ def held_constant(cv: CrossValidatedBias, imu: ImuSeries, folds: BlockFolds) -> 
         m = fold_of_imu == k
         bias[m] = imu_and_bias_of(imu, res)[1][~m].mean(axis=0)
     return CrossValidatedBias(cv.imu, bias, cv.recoveries)
-
-
-def held_out_windows(imu: ImuSeries, plan: WindowPlan, folds: BlockFolds, reference: ReferenceStates) -> np.ndarray:
-    """Kept windows of ``plan`` wholly inside one block with a reference at both ends, bool [W]."""
-    first, last = plan.starts, plan.starts + plan.n
-    block = folds.block(imu.t_ns)
-    return plan.keep & (block[first] == block[last]) & reference.valid[first] & reference.valid[last]
-
-
-@dataclass(frozen=True)
-class HeldOutErrors:
-    """1-s integration errors on the held-out windows: ``pos_err_m`` [W], ``rot_err_deg`` [W] and their
-    PRMSE (m) and ROE (deg)."""
-
-    pos_err_m: np.ndarray
-    rot_err_deg: np.ndarray
-
-    @property
-    def prmse_m(self) -> float:
-        return prmse_m(self.pos_err_m)
-
-    @property
-    def roe_deg(self) -> float:
-        return roe_deg(self.rot_err_deg)
-
-
-def held_out_errors(imu: ImuSeries, bias: np.ndarray, reference: ReferenceStates, plan: WindowPlan,
-                    windows: np.ndarray, gravity_mps2: np.ndarray,
-                    config: ValidationConfig = ValidationConfig()) -> HeldOutErrors:
-    """Integrate ``imu - bias`` over the selected windows from the reference and measure the end errors.
-
-    Args:
-        imu: Readings, [N].
-        bias: Bias at the IMU stamps, [N, 6].
-        reference: Reference at the IMU stamps (its frame: world and IMU as the candidate assumes).
-        plan: The window plan (:func:`validation.validate.plan_windows`).
-        windows: Which of ``plan.starts`` to integrate, bool [W].
-        gravity_mps2: Gravity in the reference's world frame, [3].
-        config: Integration scheme and chunking.
-    """
-    pos, rot = window_errors(imu, np.asarray(bias, dtype=np.float64), reference, plan.starts[windows], plan.n,
-                             np.asarray(gravity_mps2, dtype=np.float64), config)
-    return HeldOutErrors(pos, rot)
 
 
 def heldout_track(sequence: Sequence, stream: str, recovery_options: dict, folds: BlockFolds) -> BiasTrack:
