@@ -400,7 +400,7 @@ def check_config(
     cfg = WorkflowConfig(data, config_file, tuple(entries))
     for entry in cfg.sequences:
         _check_ingest_settings(cfg, entry)
-        _check_stage_settings(cfg, entry)
+        _check_stage_settings(cfg, entry, check_paths)
     return cfg
 
 
@@ -589,7 +589,7 @@ STAGE_CONFIGS: dict[str, type] = {
 #: Keys of a stage section that the workflow reads itself (not options of its dataclass), with defaults.
 SECTION_EXTRA_KEYS: dict[str, dict[str, Any]] = {
     "recovery": {"pose_stream": None},
-    "validation": {"poses": None, "gravity_mps2": None},
+    "validation": {"poses": None, "gravity_mps2": None, "bias": {}},
 }
 #: Sections a sequence entry may override (merged over the top-level section of the same name).
 ENTRY_OVERRIDE_SECTIONS = ("recovery", "validation")
@@ -650,15 +650,36 @@ def validation_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     """Parameters of rule ``validate`` for one sequence.
 
     Returns:
-        ``{"poses": str | None, "gravity_mps2": [3] | None, "config": {ValidationConfig option: value}}``:
-        the top-level ``validation:`` section updated by the entry's ``validation:`` mapping.
-        ``poses``: the reference pose stream (``None``: the ground-truth state, else the
-        recovery's stream); ``gravity_mps2``: ``None`` = the recovery's estimate.
+        ``{"poses": str | None, "gravity_mps2": [3] | None, "bias": [[name, path], ...], "config":
+        {ValidationConfig option: value}}``: the top-level ``validation:`` section updated by the
+        entry's ``validation:`` mapping. ``poses``: the reference pose stream (``None``: the
+        ground-truth state, else the recovery's stream); ``gravity_mps2``: ``None`` = the recovery's
+        estimate; ``bias``: other bias estimates of the sequence (``{name: file}``, files relative to
+        ``data_root``), integrated against the same reference next to the recovered bias (sources of
+        kind FILE: compared, not judged).
     """
     merged = _merged_section(cfg, cfg.sequence(sequence), "validation")
     poses = merged.pop("poses", None)
     gravity = merged.pop("gravity_mps2", None)
-    return {"poses": poses, "gravity_mps2": gravity, "config": merged}
+    return {"poses": poses, "gravity_mps2": gravity, "bias": _validation_bias_files(cfg, merged.pop("bias", None)),
+            "config": merged}
+
+
+def _validation_bias_files(cfg: WorkflowConfig, bias: Any) -> list[list[str]]:
+    """``validation.bias`` (``{name: file}``) as ``[[name, absolute path], ...]``."""
+    if bias is None:
+        return []
+    if not isinstance(bias, Mapping) or not all(isinstance(k, str) and isinstance(v, str) for k, v in bias.items()):
+        raise ConfigError(f"validation.bias must map source names to bias files, got {bias!r}", path=cfg.config_file,
+                          field="validation.bias",
+                          hint="e.g. bias: {openvins: euroc/V1_01_easy/ov_data/V1_01_easy.csv}")
+    root = data_root(cfg.data, cfg.config_file)
+    return [[name, str(resolve_input_path(path, root))] for name, path in bias.items()]
+
+
+def validation_bias_inputs(cfg: WorkflowConfig, sequence: str, workdir: str | Path | None = None) -> list[str]:
+    """The entry's ``validation.bias`` files, for rule ``validate``'s dependency tracking."""
+    return [workdir_relative(Path(path), workdir) for _, path in validation_settings(cfg, sequence)["bias"]]
 
 
 def windowed_sequences(cfg: WorkflowConfig) -> list[SequenceEntry]:
@@ -694,7 +715,7 @@ def window_outputs(cfg: WorkflowConfig) -> list[str]:
     return [windows_dataset_dir()]
 
 
-def _check_stage_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
+def _check_stage_settings(cfg: WorkflowConfig, entry: SequenceEntry, check_paths: bool = True) -> None:
     """Raise a ConfigError naming the entry when its stage overrides (merged over the sections) are invalid."""
     for section in ENTRY_OVERRIDE_SECTIONS:
         try:
@@ -702,6 +723,16 @@ def _check_stage_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
         except ConfigError as exc:
             raise ConfigError(f"{entry.where}: {exc.problem}", path=cfg.config_file, field=exc.field,
                               hint=exc.hint) from None
+    try:
+        files = validation_settings(cfg, entry.name)["bias"]
+    except ConfigError as exc:
+        raise ConfigError(f"{entry.where}: {exc.problem}", path=cfg.config_file, field=exc.field,
+                          hint=exc.hint) from None
+    for name, path in files:
+        if check_paths and not Path(path).is_file():
+            raise ConfigError(f"{entry.where}: bias file {path} does not exist", path=cfg.config_file,
+                              field=f"validation.bias.{name}",
+                              hint="fix the path (relative paths are resolved against data_root)")
 
 
 @dataclass(frozen=True)
@@ -853,6 +884,7 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
     config = stage_config("validation", settings.get("config") or {})
     sequence = read_store(store_dir)
     result = validate_inputs(sequence, recovery_dir=recovery_dir, pose_stream=settings.get("poses"),
+                             bias_files=[(name, path) for name, path in settings.get("bias") or []],
                              gravity_mps2=settings.get("gravity_mps2"), config=config)
     write_validation(result, out_dir)
     level = logging.WARNING if result.verdict is Verdict.FAIL else logging.INFO

@@ -53,7 +53,14 @@ from recovery.outputs import (
     read_trajectory,
 )
 from reports import plots
-from validation.outputs import VALIDATION_JSON, WINDOWS_PARQUET, ValidationSummary, read_summary, read_windows
+from validation.outputs import (
+    HELDOUT_SOURCE,
+    VALIDATION_JSON,
+    WINDOWS_PARQUET,
+    ValidationSummary,
+    read_summary,
+    read_windows,
+)
 from reports.allan import ImuAllan, imu_allan
 from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
 
@@ -292,6 +299,47 @@ def _better_worse(cand: float | None, base: float | None) -> str | None:
     if abs(rel) < 0.005:
         return "as well as"
     return f"{abs(rel):.0%} {'better' if rel > 0 else 'worse'} than"
+
+
+def other_estimates_sentence(validation: dict[str, Any]) -> str | None:
+    """What the other bias estimates of the sequence (sources of kind ``file``) say against the judged one.
+
+    Each is compared on the same windows and reference: its PRMSE as a multiple of the judged bias's, and
+    the difference of the mean accelerometer biases with the tilt of the same size (``|d b_a| / |g|``), since
+    a bias is only meaningful together with the attitude and gravity it was estimated against. None when
+    there is no such source.
+    """
+    sources, cand = _sources(validation), _candidate(validation)
+    others = [n for n, s in sources.items() if s.get("kind") == "file" and n != cand]
+    if cand is None or not others:
+        return None
+    base = _num(sources[cand], "prmse_m")
+    g = float(np.linalg.norm(validation.get("gravity_mps2") or [0.0, 0.0, 9.81]))
+    parts = []
+    for name in others:
+        s = sources[name]
+        prmse = _num(s, "prmse_m")
+        if name == HELDOUT_SOURCE:
+            parts.append(f"'{name}', the recovery cross-validated by time blocks (recovered again without the "
+                         f"poses of each block, used on that block only), integrates to "
+                         f"{fmt(None if prmse is None else 1e3 * prmse, 4)} mm"
+                         + (f", {prmse / base:.2g}x the judged bias's {fmt(1e3 * base, 4)} mm: what the recovery "
+                            "is worth on poses it was not fitted to" if prmse is not None and base else ""))
+            continue
+        text = f"'{name}' integrates to {fmt(None if prmse is None else 1e3 * prmse, 4)} mm"
+        if prmse is not None and base:
+            text += f", {prmse / base:.2g}x the judged bias's {fmt(1e3 * base, 4)} mm"
+        mean_o, mean_c = s.get("mean_bias"), sources[cand].get("mean_bias")
+        if isinstance(mean_o, list) and isinstance(mean_c, list) and len(mean_o) == len(mean_c) == 6:
+            d = np.asarray(mean_o[3:], dtype=float) - np.asarray(mean_c[3:], dtype=float)
+            text += (f"; its mean accelerometer bias differs by ({', '.join(f'{x:+.3f}' for x in d)}) m/s^2, what "
+                     f"a {math.degrees(float(np.linalg.norm(d)) / g):.2f}-deg tilt of the attitude would explain")
+        parts.append(text)
+    frame_note = (" A bias is only meaningful with the attitude and gravity it was estimated against: an estimate "
+                  "made against another pose source fits this reference only as well as the two sources' attitudes "
+                  "agree." if any(n != HELDOUT_SOURCE for n in others) else "")
+    return ("Other estimates of this sequence's bias, integrated on the same windows against the same reference: "
+            + "; ".join(parts) + "." + frame_note)
 
 
 # ----------------------------------------------------------------------------- section 1: verdict
@@ -804,6 +852,9 @@ def _integration_section(inp: ReportInputs) -> Html:
         table(["bias source", "kind", "windows", "PRMSE [mm]", "ROE [deg]", "PRMSE vs constant", "flagged"], rows,
               numeric_from=2),
     ]
+    others = other_estimates_sentence(v)
+    if others:
+        parts.append(p(others))
     dropped = v.get("windows_dropped") if isinstance(v.get("windows_dropped"), dict) else None
     if dropped:
         text = ", ".join(f"{k} {fmt(x, 4) if not isinstance(x, dict) else ''}".strip() for k, x in dropped.items()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 from pathlib import Path
 
@@ -11,7 +12,8 @@ import pytest
 from pipeline.sim import SimConfig, simulate
 from pipeline.sim.config import MotionConfig, PoseStreamConfig
 from recovery.config import IntrinsicsMode, RecoveryConfig
-from recovery.intrinsics import FitNoise, ImuIntrinsics, fit_intrinsics, raw_bias
+from pipeline.types import PoseSeries, PoseSourceKind
+from recovery.intrinsics import FitNoise, ImuIntrinsics, fit_intrinsics, raw_bias, recover_with_intrinsics
 from recovery.recover import recover
 
 _spec = importlib.util.spec_from_file_location(
@@ -103,3 +105,23 @@ def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     same = recover(drone.sequence, config=on).report["intrinsics"]
     np.testing.assert_array_equal(same["gyro_matrix"], np.eye(3))
     np.testing.assert_array_equal(same["acc_matrix"], np.eye(3))
+
+
+def test_position_only_stream_estimates_no_intrinsics(drone):
+    """Positions alone do not pin the trajectory's orientation down (it is the gyro's own integration): the
+    loop is skipped with a warning and the bias is the plain recovery's."""
+    seq = drone.sequence
+    name, poses = next(iter(seq.poses.items()))
+    positions = PoseSeries(poses.t_ns, poses.p_m, None, poses.frame, PoseSourceKind.POSITION_TRACKER)
+    seq = dataclasses.replace(seq, poses={name: positions}, ground_truth=None)
+    calls = []
+
+    def solve(s):
+        calls.append(s)
+        return recover(s, pose_stream=name)
+
+    res = recover_with_intrinsics(seq, solve, g_sensitivity=True, block_s=10.0)
+    assert len(calls) == 1 and calls[0] is seq
+    assert res.report["intrinsics"]["method"] == "not estimated"
+    np.testing.assert_array_equal(res.report["intrinsics"]["gyro_matrix"], np.eye(3))
+    assert any("IMU intrinsics not estimated" in w and name in w for w in res.warnings)

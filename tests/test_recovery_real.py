@@ -110,3 +110,26 @@ def test_mh01_leica_agrees_with_gt_recovery(shared_data):
     sel = (ra.t_ns >= rb.t_ns[0]) & (ra.t_ns <= rb.t_ns[-1])
     gyro_diff = np.abs(ra.bias_gyro_radps[sel] - rb.bias_at(ra.t_ns[sel])[:, :3])
     assert (gyro_diff.mean(axis=0) < 2e-3).all()
+
+
+@pytest.mark.slow
+def test_mh01_leica_agrees_with_gt_recovery_with_intrinsics_on(shared_data):
+    """Issue 12: with the IMU intrinsics on, the Leica and GT-pose recoveries still agree within 3 sigma
+    (measured, benchmarks/recovery.py --only mh01 --config '{"intrinsics": "with_g_sensitivity"}': 1.000 on
+    every axis but acc z, 0.998). From the Leica positions nothing is estimated (position-only stream);
+    before that rule the fit's 6.7 % accelerometer scale left gyro y at 0 % agreement."""
+    from pipeline.io import load_sequence
+    from pipeline.io.tum import read_tum_poses
+    from recovery.config import IntrinsicsMode
+
+    on = RecoveryConfig(intrinsics=IntrinsicsMode.WITH_G_SENSITIVITY)
+    seq = load_sequence(shared_data / "euroc/MH_01_easy")
+    ra = recover(seq, pose_stream="leica0", config=on)
+    assert ra.report["intrinsics"]["method"] == "not estimated"
+    gt, _ = read_tum_poses(shared_data / "euroc/MH_01_easy/ov_data/MH_01_easy.txt",
+                           source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu")
+    seq.poses["euroc_gt"] = gt
+    rb = recover(seq, pose_stream="euroc_gt", config=on)  # the default keyframes, as the benchmark
+    assert rb.report["intrinsics"]["rounds"] >= 1
+    frac = (agreement_z(ra, rb) < 3).mean(axis=0)
+    assert (frac >= 0.99).all(), frac

@@ -19,7 +19,7 @@ from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind
 from reports.html import fmt
 from reports.allan import allan_deviation, fit_noise_parameters, imu_allan, white_noise_upper_bound
 from reports.quality import SECTIONS, build_quality_report, flagged_stretches, gravity_tilt_deg, pose_residuals, \
-    stage_dirs, verdict_summary
+    other_estimates_sentence, stage_dirs, verdict_summary
 
 SEQ = "simseq"
 CLOCK_OFFSET_S = 0.012345
@@ -182,6 +182,25 @@ def test_gravity_tilt_and_verdict_sentence():
     v["verdict"], v["sources"]["rec"]["prmse_m"] = "FAIL", 0.0125
     assert "25% worse than a constant bias" in verdict_summary(v)[1]
     assert verdict_summary(None)[0] == "NO VERDICT"
+
+
+def test_other_estimates_sentence():
+    v = {"candidate": "recovered", "gravity_mps2": [0.0, 0.0, -9.81], "sources": {
+        "recovered": {"kind": "recovered", "prmse_m": 0.05, "mean_bias": [0, 0, 0, -0.01, 0.55, 0.07]},
+        "constant": {"kind": "constant_first_window", "prmse_m": 0.06},
+        "openvins": {"kind": "file", "prmse_m": 0.2, "mean_bias": [0, 0, 0, -0.02, 0.15, 0.07]}}}
+    text = other_estimates_sentence(v)
+    assert "'openvins' integrates to 200 mm, 4x the judged bias's 50 mm" in text
+    # |(-0.01, -0.4, 0)| = 0.4001 m/s^2 = 0.04079 rad of a 9.81 m/s^2 gravity
+    assert "differs by (-0.010, -0.400, +0.000) m/s^2, what a 2.34-deg tilt" in text
+    v["sources"]["recovered_heldout"] = {"kind": "file", "prmse_m": 0.054}
+    text = other_estimates_sentence(v)
+    assert "'recovered_heldout', the recovery cross-validated by time blocks" in text
+    assert "integrates to 54 mm, 1.1x the judged bias's 50 mm: what the recovery is worth on poses" in text
+    del v["sources"]["openvins"]
+    assert "attitudes agree" not in other_estimates_sentence(v)
+    del v["sources"]["recovered_heldout"]
+    assert other_estimates_sentence(v) is None
 
 
 def test_flagged_stretches_merge_consecutive_windows():

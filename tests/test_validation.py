@@ -470,7 +470,7 @@ def test_constructed_fail_with_a_biased_candidate(clean_sim):
 EXPECTED_KEYS = {"schema_version", "sequence", "verdict", "reasons", "candidate", "config", "reference",
                  "gravity_mps2", "sources", "windows_dropped", "notes", "next_steps"}
 EXPECTED_SOURCE_KEYS = {"kind", "prmse_m", "roe_deg", "windows", "flagged", "flag_threshold_pos_m",
-                        "flag_threshold_rot_deg", "sigma_prmse_m", "sigma_roe_deg"}
+                        "flag_threshold_rot_deg", "sigma_prmse_m", "sigma_roe_deg", "mean_bias"}
 
 
 def test_write_validation_key_set_and_windows_table(clean_sim, tmp_path):
@@ -484,6 +484,13 @@ def test_write_validation_key_set_and_windows_table(clean_sim, tmp_path):
         assert set(s) == EXPECTED_SOURCE_KEYS
     assert set(data["windows_dropped"]) == {"candidates", "kept", "dropped", "fraction", "by_reason"}
     assert data["sources"]["recovered"]["prmse_m"] == pytest.approx(res.sources["recovered"].prmse_m)
+    # each source's mean bias over the windows' first samples: the truth's there for the true track, zero for zero
+    truth = clean_sim.truth
+    t0 = res.sources["recovered"].t0_ns
+    true_bias = np.hstack([truth.bias_gyro_radps, truth.bias_acc_mps2])
+    true_mean = np.mean([np.interp(t0, truth.t_ns, true_bias[:, c]) for c in range(6)], axis=1)
+    np.testing.assert_allclose(data["sources"]["recovered"]["mean_bias"], true_mean, rtol=1e-9, atol=1e-12)
+    assert data["sources"]["zero"]["mean_bias"] == [0.0] * 6
     frame = pq.read_table(out / "windows.parquet").to_pandas()
     assert list(frame.columns) == ["t0_ns", "source", "pos_err_m", "rot_err_deg", "flagged"]
     assert frame["t0_ns"].dtype == np.int64

@@ -97,6 +97,10 @@ def test_euroc_config_is_valid(shared_data):
     # MH_01: recovered from the raw Leica positions, validated against independent GT poses
     assert wf.recovery_settings(cfg, "MH_01_easy")["pose_stream"] == "leica0"
     assert wf.validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
+    # V1_01: OpenVINS's re-estimated bias integrated next to the recovered one (a file resolved against data_root)
+    [[name, path]] = wf.validation_settings(cfg, "V1_01_easy")["bias"]
+    assert name == "openvins" and path.endswith("V1_01_easy/ov_data/V1_01_easy.csv") and Path(path).is_file()
+    assert wf.validation_settings(cfg, "MH_01_easy")["bias"] == []
     assert wf.ingest_settings(cfg, "MH_01_easy")["reader_kwargs"]["extra_poses"][0]["kind"] == "ground_truth"
     assert wf.recovery_settings(cfg, "V1_02_medium_excerpt")["pose_stream"] == "ground_truth"  # GT state only
     # every entry goes through every per-sequence stage; MH_01's real windows take the validation's
@@ -156,6 +160,13 @@ def test_rejects_missing_input_path(tmp_path):
     cfg = wf.load_config(write_config(tmp_path / "remote.yaml", {
         "check_input_paths": False, "sequences": [{"name": "real", "source": "asl", "path": "nowhere/mav0"}]}))
     assert cfg.sequence("real").path == tmp_path / "nowhere" / "mav0"
+
+
+def test_rejects_missing_or_malformed_validation_bias_file(tmp_path):
+    msg = _error(tmp_path, {"sequences": [sim_entry("a", validation={"bias": {"other": "nowhere.csv"}})]})
+    assert f"sequences[0] ('a'): bias file {tmp_path / 'nowhere.csv'} does not exist" in msg
+    msg = _error(tmp_path, {"sequences": [sim_entry("a", validation={"bias": ["nowhere.csv"]})]})
+    assert "sequences[0] ('a'): validation.bias must map source names to bias files" in msg
 
 
 def test_rejects_real_source_without_path(tmp_path):
@@ -373,6 +384,7 @@ def test_stage_settings_merge_entry_overrides(tmp_path):
     assert rc.keyframe_rate_hz == 20 and rc.robust_loss.value == "cauchy"
     va, vb = wf.validation_settings(cfg, "a"), wf.validation_settings(cfg, "b")
     assert va["poses"] == "mocap0" and vb["poses"] is None
+    assert va["bias"] == vb["bias"] == [] and "bias" not in va["config"]
     assert va["gravity_mps2"] == vb["gravity_mps2"] == [0, 0, -9.8]
     assert va["config"]["margin"] == 0.5 and vb["config"]["margin"] == 0.1 and va["config"]["window_s"] == 2.0
     assert wf.interpolation_settings(cfg, "a") == {"method": "cubic", "clamp": True, "write_csv": False}
@@ -623,16 +635,21 @@ def test_validate_step_fail_is_a_result_and_bad_input_stops(e2e_run, tmp_path):
     import shutil
 
     shutil.copytree(workdir / "results" / "recovery" / "tiny_b", recovery)
+    shutil.copy(recovery / "bias.csv", tmp_path / "unshifted.csv")
     bias = pd.read_csv(recovery / "bias.csv")
     bias["ba_x"] += 0.5  # 0.5 m/s^2 off: far worse than a constant bias
     bias.to_csv(recovery / "bias.csv", index=False)
     cfg = wf.load_config(e2e_run.config)
-    settings = wf.validation_settings(cfg, "tiny_b")
+    settings = {**wf.validation_settings(cfg, "tiny_b"), "bias": [["unshifted", str(tmp_path / "unshifted.csv")]]}
     log_path = tmp_path / "logs" / "validate.log"
     result = wf.run_step(log_path, wf.validate_step, store, recovery, tmp_path / "val", settings)
     assert result.verdict is Verdict.FAIL
     data = _json.loads((tmp_path / "val" / "validation.json").read_text())
     assert data["verdict"] == "FAIL" and data["reasons"]
+    # a validation.bias file is integrated on the same windows, compared, not judged: the unshifted bias wins
+    other, judged = data["sources"]["unshifted"], data["sources"]["recovered"]
+    assert other["kind"] == "file" and data["candidate"] == "recovered"
+    assert other["windows"] == judged["windows"] and other["prmse_m"] < 0.2 * judged["prmse_m"]
     assert "WARNING pipeline.workflow: verdict FAIL for 'tiny_b'" in log_path.read_text()
     # a missing recovery is an input error: exit 2, one logged line, nothing written
     with pytest.raises(SystemExit) as info:

@@ -33,6 +33,11 @@ class ValidationConfig:
         sigma_k: How many of its own sigmas the candidate may be off before it counts as worse.
         max_random_walk_scale: A recovery whose bias random walk is more than this times (or less
             than 1/this of) the calibration's is only good for WARN.
+        crossval_block_s: Cross-validate the recovered bias by time blocks of this length
+            (:mod:`validation.crossval`): recover again, with the recovery's own options, without the
+            poses of each fold of blocks, and add the spliced held-out bias as the source
+            ``recovered_heldout`` (compared, not judged). ``None``: off.
+        crossval_folds: Number of folds of that cross-validation (block ``b`` is in fold ``b % folds``).
     """
 
     window_s: float = 1.0
@@ -56,6 +61,8 @@ class ValidationConfig:
     significance: float = 0.01
     sigma_k: float = 2.0
     max_random_walk_scale: float = 30.0
+    crossval_block_s: float | None = None
+    crossval_folds: int = 3
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "scheme", IntegrationScheme(self.scheme))
@@ -72,6 +79,9 @@ class ValidationConfig:
             ("significance", 0.0 < self.significance < 0.5, "give a test level in (0, 0.5), e.g. 0.01"),
             ("sigma_k", self.sigma_k >= 0.0, "give a number of sigmas >= 0, e.g. 2"),
             ("max_random_walk_scale", self.max_random_walk_scale > 1.0, "give a factor > 1, e.g. 30"),
+            ("crossval_block_s", self.crossval_block_s is None or self.crossval_block_s > 0,
+             "give a block length in seconds (e.g. 10) or None for no cross-validation"),
+            ("crossval_folds", self.crossval_folds >= 2, "give at least 2 folds, e.g. 3"),
         )
         for name, ok, hint in checks:
             if not ok:

@@ -26,6 +26,8 @@ from pipeline.jsonio import JsonRecord, dumps, read_json_object
 SCHEMA_VERSION = 1
 VALIDATION_JSON = "validation.json"
 WINDOWS_PARQUET = "windows.parquet"
+#: The source name of the recovered bias cross-validated by time blocks (``crossval_block_s``).
+HELDOUT_SOURCE = "recovered_heldout"
 WINDOWS_COLUMNS = ("t0_ns", "source", "pos_err_m", "rot_err_deg", "flagged")
 
 _RERUN = "re-run 'biasgt validate' (or the workflow's validate stage)"

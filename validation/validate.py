@@ -122,7 +122,7 @@ from pipeline.so3 import rotation_angle_deg
 from pipeline.types import NS_PER_S, ImuSeries, IntegrationScheme, PoseSeries, Sequence, Severity, StateSeries
 from recovery.outputs import RecoveryOutputs
 from validation.config import ValidationConfig
-from validation.outputs import SCHEMA_VERSION, Verdict, write_folder
+from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, Verdict, write_folder
 
 log = logging.getLogger(__name__)
 
@@ -159,6 +159,7 @@ __all__ = [
     "validate_inputs",
     "validate_sequence",
     "window_end_errors",
+    "window_errors",
     "windows_with_any",
     "write_validation",
 ]
@@ -624,6 +625,8 @@ class SourceMetrics:
         flag_pos_m / flag_rot_deg: The thresholds used.
         sigma_pos_m / sigma_rot_deg: Per window, the end-point error that the source's own bias
             sigma explains (:func:`sigma_window_errors`), [W]; zeros for a source without sigma.
+        mean_bias: The source's bias averaged over the windows' first samples, [6] (gyro rad/s, acc
+            m/s^2), or None: what two sources' errors differ by (a tilt and an acc bias trade off).
     """
 
     name: str
@@ -638,6 +641,7 @@ class SourceMetrics:
     flag_rot_deg: float
     sigma_pos_m: np.ndarray | None = None
     sigma_rot_deg: np.ndarray | None = None
+    mean_bias: np.ndarray | None = None
 
     @property
     def sigma_prmse_m(self) -> float:
@@ -664,6 +668,7 @@ class SourceMetrics:
             "sigma_roe_deg": self.sigma_roe_deg,
             "flag_threshold_pos_m": float(self.flag_pos_m),
             "flag_threshold_rot_deg": float(self.flag_rot_deg),
+            **({} if self.mean_bias is None else {"mean_bias": [float(x) for x in self.mean_bias]}),
             "flagged": [
                 {"t0_ns": int(self.t0_ns[i]), "pos_err_m": float(self.pos_err_m[i]),
                  "rot_err_deg": float(self.rot_err_deg[i])}
@@ -678,7 +683,7 @@ def _flags(pos: np.ndarray, rot: np.ndarray, config: ValidationConfig) -> tuple[
     return (pos > thr_p) | (rot > thr_r), thr_p, thr_r
 
 
-def _window_errors(
+def window_errors(
     imu: ImuSeries,
     bias: np.ndarray,
     ref: ReferenceStates,
@@ -1125,12 +1130,12 @@ def validate_sequence(
     t0 = imu.t_ns[starts]
     window_s = plan.n / plan.rate_hz
     for src in evaluated:
-        pos, rot = _window_errors(imu, at_imu[src.name], reference, starts, plan.n, gravity, config)
+        pos, rot = window_errors(imu, at_imu[src.name], reference, starts, plan.n, gravity, config)
         flagged, thr_p, thr_r = _flags(pos, rot, config)
         sigma_pos, sigma_rot = sigma_window_errors(_std_at(src.track, t0), reference.R[starts], window_s, gravity)
         metrics[src.name] = SourceMetrics(
             src.name, src.kind, t0, pos, rot, prmse_m(pos), roe_deg(rot),
-            flagged, thr_p, thr_r, sigma_pos, sigma_rot,
+            flagged, thr_p, thr_r, sigma_pos, sigma_rot, at_imu[src.name][starts].mean(axis=0),
         )
         log.info("%-12s PRMSE %.4f m  ROE %.4f deg  (%d windows, %d flagged)", src.name,
                  metrics[src.name].prmse_m, metrics[src.name].roe_deg, len(pos), int(flagged.sum()))
@@ -1368,6 +1373,8 @@ def validate_inputs(
     """
     recovery = RecoveryOutputs.read(recovery_dir) if recovery_dir is not None else None
     sources = bias_sources(sequence, recovery=recovery, bias_files=bias_files)
+    if config.crossval_block_s is not None:
+        sources.update(_heldout_source(sequence, recovery, config))
     if gravity_mps2 is not None:
         gravity = np.asarray(gravity_mps2, dtype=float)
     elif recovery is not None and recovery.report.gravity_world_mps2 is not None:
@@ -1389,6 +1396,25 @@ def validate_inputs(
     if recovery is not None:
         result.notes.append(f"recovery: {recovery_dir}")
     return result
+
+
+def _heldout_source(sequence: Sequence, recovery: RecoveryOutputs | None,
+                    config: ValidationConfig) -> dict[str, BiasSource]:
+    """``{"recovered_heldout": source}``: the recovery cross-validated by blocks (``crossval_block_s``), a FILE
+    source (compared with the recovered bias on the same windows, not judged)."""
+    from validation.crossval import BlockFolds, heldout_track
+
+    stream = recovery.report.pose_stream if recovery is not None else None
+    if recovery is None or stream not in sequence.poses:
+        raise ValidationError("crossval_block_s needs the recovery and the pose stream it fitted" + (
+            f" ('{stream}' is not among the sequence's pose streams)" if recovery is not None else ""),
+            field="crossval_block_s",
+            hint="give the recovery folder of a pose-stream recovery, or drop crossval_block_s")
+    folds = BlockFolds(int(sequence.imu.t_ns[0]), float(config.crossval_block_s), int(config.crossval_folds))
+    log.info("cross-validating the recovery from '%s' by %d folds of %g-s blocks", stream, folds.n_folds,
+             folds.block_s)
+    track = heldout_track(sequence, stream, dict(recovery.report.get("config") or {}), folds)
+    return {HELDOUT_SOURCE: BiasSource(HELDOUT_SOURCE, BiasSourceKind.FILE, track)}
 
 
 def next_steps(result: ValidationResult, limitations: Sequence_[Limitation] = ()) -> list[str]:

@@ -85,6 +85,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"flag windows whose error exceeds K x the median (default {d.flag_k:g})")
     p.add_argument("--velocity-cutoff-hz", type=float, default=d.velocity_cutoff_hz, metavar="HZ",
                    help="smoothing cutoff for pose-derived velocity (default: chosen from the pose noise)")
+    p.add_argument("--crossval-block-s", type=float, default=d.crossval_block_s, metavar="S",
+                   help="also cross-validate the recovery by time blocks of S seconds: recover again without the "
+                        "poses of each fold of blocks and compare that held-out bias ('recovered_heldout')")
+    p.add_argument("--crossval-folds", type=int, default=d.crossval_folds, metavar="N",
+                   help=f"folds of --crossval-block-s (default {d.crossval_folds})")
     add_reader_arguments(p)
     add_check_arguments(p)
     p.set_defaults(func=run)
@@ -116,7 +121,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValidationError("nothing to validate", field="--bias",
                               hint="give --recovery DIR or --bias FILE")
     config = ValidationConfig(window_s=args.window_s, overlap=args.overlap, margin=args.margin,
-                              flag_k=args.flag_k, velocity_cutoff_hz=args.velocity_cutoff_hz)
+                              flag_k=args.flag_k, velocity_cutoff_hz=args.velocity_cutoff_hz,
+                              crossval_block_s=args.crossval_block_s, crossval_folds=args.crossval_folds)
     seq = load_checked(args.sequence, reader_kwargs_from_args(args), repairs=args.repair,
                        check_options=check_options_from_args(args), action="validate")
     if seq.imu is None:

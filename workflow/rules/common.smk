@@ -76,6 +76,10 @@ def get_validation_settings(wildcards):
     return wf.validation_settings(WF_CONFIG, wildcards.sequence)
 
 
+def get_validation_bias_inputs(wildcards):
+    return wf.validation_bias_inputs(WF_CONFIG, wildcards.sequence, os.getcwd())
+
+
 def get_windows_inputs(wildcards):
     return wf.windows_inputs(WF_CONFIG)
 

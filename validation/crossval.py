@@ -1,0 +1,155 @@
+"""Cross-validation of a recovered bias by time blocks: recover on some blocks, judge on the others.
+
+The 1-s integration check of :mod:`validation.validate` against the very poses a bias was fitted to
+cannot see what the bias absorbed from them (a tilt of the pose frame, pose artefacts). Here the
+recording is cut into blocks of ``block_s`` from the first IMU stamp; block ``b`` belongs to fold
+``b % n_folds``. For fold ``k`` the pose samples inside fold ``k``'s blocks are removed, the bias is
+recovered from the rest, and that recovery's bias (and, when estimated, its IMU intrinsics) is used
+in fold ``k``'s blocks only. Every IMU sample's bias then comes from a recovery that never saw the
+poses around it. The windows judged are those wholly inside one block (no window mixes two
+recoveries), integrated against the FULL pose stream with the project's one metric
+(:mod:`validation.heldout`: :func:`validation.validate.window_errors`, PRMSE, ROE).
+
+A recovery sees a held-out block as a pose gap bridged by one preintegrated IMU interval: the block's
+own IMU readings still enter through it, its poses do not.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from pipeline.bias_table import BiasTrack
+from pipeline.errors import ValidationError
+from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence
+
+__all__ = ["BlockFolds", "CrossValidatedBias", "crossvalidate_recovery", "held_constant", "heldout_track",
+           "imu_and_bias_of", "without_fold"]
+
+
+@dataclass(frozen=True)
+class BlockFolds:
+    """Blocks of ``block_s`` from ``t0_ns``; block ``b`` is in fold ``b % n_folds``."""
+
+    t0_ns: int
+    block_s: float
+    n_folds: int
+
+    def __post_init__(self) -> None:
+        if not self.block_s > 0 or self.n_folds < 2:
+            raise ValidationError(f"cross-validation needs block_s > 0 and n_folds >= 2, got {self.block_s!r} and "
+                                  f"{self.n_folds!r}", field="block_s", hint="e.g. block_s 10, n_folds 3")
+
+    def block(self, t_ns: np.ndarray) -> np.ndarray:
+        """Block index of each stamp, int [N] (negative before ``t0_ns``)."""
+        return np.floor((np.asarray(t_ns, dtype=np.int64) - self.t0_ns) / (self.block_s * NS_PER_S)).astype(np.int64)
+
+    def fold(self, t_ns: np.ndarray) -> np.ndarray:
+        """Fold of each stamp, int [N] in ``[0, n_folds)``."""
+        return np.mod(self.block(t_ns), self.n_folds)
+
+
+def without_fold(poses: PoseSeries, folds: BlockFolds, k: int, time_offset_s: float = 0.0) -> PoseSeries:
+    """The pose stream without its samples in fold ``k`` (stamps moved by ``time_offset_s`` to the IMU clock
+    to decide the fold)."""
+    return poses.take(folds.fold(poses.t_ns + int(round(time_offset_s * NS_PER_S))) != k)
+
+
+def imu_and_bias_of(imu: ImuSeries, result) -> tuple[ImuSeries, np.ndarray]:
+    """The readings to integrate and the bias to subtract, [N, 6], for a recovery result.
+
+    A recovery with IMU intrinsics (``report["intrinsics"]``) reports the bias in the raw readings'
+    convention ``b = M b'``; its readings are corrected (:meth:`recovery.intrinsics.ImuIntrinsics.correct`)
+    and its bias taken as ``b' = M^-1 b``. Otherwise the raw readings and the bias as recovered.
+    """
+    bias = result.bias_at(imu.t_ns)
+    rep = result.report.get("intrinsics")
+    if not rep:
+        return imu, bias
+    from recovery.intrinsics import ImuIntrinsics
+
+    intr = ImuIntrinsics(np.array(rep["gyro_matrix"]), np.array(rep["acc_matrix"]),
+                         np.array(rep["gyro_g_sensitivity"]))
+    corrected = intr.correct(imu, bias[:, 3:])
+    b = np.hstack([np.linalg.solve(intr.gyro_matrix, bias[:, :3].T).T,
+                   np.linalg.solve(intr.acc_matrix, bias[:, 3:].T).T])
+    return corrected, b
+
+
+@dataclass(frozen=True)
+class CrossValidatedBias:
+    """A bias at the IMU stamps where each sample's value comes from the fold that left it out.
+
+    Attributes:
+        imu: Readings to integrate (corrected per fold when the recovery estimated intrinsics).
+        bias: Bias at the IMU stamps, [N, 6] (gyro rad/s, acc m/s^2), in the convention of ``imu``.
+        recoveries: Each fold's recovery result, in fold order.
+        raw_bias: The bias as the recoveries report it (raw readings' convention), [N, 6]; None when
+            not spliced from recoveries.
+    """
+
+    imu: ImuSeries
+    bias: np.ndarray
+    recoveries: tuple
+    raw_bias: np.ndarray | None = None
+
+
+def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
+                           recover_fn: Callable[[Sequence, str], object]) -> CrossValidatedBias:
+    """Recover once per fold without that fold's poses and splice the held-out biases.
+
+    Args:
+        sequence: IMU + pose streams.
+        stream: The pose stream recovered from.
+        folds: The blocks and folds.
+        recover_fn: ``(sequence, stream) -> RecoveryResult`` (e.g. ``recovery.recover.recover`` with a config).
+
+    Returns:
+        The spliced bias (and readings) at the IMU stamps, and the per-fold recoveries.
+    """
+    imu = sequence.imu
+    fold_of_imu = folds.fold(imu.t_ns)
+    gyro, acc = imu.gyro_radps.copy(), imu.acc_mps2.copy()
+    bias, raw = np.full((len(imu), 6), np.nan), np.full((len(imu), 6), np.nan)
+    results = []
+    for k in range(folds.n_folds):
+        poses = sequence.poses[stream]
+        seq_k = dataclasses.replace(sequence, poses={**sequence.poses, stream: without_fold(poses, folds, k)})
+        res = recover_fn(seq_k, stream)
+        results.append(res)
+        imu_k, bias_k = imu_and_bias_of(imu, res)
+        m = fold_of_imu == k
+        gyro[m], acc[m], bias[m] = imu_k.gyro_radps[m], imu_k.acc_mps2[m], bias_k[m]
+        raw[m] = res.bias_at(imu.t_ns[m])
+    return CrossValidatedBias(dataclasses.replace(imu, gyro_radps=gyro, acc_mps2=acc), bias, tuple(results), raw)
+
+
+def held_constant(cv: CrossValidatedBias, imu: ImuSeries, folds: BlockFolds) -> CrossValidatedBias:
+    """The cross-validated bias held constant per fold: in fold ``k``'s blocks, the mean of fold ``k``'s recovery
+    over the samples it was fitted on (the cross-validated counterpart of a sequence-constant bias estimate)."""
+    fold_of_imu = folds.fold(imu.t_ns)
+    bias = np.empty_like(cv.bias)
+    for k, res in enumerate(cv.recoveries):
+        m = fold_of_imu == k
+        bias[m] = imu_and_bias_of(imu, res)[1][~m].mean(axis=0)
+    return CrossValidatedBias(cv.imu, bias, cv.recoveries)
+
+
+def heldout_track(sequence: Sequence, stream: str, recovery_options: dict, folds: BlockFolds) -> BiasTrack:
+    """The recovered bias cross-validated by blocks, at the IMU stamps (raw readings' convention, std 0).
+
+    Args:
+        sequence: IMU + pose streams.
+        stream: The pose stream the recovery fitted.
+        recovery_options: The recovery's options (``recovery.json`` ``config``), used for every fold.
+        folds: The blocks and folds.
+    """
+    from recovery.config import RecoveryConfig
+    from recovery.recover import recover
+
+    config = RecoveryConfig.from_dict(recovery_options)
+    cv = crossvalidate_recovery(sequence, stream, folds, lambda s, st: recover(s, pose_stream=st, config=config))
+    return BiasTrack(sequence.imu.t_ns, cv.raw_bias, np.zeros_like(cv.raw_bias))
