@@ -390,6 +390,16 @@ def test_write_bag(tmp_path: Path) -> None:
 # ---------------------------------------------------------------------------------------------- semi-real
 
 
+def _trajectory_errors(sim, reference) -> tuple[np.ndarray, np.ndarray]:
+    """Position (m) and rotation (deg) errors of the simulated motion at a file's stamps inside the record."""
+    imu_t = sim.sequence.imu.t_ns
+    inside = (reference.t_ns >= imu_t[0]) & (reference.t_ns <= imu_t[-1])
+    t_s = (reference.t_ns[inside] - imu_t[0]) / NS
+    p_err = np.linalg.norm(sim.trajectory.position(t_s) - reference.p_m[inside], axis=1)
+    r_err = np.rad2deg((sim.trajectory.rotation(t_s).inv() * _rot(reference.quat_wxyz[inside])).magnitude())
+    return p_err, r_err
+
+
 def test_semi_real_mode_reproduces_the_ground_truth_file(shared_data: Path) -> None:
     path = shared_data / V102_GT
     cfg = SimConfig(duration_s=30.0, seed=0, motion=MotionConfig(ground_truth_path=str(path))).noise_free()
@@ -405,11 +415,8 @@ def test_semi_real_mode_reproduces_the_ground_truth_file(shared_data: Path) -> N
     np.testing.assert_allclose(sim.truth.bias_gyro_radps[near], gt_file.bias_gyro_radps[j[near]], atol=1e-9)
     np.testing.assert_allclose(sim.truth.bias_acc_mps2[near], gt_file.bias_acc_mps2[j[near]], atol=1e-9)
     # trajectory: within a few mm of the file's positions, a small fraction of a degree in rotation
-    inside = (gt_file.t_ns >= imu_t[0]) & (gt_file.t_ns <= imu_t[-1])
-    t_s = (gt_file.t_ns[inside] - imu_t[0]) / NS
-    p_err = np.linalg.norm(sim.trajectory.position(t_s) - gt_file.p_m[inside], axis=1)
+    p_err, r_err = _trajectory_errors(sim, gt_file)
     assert p_err.max() < 3e-3 and np.sqrt(np.mean(p_err**2)) < 5e-4
-    r_err = np.rad2deg((sim.trajectory.rotation(t_s).inv() * _rot(gt_file.quat_wxyz[inside])).magnitude())
     assert np.percentile(r_err, 95) < 0.1
     # the simulated IMU is consistent with the fitted motion. V1_02's real angular accelerations
     # make the 200-Hz midpoint integration error (O(h^2)) larger than for the random presets;
@@ -434,17 +441,13 @@ def test_semi_real_from_poses_only_draws_the_bias_from_the_imu_model(shared_data
     cfg = SimConfig(duration_s=20.0, seed=4, motion=MotionConfig(ground_truth_path=str(path)))
     sim = simulate(cfg)
     poses, _ = read_tum_poses(path)  # the file, read independently of the simulator's reader
-    imu_t = sim.sequence.imu.t_ns
-    inside = (poses.t_ns >= imu_t[0]) & (poses.t_ns <= imu_t[-1])
-    t_s = (poses.t_ns[inside] - imu_t[0]) / NS
-    p_err = np.linalg.norm(sim.trajectory.position(t_s) - poses.p_m[inside], axis=1)
+    p_err, r_err = _trajectory_errors(sim, poses)
     assert p_err.max() < 5e-3 and np.sqrt(np.mean(p_err**2)) < 1e-3
-    r_err = np.rad2deg((sim.trajectory.rotation(t_s).inv() * _rot(poses.quat_wxyz[inside])).magnitude())
     assert np.percentile(r_err, 95) < 0.1
     # the bias does not depend on where the motion came from: the same seed's random-motion
     # simulation of the same length draws the same bias (the IMU model's turn-on + random walk)
     random_motion = simulate(dataclasses.replace(cfg, motion=MotionConfig()))
-    assert len(random_motion.truth.t_ns) == len(imu_t)
+    assert len(random_motion.truth.t_ns) == len(sim.truth.t_ns)
     np.testing.assert_array_equal(sim.truth.bias_gyro_radps, random_motion.truth.bias_gyro_radps)
     np.testing.assert_array_equal(sim.truth.bias_acc_mps2, random_motion.truth.bias_acc_mps2)
     assert np.ptp(sim.truth.bias_acc_mps2, axis=0).min() > 0  # a walk, not a constant
