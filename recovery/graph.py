@@ -31,7 +31,7 @@ from recovery.calibration_uncertainty import CalibrationCovariance, KeyframeKine
     measurement_columns
 from recovery.config import PoseFactorMode, RobustLoss
 from recovery.fusion import FusedPoses, PerBin, WithinBinStats
-from recovery.preintegration import ImuNoise, MidpointSamples, make_params, preintegrate
+from recovery.preintegration import ImuNoise, MidpointSamples, RandomWalkBasis, make_params, preintegrate
 
 log = logging.getLogger(__name__)
 
@@ -426,25 +426,31 @@ def build_window(
     opts: SolveOptions,
     init: WindowInit | None = None,
     skip: np.ndarray | None = None,
+    basis: RandomWalkBasis | None = None,
 ) -> _Built:
     """Build the factor graph and initial values of one window.
 
     In order: the initial states, the IMU factors (with the gravity direction when estimated)
     and the bias prior, the pose factors of the stream's kind (:func:`_add_pose_factors`), and
     the fused keyframes' velocity priors. ``skip``: keyframes whose pose factors are left out.
+    ``basis``: this window's preintegration (:func:`random_walk_basis`), re-weighted for
+    ``imu_noise`` instead of integrating again.
     """
     init = init or WindowInit()
-    fixed_g = None if opts.estimate_gravity else init.gravity_unit
-    params = make_params(imu_noise, opts.gravity_mps2, fixed_g)
     bias0 = np.zeros(6) if init.bias is None else np.asarray(init.bias, dtype=float)
-    pims = preintegrate(samples, params, bias0 if bias0.ndim == 1 else bias0[:-1])
+    models = None
+    if basis is None:
+        pims = preintegrate(samples, _params(imu_noise, opts, init), bias0 if bias0.ndim == 1 else bias0[:-1])
+    else:
+        pims = basis.pims
+        models = [gtsam.noiseModel.Gaussian.Covariance(c) for c in basis.covariances(imu_noise)]
     Xs, Z = _initial_poses(samples, kf, T_imu_pose, opts, init)
     built = _Built(gtsam.NonlinearFactorGraph(), _bias_values(bias0, len(kf)), [], [], 0.0)
     vel = _initial_velocities(kf, Xs, init)
     for k in range(len(kf)):
         built.values.insert(X(k), Xs[k])
         built.values.insert(V(k), vel[k])
-    _add_imu_factors(built, pims, opts, init, bias0)
+    _add_imu_factors(built, pims, opts, init, bias0, models)
     skip_set = set() if skip is None else set(int(i) for i in skip)
     _add_pose_factors(built, kf, Xs, Z, T_imu_pose, opts, skip_set)
     position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or kf.quat_wxyz is None
@@ -482,9 +488,25 @@ def _initial_velocities(kf: KeyframePoses, Xs: list[Any], init: WindowInit) -> n
     return np.ascontiguousarray(vel, dtype=float)
 
 
-def _add_imu_factors(built: _Built, pims: list[Any], opts: SolveOptions, init: WindowInit, bias0: np.ndarray) -> None:
+def _params(imu_noise: ImuNoise, opts: SolveOptions, init: WindowInit) -> gtsam.PreintegrationCombinedParams:
+    """The preintegration parameters of a window (gravity fixed to ``init``'s unless estimated)."""
+    return make_params(imu_noise, opts.gravity_mps2, None if opts.estimate_gravity else init.gravity_unit)
+
+
+def random_walk_basis(samples: MidpointSamples, imu_noise: ImuNoise, opts: SolveOptions,
+                      init: WindowInit | None = None) -> RandomWalkBasis:
+    """One window's preintegration at ``init``'s bias, for :func:`build_window` with other random walks."""
+    init = init or WindowInit()
+    bias0 = np.zeros(6) if init.bias is None else np.asarray(init.bias, dtype=float)
+    return RandomWalkBasis.build(samples, imu_noise, lambda n: _params(n, opts, init),
+                                 bias0 if bias0.ndim == 1 else bias0[:-1])
+
+
+def _add_imu_factors(built: _Built, pims: list[Any], opts: SolveOptions, init: WindowInit, bias0: np.ndarray,
+                     models: list[Any] | None = None) -> None:
     """The IMU factors between consecutive keyframes (gravity direction as a variable when estimated,
-    with its prior) and the prior on the first bias."""
+    with its prior) and the prior on the first bias. ``models``: noise models replacing the
+    preintegrated covariances (:class:`recovery.preintegration.RandomWalkBasis`)."""
     graph, values = built.graph, built.values
     if opts.estimate_gravity:
         gu = np.array([0.0, 0.0, -1.0]) if init.gravity_unit is None else np.asarray(init.gravity_unit, float)
@@ -500,6 +522,8 @@ def _add_imu_factors(built: _Built, pims: list[Any], opts: SolveOptions, init: W
             )
         else:
             f = gtsam.CombinedImuFactor(X(k), V(k), X(k + 1), V(k + 1), B(k), B(k + 1), pims[k])
+        if models is not None:
+            f = f.cloneWithNewNoiseModel(models[k])
         graph.add(f)
         built.imu_factors.append(f)
         built.neg_log_const += f.noiseModel().negLogConstant()
@@ -641,17 +665,45 @@ def _add_velocity_priors(built: _Built, kf: KeyframePoses, opts: SolveOptions, s
         _add_pose(built, k, f, base)
 
 
+# LM stops when the cost decrease still to come is below this (GTSAM cost = 0.5 chi^2). Near the
+# optimum a Gauss-Newton step that lowers the cost by d moves the state by a Mahalanobis length
+# sqrt(2 d), so no estimate moves by more than sqrt(2 * 0.005) = 0.1 of its sigma any more.
+REMAINING_DECREASE_TOL = 0.005
+
+
+def _converged(errors: list[float], opts: SolveOptions) -> bool:
+    """Whether LM may stop after the costs ``errors`` (initial, then one per iteration).
+
+    GTSAM's rules (no decrease, relative decrease below ``relative_error_tol``), plus the
+    remaining decrease predicted from the last two (robust losses make the tail of the
+    iterations converge linearly: IRLS): with ratio ``r = d_k / d_{k-1}`` of consecutive
+    decreases, the rest is ``d_k r / (1 - r)``; the first step, from the initial values,
+    does not count towards ``r``.
+    """
+    d = errors[-2] - errors[-1]
+    if not math.isfinite(errors[-1]) or d <= 0 or d <= opts.relative_error_tol * errors[-2]:
+        return True
+    if d <= REMAINING_DECREASE_TOL:
+        return True
+    if len(errors) >= 4:
+        r = d / (errors[-3] - errors[-2])
+        return r < 1.0 and d * r / (1.0 - r) <= REMAINING_DECREASE_TOL
+    return False
+
+
 def _optimize(built: _Built, opts: SolveOptions) -> tuple[gtsam.Values, int]:
     params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(opts.max_iterations)
-    params.setRelativeErrorTol(opts.relative_error_tol)
-    params.setAbsoluteErrorTol(1e-9)
     optimizer = gtsam.LevenbergMarquardtOptimizer(built.graph, built.values, params)
-    result = optimizer.optimize()
+    errors = [optimizer.error()]
+    while optimizer.iterations() < opts.max_iterations:
+        optimizer.iterate()
+        errors.append(optimizer.error())
+        if _converged(errors, opts) or optimizer.lambda_() >= params.getlambdaUpperBound():
+            break
     if log.isEnabledFor(logging.DEBUG):
         log.debug("LM: %d keys, %d iterations, error %.6g -> %.6g", built.values.size(), optimizer.iterations(),
-                  built.graph.error(built.values), optimizer.error())
-    return result, int(optimizer.iterations())
+                  errors[0], errors[-1])
+    return optimizer.values(), int(optimizer.iterations())
 
 
 def _whitened_norms(factors: list[tuple[int, Any, Any]], values: gtsam.Values) -> np.ndarray:
@@ -681,8 +733,9 @@ def solve_window(
     opts: SolveOptions,
     init: WindowInit | None = None,
     want_evidence: bool = False,
+    basis: RandomWalkBasis | None = None,
 ) -> WindowSolution:
-    """Build, solve (with outlier rejection) and summarise one window.
+    """Build, solve (with outlier rejection) and summarise one window (``basis``: see :func:`build_window`).
 
     Raises:
         RecoveryError: if the optimiser diverges (non-finite cost).
@@ -690,7 +743,7 @@ def solve_window(
     K = len(kf)
     if K < 3:
         raise RecoveryError(f"a recovery window needs >= 3 keyframes, got {K}")
-    built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init)
+    built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init, basis=basis)
     result, iters = _optimize(built, opts)
     outliers = np.zeros(0, dtype=int)
     pose_norms = None
@@ -705,7 +758,7 @@ def solve_window(
                 log.warning("%d of %d pose factors exceed %.1f sigma: the pose noise may be underestimated",
                             len(outliers), K, opts.outlier_threshold)
             init2 = _init_from(result, K, opts, init)
-            built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init2, skip=outliers)
+            built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init2, skip=outliers, basis=basis)
             built.values = result_subset(result, built.values)
             result, iters = _optimize(built, opts)
     cost = float(built.graph.error(result))
