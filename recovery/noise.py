@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from recovery.config import NoiseEstimation, PoseSigmaMethod
-from recovery.graph import KeyframePoses, SolveOptions, WindowInit, random_walk_basis, solve_window
+from recovery.graph import KeyframePoses, SolveOptions, WindowInit, evidence_step, random_walk_basis, solve_window
 from recovery.preintegration import ImuNoise, MidpointSamples
 
 log = logging.getLogger(__name__)
@@ -126,7 +126,7 @@ def estimate_noise(
     # not the last one: a candidate far off (e.g. a pose sigma 30x too small for a position-only
     # stream over minutes) can settle in a wrong attitude minimum, and chaining from it would
     # carry that minimum into every later candidate.
-    warm: dict[str, Any] = {"init": init, "ev": float("-inf")}
+    warm: dict[str, Any] = {"init": init, "ev": float("-inf"), "p": None}
     within = kf.within_bin()
     # one preintegration for every candidate, at the start's noise and bias (the candidates differ
     # in their random walks only, which re-weight it exactly: RandomWalkBasis)
@@ -137,16 +137,23 @@ def estimate_noise(
         if key in cache:
             return cache[key]
         o = replace(opts, position_sigma_m=base_position_sigma_m * p, rotation_sigma_rad=base_rotation_sigma_rad * p)
+        noise = _imu_noise(base_imu, g, a)
         try:
-            sol = solve_window(samples, kf, _imu_noise(base_imu, g, a), T_imu_pose, o, warm["init"],
-                               want_evidence=True, basis=basis)
-            ev = sol.log_evidence
+            # a random walk next to a solved candidate: one Gauss-Newton step from its optimum
+            # (graph.evidence_step); the pose sigmas, whose candidates lie further apart, are solved
+            step = None
+            if p == warm["p"] and warm["init"] is not None and warm["init"].values is not None:
+                step = evidence_step(samples, kf, noise, T_imu_pose, o, warm["init"], basis)
+            if step is not None:
+                ev, start = step
+            else:
+                sol = solve_window(samples, kf, noise, T_imu_pose, o, warm["init"], want_evidence=True, basis=basis)
+                ev, start = sol.log_evidence, WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias,
+                                                         values=sol.values)
             if within is not None:  # fused keyframes: the samples' scatter about them
                 ev += within.log_likelihood(o.position_sigma_m, o.rotation_sigma_rad)
             if ev > warm["ev"]:
-                warm["ev"] = ev
-                warm["init"] = WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias, velocity=sol.v_mps,
-                                          rot_wxyz=None if kf.quat_wxyz is not None else sol.quat_wxyz)
+                warm.update(ev=ev, init=start, p=p)
         except Exception as exc:  # a diverged candidate is simply not chosen
             log.debug("noise candidate g=%g a=%g p=%g failed: %s", g, a, p, exc)
             ev = float("-inf")

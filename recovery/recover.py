@@ -859,6 +859,10 @@ def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, off
                             hint="set noise_estimation: fixed and give the random walks")
     if chain is not None:
         init = _continue_from(chain, w, down)
+    elif problem.bias is not None:
+        # start (and preintegrate) at the calibration solves' gravity and bias: fewer LM iterations
+        bias = problem.bias(w[1].t_ns) if callable(problem.bias) else problem.bias
+        init = WindowInit(gravity_unit=problem.gravity_world / np.linalg.norm(problem.gravity_world), bias=bias)
     sp, sr, pose_method = _pose_sigmas_from_fusion(w[1], inputs.position_sigma_m, inputs.rotation_sigma_rad, config)
     choice = estimate_noise(w[0], w[1], inputs.imu_noise, sp, sr, T, inputs.opts, config.random_walk_scales,
                             estimate_pose=config.position_sigma_m is None and pose_method is PoseSigmaMethod.EVIDENCE,
