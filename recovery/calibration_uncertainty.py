@@ -147,7 +147,7 @@ def measurement_columns(kin: KeyframeKinematics, T_imu_pose: np.ndarray) -> tupl
 
 def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int, int, str]],
                         columns: tuple[np.ndarray, np.ndarray], cal: CalibrationCovariance,
-                        bias_keys: list[int]) -> np.ndarray:
+                        bias_keys: list[int], ordering: gtsam.Ordering | None = None) -> np.ndarray:
     """``diag(J Cov_c J^T)`` at ``bias_keys``, [M, 6] in (gyro, acc) order.
 
     Args:
@@ -156,6 +156,7 @@ def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int,
         columns: :func:`measurement_columns`.
         cal: The calibration covariance.
         bias_keys: Keys of the biases wanted.
+        ordering: Elimination order of every variable but ``C`` (default: COLAMD's).
     """
     pose_col, vel_col = columns
     # C in the coordinates of Cov_c's square root (its rank: 1 when only the offset is estimated)
@@ -173,8 +174,9 @@ def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int,
         f = gfg.at(i)
         if f is not None:
             aug.push_back(replaced.get(i, f))
-    keys = [key for key in aug.keyVector() if key != C_KEY]
-    bayes_net, _ = aug.eliminatePartialSequential(keys)
+    if ordering is None:
+        ordering = [key for key in aug.keyVector() if key != C_KEY]
+    bayes_net, _ = aug.eliminatePartialSequential(ordering)
     given = gtsam.VectorValues()
     given.insert(C_KEY, np.zeros(L.shape[1]))
     base = bayes_net.optimize(given)

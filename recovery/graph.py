@@ -695,8 +695,28 @@ def _converged(errors: list[float], opts: SolveOptions) -> bool:
     return False
 
 
+def elimination_order(values: gtsam.Values) -> gtsam.Ordering:
+    """Keyframe variables in time order (``B(k), V(k), X(k)``), then the shared ones (``G``, ``E``, ``L``).
+
+    The graph is a chain in time plus the shared variables: eliminating along the chain gives
+    cliques as small as COLAMD's, without computing COLAMD for every elimination.
+    """
+    ordering = gtsam.Ordering()
+    k = 0
+    while values.exists(X(k)):
+        ordering.push_back(B(k))
+        ordering.push_back(V(k))
+        ordering.push_back(X(k))
+        k += 1
+    for key in (G(0), E(0), L(0)):
+        if values.exists(key):
+            ordering.push_back(key)
+    return ordering
+
+
 def _optimize(built: _Built, opts: SolveOptions) -> tuple[gtsam.Values, int]:
     params = gtsam.LevenbergMarquardtParams()
+    params.setOrdering(elimination_order(built.values))
     optimizer = gtsam.LevenbergMarquardtOptimizer(built.graph, built.values, params)
     errors = [optimizer.error()]
     while optimizer.iterations() < opts.max_iterations:
@@ -725,7 +745,7 @@ def log_evidence(built: _Built, values: gtsam.Values) -> float:
     is the same for every noise hypothesis on the same graph.
     """
     gfg = built.graph.linearize(values)
-    bn = gfg.eliminateSequential()
+    bn = gfg.eliminateSequential(elimination_order(values))
     return -built.graph.error(values) - built.neg_log_const - bn.logDeterminant()
 
 
@@ -748,7 +768,7 @@ def evidence_step(
     """
     built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init, basis=basis)
     start = built.graph.error(built.values)
-    bn = built.graph.linearize(built.values).eliminateSequential()
+    bn = built.graph.linearize(built.values).eliminateSequential(elimination_order(built.values))
     values = built.values.retract(bn.optimize())
     cost = built.graph.error(values)
     if not math.isfinite(cost) or cost > start:
@@ -880,7 +900,7 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
     var = np.array([np.diag(marg.marginalCovariance(B(int(k)))) for k in idx])  # [acc, gyro]
     var = np.hstack([var[:, 3:], var[:, :3]])
     del marg  # the propagation below needs the linearisation only (peak memory)
-    added = _calibration_variance(gfg, built, samples, kf, state, T_imu_pose, opts, idx)
+    added = _calibration_variance(gfg, built, result, samples, kf, state, T_imu_pose, opts, idx)
     if added is not None:
         extras["calibration_std_ratio"] = np.sqrt((var + added) / var)  # [len(idx), 6]
         var = var + added
@@ -892,7 +912,8 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
     return bias_std
 
 
-def _calibration_variance(gfg: gtsam.GaussianFactorGraph, built: _Built, samples: MidpointSamples,
+def _calibration_variance(gfg: gtsam.GaussianFactorGraph, built: _Built, result: gtsam.Values,
+                          samples: MidpointSamples,
                           kf: KeyframePoses, state: tuple[np.ndarray, np.ndarray, np.ndarray],
                           T_imu_pose: np.ndarray, opts: SolveOptions, idx: np.ndarray) -> np.ndarray | None:
     """Bias variance [len(idx), 6] (gyro, acc) added by the uncertainty of the fixed calibration
@@ -909,7 +930,7 @@ def _calibration_variance(gfg: gtsam.GaussianFactorGraph, built: _Built, samples
                for i, (k, f, _) in zip(built.pose_index, built.pose_factors)]
     factors = [f for f in factors if f[2] in ("x", "v")]
     return added_bias_variance(gfg, factors, measurement_columns(kin, T_imu_pose), opts.calibration_cov,
-                               [B(int(k)) for k in idx])
+                               [B(int(k)) for k in idx], elimination_order(result))
 
 
 def _init_from(result: gtsam.Values, K: int, opts: SolveOptions, init: WindowInit | None) -> WindowInit:
