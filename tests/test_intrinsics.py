@@ -87,6 +87,36 @@ def test_fit_recovers_injected_intrinsics_against_the_true_trajectory(drone_120s
         assert np.all(fit.observable[group])
 
 
+def test_present_terms_take_their_refinement_below_the_gate(drone_120s):
+    """A term applied in an earlier round (``present``) takes the fit's estimate of what is left of it
+    even when that is below the 3-sigma gate for new terms; a term not present stays zero."""
+    drone = drone_120s
+    M_a = np.diag([1.0, 1.0, 1.0004])  # what an earlier round left of a 0.5 % gravity-axis scale
+    imu = with_intrinsics(drone, np.eye(3), M_a, np.zeros((3, 3))).imu
+    gt, tr = drone.sequence.ground_truth, drone.truth
+    k = np.arange(0, len(gt.t_ns), 20)
+    bias = np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])
+    cal = drone.sequence.calibration
+    noise = FitNoise(cal.gyro_noise_density, cal.acc_noise_density, 10 * cal.gyro_random_walk, 10 * cal.acc_random_walk)
+
+    def fit(present):
+        return fit_intrinsics(imu, gt.t_ns[k], gt.quat_wxyz[k], gt.v_mps[k],
+                              lambda t: np.stack([np.interp(t, tr.t_ns, bias[:, c]) for c in range(6)], axis=1),
+                              drone.truth.gravity_mps2, noise, g_sensitivity=False, present=present)
+
+    gated = fit(None)
+    sigma = gated.sigma["acc_scale_misalignment"][2, 2]
+    assert 0.0004 < 3 * sigma  # below the gate for a new term: not applied
+    assert gated.step.acc_matrix[2, 2] == 1.0 and not gated.applied["acc_scale_misalignment"][2, 2]
+    present = {"acc_scale_misalignment": np.zeros((3, 3), bool)}
+    present["acc_scale_misalignment"][2, 2] = True
+    refined = fit(present)
+    assert refined.applied["acc_scale_misalignment"][2, 2]
+    assert abs(refined.step.acc_matrix[2, 2] - 1.0004) <= 3 * sigma
+    assert refined.moved(0.5) and not gated.moved(0.5)
+    np.testing.assert_array_equal(refined.step.gyro_matrix, np.eye(3))
+
+
 @pytest.mark.slow
 def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     M_g, M_a, G = truth_intrinsics()
