@@ -212,6 +212,11 @@ class RandomWalkBasis:
         if replace(noise, gyro_random_walk=0.0, acc_random_walk=0.0) != replace(
                 self.noise, gyro_random_walk=0.0, acc_random_walk=0.0):
             raise ValueError("RandomWalkBasis: only the random walks may differ from the basis noise")
-        sg = (noise.gyro_random_walk / self.noise.gyro_random_walk) ** 2 - 1.0
-        sa = (noise.acc_random_walk / self.noise.acc_random_walk) ** 2 - 1.0
+        def excess(new: float, ref: float) -> float:  # (new / ref)^2 - 1; a zero walk stays zero
+            return (new / ref) ** 2 - 1.0 if ref > 0 else (0.0 if new == 0 else float("nan"))
+
+        sg = excess(noise.gyro_random_walk, self.noise.gyro_random_walk)
+        sa = excess(noise.acc_random_walk, self.noise.acc_random_walk)
+        if not (np.isfinite(sg) and np.isfinite(sa)):
+            raise ValueError("RandomWalkBasis: a random walk that was zero in the basis cannot be re-weighted")
         return self.cov + sg * self.cov_gyro_rw + sa * self.cov_acc_rw
