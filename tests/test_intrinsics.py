@@ -133,3 +133,11 @@ def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     same = recover(drone.sequence, config=on).report["intrinsics"]
     np.testing.assert_array_equal(same["gyro_matrix"], np.eye(3))
     np.testing.assert_array_equal(same["acc_matrix"], np.eye(3))
+
+
+def test_a_report_record_answers_membership():
+    """``"key" in report`` on a typed JSON record asks its data (the intrinsics benchmark does so)."""
+    from recovery.outputs import RecoveryReport
+
+    report = RecoveryReport.from_json({"intrinsics": {}, "noise": {}})
+    assert "intrinsics" in report and "calibration_uncertainty" not in report

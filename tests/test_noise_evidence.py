@@ -94,10 +94,3 @@ def test_lm_stop_is_within_a_tenth_of_sigma(window, monkeypatch):
 def test_stopping_rule(errors, stop):
     assert graph._converged(errors, SolveOptions(relative_error_tol=1e-12)) is stop
 
-
-def test_a_report_record_answers_membership():
-    """``"key" in report`` on a typed JSON record asks its data (the intrinsics benchmark does so)."""
-    from recovery.outputs import RecoveryReport
-
-    report = RecoveryReport.from_json({"intrinsics": {}, "noise": {}})
-    assert "intrinsics" in report and "calibration_uncertainty" not in report
