@@ -40,7 +40,10 @@ the pose stream pins down whatever the bias does. So:
    intrinsic errors; with the refinements 1.06x and 1.26x).
 
 The bias is reported in the raw readings' convention: the solve on corrected readings recovers
-``b' = M^-1 b``, so ``b = M b'`` (and its sigma likewise).
+``b' = M^-1 b``, so ``b = M b'`` (and its sigma likewise). Its sigma includes the uncertainty of
+the estimated terms (:func:`intrinsics_bias_variance`, first order): a gravity-axis term (acc zz
+scale, the G column of f_z) times ``f ~ g`` is nearly a constant bias offset, which the solve
+cannot tell from the bias.
 """
 
 from __future__ import annotations
@@ -98,6 +101,8 @@ class IntrinsicsFit:
         residual_rms: Whitening scale of each equation group (rad, m/s) after the fit.
         applied: The same groups, 3x3 booleans: the terms the step changes (significant, or
             present already).
+        cov: Covariance of the fitted terms, row-major per group: ``rotation`` (S_g, then G when
+            fitted), ``velocity`` (S_a).
     """
 
     step: ImuIntrinsics
@@ -106,6 +111,7 @@ class IntrinsicsFit:
     residual_rms: dict[str, float]
     estimated: tuple[str, ...] = ("gyro_scale_misalignment", "acc_scale_misalignment")
     applied: dict[str, np.ndarray] | None = None  # per group, 3x3: the terms the step changes
+    cov: dict[str, np.ndarray] | None = None  # "rotation": [9 or 18]^2 (S_g, G), "velocity": [9, 9] (S_a)
 
     def moved(self, n_sigma: float = 3.0) -> bool:
         """Whether the step changes any observable term by more than ``n_sigma`` of its sigmas."""
@@ -225,10 +231,10 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
         spans.append(float(dt.sum()))
     span = np.asarray(spans)
     n_int = 18 if g_sensitivity else 9
-    x_rot, s_rot, rms_rot = _solve_with_walk(np.stack([iv.A_rot[:, :n_int] for iv in rows]),
+    x_rot, s_rot, rms_rot, c_rot = _solve_with_walk(np.stack([iv.A_rot[:, :n_int] for iv in rows]),
                                              np.stack([iv.B_rot for iv in rows]), np.stack([iv.r_rot for iv in rows]),
                                              span, noise.gyro_noise_density, noise.gyro_random_walk)
-    x_vel, s_vel, rms_vel = _solve_with_walk(np.stack([iv.A_vel for iv in rows]), np.stack([iv.B_vel for iv in rows]),
+    x_vel, s_vel, rms_vel, c_vel = _solve_with_walk(np.stack([iv.A_vel for iv in rows]), np.stack([iv.B_vel for iv in rows]),
                                              np.stack([iv.r_vel for iv in rows]), span, noise.acc_noise_density,
                                              noise.acc_random_walk)
     groups = {"gyro_scale_misalignment": (x_rot[:9], s_rot[:9], max_sigma),
@@ -256,7 +262,7 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
     step = ImuIntrinsics(M_g, np.linalg.inv(np.eye(3) - mats["acc_scale_misalignment"]),
                          M_g @ mats["gyro_g_sensitivity"])
     return IntrinsicsFit(step, sigma, observable, {"rotation_rad": rms_rot, "velocity_mps": rms_vel},
-                         tuple(groups), applied)
+                         tuple(groups), applied, {"rotation": c_rot, "velocity": c_vel})
 
 
 def _block_means(values: np.ndarray, block: np.ndarray) -> np.ndarray:
@@ -277,7 +283,8 @@ def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.nda
             by the fit's own residuals); ``d_k+1 - d_k`` has sigma ``random_walk sqrt(span)``.
 
     Returns:
-        ``(x [P], sigma of x [P] (huge where a term is not identifiable), residual scale)``.
+        ``(x [P], sigma of x [P] (huge where a term is not identifiable), residual scale, covariance of
+        x [P, P] (rescaled like sigma))``.
     """
     from scipy import sparse
     from scipy.sparse.linalg import splu
@@ -306,8 +313,9 @@ def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.nda
     E = np.zeros((n, P))
     E[:P, :P] = np.eye(P)
     cov = lu.solve(E)[:P]
-    sigma = np.sqrt(np.maximum(np.diag(cov), 0.0)) * max(scale, 1.0)
-    return x[:P], sigma, scale * noise_density
+    cov = cov[:, :P] * max(scale, 1.0) ** 2
+    sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return x[:P], sigma, scale * noise_density, 0.5 * (cov + cov.T)
 
 
 def intrinsics_report(total: ImuIntrinsics, last: IntrinsicsFit, rounds: int) -> dict:
@@ -341,6 +349,37 @@ def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[n
     var_g = (std[:, :3] ** 2) @ (total.gyro_matrix ** 2).T
     var_a = (std[:, 3:] ** 2) @ (total.acc_matrix ** 2).T
     return out, np.sqrt(np.hstack([var_g, var_a]))
+
+
+def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray,
+                             f_mps2: np.ndarray) -> np.ndarray:
+    """Bias variance [N, 6] (gyro, acc) from the uncertainty of the estimated intrinsics.
+
+    With ``gyro = M_g omega + G f + b_g`` and ``acc = M_a f + b_a``, errors ``dS`` / ``dG`` of the
+    terms move the recovered bias by ``-(dS_g omega + dG f)`` and ``-dS_a f`` (first order). A term on
+    the gravity axis times ``f ~ g`` is nearly a constant offset, so its sigma reaches the bias in
+    full. Only the terms in the model (``terms``: per group, 3x3 booleans) count; the others are
+    fixed to zero.
+
+    Args:
+        fit: The last fit (its ``cov``). terms: The terms estimated.
+        omega_radps / f_mps2: Bias-free angular rate and specific force at the keyframes, [N, 3].
+    """
+    N = len(omega_radps)
+    out = np.zeros((N, 6))
+    gyro_groups = [("gyro_scale_misalignment", omega_radps)]
+    if "gyro_g_sensitivity" in fit.estimated:
+        gyro_groups.append(("gyro_g_sensitivity", f_mps2))
+    for cov, groups, col in ((fit.cov["rotation"], gyro_groups, 0),
+                             (fit.cov["velocity"], [("acc_scale_misalignment", f_mps2)], 3)):
+        for r in range(3):
+            # d(bias_r) / d(term [r, c]) = -signal_c, for the terms of row r of each group
+            grad = np.zeros((N, cov.shape[0]))
+            for g, (name, signal) in enumerate(groups):
+                used = np.asarray(terms.get(name, np.zeros((3, 3), bool)))[r]
+                grad[:, 9 * g + 3 * r: 9 * g + 3 * r + 3] = -signal * used
+            out[:, col + r] = np.einsum("np,pq,nq->n", grad, cov, grad)
+    return out
 
 
 def _fit_noise(sequence: Sequence, report: dict, max_walk_scale: float = 30.0) -> FitNoise:
@@ -394,8 +433,16 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     assert fit is not None
     bias, std = raw_bias(total, np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]),
                          np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]))
+    # the estimated terms' uncertainty in the bias sigmas, at the keyframes' bias-free rate and force
+    imu = work.imu
+    def at(y: np.ndarray) -> np.ndarray:
+        return np.stack([np.interp(result.t_ns, imu.t_ns, y[:, c]) for c in range(3)], axis=1)
+    added = intrinsics_bias_variance(fit, present or {}, at(imu.gyro_radps) - result.bias_gyro_radps,
+                                     at(imu.acc_mps2) - result.bias_acc_mps2)
+    inflation = np.sqrt(1.0 + added / np.maximum(std**2, 1e-300))
+    std = np.sqrt(std**2 + added)
     data = dict(result.report.data)
-    data["intrinsics"] = intrinsics_report(total, fit, rounds)
+    data["intrinsics"] = {**intrinsics_report(total, fit, rounds), "bias_std_inflation_mean": inflation.mean(0).tolist()}
     warning = unobservable_warning(fit)
     if warning:
         data["warnings"] = [*data.get("warnings", []), warning]

@@ -11,7 +11,8 @@ import pytest
 from pipeline.sim import SimConfig, simulate
 from pipeline.sim.config import MotionConfig, PoseStreamConfig
 from recovery.config import IntrinsicsMode, RecoveryConfig
-from recovery.intrinsics import FitNoise, ImuIntrinsics, fit_intrinsics, raw_bias
+from recovery.intrinsics import FitNoise, ImuIntrinsics, IntrinsicsFit, fit_intrinsics, intrinsics_bias_variance, \
+    raw_bias
 from recovery.recover import recover
 
 _spec = importlib.util.spec_from_file_location(
@@ -117,6 +118,32 @@ def test_present_terms_take_their_refinement_below_the_gate(drone_120s):
     np.testing.assert_array_equal(refined.step.gyro_matrix, np.eye(3))
 
 
+def test_intrinsics_uncertainty_in_the_bias_matches_sampling_the_model():
+    """The first-order bias variance equals the variance of ``-(dS_g w + dG f)`` / ``-dS_a f`` over
+    term errors drawn from the fit's covariance (the measurement model applied to matrices), and
+    terms outside the model add nothing."""
+    rng = np.random.default_rng(3)
+    L_rot, L_vel = rng.normal(size=(18, 18)) * 1e-4, rng.normal(size=(9, 9)) * 1e-4
+    cov = {"rotation": L_rot @ L_rot.T, "velocity": L_vel @ L_vel.T}
+    groups = ("gyro_scale_misalignment", "acc_scale_misalignment", "gyro_g_sensitivity")
+    fit = IntrinsicsFit(ImuIntrinsics.identity(), {}, {}, {}, groups, None, cov)
+    terms = {g: rng.random((3, 3)) < 0.6 for g in groups}
+    omega, f = rng.normal(size=(4, 3)), rng.normal(size=(4, 3)) + [0.0, 0.0, 9.81]
+    var = intrinsics_bias_variance(fit, terms, omega, f)
+    n = 40000
+    x_rot = rng.multivariate_normal(np.zeros(18), cov["rotation"], n)
+    x_vel = rng.multivariate_normal(np.zeros(9), cov["velocity"], n)
+    dS_g = x_rot[:, :9].reshape(n, 3, 3) * terms["gyro_scale_misalignment"]
+    dG = x_rot[:, 9:].reshape(n, 3, 3) * terms["gyro_g_sensitivity"]
+    dS_a = x_vel.reshape(n, 3, 3) * terms["acc_scale_misalignment"]
+    db_g = -(np.einsum("nij,kj->nki", dS_g, omega) + np.einsum("nij,kj->nki", dG, f))
+    db_a = -np.einsum("nij,kj->nki", dS_a, f)
+    sampled = np.concatenate([db_g.var(0), db_a.var(0)], axis=1)
+    np.testing.assert_allclose(var, sampled, rtol=0.05)
+    none = {g: np.zeros((3, 3), bool) for g in groups}
+    assert np.all(intrinsics_bias_variance(fit, none, omega, f) == 0)
+
+
 @pytest.mark.slow
 def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     M_g, M_a, G = truth_intrinsics()
@@ -133,6 +160,9 @@ def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     same = recover(drone.sequence, config=on).report["intrinsics"]
     np.testing.assert_array_equal(same["gyro_matrix"], np.eye(3))
     np.testing.assert_array_equal(same["acc_matrix"], np.eye(3))
+    # the estimated terms' uncertainty widens the bias sigmas; with no term estimated, nothing
+    assert min(rep["bias_std_inflation_mean"]) >= 1.0 and max(rep["bias_std_inflation_mean"]) > 1.0
+    assert same["bias_std_inflation_mean"] == [1.0] * 6
 
 
 def test_a_report_record_answers_membership():
