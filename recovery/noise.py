@@ -22,8 +22,9 @@ walks together, the later searched at the earlier one's best grid point). The wi
 preintegrated once (:class:`recovery.preintegration.RandomWalkBasis`: the random walks
 re-weight it exactly). The first candidate is solved; a random-walk candidate next to a
 solved one takes one Gauss-Newton step from that optimum
-(:func:`recovery.graph.evidence_step`), which lands within a fraction of a unit of log
-evidence of the full solve, against differences of tens to hundreds between candidates.
+(:func:`recovery.graph.evidence_step`), which differs from the full solve's log evidence by
+0.1-1.6, against differences of tens to hundreds between candidates (the chosen scales move by
+~0.1 %).
 """
 
 from __future__ import annotations
