@@ -60,6 +60,15 @@ def bias_rmse(result, truth) -> np.ndarray:
     return np.sqrt(np.mean((est - at) ** 2, axis=0))
 
 
+def nees(result, truth) -> np.ndarray:
+    """Per-axis mean of (error / reported sigma)^2, [6]."""
+    true = np.hstack([truth.bias_gyro_radps, truth.bias_acc_mps2])
+    at = np.stack([np.interp(result.t_ns, truth.t_ns, true[:, c]) for c in range(6)], axis=1)
+    err = np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]) - at
+    std = np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2])
+    return np.mean((err / std) ** 2, axis=0)
+
+
 def simulated(duration_s: float, preset: str) -> None:
     sim = simulate(SimConfig(duration_s=duration_s, seed=0, motion=MotionConfig(preset=preset),
                              poses=PoseStreamConfig(extrinsic_known=True)))
@@ -75,12 +84,16 @@ def simulated(duration_s: float, preset: str) -> None:
         print(f"{name:22s} bias RMSE gyro {np.array2string(rmse[:3], precision=2)} rad/s, acc "
               f"{np.array2string(rmse[3:], precision=2)} m/s^2 ({time.perf_counter() - t0:.1f} s)")
     base = bias_rmse(runs["clean, off"], sim.truth)
+    for name in ("clean, off", "intrinsic errors, on"):
+        print(f"NEES per axis, {name} (gyro xyz, acc xyz): {np.array2string(nees(runs[name], sim.truth), precision=2)} "
+              "(target 0.5..2)")
     print("RMSE ratio, intrinsic errors + estimation / clean:",
           np.array2string(bias_rmse(runs["intrinsic errors, on"], sim.truth) / base, precision=2), "(goal <= 1.1)")
     print("RMSE ratio, clean + estimation / clean:",
           np.array2string(bias_rmse(runs["clean, on"], sim.truth) / base, precision=2), "(cost of turning it on)")
     rep = runs["intrinsic errors, on"].report["intrinsics"]
-    print(f"rounds: {rep['rounds']}")
+    print(f"rounds: {rep['rounds']}; bias sigma widened by the terms' uncertainty, mean per axis "
+          f"{np.array2string(np.array(rep['bias_std_inflation_mean']), precision=3)}")
     for group, est, true in (("gyro_scale_misalignment", np.array(rep["gyro_matrix"]) - np.eye(3), M_g - np.eye(3)),
                              ("acc_scale_misalignment", np.array(rep["acc_matrix"]) - np.eye(3), M_a - np.eye(3)),
                              ("gyro_g_sensitivity", np.array(rep["gyro_g_sensitivity"]), G)):

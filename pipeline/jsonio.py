@@ -27,6 +27,9 @@ class JsonRecord:
     def __getitem__(self, key: str) -> Any:
         return self.data[key]
 
+    def __contains__(self, key: str) -> bool:
+        return key in self.data
+
     def get(self, key: str, default: Any = None) -> Any:
         return self.data.get(key, default)
 

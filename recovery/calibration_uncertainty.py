@@ -38,7 +38,8 @@ At the optimum a pose (velocity) factor's error has the identity as its Jacobian
 Eliminating every variable but ``C`` (GTSAM's partial sequential elimination) leaves the Bayes
 net ``x = R^-1 (d - S c)``; back-substitution with ``C`` = each column ``l_i`` of a square root
 of ``Cov_c`` gives ``J l_i``, and ``sum_i (J l_i)^2`` is the added variance per keyframe and
-axis. Neglected: the correlation between the calibration's error and the full solve's noise
+axis. ``C`` is expressed in the coordinates of those columns (``c = L u``, ``u`` of Cov_c's rank:
+one dimension when only the clock offset was estimated), which keeps the elimination small. Neglected: the correlation between the calibration's error and the full solve's noise
 (the calibration windows are part of the data), and the cross-covariance between the offset and
 the extrinsic (separate solves). Validated by NEES on the hard simulated and the independent
 hard cases (``tests/test_calibration_uncertainty.py``, ``benchmarks/recovery.py --only hard``).
@@ -146,7 +147,7 @@ def measurement_columns(kin: KeyframeKinematics, T_imu_pose: np.ndarray) -> tupl
 
 def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int, int, str]],
                         columns: tuple[np.ndarray, np.ndarray], cal: CalibrationCovariance,
-                        bias_keys: list[int]) -> np.ndarray:
+                        bias_keys: list[int], ordering: gtsam.Ordering | None = None) -> np.ndarray:
     """``diag(J Cov_c J^T)`` at ``bias_keys``, [M, 6] in (gyro, acc) order.
 
     Args:
@@ -155,30 +156,35 @@ def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int,
         columns: :func:`measurement_columns`.
         cal: The calibration covariance.
         bias_keys: Keys of the biases wanted.
+        ordering: Elimination order of every variable but ``C`` (default: COLAMD's).
     """
     pose_col, vel_col = columns
+    # C in the coordinates of Cov_c's square root (its rank: 1 when only the offset is estimated)
+    L = cal.sqrt_columns()
+    pose_col, vel_col = pose_col @ L, vel_col @ L
+    unit = {n: gtsam.noiseModel.Unit.Create(n) for n in (3, 6)}
     replaced: dict[int, Any] = {}
     for index, k, kind in factors:
         jf = gfg.at(index)
         A, b = jf.jacobian()
         col = pose_col[k] if kind == "x" else vel_col[k]
-        replaced[index] = gtsam.JacobianFactor(jf.keys()[0], A, C_KEY, A @ col, b,
-                                               gtsam.noiseModel.Unit.Create(len(b)))
+        replaced[index] = gtsam.JacobianFactor(jf.keys()[0], A, C_KEY, A @ col, b, unit[len(b)])
     aug = gtsam.GaussianFactorGraph()
     for i in range(gfg.size()):
         f = gfg.at(i)
         if f is not None:
             aug.push_back(replaced.get(i, f))
-    keys = [key for key in aug.keyVector() if key != C_KEY]
-    bayes_net, _ = aug.eliminatePartialSequential(keys)
+    if ordering is None:
+        ordering = [key for key in aug.keyVector() if key != C_KEY]
+    bayes_net, _ = aug.eliminatePartialSequential(ordering)
     given = gtsam.VectorValues()
-    given.insert(C_KEY, np.zeros(CALIBRATION_DIM))
+    given.insert(C_KEY, np.zeros(L.shape[1]))
     base = bayes_net.optimize(given)
     x0 = np.array([base.at(key) for key in bias_keys])
     out = np.zeros((len(bias_keys), 6))
-    for l_i in cal.sqrt_columns().T:
+    for e_i in np.eye(L.shape[1]):
         given = gtsam.VectorValues()
-        given.insert(C_KEY, l_i)
+        given.insert(C_KEY, e_i)
         sol = bayes_net.optimize(given)
         d = np.array([sol.at(key) for key in bias_keys]) - x0  # ConstantBias tangent: [acc, gyro]
         out += np.hstack([d[:, 3:], d[:, :3]]) ** 2

@@ -317,6 +317,7 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
     o = replace(opts, reject_outliers=False, compute_marginals=False, marginal_extras=False)
     rate = config.calibration_rate_hz(CalibrationSolve.OFFSET_REFINE, problem.fuse)
     cache: dict[int, float] = {}
+    n_keyframes: dict[int, int] = {}
     init: dict[str, WindowInit] = {}
 
     def cost(off: float) -> float:
@@ -331,6 +332,7 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
                 sol = solve_window(w[0], w[1], noise, T, o, init.get("x"))
                 # normalise per keyframe: the keyframe set can change by one between offsets
                 c = sol.cost / len(w[1]) * 1000.0
+                n_keyframes[key] = len(w[1])
                 init["x"] = WindowInit(gravity_unit=sol.gravity_unit, bias=np.median(sol.bias, axis=0))
             except BiasgtError:
                 c = float("inf")
@@ -360,7 +362,8 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
     vertex = float(-b / (2 * a))
     vertex = float(np.clip(vertex, fine[0], fine[-1]))
     # cost = 0.5 chi2 / K * 1000  -> d2(0.5 chi2)/d off2 = 2a K / 1000
-    n_kf = len(problem.window(vertex, window[0], window[1], rate)[1])
+    # keyframes at the evaluated offset nearest the vertex (a window more or less changes the std by < 1 %)
+    n_kf = n_keyframes[min(n_keyframes, key=lambda k: abs(k / 1e9 - vertex))]
     curv = 2 * a * n_kf / 1000.0
     std = float(1.0 / math.sqrt(curv)) if curv > 0 else float(h)
     return vertex, std, table, init.get("x")
@@ -859,6 +862,10 @@ def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, off
                             hint="set noise_estimation: fixed and give the random walks")
     if chain is not None:
         init = _continue_from(chain, w, down)
+    elif problem.bias is not None:
+        # start (and preintegrate) at the calibration solves' gravity and bias: fewer LM iterations
+        bias = problem.bias(w[1].t_ns) if callable(problem.bias) else problem.bias
+        init = WindowInit(gravity_unit=problem.gravity_world / np.linalg.norm(problem.gravity_world), bias=bias)
     sp, sr, pose_method = _pose_sigmas_from_fusion(w[1], inputs.position_sigma_m, inputs.rotation_sigma_rad, config)
     choice = estimate_noise(w[0], w[1], inputs.imu_noise, sp, sr, T, inputs.opts, config.random_walk_scales,
                             estimate_pose=config.position_sigma_m is None and pose_method is PoseSigmaMethod.EVIDENCE,

@@ -13,7 +13,8 @@ from pipeline.sim import SimConfig, simulate
 from pipeline.sim.config import MotionConfig, PoseStreamConfig
 from recovery.config import IntrinsicsMode, RecoveryConfig
 from pipeline.types import PoseSeries, PoseSourceKind
-from recovery.intrinsics import FitNoise, ImuIntrinsics, fit_intrinsics, raw_bias, recover_with_intrinsics
+from recovery.intrinsics import FitNoise, ImuIntrinsics, IntrinsicsFit, fit_intrinsics, intrinsics_bias_variance, \
+    raw_bias, recover_with_intrinsics
 from recovery.recover import recover
 
 _spec = importlib.util.spec_from_file_location(
@@ -89,6 +90,62 @@ def test_fit_recovers_injected_intrinsics_against_the_true_trajectory(drone_120s
         assert np.all(fit.observable[group])
 
 
+def test_present_terms_take_their_refinement_below_the_gate(drone_120s):
+    """A term applied in an earlier round (``present``) takes the fit's estimate of what is left of it
+    even when that is below the 3-sigma gate for new terms; a term not present stays zero."""
+    drone = drone_120s
+    M_a = np.diag([1.0, 1.0, 1.0004])  # what an earlier round left of a 0.5 % gravity-axis scale
+    imu = with_intrinsics(drone, np.eye(3), M_a, np.zeros((3, 3))).imu
+    gt, tr = drone.sequence.ground_truth, drone.truth
+    k = np.arange(0, len(gt.t_ns), 20)
+    bias = np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])
+    cal = drone.sequence.calibration
+    noise = FitNoise(cal.gyro_noise_density, cal.acc_noise_density, 10 * cal.gyro_random_walk, 10 * cal.acc_random_walk)
+
+    def fit(present):
+        return fit_intrinsics(imu, gt.t_ns[k], gt.quat_wxyz[k], gt.v_mps[k],
+                              lambda t: np.stack([np.interp(t, tr.t_ns, bias[:, c]) for c in range(6)], axis=1),
+                              drone.truth.gravity_mps2, noise, g_sensitivity=False, present=present)
+
+    gated = fit(None)
+    sigma = gated.sigma["acc_scale_misalignment"][2, 2]
+    assert 0.0004 < 3 * sigma  # below the gate for a new term: not applied
+    assert gated.step.acc_matrix[2, 2] == 1.0 and not gated.applied["acc_scale_misalignment"][2, 2]
+    present = {"acc_scale_misalignment": np.zeros((3, 3), bool)}
+    present["acc_scale_misalignment"][2, 2] = True
+    refined = fit(present)
+    assert refined.applied["acc_scale_misalignment"][2, 2]
+    assert abs(refined.step.acc_matrix[2, 2] - 1.0004) <= 3 * sigma
+    assert refined.moved(0.5) and not gated.moved(0.5)
+    np.testing.assert_array_equal(refined.step.gyro_matrix, np.eye(3))
+
+
+def test_intrinsics_uncertainty_in_the_bias_matches_sampling_the_model():
+    """The first-order bias variance equals the variance of ``-(dS_g w + dG f)`` / ``-dS_a f`` over
+    term errors drawn from the fit's covariance (the measurement model applied to matrices), and
+    terms outside the model add nothing."""
+    rng = np.random.default_rng(3)
+    L_rot, L_vel = rng.normal(size=(18, 18)) * 1e-4, rng.normal(size=(9, 9)) * 1e-4
+    cov = {"rotation": L_rot @ L_rot.T, "velocity": L_vel @ L_vel.T}
+    groups = ("gyro_scale_misalignment", "acc_scale_misalignment", "gyro_g_sensitivity")
+    fit = IntrinsicsFit(ImuIntrinsics.identity(), {}, {}, {}, groups, None, cov)
+    terms = {g: rng.random((3, 3)) < 0.6 for g in groups}
+    omega, f = rng.normal(size=(4, 3)), rng.normal(size=(4, 3)) + [0.0, 0.0, 9.81]
+    var = intrinsics_bias_variance(fit, terms, omega, f)
+    n = 40000
+    x_rot = rng.multivariate_normal(np.zeros(18), cov["rotation"], n)
+    x_vel = rng.multivariate_normal(np.zeros(9), cov["velocity"], n)
+    dS_g = x_rot[:, :9].reshape(n, 3, 3) * terms["gyro_scale_misalignment"]
+    dG = x_rot[:, 9:].reshape(n, 3, 3) * terms["gyro_g_sensitivity"]
+    dS_a = x_vel.reshape(n, 3, 3) * terms["acc_scale_misalignment"]
+    db_g = -(np.einsum("nij,kj->nki", dS_g, omega) + np.einsum("nij,kj->nki", dG, f))
+    db_a = -np.einsum("nij,kj->nki", dS_a, f)
+    sampled = np.concatenate([db_g.var(0), db_a.var(0)], axis=1)
+    np.testing.assert_allclose(var, sampled, rtol=0.05)
+    none = {g: np.zeros((3, 3), bool) for g in groups}
+    assert np.all(intrinsics_bias_variance(fit, none, omega, f) == 0)
+
+
 @pytest.mark.slow
 def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     M_g, M_a, G = truth_intrinsics()
@@ -105,6 +162,17 @@ def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     same = recover(drone.sequence, config=on).report["intrinsics"]
     np.testing.assert_array_equal(same["gyro_matrix"], np.eye(3))
     np.testing.assert_array_equal(same["acc_matrix"], np.eye(3))
+    # the estimated terms' uncertainty widens the bias sigmas; with no term estimated, nothing
+    assert min(rep["bias_std_inflation_mean"]) >= 1.0 and max(rep["bias_std_inflation_mean"]) > 1.0
+    assert same["bias_std_inflation_mean"] == [1.0] * 6
+
+
+def test_a_report_record_answers_membership():
+    """``"key" in report`` on a typed JSON record asks its data (the intrinsics benchmark does so)."""
+    from recovery.outputs import RecoveryReport
+
+    report = RecoveryReport.from_json({"intrinsics": {}, "noise": {}})
+    assert "intrinsics" in report and "calibration_uncertainty" not in report
 
 
 def test_position_only_stream_estimates_no_intrinsics(drone):
