@@ -62,7 +62,8 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
 PACKAGES = {"slurmctld": "slurmctld", "slurmd": "slurmd", "sbatch": "slurm-client", "munged": "munge"}
-RUN_TIMEOUT_S = 480  # one 'biasgt run'; Snakemake ignores SIGTERM while jobs run: timeout -k
+RUN_TIMEOUT_S = 900  # one 'biasgt run' (about 140 s on idle cores; a hang guard, generous for busy machines).
+# Snakemake ignores SIGTERM while jobs run: timeout -k
 INIT_SECONDS = 3  # --slurm-init-seconds-before-status-checks; MinJobAge below is 3x or more
 MIN_JOB_AGE_S = 300
 SLURM_CONF = Path("/etc/slurm/slurm.conf")
