@@ -25,6 +25,7 @@ from scipy.interpolate import CubicSpline, make_lsq_spline
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from pipeline.errors import ConfigError, DataError, InputFormatError
+from pipeline.io import SourceFormat, detect_format
 from pipeline.io.asl import read_asl_state_csv
 from pipeline.io.tum import read_tum_poses
 from pipeline.sim.config import PresetParams
@@ -144,16 +145,6 @@ def random_trajectory(params: PresetParams, t_end_s: float, rng: np.random.Gener
     return Trajectory(position, RotationSpline(t_keys, keys), t_keys[0], t_keys[-1])
 
 
-def _is_tum_text(path: Path) -> bool:
-    """Whether the first data line is whitespace-separated (TUM text) rather than a comma-separated CSV."""
-    with path.open("r", encoding="utf-8", errors="replace") as fh:
-        for line in fh:
-            stripped = line.strip()
-            if stripped and not stripped.startswith("#"):
-                return "," not in stripped
-    return False
-
-
 def read_ground_truth_file(path: str | Path) -> StateSeries | PoseSeries:
     """Read the motion of a semi-real simulation.
 
@@ -176,7 +167,7 @@ def read_ground_truth_file(path: str | Path) -> StateSeries | PoseSeries:
     if not path.is_file():
         raise ConfigError("ground-truth file not found", path=path, field="motion.ground_truth_path")
     motion: StateSeries | PoseSeries
-    if _is_tum_text(path):
+    if detect_format(path) is SourceFormat.TUM:
         motion, findings = read_tum_poses(path, source_kind=PoseSourceKind.GROUND_TRUTH)
     else:
         motion, findings = read_asl_state_csv(path)
