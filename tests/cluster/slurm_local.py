@@ -305,21 +305,13 @@ def start_run(config: Path, workdir: Path, *args: str, niceness: int = 0) -> Run
 def renice_tree(pid: int, niceness: int) -> None:
     """Set ``niceness`` on ``pid`` and every process descended from it (those already started;
     later children inherit it from their parent)."""
-    parents: dict[int, int] = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:  # the process ended meanwhile
-            continue
-        parents[int(stat.parent.name)] = int(fields[1])
-    tree, grew = {pid}, True
-    while grew:
-        children = {child for child, parent in parents.items() if parent in tree} - tree
-        tree |= children
-        grew = bool(children)
-    for member in tree:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.setpriority(os.PRIO_PROCESS, member, niceness)
+    import psutil  # Snakemake's own dependency
+
+    with contextlib.suppress(psutil.NoSuchProcess):
+        root = psutil.Process(pid)
+        for process in [root, *root.children(recursive=True)]:
+            with contextlib.suppress(psutil.NoSuchProcess, psutil.AccessDenied):
+                process.nice(niceness)
 
 
 def biasgt_run(config: Path, workdir: Path, *args: str) -> tuple[int, str, float]:
