@@ -113,6 +113,8 @@ def test_training_plan_rejects_bad_sections():
         TrainingPlan.from_mapping({"options": {"seed": 3}})
     with pytest.raises(ConfigError, match="max_steps"):
         TrainingPlan.from_mapping({"options": {"max_steps": 0}})
+    with pytest.raises(ConfigError, match="training.threads must be >= 1"):
+        TrainingPlan.from_mapping({"threads": 0})
     with pytest.raises(ConfigError, match=r"unknown key 'sampler' \(did you mean 'samplers'"):
         EvaluationConfig.from_mapping({"sampler": "ddim"})
 
@@ -127,5 +129,7 @@ def test_job_parameters_change_only_with_the_run():
     more = TrainingPlan.from_mapping({"methods": ["diffusion_rnn", "regression_rnn"], "seeds": [0, 1]})
     assert one.run_settings("diffusion_rnn", "0") == more.run_settings("diffusion_rnn", 0)
     assert one.run_settings("diffusion_rnn", 0) != more.run_settings("diffusion_rnn", 1)
+    # threads per job is how the job runs, not what it trains: changing it retrains nothing
+    assert TrainingPlan.from_mapping({"threads": 1}).run_settings("diffusion_rnn", 0) == one.run_settings("diffusion_rnn", 0)
     assert TrainConfig.from_mapping(more.run_settings("regression_rnn", 1)) == more.train_config("regression_rnn", 1)
     assert evaluation_settings({"samples": 8, "references": ["zero"]}) == {"samples": 8}

@@ -14,7 +14,7 @@ rule evaluate:
         wf.log_file("evaluate", "{method}_seed{seed}"),
     params:
         settings=ts.evaluation_settings(WF_CONFIG.section("evaluation")),
-    threads: 2
+    threads: TRAINING_PLAN.threads
     script:
         "../scripts/evaluate.py"
 

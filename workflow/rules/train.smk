@@ -26,6 +26,6 @@ rule train:
     params:
         config=lambda wildcards: TRAINING_PLAN.run_settings(wildcards.method, wildcards.seed),
         processes=TRAINING_PLAN.processes,
-    threads: 2
+    threads: TRAINING_PLAN.threads
     script:
         "../scripts/train.py"
