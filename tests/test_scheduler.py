@@ -66,6 +66,45 @@ def test_ddim_step_equals_diffusers(eta):
         x = ref
 
 
+@pytest.mark.parametrize("kind", ["ddim", "ddpm"])
+def test_clipped_steps_equal_diffusers_clip_sample(kind):
+    """clip_x0 is diffusers' clip_sample / clip_sample_range: x0_hat clamped, eps kept."""
+    ours, _ = _ours_and_theirs(kind, 25)
+    common = dict(num_train_timesteps=1000, beta_start=1e-4, beta_end=0.02, beta_schedule="linear",
+                  clip_sample=True, clip_sample_range=3.0, prediction_type="epsilon", timestep_spacing="leading")
+    theirs = (diffusers.DDIMScheduler(**common, set_alpha_to_one=True, steps_offset=0) if kind == "ddim"
+              else diffusers.DDPMScheduler(**common, variance_type="fixed_small"))
+    theirs.set_timesteps(25)
+    g = torch.Generator().manual_seed(2)
+    x = 4.0 * torch.randn(3, 40, 6, generator=g)
+    clipped = 0
+    for t in ours.timesteps.tolist():
+        eps = torch.randn(x.shape, generator=g)
+        clipped += int((ours.predict_x0(eps, t, x).abs() > 3.0).any())
+        if kind == "ddim":
+            mine = ours.ddim_step(eps, t, x, clip_x0=3.0)
+            ref = theirs.step(eps, t, x, eta=0.0).prev_sample
+        else:
+            mine = ours.ddpm_step(eps, t, x, generator=torch.Generator().manual_seed(t), clip_x0=3.0)
+            ref = theirs.step(eps, t, x, generator=torch.Generator().manual_seed(t)).prev_sample
+        assert torch.allclose(mine, ref, atol=1e-5, rtol=1e-6), t
+        x = ref
+    assert clipped > 10  # the clamp was active on most steps, so the comparison covers it
+
+
+def test_clipping_keeps_an_oracle_sample_inside_the_range():
+    """With the true noise, DDIM still returns x0 when x0 lies inside the clip range."""
+    s = NoiseScheduler()
+    s.set_timesteps(25, Sampler.DDIM)
+    g = torch.Generator().manual_seed(3)
+    x0 = torch.rand(2, 30, 6, generator=g) * 4 - 2  # within [-2, 2]
+    noise = torch.randn(x0.shape, generator=g)
+    x = s.add_noise(x0, noise, torch.full((2,), int(s.timesteps[0])))
+    for t in s.timesteps.tolist():
+        x = s.ddim_step(noise, t, x, clip_x0=3.0)
+    assert torch.allclose(x, x0, atol=1e-4)
+
+
 @pytest.mark.parametrize("steps", [1000, 25])
 def test_ddpm_step_equals_diffusers(steps):
     ours, theirs = _ours_and_theirs("ddpm", steps)

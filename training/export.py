@@ -81,7 +81,7 @@ class ExportedSampler(nn.Module):
         for t in self.timesteps:
             eps = m.net.denoise(x, torch.full((x.shape[0],), t, dtype=torch.int64, device=x.device), code)
             if self.sampler is Sampler.DDIM:
-                x = m.scheduler.ddim_step(eps, t, x)
+                x = m.scheduler.ddim_step(eps, t, x, clip_x0=m.config.clip_x0_sigmas)
             else:
                 x = m.scheduler.released_step(eps, t, x, lo, hi)
         return nz.unbias(x).reshape(B, K, T, IMU_CHANNELS)

@@ -20,6 +20,12 @@ variances (linear from ``beta_start`` to ``beta_end`` over ``N`` steps), ``alpha
   (1 - alpha_bar_t)) sqrt(1 - alpha_bar_t / alpha_bar_prev)``, ``x_prev = sqrt(alpha_bar_prev)
   x0_hat + sqrt(1 - alpha_bar_prev - sigma^2) eps + sigma z``. With eta = 0 it is deterministic,
   and with the true noise as ``eps`` it returns ``x_0`` exactly at the last step.
+* Clipping (diffusers' ``clip_sample``; DDPM's and DDIM's reference code for images in [-1, 1]):
+  ``x0_hat`` is clamped to ``[-c, c]`` before the step uses it, ``eps`` is not re-derived. The
+  samples here are z-scored biases, so ``c`` is in sigmas of the train split. Without it a noise
+  estimate slightly off at high t (``x0_hat`` amplifies its error by ``1 / sqrt(alpha_bar_t)``,
+  ~125x at t = 960) runs away: later steps see ``x_t`` far outside anything trained on and do not
+  pull it back (on EuRoC's validation split unclipped DDIM samples reached 14-17 sigmas).
 * RELEASED (the published code's DDIM, ShenghaoZhou/ioo_diffusion ``scheduler/ddim.py``): its
   ``set_timesteps`` computes the step ratio as ``S // S = 1`` so the S steps are ``t = S-1 .. 0``,
   while its step uses ``t_prev = t - N // S < 0``, i.e. ``alpha_bar_prev = 1``: every step returns
@@ -102,13 +108,14 @@ class NoiseScheduler:
         return (x_t - (1.0 - ab).sqrt() * eps) / ab.sqrt()
 
     def ddpm_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor,
-                  generator: torch.Generator | None = None) -> torch.Tensor:
-        """One ancestral step ``x_t -> x_{t_prev}`` (DDPM eqs. 6-7, fixed-small variance)."""
+                  generator: torch.Generator | None = None, clip_x0: float | None = None) -> torch.Tensor:
+        """One ancestral step ``x_t -> x_{t_prev}`` (DDPM eqs. 6-7, fixed-small variance;
+        ``clip_x0``: clamp ``x0_hat`` to ``[-clip_x0, clip_x0]``, diffusers' ``clip_sample``)."""
         ab_t = self._alpha_bar(int(t), x_t)
         ab_prev = self._alpha_bar(self._prev(t), x_t)
         alpha_t = ab_t / ab_prev  # alpha'_t, the step's alpha when steps are skipped
         beta_t = 1.0 - alpha_t
-        x0 = self.predict_x0(eps, t, x_t)
+        x0 = _clamp(self.predict_x0(eps, t, x_t), clip_x0)
         mean = (ab_prev.sqrt() * beta_t / (1.0 - ab_t)) * x0 + (alpha_t.sqrt() * (1.0 - ab_prev) / (1.0 - ab_t)) * x_t
         if int(t) <= 0:
             return mean
@@ -116,11 +123,12 @@ class NoiseScheduler:
         return mean + var.sqrt() * randn(x_t.shape, generator, x_t.device, x_t.dtype)
 
     def ddim_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor, eta: float = 0.0,
-                  generator: torch.Generator | None = None) -> torch.Tensor:
-        """One DDIM step ``x_t -> x_{t_prev}`` (DDIM eq. 12, sigma of eq. 16 scaled by ``eta``)."""
+                  generator: torch.Generator | None = None, clip_x0: float | None = None) -> torch.Tensor:
+        """One DDIM step ``x_t -> x_{t_prev}`` (DDIM eq. 12, sigma of eq. 16 scaled by ``eta``;
+        ``clip_x0``: clamp ``x0_hat`` to ``[-clip_x0, clip_x0]``, diffusers' ``clip_sample``)."""
         ab_t = self._alpha_bar(int(t), x_t)
         ab_prev = self._alpha_bar(self._prev(t), x_t)
-        x0 = self.predict_x0(eps, t, x_t)
+        x0 = _clamp(self.predict_x0(eps, t, x_t), clip_x0)
         sigma = eta * ((1.0 - ab_prev) / (1.0 - ab_t) * (1.0 - ab_t / ab_prev)).sqrt()
         x_prev = ab_prev.sqrt() * x0 + (1.0 - ab_prev - sigma**2).sqrt() * eps
         if eta > 0:
@@ -149,6 +157,7 @@ class NoiseScheduler:
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
         clip: tuple[torch.Tensor, torch.Tensor] | None = None,
+        clip_x0: float | None = None,
     ) -> torch.Tensor:
         """Run a sampler from ``x_T ~ N(0, I)`` of ``shape``.
 
@@ -162,6 +171,7 @@ class NoiseScheduler:
             device: Device of the samples.
             dtype: Floating dtype of the samples.
             clip: ``(lo, hi)`` clip range of the RELEASED sampler (default [-1, 1]).
+            clip_x0: DDIM / DDPM: clamp each step's ``x0_hat`` to ``[-clip_x0, clip_x0]`` (None: off).
 
         Returns:
             ``x_0`` samples of ``shape``.
@@ -170,9 +180,14 @@ class NoiseScheduler:
         for t in self.set_timesteps(steps, sampler).tolist():
             eps = predict_eps(x, torch.full((shape[0],), t, dtype=torch.int64, device=device))
             if sampler is Sampler.DDIM:
-                x = self.ddim_step(eps, t, x, eta=eta, generator=generator)
+                x = self.ddim_step(eps, t, x, eta=eta, generator=generator, clip_x0=clip_x0)
             elif sampler is Sampler.DDPM:
-                x = self.ddpm_step(eps, t, x, generator=generator)
+                x = self.ddpm_step(eps, t, x, generator=generator, clip_x0=clip_x0)
             else:
                 x = self.released_step(eps, t, x, *(clip if clip is not None else (-1.0, 1.0)))
         return x
+
+
+def _clamp(x0: torch.Tensor, clip_x0: float | None) -> torch.Tensor:
+    """``x0`` clamped to ``[-clip_x0, clip_x0]`` (unchanged for None)."""
+    return x0 if clip_x0 is None else x0.clamp(-float(clip_x0), float(clip_x0))

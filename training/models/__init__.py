@@ -145,7 +145,8 @@ class BiasModel(nn.Module):
                 (self.config.clip_sample - nz.bias_mean) / nz.bias_std)
         z = self.scheduler.sample(lambda x, t: self.net.denoise(x, t, code), (B * K, T, IMU_CHANNELS),
                                   sampler=Sampler(sampler), steps=steps, eta=eta, generator=generator,
-                                  device=cond.device, dtype=cond.dtype, clip=clip)
+                                  device=cond.device, dtype=cond.dtype, clip=clip,
+                                  clip_x0=self.config.clip_x0_sigmas)
         return nz.unbias(z).reshape(B, K, T, IMU_CHANNELS)
 
 
