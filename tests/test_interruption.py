@@ -33,6 +33,9 @@ _CHILD = textwrap.dedent("""
     from pipeline.atomic import atomic_dir
     from pipeline.cli import _raise_terminated
     signal.signal(signal.SIGTERM, _raise_terminated)
+    # Python's own SIGINT handler, as in a foreground process: started from a background job
+    # (e.g. 'make test &' in a non-interactive shell) a child inherits SIGINT ignored
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     out = Path(sys.argv[1])
     with atomic_dir(out, owned={"bias.csv", "recovery.json"}) as tmp:
         (tmp / "bias.csv").write_text("t_ns,bg_x\\n1,")  # half a file
