@@ -115,6 +115,8 @@ def test_training_plan_rejects_bad_sections():
         TrainingPlan.from_mapping({"options": {"max_steps": 0}})
     with pytest.raises(ConfigError, match="training.threads must be >= 1"):
         TrainingPlan.from_mapping({"threads": 0})
+    with pytest.raises(ConfigError, match="clip_x0_sigmas must be positive or null"):
+        TrainingPlan.from_mapping({"options": {"model_overrides": {"clip_x0_sigmas": -1}}})
     with pytest.raises(ConfigError, match=r"unknown key 'sampler' \(did you mean 'samplers'"):
         EvaluationConfig.from_mapping({"sampler": "ddim"})
 
