@@ -1,0 +1,140 @@
+"""recovery.gyro_consistency: the likelihood against the exact Gaussian density, walk fits on
+simulated increments with known noise, rate coupling on a rotation with a known misalignment."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.signal import butter, filtfilt
+from scipy.spatial.transform import Rotation
+from scipy.stats import multivariate_normal
+
+from pipeline.errors import RecoveryError
+from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind
+from recovery.gyro_consistency import attitude_increments, fit_walk, rate_coupling, walk_log_likelihood
+
+DT = 0.1
+ND = 1.7e-4  # gyro white noise density, rad/s/sqrt(Hz)
+
+
+def _exact_log_likelihood(y: np.ndarray, nd: float, rw: float, white: float, gm_sigma: float, gm_tau: float) -> float:
+    """The same state-space model's density of the summed increments, from its dense covariance."""
+    a = np.exp(-DT / gm_tau) if gm_sigma > 0 else 0.0
+    F = np.array([[1.0, DT, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, a]])
+    Q = np.diag([nd**2 * DT, rw**2 * DT, gm_sigma**2 * (1 - a * a)])
+    H = np.array([1.0, 0.0, 1.0])
+    z = np.concatenate([[0.0], np.cumsum(y)])
+    n = len(z)
+    m = np.array([0.0, np.mean(y[:20]) / DT, 0.0])
+    P = np.diag([1.0, 1e-2, gm_sigma**2])
+    means, covs = [], []
+    for _ in range(n):
+        means.append(m)
+        covs.append(P)
+        m, P = F @ m, F @ P @ F.T + Q
+    C = np.zeros((n, n))
+    for k in range(n):
+        Fk = np.eye(3)
+        for j in range(k, n):  # Cov(x_j, x_k) = F^(j-k) P_k
+            C[j, k] = C[k, j] = H @ Fk @ covs[k] @ H
+            Fk = F @ Fk
+    C += white**2 * np.eye(n)
+    return float(multivariate_normal(np.array([H @ mm for mm in means]), C).logpdf(z))
+
+
+@pytest.mark.parametrize("gm_sigma", [0.0, 2e-3])
+def test_kalman_likelihood_equals_the_dense_gaussian_density(gm_sigma):
+    y = np.random.default_rng(0).normal(0.002, 1e-3, 40)
+    kf = walk_log_likelihood(y, DT, ND, 3e-3, 2e-4, gm_sigma, 0.7)
+    # 8 significant digits: the diffuse first variance (1 rad^2) against 1e-8-sized ones costs the rest
+    assert kf == pytest.approx(_exact_log_likelihood(y, ND, 3e-3, 2e-4, gm_sigma, 0.7), rel=1e-7)
+
+
+def _simulated_increments(n: int, rw: float, white: float, gm_sigma: float, gm_tau: float, seed: int) -> np.ndarray:
+    """Increments of gyro attitude error against a reference with white and Gauss-Markov attitude error."""
+    rng = np.random.default_rng(seed)
+    b = 0.02 + np.cumsum(rng.normal(0, rw * np.sqrt(DT), n))
+    p = np.concatenate([[0.0], np.cumsum(b * DT + rng.normal(0, ND * np.sqrt(DT), n))])
+    a = np.exp(-DT / gm_tau)
+    g = np.zeros(n + 1)
+    g[0] = rng.normal(0, gm_sigma)
+    for k in range(n):
+        g[k + 1] = a * g[k] + rng.normal(0, gm_sigma * np.sqrt(1 - a * a))
+    phi = p + g + rng.normal(0, white, n + 1)
+    return np.diff(phi)
+
+
+def test_fit_walk_recovers_a_known_random_walk():
+    rw = 2e-3  # ~100x a MEMS datasheet value
+    fits = [fit_walk(_simulated_increments(1500, rw, 1e-4, 0.0, 1.0, seed), DT, ND) for seed in range(3)]
+    ratios = [f.random_walk / rw for f in fits]
+    assert all(0.7 < r < 1.4 for r in ratios), ratios
+
+
+def test_a_gauss_markov_reference_error_is_told_from_the_walk():
+    rw, sigma, tau = 2e-4, 3e-3, 1.0
+    y = _simulated_increments(3000, rw, 5e-5, sigma, tau, seed=4)
+    white_only = fit_walk(y, DT, ND)
+    gm = fit_walk(y, DT, ND, gauss_markov=True)
+    # modelled as white, the time-correlated error inflates the walk; modelled, it is found
+    assert white_only.random_walk > 3 * rw
+    assert gm.log_likelihood > white_only.log_likelihood + 10
+    assert 0.5 < gm.gm_tau_s / tau < 2.0 and 0.7 < gm.gm_sigma_rad / sigma < 1.4
+    assert gm.random_walk < 2.5 * rw
+
+
+def _rotation_sequence(misalign: np.ndarray, low_pass_hz: float | None) -> tuple[ImuSeries, PoseSeries]:
+    """200 s of multi-sine rotation; the gyro reads ``omega + S omega`` (or ``S LP(omega)``)."""
+    rate_hz, n = 200.0, 40000
+    t = np.arange(n) / rate_hz
+    # two tones per band of DEFAULT_BANDS_HZ, shifted per axis (tones shared by the axes would
+    # put the reference's second-order cross terms at the rate's own frequencies)
+    freqs = np.array([0.02, 0.04, 0.08, 0.15, 0.4, 0.7, 1.5, 2.3, 4.1, 6.7])
+    rng = np.random.default_rng(1)
+    omega = np.stack([sum(0.06 * np.sin(2 * np.pi * f * shift * t + rng.uniform(0, 6.3)) for f in freqs)
+                      for shift in (1.0, 1.07, 1.15)], 1)
+    rots = [Rotation.identity()]
+    for k in range(n - 1):  # the reference: the true rate integrated (midpoint)
+        rots.append(rots[-1] * Rotation.from_rotvec(0.5 * (omega[k] + omega[k + 1]) / rate_hz))
+    quat = Rotation.concatenate(rots).as_quat()[:, [3, 0, 1, 2]]
+    coupled = omega
+    if low_pass_hz is not None:
+        bb, aa = butter(2, low_pass_hz / (rate_hz / 2))
+        coupled = filtfilt(bb, aa, omega, axis=0)
+    gyro = omega + coupled @ misalign.T
+    t_ns = (t * 1e9).astype(np.int64) + 10**18
+    imu = ImuSeries(t_ns, gyro, np.tile([0.0, 0.0, 9.81], (n, 1)))
+    poses = PoseSeries(t_ns[::2], np.zeros((n // 2, 3)), quat[::2], "body", PoseSourceKind.GROUND_TRUTH)
+    return imu, poses
+
+
+def test_rate_coupling_of_a_misalignment_is_flat_across_bands():
+    S = np.zeros((3, 3))
+    S[1, 0], S[2, 1] = 0.01, -0.004
+    imu, poses = _rotation_sequence(S, None)
+    rc = rate_coupling(imu, poses)
+    for b in range(len(rc.bands_hz)):  # every band, 0-10 Hz
+        assert rc.gain[b, 1, 0] == pytest.approx(0.01, abs=5e-5)
+        assert rc.gain[b, 2, 1] == pytest.approx(-0.004, abs=5e-5)
+    assert np.all(rc.coherence[:4, 1, 0] > 0.9)  # above 3 Hz the reference's own rate error dominates d
+    assert rc.strongest()[1:] == (1, 0)
+
+
+def test_rate_coupling_of_a_slow_process_shows_in_the_low_bands_only():
+    S = np.zeros((3, 3))
+    S[1, 0] = 0.03
+    imu, poses = _rotation_sequence(S, low_pass_hz=0.03)
+    rc = rate_coupling(imu, poses)
+    assert rc.gain[0, 1, 0] > 0.01  # 0-0.05 Hz: about half of the 0.03 (the low pass halves the 0.04-Hz tone)
+    assert np.all(np.abs(rc.gain[2:, 1, 0]) < 1e-4)  # 0.2-10 Hz: none
+
+
+def test_increments_vanish_for_a_consistent_gyro_and_errors_are_clear():
+    imu, poses = _rotation_sequence(np.zeros((3, 3)), None)
+    inc = attitude_increments(imu, poses, interval_s=0.1)
+    assert np.abs(inc).max() < 1e-5
+    with pytest.raises(RecoveryError, match="positions only"):
+        rate_coupling(imu, PoseSeries(poses.t_ns, poses.p_m, None, "prism", PoseSourceKind.POSITION_TRACKER))
+    short = PoseSeries(poses.t_ns[:2000], poses.p_m[:2000], poses.quat_wxyz[:2000], "body", PoseSourceKind.GROUND_TRUTH)
+    with pytest.raises(RecoveryError, match="overlap"):
+        rate_coupling(imu, short)
