@@ -18,6 +18,7 @@ IMU frame), for auditing a reference before trusting the bias recovered against 
 
 from __future__ import annotations
 
+import enum
 import math
 from dataclasses import dataclass
 
@@ -67,6 +68,21 @@ def reference_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | 
     return index, rel.as_rotvec() / (2.0 * half_step_s)
 
 
+# A coupling counts where its coherence reaches this in a band and its gain this much.
+COUPLING_MIN_COHERENCE = 0.5
+COUPLING_MIN_GAIN = 2e-3
+# Bands from this frequency up tell an intrinsic error (every band) from a slow process.
+FAST_BAND_HZ = 0.2
+
+
+class CouplingKind(str, enum.Enum):
+    """What the strongest cross-axis coupling of :class:`RateCoupling` looks like."""
+
+    NONE = "none"  # no axis follows another axis's rate
+    INTRINSIC = "intrinsic"  # the same gain at FAST_BAND_HZ and above: scale or misalignment
+    SLOW = "slow"  # below FAST_BAND_HZ only: not an intrinsic error
+
+
 @dataclass(frozen=True)
 class RateCoupling:
     """Transfer from the angular rate to the gyro's disagreement with a reference, by band.
@@ -89,6 +105,47 @@ class RateCoupling:
         c = self.coherence.copy()
         c[:, np.arange(3), np.arange(3)] = -1.0
         return tuple(int(i) for i in np.unravel_index(np.argmax(c), c.shape))  # type: ignore[return-value]
+
+    def kind(self) -> CouplingKind:
+        """:class:`CouplingKind` of the :meth:`strongest` pair: INTRINSIC when it counts in a band from
+        ``FAST_BAND_HZ`` up with a gain within a factor 2 of its slow bands' (or it has no slow band);
+        SLOW when it counts below ``FAST_BAND_HZ`` only and the fast bands carry under a quarter of
+        that gain."""
+        _, r, c = self.strongest()
+        counts = (self.coherence[:, r, c] >= COUPLING_MIN_COHERENCE) & (np.abs(self.gain[:, r, c]) >= COUPLING_MIN_GAIN)
+        if not counts.any():
+            return CouplingKind.NONE
+        fast = self.bands_hz[:, 0] >= FAST_BAND_HZ
+        g = self.gain[:, r, c]
+        slow_gain = np.max(np.abs(g[counts & ~fast])) if (counts & ~fast).any() else None
+        if (counts & fast).any():
+            fast_gain = np.max(np.abs(g[counts & fast]))
+            if slow_gain is None or 0.5 <= fast_gain / slow_gain <= 2.0:
+                return CouplingKind.INTRINSIC
+        if slow_gain is not None and np.all(np.abs(g[fast]) < 0.25 * slow_gain):
+            return CouplingKind.SLOW
+        return CouplingKind.INTRINSIC if (counts & fast).any() else CouplingKind.SLOW
+
+    def sentence(self) -> str:
+        """One plain sentence on the strongest coupling, for reports."""
+        b, r, c = self.strongest()
+        kind = self.kind()
+        lo, hi = self.bands_hz[b]
+        pair = f"gyro {'xyz'[r]} against the rate about {'xyz'[c]}"
+        if kind is CouplingKind.NONE:
+            return (f"The gyro follows the pose stream's rotation on every axis: no axis reads another axis's rate "
+                    f"(strongest: {pair}, coherence {self.coherence[b, r, c]:.2f} at {lo:g}-{hi:g} Hz).")
+        if kind is CouplingKind.INTRINSIC:
+            return (f"The {pair} reads {self.gain[b, r, c]:+.4f} of that rate in bands up to "
+                    f"{self.bands_hz[-1, 1]:g} Hz (coherence {self.coherence[b, r, c]:.2f} at {lo:g}-{hi:g} Hz): a "
+                    "scale or misalignment error of the IMU against this pose stream, which recovery.intrinsics "
+                    "estimates; without it the bias follows the rate.")
+        fast = self.bands_hz[:, 0] >= FAST_BAND_HZ
+        return (f"The {pair} departs by {self.gain[b, r, c]:+.4f} of that rate at {lo:g}-{hi:g} Hz (coherence "
+                f"{self.coherence[b, r, c]:.2f}) but by at most {np.max(np.abs(self.gain[fast, r, c])):.4f} from "
+                f"{FAST_BAND_HZ:g} Hz up: not an IMU scale or misalignment (those read the same in every band) but "
+                "a slow process, such as an attitude error of the reference that follows the rotation. The bias "
+                "absorbs it (its random walk rises) and no intrinsic term can.")
 
 
 def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None = None, offset_s: float = 0.0,

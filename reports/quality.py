@@ -42,6 +42,7 @@ from pipeline.layout import Stage
 from pipeline.pose_transform import offset_ns, poses_in_imu_frame
 from pipeline.store import is_store, read_store
 from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity
+from recovery.gyro_consistency import rate_coupling
 from recovery.outputs import (
     BIAS_CSV,
     REPORT_JSON,
@@ -675,7 +676,25 @@ def _bias_section(inp: ReportInputs) -> Html:
     note = _calibration_uncertainty_note(inp.recovery.data if inp.recovery is not None else None)
     if note is not None:
         parts.append(note)
+    note = gyro_consistency_note(inp)
+    if note is not None:
+        parts.append(note)
     return section("bias", _TITLE["bias"], join(parts))
+
+
+def gyro_consistency_note(inp: ReportInputs) -> Html | None:
+    """Whether the gyro reads another axis's rate against the fitted pose stream
+    (:func:`recovery.gyro_consistency.rate_coupling`, on the recovered offset and extrinsic);
+    None without a 6-DoF pose stream long enough for it."""
+    rec, seq = inp.recovery, inp.sequence
+    poses = seq.poses.get(rec.pose_stream) if rec is not None and rec.pose_stream else None
+    if poses is None or poses.quat_wxyz is None or seq.imu is None:
+        return None
+    try:
+        coupling = rate_coupling(seq.imu, poses, R_imu_pose=rec.T_imu_pose[:3, :3], offset_s=rec.time_offset_s)
+    except BiasgtError:
+        return None
+    return p("Gyro against the pose stream's rotation, by frequency band: " + coupling.sentence(), class_="small")
 
 
 def _calibration_uncertainty_note(rec: dict[str, Any] | None) -> Html | None:

@@ -3,6 +3,8 @@ simulated increments with known noise, rate coupling on a rotation with a known 
 
 from __future__ import annotations
 
+import html
+
 import numpy as np
 import pytest
 from scipy.signal import butter, filtfilt
@@ -11,7 +13,7 @@ from scipy.stats import multivariate_normal
 
 from pipeline.errors import RecoveryError
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind
-from recovery.gyro_consistency import attitude_increments, fit_walk, rate_coupling, walk_log_likelihood
+from recovery.gyro_consistency import CouplingKind, attitude_increments, fit_walk, rate_coupling, walk_log_likelihood
 
 DT = 0.1
 ND = 1.7e-4  # gyro white noise density, rad/s/sqrt(Hz)
@@ -138,3 +140,41 @@ def test_increments_vanish_for_a_consistent_gyro_and_errors_are_clear():
     short = PoseSeries(poses.t_ns[:2000], poses.p_m[:2000], poses.quat_wxyz[:2000], "body", PoseSourceKind.GROUND_TRUTH)
     with pytest.raises(RecoveryError, match="overlap"):
         rate_coupling(imu, short)
+
+
+def test_coupling_kinds_and_sentences():
+    S = np.zeros((3, 3))
+    S[1, 0] = 0.01
+    flat = rate_coupling(*_rotation_sequence(S, None))
+    assert flat.kind() is CouplingKind.INTRINSIC and "recovery.intrinsics" in flat.sentence()
+    S[1, 0] = 0.03
+    slow = rate_coupling(*_rotation_sequence(S, low_pass_hz=0.03))
+    assert slow.kind() is CouplingKind.SLOW and "not an IMU scale or misalignment" in slow.sentence()
+    none = rate_coupling(*_rotation_sequence(np.zeros((3, 3)), None))
+    assert none.kind() is CouplingKind.NONE and "follows the pose stream's rotation" in none.sentence()
+
+
+def test_quality_report_note_uses_the_recovered_offset_and_extrinsic(tmp_path):
+    from pipeline.types import Sequence
+    from recovery.outputs import RecoveryReport
+    from reports.quality import ReportInputs, gyro_consistency_note
+
+    imu, body = _rotation_sequence(np.zeros((3, 3)), None)
+    R_imu_pose = Rotation.from_euler("xyz", [3.0, -2.0, 10.0], degrees=True)
+    offset_s = 0.02  # pose stamps + offset = IMU clock
+    q = (Rotation.from_quat(body.quat_wxyz[:, [1, 2, 3, 0]]) * R_imu_pose).as_quat()[:, [3, 0, 1, 2]]
+    poses = PoseSeries(body.t_ns - int(offset_s * 1e9), body.p_m, q, "marker", PoseSourceKind.MOCAP)
+    seq = Sequence("s", imu, {"mocap": poses})
+
+    def note(T: np.ndarray, off: float) -> str:
+        rec = RecoveryReport.from_json({"pose_stream": "mocap", "T_imu_pose": T.tolist(), "pose_time_offset_s": off})
+        return html.unescape(str(gyro_consistency_note(ReportInputs(ingest_dir=tmp_path, sequence=seq, recovery=rec))))
+
+    T = np.eye(4)
+    T[:3, :3] = R_imu_pose.as_matrix()
+    assert "follows the pose stream's rotation on every axis" in note(T, offset_s)
+    assert "recovery.intrinsics" in note(np.eye(4), offset_s)  # a 10-deg rotation left in reads like a misalignment
+    no_rotation = Sequence("s", imu, {"mocap": PoseSeries(poses.t_ns, poses.p_m, None, "prism",
+                                                          PoseSourceKind.POSITION_TRACKER)})
+    rec = RecoveryReport.from_json({"pose_stream": "mocap", "T_imu_pose": T.tolist(), "pose_time_offset_s": offset_s})
+    assert gyro_consistency_note(ReportInputs(ingest_dir=tmp_path, sequence=no_rotation, recovery=rec)) is None
