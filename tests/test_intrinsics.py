@@ -13,8 +13,8 @@ from pipeline.sim import SimConfig, simulate
 from pipeline.sim.config import MotionConfig, PoseStreamConfig
 from recovery.config import IntrinsicsMode, RecoveryConfig
 from pipeline.types import PoseSeries, PoseSourceKind
-from recovery.intrinsics import FitNoise, ImuIntrinsics, IntrinsicsFit, fit_intrinsics, intrinsics_bias_variance, \
-    raw_bias, recover_with_intrinsics
+from recovery.intrinsics import FitNoise, ImuIntrinsics, IntrinsicsFit, drop_insignificant, fit_intrinsics, \
+    intrinsics_bias_variance, raw_bias, recover_with_intrinsics
 from recovery.recover import recover
 
 _spec = importlib.util.spec_from_file_location(
@@ -65,6 +65,37 @@ def test_compose_and_raw_bias_closed_form():
     np.testing.assert_allclose(out[:, :3], bias[:, :3] @ a.gyro_matrix.T)
     np.testing.assert_allclose(out[:, 3:], bias[:, 3:] @ a.acc_matrix.T)
     assert np.all(std == 0)
+
+
+def test_terms_left_insignificant_by_the_composition_are_dropped():
+    """A gyro misalignment zx times a real G xz fills G zz (``G = M_g G'``) although no fit applied it:
+    in the raw convention it is 1.7 sigma, and dropped; the significant terms stay as they are."""
+    M_g = np.eye(3)
+    M_g[2, 0] = -8.7e-3
+    step_g = np.zeros((3, 3))
+    step_g[0, 2] = 1e-3
+    total = ImuIntrinsics.identity().compose(ImuIntrinsics(M_g, np.eye(3), np.zeros((3, 3)))).compose(
+        ImuIntrinsics(np.eye(3), np.diag([1.005, 1.0, 1.0]), step_g))
+    assert total.gyro_g_sensitivity[2, 2] == pytest.approx(-8.7e-6)
+    sigma = {"gyro_scale_misalignment": np.full((3, 3), 3e-5), "acc_scale_misalignment": np.full((3, 3), 2e-4),
+             "gyro_g_sensitivity": np.full((3, 3), 5e-6)}
+    fit = IntrinsicsFit(ImuIntrinsics.identity(), sigma, {k: np.ones((3, 3), bool) for k in sigma}, {})
+    present = {k: np.zeros((3, 3), bool) for k in sigma}
+    present["gyro_scale_misalignment"][2, 0] = present["gyro_g_sensitivity"][0, 2] = True
+    present["acc_scale_misalignment"][0, 0] = True
+    out, keep, dropped = drop_insignificant(total, fit, present)
+    assert dropped == ["gyro_g_sensitivity[zz]"]
+    expected = total.gyro_g_sensitivity.copy()
+    expected[2, 2] = 0.0
+    np.testing.assert_array_equal(out.gyro_g_sensitivity, expected)
+    np.testing.assert_array_equal(out.gyro_matrix, total.gyro_matrix)
+    np.testing.assert_array_equal(out.acc_matrix, total.acc_matrix)
+    assert {k: v.sum() for k, v in keep.items()} == {k: v.sum() for k, v in present.items()}
+    # the acc scale of 0.005 at 2e-4 sigma is 25 sigma: kept; at 2e-3 sigma it is not significant
+    sigma["acc_scale_misalignment"] = np.full((3, 3), 2e-3)
+    out, keep, dropped = drop_insignificant(total, fit, present)
+    assert "acc_scale_misalignment[xx]" in dropped and not keep["acc_scale_misalignment"].any()
+    np.testing.assert_array_equal(out.acc_matrix, np.eye(3))
 
 
 def test_fit_recovers_injected_intrinsics_against_the_true_trajectory(drone_120s):
