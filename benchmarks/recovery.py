@@ -430,7 +430,9 @@ def case_peer():
           f"{r['peer']:.2f} s with its bias marginals ({r['peer_solve']:.2f} s solve only)")
     print(f"[peer] ratio default / peer {ratio:.2f} (goal <= 2: {_mark(ratio <= 2.0)}); against the peer's solve "
           f"alone {r['recover'] / r['peer_solve']:.2f}; in CPU seconds (steadier on a shared machine) "
-          f"{r['recover_cpu']:.2f} / {r['peer_cpu']:.2f} = {r['recover_cpu'] / r['peer_cpu']:.2f}; "
+          f"{r['recover_cpu']:.2f} / {r['peer_cpu']:.2f} = {r['recover_cpu'] / r['peer_cpu']:.2f}, median of the "
+          f"{PEER_REPEATS} back-to-back pairs' ratios {np.median(np.divide(r['all']['recover_cpu'], r['all']['peer_cpu'])):.2f} "
+          "(the machine's speed drifts between runs); "
           f"all runs {json.dumps({k: [round(x, 2) for x in v] for k, v in r['all'].items()})}")
     for name, (rmse, nees) in (("recover", rec), ("peer", peer)):
         print(f"[peer] {name:7s} RMSE gyro {np.array2string(rmse[:3], precision=6)} rad/s, acc "
