@@ -24,14 +24,17 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize
-from scipy.signal import csd, welch
+from scipy.signal import csd
+from scipy.stats import beta
 from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
 
+# Shortest Welch segment of :func:`rate_coupling`: its lowest band needs a frequency bin or two.
+MIN_SEGMENT_S = 20.0
 # Frequency bands of :func:`rate_coupling` (Hz): below, around and above a MAV's manoeuvres.
-DEFAULT_BANDS_HZ = ((0.0, 0.05), (0.05, 0.2), (0.2, 1.0), (1.0, 3.0), (3.0, 10.0))
+DEFAULT_BANDS_HZ = ((0.0, 0.05), (0.05, 0.2), (0.2, 1.0), (1.0, 3.0))
 
 
 def _reference_slerp(poses: PoseSeries, R_imu_pose: np.ndarray, offset_s: float) -> tuple[Slerp, np.ndarray]:
@@ -44,108 +47,139 @@ def _reference_slerp(poses: PoseSeries, R_imu_pose: np.ndarray, offset_s: float)
     return Slerp(t, R_world_imu), np.array([t[0], t[-1]])
 
 
-def reference_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None = None, offset_s: float = 0.0,
-                    half_step_s: float = 0.005) -> tuple[np.ndarray, np.ndarray]:
-    """The reference's body rate at the IMU stamps inside its span.
+def block_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None = None, offset_s: float = 0.0,
+                step: int = 1) -> tuple[np.ndarray, np.ndarray, float]:
+    """The gyro's and the reference's mean body rate over blocks of ``step`` IMU sample intervals.
 
-    Args:
-        imu: The IMU readings. poses: The reference (orientation needed).
-        R_imu_pose: Rotation of the pose frame in the IMU frame [3, 3] (default identity).
-        offset_s: Added to the pose stamps to put them on the IMU clock.
-        half_step_s: Half the central difference's step.
+    The gyro's is its integral over the block (the mean of consecutive samples over each interval)
+    over the block's duration; the reference's is the rotation between its orientations at the
+    block's ends over the same duration. Only blocks inside the pose stream's span.
 
     Returns:
-        ``index`` [M] of the IMU samples used and ``omega_radps`` [M, 3] in the IMU frame.
+        ``omega_gyro_radps`` [M, 3], ``omega_ref_radps`` [M, 3] (IMU frame), the block rate in Hz.
     """
     R = np.eye(3) if R_imu_pose is None else np.asarray(R_imu_pose, dtype=float)
     slerp, span = _reference_slerp(poses, R, offset_s)
-    h = half_step_s * NS_PER_S
     t = imu.t_ns.astype(float)
-    index = np.nonzero((t - h > span[0]) & (t + h < span[1]))[0]
-    if len(index) < 2:
+    inside = np.nonzero((t >= span[0]) & (t <= span[1]))[0]
+    edges = inside[::step]
+    if len(edges) < 3:
         raise RecoveryError("the IMU and the reference pose stream do not overlap in time")
-    rel = slerp(t[index] - h).inv() * slerp(t[index] + h)
-    return index, rel.as_rotvec() / (2.0 * half_step_s)
+    dt_s = np.diff(t) / NS_PER_S
+    area = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (imu.gyro_radps[:-1] + imu.gyro_radps[1:]) * dt_s[:, None],
+                                                     axis=0)])
+    duration_s = np.diff(t[edges]) / NS_PER_S
+    gyro = np.diff(area[edges], axis=0) / duration_s[:, None]
+    ends = slerp(t[edges])
+    ref = (ends[:-1].inv() * ends[1:]).as_rotvec() / duration_s[:, None]
+    return gyro, ref, float(1.0 / np.median(duration_s))
 
 
-# A coupling counts where its coherence reaches this in a band and its gain this much.
+# An element of the transfer counts in a band where the multiple coherence of its row reaches this
+# (or the level that three unrelated inputs reach by chance in 1 % of cases with the band's
+# averages, if higher) and its gain this much.
 COUPLING_MIN_COHERENCE = 0.5
+COUPLING_CHANCE = 0.001
 COUPLING_MIN_GAIN = 2e-3
 # Bands from this frequency up tell an intrinsic error (every band) from a slow process.
 FAST_BAND_HZ = 0.2
 
 
 class CouplingKind(str, enum.Enum):
-    """What the strongest cross-axis coupling of :class:`RateCoupling` looks like."""
+    """What :class:`RateCoupling` shows."""
 
-    NONE = "none"  # no axis follows another axis's rate
-    INTRINSIC = "intrinsic"  # the same gain at FAST_BAND_HZ and above: scale or misalignment
-    SLOW = "slow"  # below FAST_BAND_HZ only: not an intrinsic error
+    NONE = "none"  # no share of the rate that counts in two bands or below FAST_BAND_HZ alone
+    INTRINSIC = "intrinsic"  # a gain that counts in two bands or more, one from FAST_BAND_HZ up, the same in each
+    SLOW = "slow"  # a gain that counts below FAST_BAND_HZ only, under a quarter of it above: not an intrinsic error
 
 
 @dataclass(frozen=True)
 class RateCoupling:
     """Transfer from the angular rate to the gyro's disagreement with a reference, by band.
 
+    ``d = gyro - omega_ref`` is modelled as ``d = H omega`` plus what the rate does not explain,
+    with the three rate axes as joint inputs (so a scale error on one axis does not pass for a
+    misalignment of another that moves with it).
+
     Attributes:
         bands_hz: Band edges [n, 2].
-        gain: Real part of the transfer ``d_i / omega_j`` over each band [n, 3, 3]
-            (rows: the axis of the disagreement, columns: the rate axis). A misalignment ``S``
-            shows as ``gain[b] = S`` in every excited band.
-        coherence: Magnitude-squared coherence of ``d_i`` with ``omega_j`` over each band [n, 3, 3] (0-1).
+        gain: Real part of ``H`` over each band [n, 3, 3] (rows: the axis of ``d``, columns: the
+            rate axis). A scale / misalignment error ``S`` shows as ``gain[b] = S`` in every
+            excited band.
+        coherence: Multiple coherence of each axis of ``d`` with the rate over each band [n, 3]:
+            the share of its power the rate explains (0-1).
+        coherence_needed: Per band [n], the coherence an element's row needs to count: at least
+            ``COUPLING_MIN_COHERENCE``, and above chance for the band's number of averages (the
+            multiple coherence of three unrelated inputs follows Beta(3, n - 3); a lowest band of
+            two frequency bins in five segments reaches 0.69 by chance in 5 % of recordings).
     """
 
     bands_hz: np.ndarray
     gain: np.ndarray
     coherence: np.ndarray
+    coherence_needed: np.ndarray
 
-    def strongest(self) -> tuple[int, int, int]:
-        """(band, row, column) of the off-diagonal pair with the highest coherence (the diagonal
-        also holds the reference's own smoothing)."""
-        c = self.coherence.copy()
-        c[:, np.arange(3), np.arange(3)] = -1.0
-        return tuple(int(i) for i in np.unravel_index(np.argmax(c), c.shape))  # type: ignore[return-value]
+    def _counts(self) -> np.ndarray:
+        """[n, 3, 3]: where an element counts (its row's coherence and its own gain)."""
+        return ((self.coherence >= self.coherence_needed[:, None])[:, :, None]
+                & (np.abs(self.gain) >= COUPLING_MIN_GAIN))
+
+    def _elements(self, kind: CouplingKind) -> np.ndarray:
+        """[3, 3]: the elements that show ``kind`` (INTRINSIC or SLOW; see :class:`CouplingKind`)."""
+        counts, fast = self._counts(), self.bands_hz[:, 0] >= FAST_BAND_HZ
+        out = np.zeros((3, 3), bool)
+        for i in range(3):
+            for j in range(3):
+                c, g = counts[:, i, j], self.gain[:, i, j]
+                if kind is CouplingKind.INTRINSIC and c.sum() >= 2 and c[fast].any():
+                    gc = g[c]
+                    out[i, j] = (np.all(gc > 0) or np.all(gc < 0)) and np.abs(gc).max() <= 2.0 * np.abs(gc).min()
+                elif kind is CouplingKind.SLOW and c[~fast].any() and not c[fast].any():
+                    out[i, j] = bool(np.all(np.abs(g[fast]) < 0.25 * np.abs(g[c]).max()))
+        return out
 
     def kind(self) -> CouplingKind:
-        """:class:`CouplingKind` of the :meth:`strongest` pair: INTRINSIC when it counts in a band from
-        ``FAST_BAND_HZ`` up with a gain within a factor 2 of its slow bands' (or it has no slow band);
-        SLOW when it counts below ``FAST_BAND_HZ`` only and the fast bands carry under a quarter of
-        that gain."""
-        _, r, c = self.strongest()
-        counts = (self.coherence[:, r, c] >= COUPLING_MIN_COHERENCE) & (np.abs(self.gain[:, r, c]) >= COUPLING_MIN_GAIN)
-        if not counts.any():
-            return CouplingKind.NONE
-        fast = self.bands_hz[:, 0] >= FAST_BAND_HZ
-        g = self.gain[:, r, c]
-        slow_gain = np.max(np.abs(g[counts & ~fast])) if (counts & ~fast).any() else None
-        if (counts & fast).any():
-            fast_gain = np.max(np.abs(g[counts & fast]))
-            if slow_gain is None or 0.5 <= fast_gain / slow_gain <= 2.0:
-                return CouplingKind.INTRINSIC
-        if slow_gain is not None and np.all(np.abs(g[fast]) < 0.25 * slow_gain):
-            return CouplingKind.SLOW
-        return CouplingKind.INTRINSIC if (counts & fast).any() else CouplingKind.SLOW
+        """INTRINSIC if some element shows it, else SLOW if some element shows that, else NONE."""
+        for kind in (CouplingKind.INTRINSIC, CouplingKind.SLOW):
+            if self._elements(kind).any():
+                return kind
+        return CouplingKind.NONE
+
+    def strongest(self) -> tuple[int, int, int]:
+        """(band, row, column) of the largest counting gain among the elements that show :meth:`kind`
+        (for NONE: of the largest gain in the most coherent row)."""
+        kind = self.kind()
+        if kind is CouplingKind.NONE:
+            b, i = np.unravel_index(np.argmax(self.coherence), self.coherence.shape)
+            mask = np.zeros(self.gain.shape, bool)
+            mask[b, i] = True
+        else:
+            mask = self._counts() & self._elements(kind)[None]
+        score = np.where(mask, np.abs(self.gain), -1.0)
+        return tuple(int(x) for x in np.unravel_index(np.argmax(score), score.shape))  # type: ignore[return-value]
 
     def sentence(self) -> str:
-        """One plain sentence on the strongest coupling, for reports."""
+        """One plain sentence on what the coupling shows, for reports."""
         b, r, c = self.strongest()
         kind = self.kind()
         lo, hi = self.bands_hz[b]
-        pair = f"gyro {'xyz'[r]} against the rate about {'xyz'[c]}"
+        row = ", ".join(f"{g:+.4f}" for g in self.gain[b, r])
+        where = f"at {lo:g}-{hi:g} Hz the gyro {'xyz'[r]} reads ({row}) of the rate about (x, y, z)"
         if kind is CouplingKind.NONE:
-            return (f"The gyro follows the pose stream's rotation on every axis: no axis reads another axis's rate "
-                    f"(strongest: {pair}, coherence {self.coherence[b, r, c]:.2f} at {lo:g}-{hi:g} Hz).")
+            return (f"The gyro follows the pose stream's rotation: no share of the rate counts in two bands "
+                    f"(most coherent: {where}, coherence {self.coherence[b, r]:.2f}, "
+                    f"{self.coherence_needed[b]:.2f} needed).")
         if kind is CouplingKind.INTRINSIC:
-            return (f"The {pair} reads {self.gain[b, r, c]:+.4f} of that rate in bands up to "
-                    f"{self.bands_hz[-1, 1]:g} Hz (coherence {self.coherence[b, r, c]:.2f} at {lo:g}-{hi:g} Hz): a "
-                    "scale or misalignment error of the IMU against this pose stream, which recovery.intrinsics "
-                    "estimates; without it the bias follows the rate.")
+            return (f"Against this pose stream {where} (coherence {self.coherence[b, r]:.2f}), the "
+                    f"{'xyz'[c]} term alike in every band where it counts up to {self.bands_hz[-1, 1]:g} Hz: a "
+                    f"{'scale' if r == c else 'misalignment'} error of the IMU (or of the extrinsic), which "
+                    "recovery.intrinsics estimates; without it the bias follows the rate.")
         fast = self.bands_hz[:, 0] >= FAST_BAND_HZ
-        return (f"The {pair} departs by {self.gain[b, r, c]:+.4f} of that rate at {lo:g}-{hi:g} Hz (coherence "
-                f"{self.coherence[b, r, c]:.2f}) but by at most {np.max(np.abs(self.gain[fast, r, c])):.4f} from "
-                f"{FAST_BAND_HZ:g} Hz up: not an IMU scale or misalignment (those read the same in every band) but "
-                "a slow process, such as an attitude error of the reference that follows the rotation. The bias "
-                "absorbs it (its random walk rises) and no intrinsic term can.")
+        return (f"Against this pose stream {where} (coherence {self.coherence[b, r]:.2f}), but the {'xyz'[c]} "
+                f"term reaches at most {np.max(np.abs(self.gain[fast, r, c])):.4f} from {FAST_BAND_HZ:g} Hz up: "
+                "not an IMU scale or misalignment (those read the same in every band) but a slow process, such as "
+                "an attitude error of the reference that follows the rotation. The bias absorbs it (its random "
+                "walk rises) and no intrinsic term can.")
 
 
 def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None = None, offset_s: float = 0.0,
@@ -153,40 +187,47 @@ def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | No
                   segment_s: float = 40.0) -> RateCoupling:
     """:class:`RateCoupling` of ``d = gyro - omega_ref`` against the gyro's rate.
 
-    Welch spectra over ``segment_s`` segments (their resolution, 1 / ``segment_s``, must resolve
-    the lowest band), summed over each band. The highest band is limited by the reference: its
-    rate is a central difference of interpolated orientations.
+    Welch cross-spectra over ``segment_s`` segments (at most half the recording, at least
+    ``MIN_SEGMENT_S``: their resolution must resolve the lowest band), summed over each band; per band ``H^T = S_ww^-1 S_wd`` (the
+    three rate axes as joint inputs). The bands stop at 3 Hz: above, the reference's rate (its
+    orientations interpolated) no longer follows the gyro's.
 
     Raises:
         RecoveryError: if the overlap is shorter than two segments or the stream has no orientation.
     """
-    index, omega_ref = reference_rates(imu, poses, R_imu_pose, offset_s)
-    t = imu.t_ns[index]
-    rate_hz = (len(t) - 1) * NS_PER_S / float(t[-1] - t[0])
-    nper = int(2 ** round(math.log2(segment_s * rate_hz)))
-    if len(t) < 2 * nper:
-        raise RecoveryError(f"the rate coupling needs at least {2 * nper / rate_hz:.0f} s of overlap, "
-                            f"got {len(t) / rate_hz:.0f} s", hint="use a longer recording")
-    w = imu.gyro_radps[index]
-    d = w - omega_ref
-    w, d = w - w.mean(0), d - d.mean(0)
-    f, p_ww = welch(w, fs=rate_hz, nperseg=nper, axis=0)  # [F, 3]
-    _, p_dd = welch(d, fs=rate_hz, nperseg=nper, axis=0)
+    t = imu.t_ns
+    imu_rate_hz = (len(t) - 1) * NS_PER_S / float(t[-1] - t[0])
+    # blocks of >= 1 / (5x the top band): the same low pass on the rate and on d leaves the transfer
+    # between them as it is, at a fraction of the samples (and of the slerps)
+    step = max(1, int(imu_rate_hz // (5.0 * bands_hz[-1][1])))
+    w, ref, rate_hz = block_rates(imu, poses, R_imu_pose, offset_s, step)
+    d = w - ref
+    # at most half the recording per segment: two segments at least (fewer averages on a short
+    # recording raise the coherence a band needs, so it stays a fair test)
+    nper = int(min(segment_s * rate_hz, len(w) / 2))
+    if nper / rate_hz < MIN_SEGMENT_S:
+        raise RecoveryError(f"the rate coupling needs at least {2 * MIN_SEGMENT_S:.0f} s of overlap, "
+                            f"got {len(w) / rate_hz:.0f} s", hint="use a longer recording")
+    x = np.hstack([w - w.mean(0), d - d.mean(0)])  # [M, 6]: rate, then d
+    # S[f, k, l] = E[conj(X_k) X_l] over the six signals
+    f, S = csd(x[:, :, None], x[:, None, :], fs=rate_hz, nperseg=nper, axis=0)
     bands = np.asarray(bands_hz, dtype=float)
     gain = np.zeros((len(bands), 3, 3))
-    coh = np.zeros((len(bands), 3, 3))
-    for j in range(3):
-        _, p_wd = csd(w[:, [j]], d, fs=rate_hz, nperseg=nper, axis=0)  # [F, 3]: rate j against every d_i
-        for b, (lo, hi) in enumerate(bands):
-            sel = (f > lo) & (f <= hi)
-            if not sel.any():
-                continue
-            # spectra summed over the band (weighted by power, not averaged per bin: bins the
-            # motion does not excite would add their noise ratios)
-            cross, auto = p_wd[sel].sum(0), p_ww[sel, j].sum()
-            gain[b, :, j] = np.real(cross) / auto
-            coh[b, :, j] = np.abs(cross) ** 2 / (auto * p_dd[sel].sum(0))
-    return RateCoupling(bands, gain, coh)
+    coh = np.zeros((len(bands), 3))
+    needed = np.ones(len(bands))
+    segments = 1 + (len(x) - nper) // (nper // 2)  # scipy's default overlap: half a segment
+    for b, (lo, hi) in enumerate(bands):
+        sel = (f > lo) & (f <= hi)
+        if not sel.any():
+            continue
+        averages = int(sel.sum()) * segments
+        needed[b] = max(COUPLING_MIN_COHERENCE, float(beta.ppf(1.0 - COUPLING_CHANCE, 3, max(averages - 3, 1))))
+        Sb = S[sel].sum(0)
+        S_ww, S_wd, S_dd = Sb[:3, :3], Sb[:3, 3:], np.real(np.diag(Sb[3:, 3:]))
+        Ht = np.linalg.solve(S_ww, S_wd)  # [rate, d]
+        gain[b] = np.real(Ht).T
+        coh[b] = np.real(np.einsum("ki,ki->i", np.conj(S_wd), Ht)) / S_dd
+    return RateCoupling(bands, gain, coh, needed)
 
 
 def attitude_increments(imu: ImuSeries, poses: PoseSeries, interval_s: float = 0.1, R_imu_pose: np.ndarray | None = None,

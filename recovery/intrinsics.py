@@ -63,7 +63,10 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pipeline.errors import BiasgtError
 from pipeline.types import NS_PER_S, ImuSeries, Sequence
+from recovery.config import IntrinsicsMode, PoseFactorMode
+from recovery.gyro_consistency import CouplingKind, rate_coupling
 from recovery.outputs import RecoveryReport
 
 log = logging.getLogger(__name__)
@@ -443,9 +446,56 @@ def drop_insignificant(total: ImuIntrinsics, fit: IntrinsicsFit, present: dict[s
     return out, keep, dropped
 
 
+@dataclass(frozen=True)
+class AutoDecision:
+    """What ``intrinsics: auto`` decided from the plain solve (:func:`auto_intrinsics`).
+
+    Attributes:
+        mode: ``WITH_G_SENSITIVITY`` or ``OFF``.
+        reason: One plain sentence (``recovery.json`` ``intrinsics_auto``).
+        coupling: The coupling kind found, or None when there was nothing to check.
+    """
+
+    mode: IntrinsicsMode
+    reason: str
+    coupling: str | None = None
+
+    def annotate(self, result):
+        """``result`` with ``report["intrinsics_auto"]`` saying what was decided and why."""
+        data = dict(result.report.data)
+        data["intrinsics_auto"] = {"estimated": self.mode is not IntrinsicsMode.OFF, "coupling": self.coupling,
+                                   "reason": self.reason}
+        return replace(result, report=RecoveryReport.from_json(data))
+
+
+def auto_intrinsics(sequence: Sequence, result) -> AutoDecision:
+    """Estimate the intrinsics only where the gyro shows them (:class:`IntrinsicsMode` ``AUTO``).
+
+    On the plain solve's clock offset and extrinsic, the gyro against a 6-DoF absolute pose stream
+    (:func:`recovery.gyro_consistency.rate_coupling`): a coupling of one axis to another axis's
+    rate in every excited band is a misalignment (or, with it, a scale error) and starts the loop;
+    none, or one below 0.2 Hz only (which no intrinsic term can absorb), does not. Position-only
+    and relative (VIO) streams do not pin the orientation down: nothing to check.
+    """
+    rep = result.report
+    stream = sequence.poses.get(str(rep.pose_stream)) if rep.pose_stream else None
+    if stream is None or stream.quat_wxyz is None or rep.get("pose_factor_mode") != PoseFactorMode.ABSOLUTE.value:
+        return AutoDecision(IntrinsicsMode.OFF, "not checked: the fitted pose stream is not a 6-DoF absolute one")
+    try:
+        coupling = rate_coupling(sequence.imu, stream, R_imu_pose=rep.T_imu_pose[:3, :3], offset_s=rep.time_offset_s)
+    except BiasgtError as exc:
+        return AutoDecision(IntrinsicsMode.OFF, f"not checked: {exc}")
+    kind = coupling.kind()
+    mode = IntrinsicsMode.WITH_G_SENSITIVITY if kind is CouplingKind.INTRINSIC else IntrinsicsMode.OFF
+    return AutoDecision(mode, coupling.sentence(), kind.value)
+
+
 def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
-                            block_s: float, max_rounds: int = 5):
+                            block_s: float, max_rounds: int = 5, first=None):
     """The alternating loop of the module docstring around ``solve`` (a full recovery).
+
+    Args:
+        first: ``solve(sequence)`` when the caller has it already.
 
     Returns:
         The last solve's :class:`recovery.recover.RecoveryResult`, its bias mapped back to the raw
@@ -453,7 +503,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     """
     assert sequence.imu is not None
     total = ImuIntrinsics.identity()  # the intrinsics removed from the readings ``result`` was solved on
-    result = solve(sequence)
+    result = solve(sequence) if first is None else first
     stream = sequence.poses.get(str(result.report.get("pose_stream")))
     if stream is not None and stream.quat_wxyz is None:
         return _not_estimated(result, str(result.report.get("pose_stream")))

@@ -516,15 +516,20 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
     """
     config = config or RecoveryConfig()
     try:
-        if config.intrinsics is not IntrinsicsMode.OFF and sequence.imu is not None:
-            from recovery.intrinsics import recover_with_intrinsics
+        if config.intrinsics is IntrinsicsMode.OFF or sequence.imu is None:
+            return _recover(sequence, pose_stream=pose_stream, config=replace(config, intrinsics=IntrinsicsMode.OFF))
+        from recovery.intrinsics import auto_intrinsics, recover_with_intrinsics
 
-            plain = replace(config, intrinsics=IntrinsicsMode.OFF)
-            return recover_with_intrinsics(
-                sequence, lambda seq: _recover(seq, pose_stream=pose_stream, config=plain),
-                g_sensitivity=config.intrinsics is IntrinsicsMode.WITH_G_SENSITIVITY,
-                block_s=config.intrinsics_block_s)
-        return _recover(sequence, pose_stream=pose_stream, config=config)
+        plain = replace(config, intrinsics=IntrinsicsMode.OFF)
+        first = _recover(sequence, pose_stream=pose_stream, config=plain)
+        decision = auto_intrinsics(sequence, first) if config.intrinsics is IntrinsicsMode.AUTO else None
+        if decision is not None and decision.mode is IntrinsicsMode.OFF:
+            return decision.annotate(first)
+        mode = config.intrinsics if decision is None else decision.mode
+        result = recover_with_intrinsics(
+            sequence, lambda seq: _recover(seq, pose_stream=pose_stream, config=plain),
+            g_sensitivity=mode is IntrinsicsMode.WITH_G_SENSITIVITY, block_s=config.intrinsics_block_s, first=first)
+        return result if decision is None else decision.annotate(result)
     except RuntimeError as exc:
         # GTSAM reports a singular (unobservable) problem as a bare RuntimeError.
         text = str(exc)

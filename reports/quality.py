@@ -26,7 +26,7 @@ import logging
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
@@ -694,7 +694,24 @@ def gyro_consistency_note(inp: ReportInputs) -> Html | None:
         coupling = rate_coupling(seq.imu, poses, R_imu_pose=rec.T_imu_pose[:3, :3], offset_s=rec.time_offset_s)
     except BiasgtError:
         return None
-    return p("Gyro against the pose stream's rotation, by frequency band: " + coupling.sentence(), class_="small")
+    return p("Gyro against the pose stream's rotation, by frequency band: " + coupling.sentence() + " "
+             + intrinsics_sentence(rec.data), class_="small")
+
+
+def intrinsics_sentence(rec: Mapping[str, Any]) -> str:
+    """What the recovery did about the IMU intrinsics (recovery.json ``intrinsics``, ``intrinsics_auto``)."""
+    est = rec.get("intrinsics")
+    if isinstance(est, Mapping) and "gyro_matrix" in est:
+        terms = {"gyro": np.asarray(est["gyro_matrix"], float) - np.eye(3),
+                 "accelerometer": np.asarray(est["acc_matrix"], float) - np.eye(3)}
+        largest = "; ".join(f"{name} largest scale/misalignment {m.flat[np.argmax(np.abs(m))]:+.4f}"
+                            for name, m in terms.items())
+        return (f"The recovery estimated the intrinsics ({est.get('rounds')} rounds; {largest}) and its bias is "
+                "free of them.")
+    auto = rec.get("intrinsics_auto")
+    if isinstance(auto, Mapping) and not auto.get("estimated"):
+        return "The recovery estimated no intrinsics (intrinsics: auto)."
+    return "The recovery estimated no intrinsics (intrinsics: off)."
 
 
 def _calibration_uncertainty_note(rec: dict[str, Any] | None) -> Html | None:

@@ -224,3 +224,26 @@ def test_position_only_stream_estimates_no_intrinsics(drone):
     assert res.report["intrinsics"]["method"] == "not estimated"
     np.testing.assert_array_equal(res.report["intrinsics"]["gyro_matrix"], np.eye(3))
     assert any("IMU intrinsics not estimated" in w and name in w for w in res.warnings)
+
+
+def test_auto_estimates_only_where_the_gyro_shows_an_intrinsic_error(drone):
+    """The default (AUTO): the clean drone's recovery is the plain one, with the decision recorded; a
+    gyro with a 1 % scale and a 0.5-deg misalignment starts the loop (and gives what asking for it gives)."""
+    assert RecoveryConfig().intrinsics is IntrinsicsMode.AUTO
+    off = recover(drone.sequence, config=RecoveryConfig(intrinsics=IntrinsicsMode.OFF))
+    auto = recover(drone.sequence)
+    assert auto.report["intrinsics_auto"]["estimated"] is False
+    assert auto.report["intrinsics_auto"]["coupling"] == "none"
+    assert "intrinsics" not in auto.report
+    np.testing.assert_array_equal(auto.bias_gyro_radps, off.bias_gyro_radps)
+    M_g, _, _ = truth_intrinsics()
+    bad = with_intrinsics(drone, M_g, np.eye(3), np.zeros((3, 3)))
+    auto = recover(bad)
+    assert auto.report["intrinsics_auto"]["estimated"] is True
+    assert auto.report["intrinsics_auto"]["coupling"] == "intrinsic"
+    np.testing.assert_allclose(np.array(auto.report["intrinsics"]["gyro_matrix"]), M_g, atol=1e-3)
+    # position-only streams are not checked (their orientation is the gyro's own)
+    pos = dataclasses.replace(drone.sequence, poses={k: PoseSeries(v.t_ns, v.p_m, None, v.frame,
+                                                                   PoseSourceKind.POSITION_TRACKER)
+                                                     for k, v in bad.poses.items()})
+    assert "not checked" in recover(pos).report["intrinsics_auto"]["reason"]
