@@ -172,10 +172,11 @@ def v1_01_reference() -> None:
     for stream, label in (("V1_01_easy_original", "EuRoC ground truth"), ("V1_01_easy", "OpenVINS")):
         rc = rate_coupling(seq.imu, seq.poses[stream])
         b, r, c = rc.strongest()
-        bands = ", ".join(f"{lo:g}-{hi:g} Hz {g:+.4f} ({h:.2f})" for (lo, hi), g, h in
-                          zip(rc.bands_hz, rc.gain[:, r, c], rc.coherence[:, r, c]))
-        print(f"V1_01 vs {label}: strongest coupling gyro {'xyz'[r]} <- rate {'xyz'[c]}; gain (coherence) by band: "
-              f"{bands}")
+        bands = ", ".join(f"{lo:g}-{hi:g} Hz {g:+.4f} ({h:.2f}, {n:.2f} needed)" for (lo, hi), g, h, n in
+                          zip(rc.bands_hz, rc.gain[:, r, c], rc.coherence[:, r], rc.coherence_needed))
+        print(f"V1_01 vs {label}: {rc.kind().value} coupling; gyro {'xyz'[r]} <- rate {'xyz'[c]}, gain (coherence of "
+              f"gyro {'xyz'[r]}) by band: {bands}")
+        print(f"  {rc.sentence()}")
         res = _recovered_walk(seq, stream)
         rate = np.stack([np.interp(res.t_ns, seq.imu.t_ns, seq.imu.gyro_radps[:, k]) for k in range(3)], axis=1)
         X = np.c_[rate, np.ones(len(rate))]

@@ -109,9 +109,10 @@ class RateCoupling:
         coherence: Multiple coherence of each axis of ``d`` with the rate over each band [n, 3]:
             the share of its power the rate explains (0-1).
         coherence_needed: Per band [n], the coherence an element's row needs to count: at least
-            ``COUPLING_MIN_COHERENCE``, and above chance for the band's number of averages (the
-            multiple coherence of three unrelated inputs follows Beta(3, n - 3); a lowest band of
-            two frequency bins in five segments reaches 0.69 by chance in 5 % of recordings).
+            ``COUPLING_MIN_COHERENCE``, and above chance for the band's number of independent
+            averages ``n`` (bins times non-overlapping segments; the multiple coherence of three
+            unrelated inputs follows Beta(3, n - 3)). The lowest band of a two-minute recording
+            rarely counts: slow signals are few cycles long.
     """
 
     bands_hz: np.ndarray
@@ -166,9 +167,10 @@ class RateCoupling:
         row = ", ".join(f"{g:+.4f}" for g in self.gain[b, r])
         where = f"at {lo:g}-{hi:g} Hz the gyro {'xyz'[r]} reads ({row}) of the rate about (x, y, z)"
         if kind is CouplingKind.NONE:
-            return (f"The gyro follows the pose stream's rotation: no share of the rate counts in two bands "
-                    f"(most coherent: {where}, coherence {self.coherence[b, r]:.2f}, "
-                    f"{self.coherence_needed[b]:.2f} needed).")
+            need = (f"{self.coherence_needed[b]:.2f} needed" if self.coherence_needed[b] < 1.0
+                    else "too few independent averages in that band to tell it from chance")
+            return (f"The gyro follows the pose stream's rotation: no share of the rate counts (most coherent: "
+                    f"{where}, coherence {self.coherence[b, r]:.2f}; {need}).")
         if kind is CouplingKind.INTRINSIC:
             return (f"Against this pose stream {where} (coherence {self.coherence[b, r]:.2f}), the "
                     f"{'xyz'[c]} term alike in every band where it counts up to {self.bands_hz[-1, 1]:g} Hz: a "
@@ -177,9 +179,9 @@ class RateCoupling:
         fast = self.bands_hz[:, 0] >= FAST_BAND_HZ
         return (f"Against this pose stream {where} (coherence {self.coherence[b, r]:.2f}), but the {'xyz'[c]} "
                 f"term reaches at most {np.max(np.abs(self.gain[fast, r, c])):.4f} from {FAST_BAND_HZ:g} Hz up: "
-                "not an IMU scale or misalignment (those read the same in every band) but a slow process, such as "
-                "an attitude error of the reference that follows the rotation. The bias absorbs it (its random "
-                "walk rises) and no intrinsic term can.")
+                "not an IMU scale or misalignment (those read the same in every band) but a slow process that "
+                "follows the rotation: a bias that changes with it, or an attitude error of the reference. The "
+                "bias absorbs it (its random walk rises) and no intrinsic term can.")
 
 
 def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None = None, offset_s: float = 0.0,
@@ -215,13 +217,14 @@ def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | No
     gain = np.zeros((len(bands), 3, 3))
     coh = np.zeros((len(bands), 3))
     needed = np.ones(len(bands))
-    segments = 1 + (len(x) - nper) // (nper // 2)  # scipy's default overlap: half a segment
+    segments = len(x) // nper  # independent ones: Welch's half-overlapping segments are correlated
     for b, (lo, hi) in enumerate(bands):
         sel = (f > lo) & (f <= hi)
         if not sel.any():
             continue
         averages = int(sel.sum()) * segments
-        needed[b] = max(COUPLING_MIN_COHERENCE, float(beta.ppf(1.0 - COUPLING_CHANCE, 3, max(averages - 3, 1))))
+        needed[b] = (max(COUPLING_MIN_COHERENCE, float(beta.ppf(1.0 - COUPLING_CHANCE, 3, averages - 3)))
+                     if averages > 3 else 1.0)
         Sb = S[sel].sum(0)
         S_ww, S_wd, S_dd = Sb[:3, :3], Sb[:3, 3:], np.real(np.diag(Sb[3:, 3:]))
         Ht = np.linalg.solve(S_ww, S_wd)  # [rate, d]
