@@ -529,6 +529,7 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         result = recover_with_intrinsics(
             sequence, lambda seq: _recover(seq, pose_stream=pose_stream, config=plain),
             g_sensitivity=mode is IntrinsicsMode.WITH_G_SENSITIVITY, block_s=config.intrinsics_block_s, first=first)
+        result = _record_intrinsics_mode(result, mode)
         return result if decision is None else decision.annotate(result)
     except RuntimeError as exc:
         # GTSAM reports a singular (unobservable) problem as a bare RuntimeError.
@@ -543,6 +544,15 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
                  "more varied motion (rotation about several axes), or fix the extrinsic (--extrinsic known) "
                  "and the clock offset (--time-offset-s)",
         ) from exc
+
+
+def _record_intrinsics_mode(result: RecoveryResult, mode: IntrinsicsMode) -> RecoveryResult:
+    """``result`` with ``recovery.json`` ``config.intrinsics`` the mode the intrinsics were estimated
+    with (its solves ran with them off: the loop corrects the readings itself), so that a
+    re-recovery from that config (cross-validation) estimates them too."""
+    data = dict(result.report.data)
+    data["config"] = {**dict(data.get("config") or {}), "intrinsics": mode.value}
+    return replace(result, report=RecoveryReport.from_json(data))
 
 
 @dataclass(frozen=True)

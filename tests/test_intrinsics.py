@@ -234,13 +234,14 @@ def test_auto_estimates_only_where_the_gyro_shows_an_intrinsic_error(drone):
     auto = recover(drone.sequence)
     assert auto.report["intrinsics_auto"]["estimated"] is False
     assert auto.report["intrinsics_auto"]["coupling"] == "none"
-    assert "intrinsics" not in auto.report
+    assert "intrinsics" not in auto.report and auto.report["config"]["intrinsics"] == "off"
     np.testing.assert_array_equal(auto.bias_gyro_radps, off.bias_gyro_radps)
     M_g, _, _ = truth_intrinsics()
     bad = with_intrinsics(drone, M_g, np.eye(3), np.zeros((3, 3)))
     auto = recover(bad)
     assert auto.report["intrinsics_auto"]["estimated"] is True
     assert auto.report["intrinsics_auto"]["coupling"] == "intrinsic"
+    assert auto.report["config"]["intrinsics"] == "with_g_sensitivity"  # what a re-recovery (crossval) runs
     np.testing.assert_allclose(np.array(auto.report["intrinsics"]["gyro_matrix"]), M_g, atol=1e-3)
     # position-only streams are not checked (their orientation is the gyro's own)
     pos = dataclasses.replace(drone.sequence, poses={k: PoseSeries(v.t_ns, v.p_m, None, v.frame,
