@@ -98,7 +98,7 @@ class IntrinsicsMode(str, enum.Enum):
     AUTO: WITH_G_SENSITIVITY when the plain solve's gyro reads a share of the rate in every
         frequency band against a 6-DoF absolute pose stream (an intrinsic error:
         :func:`recovery.gyro_consistency.rate_coupling`, on the solved offset and extrinsic),
-        else OFF. The check costs ~3 % of a recovery; each round of the loop a full solve.
+        else OFF. The check costs < 1 % of a recovery; each round of the loop a full solve.
     OFF: none (readings taken as they are; the bias absorbs scale and misalignment errors).
     SCALE_MISALIGNMENT: gyro and accelerometer scale and misalignment.
     WITH_G_SENSITIVITY: those and the gyro's g-sensitivity.

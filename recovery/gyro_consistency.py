@@ -26,7 +26,7 @@ import numpy as np
 from scipy.optimize import minimize
 from scipy.signal import csd
 from scipy.stats import beta
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
@@ -37,14 +37,24 @@ MIN_SEGMENT_S = 20.0
 DEFAULT_BANDS_HZ = ((0.0, 0.05), (0.05, 0.2), (0.2, 1.0), (1.0, 3.0))
 
 
-def _reference_slerp(poses: PoseSeries, R_imu_pose: np.ndarray, offset_s: float) -> tuple[Slerp, np.ndarray]:
-    """Slerp of the IMU's orientation as the reference has it, on the IMU clock, and its span [2] (ns)."""
-    if poses.quat_wxyz is None:
-        raise RecoveryError("the gyro consistency check needs orientations; this pose stream has positions only",
-                            hint="give a 6-DoF pose stream")
-    t = poses.t_ns.astype(float) + offset_s * NS_PER_S
-    R_world_imu = Rotation.from_quat(poses.quat_wxyz[:, [1, 2, 3, 0]]) * Rotation.from_matrix(R_imu_pose).inv()
-    return Slerp(t, R_world_imu), np.array([t[0], t[-1]])
+class _Reference:
+    """The pose stream's orientations on the IMU clock, interpolated where asked (slerp between the
+    two samples around each stamp: only where needed, not a scipy ``Slerp`` over every sample)."""
+
+    def __init__(self, poses: PoseSeries, offset_s: float) -> None:
+        if poses.quat_wxyz is None:
+            raise RecoveryError("the gyro consistency check needs orientations; this pose stream has positions "
+                                "only", hint="give a 6-DoF pose stream")
+        self.t = poses.t_ns.astype(float) + offset_s * NS_PER_S
+        self.quat_xyzw = poses.quat_wxyz[:, [1, 2, 3, 0]]
+        self.span = (self.t[0], self.t[-1])
+
+    def at(self, t: np.ndarray) -> Rotation:
+        """``R_world_pose`` at ``t`` (ns, inside the span)."""
+        i = np.clip(np.searchsorted(self.t, t, side="right"), 1, len(self.t) - 1)
+        R0, R1 = Rotation.from_quat(self.quat_xyzw[i - 1]), Rotation.from_quat(self.quat_xyzw[i])
+        tau = (t - self.t[i - 1]) / (self.t[i] - self.t[i - 1])
+        return R0 * Rotation.from_rotvec((R0.inv() * R1).as_rotvec() * tau[:, None])
 
 
 def block_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None = None, offset_s: float = 0.0,
@@ -59,9 +69,9 @@ def block_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None
         ``omega_gyro_radps`` [M, 3], ``omega_ref_radps`` [M, 3] (IMU frame), the block rate in Hz.
     """
     R = np.eye(3) if R_imu_pose is None else np.asarray(R_imu_pose, dtype=float)
-    slerp, span = _reference_slerp(poses, R, offset_s)
+    reference = _Reference(poses, offset_s)
     t = imu.t_ns.astype(float)
-    inside = np.nonzero((t >= span[0]) & (t <= span[1]))[0]
+    inside = np.nonzero((t >= reference.span[0]) & (t <= reference.span[1]))[0]
     edges = inside[::step]
     if len(edges) < 3:
         raise RecoveryError("the IMU and the reference pose stream do not overlap in time")
@@ -70,8 +80,9 @@ def block_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None
                                                      axis=0)])
     duration_s = np.diff(t[edges]) / NS_PER_S
     gyro = np.diff(area[edges], axis=0) / duration_s[:, None]
-    ends = slerp(t[edges])
-    ref = (ends[:-1].inv() * ends[1:]).as_rotvec() / duration_s[:, None]
+    ends = reference.at(t[edges])
+    # the IMU's rotation is R_imu_pose dP R_imu_pose^T: its rotation vector R_imu_pose times dP's
+    ref = (ends[:-1].inv() * ends[1:]).as_rotvec() @ R.T / duration_s[:, None]
     return gyro, ref, float(1.0 / np.median(duration_s))
 
 
@@ -167,7 +178,7 @@ class RateCoupling:
         row = ", ".join(f"{g:+.4f}" for g in self.gain[b, r])
         where = f"at {lo:g}-{hi:g} Hz the gyro {'xyz'[r]} reads ({row}) of the rate about (x, y, z)"
         if kind is CouplingKind.NONE:
-            need = (f"{self.coherence_needed[b]:.2f} needed" if self.coherence_needed[b] < 1.0
+            need = (f"{self.coherence_needed[b]:.2f} needed" if self.coherence_needed[b] < 0.995
                     else "too few independent averages in that band to tell it from chance")
             return (f"The gyro follows the pose stream's rotation: no share of the rate counts (most coherent: "
                     f"{where}, coherence {self.coherence[b, r]:.2f}; {need}).")
@@ -240,10 +251,10 @@ def attitude_increments(imu: ImuSeries, poses: PoseSeries, interval_s: float = 0
     ``dR_gyro`` integrates the gyro (the mean of consecutive samples over each step); ``dR_ref`` is the reference's rotation
     over the same stamps. Their sum over time is the attitude the gyro loses against the reference.
     """
-    R = np.eye(3) if R_imu_pose is None else np.asarray(R_imu_pose, dtype=float)
-    slerp, span = _reference_slerp(poses, R, offset_s)
+    E = Rotation.from_matrix(np.eye(3) if R_imu_pose is None else np.asarray(R_imu_pose, dtype=float))
+    reference = _Reference(poses, offset_s)
     t = imu.t_ns.astype(float)
-    inside = np.nonzero((t >= span[0]) & (t <= span[1]))[0]
+    inside = np.nonzero((t >= reference.span[0]) & (t <= reference.span[1]))[0]
     dt_s = np.diff(t) / NS_PER_S
     step = max(1, int(round(interval_s / float(np.median(dt_s)))))
     starts = inside[: (len(inside) - 2) // step * step : step]
@@ -253,7 +264,7 @@ def attitude_increments(imu: ImuSeries, poses: PoseSeries, interval_s: float = 0
     for s in range(step):
         i = starts + s
         dR = dR * Rotation.from_rotvec(0.5 * (imu.gyro_radps[i] + imu.gyro_radps[i + 1]) * dt_s[i, None])
-    ref = slerp(t[starts]).inv() * slerp(t[starts + step])
+    ref = E * reference.at(t[starts]).inv() * reference.at(t[starts + step]) * E.inv()  # in the IMU frame
     return (ref.inv() * dR).as_rotvec()
 
 
