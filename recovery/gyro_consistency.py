@@ -53,7 +53,8 @@ class _Reference:
         """``R_world_pose`` at ``t`` (ns, inside the span)."""
         i = np.clip(np.searchsorted(self.t, t, side="right"), 1, len(self.t) - 1)
         R0, R1 = Rotation.from_quat(self.quat_xyzw[i - 1]), Rotation.from_quat(self.quat_xyzw[i])
-        tau = (t - self.t[i - 1]) / (self.t[i] - self.t[i - 1])
+        # side="right": t[i - 1] <= t < t[i], except at the last stamp (a repeated one there: no 0 / 0)
+        tau = (t - self.t[i - 1]) / np.maximum(self.t[i] - self.t[i - 1], 1.0)
         return R0 * Rotation.from_rotvec((R0.inv() * R1).as_rotvec() * tau[:, None])
 
 

@@ -137,6 +137,10 @@ def test_increments_vanish_for_a_consistent_gyro_and_errors_are_clear():
     imu, poses = _rotation_sequence(np.zeros((3, 3)), None)
     inc = attitude_increments(imu, poses, interval_s=0.1)
     assert np.abs(inc).max() < 1e-5
+    # a repeated pose stamp (a stream not cleaned by ingest) gives finite rates, not a division by zero
+    t = poses.t_ns.copy()
+    t[100] = t[99]
+    assert np.all(np.isfinite(rate_coupling(imu, replace(poses, t_ns=t)).gain))
     with pytest.raises(RecoveryError, match="positions only"):
         rate_coupling(imu, PoseSeries(poses.t_ns, poses.p_m, None, "prism", PoseSourceKind.POSITION_TRACKER))
     short = PoseSeries(poses.t_ns[:2000], poses.p_m[:2000], poses.quat_wxyz[:2000], "body", PoseSourceKind.GROUND_TRUTH)
