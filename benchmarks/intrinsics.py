@@ -122,18 +122,31 @@ def simulated(duration_s: float, preset: str, seed: int = 0) -> None:
                   f"{abs(e - t) / s:.1f} sigma, {100 * abs(e - t) / abs(t):.1f} % of its size")
 
 
-def v1_01() -> None:
-    root = SHARED / "euroc" / "V1_01_easy"
-    if not root.is_dir():
-        print(f"V1_01: skipped ({root} not found)")
-        return
+V1_01 = SHARED / "euroc" / "V1_01_easy"
+
+
+def load_v1_01():
+    """V1_01's IMU (and its sensor.yaml calibration) with EuRoC's ground-truth poses (stream
+    ``V1_01_easy_original``) and OpenVINS's re-estimated ones (``V1_01_easy``); None without the data."""
+    if not V1_01.is_dir():
+        print(f"V1_01: skipped ({V1_01} not found)")
+        return None
     from pipeline.io import load_sequence
 
-    seq = load_sequence(root, extra_poses=[f"{root / 'ov_data' / 'V1_01_easy_original.txt'}:ground_truth"])
+    return load_sequence(V1_01, extra_poses=[f"{V1_01 / 'ov_data' / 'V1_01_easy_original.txt'}:ground_truth",
+                                             f"{V1_01 / 'ov_data' / 'V1_01_easy.csv'}:ground_truth"])
+
+
+def _rate_at(res, imu) -> np.ndarray:
+    """The gyro's rate at the recovery's keyframes, [K, 3]."""
+    return np.stack([np.interp(res.t_ns, imu.t_ns, imu.gyro_radps[:, c]) for c in range(3)], axis=1)
+
+
+def v1_01(seq) -> None:
     for mode in (IntrinsicsMode.OFF, IntrinsicsMode.WITH_G_SENSITIVITY):
         t0 = time.perf_counter()
         res = recover(seq, pose_stream="V1_01_easy_original", config=RecoveryConfig(intrinsics=mode))
-        rate = np.stack([np.interp(res.t_ns, seq.imu.t_ns, seq.imu.gyro_radps[:, c]) for c in range(3)], axis=1)
+        rate = _rate_at(res, seq.imu)
         # every axis of the bias against every axis of the rate: a misalignment shows off the diagonal
         corr = np.array([[np.corrcoef(res.bias_gyro_radps[:, r], rate[:, c])[0, 1] for c in range(3)]
                          for r in range(3)])
@@ -157,18 +170,10 @@ def _recovered_walk(seq, stream: str, gyro_radps: np.ndarray | None = None):
     return recover(seq, pose_stream=stream, config=RecoveryConfig(intrinsics=IntrinsicsMode.OFF))
 
 
-def v1_01_reference() -> None:
-    root = SHARED / "euroc" / "V1_01_easy"
-    if not root.is_dir():
-        print(f"V1_01 reference: skipped ({root} not found)")
-        return
-    from pipeline.io import load_sequence
+def v1_01_reference(seq) -> None:
     from recovery.gyro_consistency import attitude_increments, fit_walk, rate_coupling
 
-    seq = load_sequence(root, extra_poses=[f"{root / 'ov_data' / 'V1_01_easy_original.txt'}:ground_truth",
-                                           f"{root / 'ov_data' / 'V1_01_easy.csv'}:ground_truth"])
-    yaml = (root / "mav0" / "imu0" / "sensor.yaml").read_text()
-    sheet = {k: float(yaml.split(k + ":")[1].split()[0]) for k in ("gyroscope_noise_density", "gyroscope_random_walk")}
+    cal = seq.calibration  # sensor.yaml's datasheet values
     for stream, label in (("V1_01_easy_original", "EuRoC ground truth"), ("V1_01_easy", "OpenVINS")):
         rc = rate_coupling(seq.imu, seq.poses[stream])
         b, r, c = rc.strongest()
@@ -178,7 +183,7 @@ def v1_01_reference() -> None:
               f"gyro {'xyz'[r]}) by band: {bands}")
         print(f"  {rc.sentence()}")
         res = _recovered_walk(seq, stream)
-        rate = np.stack([np.interp(res.t_ns, seq.imu.t_ns, seq.imu.gyro_radps[:, k]) for k in range(3)], axis=1)
+        rate = _rate_at(res, seq.imu)
         X = np.c_[rate, np.ones(len(rate))]
         S = np.linalg.lstsq(X, res.bias_gyro_radps, rcond=None)[0][:3].T  # bias = S omega + b0
         fixed = _recovered_walk(seq, stream, seq.imu.gyro_radps - seq.imu.gyro_radps @ S.T)
@@ -187,13 +192,13 @@ def v1_01_reference() -> None:
               f"{fixed.report['noise']['gyro_random_walk_scale']:.3g}x (an intrinsic error would have dropped)")
         inc = attitude_increments(seq.imu, seq.poses[stream], interval_s=0.1)
         for axis in range(3):
-            white = fit_walk(inc[:, axis], 0.1, sheet["gyroscope_noise_density"])
-            gm = fit_walk(inc[:, axis], 0.1, sheet["gyroscope_noise_density"], gauss_markov=True)
+            white = fit_walk(inc[:, axis], 0.1, cal.gyro_noise_density)
+            gm = fit_walk(inc[:, axis], 0.1, cal.gyro_noise_density, gauss_markov=True)
             gm_text = (f"{1e3 * gm.gm_sigma_rad:.2f} mrad, tau {gm.gm_tau_s:.2f} s" if gm.gm_sigma_rad > 1e-5
                        else "fitted to zero")
-            print(f"  axis {'xyz'[axis]}: maximum-likelihood walk {white.random_walk / sheet['gyroscope_random_walk']:.0f}x "
+            print(f"  axis {'xyz'[axis]}: maximum-likelihood walk {white.random_walk / cal.gyro_random_walk:.0f}x "
                   f"the datasheet (white reference error {1e3 * white.white_rad:.3f} mrad); with a Gauss-Markov "
-                  f"reference error {gm.random_walk / sheet['gyroscope_random_walk']:.0f}x ({gm_text}; log-likelihood "
+                  f"reference error {gm.random_walk / cal.gyro_random_walk:.0f}x ({gm_text}; log-likelihood "
                   f"{gm.log_likelihood - white.log_likelihood:+.1f})")
 
 
@@ -208,9 +213,10 @@ def main() -> None:
     if not args.skip_sim:
         for seed in args.seeds:
             simulated(args.duration, args.preset, seed)
-    if not args.skip_real:
-        v1_01()
-        v1_01_reference()
+    seq = None if args.skip_real else load_v1_01()
+    if seq is not None:
+        v1_01(seq)
+        v1_01_reference(seq)
 
 
 if __name__ == "__main__":

@@ -216,7 +216,12 @@ def _correlate_valid(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     return full[: n - m + 1]
 
 
-def _rotations(poses: PoseSeries) -> Rotation:
+def pose_rotations(poses: PoseSeries) -> Rotation:
+    """The stream's orientations ``R_world_<frame>`` [N].
+
+    Raises:
+        DataError: the stream has no orientation, or a zero or non-finite quaternion.
+    """
     if poses.quat_wxyz is None:
         raise DataError(f"{_pose_name(poses)} has no orientation", field="quat_wxyz",
                         hint="this estimate needs a 6-DoF pose stream (mocap, VIO or ground truth)")
@@ -228,7 +233,7 @@ def _rotations(poses: PoseSeries) -> Rotation:
     return Rotation.from_quat(q, scalar_first=True)
 
 
-def _gyro_integral(imu: ImuSeries, t_ref_ns: int) -> tuple[np.ndarray, np.ndarray]:
+def gyro_integral(imu: ImuSeries, t_ref_ns: int) -> tuple[np.ndarray, np.ndarray]:
     """Times [N] (s, relative to t_ref_ns) and the cumulative gyro integral [N, 3] (rad)."""
     t_s = (imu.t_ns - t_ref_ns) / NS_PER_S
     return t_s, _cumtrapz(imu.gyro_radps, t_s, axis=0, initial=0.0)
@@ -293,7 +298,7 @@ def pose_angular_rates(poses: PoseSeries, *, smooth_s: float = 0.0) -> tuple[np.
     Raises:
         DataError: No orientation, fewer than 3 poses, or non-increasing stamps.
     """
-    rot = _rotations(poses)
+    rot = pose_rotations(poses)
     _check_increasing(poses.t_ns, _pose_name(poses))
     dt_s = np.diff(poses.t_ns) / NS_PER_S
     omega = (rot[:-1].inv() * rot[1:]).as_rotvec() / dt_s[:, None]
@@ -346,9 +351,9 @@ def _kabsch_cost(X: np.ndarray, Y: np.ndarray) -> float:
 def _rotation_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, resample_hz: float | None,
                      min_correlation: float, window_s: float = 0.05) -> TimeOffsetEstimate:
     t_ref = int(imu.t_ns[0])
-    t_imu_s, G = _gyro_integral(imu, t_ref)
+    t_imu_s, G = gyro_integral(imu, t_ref)
     t_pose_s = (poses.t_ns - t_ref) / NS_PER_S
-    rot = _rotations(poses)
+    rot = pose_rotations(poses)
     dt_p = np.diff(t_pose_s)
     rv = (rot[:-1].inv() * rot[1:]).as_rotvec()
     x_native = np.linalg.norm(rv / dt_p[:, None], axis=1)
@@ -528,12 +533,12 @@ def estimate_time_offset(
 def _interval_increments(imu: ImuSeries, poses: PoseSeries, offset_s: float):
     """Per pose interval inside the overlap: pose rotation vector increment [M, 3] (tracked
     frame), gyro integral increment [M, 3] (IMU frame, bias included) and duration [M] (s)."""
-    rot = _rotations(poses)
+    rot = pose_rotations(poses)
     _check_increasing(imu.t_ns, "imu")
     _check_increasing(poses.t_ns, _pose_name(poses))
     a_ns, b_ns = _overlap(imu, poses, offset_s, 0.0)
     t_ref = int(imu.t_ns[0])
-    t_imu_s, G = _gyro_integral(imu, t_ref)
+    t_imu_s, G = gyro_integral(imu, t_ref)
     t_pose_s = (poses.t_ns - t_ref) / NS_PER_S + offset_s
     inside = (t_pose_s >= (a_ns - t_ref) / NS_PER_S) & (t_pose_s <= (b_ns - t_ref) / NS_PER_S)
     i = np.flatnonzero(inside)
@@ -627,7 +632,7 @@ def estimate_extrinsic_rotation(
 def _imu_rotations(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_imu_pose: np.ndarray,
                    t_s: np.ndarray, t_ref: int) -> np.ndarray:
     """R_world_imu [N, 3, 3] at IMU-clock times t_s (relative to t_ref), by Slerp of the poses."""
-    rot = _rotations(poses)
+    rot = pose_rotations(poses)
     tp = (poses.t_ns - t_ref) / NS_PER_S + offset_s
     R_wp = Slerp(tp, rot)(np.clip(t_s, tp[0], tp[-1])).as_matrix()
     return R_wp @ np.asarray(R_imu_pose, float).T
@@ -677,7 +682,7 @@ def _acc_lstsq(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_imu_pose: n
     y = d2(p[k0], p[km], p[k1]) - d2(*(_interp_cols(t, ti, AA_f) for t in (t0, tm, t1)))  # [M, 3]
     J_b = -d2(*(_interp_cols(t, ti, AA_R) for t in (t0, tm, t1)))  # [M, 3, 3]
     J_g = d2(0.5 * (t0 - tm) ** 2, np.zeros_like(tm), 0.5 * (t1 - tm) ** 2)  # [M]
-    R_wi_p = _rotations(poses).as_matrix() @ R_ip.T
+    R_wi_p = pose_rotations(poses).as_matrix() @ R_ip.T
     J_r = d2(R_wi_p[k0], R_wi_p[km], R_wi_p[k1])  # [M, 3, 3]
     n_r = 3
     if p_imu_pose_m is not None:

@@ -30,6 +30,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
+from recovery.calibration_init import gyro_integral, pose_rotations
 
 # Shortest Welch segment of :func:`rate_coupling`: its lowest band needs a frequency bin or two.
 MIN_SEGMENT_S = 20.0
@@ -46,13 +47,13 @@ class _Reference:
             raise RecoveryError("the gyro consistency check needs orientations; this pose stream has positions "
                                 "only", hint="give a 6-DoF pose stream")
         self.t = poses.t_ns.astype(float) + offset_s * NS_PER_S
-        self.quat_xyzw = poses.quat_wxyz[:, [1, 2, 3, 0]]
+        self.rot = pose_rotations(poses)
         self.span = (self.t[0], self.t[-1])
 
     def at(self, t: np.ndarray) -> Rotation:
         """``R_world_pose`` at ``t`` (ns, inside the span)."""
         i = np.clip(np.searchsorted(self.t, t, side="right"), 1, len(self.t) - 1)
-        R0, R1 = Rotation.from_quat(self.quat_xyzw[i - 1]), Rotation.from_quat(self.quat_xyzw[i])
+        R0, R1 = self.rot[i - 1], self.rot[i]
         # side="right": t[i - 1] <= t < t[i], except at the last stamp (a repeated one there: no 0 / 0)
         tau = (t - self.t[i - 1]) / np.maximum(self.t[i] - self.t[i - 1], 1.0)
         return R0 * Rotation.from_rotvec((R0.inv() * R1).as_rotvec() * tau[:, None])
@@ -76,9 +77,7 @@ def block_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None
     edges = inside[::step]
     if len(edges) < 3:
         raise RecoveryError("the IMU and the reference pose stream do not overlap in time")
-    dt_s = np.diff(t) / NS_PER_S
-    area = np.concatenate([np.zeros((1, 3)), np.cumsum(0.5 * (imu.gyro_radps[:-1] + imu.gyro_radps[1:]) * dt_s[:, None],
-                                                     axis=0)])
+    _, area = gyro_integral(imu, int(imu.t_ns[0]))  # trapezoid: the mean of consecutive samples per step
     duration_s = np.diff(t[edges]) / NS_PER_S
     gyro = np.diff(area[edges], axis=0) / duration_s[:, None]
     ends = reference.at(t[edges])
@@ -88,8 +87,8 @@ def block_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None
 
 
 # An element of the transfer counts in a band where the multiple coherence of its row reaches this
-# (or the level that three unrelated inputs reach by chance in 1 % of cases with the band's
-# averages, if higher) and its gain this much.
+# (or the level that three unrelated inputs reach by chance in COUPLING_CHANCE of cases with the
+# band's independent averages, if higher) and its gain this much.
 COUPLING_MIN_COHERENCE = 0.5
 COUPLING_CHANCE = 0.001
 COUPLING_MIN_GAIN = 2e-3
@@ -202,9 +201,9 @@ def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | No
     """:class:`RateCoupling` of ``d = gyro - omega_ref`` against the gyro's rate.
 
     Welch cross-spectra over ``segment_s`` segments (at most half the recording, at least
-    ``MIN_SEGMENT_S``: their resolution must resolve the lowest band), summed over each band; per band ``H^T = S_ww^-1 S_wd`` (the
-    three rate axes as joint inputs). The bands stop at 3 Hz: above, the reference's rate (its
-    orientations interpolated) no longer follows the gyro's.
+    ``MIN_SEGMENT_S``: their resolution must resolve the lowest band), summed over each band;
+    per band ``H^T = S_ww^-1 S_wd`` (the three rate axes as joint inputs). The bands stop at 3 Hz:
+    above, the reference's rate (its orientations interpolated) no longer follows the gyro's.
 
     Raises:
         RecoveryError: if the overlap is shorter than two segments or the stream has no orientation.
@@ -249,8 +248,9 @@ def attitude_increments(imu: ImuSeries, poses: PoseSeries, interval_s: float = 0
                         offset_s: float = 0.0) -> np.ndarray:
     """``Log(dR_ref^T dR_gyro)`` over consecutive ``interval_s`` blocks of IMU samples [M, 3] (rad).
 
-    ``dR_gyro`` integrates the gyro (the mean of consecutive samples over each step); ``dR_ref`` is the reference's rotation
-    over the same stamps. Their sum over time is the attitude the gyro loses against the reference.
+    ``dR_gyro`` integrates the gyro (the mean of consecutive samples over each step); ``dR_ref`` is
+    the reference's rotation over the same stamps. Their sum over time is the attitude the gyro
+    loses against the reference.
     """
     E = Rotation.from_matrix(np.eye(3) if R_imu_pose is None else np.asarray(R_imu_pose, dtype=float))
     reference = _Reference(poses, offset_s)

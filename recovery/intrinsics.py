@@ -94,6 +94,13 @@ class ImuIntrinsics:
         gyro = np.linalg.solve(self.gyro_matrix, (imu.gyro_radps - f @ self.gyro_g_sensitivity.T).T).T
         return replace(imu, gyro_radps=gyro, acc_mps2=acc)
 
+    def deviations(self) -> dict[str, np.ndarray]:
+        """Per group (as :class:`IntrinsicsFit`'s), the 3x3 terms: ``M - I`` for the scale and
+        misalignment groups, ``G`` for the g-sensitivity."""
+        return {"gyro_scale_misalignment": self.gyro_matrix - np.eye(3),
+                "acc_scale_misalignment": self.acc_matrix - np.eye(3),
+                "gyro_g_sensitivity": np.array(self.gyro_g_sensitivity, dtype=float)}
+
     def compose(self, step: "ImuIntrinsics") -> "ImuIntrinsics":
         """The intrinsics of raw readings when ``step`` was fitted on readings corrected by ``self``."""
         return ImuIntrinsics(self.gyro_matrix @ step.gyro_matrix, self.acc_matrix @ step.acc_matrix,
@@ -126,9 +133,7 @@ class IntrinsicsFit:
 
     def moved(self, n_sigma: float = 3.0) -> bool:
         """Whether the step changes any observable term by more than ``n_sigma`` of its sigmas."""
-        deltas = {"gyro_scale_misalignment": self.step.gyro_matrix - np.eye(3),
-                  "acc_scale_misalignment": self.step.acc_matrix - np.eye(3),
-                  "gyro_g_sensitivity": self.step.gyro_g_sensitivity}
+        deltas = self.step.deviations()
         return any(np.any(np.abs(deltas[k][self.observable[k]]) > n_sigma * self.sigma[k][self.observable[k]])
                    for k in self.sigma)
 
@@ -430,9 +435,7 @@ def drop_insignificant(total: ImuIntrinsics, fit: IntrinsicsFit, present: dict[s
     Returns:
         The intrinsics, ``present`` without the dropped terms, and their names.
     """
-    values = {"gyro_scale_misalignment": total.gyro_matrix - np.eye(3),
-              "acc_scale_misalignment": total.acc_matrix - np.eye(3),
-              "gyro_g_sensitivity": np.array(total.gyro_g_sensitivity, dtype=float)}
+    values = total.deviations()
     keep, dropped = dict(present), []
     for name in fit.sigma:
         was = np.asarray(present.get(name, np.zeros((3, 3), bool)), bool)
@@ -490,6 +493,19 @@ def auto_intrinsics(sequence: Sequence, result) -> AutoDecision:
     return AutoDecision(mode, coupling.sentence(), kind.value)
 
 
+def _solve_corrected(sequence: Sequence, solve: Callable[[Sequence], object], result, total: ImuIntrinsics,
+                     new: ImuIntrinsics) -> tuple[Sequence, object, ImuIntrinsics]:
+    """Solve again on the raw readings corrected by ``new`` (``result``: the last solve, on readings
+    corrected by ``total``, gives the acc bias that ``G`` needs to tell the force from the readings).
+
+    Returns:
+        The corrected sequence, its solve and ``new``.
+    """
+    raw_acc_bias = result.bias_at(sequence.imu.t_ns)[:, 3:] @ total.acc_matrix.T
+    work = replace(sequence, imu=new.correct(sequence.imu, raw_acc_bias))
+    return work, solve(work), new
+
+
 def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
                             block_s: float, max_rounds: int = 5, first=None):
     """The alternating loop of the module docstring around ``solve`` (a full recovery).
@@ -521,20 +537,14 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
         if rounds > 1 and not fit.moved(REFINE_SIGMAS):
             break
         present = {k: v | (present[k] if present else False) for k, v in fit.applied.items()}
-        raw_acc_bias = result.bias_at(sequence.imu.t_ns)[:, 3:] @ total.acc_matrix.T
-        total = total.compose(fit.step)
-        work = replace(sequence, imu=total.correct(sequence.imu, raw_acc_bias))
-        result = solve(work)
+        work, result, total = _solve_corrected(sequence, solve, result, total, total.compose(fit.step))
     assert fit is not None
     dropped: list[str] = []
     if present:
         trimmed, present, dropped = drop_insignificant(total, fit, present)
         if dropped:
             log.info("intrinsics: %s no longer significant, dropped; solving once more", ", ".join(dropped))
-            raw_acc_bias = result.bias_at(sequence.imu.t_ns)[:, 3:] @ total.acc_matrix.T
-            total = trimmed
-            work = replace(sequence, imu=total.correct(sequence.imu, raw_acc_bias))
-            result = solve(work)
+            work, result, total = _solve_corrected(sequence, solve, result, total, trimmed)
     bias, std = raw_bias(total, np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]),
                          np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]))
     # the estimated terms' uncertainty in the bias sigmas, at the keyframes' bias-free rate and force

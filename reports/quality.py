@@ -683,18 +683,23 @@ def _bias_section(inp: ReportInputs) -> Html:
 
 
 def gyro_consistency_note(inp: ReportInputs) -> Html | None:
-    """Whether the gyro reads another axis's rate against the fitted pose stream
-    (:func:`recovery.gyro_consistency.rate_coupling`, on the recovered offset and extrinsic);
-    None without a 6-DoF pose stream long enough for it."""
+    """Whether the gyro reads a share of the rate against the fitted pose stream: the sentence the
+    recovery's ``intrinsics: auto`` decided on, else :func:`recovery.gyro_consistency.rate_coupling`
+    on the recovered offset and extrinsic; None without a 6-DoF pose stream long enough for it."""
     rec, seq = inp.recovery, inp.sequence
     poses = seq.poses.get(rec.pose_stream) if rec is not None and rec.pose_stream else None
     if poses is None or poses.quat_wxyz is None or seq.imu is None:
         return None
-    try:
-        coupling = rate_coupling(seq.imu, poses, R_imu_pose=rec.T_imu_pose[:3, :3], offset_s=rec.time_offset_s)
-    except BiasgtError:
-        return None
-    return p("Gyro against the pose stream's rotation, by frequency band: " + coupling.sentence() + " "
+    auto = rec.data.get("intrinsics_auto")
+    if isinstance(auto, Mapping) and auto.get("coupling") is not None:
+        sentence = str(auto.get("reason"))
+    else:
+        try:
+            sentence = rate_coupling(seq.imu, poses, R_imu_pose=rec.T_imu_pose[:3, :3],
+                                     offset_s=rec.time_offset_s).sentence()
+        except BiasgtError:
+            return None
+    return p("Gyro against the pose stream's rotation, by frequency band: " + sentence + " "
              + intrinsics_sentence(rec.data), class_="small")
 
 

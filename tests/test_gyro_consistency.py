@@ -193,3 +193,18 @@ def test_quality_report_note_uses_the_recovered_offset_and_extrinsic(tmp_path):
                                                           PoseSourceKind.POSITION_TRACKER)})
     rec = RecoveryReport.from_json({"pose_stream": "mocap", "T_imu_pose": T.tolist(), "pose_time_offset_s": offset_s})
     assert gyro_consistency_note(ReportInputs(ingest_dir=tmp_path, sequence=no_rotation, recovery=rec)) is None
+
+
+def test_quality_report_note_takes_the_sentence_auto_decided_on(tmp_path):
+    """A recovery whose ``intrinsics: auto`` checked the coupling: the report shows that sentence (the
+    one the decision was made on) and says what the recovery did."""
+    from pipeline.types import Sequence
+    from recovery.outputs import RecoveryReport
+    from reports.quality import ReportInputs, gyro_consistency_note
+
+    imu, poses = _rotation_sequence(np.zeros((3, 3)), None)
+    rec = RecoveryReport.from_json({"pose_stream": "body", "intrinsics_auto": {
+        "estimated": False, "coupling": "slow", "reason": "The sentence the decision was made on."}})
+    note = html.unescape(str(gyro_consistency_note(
+        ReportInputs(ingest_dir=tmp_path, sequence=Sequence("s", imu, {"body": poses}), recovery=rec))))
+    assert "The sentence the decision was made on." in note and "(intrinsics: auto)" in note
