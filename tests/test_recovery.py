@@ -518,3 +518,33 @@ def test_agreement_z_is_zero_for_identical_and_scales_with_sigma(clean_run):
     z = agreement_z(shifted, res)
     expected = 3e-4 / np.sqrt(2 * res.bias_gyro_std_radps**2)
     np.testing.assert_allclose(z[:, :3], expected, rtol=1e-9)
+
+
+def test_robust_threshold_has_the_one_dimensional_tail_in_every_dimension():
+    """A clean factor of any dimension is down-weighted as often as a 1-D one beyond k sigmas."""
+    import math
+
+    import gtsam
+
+    from recovery.graph import _robust, robust_norm_threshold
+
+    k = 3.0
+    p = math.erfc(k / math.sqrt(2.0))  # P(|z| > 3) = 0.0027
+    assert robust_norm_threshold(k, 1) == k
+    # 2-D: the norm is Rayleigh, P(|r| > t) = exp(-t^2 / 2)
+    assert math.isclose(robust_norm_threshold(k, 2), math.sqrt(-2.0 * math.log(p)), rel_tol=1e-9)
+    rng = np.random.default_rng(0)
+    for d in (3, 6):
+        r = np.linalg.norm(rng.normal(size=(400_000, d)), axis=1)
+        assert abs(np.mean(r > robust_norm_threshold(k, d)) - p) < 4 * math.sqrt(p / 400_000)
+    # the GTSAM model: a 6-D whitened error of norm 4 (beyond 3, inside 4.48) keeps its full weight
+    base = gtsam.noiseModel.Isotropic.Sigma(6, 1.0)
+    e = np.full(6, 4.0 / math.sqrt(6.0))
+    f = gtsam.PriorFactorVector(0, np.zeros(6), _robust(base, RobustLoss.HUBER, k))
+    vals = gtsam.Values()
+    vals.insert(0, e)
+    assert math.isclose(f.error(vals), 0.5 * 16.0, rel_tol=1e-9)
+    vals.update(0, 2.0 * e)  # norm 8: Huber's linear branch at t = 4.48
+    t = robust_norm_threshold(k, 6)
+    assert math.isclose(f.error(vals), t * 8.0 - 0.5 * t * t, rel_tol=1e-9)
+    assert _robust(base, RobustLoss.NONE, k) is base
