@@ -96,8 +96,9 @@ def simulated(duration_s: float, preset: str, seed: int = 0) -> None:
         if auto is not None:
             print(f"  auto: intrinsics {'estimated' if auto['estimated'] else 'not estimated'} "
                   f"(coupling {auto['coupling']})")
-        print(f"{name:22s} bias RMSE gyro {np.array2string(rmse[:3], precision=2)} rad/s, acc "
-              f"{np.array2string(rmse[3:], precision=2)} m/s^2 ({time.perf_counter() - t0:.1f} s)")
+        print(f"{name:22s} bias RMSE gyro {np.array2string(rmse[:3], formatter={'float': '{:.3g}'.format})} rad/s, "
+              f"acc {np.array2string(rmse[3:], formatter={'float': '{:.3g}'.format})} m/s^2 "
+              f"({time.perf_counter() - t0:.1f} s)")
     base = bias_rmse(runs["clean, off"], sim.truth)
     for name in ("clean, off", "intrinsic errors, on"):
         print(f"NEES per axis, {name} (gyro xyz, acc xyz): {np.array2string(nees(runs[name], sim.truth), precision=2)} "

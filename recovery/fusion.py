@@ -269,13 +269,28 @@ def fuse_poses(
     R_pose = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
     R_imu_j = R_pose @ R_E.T  # [M, 3, 3]
     keep = np.ones(M, dtype=bool)
+    moved: dict[str, np.ndarray] = {}  # the last fit's keyframe stamps and relative motions
+
+    def relative(t_k_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """dR [M, 3, 3], dp [M, 3] from each sample's keyframe stamp; integrated again only for the
+        bins whose stamp moved since the last fit (a rejected sample moves its own bin's only)."""
+        if not moved:
+            dR, dp = relative_motion(imu_t_ns, imu_6, t_k_ns[bins], t_ns, bias)
+        else:
+            dR, dp = moved["dR"].copy(), moved["dp"].copy()
+            redo = np.nonzero(t_k_ns[bins] != moved["t_k_ns"][bins])[0]
+            if len(redo):
+                b = bias if bias.ndim == 1 else bias[redo]
+                dR[redo], dp[redo] = relative_motion(imu_t_ns, imu_6, t_k_ns[bins[redo]], t_ns[redo], b)
+        moved.update(t_k_ns=t_k_ns, dR=dR, dp=dp)
+        return dR, dp
 
     def fit(keep: np.ndarray) -> dict[str, np.ndarray]:
         cnt = np.bincount(bins, weights=keep.astype(float), minlength=K)
         t_k = _bin_mean(t_ns[:, None].astype(np.float64) - float(origin_ns), bins, K, keep)[:, 0]
         t_k_ns = np.round(np.nan_to_num(t_k)).astype(np.int64) + origin_ns
         dt_j = (t_ns - t_k_ns[bins]) / NS_PER_S
-        dR, dp = relative_motion(imu_t_ns, imu_6, t_k_ns[bins], t_ns, bias)
+        dR, dp = relative(t_k_ns)
         # rotation: each sample's estimate of R_k, averaged in the tangent space of a reference
         R_k_j = R_imu_j @ np.transpose(dR, (0, 2, 1))
         first = np.zeros(K, dtype=np.int64)

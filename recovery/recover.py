@@ -1049,8 +1049,9 @@ def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _G
                 continue
             prev = piece_solutions[-1] if piece_solutions else None
             guess = _bias_guess(w[1].t_ns, gsol, prev)
-            if guess is None and callable(problem.bias):
-                guess = problem.bias(w[1].t_ns)
+            if guess is None and problem.bias is not None:  # the calibration solves' bias, not zero
+                guess = (problem.bias(w[1].t_ns) if callable(problem.bias)
+                         else np.tile(np.asarray(problem.bias, dtype=float), (len(w[1]), 1)))
             init = WindowInit(gravity_unit=gravity.unit, bias=guess)
             if not inputs.has_rot and (prev is not None or noise.chain is not None):
                 init = _continue_from(prev if prev is not None else noise.chain, w, gravity.unit)
