@@ -208,3 +208,22 @@ def test_quality_report_note_takes_the_sentence_auto_decided_on(tmp_path):
     note = html.unescape(str(gyro_consistency_note(
         ReportInputs(ingest_dir=tmp_path, sequence=Sequence("s", imu, {"body": poses}), recovery=rec))))
     assert "The sentence the decision was made on." in note and "(intrinsics: auto)" in note
+
+
+@pytest.mark.parametrize("nperseg", [64, 65])
+def test_cross_spectra_and_chance_level_equal_scipy(nperseg):
+    """The numpy Welch cross spectra and the Beta quantile that keep scipy.signal / scipy.stats out
+    of every recovery process."""
+    from scipy.signal import csd
+    from scipy.special import betaincinv
+    from scipy.stats import beta
+
+    from recovery.gyro_consistency import cross_spectra
+
+    x = np.random.default_rng(4).normal(size=(517, 4)).cumsum(0)
+    f, S = cross_spectra(x, 15.0, nperseg)
+    f_ref, S_ref = csd(x[:, :, None], x[:, None, :], fs=15.0, nperseg=nperseg, axis=0)
+    np.testing.assert_allclose(f, f_ref, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(S, S_ref, rtol=1e-10, atol=1e-12 * np.abs(S_ref).max())
+    for n in (4, 9, 40, 400):
+        assert betaincinv(3, n - 3, 0.999) == pytest.approx(beta.ppf(0.999, 3, n - 3), rel=1e-10)

@@ -83,6 +83,26 @@ def test_lm_stop_is_within_a_tenth_of_sigma(window, monkeypatch):
     assert z.max() < 0.1, z.max()
 
 
+def test_marginals_of_the_kept_linearisation_equal_gtsam_marginals_at_the_result(window):
+    """The bias sigmas come from the optimiser's last Gauss-Newton linearisation, one step before the
+    result: they equal gtsam.Marginals of the graph at the result."""
+    import gtsam
+    from gtsam.symbol_shorthand import B
+
+    samples, kf, noise, T, opts = window
+    o = replace(opts, compute_marginals=True, marginal_rate_hz=None)
+    sol = solve_window(samples, kf, noise, T, o)
+    built = graph.build_window(samples, kf, noise, T, o)
+    result, iterations, lin = graph._optimize(built, o, keep_linearisation=True)
+    assert lin is not None and iterations >= 2 and not lin.values.equals(result, 1e-12)
+    np.testing.assert_allclose(sol.bias, [np.r_[result.atConstantBias(B(k)).gyroscope(),
+                                                result.atConstantBias(B(k)).accelerometer()] for k in range(len(kf))],
+                               rtol=0, atol=1e-12)
+    marginals = gtsam.Marginals(built.graph, result)
+    std = np.sqrt([np.diag(marginals.marginalCovariance(B(k))) for k in range(len(kf))])  # [acc, gyro]
+    np.testing.assert_allclose(sol.bias_std, np.hstack([std[:, 3:], std[:, :3]]), rtol=1e-5)
+
+
 @pytest.mark.parametrize("errors, stop", [
     ([1e6, 100.0], False),  # the first step says nothing about the rate
     ([1e6, 100.0, 100.0 - 1e-3], True),  # decrease below the tolerance

@@ -199,7 +199,7 @@ def test_numpy_replacements_match_scipy():
     from scipy.integrate import cumulative_trapezoid
 
     from recovery.calibration_init import _correlate_valid, _cumtrapz
-    from recovery.graph import _savgol_slope
+    from recovery.graph import _savgol
 
     rng = np.random.default_rng(0)
     a, v = rng.normal(size=500), rng.normal(size=380)
@@ -209,8 +209,10 @@ def test_numpy_replacements_match_scipy():
     np.testing.assert_allclose(_cumtrapz(y, x), cumulative_trapezoid(y, x, axis=0, initial=0), atol=1e-12)
     for K, win in ((100, 31), (7, 7), (8, 7), (50, 5)):
         p = rng.normal(size=(K, 3)).cumsum(0)
-        np.testing.assert_allclose(_savgol_slope(p, win, 0.01),
-                                   signal.savgol_filter(p, win, 2, deriv=1, delta=0.01, axis=0), atol=1e-8)
+        for deriv in (1, 2):
+            np.testing.assert_allclose(_savgol(p, win, 0.01, deriv),
+                                       signal.savgol_filter(p, win, 2, deriv=deriv, delta=0.01, axis=0),
+                                       rtol=1e-9, atol=1e-8 * 100.0**deriv)
 
 
 def test_bias_values_pool_round_trip():
@@ -548,3 +550,27 @@ def test_robust_threshold_has_the_one_dimensional_tail_in_every_dimension():
     t = robust_norm_threshold(k, 6)
     assert math.isclose(f.error(vals), t * 8.0 - 0.5 * t * t, rel_tol=1e-9)
     assert _robust(base, RobustLoss.NONE, k) is base
+
+
+def test_a_recovery_process_loads_neither_scipy_signal_nor_scipy_stats(tmp_path):
+    """scipy.signal (and the scipy.stats it pulls in) would add ~0.5 s and ~25 MB to every recovery
+    process: a whole default recovery, the intrinsics check included, runs on the numpy versions."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from pipeline.store import write_store
+
+    write_store(_sim(60.0, seed=2).sequence, tmp_path / "store")
+    code = ("import json, sys\n"
+            "from pipeline.store import read_store\n"
+            "from recovery.recover import recover\n"
+            f"res = recover(read_store({str(tmp_path / 'store')!r}))\n"
+            "print(json.dumps({'coupling': res.report['intrinsics_auto']['coupling'],\n"
+            "                  'loaded': [m for m in ('scipy.signal', 'scipy.stats') if m in sys.modules]}))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
+                         cwd=Path(__file__).resolve().parents[1])
+    assert out.returncode == 0, out.stderr[-2000:]
+    got = json.loads(out.stdout.strip().splitlines()[-1])
+    assert got["coupling"] == "none"  # the intrinsics check ran (on a 6-DoF stream)
+    assert got["loaded"] == []
