@@ -781,6 +781,7 @@ def _optimize(built: _Built, opts: SolveOptions, keep_linearisation: bool = Fals
     values, lin, damped_only = None, None, not keep_linearisation  # values: the Gauss-Newton iterate
     while len(errors) - 1 < opts.max_iterations:
         if values is not None:
+            lin = None  # the previous step's tree is not needed any more (peak memory: one tree)
             gfg = built.graph.linearize(values)
             tree = gfg.eliminateMultifrontal(order)
             new = values.retract(tree.optimize())
