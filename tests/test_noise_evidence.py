@@ -103,6 +103,19 @@ def test_marginals_of_the_kept_linearisation_equal_gtsam_marginals_at_the_result
     np.testing.assert_allclose(sol.bias_std, np.hstack([std[:, 3:], std[:, :3]]), rtol=1e-5)
 
 
+def test_a_gauss_newton_step_that_raises_the_cost_hands_over_to_levenberg_marquardt(window, monkeypatch):
+    """Every Gauss-Newton step counted as a failure (a negative tolerance): the solve goes on with
+    damped steps, keeps no linearisation, and ends where Levenberg-Marquardt alone ends."""
+    samples, kf, noise, T, opts = window
+    o = replace(opts, compute_marginals=True, marginal_rate_hz=None)
+    monkeypatch.setattr(graph, "REMAINING_DECREASE_TOL", -1e12)  # (the stopping rule: GTSAM's alone)
+    damped, it_damped, none = graph._optimize(graph.build_window(samples, kf, noise, T, o), o)
+    assert none is None
+    handed, it_handed, lin = graph._optimize(graph.build_window(samples, kf, noise, T, o), o, keep_linearisation=True)
+    assert lin is None and it_handed == it_damped
+    assert handed.equals(damped, 1e-9)
+
+
 @pytest.mark.parametrize("errors, stop", [
     ([1e6, 100.0], False),  # the first step says nothing about the rate
     ([1e6, 100.0, 100.0 - 1e-3], True),  # decrease below the tolerance
