@@ -574,3 +574,52 @@ def test_a_recovery_process_loads_neither_scipy_signal_nor_scipy_stats(tmp_path)
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["coupling"] == "none"  # the intrinsics check ran (on a 6-DoF stream)
     assert got["loaded"] == []
+
+
+def test_gyro_keyframe_rotations_equal_composing_every_sample():
+    """The vectorised gyro integration of the position-only orientation guess equals composing the
+    sub-interval rotations one by one with scipy."""
+    from scipy.spatial.transform import Rotation
+
+    from recovery.graph import gyro_keyframe_rotations
+
+    sim = _sim(6.0, seed=3)
+    imu = sim.sequence.imu
+    kf = imu.t_ns[5:-5:37]  # keyframes off the IMU grid's phase: split sub-intervals
+    kf = np.unique(np.concatenate([kf, kf[:-1] + 2_500_000]))
+    samples = midpoint_samples(imu.t_ns, imu.imu_6, kf)
+    got = gyro_keyframe_rotations(samples)
+    cur, want = Rotation.identity(), [Rotation.identity()]
+    for i in range(len(kf) - 1):
+        for j in range(samples.start[i], samples.start[i + 1]):
+            cur = cur * Rotation.from_rotvec(samples.gyro_radps[j] * samples.dt_s[j])
+        want.append(cur)
+    err = (Rotation.concatenate(want).inv() * got).magnitude()
+    assert len(got) == len(kf) and err.max() < 1e-10, err.max()
+
+
+def test_propagated_orientations_equal_composing_every_sample_from_the_last_known():
+    from scipy.spatial.transform import Rotation
+
+    from recovery.graph import propagate_orientations
+
+    sim = _sim(6.0, seed=3)
+    imu = sim.sequence.imu
+    kf = imu.t_ns[5:-5:37]
+    samples = midpoint_samples(imu.t_ns, imu.imu_6, kf)
+    K, bias = len(kf), np.array([0.01, -0.02, 0.03])
+    q = Rotation.random(K, random_state=1).as_quat(scalar_first=True)
+    known = np.zeros(K, dtype=bool)
+    known[[0, 3, 4, 10, K - 2]] = True
+    got = propagate_orientations(samples, q, known, bias)
+    cur, want = None, q.copy()
+    for k in range(K):  # the definition: from the last known orientation, sample by sample
+        if known[k]:
+            cur = Rotation.from_quat(q[k], scalar_first=True)
+            continue
+        for j in range(samples.start[k - 1], samples.start[k]):
+            cur = cur * Rotation.from_rotvec((samples.gyro_radps[j] - bias) * samples.dt_s[j])
+        want[k] = cur.as_quat(scalar_first=True)
+    err = (Rotation.from_quat(want, scalar_first=True).inv() * Rotation.from_quat(got, scalar_first=True)).magnitude()
+    assert err.max() < 1e-10, err.max()
+    np.testing.assert_array_equal(got[known], q[known])
