@@ -21,8 +21,8 @@ Why this rather than calibration variables in the final solve:
   smaller uncertainty, not the uncertainty of the value used;
 * ``J`` by re-solving with each parameter perturbed costs a solve per parameter (7).
 
-``J`` here costs one elimination. The solve's linear system at its optimum (the one the
-marginals come from) is augmented with one variable ``C = dc`` = [extrinsic rotation (3),
+``J`` here costs no solve of the nonlinear problem. The solve's linear system at its optimum
+(the one the marginals come from) is augmented with one variable ``C = dc`` = [extrinsic rotation (3),
 extrinsic translation (3) as the right-perturbation tangent of ``T_imu_pose`` (GTSAM Pose3
 order), clock offset (s)]. The measurements depend on ``c`` in closed form:
 
@@ -35,11 +35,21 @@ order), clock offset (s)]. The measurements depend on ``c`` in closed form:
 
 At the optimum a pose (velocity) factor's error has the identity as its Jacobian in ``X``
 (``V``), so the whitened block of ``C`` is the factor's whitened block times its column.
-Eliminating every variable but ``C`` (GTSAM's partial sequential elimination) leaves the Bayes
-net ``x = R^-1 (d - S c)``; back-substitution with ``C`` = each column ``l_i`` of a square root
-of ``Cov_c`` gives ``J l_i``, and ``sum_i (J l_i)^2`` is the added variance per keyframe and
-axis. ``C`` is expressed in the coordinates of those columns (``c = L u``, ``u`` of Cov_c's rank:
-one dimension when only the clock offset was estimated), which keeps the elimination small. Neglected: the correlation between the calibration's error and the full solve's noise
+``C`` is expressed in the coordinates of the columns ``l_i`` of a square root of ``Cov_c``
+(``c = L u``, ``u`` of Cov_c's rank: one dimension when only the clock offset was estimated), and
+``sum_i (J l_i)^2`` is the added variance per keyframe and axis. Two ways to ``J l_i``, the
+cheaper one for the rank:
+
+* ``J l_i = -H^-1 g_i`` with ``H = R^T R`` the solve's own Gauss-Newton system, whose Bayes tree
+  the marginals already come from, and ``g_i = A^T A x_i`` (``x_i``: the measurement columns
+  times ``l_i`` on the pose and velocity keys; ``A``: those factors' whitened Jacobians). The
+  tree's cliques, children first, form a Bayes net that solves with another right-hand side:
+  two back-substitutions per column, no elimination.
+* Eliminating every variable but ``C`` of the augmented system (GTSAM's partial sequential
+  elimination) leaves the Bayes net ``x = R^-1 (d - S c)``; back-substitution with ``C = e_i``
+  gives ``J l_i``: one elimination, then one back-substitution per column.
+
+Neglected: the correlation between the calibration's error and the full solve's noise
 (the calibration windows are part of the data), and the cross-covariance between the offset and
 the extrinsic (separate solves). Validated by NEES on the hard simulated and the independent
 hard cases (``tests/test_calibration_uncertainty.py``, ``benchmarks/recovery.py --only hard``).
@@ -57,6 +67,10 @@ import numpy as np
 C_KEY = gtsam.Symbol("c", 0).key()
 CALIBRATION_DIM = 7  # extrinsic rotation (3), extrinsic translation (3), clock offset (1)
 OFFSET_INDEX = 6
+#: Up to this rank of ``Cov_c``, ``J`` comes from back-substitutions through the solve's own Bayes
+#: tree; above it, from one elimination of the augmented system. On the benchmark's 180 s (1800
+#: keyframes) a pair of back-substitutions costs ~0.03 s, the elimination ~0.09 s.
+BACKSUBSTITUTION_MAX_RANK = 2
 
 
 @dataclass(frozen=True)
@@ -147,7 +161,9 @@ def measurement_columns(kin: KeyframeKinematics, T_imu_pose: np.ndarray) -> tupl
 
 def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int, int, str]],
                         columns: tuple[np.ndarray, np.ndarray], cal: CalibrationCovariance,
-                        bias_keys: list[int], ordering: gtsam.Ordering | None = None) -> np.ndarray:
+                        bias_keys: list[int], ordering: gtsam.Ordering | None = None,
+                        tree: gtsam.GaussianBayesTree | None = None,
+                        zero: gtsam.VectorValues | None = None) -> np.ndarray:
     """``diag(J Cov_c J^T)`` at ``bias_keys``, [M, 6] in (gyro, acc) order.
 
     Args:
@@ -157,17 +173,81 @@ def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int,
         cal: The calibration covariance.
         bias_keys: Keys of the biases wanted.
         ordering: Elimination order of every variable but ``C`` (default: COLAMD's).
+        tree: ``gfg`` eliminated (the marginals' Bayes tree), with ``zero``, zeros for all of
+            its variables: back-substitution through it when ``Cov_c``'s rank is at most
+            :data:`BACKSUBSTITUTION_MAX_RANK` (see the module docstring).
     """
     pose_col, vel_col = columns
     # C in the coordinates of Cov_c's square root (its rank: 1 when only the offset is estimated)
     L = cal.sqrt_columns()
     pose_col, vel_col = pose_col @ L, vel_col @ L
+    cols = [pose_col[k] if kind == "x" else vel_col[k] for _, k, kind in factors]  # [d, r] each
+    if tree is not None and zero is not None and L.shape[1] <= BACKSUBSTITUTION_MAX_RANK:
+        out = _added_by_backsubstitution(gfg, [i for i, _, _ in factors], cols, tree, zero, bias_keys)
+        if out is not None:
+            return out
+    return _added_by_elimination(gfg, [i for i, _, _ in factors], cols, bias_keys, ordering)
+
+
+def _bias_tangents(sol: gtsam.VectorValues, bias_keys: list[int]) -> np.ndarray:
+    """The bias entries of ``sol`` in (gyro, acc) order, [M, 6] (ConstantBias tangent: [acc, gyro])."""
+    d = np.array([sol.at(key) for key in bias_keys])
+    return np.hstack([d[:, 3:], d[:, :3]])
+
+
+def tree_as_bayes_net(tree: gtsam.GaussianBayesTree) -> gtsam.GaussianBayesNet:
+    """The conditionals of ``tree``'s cliques as a Bayes net, every clique after its children (an
+    elimination order), for solves with other right-hand sides
+    (``GaussianBayesNet.backSubstituteTranspose`` / ``backSubstitute``)."""
+    post: list[Any] = []
+    stack = [(clique, False) for clique in tree.roots()]
+    while stack:  # iterative post-order: a chain in time is thousands of cliques deep
+        clique, children_done = stack.pop()
+        if children_done:
+            post.append(clique.conditional())
+            continue
+        stack.append((clique, True))
+        stack.extend((clique[i], False) for i in range(clique.nrChildren()))
+    net = gtsam.GaussianBayesNet()
+    for conditional in post:
+        net.push_back(conditional)
+    return net
+
+
+def _added_by_backsubstitution(gfg: gtsam.GaussianFactorGraph, indices: list[int], cols: list[np.ndarray],
+                               tree: gtsam.GaussianBayesTree, zero: gtsam.VectorValues,
+                               bias_keys: list[int]) -> np.ndarray | None:
+    """``J l_i = -H^-1 A^T A x_i`` through ``tree`` (module docstring); None when a key carries
+    more than one of the factors (then ``x_i`` is not one vector per key)."""
+    measured = gtsam.GaussianFactorGraph()
+    keys = []
+    for index in indices:
+        factor = gfg.at(index)
+        measured.push_back(factor)
+        keys.append(factor.keys()[0])
+    if len(set(keys)) != len(keys):
+        return None
+    at_zero = measured.gradientAtZero()  # -A^T b
+    net = tree_as_bayes_net(tree)
+    out = np.zeros((len(bias_keys), 6))
+    for i in range(cols[0].shape[1]):
+        x = gtsam.VectorValues()
+        for key, col in zip(keys, cols):
+            x.insert(key, col[:, i])
+        g = gtsam.VectorValues(zero)
+        g.update(measured.gradient(x).subtract(at_zero))  # A^T (A x - b) + A^T b = A^T A x
+        out += _bias_tangents(net.backSubstitute(net.backSubstituteTranspose(g)), bias_keys) ** 2
+    return out
+
+
+def _added_by_elimination(gfg: gtsam.GaussianFactorGraph, indices: list[int], cols: list[np.ndarray],
+                          bias_keys: list[int], ordering: gtsam.Ordering | None) -> np.ndarray:
+    """``J l_i`` from the augmented system with every variable but ``C`` eliminated (module docstring)."""
     unit = {n: gtsam.noiseModel.Unit.Create(n) for n in (3, 6)}
     replaced: dict[int, Any] = {}
-    for index, k, kind in factors:
+    for index, col in zip(indices, cols):
         jf = gfg.at(index)
         A, b = jf.jacobian()
-        col = pose_col[k] if kind == "x" else vel_col[k]
         replaced[index] = gtsam.JacobianFactor(jf.keys()[0], A, C_KEY, A @ col, b, unit[len(b)])
     aug = gtsam.GaussianFactorGraph()
     for i in range(gfg.size()):
@@ -177,15 +257,13 @@ def added_bias_variance(gfg: gtsam.GaussianFactorGraph, factors: list[tuple[int,
     if ordering is None:
         ordering = [key for key in aug.keyVector() if key != C_KEY]
     bayes_net, _ = aug.eliminatePartialSequential(ordering)
+    r = cols[0].shape[1]
     given = gtsam.VectorValues()
-    given.insert(C_KEY, np.zeros(L.shape[1]))
-    base = bayes_net.optimize(given)
-    x0 = np.array([base.at(key) for key in bias_keys])
+    given.insert(C_KEY, np.zeros(r))
+    x0 = _bias_tangents(bayes_net.optimize(given), bias_keys)
     out = np.zeros((len(bias_keys), 6))
-    for e_i in np.eye(L.shape[1]):
+    for e_i in np.eye(r):
         given = gtsam.VectorValues()
         given.insert(C_KEY, e_i)
-        sol = bayes_net.optimize(given)
-        d = np.array([sol.at(key) for key in bias_keys]) - x0  # ConstantBias tangent: [acc, gyro]
-        out += np.hstack([d[:, 3:], d[:, :3]]) ** 2
+        out += (_bias_tangents(bayes_net.optimize(given), bias_keys) - x0) ** 2
     return out

@@ -28,10 +28,10 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, PoseSourceKind
-from recovery.calibration_uncertainty import CalibrationCovariance, KeyframeKinematics, added_bias_variance, \
-    measurement_columns
+from recovery.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, CalibrationCovariance, \
+    KeyframeKinematics, added_bias_variance, measurement_columns
 from recovery.config import PoseFactorMode, RobustLoss
-from recovery.fusion import FusedPoses, PerBin, WithinBinStats
+from recovery.fusion import FusedPoses, PerBin, WithinBinStats, matrix_to_quat_wxyz
 from recovery.preintegration import ImuNoise, MidpointSamples, RandomWalkBasis, make_params, preintegrate
 
 log = logging.getLogger(__name__)
@@ -173,11 +173,6 @@ def _pose3(T: np.ndarray) -> gtsam.Pose3:
 
 def _quat_to_rot3(q: np.ndarray) -> gtsam.Rot3:
     return gtsam.Rot3.Quaternion(float(q[0]), float(q[1]), float(q[2]), float(q[3]))
-
-
-def _rot3_to_wxyz(R: gtsam.Rot3) -> np.ndarray:
-    q = R.toQuaternion()
-    return np.array([q.w(), q.x(), q.y(), q.z()])
 
 
 @functools.lru_cache(maxsize=64)
@@ -937,18 +932,8 @@ def solve_window(
     if imu_sq and len(imu_sq) == K - 1:
         imu_res[1:] = np.sqrt(imu_sq)
 
-    P = np.zeros((K, 3))
-    Q = np.zeros((K, 4))
-    Vv = np.zeros((K, 3))
-    bias = np.zeros((K, 6))
-    for k in range(K):
-        x = result.atPose3(X(k))
-        P[k] = x.translation()
-        Q[k] = _rot3_to_wxyz(x.rotation())
-        Vv[k] = result.atVector(V(k))
-        b = result.atConstantBias(B(k))
-        bias[k, :3] = b.gyroscope()
-        bias[k, 3:] = b.accelerometer()
+    P, Q, Vv = _keyframe_states(result, K)
+    bias = _keyframe_biases(result, K)
     if opts.estimate_gravity:
         gu = result.atUnit3(G(0)).unitVector()
     elif init is not None and init.gravity_unit is not None:
@@ -985,7 +970,7 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
     bias_std = np.full((K, 6), np.nan)
     if lin is not None and lin.tree is not None:  # the optimiser's last linearisation (see _optimize)
         gfg, marg = lin.gfg, lin.tree
-        lin.tree = None  # freed with ``marg`` below, before the propagation
+        lin.tree = None  # freed with ``marg`` below
     else:
         gfg = built.graph.linearize(result)
         # the Bayes tree of the chain in time order: the same marginals as gtsam.Marginals' COLAMD tree
@@ -1003,8 +988,11 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
     idx = marginal_keyframes(kf.t_ns, opts.marginal_rate_hz)
     var = np.array([np.diag(marg.marginalCovariance(B(int(k)))) for k in idx])  # [acc, gyro]
     var = np.hstack([var[:, 3:], var[:, :3]])
-    del marg  # the propagation below needs the linearisation only (peak memory)
-    added = _calibration_variance(gfg, built, result, samples, kf, state, T_imu_pose, opts, idx)
+    cal = opts.calibration_cov
+    if cal is not None and cal.sqrt_columns().shape[1] > BACKSUBSTITUTION_MAX_RANK:
+        marg = None  # the propagation eliminates again: one tree at a time (peak memory)
+    added = _calibration_variance(gfg, marg, built, result, samples, kf, state, T_imu_pose, opts, idx)
+    del marg
     if added is not None:
         extras["calibration_std_ratio"] = np.sqrt((var + added) / var)  # [len(idx), 6]
         var = var + added
@@ -1016,12 +1004,13 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
     return bias_std
 
 
-def _calibration_variance(gfg: gtsam.GaussianFactorGraph, built: _Built, result: gtsam.Values,
-                          samples: MidpointSamples,
+def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBayesTree | None, built: _Built,
+                          result: gtsam.Values, samples: MidpointSamples,
                           kf: KeyframePoses, state: tuple[np.ndarray, np.ndarray, np.ndarray],
                           T_imu_pose: np.ndarray, opts: SolveOptions, idx: np.ndarray) -> np.ndarray | None:
     """Bias variance [len(idx), 6] (gyro, acc) added by the uncertainty of the fixed calibration
-    (:mod:`recovery.calibration_uncertainty`); None when there is none or the factors are not 6-DoF absolute."""
+    (:mod:`recovery.calibration_uncertainty`; ``tree``: ``gfg`` eliminated, or None); None when
+    there is none or the factors are not 6-DoF absolute."""
     if (opts.calibration_cov is None or opts.pose_mode != PoseFactorMode.ABSOLUTE or opts.estimate_extrinsic
             or opts.estimate_lever_arm or kf.quat_wxyz is None or not built.pose_index):
         return None
@@ -1034,18 +1023,33 @@ def _calibration_variance(gfg: gtsam.GaussianFactorGraph, built: _Built, result:
                for i, (k, f, _) in zip(built.pose_index, built.pose_factors)]
     factors = [f for f in factors if f[2] in ("x", "v")]
     return added_bias_variance(gfg, factors, measurement_columns(kin, T_imu_pose), opts.calibration_cov,
-                               [B(int(k)) for k in idx], elimination_order(result))
+                               [B(int(k)) for k in idx], elimination_order(result), tree=tree,
+                               zero=None if tree is None else result.zeroVectors())
+
+
+def _keyframe_states(result: gtsam.Values, K: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Positions [K, 3], quat_wxyz [K, 4] and velocities [K, 3] of ``X(k)``, ``V(k)``, k < K.
+
+    Extracted in C++ by GTSAM's utilities (a loop over keys costs ~6 us per keyframe), which
+    return every value of a type in key order: the only other pose, ``E(0)``, sorts first.
+    """
+    M = gtsam.utilities.extractPose3(result)
+    Vv = gtsam.utilities.extractVectors(result, "v")
+    if len(M) != K + int(result.exists(E(0))) or len(Vv) != K:
+        raise RecoveryError(f"internal: expected {K} keyframe poses and velocities, found {len(M)} and {len(Vv)}")
+    M = M[len(M) - K:]
+    return M[:, 9:].copy(), matrix_to_quat_wxyz(M[:, :9].reshape(K, 3, 3)), np.asarray(Vv, dtype=float)
+
+
+def _keyframe_biases(result: gtsam.Values, K: int) -> np.ndarray:
+    """Biases [K, 6] (gyro, acc) of ``B(k)``, k < K."""
+    tangent = np.array([result.atConstantBias(B(k)).vector() for k in range(K)])  # [acc, gyro]
+    return np.ascontiguousarray(np.hstack([tangent[:, 3:], tangent[:, :3]]))
 
 
 def _init_from(result: gtsam.Values, K: int, opts: SolveOptions, init: WindowInit | None) -> WindowInit:
-    bias = np.zeros((K, 6))
-    for k in range(K):
-        b = result.atConstantBias(B(k))
-        bias[k, :3] = b.gyroscope()
-        bias[k, 3:] = b.accelerometer()
     gu = result.atUnit3(G(0)).unitVector() if opts.estimate_gravity else (None if init is None else init.gravity_unit)
-    rot = np.array([_rot3_to_wxyz(result.atPose3(X(k)).rotation()) for k in range(K)])
-    return WindowInit(gravity_unit=gu, bias=bias, rot_wxyz=rot)
+    return WindowInit(gravity_unit=gu, bias=_keyframe_biases(result, K), rot_wxyz=_keyframe_states(result, K)[1])
 
 
 def result_subset(result: gtsam.Values, template: gtsam.Values) -> gtsam.Values:
