@@ -117,6 +117,7 @@ class SolveOptions:
     # the calibration held fixed and its covariance: propagated into the bias marginals
     # (recovery.calibration_uncertainty; 6-DoF absolute pose factors only)
     calibration_cov: CalibrationCovariance | None = None
+    residuals: bool = True  # the whitened residuals per keyframe and their RMS (NaN without)
 
 
 @dataclass
@@ -259,6 +260,7 @@ class _Built:
     imu_factors: list[Any]
     neg_log_const: float  # sum of the Gaussian normalisers (for the evidence)
     pose_index: list[int] = field(default_factory=list)  # graph index of each pose_factors entry
+    imu_part: tuple[int, float] = (0, 0.0)  # the leading factors from _add_imu_factors: count, normalisers
 
 
 def _savgol(y: np.ndarray, win: int, dt: float, deriv: int) -> np.ndarray:
@@ -488,6 +490,7 @@ def build_window(
         built.values.insert(X(k), Xs[k])
         built.values.insert(V(k), vel[k])
     _add_imu_factors(built, pims, opts, init, bias0, models)
+    built.imu_part = (int(built.graph.size()), built.neg_log_const)
     skip_set = set() if skip is None else set(int(i) for i in skip)
     _add_pose_factors(built, kf, Xs, Z, T_imu_pose, opts, skip_set)
     position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or kf.quat_wxyz is None
@@ -839,6 +842,26 @@ def log_evidence(built: _Built, values: gtsam.Values) -> float:
     return -built.graph.error(values) - built.neg_log_const - bn.logDeterminant()
 
 
+def _reweighted(prev: _Built, basis: RandomWalkBasis, imu_noise: ImuNoise, opts: SolveOptions,
+                init: WindowInit) -> _Built:
+    """``prev`` (a window built on ``basis``) with its IMU part built again for ``imu_noise`` and
+    ``init`` (the IMU factors' noise models, the bias and gravity priors' centres) and every other
+    factor shared, starting at ``init.values``: what :func:`build_window` would build, without
+    building the pose factors and initial values again."""
+    bias0 = np.zeros(6) if init.bias is None else np.asarray(init.bias, dtype=float)
+    built = _Built(gtsam.NonlinearFactorGraph(), gtsam.Values(), prev.pose_factors, [], 0.0)
+    _add_imu_factors(built, basis.pims, opts, init,
+                     bias0, [gtsam.noiseModel.Gaussian.Covariance(c) for c in basis.covariances(imu_noise)])
+    size, nlc = int(built.graph.size()), built.neg_log_const
+    for i in range(prev.imu_part[0], int(prev.graph.size())):
+        built.graph.add(prev.graph.at(i))
+    built.pose_index = [i - prev.imu_part[0] + size for i in prev.pose_index]
+    built.neg_log_const = prev.neg_log_const - prev.imu_part[1] + nlc
+    built.imu_part = (size, nlc)
+    built.values = result_subset(init.values, prev.values)
+    return built
+
+
 def evidence_step(
     samples: MidpointSamples,
     kf: KeyframePoses,
@@ -847,9 +870,12 @@ def evidence_step(
     opts: SolveOptions,
     init: WindowInit,
     basis: RandomWalkBasis | None = None,
-) -> tuple[float, WindowInit] | None:
+    like: _Built | None = None,
+) -> tuple[float, WindowInit, _Built] | None:
     """Log evidence (:func:`log_evidence`) one Gauss-Newton step from ``init.values``, the optimum
-    under a nearby noise model, and where the step ends (the start of a next candidate).
+    under a nearby noise model, where the step ends (the start of a next candidate), and the graph
+    (``like`` of a next step with the same pose noise: its pose factors are shared, see
+    :func:`_reweighted`).
 
     The cost is evaluated where the step lands, the log determinant where it starts. From the
     optimum of random walks 3x apart, the result differs from a full solve's log evidence by
@@ -857,7 +883,10 @@ def evidence_step(
     differences of 60-800 between such candidates. None when the step does not lower the cost
     (then solve).
     """
-    built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init, basis=basis)
+    if like is not None and basis is not None:
+        built = _reweighted(like, basis, imu_noise, opts, init)
+    else:
+        built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init, basis=basis)
     start = built.graph.error(built.values)
     bn = built.graph.linearize(built.values).eliminateSequential(elimination_order(built.values))
     values = built.values.retract(bn.optimize())
@@ -865,7 +894,7 @@ def evidence_step(
     if not math.isfinite(cost) or cost > start:
         return None
     ev = -cost - built.neg_log_const - bn.logDeterminant()
-    return ev, replace(_init_from(values, len(kf), opts, init), values=values)
+    return ev, replace(_init_from(values, len(kf), opts, init), values=values), built
 
 
 def solve_window(
@@ -910,10 +939,11 @@ def solve_window(
         raise RecoveryError("the optimisation diverged (non-finite cost)",
                             hint="check the pose stream, its clock offset and the extrinsic")
     if pose_norms is None:
-        pose_norms = _whitened_norms(built.pose_factors, result) if built.pose_factors else np.zeros(0)
+        pose_norms = (_whitened_norms(built.pose_factors, result) if built.pose_factors and opts.residuals
+                      else np.zeros(0))
     pose_rms = float(np.sqrt(np.mean(pose_norms**2))) if len(pose_norms) else float("nan")
     imu_sq = []
-    for f in built.imu_factors:
+    for f in built.imu_factors if opts.residuals else []:
         r = f.whitenedError(result)
         imu_sq.append(float(r @ r) / len(r))
     imu_rms = float(np.sqrt(np.mean(imu_sq))) if imu_sq else float("nan")

@@ -121,7 +121,7 @@ def estimate_noise(
     init: WindowInit | None = None,
 ) -> NoiseChoice:
     """Coordinate-wise evidence maximisation (see the module docstring)."""
-    opts = replace(opts, compute_marginals=False, marginal_extras=False, reject_outliers=False)
+    opts = replace(opts, compute_marginals=False, marginal_extras=False, reject_outliers=False, residuals=False)
     state = {"g": 10.0 if 10.0 in rw_scales else rw_scales[len(rw_scales) // 2],
              "a": 10.0 if 10.0 in rw_scales else rw_scales[len(rw_scales) // 2], "p": 1.0}
     if not estimate_gyro:
@@ -137,6 +137,7 @@ def estimate_noise(
     # stream over minutes) can settle in a wrong attitude minimum, and chaining from it would
     # carry that minimum into every later candidate.
     warm: dict[str, Any] = {"init": init, "ev": float("-inf"), "p": None}
+    like: dict[float, Any] = {}  # per pose scale: the last evidence step's graph (its pose factors are shared)
     within = kf.within_bin()
     # one preintegration for every candidate, at the start's noise and bias (the candidates differ
     # in their random walks only, which re-weight it exactly: RandomWalkBasis)
@@ -155,9 +156,9 @@ def estimate_noise(
             step = None
             if (p == warm["p"] and kf.quat_wxyz is not None and warm["init"] is not None
                     and warm["init"].values is not None):
-                step = evidence_step(samples, kf, noise, T_imu_pose, o, warm["init"], basis)
+                step = evidence_step(samples, kf, noise, T_imu_pose, o, warm["init"], basis, like.get(p))
             if step is not None:
-                ev, start = step
+                ev, start, like[p] = step
             else:
                 sol = solve_window(samples, kf, noise, T_imu_pose, o, warm["init"], want_evidence=True, basis=basis)
                 ev, start = sol.log_evidence, WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias,

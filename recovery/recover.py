@@ -314,7 +314,7 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
 
     Also returns the gravity and median bias of the last solve (a linearisation point for fusion).
     """
-    o = replace(opts, reject_outliers=False, compute_marginals=False, marginal_extras=False)
+    o = replace(opts, reject_outliers=False, compute_marginals=False, marginal_extras=False, residuals=False)
     rate = config.calibration_rate_hz(CalibrationSolve.OFFSET_REFINE, problem.fuse)
     cache: dict[int, float] = {}
     n_keyframes: dict[int, int] = {}
@@ -857,7 +857,8 @@ def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, off
         rate = config.calibration_rate_hz(CalibrationSolve.NOISE, problem.fuse)
         w = problem.window(offset_s, calib[0], calib[1], rate)
         if w is not None:
-            sol0 = solve_window(w[0], w[1], inputs.calibration_noise, T, replace(inputs.opts, reject_outliers=False))
+            sol0 = solve_window(w[0], w[1], inputs.calibration_noise, T,
+                                replace(inputs.opts, reject_outliers=False, residuals=False))
             problem.set_linearisation(gravity_unit=sol0.gravity_unit, bias=_bias_function(sol0))
     if config.noise_estimation != NoiseEstimation.EVIDENCE:
         choice = NoiseChoice(inputs.imu_noise, inputs.position_sigma_m, inputs.rotation_sigma_rad)

@@ -62,6 +62,7 @@ def test_evidence_step_matches_a_full_solve(window):
     centre = solve_window(samples, kf, _scaled(noise, 10, 10), T, opts, want_evidence=True)
     start = WindowInit(gravity_unit=centre.gravity_unit, bias=centre.bias, values=centre.values)
     basis = random_walk_basis(samples, _scaled(noise, 10, 10), opts, start)
+    like = None
     for g, a in ((3, 10), (30, 10), (10, 3), (10, 30)):
         candidate = _scaled(noise, g, a)
         solved = solve_window(samples, kf, candidate, T, opts, start, want_evidence=True)
@@ -70,6 +71,12 @@ def test_evidence_step_matches_a_full_solve(window):
         gap = abs(solved.log_evidence - centre.log_evidence)
         # well inside what separates the candidates: the choice (a parabola through three) moves < 1 %
         assert abs(step[0] - solved.log_evidence) < max(0.02 * gap, 0.5), (g, a, step[0], solved.log_evidence, gap)
+        if like is not None:  # the graph of an earlier step, its IMU part re-weighted: the same step exactly
+            shared = evidence_step(samples, kf, candidate, T, opts, start, basis, like)
+            assert shared[0] == pytest.approx(step[0], rel=1e-12, abs=1e-9)
+            assert shared[2].graph.size() == step[2].graph.size()
+            assert shared[2].neg_log_const == pytest.approx(step[2].neg_log_const, rel=1e-12)
+        like = step[2]
 
 
 def test_lm_stop_is_within_a_tenth_of_sigma(window, monkeypatch):
