@@ -67,6 +67,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.errors import DataError, RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
+from recovery.rotations import relative_rotvecs
 
 log = logging.getLogger(__name__)
 
@@ -304,7 +305,7 @@ def pose_angular_rates(poses: PoseSeries, *, smooth_s: float = 0.0) -> tuple[np.
     rot = pose_rotations(poses)
     _check_increasing(poses.t_ns, _pose_name(poses))
     dt_s = np.diff(poses.t_ns) / NS_PER_S
-    omega = (rot[:-1].inv() * rot[1:]).as_rotvec() / dt_s[:, None]
+    omega = relative_rotvecs(rot) / dt_s[:, None]
     t_mid = poses.t_ns[:-1] + np.diff(poses.t_ns) // 2
     if smooth_s > 0:
         n = int(round(smooth_s / np.median(dt_s)))
@@ -358,7 +359,7 @@ def _rotation_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     t_pose_s = (poses.t_ns - t_ref) / NS_PER_S
     rot = pose_rotations(poses)
     dt_p = np.diff(t_pose_s)
-    rv = (rot[:-1].inv() * rot[1:]).as_rotvec()
+    rv = relative_rotvecs(rot)
     x_native = np.linalg.norm(rv / dt_p[:, None], axis=1)
     tm_pose = 0.5 * (t_pose_s[:-1] + t_pose_s[1:])
     if np.std(x_native) < 1e-6:
@@ -547,7 +548,7 @@ def _interval_increments(imu: ImuSeries, poses: PoseSeries, offset_s: float):
     i = np.flatnonzero(inside)
     i0, i1 = i[0], i[-1] + 1
     t = t_pose_s[i0:i1]
-    rv = (rot[i0:i1 - 1].inv() * rot[i0 + 1:i1]).as_rotvec()
+    rv = relative_rotvecs(rot[i0:i1])
     dG = np.diff(_interp_cols(t, t_imu_s, G), axis=0)
     return rv, dG, np.diff(t)
 

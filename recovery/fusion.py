@@ -36,6 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.types import NS_PER_S
+from recovery.rotations import matrix_to_quat_wxyz, matrix_to_rotvec
 
 INTEGRATION_STEP_S = 0.005  # sub-step of the relative-motion integration (IMU linearly interpolated)
 # Floors of the robust residual scales used to reject samples: smoothed ground-truth poses have
@@ -113,44 +114,6 @@ class FusedPoses:
 
     def __len__(self) -> int:
         return len(self.t_ns)
-
-
-def matrix_to_quat_wxyz(R: np.ndarray) -> np.ndarray:
-    """Quaternions [M, 4] (``w >= 0``) of rotation matrices ``R`` [M, 3, 3].
-
-    The trace formula where ``w >= 0.3`` (rotations below ~145 deg, every sample a fusion sees in
-    practice), SciPy's ``Rotation.from_matrix`` for the rest: equal to SciPy to ~1e-15 for
-    orthonormal ``R``, a few times faster (SciPy orthonormalises every matrix first).
-    """
-    R = np.asarray(R, dtype=float)
-    w = 0.5 * np.sqrt(np.maximum(1.0 + R[:, 0, 0] + R[:, 1, 1] + R[:, 2, 2], 0.0))
-    q = np.empty((len(R), 4))
-    q[:, 0] = w
-    with np.errstate(divide="ignore", invalid="ignore"):  # w = 0 only where SciPy takes over below
-        s = 0.25 / w
-        q[:, 1] = (R[:, 2, 1] - R[:, 1, 2]) * s
-        q[:, 2] = (R[:, 0, 2] - R[:, 2, 0]) * s
-        q[:, 3] = (R[:, 1, 0] - R[:, 0, 1]) * s
-    far = w < 0.3
-    if far.any():
-        qf = Rotation.from_matrix(R[far]).as_quat(scalar_first=True)
-        q[far] = qf * np.where(qf[:, :1] < 0, -1.0, 1.0)
-    return q
-
-
-def matrix_to_rotvec(R: np.ndarray) -> np.ndarray:
-    """Rotation vectors [M, 3] (``|phi| <= pi``) of rotation matrices ``R`` [M, 3, 3], through
-    :func:`matrix_to_quat_wxyz`: ``phi = 2 atan2(|q_xyz|, w) q_xyz / |q_xyz|`` (its series below
-    ``|q_xyz| = 1e-3``)."""
-    q = matrix_to_quat_wxyz(R)
-    w, xyz = q[:, 0], q[:, 1:]
-    n = np.linalg.norm(xyz, axis=1)
-    small = n < 1e-3
-    x2 = np.where(small, n / np.where(small, w, 1.0), 0.0) ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(small, 2.0 / np.where(small, w, 1.0) * (1.0 - x2 / 3.0 + x2 * x2 / 5.0),
-                         2.0 * np.arctan2(n, w) / n)
-    return scale[:, None] * xyz
 
 
 class _ImuInterp:

@@ -31,8 +31,9 @@ from pipeline.types import NS_PER_S, PoseSourceKind
 from recovery.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, CalibrationCovariance, \
     KeyframeKinematics, added_bias_variance, measurement_columns
 from recovery.config import PoseFactorMode, RobustLoss
-from recovery.fusion import FusedPoses, PerBin, WithinBinStats, matrix_to_quat_wxyz
+from recovery.fusion import FusedPoses, PerBin, WithinBinStats
 from recovery.preintegration import ImuNoise, MidpointSamples, RandomWalkBasis, make_params, preintegrate
+from recovery.rotations import matrix_to_quat_wxyz
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from pipeline.sim import simulate
 from pipeline.sim.config import PoseStreamConfig, SimConfig
 from recovery.config import RecoveryConfig
-from recovery.fusion import WithinBinStats, fuse_poses, matrix_to_quat_wxyz, matrix_to_rotvec, relative_motion
+from recovery.fusion import WithinBinStats, fuse_poses, relative_motion
 from recovery.recover import recover
 
 
@@ -55,27 +55,6 @@ def _truth_at(sim, t_ns):
 
 def _rot(q_wxyz):
     return Rotation.from_quat(np.c_[q_wxyz[:, 1:], q_wxyz[:, :1]])
-
-
-@pytest.mark.parametrize("max_angle", [0.0, 1e-9, 1e-4, 0.1, 2.0, np.pi])
-def test_matrix_to_rotvec_and_quaternion_equal_scipy(max_angle):
-    """The fast matrix -> rotation vector / quaternion maps equal SciPy's at every angle up to pi
-    (the trace formula, its small-angle series, and the hand-over to SciPy near pi)."""
-    rng = np.random.default_rng(7)
-    phi = rng.normal(size=(5000, 3))
-    phi *= (max_angle * rng.uniform(0.0, 1.0, len(phi)) / np.linalg.norm(phi, axis=1))[:, None]
-    phi[:3] = [[max_angle, 0.0, 0.0], [0.0, -max_angle, 0.0], [0.0, 0.0, 0.0]]
-    R = Rotation.from_rotvec(phi).as_matrix()
-    q_ref = Rotation.from_matrix(R).as_quat(scalar_first=True)
-    q_ref *= np.where(q_ref[:, :1] < 0, -1.0, 1.0)
-    q = matrix_to_quat_wxyz(R)
-    assert np.all(q[:, 0] >= 0)
-    at_pi = np.isclose(q_ref[:, 0], 0.0, atol=1e-12)  # w = 0: q and -q are both canonical
-    np.testing.assert_allclose(q[~at_pi], q_ref[~at_pi], atol=2e-15)
-    np.testing.assert_allclose(np.abs(q[at_pi]), np.abs(q_ref[at_pi]), atol=2e-15)
-    rv = matrix_to_rotvec(R)
-    np.testing.assert_allclose(Rotation.from_rotvec(rv).as_matrix(), R, atol=5e-15)
-    np.testing.assert_allclose(rv[~at_pi], Rotation.from_matrix(R[~at_pi]).as_rotvec(), atol=5e-15)
 
 
 def test_relative_motion_closed_form():
