@@ -49,6 +49,10 @@ cheaper one for the rank:
   elimination) leaves the Bayes net ``x = R^-1 (d - S c)``; back-substitution with ``C = e_i``
   gives ``J l_i``: one elimination, then one back-substitution per column.
 
+The same columns give the cost's slope and curvature in one calibration parameter with every
+other variable optimised (:func:`parameter_slope_and_information`): the clock offset's
+refinement takes Newton steps on them (:mod:`recovery.recover`).
+
 Neglected: the correlation between the calibration's error and the full solve's noise
 (the calibration windows are part of the data), and the cross-covariance between the offset and
 the extrinsic (separate solves). Validated by NEES on the hard simulated and the independent
@@ -267,3 +271,40 @@ def _added_by_elimination(gfg: gtsam.GaussianFactorGraph, indices: list[int], co
         given.insert(C_KEY, e_i)
         out += (_bias_tangents(bayes_net.optimize(given), bias_keys) - x0) ** 2
     return out
+
+
+def parameter_slope_and_information(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBayesTree,
+                                    factors: list[tuple[int, int, str]], columns: tuple[np.ndarray, np.ndarray],
+                                    zero: gtsam.VectorValues, index: int) -> tuple[float, float]:
+    """The solve's cost (GTSAM's, 0.5 chi^2) as a function of one calibration parameter's value.
+
+    With ``x`` the parameter's measurement columns on the pose and velocity keys and ``A``,
+    ``b`` those factors' whitened Jacobians and right-hand sides (``gfg``, linearised at the
+    optimum; ``tree``: ``gfg`` eliminated):
+
+    * slope: ``x^T A^T b``, the cost's derivative in the value used (the columns give the error
+      when the true value lies ``dc`` beyond it: moving the value by ``+d`` is ``dc -> dc - d``);
+    * information: ``x^T A^T A x - |R^-T A^T A x|^2``, its Gauss-Newton curvature with every
+      other variable optimised again (the Schur complement; one forward substitution).
+
+    Args:
+        gfg / tree / factors / columns / zero: As for :func:`added_bias_variance`.
+        index: The parameter's column (e.g. :data:`OFFSET_INDEX`).
+
+    Returns:
+        ``(slope, information)``; a Newton step on the value is ``-slope / information``, and
+        ``information^-1/2`` its 1-sigma.
+    """
+    pose_col, vel_col = columns
+    measured = gtsam.GaussianFactorGraph()
+    x = gtsam.VectorValues()
+    for i, k, kind in factors:
+        factor = gfg.at(i)
+        measured.push_back(factor)
+        x.insert(factor.keys()[0], (pose_col[k] if kind == "x" else vel_col[k])[:, index])
+    at_zero = measured.gradientAtZero()  # -A^T b
+    hx = measured.gradient(x).subtract(at_zero)  # A^T A x
+    g = gtsam.VectorValues(zero)
+    g.update(hx)
+    y = tree_as_bayes_net(tree).backSubstituteTranspose(g)  # R^-T A^T A x
+    return -float(x.dot(at_zero)), float(x.dot(hx) - y.dot(y))

@@ -28,8 +28,8 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, PoseSourceKind
-from recovery.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, CalibrationCovariance, \
-    KeyframeKinematics, added_bias_variance, measurement_columns
+from recovery.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, OFFSET_INDEX, CalibrationCovariance, \
+    KeyframeKinematics, added_bias_variance, measurement_columns, parameter_slope_and_information
 from recovery.config import PoseFactorMode, RobustLoss
 from recovery.fusion import FusedPoses, PerBin, WithinBinStats
 from recovery.preintegration import ImuNoise, MidpointSamples, RandomWalkBasis, make_params, preintegrate
@@ -119,6 +119,9 @@ class SolveOptions:
     # (recovery.calibration_uncertainty; 6-DoF absolute pose factors only)
     calibration_cov: CalibrationCovariance | None = None
     residuals: bool = True  # the whitened residuals per keyframe and their RMS (NaN without)
+    # the cost's slope and information in the clock offset into extras (offset_slope,
+    # offset_information; 6-DoF absolute pose factors only): recovery.calibration_uncertainty
+    offset_sensitivity: bool = False
 
 
 @dataclass
@@ -920,7 +923,7 @@ def solve_window(
     if K < 3:
         raise RecoveryError(f"a recovery window needs >= 3 keyframes, got {K}")
     built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init, basis=basis)
-    want_marginals = opts.compute_marginals or opts.marginal_extras
+    want_marginals = opts.compute_marginals or opts.marginal_extras or opts.offset_sensitivity
     result, iters, lin = _optimize(built, opts, keep_linearisation=want_marginals)
     outliers = np.zeros(0, dtype=int)
     pose_norms = None
@@ -981,7 +984,9 @@ def solve_window(
         T_used[:3, 3] = result.atPoint3(L(0))
     bias_std = np.full((K, 6), np.nan)
     extras: dict[str, Any] = {}
-    if want_marginals:
+    if opts.offset_sensitivity:
+        _offset_sensitivity(built, result, samples, kf, (Q, Vv, bias), T_used, opts, extras, lin)
+    if opts.compute_marginals or opts.marginal_extras:
         bias_std = _marginals(built, result, samples, kf, (Q, Vv, bias), T_used, opts, extras, lin)
     ev = log_evidence(built, result) if want_evidence else float("nan")
     return WindowSolution(
@@ -1038,15 +1043,14 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
     return bias_std
 
 
-def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBayesTree | None, built: _Built,
-                          result: gtsam.Values, samples: MidpointSamples,
-                          kf: KeyframePoses, state: tuple[np.ndarray, np.ndarray, np.ndarray],
-                          T_imu_pose: np.ndarray, opts: SolveOptions, idx: np.ndarray) -> np.ndarray | None:
-    """Bias variance [len(idx), 6] (gyro, acc) added by the uncertainty of the fixed calibration
-    (:mod:`recovery.calibration_uncertainty`; ``tree``: ``gfg`` eliminated, or None); None when
-    there is none or the factors are not 6-DoF absolute."""
-    if (opts.calibration_cov is None or opts.pose_mode != PoseFactorMode.ABSOLUTE or opts.estimate_extrinsic
-            or opts.estimate_lever_arm or kf.quat_wxyz is None or not built.pose_index):
+def _calibration_columns(built: _Built, samples: MidpointSamples, kf: KeyframePoses,
+                         state: tuple[np.ndarray, np.ndarray, np.ndarray], T_imu_pose: np.ndarray, opts: SolveOptions
+                         ) -> tuple[list[tuple[int, int, str]], tuple[np.ndarray, np.ndarray]] | None:
+    """The pose and velocity factors ``(graph index, keyframe, kind)`` and their measurement columns
+    in the calibration (:func:`recovery.calibration_uncertainty.measurement_columns`) at the optimum
+    ``state``; None unless the factors are 6-DoF absolute with the calibration held fixed."""
+    if (opts.pose_mode != PoseFactorMode.ABSOLUTE or opts.estimate_extrinsic or opts.estimate_lever_arm
+            or kf.quat_wxyz is None or not built.pose_index):
         return None
     q, v, bias = state
     R = Rotation.from_quat(q[:, [1, 2, 3, 0]]).as_matrix()
@@ -1055,10 +1059,41 @@ def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBa
                              np.gradient(v, (kf.t_ns - kf.t_ns[0]) / NS_PER_S, axis=0))
     factors = [(i, k, chr(gtsam.Symbol(f.keys()[0]).chr()))
                for i, (k, f, _) in zip(built.pose_index, built.pose_factors)]
-    factors = [f for f in factors if f[2] in ("x", "v")]
-    return added_bias_variance(gfg, factors, measurement_columns(kin, T_imu_pose), opts.calibration_cov,
+    return [f for f in factors if f[2] in ("x", "v")], measurement_columns(kin, T_imu_pose)
+
+
+def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBayesTree | None, built: _Built,
+                          result: gtsam.Values, samples: MidpointSamples,
+                          kf: KeyframePoses, state: tuple[np.ndarray, np.ndarray, np.ndarray],
+                          T_imu_pose: np.ndarray, opts: SolveOptions, idx: np.ndarray) -> np.ndarray | None:
+    """Bias variance [len(idx), 6] (gyro, acc) added by the uncertainty of the fixed calibration
+    (:mod:`recovery.calibration_uncertainty`; ``tree``: ``gfg`` eliminated, or None); None when
+    there is none or the factors are not 6-DoF absolute."""
+    cols = None if opts.calibration_cov is None else _calibration_columns(built, samples, kf, state, T_imu_pose, opts)
+    if cols is None:
+        return None
+    return added_bias_variance(gfg, cols[0], cols[1], opts.calibration_cov,
                                [B(int(k)) for k in idx], elimination_order(result), tree=tree,
                                zero=None if tree is None else result.zeroVectors())
+
+
+def _offset_sensitivity(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf: KeyframePoses,
+                        state: tuple[np.ndarray, np.ndarray, np.ndarray], T_imu_pose: np.ndarray, opts: SolveOptions,
+                        extras: dict[str, Any], lin: _Linearised | None) -> None:
+    """``extras["offset_slope"]`` / ``["offset_information"]``: the cost's slope and information in
+    the clock offset (:func:`recovery.calibration_uncertainty.parameter_slope_and_information`),
+    from the optimiser's last linearisation (its tree stays for the marginals); nothing when the
+    factors are not 6-DoF absolute."""
+    cols = _calibration_columns(built, samples, kf, state, T_imu_pose, opts)
+    if cols is None:
+        return
+    if lin is not None and lin.tree is not None:
+        gfg, tree, at = lin.gfg, lin.tree, lin.values
+    else:
+        gfg, at = built.graph.linearize(result), result
+        tree = gfg.eliminateMultifrontal(elimination_order(result))
+    slope, information = parameter_slope_and_information(gfg, tree, cols[0], cols[1], at.zeroVectors(), OFFSET_INDEX)
+    extras["offset_slope"], extras["offset_information"] = slope, information
 
 
 def _keyframe_states(result: gtsam.Values, K: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -274,11 +274,16 @@ def test_recovery_finds_the_injected_outliers_and_the_report_shows_them(full_rep
     assert f"{OUTLIERS} samples rejected as outliers" in full_report  # pose fusion rejected them
 
 
+def _offset_text(offset_s: float) -> str:
+    """The clock offset as the calibration table shows it: three decimals of a millisecond."""
+    return f"{offset_s * 1e3:.3f} ms"
+
+
 def test_report_shows_the_numbers(full_report, recovery_json, validation_json):
     text, rec = full_report, recovery_json
     offset_s = rec["pose_time_offset_s"]
     assert abs(offset_s - CLOCK_OFFSET_S) < 5e-4  # the estimate is near the truth
-    assert f"{fmt(offset_s * 1e3, 5)} ms" in text  # clock offset
+    assert _offset_text(offset_s) in text  # clock offset
     assert f"{fmt(rec['pose_time_offset_std_s'] * 1e3, 2)} ms" in text  # its std
     tilt = gravity_tilt_deg(rec["gravity_world_mps2"])
     assert tilt < 0.5 and f"{tilt:.3f} deg" in text  # the simulated world is z-up
@@ -358,7 +363,7 @@ def test_partial_and_malformed_inputs(stage_outputs, recovery_json, tmp_path):
     assert "3 of 38 windows &lt;flagged&gt;" in text  # data is escaped
     assert "missing columns" in text  # the bias.csv reader's message, shown in the page
     assert "bias.csv is missing or could not be read" in text
-    assert "windows.parquet" in text and f"{fmt(recovery_json['pose_time_offset_s'] * 1e3, 5)} ms" in text
+    assert "windows.parquet" in text and _offset_text(recovery_json["pose_time_offset_s"]) in text
     assert len(re.findall(r"<img\b", text)) == 3  # residual table, Allan x2
 
 
@@ -395,7 +400,7 @@ def test_failure_leaves_no_file(results_dir, tmp_path, monkeypatch):
 
 
 def test_cli_report(results_dir, recovery_json, tmp_path, capsys):
-    offset_text = f"{fmt(recovery_json['pose_time_offset_s'] * 1e3, 5)} ms"
+    offset_text = _offset_text(recovery_json["pose_time_offset_s"])
     out = tmp_path / "cli.html"
     assert cli_main(["report", str(results_dir), "--sequence", SEQ, "--out", str(out)]) == 0
     assert capsys.readouterr().out.strip() == str(out)
