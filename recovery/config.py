@@ -61,6 +61,13 @@ class CalibrationSolve(str, enum.Enum):
     NOISE = "noise"
 
 
+class OffsetRefineMethod(str, enum.Enum):
+    """How the graph cost refined the clock offset (``recovery.json`` ``pose_time_offset_method``)."""
+
+    NEWTON = "graph_cost_newton"  # Newton steps on the cost's analytic slope and curvature (6-DoF poses)
+    PARABOLA = "graph_cost_parabola"  # a parabola through the cost at three offsets
+
+
 class PoseSigmaMethod(str, enum.Enum):
     """How the pose sigmas were chosen (``recovery.json`` ``noise.pose_sigma_method``)."""
 

@@ -49,6 +49,7 @@ from recovery.config import (
     DEFAULT_POSE_SIGMAS,
     CalibrationSolve,
     ExtrinsicMode,
+    OffsetRefineMethod,
     ImuGapPolicy,
     IntrinsicsMode,
     NoiseEstimation,
@@ -312,20 +313,20 @@ def _calibration_window(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: 
 #: it lands: one step from 0.1 ms away lands within 0.05 sigma of the parabola's vertex on the
 #: benchmark and the hard simulated cases, and the error grows with the step.
 OFFSET_NEWTON_MAX_SIGMAS = 2.0
-OFFSET_NEWTON_MAX_SOLVES = 5
+OFFSET_NEWTON_MAX_SOLVES = 5  # then the parabola
 
 
 @dataclass(frozen=True)
 class _OffsetRefinement:
     """The refined clock offset and its 1-sigma, the solves (``recovery.json``
     ``pose_time_offset_search``), the last solve's gravity and median bias (a linearisation point
-    for fusion), and the method (``graph_cost_newton`` or ``graph_cost_parabola``)."""
+    for fusion), and the method."""
 
     offset_s: float
     std_s: float
     table: list[dict[str, float]]
     last: WindowInit | None
-    method: str
+    method: OffsetRefineMethod
 
 
 def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,
@@ -384,7 +385,8 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
     a, b, _ = np.polyfit(fine[ok], fc[ok], 2)
     table = [{"offset_s": float(k / 1e9), "cost_per_kkf": float(v)} for k, v in sorted(cache.items())]
     if a <= 0:
-        return _OffsetRefinement(float(fine[int(np.argmin(fc))]), float(h), table, init.get("x"), "graph_cost_parabola")
+        return _OffsetRefinement(float(fine[int(np.argmin(fc))]), float(h), table, init.get("x"),
+                                 OffsetRefineMethod.PARABOLA)
     vertex = float(-b / (2 * a))
     vertex = float(np.clip(vertex, fine[0], fine[-1]))
     # cost = 0.5 chi2 / K * 1000  -> d2(0.5 chi2)/d off2 = 2a K / 1000
@@ -392,7 +394,7 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
     n_kf = n_keyframes[min(n_keyframes, key=lambda k: abs(k / 1e9 - vertex))]
     curv = 2 * a * n_kf / 1000.0
     std = float(1.0 / math.sqrt(curv)) if curv > 0 else float(h)
-    return _OffsetRefinement(vertex, std, table, init.get("x"), "graph_cost_parabola")
+    return _OffsetRefinement(vertex, std, table, init.get("x"), OffsetRefineMethod.PARABOLA)
 
 
 def _newton_offset(problem: _Problem, coarse_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,
@@ -420,7 +422,7 @@ def _newton_offset(problem: _Problem, coarse_s: float, window: tuple[int, int], 
         if abs(offset - coarse_s) > max_offset_s:
             return None
         if abs(step) <= OFFSET_NEWTON_MAX_SIGMAS * std:
-            return _OffsetRefinement(float(offset), float(std), table, init, "graph_cost_newton")
+            return _OffsetRefinement(float(offset), float(std), table, init, OffsetRefineMethod.NEWTON)
     return None
 
 
@@ -709,8 +711,7 @@ class _ClockOffset:
         offset_s / std_s: The offset and its 1-sigma.
         coarse_method: The cross-correlation's signal (:func:`recovery.calibration_init.estimate_time_offset`),
             None when not estimated or when it failed.
-        refine_method: How the graph cost refined it (``graph_cost_newton`` / ``graph_cost_parabola``),
-            None when it did not.
+        refine_method: How the graph cost refined it, None when it did not.
         search: The refinement's cost per offset (``recovery.json`` ``pose_time_offset_search``).
         warnings: Plain sentences.
     """
@@ -719,7 +720,7 @@ class _ClockOffset:
     offset_s: float
     std_s: float
     coarse_method: str | None = None
-    refine_method: str | None = None
+    refine_method: OffsetRefineMethod | None = None
     search: tuple[dict[str, float], ...] = ()
     warnings: tuple[str, ...] = ()
 
@@ -729,7 +730,7 @@ class _ClockOffset:
         if self.mode != TimeOffsetMode.ESTIMATE:
             return "fixed"
         coarse = f"correlation_{self.coarse_method}" if self.coarse_method else "fixed"
-        return coarse + (f"+{self.refine_method}" if self.refine_method else "")
+        return coarse + (f"+{self.refine_method.value}" if self.refine_method else "")
 
 
 def _coarse_offset(inputs: _Inputs, config: RecoveryConfig) -> _ClockOffset:
@@ -1072,7 +1073,7 @@ def _calibration_covariance(offset: _ClockOffset, ext_sol: WindowSolution | None
     return CalibrationCovariance.assemble(
         extrinsic_cov=None if ext_sol is None else ext_sol.extras.get("extrinsic_cov"),
         lever_arm_cov=lever, R_imu_pose=gravity.T_imu_pose[:3, :3],
-        offset_std_s=offset.std_s if offset.mode == TimeOffsetMode.ESTIMATE and offset.refine_method else None)
+        offset_std_s=offset.std_s if offset.mode == TimeOffsetMode.ESTIMATE and offset.refine_method is not None else None)
 
 
 def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _Gravity, noise: _Noise,
