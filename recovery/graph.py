@@ -799,21 +799,23 @@ def _optimize(built: _Built, opts: SolveOptions, keep_linearisation: bool = Fals
     lin = None
     while len(errors) - 1 < opts.max_iterations:
         if values is not None:
-            lin = None  # the previous step's tree is not needed any more (peak memory: one tree)
+            # the previous step's linearisation and tree are not needed any more: release every
+            # reference before the next ones are built (peak memory: one of each)
+            lin = gfg = tree = None
             gfg = built.graph.linearize(values)
             tree = gfg.eliminateMultifrontal(order)
             new = values.retract(tree.optimize())
             err = float(built.graph.error(new))
             if not math.isfinite(err) or err > errors[-1] + REMAINING_DECREASE_TOL:
                 optimizer = _lm(built, values, order)  # not quadratic enough here: damped steps from now on
-                values, lin = None, None
+                values, lin, gfg, tree = None, None, None, None
                 continue
-            kept = _Linearised(values, gfg, tree) if keep_linearisation else None
+            if keep_linearisation:
+                lin = _Linearised(values, gfg, tree)
             if err > errors[-1]:  # no decrease: converged where the step started (GTSAM's rule)
-                lin = kept
                 errors.append(errors[-1])
                 break
-            lin, values = kept, new
+            values = new
             errors.append(err)
         else:
             optimizer.iterate()
