@@ -218,28 +218,48 @@ def tree_as_bayes_net(tree: gtsam.GaussianBayesTree) -> gtsam.GaussianBayesNet:
     return net
 
 
+class _Measured:
+    """The pose and velocity factors of a linearised solve as a graph of their own: their part
+    ``A^T A`` of the Gauss-Newton Hessian times a vector per key, and ``-A^T b``."""
+
+    def __init__(self, gfg: gtsam.GaussianFactorGraph, indices: list[int]) -> None:
+        self.graph = gtsam.GaussianFactorGraph()
+        self.keys: list[int] = []
+        for index in indices:
+            factor = gfg.at(index)
+            self.graph.push_back(factor)
+            self.keys.append(factor.keys()[0])
+        # one factor per key, else the columns are not one vector per key
+        self.one_per_key = len(set(self.keys)) == len(self.keys)
+        self.at_zero = self.graph.gradientAtZero()  # -A^T b
+
+    def along(self, vectors: list[np.ndarray]) -> tuple[gtsam.VectorValues, gtsam.VectorValues]:
+        """``x`` (``vectors`` on the factors' keys) and ``A^T A x`` (on the same keys)."""
+        x = gtsam.VectorValues()
+        for key, vector in zip(self.keys, vectors):
+            x.insert(key, vector)
+        return x, self.graph.gradient(x).subtract(self.at_zero)  # A^T (A x - b) + A^T b
+
+
+def _on_every_variable(v: gtsam.VectorValues, zero: gtsam.VectorValues) -> gtsam.VectorValues:
+    """``v`` with zeros for the other variables of ``zero`` (a right-hand side for the tree's net)."""
+    out = gtsam.VectorValues(zero)
+    out.update(v)
+    return out
+
+
 def _added_by_backsubstitution(gfg: gtsam.GaussianFactorGraph, indices: list[int], cols: list[np.ndarray],
                                tree: gtsam.GaussianBayesTree, zero: gtsam.VectorValues,
                                bias_keys: list[int]) -> np.ndarray | None:
     """``J l_i = -H^-1 A^T A x_i`` through ``tree`` (module docstring); None when a key carries
-    more than one of the factors (then ``x_i`` is not one vector per key)."""
-    measured = gtsam.GaussianFactorGraph()
-    keys = []
-    for index in indices:
-        factor = gfg.at(index)
-        measured.push_back(factor)
-        keys.append(factor.keys()[0])
-    if len(set(keys)) != len(keys):
+    more than one of the factors."""
+    measured = _Measured(gfg, indices)
+    if not measured.one_per_key:
         return None
-    at_zero = measured.gradientAtZero()  # -A^T b
     net = tree_as_bayes_net(tree)
     out = np.zeros((len(bias_keys), 6))
     for i in range(cols[0].shape[1]):
-        x = gtsam.VectorValues()
-        for key, col in zip(keys, cols):
-            x.insert(key, col[:, i])
-        g = gtsam.VectorValues(zero)
-        g.update(measured.gradient(x).subtract(at_zero))  # A^T (A x - b) + A^T b = A^T A x
+        g = _on_every_variable(measured.along([col[:, i] for col in cols])[1], zero)
         out += _bias_tangents(net.backSubstitute(net.backSubstituteTranspose(g)), bias_keys) ** 2
     return out
 
@@ -275,7 +295,7 @@ def _added_by_elimination(gfg: gtsam.GaussianFactorGraph, indices: list[int], co
 
 def parameter_slope_and_information(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBayesTree,
                                     factors: list[tuple[int, int, str]], columns: tuple[np.ndarray, np.ndarray],
-                                    zero: gtsam.VectorValues, index: int) -> tuple[float, float]:
+                                    zero: gtsam.VectorValues, index: int) -> tuple[float, float] | None:
     """The solve's cost (GTSAM's, 0.5 chi^2) as a function of one calibration parameter's value.
 
     With ``x`` the parameter's measurement columns on the pose and velocity keys and ``A``,
@@ -293,18 +313,12 @@ def parameter_slope_and_information(gfg: gtsam.GaussianFactorGraph, tree: gtsam.
 
     Returns:
         ``(slope, information)``; a Newton step on the value is ``-slope / information``, and
-        ``information^-1/2`` its 1-sigma.
+        ``information^-1/2`` its 1-sigma. None when a key carries more than one of the factors.
     """
     pose_col, vel_col = columns
-    measured = gtsam.GaussianFactorGraph()
-    x = gtsam.VectorValues()
-    for i, k, kind in factors:
-        factor = gfg.at(i)
-        measured.push_back(factor)
-        x.insert(factor.keys()[0], (pose_col[k] if kind == "x" else vel_col[k])[:, index])
-    at_zero = measured.gradientAtZero()  # -A^T b
-    hx = measured.gradient(x).subtract(at_zero)  # A^T A x
-    g = gtsam.VectorValues(zero)
-    g.update(hx)
-    y = tree_as_bayes_net(tree).backSubstituteTranspose(g)  # R^-T A^T A x
-    return -float(x.dot(at_zero)), float(x.dot(hx) - y.dot(y))
+    measured = _Measured(gfg, [i for i, _, _ in factors])
+    if not measured.one_per_key:
+        return None
+    x, hx = measured.along([(pose_col[k] if kind == "x" else vel_col[k])[:, index] for _, k, kind in factors])
+    y = tree_as_bayes_net(tree).backSubstituteTranspose(_on_every_variable(hx, zero))  # R^-T A^T A x
+    return -float(x.dot(measured.at_zero)), float(x.dot(hx) - y.dot(y))

@@ -1009,14 +1009,9 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
     a step before it, when it kept one)."""
     K = len(kf)
     bias_std = np.full((K, 6), np.nan)
-    if lin is not None and lin.tree is not None:  # the optimiser's last linearisation (see _optimize)
-        gfg, marg = lin.gfg, lin.tree
+    gfg, marg, _ = _linearised_at_optimum(built, result, lin)
+    if lin is not None:
         lin.tree = None  # freed with ``marg`` below
-    else:
-        gfg = built.graph.linearize(result)
-        # the Bayes tree of the chain in time order: the same marginals as gtsam.Marginals' COLAMD tree
-        # (1e-14 apart), 25 % less CPU with its queries on the benchmark's 180 s
-        marg = gfg.eliminateMultifrontal(elimination_order(result))
     if opts.marginal_extras:
         if opts.estimate_gravity:
             extras["gravity_cov_tangent"] = marg.marginalCovariance(G(0))
@@ -1043,6 +1038,19 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
         for c in range(6):
             bias_std[:, c] = np.interp(x, x[idx], bias_std[idx, c])
     return bias_std
+
+
+def _linearised_at_optimum(built: _Built, result: gtsam.Values, lin: _Linearised | None
+                           ) -> tuple[gtsam.GaussianFactorGraph, gtsam.GaussianBayesTree, gtsam.Values]:
+    """The linearisation the marginals and the calibration's sensitivities come from, its Bayes tree
+    and where it was taken: the optimiser's last one (``lin``, a step before the result) when it
+    kept one, else ``result``'s."""
+    if lin is not None and lin.tree is not None:
+        return lin.gfg, lin.tree, lin.values
+    gfg = built.graph.linearize(result)
+    # the Bayes tree of the chain in time order: the same marginals as gtsam.Marginals' COLAMD tree
+    # (1e-14 apart), 25 % less CPU with its queries on the benchmark's 180 s
+    return gfg, gfg.eliminateMultifrontal(elimination_order(result)), result
 
 
 def _calibration_columns(built: _Built, samples: MidpointSamples, kf: KeyframePoses,
@@ -1074,8 +1082,8 @@ def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBa
     cols = None if opts.calibration_cov is None else _calibration_columns(built, samples, kf, state, T_imu_pose, opts)
     if cols is None:
         return None
-    return added_bias_variance(gfg, cols[0], cols[1], opts.calibration_cov,
-                               [B(int(k)) for k in idx], elimination_order(result), tree=tree,
+    return added_bias_variance(gfg, cols[0], cols[1], opts.calibration_cov, [B(int(k)) for k in idx],
+                               elimination_order(result) if tree is None else None, tree=tree,
                                zero=None if tree is None else result.zeroVectors())
 
 
@@ -1089,13 +1097,10 @@ def _offset_sensitivity(built: _Built, result: gtsam.Values, samples: MidpointSa
     cols = _calibration_columns(built, samples, kf, state, T_imu_pose, opts)
     if cols is None:
         return
-    if lin is not None and lin.tree is not None:
-        gfg, tree, at = lin.gfg, lin.tree, lin.values
-    else:
-        gfg, at = built.graph.linearize(result), result
-        tree = gfg.eliminateMultifrontal(elimination_order(result))
-    slope, information = parameter_slope_and_information(gfg, tree, cols[0], cols[1], at.zeroVectors(), OFFSET_INDEX)
-    extras["offset_slope"], extras["offset_information"] = slope, information
+    gfg, tree, at = _linearised_at_optimum(built, result, lin)
+    sensitivity = parameter_slope_and_information(gfg, tree, cols[0], cols[1], at.zeroVectors(), OFFSET_INDEX)
+    if sensitivity is not None:
+        extras["offset_slope"], extras["offset_information"] = sensitivity
 
 
 def _keyframe_states(result: gtsam.Values, K: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
