@@ -247,7 +247,8 @@ def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | No
     bands = np.asarray(bands_hz, dtype=float)
     gain = np.zeros((len(bands), 3, 3))
     coh = np.zeros((len(bands), 3))
-    needed = np.ones(len(bands))
+    # a band of three or fewer independent averages has coherence 1 whatever the signals: it never counts
+    needed = np.full(len(bands), np.inf)
     segments = len(x) // nper  # independent ones: Welch's half-overlapping segments are correlated
     for b, (lo, hi) in enumerate(bands):
         sel = (f > lo) & (f <= hi)
@@ -255,8 +256,8 @@ def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | No
             continue
         averages = int(sel.sum()) * segments
         # the Beta(3, n - 3) quantile of the chance coherence of three inputs
-        needed[b] = (max(COUPLING_MIN_COHERENCE, float(betaincinv(3, averages - 3, 1.0 - COUPLING_CHANCE)))
-                     if averages > 3 else 1.0)
+        if averages > 3:
+            needed[b] = max(COUPLING_MIN_COHERENCE, float(betaincinv(3, averages - 3, 1.0 - COUPLING_CHANCE)))
         Sb = S[sel].sum(0)
         S_ww, S_wd, S_dd = Sb[:3, :3], Sb[:3, 3:], np.real(np.diag(Sb[3:, 3:]))
         Ht = np.linalg.solve(S_ww, S_wd)  # [rate, d]

@@ -169,6 +169,25 @@ def test_chance_coherence_of_unrelated_signals_does_not_count():
     assert kinds.count(CouplingKind.NONE) == 10, kinds
 
 
+def test_a_band_of_three_averages_never_counts_even_at_coherence_rounded_above_one():
+    """Three inputs and n <= 3 independent averages give a multiple coherence of exactly 1 for any
+    signals; rounding may put it a hair above 1, which must not pass for a coupling."""
+    from recovery.gyro_consistency import RateCoupling
+
+    gain = np.zeros((2, 3, 3))
+    gain[0, 1, 0] = 0.01
+    rc = RateCoupling(np.array([[0.0, 0.05], [0.2, 1.0]]), gain, np.array([[0.3, 1.0 + 1e-12, 0.3], [0.1] * 3]),
+                      np.array([np.inf, 0.6]))
+    assert rc.kind() is CouplingKind.NONE and "too few independent averages" in rc.sentence()
+    imu, poses = _rotation_sequence(np.zeros((3, 3)), None)
+    n = 60 * 200
+    one_minute = rate_coupling(ImuSeries(imu.t_ns[:n], imu.gyro_radps[:n], imu.acc_mps2[:n]),
+                               PoseSeries(poses.t_ns[:n // 2], poses.p_m[:n // 2], poses.quat_wxyz[:n // 2], "body",
+                                          PoseSourceKind.GROUND_TRUTH))
+    assert np.isinf(one_minute.coherence_needed[0])  # 0-0.05 Hz over two 30-s segments: 2 averages
+    assert one_minute.kind() is CouplingKind.NONE
+
+
 def test_quality_report_note_uses_the_recovered_offset_and_extrinsic(tmp_path):
     from pipeline.types import Sequence
     from recovery.outputs import RecoveryReport

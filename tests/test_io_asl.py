@@ -68,9 +68,23 @@ def test_v1_01_full_imu(v1_01: Sequence) -> None:
     np.testing.assert_array_equal(imu.acc_mps2[0], [9.0874956666666655, 0.13075533333333333, -3.6938381666666662])
     np.testing.assert_array_equal(imu.acc_mps2[-1], [9.1610455416666667, 0.26151066666666667, -3.2035056666666666])
     assert imu.rate_hz == pytest.approx(200.0, rel=1e-3)
-    assert v1_01.poses == {} and v1_01.ground_truth is None
-    assert v1_01.findings == []  # clean file, full sensor.yaml
+    assert v1_01.ground_truth is None
+    assert v1_01.findings == []  # clean files (the Vicon file's CRLF line ends included), full sensor.yaml
     assert v1_01.metadata["source_format"] == "asl"
+
+
+def test_v1_01_raw_vicon_stream(v1_01: Sequence) -> None:
+    """vicon0: 6-DoF poses of the Vicon body, CRLF line ends, 14629 rows (SOURCES.md)."""
+    assert list(v1_01.poses) == ["vicon0"]
+    vicon = v1_01.poses["vicon0"]
+    assert len(vicon) == 14629 and vicon.t_ns.dtype == np.int64
+    assert vicon.t_ns[0] == 1403715271705179904 and vicon.t_ns[-1] == 1403715417988117504
+    assert vicon.source_kind is PoseSourceKind.MOCAP and vicon.frame == "vicon_marker"
+    assert vicon.rate_hz == pytest.approx(100.0, rel=1e-2)
+    np.testing.assert_allclose(np.linalg.norm(vicon.quat_wxyz, axis=1), 1.0, atol=1e-6)
+    np.testing.assert_array_equal(vicon.p_m[0], [0.78680237507119299, 2.1766263084402229, 1.0620383602617547])
+    np.testing.assert_array_equal(vicon.quat_wxyz[0], [0.9932172094084879, -0.0092907273683985395,
+                                                       0.022668607879467291, 0.11366350133877155])
 
 
 def test_v1_01_sensor_yaml_with_yaml_directive(shared_data: Path, v1_01: Sequence) -> None:
@@ -86,7 +100,11 @@ def test_v1_01_sensor_yaml_with_yaml_directive(shared_data: Path, v1_01: Sequenc
     assert calib.rate_hz == 200.0
     np.testing.assert_array_equal(calib.T_body_imu, np.eye(4))
     assert v1_01.calibration.rate_hz == 200.0
-    assert v1_01.calibration.T_imu_frames == {}
+    # the Vicon body's pose in the IMU frame: vicon0/sensor.yaml's T_BS (imu0's own T_BS is identity)
+    assert list(v1_01.calibration.T_imu_frames) == ["vicon_marker"]
+    np.testing.assert_array_equal(v1_01.calibration.T_imu_frames["vicon_marker"][:3],
+                                  [[0.33638, -0.01749, 0.94156, 0.06901], [-0.02078, -0.99972, -0.01114, -0.02781],
+                                   [0.94150, -0.01582, -0.33665, -0.12395]])
 
 
 def test_mh_01_spreadsheet_imu(mh_01: Sequence, shared_data: Path) -> None:
@@ -153,14 +171,28 @@ GT_FILES = {
     "V2_02_medium": (23091, 1413393887225760512, 1413394002675760384),
     "V2_03_difficult": (22970, 1413394882790760448, 1413394997635760640),
 }
+# SOURCES.md: IMU rows, raw stream and its rows (MH_04 has neither a raw stream nor a sensor.yaml)
+RAW_FILES = {
+    "MH_04_difficult": (20320, None, 0),
+    "MH_05_difficult": (22721, "leica0", 1665),
+    "V1_02_medium": (17100, "vicon0", 9418),
+    "V1_03_difficult": (21500, "vicon0", 10807),
+    "V2_01_easy": (22800, "vicon0", 11395),
+    "V2_02_medium": (23490, "vicon0", 11740),
+    "V2_03_difficult": (23370, "vicon0", 11683),
+}
 
 
 @pytest.mark.parametrize("seq_name", sorted(GT_FILES))
 def test_euroc_ground_truth_states(shared_data: Path, seq_name: str) -> None:
     rows, first, last = GT_FILES[seq_name]
+    imu_rows, stream, stream_rows = RAW_FILES[seq_name]
     seq = read_asl(shared_data / "euroc" / seq_name)
     gt = seq.ground_truth
-    assert seq.imu is None and seq.poses == {}
+    assert len(seq.imu) == imu_rows and seq.imu.rate_hz == pytest.approx(200.0, rel=1e-3)
+    assert {k: len(v) for k, v in seq.poses.items()} == ({stream: stream_rows} if stream else {})
+    # the ground truth lies inside the IMU's span (EuRoC's estimate starts after the IMU)
+    assert seq.imu.t_ns[0] <= gt.t_ns[0] and gt.t_ns[-1] <= seq.imu.t_ns[-1]
     assert len(gt) == rows
     assert gt.t_ns[0] == first and gt.t_ns[-1] == last
     assert gt.rate_hz == pytest.approx(200.0, rel=1e-3)
@@ -168,7 +200,7 @@ def test_euroc_ground_truth_states(shared_data: Path, seq_name: str) -> None:
         assert np.isfinite(arr).all()
     np.testing.assert_allclose(np.linalg.norm(gt.quat_wxyz, axis=1), 1.0, atol=1e-3)  # 6 decimals
     assert np.abs(gt.bias_gyro_radps).max() < 0.2 and np.abs(gt.bias_acc_mps2).max() < 1.0
-    assert [f.code for f in seq.findings] == ["CALIBRATION_DEFAULTED"]
+    assert [f.code for f in seq.findings] == (["CALIBRATION_DEFAULTED"] if stream is None else [])
 
 
 def test_proto_excerpt_original_v1_01_bias(shared_data: Path) -> None:

@@ -271,7 +271,9 @@ def test_load_sequence_merges_extra_pose_inputs(shared_data):
     seq = load_sequence(root, extra_poses=[f"{gt_txt}:ground_truth"])
     assert len(seq.imu) == 29120
     name, poses = select_pose_stream(seq)
-    assert name == "V1_01_easy_original"
+    assert name == "V1_01_easy_original"  # the added stream comes before the folder's own vicon0
+    assert list(seq.poses) == ["vicon0", "V1_01_easy_original"]
+    assert select_pose_stream(seq, "vicon0")[0] == "vicon0"
     assert poses.source_kind is PoseSourceKind.GROUND_TRUTH
     assert len(poses) == 28712
     assert seq.metadata["extra_inputs"] == [str(gt_txt)]

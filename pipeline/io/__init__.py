@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 GROUND_TRUTH_STREAM = "ground_truth"
 #: Named streams first, in this order.
 PREFERRED_POSE_STREAMS = ("vicon0", "mocap0", "leica0")
+# sequence.metadata key: the pose streams merged from other inputs (--add-poses), first by default
+ADDED_POSE_STREAMS_KEY = "added_pose_streams"
 _KIND_RANK = {
     PoseSourceKind.MOCAP: 0,
     PoseSourceKind.POSITION_TRACKER: 1,
@@ -376,17 +378,22 @@ def add_pose_inputs(sequence: Sequence, inputs: Iterable[PoseInput]) -> Sequence
             if item.kind is not None:
                 poses = replace(poses, source_kind=item.kind)
             sequence.poses[new_name] = poses
+            sequence.metadata.setdefault(ADDED_POSE_STREAMS_KEY, []).append(new_name)
         sequence.findings.extend(other.findings)
         sequence.metadata.setdefault("extra_inputs", []).append(str(item.path))
     return sequence
 
 
 def _ordered_streams(sequence: Sequence) -> list[str]:
+    added = sequence.metadata.get(ADDED_POSE_STREAMS_KEY, [])
+
     def rank(item: tuple[int, str]) -> tuple[int, int, int]:
         i, stream = item
+        if stream in added:  # the user added it for a reason: it comes before the input's own streams
+            return (0, added.index(stream), i)
         if stream in PREFERRED_POSE_STREAMS:
-            return (0, PREFERRED_POSE_STREAMS.index(stream), i)
-        return (1 + _KIND_RANK[sequence.poses[stream].source_kind], 0, i)
+            return (1, PREFERRED_POSE_STREAMS.index(stream), i)
+        return (2 + _KIND_RANK[sequence.poses[stream].source_kind], 0, i)
 
     return [s for _, s in sorted(enumerate(sequence.poses), key=rank)]
 
@@ -402,9 +409,9 @@ def list_pose_streams(sequence: Sequence) -> list[str]:
 def select_pose_stream(sequence: Sequence, stream: str | None = None) -> tuple[str, PoseSeries]:
     """The pose stream to use: ``stream`` if given, else the first by default priority.
 
-    Priority: vicon0 > mocap0 > leica0 > other MOCAP > other POSITION_TRACKER > VIO >
-    GROUND_TRUTH-kind streams > the ground-truth state as poses (``"ground_truth"``,
-    via :meth:`StateSeries.to_pose_series`).
+    Priority: streams merged from other inputs (``--add-poses``, in the order given) > vicon0 >
+    mocap0 > leica0 > other MOCAP > other POSITION_TRACKER > VIO > GROUND_TRUTH-kind streams >
+    the ground-truth state as poses (``"ground_truth"``, via :meth:`StateSeries.to_pose_series`).
 
     Args:
         sequence: The sequence.
