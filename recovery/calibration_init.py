@@ -18,8 +18,9 @@ Methods, with their accuracy measured on ``pipeline.sim`` (60 s, handheld preset
 200 Hz with EuRoC noise and a drifting bias, mocap 100 Hz with 0.5 mm / 0.5 mrad noise,
 15 deg / 10 cm extrinsic; see ``tests/test_calibration_init.py``):
     * time offset (method ``"rotation"``): FFT cross-correlation of ``|omega|`` from the gyro
-      and from the poses (rotation invariant, so no extrinsic is needed) on a uniform grid
-      with a parabolic sub-sample step. The gyro bias skews ``|omega_imu|`` (2-9 ms error
+      and from the poses (rotation invariant, so no extrinsic is needed), both mean rates over
+      ``CORRELATION_WINDOW_S`` (a rate from one pair of 100-Hz mocap attitudes is mostly noise),
+      on a uniform grid with a parabolic sub-sample step. The gyro bias skews ``|omega_imu|`` (2-9 ms error
       on handheld motion), so a joint (R, b_g) fit at that offset gives the bias and the
       correlation is repeated on bias-free rates; finally a continuous 1-D search (+-3 grid
       steps) minimises the residual of the full vector fit ``omega_imu = R omega_pose + b_g``
@@ -87,6 +88,8 @@ __all__ = [
 
 #: Below this correlation the time-offset peak is not trusted.
 MIN_CORRELATION = 0.5
+#: The |omega| correlation compares mean rates over windows of this length.
+CORRELATION_WINDOW_S = 0.1
 #: Below this ratio of the smallest to largest eigenvalue of the rate covariance the
 #: extrinsic rotation is reported unobservable (rate std ratio ~ 0.1).
 MIN_ROTATION_CONDITION = 1e-2
@@ -361,7 +364,6 @@ def _rotation_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     dt_p = np.diff(t_pose_s)
     rv = relative_rotvecs(rot)
     x_native = np.linalg.norm(rv / dt_p[:, None], axis=1)
-    tm_pose = 0.5 * (t_pose_s[:-1] + t_pose_s[1:])
     if np.std(x_native) < 1e-6:
         raise RecoveryError(f"{_pose_name(poses)} does not rotate (constant orientation)", field="quat_wxyz",
                             hint="the clock offset cannot be found without motion; give --time-offset-s")
@@ -375,20 +377,25 @@ def _rotation_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     K = int(np.ceil(max_offset_s / dt))
     tg = np.arange((a_ns - t_ref) / NS_PER_S, (b_ns - t_ref) / NS_PER_S, dt)
     h = float(np.median(dt_p))
-    x = np.interp(tg, tm_pose, x_native)
+    crv = np.concatenate([np.zeros((1, 3)), np.cumsum(rv, axis=0)])
+    # |omega| over CORRELATION_WINDOW_S: a rate differenced from one pair of mocap attitudes carries
+    # their noise over one interval (EuRoC's 100-Hz Vicon: ~0.4 rad/s, a correlation of 0.3)
+    nc = max(1, int(round(CORRELATION_WINDOW_S / h)))
+    hc = nc * h
+    x_window = np.linalg.norm(crv[nc:] - crv[:-nc], axis=1) / (t_pose_s[nc:] - t_pose_s[:-nc])
+    x = np.interp(tg, 0.5 * (t_pose_s[nc:] + t_pose_s[:-nc]), x_window)
     tg_ext = tg[0] + dt * np.arange(-K, len(tg) + K)
     # Pose intervals inside the overlap, and window sums over n of them (pose side is fixed).
     idx = np.flatnonzero((t_pose_s[:-1] >= tg[0]) & (t_pose_s[1:] <= tg[-1]))
     n = max(1, int(round(window_s / h)))
     j0 = idx[: len(idx) - n + 1]  # windows [t_j, t_{j+n}], all inside
-    crv = np.concatenate([np.zeros((1, 3)), np.cumsum(rv, axis=0)])
     w_pose = (crv[j0 + n] - crv[j0]) / (t_pose_s[j0 + n] - t_pose_s[j0])[:, None]
 
     def w_imu(tau: float, sel: np.ndarray, Gb: np.ndarray) -> np.ndarray:
         return _mean_gyro(t_pose_s[j0[sel]] + tau, t_pose_s[j0[sel] + n] + tau, t_imu_s, Gb)
 
     def coarse(Gb: np.ndarray) -> tuple[float, float, int]:
-        y_ext = np.linalg.norm(_mean_gyro(tg_ext - h / 2, tg_ext + h / 2, t_imu_s, Gb), axis=1)
+        y_ext = np.linalg.norm(_mean_gyro(tg_ext - hc / 2, tg_ext + hc / 2, t_imu_s, Gb), axis=1)
         r = _lag_correlation(x, y_ext)
         k = int(np.argmax(r))
         if k <= 1 or k >= len(r) - 2:

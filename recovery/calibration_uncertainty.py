@@ -220,7 +220,10 @@ def tree_as_bayes_net(tree: gtsam.GaussianBayesTree) -> gtsam.GaussianBayesNet:
 
 class _Measured:
     """The pose and velocity factors of a linearised solve as a graph of their own: their part
-    ``A^T A`` of the Gauss-Newton Hessian times a vector per key, and ``-A^T b``."""
+    ``A^T A`` of the Gauss-Newton Hessian times a vector per key, and ``-A^T b``. A factor's
+    first key is the measured state (``X`` or ``V``); a pose factor may carry its correlated
+    error state ``N`` (:mod:`recovery.pose_error`) as a second key, which the calibration does
+    not move (its columns are zero there)."""
 
     def __init__(self, gfg: gtsam.GaussianFactorGraph, indices: list[int]) -> None:
         self.graph = gtsam.GaussianFactorGraph()
@@ -232,12 +235,16 @@ class _Measured:
         # one factor per key, else the columns are not one vector per key
         self.one_per_key = len(set(self.keys)) == len(self.keys)
         self.at_zero = self.graph.gradientAtZero()  # -A^T b
+        self.zeros = gtsam.VectorValues(self.at_zero)
+        self.zeros.setZero()
 
     def along(self, vectors: list[np.ndarray]) -> tuple[gtsam.VectorValues, gtsam.VectorValues]:
-        """``x`` (``vectors`` on the factors' keys) and ``A^T A x`` (on the same keys)."""
-        x = gtsam.VectorValues()
+        """``x`` (``vectors`` on the measured states' keys, zero on the others) and ``A^T A x``."""
+        given = gtsam.VectorValues()
         for key, vector in zip(self.keys, vectors):
-            x.insert(key, vector)
+            given.insert(key, vector)
+        x = gtsam.VectorValues(self.zeros)
+        x.update(given)
         return x, self.graph.gradient(x).subtract(self.at_zero)  # A^T (A x - b) + A^T b
 
 
@@ -272,7 +279,13 @@ def _added_by_elimination(gfg: gtsam.GaussianFactorGraph, indices: list[int], co
     for index, col in zip(indices, cols):
         jf = gfg.at(index)
         A, b = jf.jacobian()
-        replaced[index] = gtsam.JacobianFactor(jf.keys()[0], A, C_KEY, A @ col, b, unit[len(b)])
+        keys = jf.keys()
+        Ax = A[:, :col.shape[0]]  # the measured state's block
+        if len(keys) == 1:
+            replaced[index] = gtsam.JacobianFactor(keys[0], Ax, C_KEY, Ax @ col, b, unit[len(b)])
+        else:  # with the correlated error state N as its second key
+            replaced[index] = gtsam.JacobianFactor(keys[0], Ax, keys[1], A[:, col.shape[0]:], C_KEY, Ax @ col, b,
+                                                   unit[len(b)])
     aug = gtsam.GaussianFactorGraph()
     for i in range(gfg.size()):
         f = gfg.at(i)

@@ -43,13 +43,16 @@ class ExtrinsicMode(str, enum.Enum):
 
     KNOWN: the calibration (``T_imu_frames[frame]``), identity when absent.
     ESTIMATE: initialise from the data and refine jointly in the graph.
-    AUTO: KNOWN when the calibration names the tracked frame (or the frame is
-        the IMU itself), else ESTIMATE.
+    PRIOR: ESTIMATE with the calibration's value as a prior of ``extrinsic_prior_rotation_deg`` /
+        ``extrinsic_prior_translation_m`` per axis (KNOWN where the motion does not make it observable).
+    AUTO: PRIOR when the calibration names the tracked frame, KNOWN when the frame is the IMU
+        itself, else ESTIMATE.
     """
 
     AUTO = "auto"
     KNOWN = "known"
     ESTIMATE = "estimate"
+    PRIOR = "prior"
 
 
 class CalibrationSolve(str, enum.Enum):
@@ -130,6 +133,20 @@ class NoiseEstimation(str, enum.Enum):
     FIXED = "fixed"
 
 
+class PoseErrorMode(str, enum.Enum):
+    """How the time-correlated error of a 6-DoF absolute pose stream is modelled (:mod:`recovery.pose_error`).
+
+    AUTO: a first-order Gauss-Markov error per axis group (rotation, position), its sigma (zero
+        included: none) and correlation time chosen by evidence with the random walks.
+    WHITE: none; the pose noise is white.
+    FIXED: the ``pose_error_*`` sigmas and correlation times as given.
+    """
+
+    AUTO = "auto"
+    WHITE = "white"
+    FIXED = "fixed"
+
+
 class ImuGapPolicy(str, enum.Enum):
     """What to do with an IMU gap longer than ``max_imu_gap_s``.
 
@@ -170,6 +187,11 @@ class RecoveryConfig:
             the offset to ~0.05 ms in 20 s), else ``calib_window_s``.
         extrinsic_mode: See :class:`ExtrinsicMode`.
         extrinsic_keyframe_rate_hz: Keyframe rate of the joint extrinsic solve.
+        extrinsic_prior_rotation_deg / extrinsic_prior_translation_m: 1-sigma per axis of the prior a
+            calibration's ``T_imu_pose`` puts on its estimate (PRIOR): a calibration file's extrinsic
+            is rarely better than a few degrees and centimetres.
+        extrinsic_max_sigmas: The estimate's difference from the calibration beyond this many of its
+            sigmas is reported (a warning, and a limitation of the verdict).
         estimate_gravity: Estimate the gravity direction in the pose world frame;
             ``None`` (auto): yes, except for POSITION_TRACKER streams (levelled frames).
         gravity_mps2: Gravity magnitude.
@@ -189,6 +211,13 @@ class RecoveryConfig:
         pose_sigma_scales: Candidate factors of the pose sigmas (ignored when
             ``position_sigma_m`` is given).
         noise_keyframe_rate_hz: Keyframe rate of the evidence solves.
+        pose_error: See :class:`PoseErrorMode`.
+        pose_error_rotation_sigma_rad / pose_error_position_sigma_m: The correlated error's stationary
+            1-sigma per axis (FIXED; 0: none).
+        pose_error_rotation_tau_s / pose_error_position_tau_s: Its correlation times (FIXED).
+        pose_error_sigma_scales: AUTO: candidate sigmas of the correlated error, in units of the white
+            pose sigma per sample (0: none).
+        pose_error_taus_s: AUTO: candidate correlation times.
         position_only_window_s: Position-only streams (no orientation measured): the noise
             evidence window and the segments span up to this long instead of ``calib_window_s`` /
             ``segment_s``. From positions the gyro bias about gravity is seen only through the
@@ -239,6 +268,9 @@ class RecoveryConfig:
     offset_refine_window_s: float | None = None
     extrinsic_mode: ExtrinsicMode = ExtrinsicMode.AUTO
     extrinsic_keyframe_rate_hz: float | None = None
+    extrinsic_prior_rotation_deg: float = 5.0
+    extrinsic_prior_translation_m: float = 0.05
+    extrinsic_max_sigmas: float = 3.0
     estimate_gravity: bool | None = None
     gravity_mps2: float = 9.81
     gravity_window_s: float = 300.0
@@ -253,6 +285,13 @@ class RecoveryConfig:
     random_walk_scales: list[float] = field(default_factory=lambda: [0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0])
     pose_sigma_scales: list[float] = field(default_factory=lambda: [0.03, 0.1, 0.3, 1.0, 3.0, 10.0])
     noise_keyframe_rate_hz: float | None = None
+    pose_error: PoseErrorMode = PoseErrorMode.AUTO
+    pose_error_rotation_sigma_rad: float = 0.0
+    pose_error_rotation_tau_s: float = 1.0
+    pose_error_position_sigma_m: float = 0.0
+    pose_error_position_tau_s: float = 1.0
+    pose_error_sigma_scales: list[float] = field(default_factory=lambda: [0.0, 1.0, 3.0, 10.0, 30.0])
+    pose_error_taus_s: list[float] = field(default_factory=lambda: [0.1, 0.3, 1.0, 3.0, 10.0])
     position_only_window_s: float = 300.0
     integration_sigma: float = 1e-4
     robust_loss: RobustLoss = RobustLoss.HUBER
@@ -279,6 +318,7 @@ class RecoveryConfig:
         "noise_estimation": NoiseEstimation,
         "imu_gap_policy": ImuGapPolicy,
         "intrinsics": IntrinsicsMode,
+        "pose_error": PoseErrorMode,
     }
 
     def calibration_rate_hz(self, solve: CalibrationSolve | str, fused: bool) -> float:
@@ -313,6 +353,7 @@ class RecoveryConfig:
                 choices = ", ".join(e.value for e in enum_type)
                 raise ConfigError(f"invalid value {value!r}", field=name, hint=f"use one of {choices}") from None
         positive = ("max_time_offset_s", "offset_refine_step_s", "calib_window_s", "gravity_mps2", "gravity_window_s",
+                    "extrinsic_prior_rotation_deg", "extrinsic_prior_translation_m", "extrinsic_max_sigmas",
                     "position_only_window_s", "robust_k", "outlier_threshold", "max_imu_gap_s", "integration_sigma")
         for name in positive:
             if not float(getattr(self, name)) > 0:
@@ -334,6 +375,18 @@ class RecoveryConfig:
         if not self.random_walk_scales or any(float(s) <= 0 for s in self.random_walk_scales):
             raise ConfigError("must be a non-empty list of positive numbers", field="random_walk_scales")
         self.random_walk_scales = [float(s) for s in self.random_walk_scales]
+        for name in ("pose_error_rotation_sigma_rad", "pose_error_position_sigma_m"):
+            if not float(getattr(self, name)) >= 0:
+                raise ConfigError(f"must be >= 0, got {getattr(self, name)!r}", field=name)
+        for name in ("pose_error_rotation_tau_s", "pose_error_position_tau_s"):
+            if not float(getattr(self, name)) > 0:
+                raise ConfigError(f"must be > 0, got {getattr(self, name)!r}", field=name)
+        if not self.pose_error_sigma_scales or any(not float(s) >= 0 for s in self.pose_error_sigma_scales):
+            raise ConfigError("must be a non-empty list of numbers >= 0", field="pose_error_sigma_scales")
+        if not self.pose_error_taus_s or any(not float(s) > 0 for s in self.pose_error_taus_s):
+            raise ConfigError("must be a non-empty list of positive numbers", field="pose_error_taus_s")
+        self.pose_error_sigma_scales = [float(s) for s in self.pose_error_sigma_scales]
+        self.pose_error_taus_s = [float(s) for s in self.pose_error_taus_s]
         if not self.pose_sigma_scales or any(float(s) <= 0 for s in self.pose_sigma_scales):
             raise ConfigError("must be a non-empty list of positive numbers", field="pose_sigma_scales")
         self.pose_sigma_scales = [float(s) for s in self.pose_sigma_scales]

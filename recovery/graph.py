@@ -32,6 +32,8 @@ from recovery.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, OFFSET_I
     KeyframeKinematics, added_bias_variance, measurement_columns, parameter_slope_and_information
 from recovery.config import PoseFactorMode, RobustLoss
 from recovery.fusion import FusedPoses, PerBin, WithinBinStats
+from recovery.pose_error import PoseErrorModel, add_error_states, error_key, imu_pose_factor, tracked_pose_factor, \
+    velocity_fit_variance
 from recovery.preintegration import ImuNoise, MidpointSamples, RandomWalkBasis, make_params, preintegrate
 from recovery.rotations import matrix_to_quat_wxyz
 
@@ -122,6 +124,16 @@ class SolveOptions:
     # the cost's slope and information in the clock offset into extras (offset_slope,
     # offset_information; 6-DoF absolute pose factors only): recovery.calibration_uncertainty
     offset_sensitivity: bool = False
+    # the stream's time-correlated error as graph states (6-DoF absolute pose factors;
+    # recovery.pose_error); None or inactive: white pose noise only
+    pose_error: PoseErrorModel | None = None
+    # with estimate_extrinsic: a prior on E(0), (T_imu_pose [4, 4], sigmas [6]: rotation rad, translation m)
+    extrinsic_prior: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def correlated_error(self) -> PoseErrorModel | None:
+        """The active time-correlated pose error model, else None."""
+        return self.pose_error if self.pose_error is not None and self.pose_error.active else None
 
 
 @dataclass
@@ -625,6 +637,7 @@ def _add_position_factors(built: _Built, kf: KeyframePoses, T_imu_pose: np.ndarr
     lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
     if opts.estimate_extrinsic:
         built.values.insert(L(0), lever.copy())
+        _add_lever_arm_prior(built, opts)
     for k in range(len(kf)):
         if k in skip:
             continue
@@ -642,6 +655,7 @@ def _add_lever_arm_factors(built: _Built, kf: KeyframePoses, Z: list[Any], T_imu
     sr, sp = opts.rotation_sigma_rad, opts.position_sigma_m
     models = _FusedModels(kf, opts)
     built.values.insert(L(0), np.asarray(T_imu_pose, dtype=float)[:3, 3].copy())
+    _add_lever_arm_prior(built, opts)
     R_Et = _pose3(T_imu_pose).rotation().inverse()
     for k in range(len(kf)):
         if k in skip:
@@ -650,6 +664,16 @@ def _add_lever_arm_factors(built: _Built, kf: KeyframePoses, Z: list[Any], T_imu
         base_p, model_p = models.get("p", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(n)))
         _add_pose(built, k, gtsam.PoseRotationPrior3D(X(k), Z[k].rotation().compose(R_Et), model_r), base_r)
         _add_pose(built, k, gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model_p), base_p)
+
+
+def _add_lever_arm_prior(built: _Built, opts: SolveOptions) -> None:
+    """The calibration's lever arm as a prior on ``L(0)`` (with ``extrinsic_prior``)."""
+    if opts.extrinsic_prior is None:
+        return
+    T_prior, sigmas = opts.extrinsic_prior
+    prior = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float)[3:])
+    built.graph.add(gtsam.PriorFactorPoint3(L(0), np.asarray(T_prior, dtype=float)[:3, 3], prior))
+    built.neg_log_const += prior.negLogConstant()
 
 
 def _add_relative_factors(built: _Built, Xs: list[Any], T_imu_pose: np.ndarray, opts: SolveOptions,
@@ -680,12 +704,22 @@ def _add_relative_factors(built: _Built, Xs: list[Any], T_imu_pose: np.ndarray, 
 
 def _add_absolute_factors(built: _Built, kf: KeyframePoses, Xs: list[Any], Z: list[Any], T_imu_pose: np.ndarray,
                           opts: SolveOptions, skip: set[int]) -> None:
-    """6-DoF absolute poses: a prior on each IMU pose, or (extrinsic estimated) z = X E with E a variable."""
+    """6-DoF absolute poses: a prior on each IMU pose, or (extrinsic estimated) z = X E with E a variable;
+    with a correlated error model, its states ``N(k)`` enter each factor (:mod:`recovery.pose_error`)."""
     sr, sp = opts.rotation_sigma_rad, opts.position_sigma_m
     models = _FusedModels(kf, opts)
     Ep = _pose3(T_imu_pose)
     if opts.estimate_extrinsic:
         built.values.insert(E(0), Ep)
+        if opts.extrinsic_prior is not None:
+            T_prior, sigmas = opts.extrinsic_prior
+            prior = gtsam.noiseModel.Diagonal.Sigmas(np.asarray(sigmas, dtype=float))
+            built.graph.add(gtsam.PriorFactorPose3(E(0), _pose3(T_prior), prior))
+            built.neg_log_const += prior.negLogConstant()
+    gm = opts.correlated_error
+    if gm is not None:
+        built.neg_log_const += add_error_states(built.graph, built.values, kf.t_ns, gm)
+        S, Ad = gm.selection(), Ep.AdjointMap()
     cov = _pose_cov_in_imu(Ep, sr, sp)
     for k in range(len(kf)):
         if k in skip:
@@ -693,20 +727,29 @@ def _add_absolute_factors(built: _Built, kf: KeyframePoses, Xs: list[Any], Z: li
         if opts.estimate_extrinsic:
             base, model = models.get("e", k, lambda n: gtsam.noiseModel.Diagonal.Sigmas(
                 np.array([sr] * 3 + [sp] * 3) / math.sqrt(n)))
-            _add_pose(built, k, gtsam.CustomFactor(model, [X(k), E(0)], _extrinsic_error(Z[k])), base)
+            f = (tracked_pose_factor(Z[k], S, model, X(k), E(0), error_key(k)) if gm is not None
+                 else gtsam.CustomFactor(model, [X(k), E(0)], _extrinsic_error(Z[k])))
         else:
             base, model = models.get("x", k, lambda n: gtsam.noiseModel.Gaussian.Covariance(cov / n))
-            _add_pose(built, k, gtsam.PriorFactorPose3(X(k), Xs[k], model), base)
+            f = (imu_pose_factor(Xs[k], Ad, S, model, X(k), error_key(k)) if gm is not None
+                 else gtsam.PriorFactorPose3(X(k), Xs[k], model))
+        _add_pose(built, k, f, base)
 
 
 def _add_velocity_priors(built: _Built, kf: KeyframePoses, opts: SolveOptions, skip: set[int]) -> None:
     """The fused keyframes' velocities (the bins' line fits): std sigma_p / sqrt(sum dt^2), decoupled
-    from the position because the keyframe sits at the bin's mean sample time. Not while the lever
-    arm is a variable: the fused velocity was computed with a fixed one (omega x lever)."""
+    from the position because the keyframe sits at the bin's mean sample time, and widened by the
+    slope a correlated position error puts into the fit (:func:`recovery.pose_error.velocity_fit_variance`).
+    Not while the lever arm is a variable: the fused velocity was computed with a fixed one (omega x lever)."""
+    gm = opts.correlated_error
     for k in range(len(kf)):
         if k in skip or kf.dt2_s2[k] <= 0.0:
             continue
-        base = gtsam.noiseModel.Isotropic.Sigma(3, opts.position_sigma_m / math.sqrt(float(kf.dt2_s2[k])))
+        var = opts.position_sigma_m**2 / float(kf.dt2_s2[k])
+        if gm is not None and gm.position_active:
+            n = 1 if kf.count is None else int(kf.count[k])
+            var += velocity_fit_variance(gm, math.sqrt(12.0 * float(kf.dt2_s2[k]) / max(n, 1)))
+        base = gtsam.noiseModel.Isotropic.Sigma(3, math.sqrt(var))
         f = gtsam.PriorFactorVector(V(k), kf.v_mps[k], _robust(base, opts.robust_loss, opts.robust_k))
         _add_pose(built, k, f, base)
 
@@ -738,16 +781,19 @@ def _converged(errors: list[float], opts: SolveOptions) -> bool:
 
 
 def elimination_order(values: gtsam.Values) -> gtsam.Ordering:
-    """Keyframe variables in time order (``B(k), V(k), X(k)``), then the shared ones (``G``, ``E``, ``L``).
+    """Keyframe variables in time order (``B(k), V(k), [N(k),] X(k)``), then the shared ones (``G``, ``E``, ``L``).
 
     The graph is a chain in time plus the shared variables: eliminating along the chain gives
     cliques as small as COLAMD's, without computing COLAMD for every elimination.
     """
     ordering = gtsam.Ordering()
     k = 0
+    correlated = values.exists(error_key(0))
     while values.exists(X(k)):
         ordering.push_back(B(k))
         ordering.push_back(V(k))
+        if correlated:
+            ordering.push_back(error_key(k))
         ordering.push_back(X(k))
         k += 1
     for key in (G(0), E(0), L(0)):
@@ -776,26 +822,26 @@ def _lm(built: _Built, values: gtsam.Values, order: gtsam.Ordering) -> Any:
 
 def _optimize(built: _Built, opts: SolveOptions, keep_linearisation: bool = False
               ) -> tuple[gtsam.Values, int, _Linearised | None]:
-    """Levenberg-Marquardt from ``built.values`` until :func:`_converged`.
+    """Gauss-Newton steps from ``built.values`` until :func:`_converged`, Levenberg-Marquardt where
+    they do not descend.
 
-    With ``keep_linearisation`` (solves whose marginals follow), the steps are Gauss-Newton steps
-    through a Bayes tree eliminated here, and the last one's linearisation is returned with the
-    result: the marginals come from it instead of linearising and eliminating once more. It lies
-    one step before the result, a step the convergence rule bounds to a cost decrease of ~0.005 (a
-    Mahalanobis length of ~0.1); the bias variances of the benchmark's 180 s differ from those at
-    the result by ~1e-8 relative. GTSAM's Levenberg-Marquardt starts at a damping of 1e-5, a
-    Gauss-Newton step in all but name, plus the damped system and a copy of the graph (its first
-    step ~15 % slower on the 180 s; on the small calibration windows GTSAM's own loop is as fast).
-    A step that raises the cost by more than the tolerance hands over to Levenberg-Marquardt from
-    where it started (no linearisation kept).
+    The steps go through a Bayes tree eliminated here; with ``keep_linearisation`` (solves whose
+    marginals follow) the last one's linearisation is returned with the result: the marginals come
+    from it instead of linearising and eliminating once more. It lies one step before the result,
+    a step the convergence rule bounds to a cost decrease of ~0.005 (a Mahalanobis length of ~0.1);
+    the bias variances of the benchmark's 180 s differ from those at the result by ~1e-8 relative.
+    GTSAM's Levenberg-Marquardt starts at a damping of 1e-5, a Gauss-Newton step in all but name,
+    plus the damped system, a copy of the graph and an error evaluation per damping tried (costly
+    with the correlated pose error's Python factors). A step that raises the cost by more than the
+    tolerance hands over to Levenberg-Marquardt from where it started (no linearisation kept).
 
     Returns:
         The result, the iterations, and the kept linearisation (None if none).
     """
     order = elimination_order(built.values)
-    optimizer = None if keep_linearisation else _lm(built, built.values, order)
-    errors = [float(built.graph.error(built.values)) if optimizer is None else optimizer.error()]
-    values = built.values if keep_linearisation else None  # the Gauss-Newton iterate (None: LM steps)
+    optimizer = None
+    errors = [float(built.graph.error(built.values))]
+    values = built.values  # the Gauss-Newton iterate (None: LM steps)
     lin = None
     while len(errors) - 1 < opts.max_iterations:
         if values is not None:
@@ -1136,10 +1182,13 @@ def result_subset(result: gtsam.Values, template: gtsam.Values) -> gtsam.Values:
     """
     out = gtsam.Values(result)
     wanted = set(template.keys())
+    n0 = error_key(0)
+    if out.exists(n0) and template.exists(n0) and len(out.atVector(n0)) != len(template.atVector(n0)):
+        wanted = {key for key in wanted if chr(gtsam.Symbol(key).chr()) != "n"}  # another error model: restart it
     for key in list(out.keys()):
         if key not in wanted:
             out.erase(key)
-    for key in wanted:
+    for key in template.keys():
         if not out.exists(key):
             out.insert(key, _value_at(template, key, template))
     return out
@@ -1149,7 +1198,7 @@ def _value_at(result: gtsam.Values, key: int, template: gtsam.Values) -> Any:
     ch = chr(gtsam.Symbol(key).chr())
     if ch == "x" or ch == "e":
         return result.atPose3(key)
-    if ch == "v":
+    if ch == "v" or ch == "n":
         return result.atVector(key)
     if ch == "b":
         return result.atConstantBias(key)

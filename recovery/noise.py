@@ -38,6 +38,7 @@ import numpy as np
 
 from recovery.config import NoiseEstimation, PoseSigmaMethod
 from recovery.graph import KeyframePoses, SolveOptions, WindowInit, evidence_step, random_walk_basis, solve_window
+from recovery.pose_error import PoseErrorModel
 from recovery.preintegration import ImuNoise, MidpointSamples
 
 log = logging.getLogger(__name__)
@@ -57,6 +58,7 @@ class NoiseChoice:
         pose_method: How the pose sigmas were chosen (with ``method`` FIXED: as given).
         method: Evidence search or fixed (as given).
         table: Every evaluated candidate with its log evidence.
+        pose_error: The pose stream's time-correlated error (:mod:`recovery.pose_error`), None: white only.
     """
 
     imu: ImuNoise
@@ -68,9 +70,11 @@ class NoiseChoice:
     method: NoiseEstimation = NoiseEstimation.FIXED
     table: list[dict[str, float]] = field(default_factory=list)
     pose_method: PoseSigmaMethod = PoseSigmaMethod.EVIDENCE
+    pose_error: PoseErrorModel | None = None
 
     def to_dict(self) -> dict:
         return {
+            "pose_error": None if self.pose_error is None else self.pose_error.to_dict(),
             **self.imu.to_dict(),
             "position_sigma_m": float(self.position_sigma_m),
             "rotation_sigma_rad": float(self.rotation_sigma_rad),
@@ -85,9 +89,9 @@ class NoiseChoice:
 
 
 def _argmax_parabolic_log(scales: list[float], ev: list[float]) -> float:
-    """Best scale; refined by a parabola in log-scale when the optimum is interior."""
+    """Best scale; refined by a parabola in log-scale when the optimum is interior (and not next to 0)."""
     i = int(np.nanargmax(ev))
-    if 0 < i < len(scales) - 1 and all(math.isfinite(e) for e in ev[i - 1:i + 2]):
+    if 0 < i < len(scales) - 1 and all(math.isfinite(e) for e in ev[i - 1:i + 2]) and scales[i - 1] > 0:
         x = np.log(scales[i - 1:i + 2])
         y = np.asarray(ev[i - 1:i + 2])
         a, b, _ = np.polyfit(x, y, 2)
@@ -98,10 +102,31 @@ def _argmax_parabolic_log(scales: list[float], ev: list[float]) -> float:
     return float(scales[i])
 
 
+def _grid_index(grid: list[float], value: float) -> int:
+    """The grid point nearest ``value`` in log scale (0 only for 0)."""
+    if value <= 0:
+        return int(np.argmin(grid))
+    logs = [abs(math.log(g) - math.log(value)) if g > 0 else math.inf for g in grid]
+    return int(np.argmin(logs))
+
+
 def _imu_noise(base: ImuNoise, gyro_rw_scale: float, acc_rw_scale: float) -> ImuNoise:
     """``base`` with its random walks scaled."""
     return replace(base, gyro_random_walk=base.gyro_random_walk * gyro_rw_scale,
                    acc_random_walk=base.acc_random_walk * acc_rw_scale)
+
+
+@dataclass(frozen=True)
+class PoseErrorGrid:
+    """Candidates of the correlated pose error (:mod:`recovery.pose_error`) for the evidence search.
+
+    Attributes:
+        sigma_scales: Stationary sigmas in units of the white per-sample sigma (0: none).
+        taus_s: Correlation times.
+    """
+
+    sigma_scales: tuple[float, ...]
+    taus_s: tuple[float, ...]
 
 
 def estimate_noise(
@@ -119,46 +144,56 @@ def estimate_noise(
     estimate_gyro: bool = True,
     estimate_acc: bool = True,
     init: WindowInit | None = None,
+    pose_error: PoseErrorGrid | None = None,
 ) -> NoiseChoice:
-    """Coordinate-wise evidence maximisation (see the module docstring)."""
+    """Coordinate-wise evidence maximisation (see the module docstring).
+
+    With ``pose_error`` (6-DoF absolute streams), the correlated error's sigma and correlation
+    time per axis group are coordinates too, searched before the random walks and once more after
+    them (the two explain the same slow disagreement, as a bounded error or as a walking bias).
+    """
     opts = replace(opts, compute_marginals=False, marginal_extras=False, reject_outliers=False, residuals=False)
-    state = {"g": 10.0 if 10.0 in rw_scales else rw_scales[len(rw_scales) // 2],
-             "a": 10.0 if 10.0 in rw_scales else rw_scales[len(rw_scales) // 2], "p": 1.0}
-    if not estimate_gyro:
-        state["g"] = 1.0
-    if not estimate_acc:
-        state["a"] = 1.0
+    start_rw = 10.0 if 10.0 in rw_scales else rw_scales[len(rw_scales) // 2]
+    state = {"g": start_rw if estimate_gyro else 1.0, "a": start_rw if estimate_acc else 1.0, "p": 1.0,
+             "rs": 0.0, "rt": 1.0, "ps": 0.0, "pt": 1.0}
     table: list[dict[str, float]] = []
-    cache: dict[tuple[float, float, float], float] = {}
+    cache: dict[tuple[float, ...], float] = {}
 
     # Warm start of each candidate: the optimum of the best candidate so far (same graph, nearby
     # noise: LM needs ~2 iterations instead of ~5, and the optimum is the same). From the best one,
     # not the last one: a candidate far off (e.g. a pose sigma 30x too small for a position-only
     # stream over minutes) can settle in a wrong attitude minimum, and chaining from it would
     # carry that minimum into every later candidate.
-    warm: dict[str, Any] = {"init": init, "ev": float("-inf"), "p": None}
-    like: dict[float, Any] = {}  # per pose scale: the last evidence step's graph (its pose factors are shared)
+    warm: dict[str, Any] = {"init": init, "ev": float("-inf"), "pose": None}
+    like: dict[tuple[float, ...], Any] = {}  # per pose model: the last evidence step's graph (its pose factors are shared)
     within = kf.within_bin()
     # one preintegration for every candidate, at the start's noise and bias (the candidates differ
     # in their random walks only, which re-weight it exactly: RandomWalkBasis)
     basis = random_walk_basis(samples, _imu_noise(base_imu, state["g"], state["a"]), opts, init)
 
-    def evaluate(g: float, a: float, p: float) -> float:
-        key = (round(g, 6), round(a, 6), round(p, 6))
+    def model_of(st: dict[str, float]) -> PoseErrorModel | None:
+        if pose_error is None:
+            return None
+        return PoseErrorModel(base_rotation_sigma_rad * st["rs"], st["rt"], base_position_sigma_m * st["ps"], st["pt"])
+
+    def evaluate(st: dict[str, float]) -> float:
+        key = tuple(round(st[k], 6) for k in ("g", "a", "p", "rs", "rt", "ps", "pt"))
         if key in cache:
             return cache[key]
-        o = replace(opts, position_sigma_m=base_position_sigma_m * p, rotation_sigma_rad=base_rotation_sigma_rad * p)
-        noise = _imu_noise(base_imu, g, a)
+        pose_key = key[2:]
+        o = replace(opts, position_sigma_m=base_position_sigma_m * st["p"],
+                    rotation_sigma_rad=base_rotation_sigma_rad * st["p"], pose_error=model_of(st))
+        noise = _imu_noise(base_imu, st["g"], st["a"])
         try:
             # a random walk next to a solved candidate: one Gauss-Newton step from its optimum
-            # (graph.evidence_step); solved: the pose sigmas, whose candidates lie further apart, and
+            # (graph.evidence_step); solved: the pose models, whose candidates lie further apart, and
             # position-only streams, whose attitude (seen through positions alone) is less linear
             step = None
-            if (p == warm["p"] and kf.quat_wxyz is not None and warm["init"] is not None
+            if (pose_key == warm["pose"] and kf.quat_wxyz is not None and warm["init"] is not None
                     and warm["init"].values is not None):
-                step = evidence_step(samples, kf, noise, T_imu_pose, o, warm["init"], basis, like.get(p))
+                step = evidence_step(samples, kf, noise, T_imu_pose, o, warm["init"], basis, like.get(pose_key))
             if step is not None:
-                ev, start, like[p] = step
+                ev, start, like[pose_key] = step
             else:
                 sol = solve_window(samples, kf, noise, T_imu_pose, o, warm["init"], want_evidence=True, basis=basis)
                 ev, start = sol.log_evidence, WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias,
@@ -166,12 +201,15 @@ def estimate_noise(
             if within is not None:  # fused keyframes: the samples' scatter about them
                 ev += within.log_likelihood(o.position_sigma_m, o.rotation_sigma_rad)
             if ev > warm["ev"]:
-                warm.update(ev=ev, init=start, p=p)
+                warm.update(ev=ev, init=start, pose=pose_key)
         except Exception as exc:  # a diverged candidate is simply not chosen
-            log.debug("noise candidate g=%g a=%g p=%g failed: %s", g, a, p, exc)
+            log.debug("noise candidate %s failed: %s", key, exc, exc_info=True)
             ev = float("-inf")
         cache[key] = ev
-        table.append({"gyro_rw_scale": g, "acc_rw_scale": a, "pose_scale": p, "log_evidence": float(ev)})
+        table.append({"gyro_rw_scale": st["g"], "acc_rw_scale": st["a"], "pose_scale": st["p"],
+                      **({} if pose_error is None else {"rotation_error_sigma_scale": st["rs"], "rotation_error_tau_s": st["rt"],
+                                                        "position_error_sigma_scale": st["ps"], "position_error_tau_s": st["pt"]}),
+                      "log_evidence": float(ev)})
         return ev
 
     chosen = dict(state)
@@ -181,22 +219,20 @@ def estimate_noise(
         neighbours and walk uphill until the best point has evaluated neighbours on both
         sides (or is at the grid edge); then a parabola in log-scale. On a unimodal
         evidence curve this returns what the full grid would, at ~3-4 instead of 6-7 solves.
-        The acc random walk is searched at the gyro's best grid point (already evaluated: its
-        search starts there without a new solve), not at the gyro parabola's vertex, which lies
-        within half a grid step of it: the two walks act on different bias components, and the
+        A coordinate is searched at the others' best grid points (already evaluated: its
+        search starts there without a new solve), not at their parabolas' vertices, which lie
+        within half a grid step of them (the random walks act on different bias components: the
         acc evidence curve at the gyro's grid point and at its vertex differ by ~0.1 in log
-        evidence (the acc choice by ~0.1 %). The pose sigma, which trades off against both, is
+        evidence, the acc choice by ~0.1 %). The pose sigma, which trades off against both, is
         fixed at its vertex before they are searched."""
         grid = sorted(grid)
         n = len(grid)
-        i0 = int(np.argmin(np.abs(np.log(grid) - math.log(state[name]))))
+        i0 = _grid_index(grid, state[name])
         evs: dict[int, float] = {}
 
         def at(j: int) -> float:
             if j not in evs:
-                args = dict(state)
-                args[name] = grid[j]
-                evs[j] = evaluate(args["g"], args["a"], args["p"])
+                evs[j] = evaluate({**state, name: grid[j]})
             return evs[j]
 
         for j in sorted(range(max(i0 - 1, 0), min(i0 + 1, n - 1) + 1), key=lambda j: abs(j - i0)):
@@ -214,12 +250,23 @@ def estimate_noise(
 
     if estimate_pose:
         search("p", list(pose_scales or POSE_SCALES))
-    if estimate_gyro:
-        search("g", list(rw_scales))
-    if estimate_acc:
-        search("a", list(rw_scales))
+    passes = 2 if pose_error is not None else 1
+    for _ in range(passes):
+        if pose_error is not None:
+            for group in ("r", "p"):
+                search(group + "s", list(pose_error.sigma_scales))
+                if state[group + "s"] > 0:
+                    search(group + "t", list(pose_error.taus_s))
+        if estimate_gyro:
+            search("g", list(rw_scales))
+        if estimate_acc:
+            search("a", list(rw_scales))
+    for name in ("rs", "rt", "ps", "pt"):
+        chosen[name] = state[name]  # the grid point: the error model's coordinates are not interpolated
     noise = _imu_noise(base_imu, chosen["g"], chosen["a"])
-    log.info("noise by evidence: gyro rw x%.3g, acc rw x%.3g, pose sigma x%.3g (%d candidates)",
-             chosen["g"], chosen["a"], chosen["p"], len(table))
+    model = model_of(chosen)
+    log.info("noise by evidence: gyro rw x%.3g, acc rw x%.3g, pose sigma x%.3g, correlated error %s (%d candidates)",
+             chosen["g"], chosen["a"], chosen["p"], None if model is None else model.to_dict(), len(table))
     return NoiseChoice(noise, base_position_sigma_m * chosen["p"], base_rotation_sigma_rad * chosen["p"],
-                       chosen["g"], chosen["a"], chosen["p"], NoiseEstimation.EVIDENCE, table)
+                       chosen["g"], chosen["a"], chosen["p"], NoiseEstimation.EVIDENCE, table,
+                       pose_error=model if model is not None and model.active else None)

@@ -54,16 +54,19 @@ from recovery.config import (
     IntrinsicsMode,
     NoiseEstimation,
     PoseFactorMode,
+    PoseErrorMode,
     PoseSigmaMethod,
     RecoveryConfig,
     TimeOffsetMode,
 )
 from recovery import calibration_init as ci
 from recovery.bounds import bias_rmse_floor
+from recovery.extrinsic import CalibrationDifference, calibration_difference
 from recovery.calibration_uncertainty import OFFSET_INDEX, CalibrationCovariance
 from recovery.fusion import fuse_poses
 from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, propagate_orientations, solve_window
-from recovery.noise import NoiseChoice, estimate_noise
+from recovery.noise import NoiseChoice, PoseErrorGrid, estimate_noise
+from recovery.pose_error import PoseErrorModel
 from recovery.outputs import RecoveryOutputs, RecoveryReport
 from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
 from recovery.segments import plan_segments, stitch
@@ -805,19 +808,25 @@ class _ExtrinsicInit:
 
 
 def _extrinsic_init(sequence: Sequence, inputs: _Inputs, offset_s: float, config: RecoveryConfig) -> _ExtrinsicInit:
-    """Stage 4: the calibration's extrinsic, or a closed-form rotation and lever arm from the data."""
+    """Stage 4: the calibration's extrinsic, or a closed-form rotation and lever arm from the data
+    (with the calibration's value as a prior in PRIOR mode)."""
     imu, poses, warnings = inputs.imu, inputs.poses, []
     known_T = _known_extrinsic(sequence, poses)
     mode = config.extrinsic_mode
     if mode == ExtrinsicMode.AUTO:
-        mode = ExtrinsicMode.KNOWN if known_T is not None else ExtrinsicMode.ESTIMATE
+        from_calibration = poses.frame in sequence.calibration.T_imu_frames
+        mode = (ExtrinsicMode.PRIOR if from_calibration else
+                ExtrinsicMode.KNOWN if known_T is not None else ExtrinsicMode.ESTIMATE)
+    if mode == ExtrinsicMode.PRIOR and known_T is None:
+        mode = ExtrinsicMode.ESTIMATE  # no calibration value to be a prior
     T = known_T.copy() if known_T is not None else np.eye(4)
     info: dict[str, Any] = {"mode": mode.value, "source": "calibration" if known_T is not None else "identity"}
     excitation = _rotation_excitation_deg(poses) if inputs.has_rot else float("nan")
     rot_observable, estimate_rotation, estimate_lever = True, False, False
-    if mode == ExtrinsicMode.ESTIMATE and not inputs.has_rot:
+    estimating = mode in (ExtrinsicMode.ESTIMATE, ExtrinsicMode.PRIOR)
+    if estimating and not inputs.has_rot:
         estimate_lever = True
-    elif mode == ExtrinsicMode.ESTIMATE:
+    elif estimating:
         try:
             rot = ci.estimate_extrinsic_rotation(imu, poses, offset_s)
             rot_observable = bool(rot.observable) and excitation >= config.min_rotation_excitation_deg
@@ -839,7 +848,14 @@ def _extrinsic_init(sequence: Sequence, inputs: _Inputs, offset_s: float, config
             except BiasgtError as exc:
                 warnings.append(f"lever-arm initialisation failed: {exc}")
         estimate_rotation = estimate_lever = rot_observable
-    opts = replace(inputs.opts, estimate_extrinsic=estimate_rotation or estimate_lever, marginal_extras=True)
+    prior = None
+    if mode == ExtrinsicMode.PRIOR and (estimate_rotation or estimate_lever):
+        prior = (known_T.copy(), np.array([math.radians(config.extrinsic_prior_rotation_deg)] * 3
+                                          + [config.extrinsic_prior_translation_m] * 3))
+        info["prior_sigma"] = {"rotation_deg": float(config.extrinsic_prior_rotation_deg),
+                               "translation_m": float(config.extrinsic_prior_translation_m)}
+    opts = replace(inputs.opts, estimate_extrinsic=estimate_rotation or estimate_lever, marginal_extras=True,
+                   extrinsic_prior=prior)
     return _ExtrinsicInit(mode, known_T, T, info, excitation, bool(rot_observable) if inputs.has_rot else None,
                           opts, estimate_lever, tuple(warnings))
 
@@ -889,9 +905,20 @@ def _extrinsic_info(init: _ExtrinsicInit, sol: WindowSolution | None) -> dict[st
         if "lever_arm_cov" in sol.extras:
             info["translation_std_m"] = [float(x) for x in np.sqrt(np.diag(sol.extras["lever_arm_cov"]))]
         info["source"] = "estimated"
-    elif init.mode == ExtrinsicMode.ESTIMATE and init.rotation_observable is False:
+    elif init.mode in (ExtrinsicMode.ESTIMATE, ExtrinsicMode.PRIOR) and init.rotation_observable is False:
         info["source"] = "fallback_" + info["source"]
     return info
+
+
+def _difference_from_calibration(init: _ExtrinsicInit, ext_sol: WindowSolution | None, gravity: "_Gravity",
+                                 config: RecoveryConfig) -> CalibrationDifference | None:
+    """The estimated extrinsic against the calibration's prior (PRIOR mode, when estimated)."""
+    if init.mode != ExtrinsicMode.PRIOR or init.known is None or ext_sol is None:
+        return None
+    lever_cov = (gravity.solution.extras.get("lever_arm_cov") if gravity.solution is not None
+                 and gravity.extrinsic_info.get("lever_arm_refined_window_s") else ext_sol.extras.get("lever_arm_cov"))
+    return calibration_difference(init.known, gravity.T_imu_pose, ext_sol.extras.get("extrinsic_cov"), lever_cov,
+                                  config.extrinsic_max_sigmas)
 
 
 @dataclass(frozen=True)
@@ -919,7 +946,8 @@ def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, off
                                 replace(inputs.opts, reject_outliers=False, residuals=False))
             problem.set_linearisation(gravity_unit=sol0.gravity_unit, bias=_bias_function(sol0))
     if config.noise_estimation != NoiseEstimation.EVIDENCE:
-        choice = NoiseChoice(inputs.imu_noise, inputs.position_sigma_m, inputs.rotation_sigma_rad)
+        choice = NoiseChoice(inputs.imu_noise, inputs.position_sigma_m, inputs.rotation_sigma_rad,
+                             pose_error=_fixed_pose_error(inputs, config))
         return _Noise(choice, None, None, ())
     rate = config.calibration_rate_hz(CalibrationSolve.NOISE, problem.fuse)
     noise_win, init, chain = calib, None, None
@@ -941,14 +969,33 @@ def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, off
         bias = problem.bias(w[1].t_ns) if callable(problem.bias) else problem.bias
         init = WindowInit(gravity_unit=problem.gravity_world / np.linalg.norm(problem.gravity_world), bias=bias)
     sp, sr, pose_method = _pose_sigmas_from_fusion(w[1], inputs.position_sigma_m, inputs.rotation_sigma_rad, config)
-    choice = estimate_noise(w[0], w[1], inputs.imu_noise, sp, sr, T, inputs.opts, config.random_walk_scales,
+    searched_error = (PoseErrorGrid(tuple(config.pose_error_sigma_scales), tuple(config.pose_error_taus_s))
+                      if config.pose_error is PoseErrorMode.AUTO and _correlated_error_applies(inputs) else None)
+    choice = estimate_noise(w[0], w[1], inputs.imu_noise, sp, sr, T,
+                            replace(inputs.opts, pose_error=_fixed_pose_error(inputs, config)), config.random_walk_scales,
                             estimate_pose=config.position_sigma_m is None and pose_method is PoseSigmaMethod.EVIDENCE,
-                            pose_scales=config.pose_sigma_scales, init=init)
+                            pose_scales=config.pose_sigma_scales, init=init, pose_error=searched_error)
     if pose_method is not PoseSigmaMethod.EVIDENCE:
         choice.pose_scale = sp / inputs.position_sigma_m
         choice.pose_method = pose_method
+    if searched_error is None:
+        choice.pose_error = _fixed_pose_error(inputs, config)
     window_s = float((noise_win[1] - noise_win[0]) / NS_PER_S)
     return _Noise(choice, chain, window_s, _grid_edge_warnings(choice, inputs.kind, config))
+
+
+def _correlated_error_applies(inputs: _Inputs) -> bool:
+    """Whether the stream can carry a time-correlated error model (6-DoF absolute pose factors)."""
+    return inputs.has_rot and inputs.pose_mode == PoseFactorMode.ABSOLUTE
+
+
+def _fixed_pose_error(inputs: _Inputs, config: RecoveryConfig) -> PoseErrorModel | None:
+    """The configured time-correlated pose error (FIXED, 6-DoF absolute streams), else None."""
+    if config.pose_error is not PoseErrorMode.FIXED or not _correlated_error_applies(inputs):
+        return None
+    model = PoseErrorModel(config.pose_error_rotation_sigma_rad, config.pose_error_rotation_tau_s,
+                           config.pose_error_position_sigma_m, config.pose_error_position_tau_s)
+    return model if model.active else None
 
 
 def _grid_edge_warnings(choice: NoiseChoice, kind: PoseSourceKind, config: RecoveryConfig) -> tuple[str, ...]:
@@ -995,7 +1042,8 @@ class _Gravity:
 
 
 def _gravity(problem: _Problem, inputs: _Inputs, offset_s: float, T: np.ndarray, ext_sol: WindowSolution | None,
-             estimate_lever: bool, choice: NoiseChoice, config: RecoveryConfig) -> _Gravity:
+             estimate_lever: bool, choice: NoiseChoice, config: RecoveryConfig,
+             extrinsic_prior: tuple[np.ndarray, np.ndarray] | None = None) -> _Gravity:
     """Stage 7: one decimated solve over a long window for the gravity direction (and the lever arm)."""
     t_pose = _shifted_stamps(inputs.poses, offset_s)
     info: dict[str, Any] = {}
@@ -1003,7 +1051,7 @@ def _gravity(problem: _Problem, inputs: _Inputs, offset_s: float, T: np.ndarray,
     unit = np.array([0.0, 0.0, -1.0])
     gsol, gwin = None, None
     gopts = replace(inputs.opts, position_sigma_m=choice.position_sigma_m, rotation_sigma_rad=choice.rotation_sigma_rad,
-                    marginal_extras=True)
+                    marginal_extras=True, pose_error=choice.pose_error)
     refine_lever = ext_sol is not None and inputs.has_rot and estimate_lever
     seg_s, seg_overlap_s = config.segment_plan(_solve_rate_hz(config, problem))
     if not inputs.has_rot and config.position_only_window_s > seg_s:  # see position_only_window_s
@@ -1020,7 +1068,8 @@ def _gravity(problem: _Problem, inputs: _Inputs, offset_s: float, T: np.ndarray,
         gwin = (ga, gb)
         if w is not None:
             g_init = ext_sol.gravity_unit if ext_sol is not None and inputs.estimate_gravity else None
-            gsol = solve_window(w[0], w[1], choice.imu, T, replace(gopts, estimate_lever_arm=refine_lever),
+            gsol = solve_window(w[0], w[1], choice.imu, T, replace(gopts, estimate_lever_arm=refine_lever,
+                                                                   extrinsic_prior=extrinsic_prior),
                                 WindowInit(gravity_unit=g_init))
             unit = gsol.gravity_unit
             if refine_lever:
@@ -1083,7 +1132,7 @@ def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _G
     t_pose = _shifted_stamps(inputs.poses, offset_s)
     choice, gsol, gwin, T = noise.choice, gravity.solution, gravity.window, gravity.T_imu_pose
     info: dict[str, Any] = {}
-    full_opts = replace(inputs.opts, position_sigma_m=choice.position_sigma_m,
+    full_opts = replace(inputs.opts, position_sigma_m=choice.position_sigma_m, pose_error=choice.pose_error,
                         rotation_sigma_rad=choice.rotation_sigma_rad, compute_marginals=config.compute_marginals,
                         estimate_gravity=False, marginal_rate_hz=config.marginal_rate_hz,
                         calibration_cov=calibration)
@@ -1177,7 +1226,8 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     timings["noise_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    gravity = _gravity(problem, inputs, offset.offset_s, T, ext_sol, ext_init.estimate_lever, noise.choice, config)
+    gravity = _gravity(problem, inputs, offset.offset_s, T, ext_sol, ext_init.estimate_lever, noise.choice, config,
+                       ext_init.opts.extrinsic_prior)
     timings["gravity_s"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
@@ -1188,6 +1238,11 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     extrinsic_info = {**_extrinsic_info(ext_init, ext_sol), **gravity.extrinsic_info}
     refine_warnings = offset.warnings[len(coarse.warnings):]
     warnings = [*inputs.warnings, *coarse.warnings, *ext_init.warnings, *refine_warnings, *noise.warnings]
+    difference = _difference_from_calibration(ext_init, ext_sol, gravity, config)
+    if difference is not None:
+        extrinsic_info["difference_from_calibration"] = difference.to_dict()
+        if difference.exceeds:
+            warnings.append(difference.sentence())
     return _result(sequence, config, inputs, offset, windows.calib_window, ext_init, extrinsic_info, noise, gravity,
                    full, warnings, timings, t_start)
 

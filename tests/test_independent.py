@@ -363,7 +363,9 @@ def test_recovery_clean_independent(clean_recovery):
     assert (fig.acc_rmse_mps2 < 2e-2).all(), fig.lines("clean60")
     assert 0.5 < fig.nees_gyro < 2.0 and 0.5 < fig.nees_acc < 4.0, fig.lines("clean60")
     assert abs(fig.offset_error_s) < 1e-3
-    assert fig.extrinsic_rot_error_deg < 1e-9 and fig.extrinsic_trans_error_m < 1e-12  # known from sensor.yaml
+    # estimated with sensor.yaml's (the truth) as its prior
+    assert fig.extrinsic_rot_error_deg < 0.05 and fig.extrinsic_trans_error_m < 0.01
+    assert not res.report["extrinsic"]["difference_from_calibration"]["exceeds"]
     assert res.report["pose_stream"] == "vicon0" and not res.warnings
 
 
