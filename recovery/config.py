@@ -192,12 +192,16 @@ class RecoveryConfig:
             is rarely better than a few degrees and centimetres.
         extrinsic_max_sigmas: The estimate's difference from the calibration beyond this many of its
             sigmas is reported (a warning, and a limitation of the verdict).
-        estimate_gravity: Estimate the gravity direction in the pose world frame;
-            ``None`` (auto): yes, except for POSITION_TRACKER streams (levelled frames).
+        estimate_gravity: Estimate the gravity direction in the pose world frame; ``None`` (auto):
+            no for POSITION_TRACKER streams (levelled frames), for motion-capture and ground-truth
+            frames only where the tilt stands out (``gravity_tilt_sigmas``), else yes.
         gravity_mps2: Gravity magnitude.
         gravity_window_s: Longest span of the decimated solve that estimates the
             gravity direction (then the prior of the per-segment gravity variable).
         gravity_keyframe_rate_hz: Keyframe rate of that solve.
+        gravity_tilt_sigmas: With ``estimate_gravity`` automatic, a motion-capture or ground-truth
+            frame (level by convention) keeps the estimated tilt only beyond this many of its sigmas;
+            within, gravity is the frame's -z (the tilt and the accelerometer bias cannot be told apart).
         position_sigma_m: Pose position noise; ``None`` = default of the source kind.
         rotation_sigma_rad: Pose rotation noise; ``None`` = default of the source kind.
         gyro_noise_density / acc_noise_density: Override the calibration's white noise.
@@ -275,6 +279,7 @@ class RecoveryConfig:
     gravity_mps2: float = 9.81
     gravity_window_s: float = 300.0
     gravity_keyframe_rate_hz: float | None = None
+    gravity_tilt_sigmas: float = 3.0
     position_sigma_m: float | None = None
     rotation_sigma_rad: float | None = None
     gyro_noise_density: float | None = None

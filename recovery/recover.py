@@ -626,6 +626,8 @@ class _Inputs:
         pieces: Gap-free IMU spans ``[(t0_ns, t1_ns)]``.
         pose_mode: Absolute or relative pose factors (AUTO resolved).
         estimate_gravity: Estimate the gravity direction (AUTO resolved).
+        level_test: The pose frame is level by convention (mocap, ground truth: AUTO): the tilt is kept
+            only where the data tell it from the accelerometer bias (``gravity_tilt_sigmas``).
         position_sigma_m / rotation_sigma_rad: Pose noise before any estimation.
         imu_noise: IMU noise before any estimation (calibration, or the config's overrides).
         calibration_noise: ``imu_noise`` with the random walks at the middle of the evidence grid:
@@ -643,6 +645,7 @@ class _Inputs:
     pieces: list[tuple[int, int]]
     pose_mode: PoseFactorMode
     estimate_gravity: bool
+    level_test: bool
     position_sigma_m: float
     rotation_sigma_rad: float
     imu_noise: ImuNoise
@@ -679,6 +682,8 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
     estimate_g = config.estimate_gravity
     if estimate_g is None:
         estimate_g = kind != PoseSourceKind.POSITION_TRACKER
+    # motion-capture and ground-truth frames are level by convention, their tilt a hypothesis to test
+    level_test = config.estimate_gravity is None and kind in (PoseSourceKind.MOCAP, PoseSourceKind.GROUND_TRUTH)
     default_sp, default_sr = DEFAULT_POSE_SIGMAS[kind]
     base_sp = config.position_sigma_m or default_sp
     base_sr = config.rotation_sigma_rad or default_sr
@@ -701,8 +706,8 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
     calibration_noise = replace(imu_noise, gyro_random_walk=imu_noise.gyro_random_walk * start_scale,
                                 acc_random_walk=imu_noise.acc_random_walk * start_scale)
     fuse = bool(config.pose_fusion and has_rot and pose_mode == PoseFactorMode.ABSOLUTE)
-    return _Inputs(imu, name, poses, kind, has_rot, pieces, pose_mode, bool(estimate_g), base_sp, base_sr, imu_noise,
-                   calibration_noise, opts, fuse, tuple(warnings))
+    return _Inputs(imu, name, poses, kind, has_rot, pieces, pose_mode, bool(estimate_g), level_test, base_sp, base_sr,
+                   imu_noise, calibration_noise, opts, fuse, tuple(warnings))
 
 
 @dataclass(frozen=True)
@@ -1024,6 +1029,7 @@ class _Gravity:
 
     Attributes:
         unit: Gravity direction in the pose world frame, [3].
+        estimated: The full solve estimates it (False: held at ``unit``, given or kept level).
         solution: The decimated long-window solve (the prior of the segments' gravity), or None.
         window: Its span ``(t0_ns, t1_ns)``, or None.
         T_imu_pose: The extrinsic, its lever arm refined by that solve when it is estimated.
@@ -1032,6 +1038,7 @@ class _Gravity:
     """
 
     unit: np.ndarray
+    estimated: bool
     solution: WindowSolution | None
     window: tuple[int, int] | None
     T_imu_pose: np.ndarray
@@ -1060,6 +1067,7 @@ def _gravity(problem: _Problem, inputs: _Inputs, offset_s: float, T: np.ndarray,
     spans = [(a, b) for a, b in spans if b > a]
     # one piece solved as one segment: it estimates gravity itself, a separate solve adds nothing
     one_segment = len(spans) == 1 and len(plan_segments(spans[0][0], spans[0][1], seg_s, seg_overlap_s)) == 1
+    estimated = inputs.estimate_gravity
     if refine_lever or (inputs.estimate_gravity and not one_segment):
         longest = max(inputs.pieces, key=lambda ab: min(ab[1], int(t_pose[-1])) - max(ab[0], int(t_pose[0])))
         ga, gb = max(longest[0], int(t_pose[0])), min(longest[1], int(t_pose[-1]))
@@ -1077,15 +1085,37 @@ def _gravity(problem: _Problem, inputs: _Inputs, offset_s: float, T: np.ndarray,
                 if "lever_arm_cov" in gsol.extras:
                     ext_info["translation_std_m"] = [float(x) for x in np.sqrt(np.diag(gsol.extras["lever_arm_cov"]))]
                 ext_info["lever_arm_refined_window_s"] = float((gb - ga) / NS_PER_S)
-            problem.set_linearisation(T_imu_pose=T, gravity_unit=unit, bias=_bias_function(gsol))
             if "gravity_cov_tangent" in gsol.extras:
                 info["tilt_std_rad"] = float(np.sqrt(np.trace(gsol.extras["gravity_cov_tangent"]) / 2))
+                if inputs.level_test and inputs.estimate_gravity:
+                    info["level_test"] = _level_test(unit, info["tilt_std_rad"], config.gravity_tilt_sigmas)
+                    if info["level_test"]["level"]:
+                        unit, estimated = np.array([0.0, 0.0, -1.0]), False
+            problem.set_linearisation(T_imu_pose=T, gravity_unit=unit, bias=_bias_function(gsol))
             info["window_s"] = float((gb - ga) / NS_PER_S)
     elif inputs.estimate_gravity:
         unit = problem.gravity_world / np.linalg.norm(problem.gravity_world)
         info["window_s"] = float((spans[0][1] - spans[0][0]) / NS_PER_S) if spans else 0.0
-    info["estimated"] = bool(inputs.estimate_gravity)
-    return _Gravity(unit, gsol, gwin, T, info, ext_info, seg_s, seg_overlap_s)
+    info["estimated"] = bool(estimated)
+    return _Gravity(unit, bool(estimated), gsol, gwin, T, info, ext_info, seg_s, seg_overlap_s)
+
+
+def _level_test(unit: np.ndarray, tilt_std_rad: float, max_sigmas: float) -> dict[str, Any]:
+    """Whether a level frame's estimated tilt stands out from its sigma (``recovery.json`` ``gravity.level_test``).
+
+    The tilt of gravity from the frame's -z and an accelerometer bias explain the same specific
+    force under little attitude change; the tilt's marginal sigma says how well the data tell them
+    apart. Within ``max_sigmas`` the frame is kept level: the bias is then the one consistent with
+    the frame's nominal gravity, which is what a user of a levelled frame integrates with.
+    """
+    tilt = float(np.arccos(np.clip(-unit[2] / np.linalg.norm(unit), -1.0, 1.0)))
+    z = tilt / tilt_std_rad if tilt_std_rad > 0 else float("inf")
+    level = bool(z < max_sigmas)
+    return {"tilt_deg": math.degrees(tilt), "tilt_std_deg": math.degrees(tilt_std_rad), "tilt_sigmas": z,
+            "level": level, "reason": (f"kept level: the estimated tilt {math.degrees(tilt):.2f} deg is within "
+                                       f"{max_sigmas:g} sigma ({math.degrees(tilt_std_rad):.2f} deg)") if level else
+            (f"tilted: the estimated tilt {math.degrees(tilt):.2f} deg is {z:.1f} sigma "
+             f"({math.degrees(tilt_std_rad):.2f} deg) from the frame's -z")}
 
 
 @dataclass(frozen=True)
@@ -1128,24 +1158,49 @@ def _calibration_covariance(offset: _ClockOffset, ext_sol: WindowSolution | None
 def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _Gravity, noise: _Noise,
                 config: RecoveryConfig, calibration: CalibrationCovariance | None = None) -> _FullSolve:
     """Stage 8: every keyframe, segment by segment (gravity: a variable per segment with the gravity
-    solve as prior; the uncertainty of ``calibration`` propagated into the bias marginals)."""
-    t_pose = _shifted_stamps(inputs.poses, offset_s)
-    choice, gsol, gwin, T = noise.choice, gravity.solution, gravity.window, gravity.T_imu_pose
+    solve as prior; the uncertainty of ``calibration`` propagated into the bias marginals). A single
+    segment that estimates gravity itself in a level frame (``level_test``) is solved again level
+    when its tilt does not stand out."""
+    choice, gsol = noise.choice, gravity.solution
     info: dict[str, Any] = {}
     full_opts = replace(inputs.opts, position_sigma_m=choice.position_sigma_m, pose_error=choice.pose_error,
                         rotation_sigma_rad=choice.rotation_sigma_rad, compute_marginals=config.compute_marginals,
                         estimate_gravity=False, marginal_rate_hz=config.marginal_rate_hz,
                         calibration_cov=calibration)
-    if gsol is not None and inputs.estimate_gravity and "gravity_cov_tangent" in gsol.extras:
+    if gsol is not None and gravity.estimated and "gravity_cov_tangent" in gsol.extras:
         # Gravity stays a variable in every segment, with the calibration solve's estimate as a
         # prior: its uncertainty then reaches the bias marginals (held fixed, a ~1 mrad tilt
         # error leaked into the x/y accelerometer bias unreported: acc NEES ~2 at 60 s, ~1.2 now).
         full_opts = replace(full_opts, estimate_gravity=True, gravity_prior_cov=gsol.extras["gravity_cov_tangent"])
         info["per_segment"] = True
-    elif inputs.estimate_gravity and gsol is None:
+    elif gravity.estimated and gsol is None:
         full_opts = replace(full_opts, estimate_gravity=True, marginal_extras=True)  # the single segment estimates it
         info["per_segment"] = True
-    out = _FullSolve([], [], gravity.unit, info, [], [], [], calibration)
+    out = _segments(problem, inputs, offset_s, gravity, noise, config, full_opts,
+                    _FullSolve([], [], gravity.unit, info, [], [], [], calibration))
+    flat = out.flat
+    if gravity.estimated and gsol is None and len(flat) == 1:
+        if "gravity_cov_tangent" in flat[0].extras:
+            info["tilt_std_rad"] = float(np.sqrt(np.trace(flat[0].extras["gravity_cov_tangent"]) / 2))
+            if inputs.level_test:
+                info["level_test"] = _level_test(flat[0].gravity_unit, info["tilt_std_rad"], config.gravity_tilt_sigmas)
+                if info["level_test"]["level"]:  # solved again in the level frame
+                    level = replace(gravity, unit=np.array([0.0, 0.0, -1.0]), estimated=False)
+                    info.pop("per_segment", None)
+                    info.pop("segment_max_tilt_change_rad", None)
+                    info["estimated"] = False
+                    return _segments(problem, inputs, offset_s, level, noise, config,
+                                     replace(full_opts, estimate_gravity=False, marginal_extras=False),
+                                     _FullSolve([], [], level.unit, info, [], [], [], calibration))
+        return replace(out, gravity_unit=flat[0].gravity_unit)
+    return out
+
+
+def _segments(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _Gravity, noise: _Noise,
+              config: RecoveryConfig, full_opts: SolveOptions, out: _FullSolve) -> _FullSolve:
+    """The full solve's segments, piece by piece, into ``out`` (see :func:`_full_solve`)."""
+    t_pose = _shifted_stamps(inputs.poses, offset_s)
+    choice, gsol, gwin, T = noise.choice, gravity.solution, gravity.window, gravity.T_imu_pose
     for a, b in inputs.pieces:
         a2, b2 = max(a, int(t_pose[0])), min(b, int(t_pose[-1]))
         if b2 <= a2:
@@ -1181,14 +1236,9 @@ def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _G
     if not out.solutions:
         raise RecoveryError(f"too few poses of '{inputs.stream}' inside the IMU span to build a graph")
     out.stitched.extend(stitch(ps) for ps in out.solutions)
-    if info.get("per_segment"):
+    if out.info.get("per_segment"):
         cosang = [float(np.clip(np.dot(s.gravity_unit, gravity.unit), -1.0, 1.0)) for s in out.flat]
-        info["segment_max_tilt_change_rad"] = float(np.max(np.arccos(cosang)))
-    flat = out.flat
-    if inputs.estimate_gravity and gsol is None and len(flat) == 1:
-        if "gravity_cov_tangent" in flat[0].extras:
-            info["tilt_std_rad"] = float(np.sqrt(np.trace(flat[0].extras["gravity_cov_tangent"]) / 2))
-        return replace(out, gravity_unit=flat[0].gravity_unit)
+        out.info["segment_max_tilt_change_rad"] = float(np.max(np.arccos(cosang)))
     return out
 
 

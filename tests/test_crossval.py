@@ -123,19 +123,19 @@ def test_held_constant_is_the_fold_mean_over_its_training_samples(handheld):
 
 
 def test_validate_inputs_adds_the_held_out_source(handheld, tmp_path):
-    """validation.crossval_block_s: the recovery is cross-validated with its own options and compared as
-    'recovered_heldout' on the same windows; against the true state it is worse than the in-sample recovered
-    bias but far better than none."""
+    """validation.crossval on: the recovery is cross-validated with its own options and compared as
+    'recovered_heldout' on the same windows; against the true state (an independent reference) it is compared,
+    not judged: worse than the in-sample recovered bias but far better than none."""
     from recovery.recover import write_recovery
     from validation.validate import validate_inputs
 
     seq = handheld.sequence
     rec_dir = write_recovery(recover(seq, pose_stream="mocap0"), tmp_path / "rec")
-    config = ValidationConfig(crossval_block_s=5.0, crossval_folds=2)
+    config = ValidationConfig(crossval="on", crossval_block_s=5.0, crossval_folds=2)
     res = validate_inputs(seq, recovery_dir=rec_dir, config=config)
     held, rec, zero = (res.sources[n] for n in ("recovered_heldout", "recovered", "zero"))
     assert res.candidate == "recovered" and held.kind.value == "file"
-    assert held.windows == rec.windows
+    assert held.windows == rec.windows and res.heldout["judged"] is False and res.heldout["dropped_folds"] == []
     assert rec.prmse_m <= held.prmse_m < 0.15 * zero.prmse_m
-    with pytest.raises(ValidationError, match="crossval_block_s needs the recovery"):
+    with pytest.raises(ValidationError, match="cross-validation needs the recovery"):
         validate_inputs(seq, bias_files=[(None, rec_dir / "bias.csv")], config=config)

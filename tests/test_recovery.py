@@ -161,13 +161,37 @@ def test_accuracy_floor_is_reported_and_not_beaten(clean_run):
     assert (ra > 0.6 * floor["acc_mps2"]).all() and (ra < 2.5 * floor["acc_mps2"]).all()
 
 
-def test_gravity_is_a_variable_per_segment(clean_run):
-    """Gravity is re-estimated in each full-rate segment (prior from the calibration solve), so its
-    uncertainty reaches the accelerometer-bias marginals; it stays close to the prior."""
-    _, res = clean_run
+def test_gravity_of_a_level_frame_and_as_a_variable_per_segment(clean_run):
+    """The simulator's world is level: the estimated tilt lies within 3 sigma and the frame is kept level
+    (solved with gravity -z). Asked to estimate it, gravity is a variable of the full-rate solve, so its
+    uncertainty reaches the accelerometer-bias marginals; it stays close to its first estimate."""
+    sim, res = clean_run
     grav = res.report["gravity"]
-    assert grav["estimated"] and grav["per_segment"]
+    assert grav["level_test"]["level"] and not grav["estimated"] and "per_segment" not in grav
+    assert grav["level_test"]["tilt_deg"] < 3 * grav["level_test"]["tilt_std_deg"]
+    assert res.report["gravity_world_mps2"] == [0.0, 0.0, -9.81]
+    est = recover(sim.sequence, config=RecoveryConfig(**FAST, time_offset_mode="fixed", estimate_gravity=True))
+    grav = est.report["gravity"]
+    assert grav["estimated"] and grav["per_segment"] and "level_test" not in grav
     assert 0.0 <= grav["segment_max_tilt_change_rad"] < 5 * grav["tilt_std_rad"]
+
+
+def test_a_tilted_mocap_frame_keeps_its_tilt():
+    """The same motion seen from a world frame tilted by 2 deg about x: the tilt stands out of its sigma and
+    is kept, within a few of its sigmas of the truth."""
+    from scipy.spatial.transform import Rotation
+
+    sim = _sim(40.0, seed=1)
+    tilt = Rotation.from_rotvec([np.radians(2.0), 0.0, 0.0])
+    poses = {k: dataclasses.replace(v, p_m=tilt.apply(v.p_m), quat_wxyz=(tilt * Rotation.from_quat(
+        v.quat_wxyz, scalar_first=True)).as_quat(scalar_first=True)) for k, v in sim.sequence.poses.items()}
+    seq = dataclasses.replace(sim.sequence, poses=poses)
+    res = recover(seq, config=RecoveryConfig(**FAST, time_offset_mode="fixed"))
+    test = res.report["gravity"]["level_test"]
+    assert not test["level"] and res.report["gravity"]["estimated"]
+    g_true = tilt.apply([0.0, 0.0, -9.81])
+    err_deg = np.degrees(np.arccos(np.dot(res.report["gravity_world_mps2"], g_true) / 9.81 ** 2))
+    assert err_deg < 3 * test["tilt_std_deg"]
 
 
 def test_acc_nees_honest_with_gravity_uncertainty():

@@ -3,11 +3,26 @@ and the windows stage (which cuts the same windows)."""
 
 from __future__ import annotations
 
+import enum
 from dataclasses import asdict, dataclass
 from typing import Any
 
 from pipeline.errors import ValidationError
 from pipeline.types import IntegrationScheme
+
+
+class CrossvalMode(str, enum.Enum):
+    """When the recovered bias is cross-validated by time blocks (:mod:`validation.crossval`).
+
+    AUTO: when the reference is the pose stream the bias was fitted to: those poses cannot show what
+        the bias absorbed from them, the held-out blocks can (and then judge the verdict).
+    ON: always (against an independent reference the held-out bias is compared, not judged).
+    OFF: never.
+    """
+
+    AUTO = "auto"
+    ON = "on"
+    OFF = "off"
 
 
 @dataclass(frozen=True)
@@ -33,10 +48,10 @@ class ValidationConfig:
         sigma_k: How many of its own sigmas the candidate may be off before it counts as worse.
         max_random_walk_scale: A recovery whose bias random walk is more than this times (or less
             than 1/this of) the calibration's is only good for WARN.
-        crossval_block_s: Cross-validate the recovered bias by time blocks of this length
-            (:mod:`validation.crossval`): recover again, with the recovery's own options, without the
-            poses of each fold of blocks, and add the spliced held-out bias as the source
-            ``recovered_heldout`` (compared, not judged). ``None``: off.
+        crossval: See :class:`CrossvalMode`.
+        crossval_block_s: Cross-validation by time blocks of this length (:mod:`validation.crossval`):
+            recover again, with the recovery's own options, without the poses of each fold of blocks;
+            the spliced held-out bias is the source ``recovered_heldout``. ``None``: off.
         crossval_folds: Number of folds of that cross-validation (block ``b`` is in fold ``b % folds``).
     """
 
@@ -61,11 +76,17 @@ class ValidationConfig:
     significance: float = 0.01
     sigma_k: float = 2.0
     max_random_walk_scale: float = 30.0
-    crossval_block_s: float | None = None
+    crossval: CrossvalMode = CrossvalMode.AUTO
+    crossval_block_s: float | None = 10.0
     crossval_folds: int = 3
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "scheme", IntegrationScheme(self.scheme))
+        try:
+            object.__setattr__(self, "crossval", CrossvalMode(self.crossval))
+        except ValueError:
+            raise ValidationError(f"invalid crossval = {self.crossval!r}", field="crossval",
+                                  hint="use one of " + ", ".join(m.value for m in CrossvalMode)) from None
         checks = (
             ("window_s", self.window_s > 0, "give a positive window length in seconds"),
             ("overlap", 0.0 <= self.overlap < 1.0, "give an overlap in [0, 1), e.g. 0.5"),
@@ -90,4 +111,5 @@ class ValidationConfig:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["scheme"] = self.scheme.value
+        d["crossval"] = self.crossval.value
         return d

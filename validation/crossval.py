@@ -12,6 +12,9 @@ recoveries), integrated against the FULL pose stream with the project's one metr
 
 A recovery sees a held-out block as a pose gap bridged by one preintegrated IMU interval: the block's
 own IMU readings still enter through it, its poses do not.
+
+A fold whose recovery fails (too few poses left, too little motion, a degenerate optimisation) is
+dropped and counted: its blocks have no held-out bias, and the other folds still judge theirs.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from pipeline.bias_table import BiasTrack
-from pipeline.errors import ValidationError
+from pipeline.errors import BiasgtError, ValidationError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence
 
 __all__ = ["BlockFolds", "CrossValidatedBias", "crossvalidate_recovery", "held_constant", "heldout_track",
@@ -86,15 +89,17 @@ class CrossValidatedBias:
     Attributes:
         imu: Readings to integrate (corrected per fold when the recovery estimated intrinsics).
         bias: Bias at the IMU stamps, [N, 6] (gyro rad/s, acc m/s^2), in the convention of ``imu``.
-        recoveries: Each fold's recovery result, in fold order.
+        recoveries: Each fold's recovery result, in fold order (None for a dropped fold).
         raw_bias: The bias as the recoveries report it (raw readings' convention), [N, 6]; None when
-            not spliced from recoveries.
+            not spliced from recoveries. NaN in a dropped fold's blocks.
+        dropped: ``{fold: reason}`` of the folds whose recovery failed.
     """
 
     imu: ImuSeries
     bias: np.ndarray
     recoveries: tuple
     raw_bias: np.ndarray | None = None
+    dropped: dict[int, str] = dataclasses.field(default_factory=dict)
 
 
 def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
@@ -108,38 +113,50 @@ def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
         recover_fn: ``(sequence, stream) -> RecoveryResult`` (e.g. ``recovery.recover.recover`` with a config).
 
     Returns:
-        The spliced bias (and readings) at the IMU stamps, and the per-fold recoveries.
+        The spliced bias (and readings) at the IMU stamps, the per-fold recoveries, and the folds
+        dropped because their recovery failed (a :class:`pipeline.errors.BiasgtError`).
     """
     imu = sequence.imu
     fold_of_imu = folds.fold(imu.t_ns)
     gyro, acc = imu.gyro_radps.copy(), imu.acc_mps2.copy()
     bias, raw = np.full((len(imu), 6), np.nan), np.full((len(imu), 6), np.nan)
-    results = []
+    results: list = []
+    dropped: dict[int, str] = {}
     for k in range(folds.n_folds):
         poses = sequence.poses[stream]
         seq_k = dataclasses.replace(sequence, poses={**sequence.poses, stream: without_fold(poses, folds, k)})
-        res = recover_fn(seq_k, stream)
+        try:
+            res = recover_fn(seq_k, stream)
+        except BiasgtError as exc:
+            dropped[k] = str(exc)
+            results.append(None)
+            continue
         results.append(res)
         imu_k, bias_k = imu_and_bias_of(imu, res)
         m = fold_of_imu == k
         gyro[m], acc[m], bias[m] = imu_k.gyro_radps[m], imu_k.acc_mps2[m], bias_k[m]
         raw[m] = res.bias_at(imu.t_ns[m])
-    return CrossValidatedBias(dataclasses.replace(imu, gyro_radps=gyro, acc_mps2=acc), bias, tuple(results), raw)
+    return CrossValidatedBias(dataclasses.replace(imu, gyro_radps=gyro, acc_mps2=acc), bias, tuple(results), raw,
+                              dropped)
 
 
 def held_constant(cv: CrossValidatedBias, imu: ImuSeries, folds: BlockFolds) -> CrossValidatedBias:
     """The cross-validated bias held constant per fold: in fold ``k``'s blocks, the mean of fold ``k``'s recovery
     over the samples it was fitted on (the cross-validated counterpart of a sequence-constant bias estimate)."""
     fold_of_imu = folds.fold(imu.t_ns)
-    bias = np.empty_like(cv.bias)
+    bias = np.full_like(cv.bias, np.nan)
     for k, res in enumerate(cv.recoveries):
+        if res is None:
+            continue
         m = fold_of_imu == k
         bias[m] = imu_and_bias_of(imu, res)[1][~m].mean(axis=0)
-    return CrossValidatedBias(cv.imu, bias, cv.recoveries)
+    return CrossValidatedBias(cv.imu, bias, cv.recoveries, dropped=dict(cv.dropped))
 
 
-def heldout_track(sequence: Sequence, stream: str, recovery_options: dict, folds: BlockFolds) -> BiasTrack:
-    """The recovered bias cross-validated by blocks, at the IMU stamps (raw readings' convention, std 0).
+def heldout_track(sequence: Sequence, stream: str, recovery_options: dict, folds: BlockFolds
+                  ) -> tuple[BiasTrack, dict[int, str]]:
+    """The recovered bias cross-validated by blocks, at the IMU stamps (raw readings' convention, std 0;
+    NaN in a dropped fold's blocks), and the dropped folds ``{fold: reason}``.
 
     Args:
         sequence: IMU + pose streams.
@@ -152,4 +169,4 @@ def heldout_track(sequence: Sequence, stream: str, recovery_options: dict, folds
 
     config = RecoveryConfig.from_dict(recovery_options)
     cv = crossvalidate_recovery(sequence, stream, folds, lambda s, st: recover(s, pose_stream=st, config=config))
-    return BiasTrack(sequence.imu.t_ns, cv.raw_bias, np.zeros_like(cv.raw_bias))
+    return BiasTrack(sequence.imu.t_ns, cv.raw_bias, np.zeros_like(cv.raw_bias)), dict(cv.dropped)

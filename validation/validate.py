@@ -75,9 +75,10 @@ Verdict (:class:`Verdict`) per sequence, reasons in plain words
     tilt it leaks into gravity, ``|g| s_g T^3 / 6``) and turns it by ``s_g T``
     (:func:`sigma_window_errors`), so with ``k = sigma_k`` (2):
 
-    * equal: ``cand <= sqrt(base^2 + (k sigma_prmse)^2) + tie`` (ROE: ``base + k sigma_roe + tie``),
-      where ``k sigma`` counts for at most ``base`` (a large sigma does not excuse a bias that is far
-      off: an unobservable recovery still FAILs against the truth);
+    * equal: ``cand <= sqrt(base^2 + (k sigma_prmse)^2) + tie`` (ROE: ``base + k sigma_roe + tie``);
+      but where ``k sigma`` exceeds the baseline's own error, the candidate is too uncertain to be
+      useful beside it: at best WARN, saying so (a large sigma excuses an error, it does not make the
+      bias good: an unobservable recovery never PASSes against the truth);
     * worse within the margin (WARN): up to ``sqrt((base (1 + margin))^2 + (k sigma_prmse)^2) + tie``;
     * beyond that, FAIL only when a one-sided paired t-test of the per-window errors (squared end
       distances for PRMSE, angles for ROE) over non-overlapping windows says "worse" at
@@ -101,7 +102,7 @@ import logging
 import math
 from collections.abc import Mapping
 from collections.abc import Sequence as Sequence_
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -121,7 +122,7 @@ from pipeline.pose_transform import as_transform, poses_in_imu_frame
 from pipeline.so3 import rotation_angle_deg
 from pipeline.types import NS_PER_S, ImuSeries, IntegrationScheme, PoseSeries, Sequence, Severity, StateSeries
 from recovery.outputs import RecoveryOutputs
-from validation.config import ValidationConfig
+from validation.config import CrossvalMode, ValidationConfig
 from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, Verdict, write_folder
 
 log = logging.getLogger(__name__)
@@ -495,11 +496,18 @@ def recovered_bias_at_imu(keyframes: BiasTrack, imu_t_ns: np.ndarray, random_wal
 
 @dataclass(frozen=True)
 class BiasSource:
-    """A named bias trajectory and its role."""
+    """A named bias trajectory and its role.
+
+    Attributes:
+        name / kind / track: The source.
+        gravity_mps2: The gravity, in the reference's world frame, that this bias was estimated
+            against and is integrated with, [3]; None: the reference's own gravity.
+    """
 
     name: str
     kind: BiasSourceKind
     track: BiasTrack
+    gravity_mps2: np.ndarray | None = None
 
 
 def _infer_kind(name: str) -> BiasSourceKind:
@@ -627,6 +635,7 @@ class SourceMetrics:
             sigma explains (:func:`sigma_window_errors`), [W]; zeros for a source without sigma.
         mean_bias: The source's bias averaged over the windows' first samples, [6] (gyro rad/s, acc
             m/s^2), or None: what two sources' errors differ by (a tilt and an acc bias trade off).
+        gravity_mps2: The gravity the source was integrated with, [3] (None: not recorded).
     """
 
     name: str
@@ -642,6 +651,7 @@ class SourceMetrics:
     sigma_pos_m: np.ndarray | None = None
     sigma_rot_deg: np.ndarray | None = None
     mean_bias: np.ndarray | None = None
+    gravity_mps2: np.ndarray | None = None
 
     @property
     def sigma_prmse_m(self) -> float:
@@ -669,6 +679,7 @@ class SourceMetrics:
             "flag_threshold_pos_m": float(self.flag_pos_m),
             "flag_threshold_rot_deg": float(self.flag_rot_deg),
             **({} if self.mean_bias is None else {"mean_bias": [float(x) for x in self.mean_bias]}),
+            **({} if self.gravity_mps2 is None else {"gravity_mps2": [float(x) for x in self.gravity_mps2]}),
             "flagged": [
                 {"t0_ns": int(self.t0_ns[i]), "pos_err_m": float(self.pos_err_m[i]),
                  "rot_err_deg": float(self.rot_err_deg[i])}
@@ -851,6 +862,7 @@ def decide_verdict(
     dropped_fraction: float,
     config: ValidationConfig = ValidationConfig(),
     limitations: Sequence_[str] = (),
+    fails: Sequence_[str] = (),
 ) -> tuple[Verdict, list[str]]:
     """PASS / WARN / FAIL of ``candidate`` against the baselines (rules in the module docstring).
 
@@ -868,12 +880,13 @@ def decide_verdict(
         config: Thresholds.
         limitations: What limits the candidate's use though the numbers pass (e.g. a noise
             estimate at its search bound); each one makes a PASS a WARN, listed first.
+        fails: Reasons already found for a FAIL (e.g. the held-out rule), listed first.
 
     Returns:
         ``(verdict, reasons)``; reasons are plain sentences (empty for a clean PASS).
     """
     cand = metrics[candidate]
-    fails: list[str] = []
+    fails = list(fails)
     warns: list[str] = list(limitations)
     stride = max(1, int(round(1.0 / (1.0 - config.overlap))))
     k = config.sigma_k
@@ -881,10 +894,14 @@ def decide_verdict(
                  and m.kind in (BiasSourceKind.CONSTANT_FIRST_WINDOW, BiasSourceKind.DATASET)]
     for base in baselines:
         where = f"'{candidate}' against '{base.name}' ({base.kind.value})"
-        # its own sigma explains at most the baseline's error: a bias that is far off stays far off
-        # however large the sigma it reports (an unobservable position-only recovery, say)
-        sigma_pos = min(k * cand.sigma_prmse_m, base.prmse_m)
-        sigma_rot = min(k * cand.sigma_roe_deg, base.roe_deg)
+        sigma_pos, sigma_rot = k * cand.sigma_prmse_m, k * cand.sigma_roe_deg
+        # a sigma beyond the baseline's own error excuses the candidate's error, but leaves it too
+        # uncertain to be useful beside that baseline (an unobservable position-only recovery, say)
+        for label, unit, s, c, b, tie in (("PRMSE", "m", sigma_pos, cand.prmse_m, base.prmse_m, config.tie_prmse_m),
+                                           ("ROE", "deg", sigma_rot, cand.roe_deg, base.roe_deg, config.tie_roe_deg)):
+            if s > b + tie and c > b + tie:
+                warns.append(f"{where}: its own {k:g} sigma ({s:.4g} {unit} of {label}) exceed that baseline's error "
+                             f"({b:.4g} {unit}): too uncertain to tell it from the baseline")
         prmse_allowed = tuple(float(np.hypot(base.prmse_m * f, sigma_pos)) + config.tie_prmse_m
                               for f in (1.0, 1.0 + config.margin))
         roe_allowed = tuple(base.roe_deg * f + sigma_rot + config.tie_roe_deg for f in (1.0, 1.0 + config.margin))
@@ -944,6 +961,7 @@ class ValidationResult:
     gravity_mps2: np.ndarray
     notes: list[str] = field(default_factory=list)
     next_steps: list[str] = field(default_factory=list)
+    heldout: dict[str, Any] | None = None
 
     def windows_frame(self) -> pd.DataFrame:
         """Per-window errors: t0_ns, source, pos_err_m, rot_err_deg, flagged."""
@@ -968,6 +986,7 @@ class ValidationResult:
             "windows_dropped": self.windows_dropped,
             "notes": list(self.notes),
             "next_steps": list(self.next_steps),
+            **({} if self.heldout is None else {"heldout": self.heldout}),
         }
 
 
@@ -1002,6 +1021,14 @@ def _imu_notes(imu: ImuSeries, sequence: Sequence, plan: WindowPlan) -> list[str
     return notes
 
 
+def _checked_gravity(value: Any, field: str) -> np.ndarray:
+    """``value`` as a finite 3-vector [3]."""
+    gravity = np.asarray(value, dtype=np.float64).reshape(-1)
+    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
+        raise ValidationError(f"gravity must be a finite 3-vector, got {value!r}", field=field)
+    return gravity
+
+
 def validate_sequence(
     sequence: Sequence,
     sources: Mapping[str, BiasTrack | BiasSource],
@@ -1010,6 +1037,9 @@ def validate_sequence(
     gravity_mps2: Any = DEFAULT_GRAVITY_MPS2,
     config: ValidationConfig = ValidationConfig(),
     limitations: Sequence_[str] = (),
+    heldout: BiasSource | None = None,
+    judge_heldout: bool = False,
+    heldout_info: Mapping[str, Any] | None = None,
 ) -> ValidationResult:
     """Validate bias trajectories by 1-s integration error against a reference (AirIMU metrics).
 
@@ -1021,9 +1051,17 @@ def validate_sequence(
             Tracks at any stamps (keyframes or IMU rate) on the IMU clock; never extrapolated.
         reference: Reference states; default the ground-truth state (STATE). Built for other
             stamps it is re-interpolated to the IMU stamps.
-        gravity_mps2: Gravity in the reference's world frame, [3].
+        gravity_mps2: The reference's own gravity in its world frame, [3]: every source is integrated
+            with it, but a :class:`BiasSource` that names its own (the gravity it was estimated
+            against, in the same frame), so that no source's gravity changes another's errors.
         config: Windows, flags and verdict thresholds.
         limitations: What limits the candidate though its numbers pass (:func:`decide_verdict`).
+        heldout: The candidate cross-validated by time blocks (:mod:`validation.crossval`; NaN where a
+            fold was dropped): measured on the kept windows it covers, beside every other source on
+            the same windows (``result.heldout``).
+        judge_heldout: The held-out errors judge the verdict (the reference is the stream the bias
+            was fitted to): worse than the zero or the constant bias on those windows is a FAIL.
+        heldout_info: What the cross-validation did (blocks, folds, dropped folds), for the output.
 
     Returns:
         The result, with per-source metrics, the verdict and its reasons.
@@ -1036,9 +1074,7 @@ def validate_sequence(
     if imu is None or len(imu) == 0:
         raise ValidationError(f"sequence '{sequence.name}' has no IMU to integrate",
                               hint="give an input with IMU readings")
-    gravity = np.asarray(gravity_mps2, dtype=np.float64).reshape(-1)
-    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
-        raise ValidationError(f"gravity must be a finite 3-vector, got {gravity_mps2!r}", field="gravity_mps2")
+    gravity = _checked_gravity(gravity_mps2, "gravity_mps2")
     notes: list[str] = []
     plan = plan_windows(imu, config)
     notes += _imu_notes(imu, sequence, plan)
@@ -1130,20 +1166,61 @@ def validate_sequence(
     t0 = imu.t_ns[starts]
     window_s = plan.n / plan.rate_hz
     for src in evaluated:
-        pos, rot = window_errors(imu, at_imu[src.name], reference, starts, plan.n, gravity, config)
+        g_src = gravity if src.gravity_mps2 is None else _checked_gravity(src.gravity_mps2, f"{src.name}.gravity_mps2")
+        pos, rot = window_errors(imu, at_imu[src.name], reference, starts, plan.n, g_src, config)
         flagged, thr_p, thr_r = _flags(pos, rot, config)
-        sigma_pos, sigma_rot = sigma_window_errors(_std_at(src.track, t0), reference.R[starts], window_s, gravity)
+        sigma_pos, sigma_rot = sigma_window_errors(_std_at(src.track, t0), reference.R[starts], window_s, g_src)
         metrics[src.name] = SourceMetrics(
             src.name, src.kind, t0, pos, rot, prmse_m(pos), roe_deg(rot),
-            flagged, thr_p, thr_r, sigma_pos, sigma_rot, at_imu[src.name][starts].mean(axis=0),
+            flagged, thr_p, thr_r, sigma_pos, sigma_rot, at_imu[src.name][starts].mean(axis=0), g_src,
         )
         log.info("%-12s PRMSE %.4f m  ROE %.4f deg  (%d windows, %d flagged)", src.name,
                  metrics[src.name].prmse_m, metrics[src.name].roe_deg, len(pos), int(flagged.sum()))
+    heldout_part, heldout_fails = None, []
+    if heldout is not None:
+        heldout_part, heldout_fails = _heldout_metrics(imu, heldout, reference, plan, starts, gravity, metrics,
+                                                       config, judge_heldout, dict(heldout_info or {}))
     verdict, reasons = decide_verdict(metrics, candidate, dropped_fraction=dropped["fraction"], config=config,
-                                      limitations=limitations)
+                                      limitations=limitations, fails=heldout_fails)
     ref_info = {"kind": reference.kind.value, **reference.info}
     return ValidationResult(sequence.name, verdict, reasons, candidate, config, metrics, dropped, ref_info,
-                            gravity, notes)
+                            gravity, notes, heldout=heldout_part)
+
+
+def _heldout_metrics(imu: ImuSeries, heldout: BiasSource, reference: ReferenceStates, plan: WindowPlan,
+                     starts: np.ndarray, gravity: np.ndarray, metrics: dict[str, SourceMetrics],
+                     config: ValidationConfig, judge: bool, info: dict[str, Any]
+                     ) -> tuple[dict[str, Any], list[str]]:
+    """The held-out source's metrics on the kept windows it covers (added to ``metrics``), every other
+    source's on the same windows, and the FAIL reasons when it judges the verdict (worse than the zero
+    or the constant bias beyond the ties)."""
+    bias, covered = _bias_at(heldout.track, imu.t_ns)
+    covered &= np.isfinite(bias).all(axis=1)
+    ok = ~windows_with_any(~covered, starts, plan.n + 1)
+    part: dict[str, Any] = {**info, "source": heldout.name, "judged": bool(judge), "windows": int(ok.sum())}
+    if not ok.any():
+        part["note"] = "no kept window lies in a held-out block with a recovered bias"
+        return part, []
+    g = gravity if heldout.gravity_mps2 is None else np.asarray(heldout.gravity_mps2, dtype=np.float64)
+    pos, rot = window_errors(imu, bias, reference, starts[ok], plan.n, g, config)
+    flagged, thr_p, thr_r = _flags(pos, rot, config)
+    metrics[heldout.name] = SourceMetrics(heldout.name, heldout.kind, imu.t_ns[starts[ok]], pos, rot, prmse_m(pos),
+                                          roe_deg(rot), flagged, thr_p, thr_r, mean_bias=bias[starts[ok]].mean(axis=0),
+                                          gravity_mps2=g)
+    same = {name: {"prmse_m": prmse_m(m.pos_err_m[ok]), "roe_deg": roe_deg(m.rot_err_deg[ok])}
+            for name, m in metrics.items() if name != heldout.name and len(m.pos_err_m) == len(ok)}
+    part["others_on_these_windows"] = same
+    fails = []
+    for name, m in same.items():
+        if not judge or metrics[name].kind not in (BiasSourceKind.ZERO, BiasSourceKind.CONSTANT_FIRST_WINDOW):
+            continue
+        for label, unit, h, b, tie in (("PRMSE", "m", prmse_m(pos), m["prmse_m"], config.tie_prmse_m),
+                                       ("ROE", "deg", roe_deg(rot), m["roe_deg"], config.tie_roe_deg)):
+            if h > b + tie:
+                fails.append(f"held out: '{heldout.name}' {label} {h:.4g} {unit} is worse than the '{name}' bias's "
+                             f"{b:.4g} {unit} on the same {int(ok.sum())} windows: on poses it was not fitted to the "
+                             "recovered bias does worse than no estimate (it absorbed errors of the poses it saw)")
+    return part, fails
 
 
 # ----------------------------------------------------------------------------- output
@@ -1355,10 +1432,18 @@ def validate_inputs(
 ) -> ValidationResult:
     """Validate a sequence from what ``biasgt validate`` and the workflow's rule are given.
 
-    Assembles the sources (:func:`bias_sources`), the gravity (``gravity_mps2``, else the
-    recovery's estimate, else :data:`DEFAULT_GRAVITY_MPS2`) and the reference
-    (:func:`build_reference`), then runs :func:`validate_sequence`. A FAIL verdict is a result,
-    not an error.
+    Assembles the sources (:func:`bias_sources`) and the reference (:func:`build_reference`), then
+    runs :func:`validate_sequence`. A FAIL verdict is a result, not an error.
+
+    Gravity: ``gravity_mps2`` for every row when given. Else each row is integrated with the
+    reference's own gravity, nominal ``(0, 0, -|g|)`` (a ground-truth state, a mocap or survey frame
+    are level), except the recovered bias (and its held-out version) against the very stream it was
+    fitted to, which takes the recovery's gravity (its world frame is that stream's): no candidate's
+    gravity changes another row.
+
+    Cross-validation (``config.crossval``): against the stream the bias was fitted to, the held-out
+    blocks are the independent test and judge the verdict; against an independent reference they are
+    a row compared with the others.
 
     Args:
         sequence: The sequence (canonical store or any input, already loaded).
@@ -1373,48 +1458,83 @@ def validate_inputs(
     """
     recovery = RecoveryOutputs.read(recovery_dir) if recovery_dir is not None else None
     sources = bias_sources(sequence, recovery=recovery, bias_files=bias_files)
-    if config.crossval_block_s is not None:
-        sources.update(_heldout_source(sequence, recovery, config))
+    reference = build_reference(sequence, pose_stream=pose_stream, recovery=recovery, config=config)
+    fitted = recovery is not None and reference.kind is ReferenceKind.POSES and (
+        recovery.report.pose_stream is None or reference.info.get("stream") == recovery.report.pose_stream)
+    own_gravity = None  # the recovery's gravity for its own rows, in the fitted stream's frame
     if gravity_mps2 is not None:
         gravity = np.asarray(gravity_mps2, dtype=float)
-    elif recovery is not None and recovery.report.gravity_world_mps2 is not None:
-        gravity = recovery.report.gravity_world_mps2
     else:
-        gravity = np.asarray(DEFAULT_GRAVITY_MPS2)
-    reference = build_reference(sequence, pose_stream=pose_stream, recovery=recovery, config=config)
+        gravity = nominal_gravity(recovery)
+        if fitted and recovery.report.gravity_world_mps2 is not None:
+            own_gravity = np.asarray(recovery.report.gravity_world_mps2, dtype=float)
+            sources = {k: (replace(s, gravity_mps2=own_gravity) if s.kind is BiasSourceKind.RECOVERED else s)
+                       for k, s in sources.items()}
+    heldout, heldout_info = None, None
+    if config.crossval_block_s is not None and (config.crossval is CrossvalMode.ON or
+                                                (config.crossval is CrossvalMode.AUTO and fitted)):
+        heldout, heldout_info = _heldout_source(sequence, recovery, config, required=config.crossval is CrossvalMode.ON)
+        if heldout is not None and own_gravity is not None:
+            heldout = replace(heldout, gravity_mps2=own_gravity)
+    judged = fitted and heldout is not None and len(heldout_info["dropped_folds"]) < config.crossval_folds
     limitations = input_limitations(sequence)
     limitations += recovery_limitations(recovery, config) if recovery is not None else []
-    if recovery is not None and reference.kind is ReferenceKind.POSES and (
-            recovery.report.pose_stream is None or reference.info.get("stream") == recovery.report.pose_stream):
+    if fitted and not judged:
         limitations.append(Limitation(
             "not an independent test: the reference poses are those the recovery fitted, so pose errors that "
-            "the bias absorbed are not seen",
-            "validate against another pose stream or a ground truth (--poses STREAM, --add-poses FILE:KIND)"))
+            "the bias absorbed are not seen" + (" (and no cross-validation fold could be recovered)"
+                                                if heldout is not None else ""),
+            "validate against another pose stream or a ground truth (--poses STREAM, --add-poses FILE:KIND), or "
+            "cross-validate (--crossval on)"))
     result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config,
-                               limitations=[lim.text for lim in limitations])
+                               limitations=[lim.text for lim in limitations], heldout=heldout, judge_heldout=judged,
+                               heldout_info=heldout_info)
     result.next_steps = next_steps(result, limitations)
+    if own_gravity is not None:
+        result.notes.append(f"'recovered' is integrated with the recovery's gravity {np.round(own_gravity, 4).tolist()} "
+                            f"m/s^2 (the reference is the stream it was fitted to); the other rows with "
+                            f"{np.round(gravity, 4).tolist()}")
+    if judged:
+        result.notes.append("the reference is the stream the bias was fitted to: the held-out blocks judge the verdict")
     if recovery is not None:
         result.notes.append(f"recovery: {recovery_dir}")
     return result
 
 
-def _heldout_source(sequence: Sequence, recovery: RecoveryOutputs | None,
-                    config: ValidationConfig) -> dict[str, BiasSource]:
-    """``{"recovered_heldout": source}``: the recovery cross-validated by blocks (``crossval_block_s``), a FILE
-    source (compared with the recovered bias on the same windows, not judged)."""
+def nominal_gravity(recovery: RecoveryOutputs | None = None) -> np.ndarray:
+    """``(0, 0, -|g|)``, [3]: gravity in a level world frame (``|g|`` of the recovery's, else 9.81)."""
+    g = None if recovery is None else recovery.report.gravity_world_mps2
+    magnitude = float(np.linalg.norm(g)) if g is not None else -DEFAULT_GRAVITY_MPS2[2]
+    return np.array([0.0, 0.0, -magnitude])
+
+
+def _heldout_source(sequence: Sequence, recovery: RecoveryOutputs | None, config: ValidationConfig,
+                    required: bool) -> tuple[BiasSource | None, dict[str, Any] | None]:
+    """The recovery cross-validated by blocks (``crossval_block_s``) as the source ``recovered_heldout``,
+    and what the cross-validation did (``dropped_folds``: the folds whose recovery failed, with why).
+
+    Raises:
+        ValidationError: ``required`` and there is no recovery of a pose stream of this sequence.
+    """
     from validation.crossval import BlockFolds, heldout_track
 
     stream = recovery.report.pose_stream if recovery is not None else None
     if recovery is None or stream not in sequence.poses:
-        raise ValidationError("crossval_block_s needs the recovery and the pose stream it fitted" + (
+        if not required:
+            return None, None
+        raise ValidationError("cross-validation needs the recovery and the pose stream it fitted" + (
             f" ('{stream}' is not among the sequence's pose streams)" if recovery is not None else ""),
-            field="crossval_block_s",
-            hint="give the recovery folder of a pose-stream recovery, or drop crossval_block_s")
+            field="crossval",
+            hint="give the recovery folder of a pose-stream recovery, or --crossval off")
     folds = BlockFolds(int(sequence.imu.t_ns[0]), float(config.crossval_block_s), int(config.crossval_folds))
     log.info("cross-validating the recovery from '%s' by %d folds of %g-s blocks", stream, folds.n_folds,
              folds.block_s)
-    track = heldout_track(sequence, stream, dict(recovery.report.get("config") or {}), folds)
-    return {HELDOUT_SOURCE: BiasSource(HELDOUT_SOURCE, BiasSourceKind.FILE, track)}
+    track, dropped = heldout_track(sequence, stream, dict(recovery.report.get("config") or {}), folds)
+    for k, why in dropped.items():
+        log.warning("cross-validation fold %d of %d dropped: %s", k + 1, folds.n_folds, why)
+    info = {"block_s": folds.block_s, "folds": folds.n_folds,
+            "dropped_folds": [{"fold": int(k), "reason": why} for k, why in sorted(dropped.items())]}
+    return BiasSource(HELDOUT_SOURCE, BiasSourceKind.FILE, track), info
 
 
 def next_steps(result: ValidationResult, limitations: Sequence_[Limitation] = ()) -> list[str]:

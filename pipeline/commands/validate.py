@@ -15,7 +15,7 @@ from pipeline.ingest import (
     load_checked,
     reader_kwargs_from_args,
 )
-from validation.config import ValidationConfig
+from validation.config import CrossvalMode, ValidationConfig
 
 log = logging.getLogger(__name__)
 
@@ -78,16 +78,21 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--overlap", type=float, default=d.overlap, metavar="F",
                    help=f"overlap of consecutive windows, in [0, 1) (default {d.overlap:g})")
     p.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
-                   help="gravity in the reference world frame, m/s^2 (default: recovery.json's, else 0 0 -9.81)")
+                   help="gravity in the reference world frame for every row, m/s^2 (default: 0 0 -|g| for each "
+                        "row, the recovery's own gravity for the recovered bias against the stream it was fitted "
+                        "to)")
     p.add_argument("--margin", type=float, default=d.margin, metavar="F",
                    help=f"relative margin of the FAIL rule (default {d.margin:g})")
     p.add_argument("--flag-k", type=float, default=d.flag_k, metavar="K",
                    help=f"flag windows whose error exceeds K x the median (default {d.flag_k:g})")
     p.add_argument("--velocity-cutoff-hz", type=float, default=d.velocity_cutoff_hz, metavar="HZ",
                    help="smoothing cutoff for pose-derived velocity (default: chosen from the pose noise)")
+    p.add_argument("--crossval", choices=[m.value for m in CrossvalMode], default=d.crossval.value,
+                   help="cross-validate the recovery by time blocks: recover again without the poses of each fold "
+                        "of blocks ('recovered_heldout'); auto: when the reference is the stream the bias was "
+                        "fitted to, where the held-out blocks judge the verdict (default %(default)s)")
     p.add_argument("--crossval-block-s", type=float, default=d.crossval_block_s, metavar="S",
-                   help="also cross-validate the recovery by time blocks of S seconds: recover again without the "
-                        "poses of each fold of blocks and compare that held-out bias ('recovered_heldout')")
+                   help=f"block length of the cross-validation (default {d.crossval_block_s:g})")
     p.add_argument("--crossval-folds", type=int, default=d.crossval_folds, metavar="N",
                    help=f"folds of --crossval-block-s (default {d.crossval_folds})")
     add_reader_arguments(p)
@@ -122,7 +127,8 @@ def run(args: argparse.Namespace) -> int:
                               hint="give --recovery DIR or --bias FILE")
     config = ValidationConfig(window_s=args.window_s, overlap=args.overlap, margin=args.margin,
                               flag_k=args.flag_k, velocity_cutoff_hz=args.velocity_cutoff_hz,
-                              crossval_block_s=args.crossval_block_s, crossval_folds=args.crossval_folds)
+                              crossval=args.crossval, crossval_block_s=args.crossval_block_s,
+                              crossval_folds=args.crossval_folds)
     seq = load_checked(args.sequence, reader_kwargs_from_args(args), repairs=args.repair,
                        check_options=check_options_from_args(args), action="validate")
     if seq.imu is None:

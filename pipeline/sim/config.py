@@ -237,6 +237,10 @@ class PoseStreamConfig:
         rate_hz: Pose rate; stamps are on their own grid with a random phase.
         position_noise_m: Std of white position noise per axis.
         rotation_noise_rad: Std of white rotation noise per axis (right-multiplied).
+        correlated_position_noise_m / correlated_rotation_noise_rad: Stationary std per axis of a
+            first-order Gauss-Markov pose error (world-frame position, right-multiplied rotation) on
+            top of the white noise: the slow error of real motion capture.
+        correlated_noise_tau_s: Its correlation time.
         dropouts: Number of gaps with no poses.
         dropout_max_s: Longest gap (each gap is uniform in [dropout_max_s / 2, dropout_max_s]).
         outliers: Number of samples displaced by ``outlier_offset_m`` in a random direction.
@@ -255,6 +259,9 @@ class PoseStreamConfig:
     rate_hz: float = 100.0
     position_noise_m: float = 0.5e-3
     rotation_noise_rad: float = 0.5e-3
+    correlated_position_noise_m: float = 0.0
+    correlated_rotation_noise_rad: float = 0.0
+    correlated_noise_tau_s: float = 1.0
     dropouts: int = 0
     dropout_max_s: float = 0.5
     outliers: int = 0
@@ -309,9 +316,12 @@ class SimConfig:
                 raise ConfigError(f"poses.{name} must be >= 0", field=f"poses.{name}")
         if self.motion.params().key_interval_s <= 0:
             raise ConfigError("motion.key_interval_s must be > 0", field="motion.key_interval_s")
-        for name in ("position_noise_m", "rotation_noise_rad", "dropout_max_s", "outlier_offset_m"):
+        for name in ("position_noise_m", "rotation_noise_rad", "dropout_max_s", "outlier_offset_m",
+                     "correlated_position_noise_m", "correlated_rotation_noise_rad"):
             if getattr(self.poses, name) < 0:
                 raise ConfigError(f"poses.{name} must be >= 0", field=f"poses.{name}")
+        if not self.poses.correlated_noise_tau_s > 0:
+            raise ConfigError("poses.correlated_noise_tau_s must be > 0", field="poses.correlated_noise_tau_s")
         return self
 
     def noise_free(self) -> "SimConfig":
@@ -319,7 +329,8 @@ class SimConfig:
         return dataclasses.replace(
             self,
             imu=dataclasses.replace(self.imu, white_noise=False),
-            poses=dataclasses.replace(self.poses, position_noise_m=0.0, rotation_noise_rad=0.0),
+            poses=dataclasses.replace(self.poses, position_noise_m=0.0, rotation_noise_rad=0.0,
+                                      correlated_position_noise_m=0.0, correlated_rotation_noise_rad=0.0),
         )
 
     # -- dict / YAML round trip -------------------------------------------------------------

@@ -105,6 +105,18 @@ def _dropout_intervals(cfg: PoseStreamConfig, span_s: float, rng: np.random.Gene
     return np.column_stack([starts, starts + lengths])
 
 
+def gauss_markov(t_s: np.ndarray, tau_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Six unit-variance first-order Gauss-Markov processes sampled exactly at ``t_s`` [M], [M, 6]:
+    ``x_{k+1} = a x_k + sqrt(1 - a^2) w_k`` with ``a = exp(-dt / tau)``, stationary from the start."""
+    w = rng.normal(0.0, 1.0, size=(len(t_s), 6))
+    x = np.empty_like(w)
+    x[0] = w[0]
+    a = np.exp(-np.diff(t_s) / tau_s)
+    for k in range(1, len(t_s)):
+        x[k] = a[k - 1] * x[k - 1] + np.sqrt(1.0 - a[k - 1] ** 2) * w[k]
+    return x
+
+
 def simulate_pose_stream(
     cfg: PoseStreamConfig,
     trajectory: Trajectory,
@@ -155,11 +167,13 @@ def simulate_pose_stream(
         rot_true = rz * rot_true
 
     noise = rngs["noise"].normal(0.0, 1.0, size=(m, 6))
-    p_meas = p_true + noise[:, :3] * cfg.position_noise_m
-    if cfg.format is PoseFormat.POSITION or cfg.rotation_noise_rad == 0:
+    slow = gauss_markov(t_s, cfg.correlated_noise_tau_s, rngs["correlated"]) if m else np.zeros((0, 6))
+    p_meas = p_true + noise[:, :3] * cfg.position_noise_m + slow[:, :3] * cfg.correlated_position_noise_m
+    if cfg.format is PoseFormat.POSITION or cfg.rotation_noise_rad == cfg.correlated_rotation_noise_rad == 0:
         rot_meas = rot_true
     else:
-        rot_meas = rot_true * Rotation.from_rotvec(noise[:, 3:] * cfg.rotation_noise_rad)
+        rot_meas = rot_true * Rotation.from_rotvec(noise[:, 3:] * cfg.rotation_noise_rad
+                                                   + slow[:, 3:] * cfg.correlated_rotation_noise_rad)
 
     gaps_s = _dropout_intervals(cfg, duration_s, rngs["dropouts"])
     keep = np.ones(m, dtype=bool)

@@ -48,6 +48,7 @@ class _Stream(int, enum.Enum):
     OUTLIERS = 10
     EXTRINSIC = 11
     VIO = 12
+    POSE_CORRELATED = 13
 
 
 class MotionSource(str, enum.Enum):
@@ -215,6 +216,7 @@ def simulate(config: SimConfig) -> Simulation:
         "dropouts": _rng(config.seed, _Stream.DROPOUTS),
         "outliers": _rng(config.seed, _Stream.OUTLIERS),
         "vio": _rng(config.seed, _Stream.VIO),
+        "correlated": _rng(config.seed, _Stream.POSE_CORRELATED),
     }
     pose_series, pose_truth = simulate_pose_stream(config.poses, trajectory, t0_ns, duration_s, pose_rngs)
 
