@@ -199,9 +199,11 @@ class RecoveryConfig:
         gravity_window_s: Longest span of the decimated solve that estimates the
             gravity direction (then the prior of the per-segment gravity variable).
         gravity_keyframe_rate_hz: Keyframe rate of that solve.
-        gravity_tilt_sigmas: With ``estimate_gravity`` automatic, a motion-capture or ground-truth
-            frame (level by convention) keeps the estimated tilt only beyond this many of its sigmas;
-            within, gravity is the frame's -z (the tilt and the accelerometer bias cannot be told apart).
+        gravity_tilt_sigmas / gravity_level_tolerance_deg: With ``estimate_gravity`` automatic, a
+            motion-capture or ground-truth frame (level by convention) keeps its nominal gravity (-z),
+            and the bias consistent with it, unless the estimated tilt exceeds both this many of its
+            sigmas (the data tell it from the accelerometer bias) and this many degrees (more than
+            levelling a frame leaves); then the tilt is kept and reported.
         position_sigma_m: Pose position noise; ``None`` = default of the source kind.
         rotation_sigma_rad: Pose rotation noise; ``None`` = default of the source kind.
         gyro_noise_density / acc_noise_density: Override the calibration's white noise.
@@ -212,6 +214,9 @@ class RecoveryConfig:
             A narrow range (e.g. ``[0.5, 1, 3, 10, 30]``) keeps a pose stream with artefacts
             (e.g. EuRoC GT jumps) from choosing a random walk so loose that the bias absorbs
             them; hitting a bound is reported in ``recovery.json`` warnings.
+        noise_density_scales: Candidate factors of the calibration's white noise densities (gyro and
+            acc separately) for EVIDENCE (a flying platform's vibration raises them far above a
+            datasheet's); ``[1]``: as given.
         pose_sigma_scales: Candidate factors of the pose sigmas (ignored when
             ``position_sigma_m`` is given).
         noise_keyframe_rate_hz: Keyframe rate of the evidence solves.
@@ -280,6 +285,7 @@ class RecoveryConfig:
     gravity_window_s: float = 300.0
     gravity_keyframe_rate_hz: float | None = None
     gravity_tilt_sigmas: float = 3.0
+    gravity_level_tolerance_deg: float = 1.0
     position_sigma_m: float | None = None
     rotation_sigma_rad: float | None = None
     gyro_noise_density: float | None = None
@@ -288,6 +294,7 @@ class RecoveryConfig:
     acc_random_walk: float | None = None
     noise_estimation: NoiseEstimation = NoiseEstimation.EVIDENCE
     random_walk_scales: list[float] = field(default_factory=lambda: [0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0])
+    noise_density_scales: list[float] = field(default_factory=lambda: [0.3, 1.0, 3.0, 10.0, 30.0])
     pose_sigma_scales: list[float] = field(default_factory=lambda: [0.03, 0.1, 0.3, 1.0, 3.0, 10.0])
     noise_keyframe_rate_hz: float | None = None
     pose_error: PoseErrorMode = PoseErrorMode.AUTO
@@ -392,6 +399,9 @@ class RecoveryConfig:
             raise ConfigError("must be a non-empty list of positive numbers", field="pose_error_taus_s")
         self.pose_error_sigma_scales = [float(s) for s in self.pose_error_sigma_scales]
         self.pose_error_taus_s = [float(s) for s in self.pose_error_taus_s]
+        if not self.noise_density_scales or any(not float(s) > 0 for s in self.noise_density_scales):
+            raise ConfigError("must be a non-empty list of positive numbers", field="noise_density_scales")
+        self.noise_density_scales = [float(s) for s in self.noise_density_scales]
         if not self.pose_sigma_scales or any(float(s) <= 0 for s in self.pose_sigma_scales):
             raise ConfigError("must be a non-empty list of positive numbers", field="pose_sigma_scales")
         self.pose_sigma_scales = [float(s) for s in self.pose_sigma_scales]

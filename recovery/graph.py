@@ -34,7 +34,7 @@ from recovery.config import PoseFactorMode, RobustLoss
 from recovery.fusion import FusedPoses, PerBin, WithinBinStats
 from recovery.pose_error import PoseErrorModel, add_error_states, error_key, imu_pose_factor, tracked_pose_factor, \
     velocity_fit_variance
-from recovery.preintegration import ImuNoise, MidpointSamples, RandomWalkBasis, make_params, preintegrate
+from recovery.preintegration import ImuNoise, MidpointSamples, NoiseBasis, make_params, preintegrate
 from recovery.rotations import matrix_to_quat_wxyz
 
 log = logging.getLogger(__name__)
@@ -481,14 +481,14 @@ def build_window(
     opts: SolveOptions,
     init: WindowInit | None = None,
     skip: np.ndarray | None = None,
-    basis: RandomWalkBasis | None = None,
+    basis: NoiseBasis | None = None,
 ) -> _Built:
     """Build the factor graph and initial values of one window.
 
     In order: the initial states, the IMU factors (with the gravity direction when estimated)
     and the bias prior, the pose factors of the stream's kind (:func:`_add_pose_factors`), and
     the fused keyframes' velocity priors. ``skip``: keyframes whose pose factors are left out.
-    ``basis``: this window's preintegration (:func:`random_walk_basis`), re-weighted for
+    ``basis``: this window's preintegration (:func:`noise_basis`), re-weighted for
     ``imu_noise`` instead of integrating again.
     """
     init = init or WindowInit()
@@ -551,12 +551,12 @@ def _params(imu_noise: ImuNoise, opts: SolveOptions, init: WindowInit) -> gtsam.
     return make_params(imu_noise, opts.gravity_mps2, None if opts.estimate_gravity else init.gravity_unit)
 
 
-def random_walk_basis(samples: MidpointSamples, imu_noise: ImuNoise, opts: SolveOptions,
-                      init: WindowInit | None = None) -> RandomWalkBasis:
+def noise_basis(samples: MidpointSamples, imu_noise: ImuNoise, opts: SolveOptions,
+                      init: WindowInit | None = None) -> NoiseBasis:
     """One window's preintegration at ``init``'s bias, for :func:`build_window` with other random walks."""
     init = init or WindowInit()
     bias0 = np.zeros(6) if init.bias is None else np.asarray(init.bias, dtype=float)
-    return RandomWalkBasis.build(samples, imu_noise, lambda n: _params(n, opts, init),
+    return NoiseBasis.build(samples, imu_noise, lambda n: _params(n, opts, init),
                                  bias0 if bias0.ndim == 1 else bias0[:-1])
 
 
@@ -564,7 +564,7 @@ def _add_imu_factors(built: _Built, pims: list[Any], opts: SolveOptions, init: W
                      models: list[Any] | None = None) -> None:
     """The IMU factors between consecutive keyframes (gravity direction as a variable when estimated,
     with its prior) and the prior on the first bias. ``models``: noise models replacing the
-    preintegrated covariances (:class:`recovery.preintegration.RandomWalkBasis`)."""
+    preintegrated covariances (:class:`recovery.preintegration.NoiseBasis`)."""
     graph, values = built.graph, built.values
     if opts.estimate_gravity:
         gu = np.array([0.0, 0.0, -1.0]) if init.gravity_unit is None else np.asarray(init.gravity_unit, float)
@@ -748,7 +748,9 @@ def _add_velocity_priors(built: _Built, kf: KeyframePoses, opts: SolveOptions, s
         var = opts.position_sigma_m**2 / float(kf.dt2_s2[k])
         if gm is not None and gm.position_active:
             n = 1 if kf.count is None else int(kf.count[k])
-            var += velocity_fit_variance(gm, math.sqrt(12.0 * float(kf.dt2_s2[k]) / max(n, 1)))
+            # n samples evenly over T have sum dt^2 = n T^2 (n + 1) / (12 (n - 1))
+            span = math.sqrt(12.0 * float(kf.dt2_s2[k]) * (n - 1) / (n * (n + 1))) if n > 1 else 0.0
+            var += velocity_fit_variance(gm, span, n)
         base = gtsam.noiseModel.Isotropic.Sigma(3, math.sqrt(var))
         f = gtsam.PriorFactorVector(V(k), kf.v_mps[k], _robust(base, opts.robust_loss, opts.robust_k))
         _add_pose(built, k, f, base)
@@ -897,7 +899,7 @@ def log_evidence(built: _Built, values: gtsam.Values) -> float:
     return -built.graph.error(values) - built.neg_log_const - bn.logDeterminant()
 
 
-def _reweighted(prev: _Built, basis: RandomWalkBasis, imu_noise: ImuNoise, opts: SolveOptions,
+def _reweighted(prev: _Built, basis: NoiseBasis, imu_noise: ImuNoise, opts: SolveOptions,
                 init: WindowInit) -> _Built:
     """``prev`` (a window built on ``basis``) with its IMU part built again for ``imu_noise`` and
     ``init`` (the IMU factors' noise models, the bias and gravity priors' centres) and every other
@@ -924,7 +926,7 @@ def evidence_step(
     T_imu_pose: np.ndarray,
     opts: SolveOptions,
     init: WindowInit,
-    basis: RandomWalkBasis | None = None,
+    basis: NoiseBasis | None = None,
     like: _Built | None = None,
 ) -> tuple[float, WindowInit, _Built] | None:
     """Log evidence (:func:`log_evidence`) one Gauss-Newton step from ``init.values``, the optimum
@@ -960,7 +962,7 @@ def solve_window(
     opts: SolveOptions,
     init: WindowInit | None = None,
     want_evidence: bool = False,
-    basis: RandomWalkBasis | None = None,
+    basis: NoiseBasis | None = None,
 ) -> WindowSolution:
     """Build, solve (with outlier rejection) and summarise one window (``basis``: see :func:`build_window`).
 

@@ -19,7 +19,7 @@ window carries but not what the optimum estimates.
 What it costs: each coordinate is a bracketing search on the grid with a parabola
 through the best point and its neighbours (usually 3 candidates; 5 for the two random
 walks together, the later searched at the earlier one's best grid point). The window is
-preintegrated once (:class:`recovery.preintegration.RandomWalkBasis`: the random walks
+preintegrated once (:class:`recovery.preintegration.NoiseBasis`: the random walks
 re-weight it exactly). The first candidate is solved; a random-walk candidate next to a
 solved one takes one Gauss-Newton step from that optimum
 (:func:`recovery.graph.evidence_step`), which differs from the full solve's log evidence by
@@ -37,7 +37,7 @@ from typing import Any
 import numpy as np
 
 from recovery.config import NoiseEstimation, PoseSigmaMethod
-from recovery.graph import KeyframePoses, SolveOptions, WindowInit, evidence_step, random_walk_basis, solve_window
+from recovery.graph import KeyframePoses, SolveOptions, WindowInit, evidence_step, noise_basis, solve_window
 from recovery.pose_error import PoseErrorModel
 from recovery.preintegration import ImuNoise, MidpointSamples
 
@@ -59,6 +59,7 @@ class NoiseChoice:
         method: Evidence search or fixed (as given).
         table: Every evaluated candidate with its log evidence.
         pose_error: The pose stream's time-correlated error (:mod:`recovery.pose_error`), None: white only.
+        gyro_density_scale / acc_density_scale: Chosen factors of the white noise densities.
     """
 
     imu: ImuNoise
@@ -71,10 +72,14 @@ class NoiseChoice:
     table: list[dict[str, float]] = field(default_factory=list)
     pose_method: PoseSigmaMethod = PoseSigmaMethod.EVIDENCE
     pose_error: PoseErrorModel | None = None
+    gyro_density_scale: float = 1.0
+    acc_density_scale: float = 1.0
 
     def to_dict(self) -> dict:
         return {
             "pose_error": None if self.pose_error is None else self.pose_error.to_dict(),
+            "gyro_noise_density_scale": float(self.gyro_density_scale),
+            "acc_noise_density_scale": float(self.acc_density_scale),
             **self.imu.to_dict(),
             "position_sigma_m": float(self.position_sigma_m),
             "rotation_sigma_rad": float(self.rotation_sigma_rad),
@@ -110,10 +115,13 @@ def _grid_index(grid: list[float], value: float) -> int:
     return int(np.argmin(logs))
 
 
-def _imu_noise(base: ImuNoise, gyro_rw_scale: float, acc_rw_scale: float) -> ImuNoise:
-    """``base`` with its random walks scaled."""
+def _imu_noise(base: ImuNoise, gyro_rw_scale: float, acc_rw_scale: float, gyro_density_scale: float = 1.0,
+               acc_density_scale: float = 1.0) -> ImuNoise:
+    """``base`` with its random walks and white noise densities scaled."""
     return replace(base, gyro_random_walk=base.gyro_random_walk * gyro_rw_scale,
-                   acc_random_walk=base.acc_random_walk * acc_rw_scale)
+                   acc_random_walk=base.acc_random_walk * acc_rw_scale,
+                   gyro_noise_density=base.gyro_noise_density * gyro_density_scale,
+                   acc_noise_density=base.acc_noise_density * acc_density_scale)
 
 
 @dataclass(frozen=True)
@@ -145,17 +153,21 @@ def estimate_noise(
     estimate_acc: bool = True,
     init: WindowInit | None = None,
     pose_error: PoseErrorGrid | None = None,
+    density_scales: list[float] | None = None,
 ) -> NoiseChoice:
     """Coordinate-wise evidence maximisation (see the module docstring).
 
     With ``pose_error`` (6-DoF absolute streams), the correlated error's sigma and correlation
     time per axis group are coordinates too, searched before the random walks and once more after
     them (the two explain the same slow disagreement, as a bounded error or as a walking bias).
+    With ``density_scales``, so are the accelerometer's and the gyro's white noise densities,
+    searched first (a vibrating platform's white noise, far above the datasheet's, would otherwise
+    be explained as a walking bias).
     """
     opts = replace(opts, compute_marginals=False, marginal_extras=False, reject_outliers=False, residuals=False)
     start_rw = 10.0 if 10.0 in rw_scales else rw_scales[len(rw_scales) // 2]
     state = {"g": start_rw if estimate_gyro else 1.0, "a": start_rw if estimate_acc else 1.0, "p": 1.0,
-             "rs": 0.0, "rt": 1.0, "ps": 0.0, "pt": 1.0}
+             "rs": 0.0, "rt": 1.0, "ps": 0.0, "pt": 1.0, "gn": 1.0, "an": 1.0}
     table: list[dict[str, float]] = []
     cache: dict[tuple[float, ...], float] = {}
 
@@ -168,8 +180,8 @@ def estimate_noise(
     like: dict[tuple[float, ...], Any] = {}  # per pose model: the last evidence step's graph (its pose factors are shared)
     within = kf.within_bin()
     # one preintegration for every candidate, at the start's noise and bias (the candidates differ
-    # in their random walks only, which re-weight it exactly: RandomWalkBasis)
-    basis = random_walk_basis(samples, _imu_noise(base_imu, state["g"], state["a"]), opts, init)
+    # in their random walks only, which re-weight it exactly: NoiseBasis)
+    basis = noise_basis(samples, _imu_noise(base_imu, state["g"], state["a"]), opts, init)
 
     def model_of(st: dict[str, float]) -> PoseErrorModel | None:
         if pose_error is None:
@@ -177,13 +189,13 @@ def estimate_noise(
         return PoseErrorModel(base_rotation_sigma_rad * st["rs"], st["rt"], base_position_sigma_m * st["ps"], st["pt"])
 
     def evaluate(st: dict[str, float]) -> float:
-        key = tuple(round(st[k], 6) for k in ("g", "a", "p", "rs", "rt", "ps", "pt"))
+        key = tuple(round(st[k], 6) for k in ("g", "a", "gn", "an", "p", "rs", "rt", "ps", "pt"))
         if key in cache:
             return cache[key]
-        pose_key = key[2:]
+        pose_key = key[4:]
         o = replace(opts, position_sigma_m=base_position_sigma_m * st["p"],
                     rotation_sigma_rad=base_rotation_sigma_rad * st["p"], pose_error=model_of(st))
-        noise = _imu_noise(base_imu, st["g"], st["a"])
+        noise = _imu_noise(base_imu, st["g"], st["a"], st["gn"], st["an"])
         try:
             # a random walk next to a solved candidate: one Gauss-Newton step from its optimum
             # (graph.evidence_step); solved: the pose models, whose candidates lie further apart, and
@@ -206,7 +218,8 @@ def estimate_noise(
             log.debug("noise candidate %s failed: %s", key, exc, exc_info=True)
             ev = float("-inf")
         cache[key] = ev
-        table.append({"gyro_rw_scale": st["g"], "acc_rw_scale": st["a"], "pose_scale": st["p"],
+        table.append({"gyro_rw_scale": st["g"], "acc_rw_scale": st["a"], "gyro_density_scale": st["gn"],
+                      "acc_density_scale": st["an"], "pose_scale": st["p"],
                       **({} if pose_error is None else {"rotation_error_sigma_scale": st["rs"], "rotation_error_tau_s": st["rt"],
                                                         "position_error_sigma_scale": st["ps"], "position_error_tau_s": st["pt"]}),
                       "log_evidence": float(ev)})
@@ -250,23 +263,28 @@ def estimate_noise(
 
     if estimate_pose:
         search("p", list(pose_scales or POSE_SCALES))
-    passes = 2 if pose_error is not None else 1
+    passes = 2 if pose_error is not None or density_scales is not None else 1
     for _ in range(passes):
         if pose_error is not None:
             for group in ("r", "p"):
                 search(group + "s", list(pose_error.sigma_scales))
                 if state[group + "s"] > 0:
                     search(group + "t", list(pose_error.taus_s))
+        if density_scales is not None:
+            search("an", list(density_scales))
+            search("gn", list(density_scales))
         if estimate_gyro:
             search("g", list(rw_scales))
         if estimate_acc:
             search("a", list(rw_scales))
-    for name in ("rs", "rt", "ps", "pt"):
-        chosen[name] = state[name]  # the grid point: the error model's coordinates are not interpolated
-    noise = _imu_noise(base_imu, chosen["g"], chosen["a"])
+    for name in ("rs", "rt", "ps", "pt", "gn", "an"):
+        chosen[name] = state[name]  # grid points: these coordinates are not interpolated
+    noise = _imu_noise(base_imu, chosen["g"], chosen["a"], chosen["gn"], chosen["an"])
     model = model_of(chosen)
-    log.info("noise by evidence: gyro rw x%.3g, acc rw x%.3g, pose sigma x%.3g, correlated error %s (%d candidates)",
-             chosen["g"], chosen["a"], chosen["p"], None if model is None else model.to_dict(), len(table))
+    log.info("noise by evidence: gyro rw x%.3g, acc rw x%.3g, gyro / acc density x%.3g / x%.3g, pose sigma x%.3g, "
+             "correlated error %s (%d candidates)", chosen["g"], chosen["a"], chosen["gn"], chosen["an"], chosen["p"],
+             None if model is None else model.to_dict(), len(table))
     return NoiseChoice(noise, base_position_sigma_m * chosen["p"], base_rotation_sigma_rad * chosen["p"],
                        chosen["g"], chosen["a"], chosen["p"], NoiseEstimation.EVIDENCE, table,
-                       pose_error=model if model is not None and model.active else None)
+                       pose_error=model if model is not None and model.active else None,
+                       gyro_density_scale=chosen["gn"], acc_density_scale=chosen["an"])

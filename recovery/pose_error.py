@@ -195,10 +195,13 @@ def tracked_pose_factor(z: gtsam.Pose3, S: np.ndarray, noise: Any, key_x: int, k
     return gtsam.CustomFactor(noise, [key_x, key_e, key_n], error)
 
 
-def velocity_fit_variance(model: PoseErrorModel, span_s: float) -> float:
-    """Variance per axis (m^2/s^2) that the correlated position error adds to a line fit's slope over
-    ``span_s``: over spans much shorter than ``tau`` the process diffuses like a Brownian motion of
-    rate ``2 sigma^2 / tau``, whose least-squares slope over ``T`` has variance ``6 D / (5 T)``."""
-    if not model.position_active or span_s <= 0:
+def velocity_fit_variance(model: PoseErrorModel, span_s: float, n: int) -> float:
+    """Variance per axis (m^2/s^2) that the correlated position error adds to the least-squares slope of
+    ``n`` samples evenly spread over ``span_s``: ``w^T C w`` with ``w`` the slope's weights and
+    ``C = sigma^2 exp(-|t_i - t_j| / tau)`` the process's covariance (0 for fewer than 2 samples)."""
+    if not model.position_active or span_s <= 0 or n < 2:
         return 0.0
-    return 12.0 * model.position_sigma_m**2 / (5.0 * model.position_tau_s * span_s)
+    t = np.linspace(0.0, span_s, n)
+    w = (t - t.mean()) / np.sum((t - t.mean()) ** 2)
+    C = model.position_sigma_m**2 * np.exp(-np.abs(t[:, None] - t[None, :]) / model.position_tau_s)
+    return float(w @ C @ w)

@@ -163,60 +163,61 @@ def preintegrate(
     return out
 
 
+#: The noise terms :class:`NoiseBasis` re-weights: ImuNoise fields, each a density whose square scales a part.
+NOISE_TERMS = ("gyro_noise_density", "acc_noise_density", "gyro_random_walk", "acc_random_walk")
+
+
 @dataclass(frozen=True)
-class RandomWalkBasis:
-    """One window's preintegration, re-weighted for other bias random walks without integrating again.
+class NoiseBasis:
+    """One window's preintegration, re-weighted for other IMU noise without integrating again.
 
     GTSAM propagates the preintegration covariance as ``P <- F P F^T + G Q G^T`` from zero, with
     ``F`` and ``G`` independent of the noise, and maps it to the factor's residual covariance by a
     noise-free Jacobian; so the residual covariance is linear in each noise term's covariance.
-    With ``R`` that of ``noise`` and ``R_g`` / ``R_a`` the parts of its gyro / acc random walk
-    (each preintegrated alone), the random walks ``s_g`` / ``s_a`` times ``noise``'s give
-    ``R + (s_g^2 - 1) R_g + (s_a^2 - 1) R_a`` exactly. The evidence search over the random walks
-    (:mod:`recovery.noise`) evaluates several on one window: three preintegrations instead of one
-    per candidate. The preintegrated deltas do not depend on the noise.
+    With ``R`` that of ``noise`` and ``R_i`` the part of its term ``i`` (:data:`NOISE_TERMS`, each
+    preintegrated alone), a term scaled by ``s_i`` gives ``R + sum_i (s_i^2 - 1) R_i`` exactly. The
+    evidence search over the noise (:mod:`recovery.noise`) evaluates many on one window: five
+    preintegrations instead of one per candidate. The preintegrated deltas do not depend on the noise.
 
     Attributes:
         pims: ``K - 1`` measurements preintegrated with ``noise``.
         noise: Their noise.
         cov: Their residual covariances, [K-1, 15, 15].
-        cov_gyro_rw / cov_acc_rw: The parts of ``noise``'s gyro / acc random walk, [K-1, 15, 15].
+        parts: Per term of :data:`NOISE_TERMS`, its part of ``cov``, [K-1, 15, 15].
     """
 
     pims: list
     noise: ImuNoise
     cov: np.ndarray
-    cov_gyro_rw: np.ndarray
-    cov_acc_rw: np.ndarray
+    parts: dict[str, np.ndarray]
 
     @classmethod
     def build(cls, samples: MidpointSamples, noise: ImuNoise, params_for: Callable[[ImuNoise], Any],
-              bias: np.ndarray | None = None) -> "RandomWalkBasis":
-        """Preintegrate ``samples`` with ``noise`` and with each random walk alone.
+              bias: np.ndarray | None = None) -> "NoiseBasis":
+        """Preintegrate ``samples`` with ``noise`` and with each noise term alone.
 
         Args:
             samples: From :func:`midpoint_samples`.
-            noise: The reference noise (random walks > 0).
+            noise: The reference noise (every term > 0).
             params_for: Noise -> GTSAM parameters (gravity as the factors need it).
             bias: Linearisation bias, as for :func:`preintegrate`.
         """
         pims = preintegrate(samples, params_for(noise), bias)
         zero = ImuNoise(0.0, 0.0, 0.0, 0.0, integration_sigma=0.0)
-        parts = [np.array([p.residualCovariance() for p in preintegrate(samples, params_for(n), bias)])
-                 for n in (replace(zero, gyro_random_walk=noise.gyro_random_walk),
-                           replace(zero, acc_random_walk=noise.acc_random_walk))]
-        return cls(pims, noise, np.array([p.residualCovariance() for p in pims]), parts[0], parts[1])
+        parts = {term: np.array([p.residualCovariance() for p in
+                                 preintegrate(samples, params_for(replace(zero, **{term: getattr(noise, term)})), bias)])
+                 for term in NOISE_TERMS}
+        return cls(pims, noise, np.array([p.residualCovariance() for p in pims]), parts)
 
     def covariances(self, noise: ImuNoise) -> np.ndarray:
-        """Residual covariances [K-1, 15, 15] for ``noise`` (white noise as ``self.noise``'s)."""
-        if replace(noise, gyro_random_walk=0.0, acc_random_walk=0.0) != replace(
-                self.noise, gyro_random_walk=0.0, acc_random_walk=0.0):
-            raise ValueError("RandomWalkBasis: only the random walks may differ from the basis noise")
-        def excess(new: float, ref: float) -> float:  # (new / ref)^2 - 1; a zero walk stays zero
-            return (new / ref) ** 2 - 1.0 if ref > 0 else (0.0 if new == 0 else float("nan"))
-
-        sg = excess(noise.gyro_random_walk, self.noise.gyro_random_walk)
-        sa = excess(noise.acc_random_walk, self.noise.acc_random_walk)
-        if not (np.isfinite(sg) and np.isfinite(sa)):
-            raise ValueError("RandomWalkBasis: a random walk that was zero in the basis cannot be re-weighted")
-        return self.cov + sg * self.cov_gyro_rw + sa * self.cov_acc_rw
+        """Residual covariances [K-1, 15, 15] for ``noise`` (its integration sigma as ``self.noise``'s)."""
+        if noise.integration_sigma != self.noise.integration_sigma:
+            raise ValueError("NoiseBasis: the integration sigma must be the basis noise's")
+        out = self.cov.copy()
+        for term, part in self.parts.items():
+            new, ref = getattr(noise, term), getattr(self.noise, term)
+            if ref > 0:
+                out += ((new / ref) ** 2 - 1.0) * part
+            elif new != 0:
+                raise ValueError(f"NoiseBasis: {term} was zero in the basis and cannot be re-weighted")
+        return out

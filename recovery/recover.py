@@ -283,10 +283,17 @@ class _Problem:
         return midpoint_samples(self.imu.t_ns, self.imu_6, kf.t_ns), kf
 
 
+#: A calibration window whose pose stream pauses longer than this is taken only when no other is left.
+CALIBRATION_MAX_POSE_GAP_S = 1.0
+
+
 def _calibration_window(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: tuple[int, int],
-                        length_s: float) -> tuple[int, int]:
-    """The ``length_s`` window (inside one IMU piece and the pose overlap) with the most rotation."""
-    best, best_score = None, -1.0
+                        length_s: float, pose_t_ns: np.ndarray | None = None) -> tuple[int, int]:
+    """The ``length_s`` window (inside one IMU piece and the pose overlap) with the most rotation,
+    among those where the poses (``pose_t_ns``, IMU clock) never pause longer than
+    :data:`CALIBRATION_MAX_POSE_GAP_S` when there are such (else the one with the shortest pause):
+    a pose gap is a stretch the calibration solves cannot see."""
+    best, best_score = None, (-np.inf, -1.0)
     w2 = np.sum(imu.gyro_radps**2, axis=1)
     cum = np.concatenate([[0.0], np.cumsum(w2)])
     for a, b in pieces:
@@ -301,12 +308,20 @@ def _calibration_window(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: 
             cand = [(int(s), int(s) + L) for s in starts]
         for s, e in cand:
             i0, i1 = np.searchsorted(imu.t_ns, [s, e])
-            score = cum[i1] - cum[i0]
+            gap_s = _longest_pause_s(pose_t_ns, s, e) if pose_t_ns is not None else 0.0
+            score = (-max(gap_s, CALIBRATION_MAX_POSE_GAP_S), cum[i1] - cum[i0])
             if score > best_score:
                 best, best_score = (s, e), score
     if best is None:
         raise RecoveryError("no time overlap between the IMU and the pose stream")
     return best
+
+
+def _longest_pause_s(t_ns: np.ndarray, start_ns: int, end_ns: int) -> float:
+    """The longest stretch of ``[start_ns, end_ns]`` without a stamp of ``t_ns`` (sorted), seconds."""
+    i0, i1 = np.searchsorted(t_ns, [start_ns, end_ns])
+    edges = np.concatenate([[start_ns], t_ns[i0:i1], [end_ns]])
+    return float(np.max(np.diff(edges)) / NS_PER_S)
 
 
 # ----------------------------------------------------------------------------- offset
@@ -782,7 +797,8 @@ def _calibration_windows(inputs: _Inputs, offset_s: float, config: RecoveryConfi
         raise RecoveryError(
             f"no usable time overlap between the IMU and pose stream '{inputs.stream}' ({n_overlap} poses inside "
             "the IMU span)", hint="check that both come from the same recording and that the stamps use the same epoch")
-    return _CalibrationWindows(overlap, _calibration_window(imu, inputs.pieces, overlap, config.calib_window_s))
+    return _CalibrationWindows(overlap, _calibration_window(imu, inputs.pieces, overlap, config.calib_window_s,
+                                                            t_pose))
 
 
 @dataclass(frozen=True)
@@ -887,7 +903,8 @@ def _refined_offset(problem: _Problem, inputs: _Inputs, coarse: _ClockOffset, wi
     try:
         off_win = windows.calib_window
         if config.offset_window_s(problem.fuse) < config.calib_window_s:
-            off_win = _calibration_window(inputs.imu, inputs.pieces, off_win, config.offset_window_s(problem.fuse))
+            off_win = _calibration_window(inputs.imu, inputs.pieces, off_win, config.offset_window_s(problem.fuse),
+                                          _shifted_stamps(inputs.poses, coarse.offset_s))
         refined = _refine_offset(problem, coarse.offset_s, coarse.std_s, off_win,
                                  inputs.calibration_noise, T, inputs.opts, config)
     except (BiasgtError, ValueError, np.linalg.LinAlgError) as exc:
@@ -959,7 +976,8 @@ def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, off
     down = np.array([0.0, 0.0, -1.0])
     if not inputs.has_rot and config.position_only_window_s > config.calib_window_s:
         # position-only: the gyro random walk needs minutes to show (see position_only_window_s)
-        noise_win = _calibration_window(inputs.imu, inputs.pieces, windows.overlap, config.position_only_window_s)
+        noise_win = _calibration_window(inputs.imu, inputs.pieces, windows.overlap, config.position_only_window_s,
+                                        _shifted_stamps(inputs.poses, offset_s))
         if noise_win != calib:
             chain = _chained_solution(problem, offset_s, noise_win, rate, inputs.calibration_noise, T, inputs.opts,
                                       down, config.calib_window_s, config.calib_window_s / 6)
@@ -979,7 +997,8 @@ def _noise(problem: _Problem, inputs: _Inputs, windows: _CalibrationWindows, off
     choice = estimate_noise(w[0], w[1], inputs.imu_noise, sp, sr, T,
                             replace(inputs.opts, pose_error=_fixed_pose_error(inputs, config)), config.random_walk_scales,
                             estimate_pose=config.position_sigma_m is None and pose_method is PoseSigmaMethod.EVIDENCE,
-                            pose_scales=config.pose_sigma_scales, init=init, pose_error=searched_error)
+                            pose_scales=config.pose_sigma_scales, init=init, pose_error=searched_error,
+                            density_scales=config.noise_density_scales if len(config.noise_density_scales) > 1 else None)
     if pose_method is not PoseSigmaMethod.EVIDENCE:
         choice.pose_scale = sp / inputs.position_sigma_m
         choice.pose_method = pose_method
@@ -1088,7 +1107,8 @@ def _gravity(problem: _Problem, inputs: _Inputs, offset_s: float, T: np.ndarray,
             if "gravity_cov_tangent" in gsol.extras:
                 info["tilt_std_rad"] = float(np.sqrt(np.trace(gsol.extras["gravity_cov_tangent"]) / 2))
                 if inputs.level_test and inputs.estimate_gravity:
-                    info["level_test"] = _level_test(unit, info["tilt_std_rad"], config.gravity_tilt_sigmas)
+                    info["level_test"] = _level_test(unit, info["tilt_std_rad"], config.gravity_tilt_sigmas,
+                                                     config.gravity_level_tolerance_deg)
                     if info["level_test"]["level"]:
                         unit, estimated = np.array([0.0, 0.0, -1.0]), False
             problem.set_linearisation(T_imu_pose=T, gravity_unit=unit, bias=_bias_function(gsol))
@@ -1100,22 +1120,26 @@ def _gravity(problem: _Problem, inputs: _Inputs, offset_s: float, T: np.ndarray,
     return _Gravity(unit, bool(estimated), gsol, gwin, T, info, ext_info, seg_s, seg_overlap_s)
 
 
-def _level_test(unit: np.ndarray, tilt_std_rad: float, max_sigmas: float) -> dict[str, Any]:
-    """Whether a level frame's estimated tilt stands out from its sigma (``recovery.json`` ``gravity.level_test``).
+def _level_test(unit: np.ndarray, tilt_std_rad: float, max_sigmas: float, tolerance_deg: float) -> dict[str, Any]:
+    """Whether a level frame keeps its nominal gravity (``recovery.json`` ``gravity.level_test``).
 
     The tilt of gravity from the frame's -z and an accelerometer bias explain the same specific
-    force under little attitude change; the tilt's marginal sigma says how well the data tell them
-    apart. Within ``max_sigmas`` the frame is kept level: the bias is then the one consistent with
-    the frame's nominal gravity, which is what a user of a levelled frame integrates with.
+    force under little attitude change; a user of a levelled frame integrates with its nominal
+    gravity, so the bias written must be the one consistent with it. The frame is kept level unless
+    its estimated tilt both exceeds what levelling a frame leaves (``tolerance_deg``: then the frame
+    is not levelled, or its z is not up) and stands out of its sigma (``max_sigmas``: the data tell
+    it from the bias); then the tilt is kept and the bias is consistent with the estimated gravity.
     """
-    tilt = float(np.arccos(np.clip(-unit[2] / np.linalg.norm(unit), -1.0, 1.0)))
-    z = tilt / tilt_std_rad if tilt_std_rad > 0 else float("inf")
-    level = bool(z < max_sigmas)
-    return {"tilt_deg": math.degrees(tilt), "tilt_std_deg": math.degrees(tilt_std_rad), "tilt_sigmas": z,
-            "level": level, "reason": (f"kept level: the estimated tilt {math.degrees(tilt):.2f} deg is within "
-                                       f"{max_sigmas:g} sigma ({math.degrees(tilt_std_rad):.2f} deg)") if level else
-            (f"tilted: the estimated tilt {math.degrees(tilt):.2f} deg is {z:.1f} sigma "
-             f"({math.degrees(tilt_std_rad):.2f} deg) from the frame's -z")}
+    tilt = math.degrees(float(np.arccos(np.clip(-unit[2] / np.linalg.norm(unit), -1.0, 1.0))))
+    std = math.degrees(tilt_std_rad)
+    z = tilt / std if std > 0 else float("inf")
+    level = bool(tilt <= tolerance_deg or z < max_sigmas)
+    why = (f"within the {tolerance_deg:g}-deg levelling tolerance" if tilt <= tolerance_deg else
+           f"within {max_sigmas:g} sigma" if z < max_sigmas else
+           f"beyond the {tolerance_deg:g}-deg levelling tolerance and {z:.1f} sigma from the frame's -z")
+    return {"tilt_deg": tilt, "tilt_std_deg": std, "tilt_sigmas": z, "level": level,
+            "reason": (f"kept level (nominal gravity): the estimated tilt {tilt:.2f} +- {std:.2f} deg is {why}"
+                       if level else f"tilted: the estimated tilt {tilt:.2f} +- {std:.2f} deg is {why}")}
 
 
 @dataclass(frozen=True)
@@ -1183,7 +1207,8 @@ def _full_solve(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _G
         if "gravity_cov_tangent" in flat[0].extras:
             info["tilt_std_rad"] = float(np.sqrt(np.trace(flat[0].extras["gravity_cov_tangent"]) / 2))
             if inputs.level_test:
-                info["level_test"] = _level_test(flat[0].gravity_unit, info["tilt_std_rad"], config.gravity_tilt_sigmas)
+                info["level_test"] = _level_test(flat[0].gravity_unit, info["tilt_std_rad"], config.gravity_tilt_sigmas,
+                                                 config.gravity_level_tolerance_deg)
                 if info["level_test"]["level"]:  # solved again in the level frame
                     level = replace(gravity, unit=np.array([0.0, 0.0, -1.0]), estimated=False)
                     info.pop("per_segment", None)

@@ -1,6 +1,6 @@
 """The shortcuts of the noise evidence search and of the LM stopping rule (recovery.noise, recovery.graph).
 
-1. ``RandomWalkBasis``: the residual covariance re-weighted for other random walks equals what
+1. ``NoiseBasis``: the residual covariance re-weighted for other noise densities and random walks equals what
    GTSAM's own preintegration with those random walks gives (linearity of its propagation).
 2. ``evidence_step``: the log evidence one Gauss-Newton step from a nearby candidate's optimum
    agrees with a full solve's, to a small fraction of the evidence differences between candidates.
@@ -20,7 +20,7 @@ from pipeline.sim.config import SimConfig
 from recovery import graph
 from recovery import recover as rr
 from recovery.config import RecoveryConfig
-from recovery.graph import SolveOptions, WindowInit, evidence_step, random_walk_basis, solve_window
+from recovery.graph import SolveOptions, WindowInit, evidence_step, noise_basis, solve_window
 from recovery.preintegration import make_params, preintegrate
 
 
@@ -44,24 +44,25 @@ def _scaled(noise, g: float, a: float):
     return replace(noise, gyro_random_walk=noise.gyro_random_walk * g, acc_random_walk=noise.acc_random_walk * a)
 
 
-def test_random_walk_basis_equals_gtsam_preintegration(window):
+def test_noise_basis_equals_gtsam_preintegration(window):
     samples, _, noise, _, opts = window
     init = WindowInit(bias=np.array([0.01, -0.02, 0.005, 0.1, -0.2, 0.05]))
-    basis = random_walk_basis(samples, noise, opts, init)
-    for g, a in ((3.0, 0.5), (0.3, 10.0)):
-        target = _scaled(noise, g, a)
+    basis = noise_basis(samples, noise, opts, init)
+    for g, a, gn, an in ((3.0, 0.5, 1.0, 1.0), (0.3, 10.0, 1.0, 1.0), (1.0, 3.0, 2.0, 10.0), (10.0, 1.0, 0.5, 3.0)):
+        target = replace(_scaled(noise, g, a), gyro_noise_density=noise.gyro_noise_density * gn,
+                         acc_noise_density=noise.acc_noise_density * an)
         pims = preintegrate(samples, make_params(target, opts.gravity_mps2), init.bias)
         direct = np.array([p.residualCovariance() for p in pims])
         np.testing.assert_allclose(basis.covariances(target), direct, rtol=1e-9, atol=1e-12 * np.abs(direct).max())
-    with pytest.raises(ValueError, match="random walks"):
-        basis.covariances(replace(noise, gyro_noise_density=2 * noise.gyro_noise_density))
+    with pytest.raises(ValueError, match="integration sigma"):
+        basis.covariances(replace(noise, integration_sigma=2 * noise.integration_sigma))
 
 
 def test_evidence_step_matches_a_full_solve(window):
     samples, kf, noise, T, opts = window
     centre = solve_window(samples, kf, _scaled(noise, 10, 10), T, opts, want_evidence=True)
     start = WindowInit(gravity_unit=centre.gravity_unit, bias=centre.bias, values=centre.values)
-    basis = random_walk_basis(samples, _scaled(noise, 10, 10), opts, start)
+    basis = noise_basis(samples, _scaled(noise, 10, 10), opts, start)
     like = None
     for g, a in ((3, 10), (30, 10), (10, 3), (10, 30)):
         candidate = _scaled(noise, g, a)

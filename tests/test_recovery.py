@@ -216,8 +216,11 @@ def test_random_walk_bound_is_reported():
     noise = res.report["noise"]
     assert noise["gyro_random_walk_scale"] <= 3.0 and noise["acc_random_walk_scale"] <= 3.0
     assert any("hit its bound" in w and "0.5x-3x" in w for w in res.warnings), res.warnings
-    # the bracketing search evaluates fewer candidates than the grids hold
-    assert len(noise["candidates"]) < len(cfg.pose_sigma_scales) + 2 * len(cfg.random_walk_scales)
+    # the bracketing search evaluates fewer candidates than its coordinates' grids hold (two passes over
+    # the densities, the correlated pose error's sigmas and times and the walks, after the pose sigma)
+    per_pass = 2 * (len(cfg.noise_density_scales) + len(cfg.pose_error_sigma_scales) + len(cfg.pose_error_taus_s)
+                    + len(cfg.random_walk_scales))
+    assert len(noise["candidates"]) < len(cfg.pose_sigma_scales) + 2 * per_pass
 
 
 def test_numpy_replacements_match_scipy():

@@ -994,7 +994,7 @@ def _normalise_sources(sources: Mapping[str, BiasTrack | BiasSource]) -> list[Bi
     out = []
     for name, s in sources.items():
         if isinstance(s, BiasSource):
-            out.append(BiasSource(name, s.kind, s.track))
+            out.append(BiasSource(name, s.kind, s.track, s.gravity_mps2))
         elif isinstance(s, BiasTrack):
             out.append(BiasSource(name, _infer_kind(name), s))
         else:
@@ -1397,6 +1397,15 @@ def recovery_limitations(recovery: RecoveryOutputs, config: ValidationConfig = V
             out.append(Limitation(
                 f"the {axis} bias random walk is {scale:.3g}x the calibration's: the bias likely absorbs "
                 "unmodelled errors (scale, misalignment, pose artefacts) or the datasheet is off", noise_step))
+    diff = (report.get("extrinsic") or {}).get("difference_from_calibration") or {}
+    if diff.get("exceeds"):
+        out.append(Limitation(
+            f"the extrinsic T_imu_pose estimated from the data differs from the calibration's by "
+            f"{diff['rotation_deg']:.2f} deg and {100 * diff['translation_m']:.1f} cm, beyond "
+            f"{diff['max_sigmas']:g} of its sigmas: the calibration file is off (or the tracked body moved); the "
+            "bias is the one consistent with the estimate",
+            "if the tracked body was not moved, put the estimate (recovery.json T_imu_pose) into the calibration "
+            "file; else check the mount and recover again"))
     if report.get("extrinsic_rotation_observable") is False:
         out.append(Limitation(
             "the rotation between the pose frame and the IMU was not observable (too little rotation): the "
@@ -1502,10 +1511,9 @@ def validate_inputs(
 
 
 def nominal_gravity(recovery: RecoveryOutputs | None = None) -> np.ndarray:
-    """``(0, 0, -|g|)``, [3]: gravity in a level world frame (``|g|`` of the recovery's, else 9.81)."""
-    g = None if recovery is None else recovery.report.gravity_world_mps2
-    magnitude = float(np.linalg.norm(g)) if g is not None else -DEFAULT_GRAVITY_MPS2[2]
-    return np.array([0.0, 0.0, -magnitude])
+    """``(0, 0, -|g|)``, [3]: gravity in a level world frame (``|g|`` of the recovery's options, else 9.81)."""
+    magnitude = (recovery.report.get("config") or {}).get("gravity_mps2") if recovery is not None else None
+    return np.array([0.0, 0.0, -float(magnitude if magnitude is not None else -DEFAULT_GRAVITY_MPS2[2])])
 
 
 def _heldout_source(sequence: Sequence, recovery: RecoveryOutputs | None, config: ValidationConfig,

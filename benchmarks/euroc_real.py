@@ -1,0 +1,342 @@
+"""Bias ground truth from EuRoC's raw motion capture, judged against EuRoC's own estimate (prints every figure).
+
+Usage::
+
+    .venv/bin/python benchmarks/euroc_real.py [--data DIR] [--only V1_02_medium MH_05_difficult ...]
+
+For each sequence the real IMU is recovered with default options from its raw stream (``vicon0``:
+6-DoF Vicon body, 100 Hz, stamps not on the IMU clock; ``leica0``: prism positions, ~20 Hz), each
+recovery in a child process (runtime, peak RSS). Then, with non-overlapping 1-s windows:
+
+* **against the ground truth**: EuRoC's ground-truth state where it exists (its nominal gravity),
+  else its ground-truth poses (``ov_data``, IMU frame and clock): the recovered bias beside EuRoC's
+  bias, OpenVINS's (V1_01), a constant (the recovered bias's first window) and zero;
+* **held out**: the recovery cross-validated by 10-s blocks (3 folds), against the raw stream where
+  it has orientations (Vicon: the held-out blocks judge the verdict), else against the ground truth;
+  EuRoC's bias, the constant and zero on the same held-out windows;
+* **clock offset** beside an independent estimate from the ground truth (which is on the IMU clock):
+  the lag that best correlates 0.1-s rotation angles (Vicon) or speeds (Leica) of the two streams;
+* **extrinsic**: the estimate's difference from ``sensor.yaml``'s T_BS with its sigma; noise scales,
+  the correlated pose-error model and the outliers.
+
+Goals (``ok`` columns): against the ground-truth state PRMSE <= 1.1x and ROE <= 1.5x EuRoC's bias and a
+verdict other than FAIL; held out against the raw stream PRMSE and ROE <= 1.1x EuRoC's; where only
+ground-truth poses exist, not FAIL and held out better than the constant and zero; the clock offset
+within 5 ms of the independent estimate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import multiprocessing as mp
+import os
+import resource
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+from scipy.spatial.transform import Rotation, Slerp
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from pipeline.io import load_sequence  # noqa: E402
+from pipeline.io.tum import read_tum_poses  # noqa: E402
+from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence  # noqa: E402
+
+DATA = Path(os.environ.get("BIASGT_SHARED_DATA", REPO.parent / "shared" / "data"))
+VICON = ("V1_01_easy", "V1_02_medium", "V1_03_difficult", "V2_01_easy", "V2_02_medium", "V2_03_difficult")
+LEICA = ("MH_01_easy", "MH_03_medium", "MH_05_difficult")
+GT_POSES = "groundtruth_poses"
+WINDOW_OVERLAP = 0.0
+LAG_GRID_S = np.arange(-0.5, 0.5 + 1e-9, 0.0005)
+# EuRoC's bias for V1_01 is in none of its files but the original ground truth's first 5 s (a constant)
+V1_01_EUROC_STATE = "euroc/V1_01_easy_proto_excerpt/mav0/state_groundtruth_estimate0/data.csv"
+
+
+def stream_of(name: str) -> str:
+    return "vicon0" if name in VICON else "leica0"
+
+
+def load(data: Path, name: str) -> Sequence:
+    """The sequence with, where EuRoC has no full state, its ground-truth poses as ``groundtruth_poses``."""
+    seq = load_sequence(data / "euroc" / name)
+    if seq.ground_truth is None:
+        gt, _ = read_tum_poses(data / "euroc" / name / "ov_data" / f"{name}_original.txt"
+                               if name == "V1_01_easy" else data / "euroc" / name / "ov_data" / f"{name}.txt",
+                               source_kind=PoseSourceKind.GROUND_TRUTH, frame="imu")
+        seq.poses[GT_POSES] = gt
+    return seq
+
+
+def gt_poses(seq: Sequence) -> PoseSeries:
+    return seq.poses[GT_POSES] if GT_POSES in seq.poses else seq.ground_truth.to_pose_series()
+
+
+# ----------------------------------------------------------------------------- independent offsets
+
+
+def _best_lag(a: np.ndarray, b_of_lag, lags: np.ndarray) -> tuple[float, float]:
+    """The lag maximising the Pearson correlation of ``a`` with ``b_of_lag(lag)`` (parabolic refinement)."""
+    corr = []
+    for lag in lags:
+        b = b_of_lag(lag)
+        ok = np.isfinite(a) & np.isfinite(b)
+        corr.append(np.corrcoef(a[ok], b[ok])[0, 1] if ok.sum() > 100 else -1.0)
+    corr = np.array(corr)
+    k = int(np.argmax(corr))
+    step = lags[1] - lags[0]
+    if 0 < k < len(corr) - 1:
+        den = corr[k - 1] - 2 * corr[k] + corr[k + 1]
+        return float(lags[k] + (0.5 * (corr[k - 1] - corr[k + 1]) / den * step if den else 0.0)), float(corr[k])
+    return float(lags[k]), float(corr[k])
+
+
+def independent_offset_rotation(stream: PoseSeries, reference: PoseSeries, h_s: float = 0.1) -> tuple[float, float]:
+    """Seconds to add to ``stream``'s stamps to put it on ``reference``'s clock: the lag that best
+    correlates the rotation angles over ``h_s`` of the two (angles: no extrinsic needed)."""
+    t0 = int(reference.t_ns[0])
+    tr, ts = (reference.t_ns - t0) / NS_PER_S, (stream.t_ns - t0) / NS_PER_S
+    sr = Slerp(tr, Rotation.from_quat(reference.quat_wxyz, scalar_first=True))
+    ss = Slerp(ts, Rotation.from_quat(stream.quat_wxyz, scalar_first=True))
+    grid = np.arange(max(tr[0], ts[0]) + 1.0, min(tr[-1], ts[-1]) - 1.0 - h_s, 0.005)
+    a = (sr(grid).inv() * sr(grid + h_s)).magnitude()
+
+    def b(lag: float) -> np.ndarray:
+        g = grid - lag
+        ok = (g >= ts[0]) & (g + h_s <= ts[-1])
+        out = np.full(len(grid), np.nan)
+        out[ok] = (ss(g[ok]).inv() * ss(g[ok] + h_s)).magnitude()
+        return out
+
+    return _best_lag(a, b, LAG_GRID_S)
+
+
+def independent_offset_position(stream: PoseSeries, reference: PoseSeries, h_s: float = 0.2) -> tuple[float, float]:
+    """As :func:`independent_offset_rotation` for a position-only stream: speeds over ``h_s`` (a prism's
+    lever arm changes them little), where the stream has samples within 0.1 s of both ends."""
+    t0 = int(reference.t_ns[0])
+    tr, ts = (reference.t_ns - t0) / NS_PER_S, (stream.t_ns - t0) / NS_PER_S
+    grid = np.arange(max(tr[0], ts[0]) + 1.0, min(tr[-1], ts[-1]) - 1.0 - h_s, 0.01)
+
+    def speed(t: np.ndarray, p: np.ndarray, at: np.ndarray) -> np.ndarray:
+        pa = np.stack([np.interp(at, t, p[:, c]) for c in range(3)], 1)
+        pb = np.stack([np.interp(at + h_s, t, p[:, c]) for c in range(3)], 1)
+        return np.linalg.norm(pb - pa, axis=1) / h_s
+
+    a = speed(tr, reference.p_m, grid)
+
+    def b(lag: float) -> np.ndarray:
+        g = grid - lag
+        out = speed(ts, stream.p_m, g)
+        near = np.minimum(np.abs(np.interp(g, ts, ts) - g), 1.0)
+        j0, j1 = np.searchsorted(ts, g), np.searchsorted(ts, g + h_s)
+        covered = (j0 > 0) & (j1 < len(ts))
+        gap = np.where(covered, ts[np.minimum(j1, len(ts) - 1)] - ts[np.maximum(j0 - 1, 0)], np.inf)
+        out[(gap > h_s + 0.2) | (near > 0.1)] = np.nan
+        return out
+
+    return _best_lag(a, b, LAG_GRID_S)
+
+
+# ----------------------------------------------------------------------------- recovery (child process)
+
+
+def _recover_child(data: str, name: str, out_dir: str, overrides: dict, queue: mp.Queue) -> None:
+    logging.basicConfig(level=logging.ERROR)
+    from recovery.config import RecoveryConfig
+    from recovery.recover import recover, write_recovery
+
+    seq = load(Path(data), name)
+    config = RecoveryConfig.from_dict(overrides)
+    t0, c0 = time.perf_counter(), time.process_time()
+    result = recover(seq, pose_stream=stream_of(name), config=config)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    write_recovery(result, out_dir)
+    queue.put({"wall_s": wall, "cpu_s": cpu, "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024})
+
+
+def recover_in_child(data: Path, name: str, out_dir: Path, overrides: dict) -> dict:
+    ctx = mp.get_context("spawn")
+    queue = ctx.Queue()
+    proc = ctx.Process(target=_recover_child, args=(str(data), name, str(out_dir), overrides, queue))
+    proc.start()
+    figures = queue.get()
+    proc.join()
+    return figures
+
+
+# ----------------------------------------------------------------------------- one sequence
+
+
+def measure(data: Path, name: str, work: Path, overrides: dict | None = None) -> dict:
+    """Every figure of one sequence (see the module docstring)."""
+    from recovery.outputs import RecoveryOutputs
+    from validation.config import ValidationConfig
+    from validation.validate import validate_inputs
+
+    seq = load(data, name)
+    stream = stream_of(name)
+    rec_dir = work / name / "recovery"
+    out = {"sequence": name, "stream": stream, **recover_in_child(data, name, rec_dir, overrides or {})}
+    report = RecoveryOutputs.read(rec_dir).report.data
+    bias_files = []
+    if seq.ground_truth is None and name == "V1_01_easy":
+        bias_files = [("euroc", data / V1_01_EUROC_STATE), ("openvins", data / "euroc" / name / "ov_data" / f"{name}.csv")]
+    elif seq.ground_truth is not None:
+        bias_files = [("euroc", data / "euroc" / name / "mav0" / "state_groundtruth_estimate0" / "data.csv")]
+    ref_stream = None if seq.ground_truth is not None else GT_POSES
+    against_gt = validate_inputs(seq, recovery_dir=rec_dir, bias_files=bias_files, pose_stream=ref_stream,
+                                 config=ValidationConfig(overlap=WINDOW_OVERLAP, crossval="off"))
+    if stream == "vicon0":  # held out against the raw stream: judged
+        held = validate_inputs(seq, recovery_dir=rec_dir, bias_files=bias_files, pose_stream=stream,
+                               config=ValidationConfig(overlap=WINDOW_OVERLAP, crossval="auto"))
+    else:  # positions only: held out against the ground truth
+        held = validate_inputs(seq, recovery_dir=rec_dir, bias_files=bias_files, pose_stream=ref_stream,
+                               config=ValidationConfig(overlap=WINDOW_OVERLAP, crossval="on"))
+    raw = seq.poses[stream]
+    independent = (independent_offset_rotation(raw, gt_poses(seq)) if raw.quat_wxyz is not None
+                   else independent_offset_position(raw, gt_poses(seq)))
+    out.update(report=report, against_gt=against_gt.to_dict(), held=held.to_dict(), independent_offset=independent)
+    return out
+
+
+# ----------------------------------------------------------------------------- printing
+
+
+def _sigmas(value: float, sigma: float | None, unit: str) -> str:
+    """``value unit (z sigma of sigma unit)``; the sigma part only where there is one."""
+    if sigma is None or not np.isfinite(sigma) or sigma <= 0:
+        return f"{value:.2f} {unit}"
+    return f"{value:.2f} {unit} ({value / sigma:.1f} sigma of {sigma:.3f} {unit})"
+
+
+def _pair(src: dict, name: str) -> str:
+    m = src.get(name)
+    return "-" if m is None else f"{m['prmse_m']:.4f}/{m['roe_deg']:.3f}"
+
+
+def _ratio(a: dict | None, b: dict | None, key: str) -> float:
+    return float("nan") if a is None or b is None or not b[key] else a[key] / b[key]
+
+
+def goals(m: dict) -> dict[str, bool | None]:
+    """Each goal of the module docstring: True, False or None (does not apply)."""
+    gt, held = m["against_gt"], m["held"]
+    src, rec = gt["sources"], gt["sources"]["recovered"]
+    euroc = src.get("euroc")
+    heldout = held.get("heldout") or {}
+    others = heldout.get("others_on_these_windows", {})
+    h = held["sources"].get("recovered_heldout")
+    state = euroc is not None and m["sequence"] != "V1_01_easy"
+    out: dict[str, bool | None] = {"not FAIL": gt["verdict"] != "FAIL"}
+    out["GT vs EuRoC"] = (_ratio(rec, euroc, "prmse_m") <= 1.1 and _ratio(rec, euroc, "roe_deg") <= 1.5) if state else None
+    if m["stream"] == "vicon0" and "euroc" in others and h is not None:
+        out["held out vs EuRoC"] = (h["prmse_m"] <= 1.1 * others["euroc"]["prmse_m"]
+                                    and h["roe_deg"] <= 1.1 * others["euroc"]["roe_deg"])
+    else:
+        out["held out vs EuRoC"] = None
+    out["held out beats constant, zero"] = (None if h is None else all(
+        h["prmse_m"] < others[k]["prmse_m"] and h["roe_deg"] < others[k]["roe_deg"] for k in ("constant", "zero")))
+    offset_ms = 1e3 * m["report"]["pose_time_offset_s"]
+    out["offset within 5 ms"] = abs(offset_ms - 1e3 * m["independent_offset"][0]) <= 5.0
+    return out
+
+
+def print_sequence(m: dict) -> None:
+    r, gt, held = m["report"], m["against_gt"], m["held"]
+    ext = r.get("extrinsic", {}).get("difference_from_calibration") or {}
+    noise = r["noise"]
+    pe = noise.get("pose_error") or {}
+    print(f"\n== {m['sequence']} ({m['stream']}): {m['wall_s']:.1f} s wall, {m['cpu_s']:.1f} s CPU, "
+          f"peak RSS {m['peak_rss_mb']:.0f} MB")
+    print(f"  clock offset {1e3 * r['pose_time_offset_s']:+.2f} +- {1e3 * r['pose_time_offset_std_s']:.2f} ms "
+          f"({r['pose_time_offset_method']}); independent {1e3 * m['independent_offset'][0]:+.2f} ms "
+          f"(correlation {m['independent_offset'][1]:.3f})")
+    if ext:
+        print(f"  extrinsic vs sensor.yaml: {_sigmas(ext['rotation_deg'], ext['rotation_sigma_deg'], 'deg')}, "
+              f"{_sigmas(100 * ext['translation_m'], 100 * (ext['translation_sigma_m'] or float('nan')), 'cm')}")
+    print(f"  noise: gyro rw x{noise['gyro_random_walk_scale']:.3g}, acc rw x{noise['acc_random_walk_scale']:.3g}, "
+          f"pose white {1e3 * noise['position_sigma_m']:.2f} mm / {1e3 * noise['rotation_sigma_rad']:.2f} mrad, "
+          + ("correlated error none" if not pe else
+             f"correlated {1e3 * pe['position_sigma_m']:.2f} mm tau {pe['position_tau_s']:g} s / "
+             f"{1e3 * pe['rotation_sigma_rad']:.2f} mrad tau {pe['rotation_tau_s']:g} s")
+          + f"; outliers {r['outliers_rejected']} of {r['pose_fusion'].get('samples_fused', r['keyframes'])}")
+    g = r.get("gravity", {})
+    print(f"  gravity {np.round(r['gravity_world_mps2'], 3).tolist()} ({(g.get('level_test') or {}).get('reason', 'estimated' if g.get('estimated') else 'given')})")
+    print(f"  warnings: {len(r['warnings'])}" + "".join(f"\n    - {w}" for w in r["warnings"]))
+    ref = gt["reference"]["kind"] + ("" if gt["reference"]["kind"] == "state" else f" {gt['reference'].get('stream')}")
+    print(f"  against the ground truth ({ref}), PRMSE m / ROE deg, {gt['sources']['recovered']['windows']} windows: "
+          f"verdict {gt['verdict']}")
+    print("    " + "  ".join(f"{k} {_pair(gt['sources'], k)}" for k in gt["sources"]))
+    heldout = held.get("heldout") or {}
+    h = held["sources"].get("recovered_heldout")
+    if h is not None:
+        others = heldout.get("others_on_these_windows", {})
+        where = "the raw stream" if m["stream"] == "vicon0" else "the ground truth"
+        print(f"  held out (10-s blocks, 3 folds, against {where}; {heldout.get('windows')} windows, "
+              f"{len(heldout.get('dropped_folds', []))} folds dropped): verdict {held['verdict']}"
+              + (" (judged by the held-out blocks)" if heldout.get("judged") else ""))
+        print(f"    recovered_heldout {h['prmse_m']:.4f}/{h['roe_deg']:.3f}  "
+              + "  ".join(f"{k} {v['prmse_m']:.4f}/{v['roe_deg']:.3f}" for k, v in others.items()))
+    print("  goals: " + ", ".join(f"{k}: {'-' if v is None else ('ok' if v else 'MISSED')}" for k, v in goals(m).items()))
+
+
+def print_table(rows: list[dict]) -> None:
+    print("\n| sequence | stream | offset ms (indep.) | extrinsic vs file | gyro/acc rw x | outliers | verdict | "
+          "recovered PRMSE/ROE | EuRoC | held out | EuRoC held out | const held out | zero held out | s / MB |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for m in rows:
+        r, gt, held = m["report"], m["against_gt"], m["held"]
+        ext = r.get("extrinsic", {}).get("difference_from_calibration") or {}
+        others = (held.get("heldout") or {}).get("others_on_these_windows", {})
+        h = held["sources"].get("recovered_heldout")
+        print(f"| {m['sequence']} | {m['stream']} | {1e3 * r['pose_time_offset_s']:+.1f} +- "
+              f"{1e3 * r['pose_time_offset_std_s']:.2f} ({1e3 * m['independent_offset'][0]:+.1f}) | "
+              + (f"{_sigmas(ext['rotation_deg'], ext['rotation_sigma_deg'], 'deg')}, "
+                 f"{_sigmas(100 * ext['translation_m'], 100 * (ext['translation_sigma_m'] or float('nan')), 'cm')}"
+                 if ext else "-")
+              + f" | {r['noise']['gyro_random_walk_scale']:.3g}/{r['noise']['acc_random_walk_scale']:.3g} | "
+              f"{r['outliers_rejected']} | {gt['verdict']} | {_pair(gt['sources'], 'recovered')} | "
+              f"{_pair(gt['sources'], 'euroc')} | "
+              + ("-" if h is None else f"{h['prmse_m']:.4f}/{h['roe_deg']:.3f}") + " | "
+              + " | ".join(_pair(others, k) for k in ("euroc", "constant", "zero"))
+              + f" | {m['wall_s']:.0f} / {m['peak_rss_mb']:.0f} |")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", type=Path, default=DATA)
+    ap.add_argument("--only", nargs="*", default=None, help="sequences (default: all nine)")
+    ap.add_argument("--json", type=Path, default=None, help="also write every figure to this file")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="recovery options other than the defaults (YAML values), e.g. noise_density_scales=null")
+    args = ap.parse_args()
+    overrides = {}
+    for item in args.set:
+        key, sep, value = item.partition("=")
+        if not sep:
+            sys.exit(f"--set {item!r}: expected KEY=VALUE")
+        overrides[key] = yaml.safe_load(value)
+    if not (args.data / "euroc").is_dir():
+        sys.exit(f"no EuRoC data under {args.data}: set --data or BIASGT_SHARED_DATA")
+    logging.basicConfig(level=logging.ERROR)
+    names = args.only or [*VICON, *LEICA]
+    rows = []
+    with tempfile.TemporaryDirectory() as work:
+        for name in names:
+            m = measure(args.data, name, Path(work), overrides)
+            print_sequence(m)
+            rows.append(m)
+    print_table(rows)
+    if args.json is not None:
+        args.json.write_text(json.dumps([{k: v for k, v in m.items()} for m in rows], default=str, indent=1))
+
+
+if __name__ == "__main__":
+    main()
