@@ -577,6 +577,10 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
           "Uncertainties are 1σ where the recovery gives them."),
         table(["quantity", "value", "uncertainty (1σ)", "notes"], rows, numeric_from=99),
     ]
+    diff = ext.get("difference_from_calibration")
+    if isinstance(diff, dict):
+        parts.append(tag("div", _difference_text(diff),
+                         class_="warnbox" if diff.get("exceeds") else "small"))
     if rec.get("extrinsic_rotation_observable") is False:
         parts.append(tag("div", "The motion did not excite rotation enough to observe the extrinsic rotation: "
                                 "the calibration's (or identity) rotation was used.", class_="warnbox"))
@@ -606,9 +610,15 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
     extra = []
     for key, label in (("position_sigma_m", "pose position sigma [m]"), ("rotation_sigma_rad", "pose rotation "
                        "sigma [rad]"), ("gyro_random_walk_scale", "gyro random-walk scale"),
-                       ("acc_random_walk_scale", "acc random-walk scale")):
+                       ("acc_random_walk_scale", "acc random-walk scale"),
+                       ("gyro_density_scale", "gyro white-noise scale"), ("acc_density_scale", "acc white-noise scale")):
         if _num(noise, key) is not None:
             extra.append(f"{label}: {fmt(_num(noise, key), 4)}")
+    pose_error = noise.get("pose_error")
+    if isinstance(pose_error, dict):
+        extra.append("correlated pose error (Gauss-Markov): "
+                     f"{fmt(_num(pose_error, 'rotation_sigma_rad'), 3)} rad over {fmt(_num(pose_error, 'rotation_tau_s'), 3)} s, "
+                     f"{fmt(_num(pose_error, 'position_sigma_m'), 3)} m over {fmt(_num(pose_error, 'position_tau_s'), 3)} s")
     if noise.get("method"):
         extra.append(f"chosen by: {noise['method']}")
     if noise.get("pose_sigma_method"):
@@ -632,6 +642,21 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
             f"{fmt(_num(floor, 'acc_mps2'), 3)} m/s²: no recovery of this recording is more accurate; the bias "
             "sigmas of section 4 sit somewhat above it.", class_="small"))
     return section("calibration", _TITLE["calibration"], join(parts))
+
+
+def _difference_text(diff: dict) -> str:
+    """One sentence: the estimated extrinsic against the calibration file's, in its sigmas."""
+    def part(value: float | None, sigmas: float | None, unit: str, scale: float) -> str:
+        if value is None:
+            return "n/a"
+        z = f" ({sigmas:.1f} σ)" if sigmas is not None and math.isfinite(sigmas) else ""
+        return f"{value * scale:.2f} {unit}{z}"
+
+    rot = part(_num(diff, "rotation_deg"), _num(diff, "rotation_sigmas"), "deg", 1.0)
+    trans = part(_num(diff, "translation_m"), _num(diff, "translation_sigmas"), "cm", 100.0)
+    verdict = (f"beyond {fmt(_num(diff, 'max_sigmas'), 2)} σ: the calibration file is off (or the tracked body "
+               "was moved); the estimate was used" if diff.get("exceeds") else "within the calibration's prior")
+    return f"Estimated extrinsic against the calibration file's: {rot} in rotation, {trans} in translation; {verdict}."
 
 
 # ----------------------------------------------------------------------------- section 4: bias

@@ -309,6 +309,27 @@ def test_report_shows_the_numbers(full_report, recovery_json, validation_json):
     assert f"(gyro x, y, z, acc x, y, z) by {(cu['std_inflation_mean'][0] - 1) * 100:.1f} %" in text
 
 
+def test_report_states_the_extrinsic_difference_and_the_correlated_pose_error(stage_outputs, tmp_path):
+    """recovery.json's extrinsic difference from the calibration file (a warning box beyond its threshold)
+    and the noise search's correlated pose error and white-noise scales, as written."""
+    results = write_stage_outputs(stage_outputs, tmp_path)
+    rdir = results / "recovery" / SEQ
+    rec = json.loads((rdir / "recovery.json").read_text())
+    rec.setdefault("extrinsic", {})["difference_from_calibration"] = {
+        "rotation_deg": 1.52, "rotation_sigmas": 30.4, "translation_m": 0.004, "translation_sigmas": 1.1,
+        "max_sigmas": 3.0, "exceeds": True}
+    rec["noise"]["pose_error"] = {"rotation_sigma_rad": 0.002, "rotation_tau_s": 1.0, "position_sigma_m": 0.001,
+                                  "position_tau_s": 3.0}
+    rec["noise"]["gyro_density_scale"] = 3.0
+    (rdir / "recovery.json").write_text(json.dumps(rec), encoding="utf-8")
+    text = build_quality_report(results / "ingest" / SEQ, recovery_dir=rdir, validation_dir=None,
+                                out_path=tmp_path / "r.html").read_text(encoding="utf-8")
+    assert ('<div class="warnbox">Estimated extrinsic against the calibration file&#x27;s: 1.52 deg (30.4 σ) in '
+            "rotation, 0.40 cm (1.1 σ) in translation; beyond 3 σ") in text
+    assert "correlated pose error (Gauss-Markov): 0.002 rad over 1 s, 0.001 m over 3 s" in text
+    assert "gyro white-noise scale: 3" in text
+
+
 def test_missing_stages_are_reported(stage_outputs, tmp_path):
     results = write_stage_outputs(stage_outputs, tmp_path, recovery=False, validation=False)
     out = build_quality_report(results / "ingest" / SEQ, recovery_dir=results / "recovery" / SEQ,
