@@ -73,6 +73,12 @@ def load(data: Path, name: str) -> Sequence:
     return seq
 
 
+def prism_lever_m(data: Path, name: str) -> np.ndarray:
+    """The Leica prism's position in the IMU (body) frame: ``leica0/sensor.yaml``'s T_BS translation."""
+    doc = yaml.safe_load((data / "euroc" / name / "mav0" / "leica0" / "sensor.yaml").read_text())
+    return np.asarray(doc["T_BS"]["data"], dtype=float).reshape(4, 4)[:3, 3]
+
+
 def gt_poses(seq: Sequence) -> PoseSeries:
     return seq.poses[GT_POSES] if GT_POSES in seq.poses else seq.ground_truth.to_pose_series()
 
@@ -116,31 +122,40 @@ def independent_offset_rotation(stream: PoseSeries, reference: PoseSeries, h_s: 
     return _best_lag(a, b, LAG_GRID_S)
 
 
-def independent_offset_position(stream: PoseSeries, reference: PoseSeries, h_s: float = 0.2) -> tuple[float, float]:
-    """As :func:`independent_offset_rotation` for a position-only stream: speeds over ``h_s`` (a prism's
-    lever arm changes them little), where the stream has samples within 0.1 s of both ends."""
+def independent_offset_position(stream: PoseSeries, reference: PoseSeries, p_imu_prism_m: np.ndarray,
+                                max_gap_s: float = 0.2) -> tuple[float, float]:
+    """As :func:`independent_offset_rotation` for a position-only stream: the lag minimising the RMS
+    distance between the prism's positions and the reference's prism track (IMU pose moved by the
+    calibration's lever ``p_imu_prism_m``), after the best rigid alignment of the two world frames
+    (``scipy.spatial.transform.Rotation.align_vectors`` on centred tracks). Returns ``(lag, rms_m)``;
+    only prism samples with reference samples within ``max_gap_s`` on both sides count."""
     t0 = int(reference.t_ns[0])
     tr, ts = (reference.t_ns - t0) / NS_PER_S, (stream.t_ns - t0) / NS_PER_S
-    grid = np.arange(max(tr[0], ts[0]) + 1.0, min(tr[-1], ts[-1]) - 1.0 - h_s, 0.01)
+    sr = Slerp(tr, Rotation.from_quat(reference.quat_wxyz, scalar_first=True))
 
-    def speed(t: np.ndarray, p: np.ndarray, at: np.ndarray) -> np.ndarray:
-        pa = np.stack([np.interp(at, t, p[:, c]) for c in range(3)], 1)
-        pb = np.stack([np.interp(at + h_s, t, p[:, c]) for c in range(3)], 1)
-        return np.linalg.norm(pb - pa, axis=1) / h_s
+    def cost(lag: float) -> float:
+        t = ts + lag  # the prism samples on the reference clock
+        j = np.searchsorted(tr, t)
+        ok = (j > 0) & (j < len(tr))
+        ok[ok] &= (tr[j[ok]] - tr[j[ok] - 1]) <= max_gap_s
+        t, target = t[ok], stream.p_m[ok]
+        p_imu = np.stack([np.interp(t, tr, reference.p_m[:, c]) for c in range(3)], 1)
+        prism = p_imu + sr(t).apply(p_imu_prism_m)
+        a, b = prism - prism.mean(0), target - target.mean(0)
+        rot, _ = Rotation.align_vectors(a, b)
+        return float(np.sqrt(np.mean(np.sum((rot.apply(b) - a) ** 2, axis=1))))
 
-    a = speed(tr, reference.p_m, grid)
-
-    def b(lag: float) -> np.ndarray:
-        g = grid - lag
-        out = speed(ts, stream.p_m, g)
-        near = np.minimum(np.abs(np.interp(g, ts, ts) - g), 1.0)
-        j0, j1 = np.searchsorted(ts, g), np.searchsorted(ts, g + h_s)
-        covered = (j0 > 0) & (j1 < len(ts))
-        gap = np.where(covered, ts[np.minimum(j1, len(ts) - 1)] - ts[np.maximum(j0 - 1, 0)], np.inf)
-        out[(gap > h_s + 0.2) | (near > 0.1)] = np.nan
-        return out
-
-    return _best_lag(a, b, LAG_GRID_S)
+    coarse = LAG_GRID_S[::10]
+    c = np.array([cost(lag) for lag in coarse])
+    k = int(np.argmin(c))
+    fine = LAG_GRID_S[(LAG_GRID_S >= coarse[max(k - 1, 0)]) & (LAG_GRID_S <= coarse[min(k + 1, len(coarse) - 1)])]
+    f = np.array([cost(lag) for lag in fine])
+    m = int(np.argmin(f))
+    if 0 < m < len(fine) - 1:  # parabolic refinement
+        den = f[m - 1] - 2 * f[m] + f[m + 1]
+        shift = 0.5 * (f[m - 1] - f[m + 1]) / den if den > 0 else 0.0
+        return float(fine[m] + shift * (fine[1] - fine[0])), float(f[m])
+    return float(fine[m]), float(f[m])
 
 
 # ----------------------------------------------------------------------------- recovery (child process)
@@ -202,7 +217,7 @@ def measure(data: Path, name: str, work: Path, overrides: dict | None = None) ->
                                config=ValidationConfig(overlap=WINDOW_OVERLAP, crossval="on"))
     raw = seq.poses[stream]
     independent = (independent_offset_rotation(raw, gt_poses(seq)) if raw.quat_wxyz is not None
-                   else independent_offset_position(raw, gt_poses(seq)))
+                   else independent_offset_position(raw, gt_poses(seq), prism_lever_m(data, name)))
     out.update(report=report, against_gt=against_gt.to_dict(), held=held.to_dict(), independent_offset=independent)
     return out
 
@@ -258,7 +273,8 @@ def print_sequence(m: dict) -> None:
           f"peak RSS {m['peak_rss_mb']:.0f} MB")
     print(f"  clock offset {1e3 * r['pose_time_offset_s']:+.2f} +- {1e3 * r['pose_time_offset_std_s']:.2f} ms "
           f"({r['pose_time_offset_method']}); independent {1e3 * m['independent_offset'][0]:+.2f} ms "
-          f"(correlation {m['independent_offset'][1]:.3f})")
+          + (f"(rotation-angle correlation {m['independent_offset'][1]:.3f})" if m["stream"] == "vicon0" else
+             f"(prism track fit {1e3 * m['independent_offset'][1]:.1f} mm RMS)"))
     if ext:
         print(f"  extrinsic vs sensor.yaml: {_sigmas(ext['rotation_deg'], ext['rotation_sigma_deg'], 'deg')}, "
               f"{_sigmas(100 * ext['translation_m'], 100 * (ext['translation_sigma_m'] or float('nan')), 'cm')}")

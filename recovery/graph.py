@@ -869,6 +869,7 @@ def _optimize(built: _Built, opts: SolveOptions, keep_linearisation: bool = Fals
             optimizer.iterate()
             errors.append(float(optimizer.error()))
             if optimizer.lambda_() >= _LAMBDA_UPPER_BOUND:
+                _refuse_unconverged(built, optimizer.values(), order, errors[-1])
                 break
         if _converged(errors, opts):
             break
@@ -878,6 +879,28 @@ def _optimize(built: _Built, opts: SolveOptions, keep_linearisation: bool = Fals
         log.debug("LM: %d keys, %d iterations, error %.6g -> %.6g", built.values.size(), len(errors) - 1,
                   errors[0], errors[-1])
     return values, len(errors) - 1, lin
+
+
+#: Levenberg-Marquardt that gave up where its linear model still promises more than this share of the cost
+#: (plus ``REMAINING_DECREASE_TOL``) stopped far from an optimum (e.g. a poor start across a long pose gap).
+UNCONVERGED_PREDICTED_SHARE = 1e-3
+
+
+def _refuse_unconverged(built: _Built, values: gtsam.Values, order: gtsam.Ordering, cost: float) -> None:
+    """Raise where LM stopped at its damping bound though a Gauss-Newton step from there predicts a
+    decrease beyond ``UNCONVERGED_PREDICTED_SHARE`` of the cost: its result is no optimum.
+
+    Raises:
+        RecoveryError: naming the cost and the predicted decrease.
+    """
+    gfg = built.graph.linearize(values)
+    delta = gfg.eliminateMultifrontal(order).optimize()
+    predicted = float(gfg.error(delta.Zero(delta))) - float(gfg.error(delta))
+    if predicted > UNCONVERGED_PREDICTED_SHARE * cost + REMAINING_DECREASE_TOL:
+        raise RecoveryError(
+            f"the optimisation did not converge (stopped at cost {cost:.6g}, its linear model still predicting "
+            f"a decrease of {predicted:.6g})",
+            hint="check the pose stream for long gaps, the clock offset and the extrinsic")
 
 
 def _whitened_norms(factors: list[tuple[int, Any, Any]], values: gtsam.Values) -> np.ndarray:

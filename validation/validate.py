@@ -1177,9 +1177,11 @@ def validate_sequence(
         log.info("%-12s PRMSE %.4f m  ROE %.4f deg  (%d windows, %d flagged)", src.name,
                  metrics[src.name].prmse_m, metrics[src.name].roe_deg, len(pos), int(flagged.sum()))
     heldout_part, heldout_fails = None, []
+    limitations = list(limitations)
     if heldout is not None:
-        heldout_part, heldout_fails = _heldout_metrics(imu, heldout, reference, plan, starts, gravity, metrics,
-                                                       config, judge_heldout, dict(heldout_info or {}))
+        heldout_part, heldout_fails, heldout_warns = _heldout_metrics(
+            imu, heldout, reference, plan, starts, gravity, metrics, config, judge_heldout, dict(heldout_info or {}))
+        limitations = [*heldout_warns, *limitations]
     verdict, reasons = decide_verdict(metrics, candidate, dropped_fraction=dropped["fraction"], config=config,
                                       limitations=limitations, fails=heldout_fails)
     ref_info = {"kind": reference.kind.value, **reference.info}
@@ -1190,17 +1192,18 @@ def validate_sequence(
 def _heldout_metrics(imu: ImuSeries, heldout: BiasSource, reference: ReferenceStates, plan: WindowPlan,
                      starts: np.ndarray, gravity: np.ndarray, metrics: dict[str, SourceMetrics],
                      config: ValidationConfig, judge: bool, info: dict[str, Any]
-                     ) -> tuple[dict[str, Any], list[str]]:
+                     ) -> tuple[dict[str, Any], list[str], list[str]]:
     """The held-out source's metrics on the kept windows it covers (added to ``metrics``), every other
-    source's on the same windows, and the FAIL reasons when it judges the verdict (worse than the zero
-    or the constant bias beyond the ties)."""
+    source's on the same windows, and, when it judges the verdict, the FAIL reasons (worse than the
+    zero or the constant bias beyond the ties, significantly by the paired test over non-overlapping
+    windows) and the WARN reasons (worse, but not significantly: a tie at the reference's noise floor)."""
     bias, covered = _bias_at(heldout.track, imu.t_ns)
     covered &= np.isfinite(bias).all(axis=1)
     ok = ~windows_with_any(~covered, starts, plan.n + 1)
     part: dict[str, Any] = {**info, "source": heldout.name, "judged": bool(judge), "windows": int(ok.sum())}
     if not ok.any():
         part["note"] = "no kept window lies in a held-out block with a recovered bias"
-        return part, []
+        return part, [], []
     g = gravity if heldout.gravity_mps2 is None else np.asarray(heldout.gravity_mps2, dtype=np.float64)
     pos, rot = window_errors(imu, bias, reference, starts[ok], plan.n, g, config)
     flagged, thr_p, thr_r = _flags(pos, rot, config)
@@ -1210,17 +1213,26 @@ def _heldout_metrics(imu: ImuSeries, heldout: BiasSource, reference: ReferenceSt
     same = {name: {"prmse_m": prmse_m(m.pos_err_m[ok]), "roe_deg": roe_deg(m.rot_err_deg[ok])}
             for name, m in metrics.items() if name != heldout.name and len(m.pos_err_m) == len(ok)}
     part["others_on_these_windows"] = same
-    fails = []
+    fails, warns = [], []
+    stride = max(1, int(round(1.0 / (1.0 - config.overlap))))
     for name, m in same.items():
-        if not judge or metrics[name].kind not in (BiasSourceKind.ZERO, BiasSourceKind.CONSTANT_FIRST_WINDOW):
+        base = metrics[name]
+        if not judge or base.kind not in (BiasSourceKind.ZERO, BiasSourceKind.CONSTANT_FIRST_WINDOW):
             continue
-        for label, unit, h, b, tie in (("PRMSE", "m", prmse_m(pos), m["prmse_m"], config.tie_prmse_m),
-                                       ("ROE", "deg", roe_deg(rot), m["roe_deg"], config.tie_roe_deg)):
-            if h > b + tie:
-                fails.append(f"held out: '{heldout.name}' {label} {h:.4g} {unit} is worse than the '{name}' bias's "
-                             f"{b:.4g} {unit} on the same {int(ok.sum())} windows: on poses it was not fitted to the "
-                             "recovered bias does worse than no estimate (it absorbed errors of the poses it saw)")
-    return part, fails
+        for label, unit, h, b, tie, errs in (
+                ("PRMSE", "m", prmse_m(pos), m["prmse_m"], config.tie_prmse_m, (pos**2, base.pos_err_m[ok] ** 2)),
+                ("ROE", "deg", roe_deg(rot), m["roe_deg"], config.tie_roe_deg, (rot, base.rot_err_deg[ok]))):
+            if h <= b + tie:
+                continue
+            p_value = _paired_p_value(*errs, stride)
+            text = (f"held out: '{heldout.name}' {label} {h:.4g} {unit} is worse than the '{name}' bias's {b:.4g} {unit} "
+                    f"on the same {int(ok.sum())} windows")
+            if p_value < config.significance:
+                fails.append(f"{text} (p = {p_value:.2g}): on poses it was not fitted to the recovered bias does "
+                             "worse than no estimate (it absorbed errors of the poses it saw)")
+            else:
+                warns.append(f"{text}, not significantly (p = {p_value:.2g}): held out it is no better than that bias")
+    return part, fails, warns
 
 
 # ----------------------------------------------------------------------------- output
