@@ -687,3 +687,29 @@ def test_propagated_orientations_equal_composing_every_sample_from_the_last_know
     err = (Rotation.from_quat(want, scalar_first=True).inv() * Rotation.from_quat(got, scalar_first=True)).magnitude()
     assert err.max() < 1e-10, err.max()
     np.testing.assert_array_equal(got[known], q[known])
+
+
+def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
+    """Levenberg-Marquardt stopped where a Gauss-Newton step still predicts a large decrease is no optimum:
+    refused with the cost and the decrease; at the optimum of the same graph (a prior's own value, whose
+    cost is 0 in closed form) nothing is raised."""
+    import gtsam
+
+    from gtsam.symbol_shorthand import X
+
+    from recovery.graph import _Built, _refuse_unconverged
+
+    graph = gtsam.NonlinearFactorGraph()
+    target = gtsam.Pose3(gtsam.Rot3.Rz(0.3), gtsam.Point3(1.0, 2.0, 3.0))
+    graph.add(gtsam.PriorFactorPose3(X(0), target, gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+    far = gtsam.Values()
+    far.insert(X(0), gtsam.Pose3())
+    built = _Built(graph, far, [], [], 0.0)
+    order = gtsam.Ordering()
+    order.push_back(X(0))
+    with pytest.raises(RecoveryError, match="did not converge"):
+        _refuse_unconverged(built, far, order, graph.error(far))
+    at = gtsam.Values()
+    at.insert(X(0), target)
+    assert graph.error(at) == pytest.approx(0.0, abs=1e-12)
+    _refuse_unconverged(built, at, order, graph.error(at))
