@@ -9,7 +9,8 @@ contents: :mod:`training.checkpoint`.
 Determinism: weights are initialised from ``seed``; the batch order is a pure function of
 ``(seed, step)`` (:class:`BatchOrder`: one permutation per epoch, drawn from a generator seeded
 with ``seed`` and the epoch); diffusion noise and steps come from a generator whose state is
-checkpointed with the torch, numpy and python RNG states (dropout uses torch's). So a run resumed
+checkpointed with the torch, numpy and python RNG states (dropout uses torch's global RNG, which
+nothing else draws from: the data loaders have generators of their own). So a run resumed
 from ``last.pt`` repeats exactly the steps of an uninterrupted run, and the same seed on the same
 data gives the same weights (on one device type and thread count).
 
@@ -198,6 +199,15 @@ def _set_rng_state(state: dict[str, Any], noise: torch.Generator) -> None:
         torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda"]])
 
 
+def _loader_generator(seed: int) -> torch.Generator:
+    """A DataLoader's own generator. Creating a loader's iterator draws its workers' base seed from
+    the loader's generator, else from torch's global RNG, which dropout uses: with the global RNG a
+    resumed run's first dropout masks would differ from the uninterrupted run's. The loaders read
+    no random numbers otherwise (the batch order is :class:`BatchOrder`'s), so a fixed seed suffices
+    and nothing of it needs checkpointing."""
+    return torch.Generator().manual_seed(seed * 1_000_003 + 104_729)
+
+
 def _seed_all(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
@@ -211,7 +221,7 @@ def _validate(model: BiasModel, data: _Data, config: TrainConfig, device: torch.
     model.eval()
     g = torch.Generator().manual_seed(config.seed + 7919)
     loader = DataLoader(data.val, batch_size=config.batch_size, shuffle=False, collate_fn=data.collate,
-                        num_workers=config.num_workers)
+                        num_workers=config.num_workers, generator=_loader_generator(config.seed))
     total, count = 0.0, 0
     for i, batch in enumerate(loader):
         if config.val_batches and i >= config.val_batches:
@@ -430,7 +440,8 @@ def _fit(tr: _Trainer) -> None:
     config, run = tr.config, tr.run
     order = BatchOrder(len(tr.data.train), config.batch_size, config.seed, tr.rank, tr.world)
     loader = DataLoader(tr.data.train, batch_sampler=_StepBatches(order, run.step, config.max_steps),
-                        collate_fn=tr.data.collate, num_workers=config.num_workers)
+                        collate_fn=tr.data.collate, num_workers=config.num_workers,
+                        generator=_loader_generator(config.seed))
     writer = tr.rank == 0
     log.info("training %s (%s preset, %d parameters) on %d windows, %d validation windows, %s",
              config.method.value, config.preset.value, count_parameters(tr.model), len(tr.data.train),
