@@ -28,9 +28,11 @@ reset to the ground-truth state of every segment):
 
 Outputs (``OUT/``, written atomically): ``summary.json`` (:class:`EvaluationSummary`),
 ``windows.parquet`` (one row per window, sampler, aggregation and sample: ``pos_err_m``,
-``rot_err_deg``) and ``examples.parquet`` (a few randomly chosen test windows, the same for
-every method: ground truth and the sample mean and quantiles per time step and channel, for
-the report's figure).
+``rot_err_deg``), ``predictions.parquet`` (every window's prediction: per time step and channel
+the mean of the K samples and, for K > 1, their std, median and quantiles;
+:mod:`training.predictions`) and ``examples.parquet`` (a few randomly chosen test windows, the
+same for every method: ground truth and the sample mean and quantiles per time step and
+channel, for the report's figure).
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
 from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, Split, WindowDataset
+from training.predictions import CHANNELS, PREDICTIONS_PARQUET, prediction_frame
 from validation.validate import DEFAULT_GRAVITY_MPS2, prmse_m, roe_deg, window_end_errors
 
 log = logging.getLogger(__name__)
@@ -78,7 +81,6 @@ SCHEMA_VERSION = 1
 SUMMARY_JSON = "summary.json"
 WINDOWS_PARQUET = "windows.parquet"
 EXAMPLES_PARQUET = "examples.parquet"
-CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 #: Nominal central-interval levels of the calibration curve.
 CALIBRATION_LEVELS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.68, 0.7, 0.8, 0.9, 0.95)
 #: Quantiles of the samples kept per time step for the report's example windows.
@@ -354,11 +356,12 @@ class EvaluationSummary:
 
 @dataclass
 class EvaluationResult:
-    """A summary and its per-window and example frames."""
+    """A summary and its per-window, example and prediction frames."""
 
     summary: EvaluationSummary
     windows: pd.DataFrame
     examples: pd.DataFrame
+    predictions: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -425,16 +428,18 @@ def _example_frame(pred: np.ndarray, items: dict[str, Any], rows: np.ndarray, sa
 
 
 def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | None, k: int,
-                 config: EvaluationConfig) -> tuple[_Accumulator, pd.DataFrame]:
+                 config: EvaluationConfig) -> tuple[_Accumulator, pd.DataFrame, pd.DataFrame]:
     acc = _Accumulator()
     examples = _example_rows(windows, config.examples, config.seed)
-    ex_frames = []
+    ex_frames, pred_frames = [], []
     aggs = (Aggregation.MEAN, Aggregation.MEDIAN) if k > 1 else ()
     for name, rows in _batches(windows, config.batch_windows):
         items = windows.items(rows)
         pred = predictor.predict(items, name, k, sampler, config.seed)  # [B, K, T, 6]
         g = windows.gravity_mps2[name]
         pos, rot = _errors(items, pred, g)
+        pred_frames.append(prediction_frame(pred, rows, windows.sequence[rows], windows.t0_ns[rows],
+                                            "" if sampler is None else sampler.value))
         acc.pos.append(pos)
         acc.rot.append(rot)
         for agg in aggs:
@@ -449,7 +454,8 @@ def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | 
         if sel.any():
             sub = {key: (v[sel] if torch.is_tensor(v) else v) for key, v in items.items()}
             ex_frames.append(_example_frame(pred[sel], sub, rows[sel], sampler, windows))
-    return acc, (pd.concat(ex_frames, ignore_index=True) if ex_frames else pd.DataFrame())
+    return (acc, pd.concat(ex_frames, ignore_index=True) if ex_frames else pd.DataFrame(),
+            pd.concat(pred_frames, ignore_index=True))
 
 
 def _metrics_samples(pos: np.ndarray, rot: np.ndarray) -> Metrics:
@@ -513,9 +519,10 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
     t_start = time.perf_counter()
     k = config.samples if predictor.stochastic else 1
     samplers: tuple[Sampler | None, ...] = config.samplers if predictor.stochastic else (None,)
-    rows, calib, frames, examples = [], [], [], []
+    rows, calib, frames, examples, predictions = [], [], [], [], []
     for sampler in samplers:
-        acc, ex = _run_sampler(predictor, windows, sampler, k, config)
+        acc, ex, pr = _run_sampler(predictor, windows, sampler, k, config)
+        predictions.append(pr)
         rows.extend(_rows_of(acc, windows, sampler))
         frames.append(_windows_frame(acc, windows, sampler))
         examples.append(ex)
@@ -537,14 +544,17 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
                  "window_samples": m.get("window_samples")},
         seconds=time.perf_counter() - t_start,
     )
-    return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True))
+    return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True),
+                            pd.concat(predictions, ignore_index=True))
 
 
 def write_evaluation(result: EvaluationResult, out_dir: str | Path) -> Path:
-    """Write ``summary.json``, ``windows.parquet`` and ``examples.parquet`` atomically into ``out_dir``."""
+    """Write ``summary.json``, ``windows.parquet``, ``predictions.parquet`` and ``examples.parquet``
+    atomically into ``out_dir`` (all of them or none)."""
     out_dir = Path(out_dir)
     with atomic_dir(out_dir) as tmp:
         result.windows.to_parquet(tmp / WINDOWS_PARQUET, index=False)
+        result.predictions.to_parquet(tmp / PREDICTIONS_PARQUET, index=False)
         result.examples.to_parquet(tmp / EXAMPLES_PARQUET, index=False)
         (tmp / SUMMARY_JSON).write_text(json.dumps(result.summary.to_dict(), indent=2) + "\n", encoding="utf-8")
     return out_dir

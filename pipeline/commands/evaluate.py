@@ -24,7 +24,8 @@ window start plus 50 random walks with the recovery's random-walk strengths, the
 ground-truth end pose: an oracle upper bound, not a usable method).
 
 Writes OUT atomically: summary.json, windows.parquet (errors per window and sample),
-examples.parquet (a few test windows: truth, sample mean and quantiles).
+predictions.parquet (every window's predicted bias: per time step the samples' mean, std, median
+and quantiles), examples.parquet (a few test windows: truth, sample mean and quantiles).
 """
 
 EPILOG = """\
