@@ -18,6 +18,7 @@ from training.baselines import Baseline
 from training.config import Method, Sampler
 from training.evaluate import (
     CALIBRATION_LEVELS,
+    CHANNELS,
     Aggregation,
     EvaluationConfig,
     evaluate_run,
@@ -62,6 +63,16 @@ def test_diffusion_summary_rows_and_calibration(trained):
         cov = np.asarray(cal.coverage)
         assert cov.shape == (len(CALIBRATION_LEVELS), 6) and np.all((0 <= cov) & (cov <= 1))
         assert np.all(np.diff(cov, axis=0) >= 0)  # wider intervals cover at least as much
+    # how often each sampler's clip bound, per channel, with its range; no prediction leaves the range
+    assert [c.sampler for c in s.clip] == ["ddim", "released"]
+    pred = pd.read_parquet(trained / "evaluation" / "diffusion_rnn" / "predictions.parquet")
+    for c in s.clip:
+        assert np.all(np.asarray(c.lo) < np.asarray(c.hi))
+        assert all(0 <= b <= a <= 1 for b, a in zip(c.on_bound, c.any_step, strict=True))
+        mine = pred[pred["sampler"] == c.sampler]
+        for ch, lo, hi in zip(CHANNELS, c.lo, c.hi, strict=True):
+            assert lo - 1e-6 <= mine[f"q0.025_{ch}"].min() and mine[f"q0.975_{ch}"].max() <= hi + 1e-6
+    assert not read_summary(trained / "evaluation" / "regression_rnn").clip
     ex = pd.read_parquet(trained / "evaluation" / "diffusion_rnn" / "examples.parquet")
     assert ex["window"].nunique() == 2 and set(ex["sampler"]) == {"ddim", "released"}
     assert np.all(ex["q0.025"] <= ex["q0.975"])

@@ -25,6 +25,9 @@ reset to the ground-truth state of every segment):
   bias values (every sample of every test window) inside the central interval of the K
   samples, for nominal levels in :data:`CALIBRATION_LEVELS` (68 % and 95 % among them).
   A calibrated model has coverage = level.
+* **Clip use** of a diffusion model, per sampler and channel (:class:`training.clip.ClipUse`):
+  the x0 clip's range and the fraction of sample values sitting on it (a prediction the clip
+  kept from going further) or clipped at some step.
 
 Outputs (``OUT/``, written atomically): ``summary.json`` (:class:`EvaluationSummary`),
 ``windows.parquet`` (one row per window, sampler, aggregation and sample: ``pos_err_m``,
@@ -56,6 +59,7 @@ from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
+from training.clip import ClipUse, clip_use
 from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, Split, WindowDataset
 from training.predictions import CHANNELS, PREDICTIONS_PARQUET, prediction_frame
@@ -232,6 +236,7 @@ class ModelPredictor:
 
     run: Any  # training.checkpoint.LoadedRun
     steps: int = 25
+    clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.scheduler.ClipCount
 
     @property
     def method(self) -> Method:
@@ -259,9 +264,19 @@ class ModelPredictor:
         cast = {key: (v.to(dtype) if torch.is_tensor(v) and v.is_floating_point() else v) for key, v in items.items()}
         batch = WindowBatch.from_items(cast).to(device)
         gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + int(items["t0_ns"][0]) % 1_000_003)
-        kwargs = {"sampler": sampler, "steps": self.steps} if self.stochastic else {}
+        kwargs = {}
+        if self.stochastic:
+            from training.scheduler import ClipCount
+
+            kwargs = {"sampler": sampler, "steps": self.steps,
+                      "clip_count": self.clip_counts.setdefault(Sampler(sampler), ClipCount())}
         out = model.sample(batch, num_samples=k, generator=gen, **kwargs)
         return out.detach().to("cpu", torch.float64).numpy()
+
+    def clip_use(self, sampler: Sampler | None) -> ClipUse | None:
+        """How often ``sampler``'s clip bound over the predictions so far (None: not a diffusion model)."""
+        count = None if sampler is None else self.clip_counts.get(Sampler(sampler))
+        return None if count is None else clip_use(self.run.model, Sampler(sampler), count)
 
 
 # ----------------------------------------------------------------------------- records
@@ -326,6 +341,7 @@ class EvaluationSummary:
     gravity_source: dict[str, str]
     rows: tuple[RowResult, ...]
     calibration: tuple[Calibration, ...] = ()
+    clip: tuple[ClipUse, ...] = ()
     checkpoint: dict[str, Any] = field(default_factory=dict)
     dataset: dict[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
@@ -351,6 +367,7 @@ class EvaluationSummary:
         d["calibration"] = tuple(
             Calibration(Sampler(c["sampler"]), tuple(c["levels"]), tuple(tuple(x) for x in c["coverage"]))
             for c in d.get("calibration", ()))
+        d["clip"] = tuple(ClipUse.from_dict(c) for c in d.get("clip", ()))
         return cls(**d)
 
 
@@ -519,7 +536,7 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
     t_start = time.perf_counter()
     k = config.samples if predictor.stochastic else 1
     samplers: tuple[Sampler | None, ...] = config.samplers if predictor.stochastic else (None,)
-    rows, calib, frames, examples, predictions = [], [], [], [], []
+    rows, calib, clip, frames, examples, predictions = [], [], [], [], [], []
     for sampler in samplers:
         acc, ex, pr = _run_sampler(predictor, windows, sampler, k, config)
         predictions.append(pr)
@@ -529,6 +546,11 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
         if acc.count:
             cov = acc.inside / acc.count
             calib.append(Calibration(sampler, CALIBRATION_LEVELS, tuple(tuple(map(float, c)) for c in cov)))
+        use = predictor.clip_use(sampler) if hasattr(predictor, "clip_use") else None
+        if use is not None:
+            clip.append(use)
+            log.info("%s %s: samples on the x0 clip per channel %s", predictor.name, sampler.value,
+                     [f"{f:.2%}" for f in use.on_bound])
         for r in rows[-(3 if k > 1 else 1):]:
             log.info("%s %s: average PRMSE %.4f m, ROE %.4f deg", predictor.name, r.key or "samples",
                      r.average.prmse_m, r.average.roe_deg)
@@ -538,6 +560,7 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
         steps=config.steps if predictor.stochastic else None, windows=len(windows),
         windows_per_sequence={n: int(np.sum(windows.sequence == n)) for n in windows.sequences()},
         protocol=PROTOCOL, gravity_source=dict(windows.gravity_source), rows=tuple(rows), calibration=tuple(calib),
+        clip=tuple(clip),
         checkpoint=dict(checkpoint or {}),
         dataset={"path": str(windows.root), "format_version": m.get("format_version"),
                  "config_hash": m.get("config_hash"), "rate_hz": m.get("rate_hz"),

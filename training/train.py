@@ -31,7 +31,7 @@ import os
 import random
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +42,9 @@ from torch.utils.data import DataLoader, default_collate
 from pipeline.atomic import write_text_atomic
 from pipeline.errors import BiasgtError, DataError
 from training.batch import TEMPERATURE_KEY, WindowBatch
+from training.clip import clip_bounds
 from training.checkpoint import BEST, CHECKPOINT_FORMAT, LAST, METRICS, RUN_JSON, load_checkpoint, save_checkpoint
-from training.config import TrainConfig
+from training.config import ModelConfig, TrainConfig
 from training.dataset import MANIFEST, Split, WindowDataset
 from training.ema import EMA
 from training.models import BiasModel, build_model, count_parameters
@@ -163,6 +164,21 @@ def _open_data(config: TrainConfig, dataset_dir: Path) -> _Data:
     return _Data(train_ds, val_ds, manifest, info, normalizer, gravity)
 
 
+def _model_config(config: TrainConfig, data: _Data) -> ModelConfig:
+    """The model's config with a diffusion model's x0 clip resolved from the train and validation
+    splits (:func:`training.clip.clip_bounds`)."""
+    mc = config.model_config()
+    if not mc.method.is_diffusion or mc.clip_x0_bounds is not None:
+        return mc
+    stats = data.manifest["normalization"]
+    biases = (ds.arrays(name)["bias"] for ds in (data.train, data.val) for name in ds.sequences)
+    bounds = clip_bounds(mc, stats["bias_mean"], stats["bias_std"], biases)
+    if bounds is not None:
+        log.info("x0 clip (%s): lo %s, hi %s", mc.clip_x0_range.value, np.round(bounds[0], 6).tolist(),
+                 np.round(bounds[1], 6).tolist())
+    return replace(mc, clip_x0_bounds=bounds)
+
+
 def _device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -262,7 +278,7 @@ class _Trainer:
         if world > 1 and self.device.type == "cuda":
             self.device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
         _seed_all(config.seed)
-        self.model = build_model(config.model_config(), data.normalizer, config.indirect_weights).to(self.device)
+        self.model = build_model(_model_config(config, data), data.normalizer, config.indirect_weights).to(self.device)
         self.model.train()
         self.ddp = None
         if world > 1:
