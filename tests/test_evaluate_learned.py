@@ -164,6 +164,10 @@ def test_cli_evaluate_and_bad_inputs(trained, tmp_path, capsys):
     run = trained / "training" / "regression_rnn"
     assert main(["evaluate", "--checkpoint", str(run), "--dataset", str(data), "--out", str(tmp_path / "ev")]) == 0
     assert "regression_rnn" in capsys.readouterr().out and (tmp_path / "ev" / "summary.json").is_file()
+    assert main(["evaluate", "--checkpoint", str(trained / "training" / "diffusion_rnn"), "--dataset", str(data),
+                 "--out", str(tmp_path / "ev_diffusion"), "--samples", "2", "--steps", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "x0 clip (ddim): samples on the bound per channel:" in out
     # checkpoint of another method
     with pytest.raises(ConfigError, match="holds a regression_rnn model, not diffusion_rnn"):
         evaluate_run(run, data, tmp_path / "x", method=Method.DIFFUSION_RNN)
