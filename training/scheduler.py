@@ -24,9 +24,9 @@ variances (linear from ``beta_start`` to ``beta_end`` over ``N`` steps), ``alpha
   ``x0_hat`` is clamped to ``[-c, c]`` (or to per-channel bounds ``[lo, hi]``) before the step uses
   it, ``eps`` is not re-derived. The samples here are z-scored biases, so ``c`` is in sigmas of the
   train split (:class:`training.config.ClipRange` chooses the bounds). The last step returns the
-  clipped ``x0_hat``, so no sample leaves the bounds; :class:`ClipCount` counts how often they bind. Without it a noise
-  estimate slightly off at high t (``x0_hat`` amplifies its error by ``1 / sqrt(alpha_bar_t)``,
-  ~125x at t = 960) runs away: later steps see ``x_t`` far outside anything trained on and do not
+  clipped ``x0_hat``, so no sample leaves the bounds; :class:`ClipCount` counts how often they
+  bind. Without it a noise estimate slightly off at high t (``x0_hat`` amplifies its error by
+  ``1 / sqrt(alpha_bar_t)``, ~125x at t = 960) runs away: later steps see ``x_t`` far outside anything trained on and do not
   pull it back (on EuRoC's validation split unclipped DDIM samples reached 14-17 sigmas).
 * RELEASED (the published code's DDIM, ShenghaoZhou/ioo_diffusion ``scheduler/ddim.py``): its
   ``set_timesteps`` computes the step ratio as ``S // S = 1`` so the S steps are ``t = S-1 .. 0``,
