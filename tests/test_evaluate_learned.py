@@ -9,6 +9,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+import torch
+from scipy.spatial.transform import Rotation
 
 from pipeline.cli import main
 from pipeline.errors import ConfigError, InputFormatError
@@ -16,6 +18,7 @@ from training.baselines import Baseline
 from training.config import Method, Sampler
 from training.evaluate import (
     CALIBRATION_LEVELS,
+    CHANNELS,
     Aggregation,
     EvaluationConfig,
     evaluate_run,
@@ -60,9 +63,85 @@ def test_diffusion_summary_rows_and_calibration(trained):
         cov = np.asarray(cal.coverage)
         assert cov.shape == (len(CALIBRATION_LEVELS), 6) and np.all((0 <= cov) & (cov <= 1))
         assert np.all(np.diff(cov, axis=0) >= 0)  # wider intervals cover at least as much
+    # how often each sampler's clip bound, per channel, with its range; no prediction leaves the range
+    assert [c.sampler for c in s.clip] == ["ddim", "released"]
+    pred = pd.read_parquet(trained / "evaluation" / "diffusion_rnn" / "predictions.parquet")
+    for c in s.clip:
+        assert np.all(np.asarray(c.lo) < np.asarray(c.hi))
+        assert all(0 <= b <= a <= 1 for b, a in zip(c.on_bound, c.any_step, strict=True))
+        mine = pred[pred["sampler"] == c.sampler]
+        for ch, lo, hi in zip(CHANNELS, c.lo, c.hi, strict=True):
+            assert lo - 1e-6 <= mine[f"q0.025_{ch}"].min() and mine[f"q0.975_{ch}"].max() <= hi + 1e-6
+    assert not read_summary(trained / "evaluation" / "regression_rnn").clip
     ex = pd.read_parquet(trained / "evaluation" / "diffusion_rnn" / "examples.parquet")
     assert ex["window"].nunique() == 2 and set(ex["sampler"]) == {"ddim", "released"}
     assert np.all(ex["q0.025"] <= ex["q0.975"])
+
+
+def _midpoint_end_states(imu: np.ndarray, bias: np.ndarray, dt_s: np.ndarray, R0: np.ndarray, v0: np.ndarray,
+                         p0: np.ndarray, gravity: np.ndarray) -> tuple[Rotation, np.ndarray]:
+    """End orientation and position of windows [B, T, 6] integrated with ``imu - bias``, written here with scipy:
+    rotation by the mid-point rate, velocity by the trapezoid, position by the exact double integral of a
+    linearly interpolated world acceleration."""
+    w, a = (imu - bias)[..., :3], (imu - bias)[..., 3:]
+    R, v, p = Rotation.from_matrix(R0), v0.copy(), p0.copy()
+    f = gravity + R.apply(a[:, 0])
+    for k in range(imu.shape[1] - 1):
+        h = dt_s[:, k, None]
+        R = R * Rotation.from_rotvec(0.5 * (w[:, k] + w[:, k + 1]) * h)
+        f_next = gravity + R.apply(a[:, k + 1])
+        p = p + v * h + (2.0 * f + f_next) * h**2 / 6.0
+        v = v + 0.5 * (f + f_next) * h
+        f = f_next
+    return R, p
+
+
+def _rows_from_predictions(folder: Path, dataset: Path, stat: str, sampler: str) -> dict[str, tuple[float, float]]:
+    """Sequence -> (PRMSE m, ROE deg) recomputed from predictions.parquet and the dataset's test arrays alone."""
+    from training.dataset import Split, WindowDataset
+    from training.predictions import PREDICTIONS_PARQUET, prediction_array
+
+    frame = pd.read_parquet(folder / PREDICTIONS_PARQUET)
+    windows, bias = prediction_array(frame, stat, sampler)
+    first = frame[frame["sampler"] == sampler].drop_duplicates("window").set_index("window").loc[windows]
+    ds = WindowDataset(dataset, Split.TEST, dtype=torch.float64)
+    out = {}
+    for name in first["sequence"].unique():
+        arrays = {k: np.asarray(v) for k, v in ds.arrays(name).items()}
+        sel = (first["sequence"] == name).to_numpy()
+        at = np.searchsorted(arrays["t_ns"][:, 0], first["t0_ns"].to_numpy()[sel])
+        assert np.array_equal(arrays["t_ns"][at, 0], first["t0_ns"].to_numpy()[sel])
+        g = ds.manifest["sequences"][name].get("info", {}).get("gravity_mps2") or (0.0, 0.0, -9.81)
+        R, p = _midpoint_end_states(arrays["imu"][at], bias[sel], np.diff(arrays["t_ns"][at], axis=1) * 1e-9,
+                                    arrays["start_R"][at], arrays["start_v"][at], arrays["start_p"][at],
+                                    np.asarray(g, dtype=np.float64))
+        pos = np.linalg.norm(p - arrays["end_p"][at], axis=1)
+        rot = np.rad2deg((Rotation.from_matrix(arrays["end_R"][at]).inv() * R).magnitude())
+        out[name] = (float(np.sqrt(np.mean(pos**2))), float(np.mean(rot)))
+    return out
+
+
+def test_learned_rows_recompute_from_the_kept_predictions(trained):
+    """The mean and median rows of the diffusion model and the regression row, from predictions.parquet, the
+    dataset and an integration written in this test."""
+    data = trained / "dataset"
+    cases = [("diffusion_rnn", "mean", Sampler.DDIM, Aggregation.MEAN),
+             ("diffusion_rnn", "median", Sampler.RELEASED, Aggregation.MEDIAN),
+             ("regression_rnn", "mean", None, Aggregation.SAMPLES)]
+    for method, stat, sampler, aggregation in cases:
+        folder = trained / "evaluation" / method
+        row = read_summary(folder).row(sampler, aggregation)
+        got = _rows_from_predictions(folder, data, stat, "" if sampler is None else sampler.value)
+        assert set(got) == set(row.sequences)
+        for name, (prmse, roe) in got.items():
+            # float32 storage of the bias (~3e-10 here); the two integrations agree to ~1e-14
+            assert prmse == pytest.approx(row.sequences[name].prmse_m, rel=1e-7), (method, stat, name)
+            assert roe == pytest.approx(row.sequences[name].roe_deg, rel=1e-7), (method, stat, name)
+    frame = pd.read_parquet(trained / "evaluation" / "diffusion_rnn" / "predictions.parquet")
+    w = load_test_windows(data)
+    T = int(json.loads((data / "manifest.json").read_text())["window_samples"])
+    assert len(frame) == 2 * len(w) * T  # two samplers, every window, every time step
+    assert np.all(frame["q0.025_gyro_x"] <= frame["median_gyro_x"]) and np.all(frame["std_acc_z"] >= 0)
 
 
 def test_regression_is_deterministic_one_row(trained):
@@ -85,6 +164,10 @@ def test_cli_evaluate_and_bad_inputs(trained, tmp_path, capsys):
     run = trained / "training" / "regression_rnn"
     assert main(["evaluate", "--checkpoint", str(run), "--dataset", str(data), "--out", str(tmp_path / "ev")]) == 0
     assert "regression_rnn" in capsys.readouterr().out and (tmp_path / "ev" / "summary.json").is_file()
+    assert main(["evaluate", "--checkpoint", str(trained / "training" / "diffusion_rnn"), "--dataset", str(data),
+                 "--out", str(tmp_path / "ev_diffusion"), "--samples", "2", "--steps", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "x0 clip (ddim): samples on the bound per channel:" in out
     # checkpoint of another method
     with pytest.raises(ConfigError, match="holds a regression_rnn model, not diffusion_rnn"):
         evaluate_run(run, data, tmp_path / "x", method=Method.DIFFUSION_RNN)

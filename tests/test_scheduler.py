@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
 from training.config import Sampler
-from training.scheduler import NoiseScheduler
+from training.scheduler import ClipCount, NoiseScheduler
 
 diffusers = pytest.importorskip("diffusers")  # a test dependency (pyproject 'test' extra); guard only
 
@@ -103,6 +104,29 @@ def test_clipping_keeps_an_oracle_sample_inside_the_range():
     for t in s.timesteps.tolist():
         x = s.ddim_step(noise, t, x, clip_x0=3.0)
     assert torch.allclose(x, x0, atol=1e-4)
+
+
+def test_per_channel_clip_bounds_and_their_count():
+    """A (lo, hi) clip clamps each channel to its own bounds (numpy's clip); the count marks the clamped values."""
+    s = NoiseScheduler()
+    s.set_timesteps(10, Sampler.DDIM)
+    g = torch.Generator().manual_seed(5)
+    x, eps = torch.randn(3, 20, 6, generator=g) * 3, torch.randn(3, 20, 6, generator=g)
+    lo, hi = torch.tensor([-1.0, -2.0, -0.5, -4.0, -0.1, 0.5]), torch.tensor([1.0, 0.5, 3.0, 4.0, 0.1, 9.0])
+    t = int(s.timesteps[3])
+    x0 = s.predict_x0(eps, t, x).double().numpy()
+    ref_x0 = np.clip(x0, lo.double().numpy(), hi.double().numpy())
+    ab_prev = float(s.alphas_cumprod[t - 100])
+    mask = torch.zeros(x.shape, dtype=torch.bool)
+    got = s.ddim_step(eps, t, x, clip_x0=(lo, hi), clipped=mask)
+    np.testing.assert_allclose(got.numpy(), math.sqrt(ab_prev) * ref_x0 + math.sqrt(1 - ab_prev) * eps.numpy(),
+                               rtol=1e-5, atol=1e-5)
+    assert np.array_equal(mask.numpy(), ref_x0 != x0) and 0 < mask.sum() < mask.numel()
+
+    count = ClipCount()
+    s.sample(lambda xt, tt: eps, (3, 20, 6), steps=10, generator=g, clip_x0=(lo, hi), clip_count=count)
+    on_bound, any_step = count.fractions()
+    assert count.values == 60 and all(0 <= a <= b <= 1 for a, b in zip(on_bound, any_step))
 
 
 @pytest.mark.parametrize("steps", [1000, 25])

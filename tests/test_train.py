@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import os
 import signal
 import subprocess
@@ -46,7 +47,8 @@ def _cli(*args: str) -> list[str]:
 def test_resume_after_sigkill_gives_bit_identical_weights(toy_ds, tmp_path):
     args = ["--dataset", str(toy_ds), "--method", "diffusion_rnn", "--preset", "tiny", "--max-steps", "120",
             "--config", str(tmp_path / "c.yaml")]
-    (tmp_path / "c.yaml").write_text("batch_size: 16\nval_every: 25\ncheckpoint_every: 5\nlr: 0.003\n")
+    (tmp_path / "c.yaml").write_text("batch_size: 16\nval_every: 25\ncheckpoint_every: 5\nlr: 0.003\n"
+                                     "model_overrides: {tcn_dropout: 0.2}\n")  # dropout draws from torch's RNG
     subprocess.run(_cli(*args, "--out", str(tmp_path / "whole")), env=_env(), check=True)
 
     cut = tmp_path / "cut"
@@ -70,6 +72,62 @@ def test_resume_after_sigkill_gives_bit_identical_weights(toy_ds, tmp_path):
     rows = [[r[k] for k in ("step", "train_loss", "val_loss", "lr")] for r in csv.DictReader(open(cut / "metrics.csv"))]
     assert rows == [[r[k] for k in ("step", "train_loss", "val_loss", "lr")]
                     for r in csv.DictReader(open(tmp_path / "whole" / "metrics.csv"))]
+
+
+class _Stop(Exception):
+    """Stands for a kill between two steps (after the checkpoint of the last one)."""
+
+
+def _assert_bit_identical(a, b, where: str = "") -> None:
+    """Nested checkpoint values equal bit for bit (tensors and arrays elementwise, others with ==)."""
+    if isinstance(a, torch.Tensor):
+        assert isinstance(b, torch.Tensor) and a.dtype == b.dtype and torch.equal(a, b), where
+    elif isinstance(a, dict):
+        assert isinstance(b, dict) and a.keys() == b.keys(), where
+        for k in a:
+            _assert_bit_identical(a[k], b[k], f"{where}.{k}")
+    elif isinstance(a, (list, tuple)):
+        assert type(a) is type(b) and len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b)):
+            _assert_bit_identical(x, y, f"{where}[{i}]")
+    elif isinstance(a, np.ndarray):
+        assert isinstance(b, np.ndarray) and a.dtype == b.dtype and np.array_equal(a, b), where
+    elif isinstance(a, float) and math.isnan(a):
+        assert isinstance(b, float) and math.isnan(b), where
+    else:
+        assert a == b, where
+
+
+def test_resume_with_dropout_is_bit_identical(toy_ds, tmp_path, monkeypatch):
+    """Dropout draws from torch's global RNG: nothing else may draw from it between the restore and the
+    first resumed step (a DataLoader iterator without its own generator does)."""
+    import training.train as train_module
+
+    config = TrainConfig(method=Method.DIFFUSION_RNN, max_steps=20, model_overrides={"tcn_dropout": 0.3},
+                         **{**TINY, "checkpoint_every": 5})
+    train(config, toy_ds, tmp_path / "whole")
+
+    real_step = train_module._Trainer.train_step
+
+    def stop_after_15(self, batch):
+        if self.run.step == 15:
+            raise _Stop
+        return real_step(self, batch)
+
+    monkeypatch.setattr(train_module._Trainer, "train_step", stop_after_15)
+    with pytest.raises(_Stop):
+        train(config, toy_ds, tmp_path / "cut")
+    assert load_checkpoint(tmp_path / "cut" / LAST)["step"] == 15
+    monkeypatch.setattr(train_module._Trainer, "train_step", real_step)
+    torch.manual_seed(12345)  # whatever the global RNG holds before the resume
+    train(config, toy_ds, tmp_path / "cut", resume=True)
+
+    whole, resumed = load_checkpoint(tmp_path / "whole" / LAST), load_checkpoint(tmp_path / "cut" / LAST)
+    assert resumed["step"] == whole["step"] == 20
+    for key in ("model", "ema", "optimizer", "lr_schedule", "rng"):
+        _assert_bit_identical(whole[key], resumed[key], key)
+    timeless = lambda rows: [{k: v for k, v in r.items() if k != "seconds"} for r in rows]  # noqa: E731
+    _assert_bit_identical(timeless(whole["metrics"]), timeless(resumed["metrics"]), "metrics")
 
 
 def test_same_seed_same_hashes_other_seed_differs(toy_ds, tmp_path):

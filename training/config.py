@@ -26,7 +26,7 @@ from typing import Any
 from pipeline.configs import dataclass_from_mapping
 from pipeline.errors import ConfigError
 
-__all__ = ["Method", "Preset", "Sampler", "ModelConfig", "TrainConfig", "IMU_CHANNELS"]
+__all__ = ["Method", "Preset", "Sampler", "ClipRange", "ModelConfig", "TrainConfig", "IMU_CHANNELS"]
 
 #: Channels of one IMU sample and of one bias sample: gyro x, y, z (rad/s), acc x, y, z (m/s^2).
 IMU_CHANNELS = 6
@@ -66,6 +66,14 @@ class Sampler(str, enum.Enum):
     DDPM = "ddpm"  # ancestral DDPM over the given number of steps
 
 
+class ClipRange(str, enum.Enum):
+    """Where the DDIM / DDPM samplers clip each step's x0 estimate, per channel (see ``ModelConfig``)."""
+
+    EVIDENCE = "evidence"  # the train mean +- (largest |bias - mean| in the train and validation splits + margin)
+    TRAIN = "train"  # the train mean +- clip_x0_sigmas train sigmas (diffusers' clip_sample on the z-scored bias)
+    SENSOR = "sensor"  # +- clip_x0_bias_range about zero: the sensor's stated bias range (raw units)
+
+
 @dataclass(frozen=True)
 class ModelConfig:
     """Network sizes and the diffusion schedule of one model.
@@ -90,11 +98,22 @@ class ModelConfig:
         beta_end: Last beta of the linear schedule.
         clip_sample: Clip range of the x0 estimate in the RELEASED sampler, in raw units (rad/s,
             m/s^2) as the released code does.
-        clip_x0_sigmas: DDIM and DDPM: clip range of each step's x0 estimate in the normalised
-            space, i.e. in sigmas of the train split's bias about its mean (diffusers'
-            ``clip_sample`` / ``clip_sample_range``; ``None``: no clipping). It only stops
-            estimates that run away at high noise levels (see :mod:`training.scheduler`): with 3,
-            99 % of the final samples on EuRoC's validation split lay within 0.7 sigma.
+        clip_x0_range: DDIM and DDPM clip each step's x0 estimate (diffusers' ``clip_sample``, per
+            channel and in raw units here) to stop estimates that run away at high noise levels
+            (see :mod:`training.scheduler`). The clip applies at the last step too, so no sample
+            leaves it: it must hold every bias the model may need to predict. ``evidence``
+            (default): the train mean +- (the largest distance of a train or validation bias
+            from it + ``clip_x0_sigmas`` train sigmas); a validation sequence whose bias lies
+            far from the training biases widens it. ``train``: the train mean +-
+            ``clip_x0_sigmas`` train sigmas (the earlier default; a bias beyond it cannot be
+            predicted). ``sensor``: +- ``clip_x0_bias_range`` about zero. Training resolves the
+            range into ``clip_x0_bounds``; the evaluation reports how often it binds.
+        clip_x0_sigmas: Margin of the ``evidence`` range and half-width of the ``train`` range, in
+            sigmas of the train split's bias (``None``: no clipping in any mode).
+        clip_x0_bias_range: ``sensor`` range: half-widths of the bias about zero, gyro x, y, z
+            (rad/s) then acc x, y, z (m/s^2), e.g. the datasheet's initial bias tolerance.
+        clip_x0_bounds: The resolved range, ``(lo, hi)`` of 6 raw-unit values each (set by
+            training; ``None``: the ``train`` range, as models built outside training use).
     """
 
     method: Method
@@ -115,12 +134,16 @@ class ModelConfig:
     beta_end: float = 0.02
     clip_sample: float = 1.0
     clip_x0_sigmas: float | None = 3.0
+    clip_x0_range: ClipRange = ClipRange.EVIDENCE
+    clip_x0_bias_range: tuple[float, ...] | None = None
+    clip_x0_bounds: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "method", Method(self.method))
         if self.clip_x0_sigmas is not None and not float(self.clip_x0_sigmas) > 0:
             raise ConfigError(f"clip_x0_sigmas must be positive or null, got {self.clip_x0_sigmas!r}",
                               field="clip_x0_sigmas", hint="e.g. 3 (sigmas of the train split's bias), or null for none")
+        self._check_clip()
         object.__setattr__(self, "preset", Preset(self.preset))
         object.__setattr__(self, "tcn_channels", tuple(int(c) for c in self.tcn_channels))
         object.__setattr__(self, "unet_dims", tuple(int(c) for c in self.unet_dims))
@@ -131,6 +154,29 @@ class ModelConfig:
         if bad:
             raise ConfigError(f"U-Net dims {bad} are not multiples of unet_groups {self.unet_groups}",
                               field="unet_dims", hint="choose dims divisible by the GroupNorm groups")
+
+    def _check_clip(self) -> None:
+        try:
+            object.__setattr__(self, "clip_x0_range", ClipRange(self.clip_x0_range))
+        except ValueError:
+            raise ConfigError(f"unknown clip_x0_range '{self.clip_x0_range}'", field="clip_x0_range",
+                              hint=f"choose one of {', '.join(c.value for c in ClipRange)}") from None
+        r = self.clip_x0_bias_range
+        if r is not None:
+            r = tuple(float(v) for v in r)
+            if len(r) != IMU_CHANNELS or not all(v > 0 for v in r):
+                raise ConfigError(f"clip_x0_bias_range needs {IMU_CHANNELS} positive numbers, got {list(r)}",
+                                  field="clip_x0_bias_range", hint="gyro x, y, z (rad/s) then acc x, y, z (m/s^2)")
+            object.__setattr__(self, "clip_x0_bias_range", r)
+        if self.clip_x0_range is ClipRange.SENSOR and r is None and self.clip_x0_sigmas is not None:
+            raise ConfigError("clip_x0_range 'sensor' needs clip_x0_bias_range", field="clip_x0_bias_range",
+                              hint="give the sensor's bias range: 6 half-widths, gyro (rad/s) then acc (m/s^2)")
+        if self.clip_x0_bounds is not None:
+            lo, hi = (tuple(float(v) for v in b) for b in self.clip_x0_bounds)
+            if len(lo) != IMU_CHANNELS or len(hi) != IMU_CHANNELS or not all(a < b for a, b in zip(lo, hi)):
+                raise ConfigError("clip_x0_bounds needs (lo, hi) of 6 values each with lo < hi",
+                                  field="clip_x0_bounds", hint="leave it unset: training resolves it")
+            object.__setattr__(self, "clip_x0_bounds", (lo, hi))
 
     @classmethod
     def for_preset(cls, method: Method | str, preset: Preset | str, **overrides: Any) -> ModelConfig:

@@ -25,12 +25,17 @@ reset to the ground-truth state of every segment):
   bias values (every sample of every test window) inside the central interval of the K
   samples, for nominal levels in :data:`CALIBRATION_LEVELS` (68 % and 95 % among them).
   A calibrated model has coverage = level.
+* **Clip use** of a diffusion model, per sampler and channel (:class:`training.clip.ClipUse`):
+  the x0 clip's range and the fraction of sample values sitting on it (a prediction the clip
+  kept from going further) or clipped at some step.
 
 Outputs (``OUT/``, written atomically): ``summary.json`` (:class:`EvaluationSummary`),
 ``windows.parquet`` (one row per window, sampler, aggregation and sample: ``pos_err_m``,
-``rot_err_deg``) and ``examples.parquet`` (a few randomly chosen test windows, the same for
-every method: ground truth and the sample mean and quantiles per time step and channel, for
-the report's figure).
+``rot_err_deg``), ``predictions.parquet`` (every window's prediction: per time step and channel
+the mean of the K samples and, for K > 1, their std, median and quantiles;
+:mod:`training.predictions`) and ``examples.parquet`` (a few randomly chosen test windows, the
+same for every method: ground truth and the sample mean and quantiles per time step and
+channel, for the report's figure).
 """
 
 from __future__ import annotations
@@ -54,8 +59,10 @@ from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
+from training.clip import ClipUse, clip_use
 from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, Split, WindowDataset
+from training.predictions import CHANNELS, PREDICTIONS_PARQUET, prediction_frame
 from validation.validate import DEFAULT_GRAVITY_MPS2, prmse_m, roe_deg, window_end_errors
 
 log = logging.getLogger(__name__)
@@ -78,7 +85,6 @@ SCHEMA_VERSION = 1
 SUMMARY_JSON = "summary.json"
 WINDOWS_PARQUET = "windows.parquet"
 EXAMPLES_PARQUET = "examples.parquet"
-CHANNELS = ("gyro_x", "gyro_y", "gyro_z", "acc_x", "acc_y", "acc_z")
 #: Nominal central-interval levels of the calibration curve.
 CALIBRATION_LEVELS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.68, 0.7, 0.8, 0.9, 0.95)
 #: Quantiles of the samples kept per time step for the report's example windows.
@@ -230,6 +236,7 @@ class ModelPredictor:
 
     run: Any  # training.checkpoint.LoadedRun
     steps: int = 25
+    clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.scheduler.ClipCount
 
     @property
     def method(self) -> Method:
@@ -257,9 +264,19 @@ class ModelPredictor:
         cast = {key: (v.to(dtype) if torch.is_tensor(v) and v.is_floating_point() else v) for key, v in items.items()}
         batch = WindowBatch.from_items(cast).to(device)
         gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + int(items["t0_ns"][0]) % 1_000_003)
-        kwargs = {"sampler": sampler, "steps": self.steps} if self.stochastic else {}
+        kwargs = {}
+        if self.stochastic:
+            from training.scheduler import ClipCount
+
+            kwargs = {"sampler": sampler, "steps": self.steps,
+                      "clip_count": self.clip_counts.setdefault(Sampler(sampler), ClipCount())}
         out = model.sample(batch, num_samples=k, generator=gen, **kwargs)
         return out.detach().to("cpu", torch.float64).numpy()
+
+    def clip_use(self, sampler: Sampler | None) -> ClipUse | None:
+        """How often ``sampler``'s clip bound over the predictions so far (None: not a diffusion model)."""
+        count = None if sampler is None else self.clip_counts.get(Sampler(sampler))
+        return None if count is None else clip_use(self.run.model, Sampler(sampler), count)
 
 
 # ----------------------------------------------------------------------------- records
@@ -324,6 +341,7 @@ class EvaluationSummary:
     gravity_source: dict[str, str]
     rows: tuple[RowResult, ...]
     calibration: tuple[Calibration, ...] = ()
+    clip: tuple[ClipUse, ...] = ()
     checkpoint: dict[str, Any] = field(default_factory=dict)
     dataset: dict[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
@@ -349,16 +367,18 @@ class EvaluationSummary:
         d["calibration"] = tuple(
             Calibration(Sampler(c["sampler"]), tuple(c["levels"]), tuple(tuple(x) for x in c["coverage"]))
             for c in d.get("calibration", ()))
+        d["clip"] = tuple(ClipUse.from_dict(c) for c in d.get("clip", ()))
         return cls(**d)
 
 
 @dataclass
 class EvaluationResult:
-    """A summary and its per-window and example frames."""
+    """A summary and its per-window, example and prediction frames."""
 
     summary: EvaluationSummary
     windows: pd.DataFrame
     examples: pd.DataFrame
+    predictions: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -425,16 +445,18 @@ def _example_frame(pred: np.ndarray, items: dict[str, Any], rows: np.ndarray, sa
 
 
 def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | None, k: int,
-                 config: EvaluationConfig) -> tuple[_Accumulator, pd.DataFrame]:
+                 config: EvaluationConfig) -> tuple[_Accumulator, pd.DataFrame, pd.DataFrame]:
     acc = _Accumulator()
     examples = _example_rows(windows, config.examples, config.seed)
-    ex_frames = []
+    ex_frames, pred_frames = [], []
     aggs = (Aggregation.MEAN, Aggregation.MEDIAN) if k > 1 else ()
     for name, rows in _batches(windows, config.batch_windows):
         items = windows.items(rows)
         pred = predictor.predict(items, name, k, sampler, config.seed)  # [B, K, T, 6]
         g = windows.gravity_mps2[name]
         pos, rot = _errors(items, pred, g)
+        pred_frames.append(prediction_frame(pred, rows, windows.sequence[rows], windows.t0_ns[rows],
+                                            "" if sampler is None else sampler.value))
         acc.pos.append(pos)
         acc.rot.append(rot)
         for agg in aggs:
@@ -449,7 +471,8 @@ def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | 
         if sel.any():
             sub = {key: (v[sel] if torch.is_tensor(v) else v) for key, v in items.items()}
             ex_frames.append(_example_frame(pred[sel], sub, rows[sel], sampler, windows))
-    return acc, (pd.concat(ex_frames, ignore_index=True) if ex_frames else pd.DataFrame())
+    return (acc, pd.concat(ex_frames, ignore_index=True) if ex_frames else pd.DataFrame(),
+            pd.concat(pred_frames, ignore_index=True))
 
 
 def _metrics_samples(pos: np.ndarray, rot: np.ndarray) -> Metrics:
@@ -513,15 +536,21 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
     t_start = time.perf_counter()
     k = config.samples if predictor.stochastic else 1
     samplers: tuple[Sampler | None, ...] = config.samplers if predictor.stochastic else (None,)
-    rows, calib, frames, examples = [], [], [], []
+    rows, calib, clip, frames, examples, predictions = [], [], [], [], [], []
     for sampler in samplers:
-        acc, ex = _run_sampler(predictor, windows, sampler, k, config)
+        acc, ex, pr = _run_sampler(predictor, windows, sampler, k, config)
+        predictions.append(pr)
         rows.extend(_rows_of(acc, windows, sampler))
         frames.append(_windows_frame(acc, windows, sampler))
         examples.append(ex)
         if acc.count:
             cov = acc.inside / acc.count
             calib.append(Calibration(sampler, CALIBRATION_LEVELS, tuple(tuple(map(float, c)) for c in cov)))
+        use = predictor.clip_use(sampler) if hasattr(predictor, "clip_use") else None
+        if use is not None:
+            clip.append(use)
+            log.info("%s %s: samples on the x0 clip per channel %s", predictor.name, sampler.value,
+                     [f"{f:.2%}" for f in use.on_bound])
         for r in rows[-(3 if k > 1 else 1):]:
             log.info("%s %s: average PRMSE %.4f m, ROE %.4f deg", predictor.name, r.key or "samples",
                      r.average.prmse_m, r.average.roe_deg)
@@ -531,20 +560,24 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
         steps=config.steps if predictor.stochastic else None, windows=len(windows),
         windows_per_sequence={n: int(np.sum(windows.sequence == n)) for n in windows.sequences()},
         protocol=PROTOCOL, gravity_source=dict(windows.gravity_source), rows=tuple(rows), calibration=tuple(calib),
+        clip=tuple(clip),
         checkpoint=dict(checkpoint or {}),
         dataset={"path": str(windows.root), "format_version": m.get("format_version"),
                  "config_hash": m.get("config_hash"), "rate_hz": m.get("rate_hz"),
                  "window_samples": m.get("window_samples")},
         seconds=time.perf_counter() - t_start,
     )
-    return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True))
+    return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True),
+                            pd.concat(predictions, ignore_index=True))
 
 
 def write_evaluation(result: EvaluationResult, out_dir: str | Path) -> Path:
-    """Write ``summary.json``, ``windows.parquet`` and ``examples.parquet`` atomically into ``out_dir``."""
+    """Write ``summary.json``, ``windows.parquet``, ``predictions.parquet`` and ``examples.parquet``
+    atomically into ``out_dir`` (all of them or none)."""
     out_dir = Path(out_dir)
     with atomic_dir(out_dir) as tmp:
         result.windows.to_parquet(tmp / WINDOWS_PARQUET, index=False)
+        result.predictions.to_parquet(tmp / PREDICTIONS_PARQUET, index=False)
         result.examples.to_parquet(tmp / EXAMPLES_PARQUET, index=False)
         (tmp / SUMMARY_JSON).write_text(json.dumps(result.summary.to_dict(), indent=2) + "\n", encoding="utf-8")
     return out_dir

@@ -75,13 +75,13 @@ class ExportedSampler(nn.Module):
         K = noise.shape[0] // B
         code = m.net.encode(cond).repeat_interleave(K, dim=0)
         nz = m.normalizer
-        lo = (-m.config.clip_sample - nz.bias_mean) / nz.bias_std
-        hi = (m.config.clip_sample - nz.bias_mean) / nz.bias_std
+        lo, hi = m.released_clip()
+        clip_x0 = m.x0_clip()
         x = noise
         for t in self.timesteps:
             eps = m.net.denoise(x, torch.full((x.shape[0],), t, dtype=torch.int64, device=x.device), code)
             if self.sampler is Sampler.DDIM:
-                x = m.scheduler.ddim_step(eps, t, x, clip_x0=m.config.clip_x0_sigmas)
+                x = m.scheduler.ddim_step(eps, t, x, clip_x0=clip_x0)
             else:
                 x = m.scheduler.released_step(eps, t, x, lo, hi)
         return nz.unbias(x).reshape(B, K, T, IMU_CHANNELS)

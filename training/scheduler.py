@@ -21,10 +21,12 @@ variances (linear from ``beta_start`` to ``beta_end`` over ``N`` steps), ``alpha
   x0_hat + sqrt(1 - alpha_bar_prev - sigma^2) eps + sigma z``. With eta = 0 it is deterministic,
   and with the true noise as ``eps`` it returns ``x_0`` exactly at the last step.
 * Clipping (diffusers' ``clip_sample``; DDPM's and DDIM's reference code for images in [-1, 1]):
-  ``x0_hat`` is clamped to ``[-c, c]`` before the step uses it, ``eps`` is not re-derived. The
-  samples here are z-scored biases, so ``c`` is in sigmas of the train split. Without it a noise
-  estimate slightly off at high t (``x0_hat`` amplifies its error by ``1 / sqrt(alpha_bar_t)``,
-  ~125x at t = 960) runs away: later steps see ``x_t`` far outside anything trained on and do not
+  ``x0_hat`` is clamped to ``[-c, c]`` (or to per-channel bounds ``[lo, hi]``) before the step uses
+  it, ``eps`` is not re-derived. The samples here are z-scored biases, so ``c`` is in sigmas of the
+  train split (:class:`training.config.ClipRange` chooses the bounds). The last step returns the
+  clipped ``x0_hat``, so no sample leaves the bounds; :class:`ClipCount` counts how often they
+  bind. Without it a noise estimate slightly off at high t (``x0_hat`` amplifies its error by
+  ``1 / sqrt(alpha_bar_t)``, ~125x at t = 960) runs away: later steps see ``x_t`` far outside anything trained on and do not
   pull it back (on EuRoC's validation split unclipped DDIM samples reached 14-17 sigmas).
 * RELEASED (the published code's DDIM, ShenghaoZhou/ioo_diffusion ``scheduler/ddim.py``): its
   ``set_timesteps`` computes the step ratio as ``S // S = 1`` so the S steps are ``t = S-1 .. 0``,
@@ -37,12 +39,45 @@ Every formula is checked against diffusers' ``DDPMScheduler`` / ``DDIMScheduler`
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import torch
 
 from training.config import Sampler
 
-__all__ = ["NoiseScheduler", "randn"]
+__all__ = ["ClipCount", "NoiseScheduler", "randn"]
+
+#: A clip of the x0 estimate: ``c`` for ``[-c, c]``, per-channel ``(lo, hi)`` (broadcast over the last axis), or None.
+Clip = float | tuple[torch.Tensor, torch.Tensor] | None
+
+
+@dataclass
+class ClipCount:
+    """How often the clip bound over :meth:`NoiseScheduler.sample` calls, per channel (the last axis).
+
+    Attributes:
+        values: Sample values counted per channel.
+        on_bound: Values whose last step clipped the x0 estimate (the returned sample is on a bound), [C].
+        any_step: Values clipped at one step or more, [C].
+    """
+
+    values: int = 0
+    on_bound: torch.Tensor | None = None
+    any_step: torch.Tensor | None = None
+
+    def add(self, last: torch.Tensor, any_step: torch.Tensor) -> None:
+        """Count the boolean masks [..., C] of one sampling run."""
+        C = last.shape[-1]
+        self.values += last.numel() // C
+        last, any_step = last.reshape(-1, C).sum(0).cpu(), any_step.reshape(-1, C).sum(0).cpu()
+        self.on_bound = last if self.on_bound is None else self.on_bound + last
+        self.any_step = any_step if self.any_step is None else self.any_step + any_step
+
+    def fractions(self) -> tuple[list[float], list[float]]:
+        """``(on_bound, any_step)`` as fractions of the counted values per channel."""
+        if not self.values or self.on_bound is None:
+            return [], []
+        return ((self.on_bound.double() / self.values).tolist(), (self.any_step.double() / self.values).tolist())
 
 
 def randn(shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device | str,
@@ -107,15 +142,16 @@ class NoiseScheduler:
         ab = self._alpha_bar(int(t), x_t)
         return (x_t - (1.0 - ab).sqrt() * eps) / ab.sqrt()
 
-    def ddpm_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor,
-                  generator: torch.Generator | None = None, clip_x0: float | None = None) -> torch.Tensor:
+    def ddpm_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor, generator: torch.Generator | None = None,
+                  clip_x0: Clip = None, clipped: torch.Tensor | None = None) -> torch.Tensor:
         """One ancestral step ``x_t -> x_{t_prev}`` (DDPM eqs. 6-7, fixed-small variance;
-        ``clip_x0``: clamp ``x0_hat`` to ``[-clip_x0, clip_x0]``, diffusers' ``clip_sample``)."""
+        ``clip_x0``: clamp ``x0_hat`` to ``[-clip_x0, clip_x0]`` or ``(lo, hi)``, diffusers'
+        ``clip_sample``; ``clipped``: a boolean tensor like ``x_t`` set to where it clamped)."""
         ab_t = self._alpha_bar(int(t), x_t)
         ab_prev = self._alpha_bar(self._prev(t), x_t)
         alpha_t = ab_t / ab_prev  # alpha'_t, the step's alpha when steps are skipped
         beta_t = 1.0 - alpha_t
-        x0 = _clamp(self.predict_x0(eps, t, x_t), clip_x0)
+        x0 = _clamp(self.predict_x0(eps, t, x_t), clip_x0, clipped)
         mean = (ab_prev.sqrt() * beta_t / (1.0 - ab_t)) * x0 + (alpha_t.sqrt() * (1.0 - ab_prev) / (1.0 - ab_t)) * x_t
         if int(t) <= 0:
             return mean
@@ -123,12 +159,13 @@ class NoiseScheduler:
         return mean + var.sqrt() * randn(x_t.shape, generator, x_t.device, x_t.dtype)
 
     def ddim_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor, eta: float = 0.0,
-                  generator: torch.Generator | None = None, clip_x0: float | None = None) -> torch.Tensor:
+                  generator: torch.Generator | None = None, clip_x0: Clip = None,
+                  clipped: torch.Tensor | None = None) -> torch.Tensor:
         """One DDIM step ``x_t -> x_{t_prev}`` (DDIM eq. 12, sigma of eq. 16 scaled by ``eta``;
-        ``clip_x0``: clamp ``x0_hat`` to ``[-clip_x0, clip_x0]``, diffusers' ``clip_sample``)."""
+        ``clip_x0`` and ``clipped`` as in :meth:`ddpm_step`)."""
         ab_t = self._alpha_bar(int(t), x_t)
         ab_prev = self._alpha_bar(self._prev(t), x_t)
-        x0 = _clamp(self.predict_x0(eps, t, x_t), clip_x0)
+        x0 = _clamp(self.predict_x0(eps, t, x_t), clip_x0, clipped)
         sigma = eta * ((1.0 - ab_prev) / (1.0 - ab_t) * (1.0 - ab_t / ab_prev)).sqrt()
         x_prev = ab_prev.sqrt() * x0 + (1.0 - ab_prev - sigma**2).sqrt() * eps
         if eta > 0:
@@ -136,14 +173,15 @@ class NoiseScheduler:
         return x_prev
 
     def released_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor,
-                      clip_lo: torch.Tensor | float = -1.0, clip_hi: torch.Tensor | float = 1.0) -> torch.Tensor:
+                      clip_lo: torch.Tensor | float = -1.0, clip_hi: torch.Tensor | float = 1.0,
+                      clipped: torch.Tensor | None = None) -> torch.Tensor:
         """The released code's step: the clipped ``x0_hat`` (its ``alpha_bar_prev`` is always 1).
 
-        ``clip_lo`` / ``clip_hi`` are the clip range in the sample's space (broadcastable).
+        ``clip_lo`` / ``clip_hi`` are the clip range in the sample's space (broadcastable);
+        ``clipped`` as in :meth:`ddpm_step`.
         """
         x0 = self.predict_x0(eps, t, x_t)
-        return torch.maximum(torch.minimum(x0, torch.as_tensor(clip_hi, dtype=x0.dtype, device=x0.device)),
-                             torch.as_tensor(clip_lo, dtype=x0.dtype, device=x0.device))
+        return _clamp(x0, (torch.as_tensor(clip_lo), torch.as_tensor(clip_hi)), clipped)
 
     def sample(
         self,
@@ -157,7 +195,8 @@ class NoiseScheduler:
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
         clip: tuple[torch.Tensor, torch.Tensor] | None = None,
-        clip_x0: float | None = None,
+        clip_x0: Clip = None,
+        clip_count: ClipCount | None = None,
     ) -> torch.Tensor:
         """Run a sampler from ``x_T ~ N(0, I)`` of ``shape``.
 
@@ -171,23 +210,42 @@ class NoiseScheduler:
             device: Device of the samples.
             dtype: Floating dtype of the samples.
             clip: ``(lo, hi)`` clip range of the RELEASED sampler (default [-1, 1]).
-            clip_x0: DDIM / DDPM: clamp each step's ``x0_hat`` to ``[-clip_x0, clip_x0]`` (None: off).
+            clip_x0: DDIM / DDPM: clamp each step's ``x0_hat`` to ``[-clip_x0, clip_x0]`` or to
+                per-channel ``(lo, hi)`` (None: off).
+            clip_count: Adds how often the clip bound (RELEASED's ``clip`` or ``clip_x0``).
 
         Returns:
             ``x_0`` samples of ``shape``.
         """
         x = randn(shape, generator, device, dtype)
+        counting = clip_count is not None
+        last = torch.zeros(shape, dtype=torch.bool, device=device) if counting else None
+        seen = torch.zeros(shape, dtype=torch.bool, device=device) if counting else None
         for t in self.set_timesteps(steps, sampler).tolist():
             eps = predict_eps(x, torch.full((shape[0],), t, dtype=torch.int64, device=device))
             if sampler is Sampler.DDIM:
-                x = self.ddim_step(eps, t, x, eta=eta, generator=generator, clip_x0=clip_x0)
+                x = self.ddim_step(eps, t, x, eta=eta, generator=generator, clip_x0=clip_x0, clipped=last)
             elif sampler is Sampler.DDPM:
-                x = self.ddpm_step(eps, t, x, generator=generator, clip_x0=clip_x0)
+                x = self.ddpm_step(eps, t, x, generator=generator, clip_x0=clip_x0, clipped=last)
             else:
-                x = self.released_step(eps, t, x, *(clip if clip is not None else (-1.0, 1.0)))
+                x = self.released_step(eps, t, x, *(clip if clip is not None else (-1.0, 1.0)), clipped=last)
+            if counting:
+                seen |= last
+        if counting:
+            clip_count.add(last, seen)
         return x
 
 
-def _clamp(x0: torch.Tensor, clip_x0: float | None) -> torch.Tensor:
-    """``x0`` clamped to ``[-clip_x0, clip_x0]`` (unchanged for None)."""
-    return x0 if clip_x0 is None else x0.clamp(-float(clip_x0), float(clip_x0))
+def _clamp(x0: torch.Tensor, clip_x0: Clip, clipped: torch.Tensor | None = None) -> torch.Tensor:
+    """``x0`` clamped to ``[-clip_x0, clip_x0]`` or ``(lo, hi)`` (unchanged for None); ``clipped``,
+    when given, is set to where the clamp changed a value."""
+    if clip_x0 is None:
+        out = x0
+    elif isinstance(clip_x0, tuple):
+        lo, hi = (torch.as_tensor(b).to(dtype=x0.dtype, device=x0.device) for b in clip_x0)
+        out = torch.maximum(torch.minimum(x0, hi), lo)
+    else:
+        out = x0.clamp(-float(clip_x0), float(clip_x0))
+    if clipped is not None:
+        torch.ne(out, x0, out=clipped)
+    return out

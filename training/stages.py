@@ -3,7 +3,8 @@
 Layout (relative to the workflow's folder)::
 
     results/training/{method}/seed{seed}/       a run of 'biasgt train' (best.pt, last.pt, metrics.csv, run.json)
-    results/evaluation/{method}/seed{seed}/     its evaluation (summary.json, windows.parquet, examples.parquet)
+    results/evaluation/{method}/seed{seed}/     its evaluation (summary.json, windows.parquet, predictions.parquet,
+                                                examples.parquet)
     results/evaluation/{reference}/             a reference row (training.baselines.Baseline)
     results/evaluation/table.csv, table.md      Table I
     results/report/training.html                the training report

@@ -9,7 +9,8 @@ contents: :mod:`training.checkpoint`.
 Determinism: weights are initialised from ``seed``; the batch order is a pure function of
 ``(seed, step)`` (:class:`BatchOrder`: one permutation per epoch, drawn from a generator seeded
 with ``seed`` and the epoch); diffusion noise and steps come from a generator whose state is
-checkpointed with the torch, numpy and python RNG states (dropout uses torch's). So a run resumed
+checkpointed with the torch, numpy and python RNG states (dropout uses torch's global RNG, which
+nothing else draws from: the data loaders have generators of their own). So a run resumed
 from ``last.pt`` repeats exactly the steps of an uninterrupted run, and the same seed on the same
 data gives the same weights (on one device type and thread count).
 
@@ -30,7 +31,7 @@ import os
 import random
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -41,8 +42,9 @@ from torch.utils.data import DataLoader, default_collate
 from pipeline.atomic import write_text_atomic
 from pipeline.errors import BiasgtError, DataError
 from training.batch import TEMPERATURE_KEY, WindowBatch
+from training.clip import clip_bounds
 from training.checkpoint import BEST, CHECKPOINT_FORMAT, LAST, METRICS, RUN_JSON, load_checkpoint, save_checkpoint
-from training.config import TrainConfig
+from training.config import ModelConfig, TrainConfig
 from training.dataset import MANIFEST, Split, WindowDataset
 from training.ema import EMA
 from training.models import BiasModel, build_model, count_parameters
@@ -162,6 +164,21 @@ def _open_data(config: TrainConfig, dataset_dir: Path) -> _Data:
     return _Data(train_ds, val_ds, manifest, info, normalizer, gravity)
 
 
+def _model_config(config: TrainConfig, data: _Data) -> ModelConfig:
+    """The model's config with a diffusion model's x0 clip resolved from the train and validation
+    splits (:func:`training.clip.clip_bounds`)."""
+    mc = config.model_config()
+    if not mc.method.is_diffusion or mc.clip_x0_bounds is not None:
+        return mc
+    stats = data.manifest["normalization"]
+    biases = (ds.arrays(name)["bias"] for ds in (data.train, data.val) for name in ds.sequences)
+    bounds = clip_bounds(mc, stats["bias_mean"], stats["bias_std"], biases)
+    if bounds is not None:
+        log.info("x0 clip (%s): lo %s, hi %s", mc.clip_x0_range.value, np.round(bounds[0], 6).tolist(),
+                 np.round(bounds[1], 6).tolist())
+    return replace(mc, clip_x0_bounds=bounds)
+
+
 def _device(name: str) -> torch.device:
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -198,6 +215,15 @@ def _set_rng_state(state: dict[str, Any], noise: torch.Generator) -> None:
         torch.cuda.set_rng_state_all([s.cpu() for s in state["cuda"]])
 
 
+def _loader_generator(seed: int) -> torch.Generator:
+    """A DataLoader's own generator. Creating a loader's iterator draws its workers' base seed from
+    the loader's generator, else from torch's global RNG, which dropout uses: with the global RNG a
+    resumed run's first dropout masks would differ from the uninterrupted run's. The loaders read
+    no random numbers otherwise (the batch order is :class:`BatchOrder`'s), so a fixed seed suffices
+    and nothing of it needs checkpointing."""
+    return torch.Generator().manual_seed(seed * 1_000_003 + 104_729)
+
+
 def _seed_all(seed: int) -> None:
     torch.manual_seed(seed)
     np.random.seed(seed % 2**32)
@@ -211,7 +237,7 @@ def _validate(model: BiasModel, data: _Data, config: TrainConfig, device: torch.
     model.eval()
     g = torch.Generator().manual_seed(config.seed + 7919)
     loader = DataLoader(data.val, batch_size=config.batch_size, shuffle=False, collate_fn=data.collate,
-                        num_workers=config.num_workers)
+                        num_workers=config.num_workers, generator=_loader_generator(config.seed))
     total, count = 0.0, 0
     for i, batch in enumerate(loader):
         if config.val_batches and i >= config.val_batches:
@@ -252,7 +278,7 @@ class _Trainer:
         if world > 1 and self.device.type == "cuda":
             self.device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", 0)))
         _seed_all(config.seed)
-        self.model = build_model(config.model_config(), data.normalizer, config.indirect_weights).to(self.device)
+        self.model = build_model(_model_config(config, data), data.normalizer, config.indirect_weights).to(self.device)
         self.model.train()
         self.ddp = None
         if world > 1:
@@ -430,7 +456,8 @@ def _fit(tr: _Trainer) -> None:
     config, run = tr.config, tr.run
     order = BatchOrder(len(tr.data.train), config.batch_size, config.seed, tr.rank, tr.world)
     loader = DataLoader(tr.data.train, batch_sampler=_StepBatches(order, run.step, config.max_steps),
-                        collate_fn=tr.data.collate, num_workers=config.num_workers)
+                        collate_fn=tr.data.collate, num_workers=config.num_workers,
+                        generator=_loader_generator(config.seed))
     writer = tr.rank == 0
     log.info("training %s (%s preset, %d parameters) on %d windows, %d validation windows, %s",
              config.method.value, config.preset.value, count_parameters(tr.model), len(tr.data.train),

@@ -24,7 +24,8 @@ window start plus 50 random walks with the recovery's random-walk strengths, the
 ground-truth end pose: an oracle upper bound, not a usable method).
 
 Writes OUT atomically: summary.json, windows.parquet (errors per window and sample),
-examples.parquet (a few test windows: truth, sample mean and quantiles).
+predictions.parquet (every window's predicted bias: per time step the samples' mean, std, median
+and quantiles), examples.parquet (a few test windows: truth, sample mean and quantiles).
 """
 
 EPILOG = """\
@@ -77,4 +78,7 @@ def run(args: argparse.Namespace) -> int:
         c68, c95 = cal.at(0.68), cal.at(0.95)
         print(f"  calibration ({cal.sampler.value}): inside 68%: " + " ".join(f"{x:.2f}" for x in c68)
               + "; inside 95%: " + " ".join(f"{x:.2f}" for x in c95))
+    for clip in s.clip:
+        print(f"  x0 clip ({clip.sampler}): samples on the bound per channel: "
+              + " ".join(f"{x:.1%}" for x in clip.on_bound))
     return 0

@@ -27,7 +27,7 @@ from pipeline.so3 import so3_log
 from training.batch import WindowBatch
 from training.config import IMU_CHANNELS, Method, ModelConfig, Sampler
 from training.normalizer import Normalizer
-from training.scheduler import NoiseScheduler, randn
+from training.scheduler import ClipCount, NoiseScheduler, randn
 from training.models.rnn import GruDenoiser, GruRegressor
 from training.models.unet import UnetDenoiser, UnetRegressor
 
@@ -126,13 +126,33 @@ class BiasModel(nn.Module):
         """The training loss (so that DistributedDataParallel's hooks wrap it)."""
         return self.loss(batch, generator, noise=noise, t=t)
 
+    def x0_clip(self) -> float | tuple[torch.Tensor, torch.Tensor] | None:
+        """The DDIM / DDPM clip of the x0 estimate in the normalised space: per-channel ``(lo, hi)``
+        from ``config.clip_x0_bounds`` (raw units), else ``clip_x0_sigmas`` (None: no clipping)."""
+        c = self.config
+        if c.clip_x0_sigmas is None:
+            return None
+        if c.clip_x0_bounds is None:
+            return float(c.clip_x0_sigmas)
+        nz = self.normalizer
+        lo, hi = (nz.bias(torch.tensor(b, dtype=torch.float64).to(nz.bias_mean)) for b in c.clip_x0_bounds)
+        return lo, hi
+
+    def released_clip(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The RELEASED sampler's clip, ``[-clip_sample, clip_sample]`` in raw units, normalised."""
+        nz = self.normalizer
+        return ((-self.config.clip_sample - nz.bias_mean) / nz.bias_std,
+                (self.config.clip_sample - nz.bias_mean) / nz.bias_std)
+
     @torch.no_grad()
     def sample(self, batch: WindowBatch, num_samples: int = 1, *, sampler: Sampler = Sampler.DDIM,
-               steps: int = 25, generator: torch.Generator | None = None, eta: float = 0.0) -> torch.Tensor:
+               steps: int = 25, generator: torch.Generator | None = None, eta: float = 0.0,
+               clip_count: ClipCount | None = None) -> torch.Tensor:
         """Predicted bias [B, K, T, 6] in raw units (rad/s, m/s^2).
 
         Regression and indirect models return K identical copies. Only ``batch.imu`` (and the
         temperature) are read. ``generator`` (on the model's device) draws the initial noise.
+        ``clip_count`` adds how often the sampler's clip bound (:class:`training.scheduler.ClipCount`).
         """
         cond = self._condition(batch)
         B, T, _ = cond.shape
@@ -140,14 +160,11 @@ class BiasModel(nn.Module):
         if not self.method.is_diffusion:
             return self.normalizer.unbias(self.net(cond))[:, None].expand(B, K, T, IMU_CHANNELS).clone()
         code = self.net.encode(cond).repeat_interleave(K, dim=0)  # [B*K, C], window b's samples adjacent
-        nz = self.normalizer
-        clip = ((-self.config.clip_sample - nz.bias_mean) / nz.bias_std,
-                (self.config.clip_sample - nz.bias_mean) / nz.bias_std)
         z = self.scheduler.sample(lambda x, t: self.net.denoise(x, t, code), (B * K, T, IMU_CHANNELS),
                                   sampler=Sampler(sampler), steps=steps, eta=eta, generator=generator,
-                                  device=cond.device, dtype=cond.dtype, clip=clip,
-                                  clip_x0=self.config.clip_x0_sigmas)
-        return nz.unbias(z).reshape(B, K, T, IMU_CHANNELS)
+                                  device=cond.device, dtype=cond.dtype, clip=self.released_clip(),
+                                  clip_x0=self.x0_clip(), clip_count=clip_count)
+        return self.normalizer.unbias(z).reshape(B, K, T, IMU_CHANNELS)
 
 
 def build_model(config: ModelConfig, normalizer: Normalizer,
