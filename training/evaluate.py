@@ -54,6 +54,7 @@ from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
+from training.checkpoint import check_finite_output
 from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, Split, WindowDataset
 from validation.validate import DEFAULT_GRAVITY_MPS2, prmse_m, roe_deg, window_end_errors
@@ -258,8 +259,9 @@ class ModelPredictor:
         batch = WindowBatch.from_items(cast).to(device)
         gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + int(items["t0_ns"][0]) % 1_000_003)
         kwargs = {"sampler": sampler, "steps": self.steps} if self.stochastic else {}
-        out = model.sample(batch, num_samples=k, generator=gen, **kwargs)
-        return out.detach().to("cpu", torch.float64).numpy()
+        out = model.sample(batch, num_samples=k, generator=gen, **kwargs).detach().to("cpu", torch.float64).numpy()
+        check_finite_output(out, self.run.path)
+        return out
 
 
 # ----------------------------------------------------------------------------- records

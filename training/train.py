@@ -308,9 +308,9 @@ class _Trainer:
         if not math.isfinite(value):
             kept = self.out_dir / LAST
             raise TrainingError(
-                f"training loss is {value} at step {self.run.step + 1}",
-                path=kept if kept.is_file() else self.out_dir,
-                hint="the last good checkpoint is kept; lower lr or check the dataset for non-finite values")
+                f"training loss is {value} at step {self.run.step + 1}", path=kept if kept.is_file() else None,
+                hint=("the last good checkpoint is kept (this file); " if kept.is_file() else
+                      "no checkpoint was written; ") + "lower lr (the training diverged)")
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.grad_clip)

@@ -1,0 +1,230 @@
+"""Fault suite of the learning commands and the workflow: each fault gives one error line naming the
+culprit, a non-zero exit, no traceback and no output; never an exit 0 with wrong or non-finite results.
+
+Faults: corrupted checkpoints (truncated, random bytes, bit-flipped), NaN/inf in each dataset array,
+recordings in the wrong units, output paths that are files (or folders), a model whose output is
+not finite.
+"""
+
+from __future__ import annotations
+
+import shutil
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from pipeline.cli import main
+from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
+from pipeline.sim.writer import write_simulation
+from training.checkpoint import BEST, load_checkpoint, load_run, save_checkpoint
+from training.dataset import ARRAYS
+from window_data import make_window_dataset, train_tiny
+
+pytestmark = pytest.mark.xdist_group("faults")
+
+EVAL = ["--samples", "2", "--steps", "2"]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory) -> Path:
+    """A tiny window dataset, a diffusion run trained on it, and a 200-Hz ASL recording."""
+    root = tmp_path_factory.mktemp("faults")
+    data = make_window_dataset(root, splits={"train": 1, "val": 1, "test": 1}, duration_s=5.0)
+    train_tiny(data, root / "run", "diffusion_rnn")
+    sim = simulate(SimConfig(duration_s=4.0, seed=21, name="rec", imu=ImuNoiseConfig(rate_hz=200.0)))
+    write_simulation(sim, root / "rec")
+    return root
+
+
+def _run_cli(args: list[str], capsys) -> tuple[int, str]:
+    rc = main(args)
+    err = capsys.readouterr().err
+    return rc, err
+
+
+def _one_line_error(err: str, *words: str) -> None:
+    lines = [ln for ln in err.splitlines() if ": error: " in ln]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err
+    for w in words:
+        assert w in lines[0], err
+
+
+# ----------------------------------------------------------------------------- corrupted checkpoints
+
+
+def _truncated(src: Path, dst: Path) -> None:
+    data = src.read_bytes()
+    dst.write_bytes(data[: len(data) // 2])
+
+
+def _random_bytes(src: Path, dst: Path) -> None:
+    dst.write_bytes(np.random.default_rng(0).bytes(src.stat().st_size))
+
+
+def _bit_flipped(src: Path, dst: Path) -> None:
+    """Four 0xff bytes (a float32 NaN) in the middle of every stored tensor: the file still loads."""
+    shutil.copy(src, dst)
+    with zipfile.ZipFile(src) as z:
+        records = [(i.header_offset, len(i.filename.encode()), i.file_size) for i in z.infolist()
+                   if "/data/" in i.filename and i.file_size >= 16]
+    raw = bytearray(dst.read_bytes())
+    for header, name_len, size in records:
+        extra_len = int.from_bytes(raw[header + 28:header + 30], "little")
+        start = header + 30 + name_len + extra_len + (size // 2) // 4 * 4
+        raw[start:start + 4] = b"\xff\xff\xff\xff"
+    dst.write_bytes(bytes(raw))
+
+
+CORRUPTIONS = {"truncated": _truncated, "random_bytes": _random_bytes, "bit_flipped": _bit_flipped}
+
+
+@pytest.mark.parametrize("corruption", sorted(CORRUPTIONS))
+@pytest.mark.parametrize("command", ["predict", "evaluate"])
+def test_corrupted_checkpoint_is_refused_naming_it(trained, tmp_path, capsys, corruption, command):
+    bad = tmp_path / "bad.pt"
+    CORRUPTIONS[corruption](trained / "run" / BEST, bad)
+    out = tmp_path / "out"
+    if command == "predict":
+        args = ["predict", str(trained / "rec"), "--checkpoint", str(bad), "--out", str(out), *EVAL]
+    else:
+        args = ["evaluate", "--checkpoint", str(bad), "--dataset", str(trained / "dataset"), "--out", str(out), *EVAL]
+    rc, err = _run_cli(args, capsys)
+    assert rc == 2
+    _one_line_error(err, str(bad))
+    assert not list(tmp_path.glob("out*"))
+
+
+def test_bit_flipped_checkpoint_from_before_checksums_is_refused_as_non_finite(trained, tmp_path):
+    """A checkpoint without stored checksums is still refused when a weight is NaN."""
+    from training.checkpoint import CheckpointError
+
+    state = load_checkpoint(trained / "run" / BEST)
+    state.pop("weights_sha256")
+    name = next(k for k, v in state["ema"]["model"].items() if v.is_floating_point() and v.numel() > 4)
+    state["ema"]["model"][name].view(-1)[0] = float("nan")
+    torch.save(state, tmp_path / "old.pt")
+    with pytest.raises(CheckpointError, match=f"weights '{name}' hold non-finite"):
+        load_run(tmp_path / "old.pt")
+
+
+def test_model_with_non_finite_output_is_refused_naming_the_checkpoint(trained, tmp_path, capsys):
+    """Finite weights, consistent checksums, but outputs that overflow: predict and evaluate refuse them."""
+    state = load_checkpoint(trained / "run" / BEST)
+    for weights in (state["model"], state["ema"]["model"]):
+        for key, value in weights.items():
+            if value.is_floating_point() and "normalizer" not in key and value.dim() >= 1:
+                weights[key] = torch.full_like(value, 1e30)
+    save_checkpoint(state, tmp_path / "huge.pt")
+    rc, err = _run_cli(["predict", str(trained / "rec"), "--checkpoint", str(tmp_path / "huge.pt"),
+                        "--out", str(tmp_path / "p"), *EVAL], capsys)
+    assert rc == 2
+    _one_line_error(err, "non-finite", "huge.pt")
+    assert not list(tmp_path.glob("p.*"))
+    rc, err = _run_cli(["evaluate", "--checkpoint", str(tmp_path / "huge.pt"), "--dataset",
+                        str(trained / "dataset"), "--out", str(tmp_path / "ev"), *EVAL], capsys)
+    assert rc == 2
+    _one_line_error(err, "non-finite", "huge.pt")
+    assert not (tmp_path / "ev").exists()
+
+
+# ----------------------------------------------------------------------------- wrong units into predict
+
+
+def _rescaled_recording(src: Path, dst: Path, columns: slice, factor: float) -> Path:
+    shutil.copytree(src, dst)
+    csv = dst / "mav0" / "imu0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    out = [lines[0]]
+    for line in lines[1:]:
+        fields = line.split(",")
+        vals = [float(x) * factor for x in fields[columns]]
+        fields[columns] = [f"{v:.9g}" for v in vals]
+        out.append(",".join(fields))
+    csv.write_text("\n".join(out) + "\n")
+    return dst
+
+
+@pytest.mark.parametrize(("case", "columns", "factor", "code"), [
+    ("acc_in_g", slice(4, 7), 1.0 / 9.80665, "ACC_IN_G"),
+    ("gyro_in_degps", slice(1, 4), 180.0 / np.pi, "GYRO_DEGPS"),
+])
+def test_predict_refuses_a_recording_in_wrong_units(trained, tmp_path, capsys, case, columns, factor, code):
+    rec = _rescaled_recording(trained / "rec", tmp_path / case, columns, factor)
+    rc, err = _run_cli(["predict", str(rec), "--checkpoint", str(trained / "run"), "--out", str(tmp_path / "p"),
+                        *EVAL], capsys)
+    assert rc == 2
+    _one_line_error(err, code, "refusing to predict")
+    assert not list(tmp_path.glob("p.*"))
+
+
+def test_predict_on_a_good_recording_and_its_rate_hint(trained, tmp_path, capsys):
+    rc, _ = _run_cli(["predict", str(trained / "rec"), "--checkpoint", str(trained / "run"),
+                      "--out", str(tmp_path / "p"), *EVAL], capsys)
+    assert rc == 0 and (tmp_path / "p.csv").is_file()
+    sim = simulate(SimConfig(duration_s=4.0, seed=22, name="r100", imu=ImuNoiseConfig(rate_hz=100.0)))
+    write_simulation(sim, tmp_path / "r100")
+    rc, err = _run_cli(["predict", str(tmp_path / "r100"), "--checkpoint", str(trained / "run"),
+                        "--out", str(tmp_path / "q"), *EVAL], capsys)
+    assert rc == 2
+    _one_line_error(err, "100 Hz", "resample")
+    assert "biasgt windows" not in err  # windows resamples a dataset, not predict's input
+
+
+# ----------------------------------------------------------------------------- outputs that are files
+
+
+@pytest.mark.parametrize("command", ["evaluate", "train", "predict"])
+def test_output_path_that_is_a_file_is_refused_before_any_work(trained, tmp_path, capsys, command, monkeypatch):
+    import training.checkpoint as checkpoint
+    import training.train as train_module
+
+    def no_work(*args, **kwargs):
+        raise AssertionError("work started before the output location was checked")
+
+    monkeypatch.setattr(checkpoint, "load_run", no_work)
+    monkeypatch.setattr(train_module, "train", no_work)
+    blocker = tmp_path / "taken"
+    blocker.write_text("keep me")
+    if command == "evaluate":
+        args = ["evaluate", "--checkpoint", str(trained / "run"), "--dataset", str(trained / "dataset"),
+                "--out", str(blocker), *EVAL]
+    elif command == "train":
+        args = ["train", "--dataset", str(trained / "dataset"), "--out", str(blocker), "--method", "regression_rnn"]
+    else:
+        (tmp_path / "taken.csv").mkdir()
+        args = ["predict", str(trained / "rec"), "--checkpoint", str(trained / "run"), "--out", str(blocker), *EVAL]
+    rc, err = _run_cli(args, capsys)
+    assert rc == 2
+    _one_line_error(err, "taken")
+    assert blocker.read_text() == "keep me"
+
+
+# ----------------------------------------------------------------------------- NaN / inf in the dataset
+
+
+@pytest.mark.parametrize("array", [a for a in ARRAYS if a != "t_ns"])
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_non_finite_dataset_array_is_named_when_opened(trained, tmp_path, capsys, array, value):
+    data = tmp_path / "dataset"
+    shutil.copytree(trained / "dataset", data)
+    split = "val" if array in ("imu", "bias") else "test"  # train in one run, evaluate in the other
+    path = data / "sequences" / f"{split}0" / f"{array}.npy"
+    arr = np.load(path)
+    arr[2].reshape(-1)[0] = value
+    np.save(path, arr)
+    if split == "val":
+        out = tmp_path / "run"
+        (tmp_path / "tiny.yaml").write_text("batch_size: 4\ndevice: cpu\nval_every: 1\nwarmup_steps: 1\nthreads: 1\n")
+        args = ["train", "--dataset", str(data), "--out", str(out), "--method", "regression_rnn", "--preset", "tiny",
+                "--max-steps", "2", "--config", str(tmp_path / "tiny.yaml")]
+    else:
+        out = tmp_path / "ev"
+        args = ["evaluate", "--checkpoint", str(trained / "run"), "--dataset", str(data), "--out", str(out), *EVAL]
+    rc, err = _run_cli(args, capsys)
+    assert rc == 2
+    _one_line_error(err, f"{array}.npy", "window 2", "non-finite")
+    assert not out.exists()
