@@ -37,6 +37,7 @@ import enum
 import logging
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -54,6 +55,7 @@ from pipeline.checks import CheckOptions, parse_repairs
 from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping, unknown_keys_message
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.ingest import READER_KWARGS, ingest
+from pipeline.process_group import exclusive_lock, start_group, stop_group
 from pipeline.layout import (  # the .smk files read these as wf.<name>
     LOGS_DIR,
     RESULTS_DIR,
@@ -781,7 +783,7 @@ def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwarg
     """Run one workflow job with the ``pipeline`` loggers writing to ``log_path``.
 
     A known error (:class:`BiasgtError`) is logged on one line and ends the process with the
-    error's exit code (no traceback); any other exception is logged with its traceback and
+    error's exit code (no traceback), Ctrl-C with 130; any other exception is logged with its traceback and
     re-raised.
     """
     log_path = Path(log_path)
@@ -800,6 +802,9 @@ def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwarg
         log.error("%s", exc)
         print(f"biasgt: error: {exc}", file=sys.stderr)
         raise SystemExit(exc.exit_code) from None
+    except KeyboardInterrupt:  # 'biasgt run' forwards Ctrl-C to Snakemake's process group, jobs included
+        log.error("interrupted (SIGINT); nothing half-written was left")
+        raise SystemExit(130) from None
     except Exception:
         log.exception("unexpected error (a bug in biasgt; please report it with this log)")
         raise
@@ -1117,6 +1122,43 @@ def output_locations(workdir: str | Path) -> list[Path]:
     return out
 
 
+#: Held (flock) by a running ``biasgt run`` in its working directory: a second one says so.
+RUN_LOCK = Path(".snakemake") / "biasgt-run.lock"
+
+
+def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool) -> tuple[int, list[str]]:
+    """Run Snakemake in its own process group, copying its output to ``echo``.
+
+    On Ctrl-C (KeyboardInterrupt), SIGTERM (the CLI's ``Terminated``) or any other exception the
+    whole group gets SIGTERM; Snakemake cancels its jobs and removes their incomplete outputs, and
+    only then does the exception go on (:func:`pipeline.process_group.stop_group`).
+
+    Returns:
+        Snakemake's exit status and the tail of its output (all of it with ``keep_all``).
+    """
+    log.info("running %s", " ".join(cmd))
+    tail: list[str] = []
+    proc = start_group(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
+                       errors="replace")
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            echo.write(line)
+            tail.append(line.rstrip("\n"))
+            if len(tail) > 4000 and not keep_all:  # a dry run's plan is kept whole for the caller
+                del tail[:1000]
+        return proc.wait(), tail
+    except BaseException:
+        # SIGTERM for Ctrl-C too: Snakemake handles both alike, and a Python job stopped by SIGINT would
+        # print a KeyboardInterrupt traceback from wherever it was (an import, say)
+        log.warning("stopping Snakemake: it cancels its jobs and removes their incomplete outputs")
+        stop_group(proc, signal.SIGTERM, echo=echo.write)
+        raise
+    finally:
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+
 def run_workflow(
     *,
     config_file: str | Path | None = None,
@@ -1156,18 +1198,14 @@ def run_workflow(
     cmd = snakemake_command(config_file=config_file, cores=cores, workdir=workdir, dry_run=dry_run,
                             until=until, targets=targets, extra=extra)
     workdir.mkdir(parents=True, exist_ok=True)
-    log.info("running %s", " ".join(cmd))
     echo = echo or sys.stderr
-    tail: list[str] = []
-    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
-                          errors="replace") as proc:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            echo.write(line)
-            tail.append(line.rstrip("\n"))
-            if len(tail) > 4000 and not dry_run:  # a dry run's plan is kept whole for the caller
-                del tail[:1000]
-        rc = proc.wait()
+    with exclusive_lock(workdir / RUN_LOCK) as holder:
+        if holder is not None and not dry_run:
+            raise WorkflowRunError(
+                f"another 'biasgt run' (pid {holder or 'unknown'}) is running in {workdir}",
+                hint=f"wait for it to finish, or stop it (kill -INT {holder or 'PID'}) and rerun; its outputs are "
+                     "locked while it runs")
+        rc, tail = _run_snakemake(cmd, echo, keep_all=dry_run)
     if rc != 0:
         raise WorkflowRunError(
             f"workflow failed (snakemake exit {rc}): {describe_failure(tail, workdir)}",

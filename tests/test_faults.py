@@ -8,13 +8,21 @@ not finite.
 
 from __future__ import annotations
 
+import contextlib
+import os
 import shutil
+import signal
+import subprocess
+import sys
+import time
 import zipfile
 from pathlib import Path
 
 import numpy as np
+import psutil
 import pytest
 import torch
+import yaml
 
 from pipeline.cli import main
 from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
@@ -228,3 +236,71 @@ def test_non_finite_dataset_array_is_named_when_opened(trained, tmp_path, capsys
     assert rc == 2
     _one_line_error(err, f"{array}.npy", "window 2", "non-finite")
     assert not out.exists()
+
+
+# ----------------------------------------------------------------------------- biasgt run under signals
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _biasgt_run(workdir: Path, *extra: str) -> subprocess.Popen:
+    """``biasgt run`` (a 300-s simulated sequence, up to its recovery) as a separate process."""
+    cfg = workdir / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump({"sequences": [{"name": "long", "source": "simulate", "duration_s": 300,
+                                                  "seed": 3}]}))
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+    return subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", "--config", str(cfg), "--directory",
+                             str(workdir), "--cores", "1", "--target", "results/recovery/long", *extra],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
+                            preexec_fn=_foreground_sigint)
+
+
+def _foreground_sigint() -> None:
+    """SIGINT handled as in a foreground process (a background test runner's children inherit it ignored)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def _wait_for_job(proc: subprocess.Popen, rule_script: str, timeout_s: float = 300.0) -> list[psutil.Process]:
+    """Every descendant of ``proc`` once one of them runs the rule's script."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        assert proc.poll() is None, proc.communicate()
+        family = psutil.Process(proc.pid).children(recursive=True)
+        for p in family:
+            with contextlib.suppress(psutil.Error):
+                if any(rule_script in part for part in p.cmdline()):
+                    return family
+        time.sleep(0.5)
+    raise AssertionError(f"no job running {rule_script} after {timeout_s} s")
+
+
+@pytest.mark.parametrize(("sig", "code"), [(signal.SIGTERM, 143), (signal.SIGINT, 130)])
+def test_signal_to_biasgt_run_stops_snakemake_and_its_job(tmp_path, sig, code):
+    proc = _biasgt_run(tmp_path)
+    family = _wait_for_job(proc, ".recover.py")
+    assert family, "snakemake and its job run as children of biasgt run"
+    proc.send_signal(sig)
+    try:
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == code, err
+    assert "Traceback" not in err
+    gone, alive = psutil.wait_procs(family, timeout=5)
+    assert alive == [], [p.cmdline() for p in alive]  # no orphan (re-parented to PID 1) left running
+    assert not (tmp_path / "results" / "recovery" / "long").exists()  # incomplete output removed
+
+
+def test_second_biasgt_run_in_the_same_folder_names_the_first(tmp_path, capsys):
+    first = _biasgt_run(tmp_path)
+    try:
+        _wait_for_job(first, ".simulate.py")
+        rc = main(["run", "--config", str(tmp_path / "cfg.yaml"), "--directory", str(tmp_path),
+                   "--target", "results/recovery/long"])
+        err = capsys.readouterr().err
+        assert rc == 2
+        _one_line_error(err, f"another 'biasgt run' (pid {first.pid})")
+        assert "--unlock" not in err
+    finally:
+        first.send_signal(signal.SIGINT)
+        first.communicate(timeout=120)
