@@ -304,3 +304,36 @@ def test_second_biasgt_run_in_the_same_folder_names_the_first(tmp_path, capsys):
     finally:
         first.send_signal(signal.SIGINT)
         first.communicate(timeout=120)
+
+
+# ----------------------------------------------------------------------------- other tracebacks
+
+
+def _env() -> dict[str, str]:
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
+
+
+def test_inspect_into_a_closed_pipe_is_no_traceback(trained):
+    """``biasgt inspect SEQ | true``: the reader went away; not an error of ours."""
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "inspect", str(trained / "rec")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env())
+    proc.stdout.close()  # as 'true' does, before the report is written
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=120) == 0, err
+    assert "Traceback" not in err and "BrokenPipeError" not in err
+
+
+def test_gtsam_elimination_tree_error_is_a_one_line_recovery_error(trained, tmp_path, capsys, monkeypatch):
+    """A ValueError from GTSAM's EliminationTree (a solve on deg/s data read as rad/s) is a known error,
+    and the hint names the ignored unit finding."""
+    import recovery.recover as rec
+
+    def broken(*args, **kwargs):
+        raise ValueError("EliminationTree: given ordering contains variables that are not involved in the graph")
+
+    monkeypatch.setattr(rec, "_recover", broken)
+    degps = _rescaled_recording(trained / "rec", tmp_path / "degps", slice(1, 4), 180.0 / np.pi)
+    rc, err = _run_cli(["recover", str(degps), "--ignore", "GYRO_DEGPS", "--out", str(tmp_path / "r")], capsys)
+    assert rc == 2
+    _one_line_error(err, "EliminationTree", "GYRO_DEGPS were ignored", "--repair gyro-deg-to-rad")
+    assert not (tmp_path / "r").exists()
