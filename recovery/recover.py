@@ -42,6 +42,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from pipeline.bias_table import BiasTrack
+from pipeline.checks import reader_warnings
 from pipeline.errors import BiasgtError, RecoveryError
 from pipeline.io import select_pose_stream
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence
@@ -690,7 +691,7 @@ class _Inputs:
 
 def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: RecoveryConfig) -> _Inputs:
     """Stage 1: select and clean the pose stream, split the IMU at gaps, resolve the AUTO modes."""
-    warnings: list[str] = []
+    warnings: list[str] = reader_warnings(sequence.findings)  # skipped input lines, kept in recovery.json
     imu = sequence.imu
     if imu is None or len(imu) < 10:
         raise RecoveryError(f"sequence '{sequence.name}' has no IMU data (or fewer than 10 samples)")

@@ -9,6 +9,7 @@ not finite.
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import shutil
 import signal
@@ -337,3 +338,34 @@ def test_gtsam_elimination_tree_error_is_a_one_line_recovery_error(trained, tmp_
     assert rc == 2
     _one_line_error(err, "EliminationTree", "GYRO_DEGPS were ignored", "--repair gyro-deg-to-rad")
     assert not (tmp_path / "r").exists()
+
+
+# ----------------------------------------------------------------------------- skipped input lines
+
+
+def test_skipped_lines_are_a_warning_of_every_reading_command_and_kept_in_the_stage_json(trained, tmp_path,
+                                                                                         capsys, caplog):
+    rec = tmp_path / "rec"
+    shutil.copytree(trained / "rec", rec)
+    csv = rec / "mav0" / "imu0" / "data.csv"
+    lines = csv.read_text().splitlines()
+    lines[99] = lines[99].split(",")[0] + ",abc,1,2,3,4,5"  # text in a number, line 100
+    csv.write_text("\n".join(lines) + "\n" + lines[5].split(",")[0] + "9,1.0,2\n")  # truncated last line
+    expected = "skipped 2 unparseable line(s) of imu0/data.csv (line 100, "
+    runs = {
+        "convert": ["convert", str(rec), "--out", str(tmp_path / "store")],
+        "recover": ["recover", str(rec), "--out", str(tmp_path / "recovery")],
+        "validate": ["validate", str(rec), "--recovery", str(tmp_path / "recovery"), "--out", str(tmp_path / "val")],
+        "interpolate": ["interpolate", str(tmp_path / "recovery"), "--imu", str(rec),
+                        "--out", str(tmp_path / "bias.parquet")],
+        "predict": ["predict", str(rec), "--checkpoint", str(trained / "run"), "--out", str(tmp_path / "p"), *EVAL],
+    }
+    for name, args in runs.items():
+        caplog.clear()
+        rc = main(args)
+        assert rc == 0, (name, capsys.readouterr().err)
+        assert any(r.levelname == "WARNING" and expected in r.getMessage() for r in caplog.records), name
+    recovery = json.loads((tmp_path / "recovery" / "recovery.json").read_text())
+    assert any(expected in w for w in recovery["warnings"])
+    validation = json.loads((tmp_path / "val" / "validation.json").read_text())
+    assert any(expected in n for n in validation["notes"])

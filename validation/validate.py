@@ -116,6 +116,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from interpolation.bias import interpolate_bias
 from pipeline.bias_table import BiasTrack, read_bias_csv
+from pipeline.checks import reader_warnings
 from pipeline.errors import BiasgtError, DataError, InputFormatError, ValidationError
 from pipeline.integration import integrate
 from pipeline.io import select_pose_stream
@@ -1522,6 +1523,7 @@ def validate_inputs(
         result.notes.append("the reference is the stream the bias was fitted to: the held-out blocks judge the verdict")
     if recovery is not None:
         result.notes.append(f"recovery: {recovery_dir}")
+    result.notes += reader_warnings(sequence.findings)  # skipped input lines
     return result
 
 
