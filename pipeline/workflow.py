@@ -406,6 +406,21 @@ def check_config(
     return cfg
 
 
+def config_warnings(cfg: WorkflowConfig) -> list[str]:
+    """What a valid config silently leaves out of the run, said once when ``biasgt run`` checks it.
+
+    Today: windowed sequences (split train / val / test) without all three splits, so that no
+    model is trained or evaluated.
+    """
+    present = {s.split for s in cfg.sequences if s.split.windowed}
+    missing = [split.value for split in (Split.TRAIN, Split.VAL, Split.TEST) if split not in present]
+    if not present or not missing:
+        return []
+    return [f"no sequence in split {', '.join(repr(m) for m in missing)}: no model is trained or evaluated "
+            "(training needs train and val sequences, Table I test ones); set 'split:' on the sequences that "
+            "should form them"]
+
+
 def _check_sim_config(sim: dict[str, Any], config_file: Path | None, where: str, check_paths: bool) -> None:
     try:
         cfg = SimConfig.from_dict(sim)
@@ -1194,7 +1209,8 @@ def run_workflow(
     """
     config_file = Path(config_file or DEFAULT_CONFIG)
     workdir = Path(workdir or Path.cwd()).resolve()
-    load_config(config_file)  # fail early, on one line, for a bad config
+    for warning in config_warnings(load_config(config_file)):  # fail early, on one line, for a bad config
+        log.warning("%s: %s", config_file, warning)
     cmd = snakemake_command(config_file=config_file, cores=cores, workdir=workdir, dry_run=dry_run,
                             until=until, targets=targets, extra=extra)
     workdir.mkdir(parents=True, exist_ok=True)

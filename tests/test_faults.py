@@ -369,3 +369,38 @@ def test_skipped_lines_are_a_warning_of_every_reading_command_and_kept_in_the_st
     assert any(expected in w for w in recovery["warnings"])
     validation = json.loads((tmp_path / "val" / "validation.json").read_text())
     assert any(expected in n for n in validation["notes"])
+
+
+# ----------------------------------------------------------------------------- silent acceptance in configs
+
+
+def test_config_without_a_test_split_says_so_once_at_config_check(tmp_path, caplog):
+    import io
+
+    import pipeline.workflow as wf
+
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump({"sequences": [
+        {"name": "a", "source": "simulate", "duration_s": 3, "seed": 1, "split": "train"},
+        {"name": "b", "source": "simulate", "duration_s": 3, "seed": 2, "split": "val"}]}))
+    caplog.set_level("WARNING")
+    wf.run_workflow(config_file=cfg, workdir=tmp_path, dry_run=True, echo=io.StringIO())
+    said = [r.getMessage() for r in caplog.records if "split 'test'" in r.getMessage()]
+    assert len(said) == 1 and "no model is trained or evaluated" in said[0], said
+    assert said[0] == f"{cfg}: {wf.config_warnings(wf.load_config(cfg))[0]}"
+
+
+def test_batch_size_larger_than_the_train_split_is_said_and_recorded(trained, tmp_path, caplog):
+    """The train split has 9 windows; batch size 64 uses all 9 per step: said, and run.json records 9."""
+    from training.dataset import WindowDataset
+
+    n_train = len(WindowDataset(trained / "dataset", "train"))
+    assert n_train < 64
+    (tmp_path / "big.yaml").write_text("batch_size: 64\ndevice: cpu\nval_every: 1\nwarmup_steps: 1\nthreads: 1\n")
+    caplog.set_level("WARNING")
+    assert main(["train", "--dataset", str(trained / "dataset"), "--out", str(tmp_path / "run"), "--method",
+                 "regression_rnn", "--preset", "tiny", "--max-steps", "1", "--config", str(tmp_path / "big.yaml")]) == 0
+    assert any(f"batch_size 64 is larger than the train split ({n_train} windows)" in r.getMessage()
+               for r in caplog.records)
+    summary = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert summary["effective_batch_size"] == n_train and summary["config"]["batch_size"] == 64

@@ -429,6 +429,9 @@ def train(config: TrainConfig, dataset_dir: str | Path, out_dir: str | Path, *, 
 def _fit(tr: _Trainer) -> None:
     config, run = tr.config, tr.run
     order = BatchOrder(len(tr.data.train), config.batch_size, config.seed, tr.rank, tr.world)
+    if order.batch_size < config.batch_size and tr.rank == 0:
+        log.warning("batch_size %d is larger than the train split (%d windows): every step uses all %d "
+                    "(run.json: effective_batch_size)", config.batch_size, len(tr.data.train), order.batch_size)
     loader = DataLoader(tr.data.train, batch_sampler=_StepBatches(order, run.step, config.max_steps),
                         collate_fn=tr.data.collate, num_workers=config.num_workers)
     writer = tr.rank == 0
@@ -470,6 +473,7 @@ def _write_summary(tr: _Trainer) -> None:
     summary = {
         "method": tr.config.method.value, "preset": tr.config.preset.value,
         "parameters": count_parameters(tr.model), "steps": r.step, "best_step": r.best_step,
+        "effective_batch_size": min(tr.config.batch_size, len(tr.data.train)),
         "best_val_loss": r.best_val_loss, "train_seconds": round(r.seconds, 3),
         "windows_per_s": round(r.windows / r.seconds, 1) if r.seconds > 0 else None,
         "device": str(tr.device), "processes": tr.world, "dataset": tr.data.info, "config": tr.config.to_dict(),
