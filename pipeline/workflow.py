@@ -219,6 +219,16 @@ def _json_path(parts: Iterable[Any]) -> str:
     return out or "(top level)"
 
 
+def _schema_keys(schema: Mapping[str, Any]) -> set[str]:
+    """Every key a schema object may hold: its ``properties`` and those of its sub-schemas
+    (``allOf`` / ``anyOf`` / ``oneOf`` / ``then`` / ``else``), the candidates of a did-you-mean."""
+    keys = set(schema.get("properties") or {})
+    for sub in [*schema.get("allOf", []), *schema.get("anyOf", []), *schema.get("oneOf", []),
+                *(schema[k] for k in ("then", "else") if isinstance(schema.get(k), Mapping))]:
+        keys |= _schema_keys(sub)
+    return keys
+
+
 def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
     """(field, problem) of a jsonschema error, naming the sequence where there is one."""
     where = _json_path(error.absolute_path)
@@ -235,6 +245,11 @@ def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
         if unknown:
             message = f"{unknown}: " + (f"allowed here: {', '.join(sorted(allowed))}" if allowed
                                         else "this section has no options")
+    if error.validator == "unevaluatedProperties" and isinstance(error.instance, dict):
+        allowed = _schema_keys(error.schema)
+        unknown = unknown_keys_message([k for k in error.instance if k not in allowed], allowed)
+        if unknown:
+            message = f"{unknown}: allowed here: {', '.join(sorted(allowed))}"
     if error.validator == "enum":
         message = f"{error.instance!r} is not one of {', '.join(map(str, error.validator_value))}"
     elif error.validator == "pattern":

@@ -404,3 +404,22 @@ def test_batch_size_larger_than_the_train_split_is_said_and_recorded(trained, tm
                for r in caplog.records)
     summary = json.loads((tmp_path / "run" / "run.json").read_text())
     assert summary["effective_batch_size"] == n_train and summary["config"]["batch_size"] == 64
+
+
+# ----------------------------------------------------------------------------- messages
+
+
+@pytest.mark.parametrize(("extra", "words"), [
+    ({"training": {"options": {"bacth_size": 4}}},
+     ["unknown key 'bacth_size' (did you mean 'batch_size'?)", "(field 'training.options')"]),
+    ({"training": {"options": {"batch_size": -1}}}, ["(field 'training.options.batch_size')"]),
+    ({"sequences": [{"name": "a", "source": "simulate", "splt": "train"}]},
+     ["sequences[0] (sequence 'a')", "unknown key 'splt' (did you mean 'split'?)"]),
+])
+def test_config_errors_name_the_field_once_and_suggest_the_key(tmp_path, capsys, extra, words):
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(yaml.safe_dump({"sequences": [{"name": "a", "source": "simulate"}], **extra}))
+    rc, err = _run_cli(["run", "--config", str(cfg), "--directory", str(tmp_path), "--dry-run"], capsys)
+    assert rc == 2
+    _one_line_error(err, *words)
+    assert "training.training" not in err
