@@ -423,3 +423,34 @@ def test_config_errors_name_the_field_once_and_suggest_the_key(tmp_path, capsys,
     assert rc == 2
     _one_line_error(err, *words)
     assert "training.training" not in err
+
+
+# ----------------------------------------------------------------------------- interruptible sampling
+
+
+@pytest.mark.parametrize(("command", "sig", "code"), [("evaluate", signal.SIGTERM, 143), ("predict", signal.SIGINT, 130)])
+def test_sampling_is_interruptible(trained, tmp_path, command, sig, code):
+    """A signal during diffusion sampling (many samples and steps: minutes of work) ends the command
+    at once with its exit code, and leaves no output."""
+    out = tmp_path / "out"
+    slow = ["--samples", "400", "--steps", "200"]
+    if command == "evaluate":
+        args = ["evaluate", "--checkpoint", str(trained / "run"), "--dataset", str(trained / "dataset"),
+                "--out", str(out), *slow]
+    else:
+        args = ["predict", str(trained / "rec"), "--checkpoint", str(trained / "run"), "--out", str(out), *slow]
+    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *args], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=_env(), preexec_fn=_foreground_sigint)
+    try:
+        for line in proc.stderr:
+            if "sampling" in line:
+                break
+        time.sleep(1.0)
+        assert proc.poll() is None, "finished before the signal: make the sampling longer"
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == code, err
+    assert "Traceback" not in err
+    assert not list(tmp_path.glob("out*")) and not list(tmp_path.glob(".out*"))

@@ -517,6 +517,8 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
     samplers: tuple[Sampler | None, ...] = config.samplers if predictor.stochastic else (None,)
     rows, calib, frames, examples = [], [], [], []
     for sampler in samplers:
+        log.info("%s: sampling %d test windows, %d sample(s) each%s", predictor.name, len(windows.sequence), k,
+                 f" ({sampler.value})" if sampler is not None else "")
         acc, ex = _run_sampler(predictor, windows, sampler, k, config)
         rows.extend(_rows_of(acc, windows, sampler))
         frames.append(_windows_frame(acc, windows, sampler))

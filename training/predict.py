@@ -110,6 +110,7 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     device = next(model.parameters()).device
     gen = torch.Generator(device=device).manual_seed(seed)
     kwargs = {"sampler": sampler, "steps": steps} if method.is_diffusion else {}
+    log.info("sampling '%s': %d windows of %d samples, %d sample(s) each", sequence.name, len(starts), T, k)
     mean = np.empty((len(starts), T, 6))
     std, q_lo, q_hi = np.empty_like(mean), np.empty_like(mean), np.empty_like(mean)
     for b in range(0, len(starts), batch_windows):
