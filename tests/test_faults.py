@@ -454,3 +454,19 @@ def test_sampling_is_interruptible(trained, tmp_path, command, sig, code):
     assert proc.returncode == code, err
     assert "Traceback" not in err
     assert not list(tmp_path.glob("out*")) and not list(tmp_path.glob(".out*"))
+
+
+def test_unfinished_run_folder_is_not_used_as_a_trained_model(trained, tmp_path, capsys):
+    """A run folder whose training stopped (no run.json) does not look usable: evaluate and predict say so."""
+    run = tmp_path / "run"
+    shutil.copytree(trained / "run", run)
+    (run / "run.json").unlink()
+    for args in (["evaluate", "--checkpoint", str(run), "--dataset", str(trained / "dataset"), "--out",
+                  str(tmp_path / "ev"), *EVAL],
+                 ["predict", str(trained / "rec"), "--checkpoint", str(run), "--out", str(tmp_path / "p"), *EVAL]):
+        rc, err = _run_cli(args, capsys)
+        assert rc == 2
+        _one_line_error(err, "did not finish", "--resume")
+    assert not (tmp_path / "ev").exists() and not list(tmp_path.glob("p.*"))
+    assert main(["predict", str(trained / "rec"), "--checkpoint", str(run / "best.pt"), "--out",
+                 str(tmp_path / "p"), *EVAL]) == 0  # a file named directly is used

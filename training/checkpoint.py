@@ -118,9 +118,14 @@ class LoadedRun:
 
 
 def _resolve(path: Path, which: str) -> Path:
+    """The checkpoint file of a run folder (refused when its training never finished) or ``path`` itself."""
     if path.is_dir():
         if which not in ("best", "last"):
             raise CheckpointError(f"unknown checkpoint '{which}'", path=path, hint="use 'best' or 'last'")
+        if not (path / RUN_JSON).is_file() and (path / LAST).is_file():
+            raise CheckpointError(f"the run's training did not finish (no {RUN_JSON}: interrupted or failed)",
+                                  path=path, hint="finish it with 'biasgt train --resume', or name one of its .pt "
+                                                  "files to use that state anyway")
         return path / (BEST if which == "best" else LAST)
     return path
 
@@ -148,8 +153,11 @@ def _check_finite(weights: dict[str, torch.Tensor], path: Path) -> None:
 def load_run(path: str | Path, which: str = "best", device: torch.device | str = "cpu") -> LoadedRun:
     """Rebuild a trained model from a run folder (``which``: ``best`` or ``last``) or a ``.pt`` file.
 
+    A run folder must hold the ``run.json`` its finished training writes; a ``.pt`` file named
+    directly is used whatever state its run is in.
+
     Raises:
-        CheckpointError: Missing or damaged file (checksum, non-finite weights), another format, or
+        CheckpointError: An unfinished run folder; missing or damaged file (checksum, non-finite weights), another format, or
             weights that do not fit.
     """
     file = _resolve(Path(path), which)
