@@ -470,3 +470,17 @@ def test_unfinished_run_folder_is_not_used_as_a_trained_model(trained, tmp_path,
     assert not (tmp_path / "ev").exists() and not list(tmp_path.glob("p.*"))
     assert main(["predict", str(trained / "rec"), "--checkpoint", str(run / "best.pt"), "--out",
                  str(tmp_path / "p"), *EVAL]) == 0  # a file named directly is used
+
+
+def test_non_finite_loss_before_any_checkpoint_claims_no_kept_checkpoint(trained, tmp_path, capsys, monkeypatch):
+    """A diverged training with nothing saved yet says so, and names no folder as if it held a run."""
+    from training.models import BiasModel
+
+    monkeypatch.setattr(BiasModel, "loss", lambda self, *a, **k: torch.tensor(float("nan"), requires_grad=True))
+    (tmp_path / "tiny.yaml").write_text("batch_size: 4\ndevice: cpu\nval_every: 1\nwarmup_steps: 1\nthreads: 1\n")
+    rc, err = _run_cli(["train", "--dataset", str(trained / "dataset"), "--out", str(tmp_path / "run"), "--method",
+                        "regression_rnn", "--preset", "tiny", "--max-steps", "2", "--config", str(tmp_path / "tiny.yaml")],
+                       capsys)
+    assert rc == 2
+    _one_line_error(err, "training loss is nan at step 1", "no checkpoint was written")
+    assert "is kept" not in err and str(tmp_path / "run") not in err
