@@ -1,9 +1,9 @@
 """A child process in its own process group, stopped with everything it started.
 
 ``biasgt run`` starts Snakemake this way (:func:`start_group`). On Ctrl-C or SIGTERM the command
-forwards the signal to the whole group (:func:`stop_group`): Snakemake cancels its running jobs and
-removes their incomplete outputs, and only then does ``biasgt run`` exit; whatever still runs after
-the grace period (a job that ignores the signal) is killed, so no process is left orphaned.
+stops the whole group (:func:`stop_group`): Snakemake cancels its running jobs and removes their
+incomplete outputs, and only then does ``biasgt run`` exit; whatever still runs after the grace
+period (a job that ignores the signal) is killed, so no process is left orphaned.
 """
 
 from __future__ import annotations
@@ -22,8 +22,9 @@ import psutil
 
 __all__ = ["STOP_GRACE_S", "start_group", "stop_group", "exclusive_lock"]
 
-#: Seconds the group gets to clean up after the forwarded signal before it is killed.
-STOP_GRACE_S = 60.0
+#: Seconds the group gets to clean up after the forwarded signal before it is killed (SLURM's
+#: ``scancel`` of many jobs takes a while).
+STOP_GRACE_S = 120.0
 #: Seconds a left-over process gets after SIGTERM before SIGKILL.
 _KILL_AFTER_S = 5.0
 
@@ -70,13 +71,17 @@ def _stop_signals_ignored() -> Iterator[None]:
             signal.signal(s, handler)
 
 
-def stop_group(proc: subprocess.Popen, sig: int, *, grace_s: float = STOP_GRACE_S,
-               echo: Callable[[str], None] | None = None) -> int:
-    """Send ``sig`` to ``proc``'s process group, wait for it, then end every process it left.
+def stop_group(proc: subprocess.Popen, leader_signal: int = signal.SIGINT, others_signal: int = signal.SIGTERM, *,
+               grace_s: float = STOP_GRACE_S, echo: Callable[[str], None] | None = None) -> int:
+    """Stop ``proc`` and everything it started; wait for its clean-up, then end every process it left.
+
+    ``proc`` gets ``leader_signal`` (Snakemake cancels its jobs on SIGINT, also SLURM ones with
+    ``scancel``), the processes of its group ``others_signal`` (a Python job stopped by SIGTERM
+    ends without a KeyboardInterrupt traceback). After ``grace_s`` the group is killed.
 
     Args:
         proc: A process started by :func:`start_group`.
-        sig: The signal to forward (SIGINT or SIGTERM).
+        leader_signal / others_signal: The signals sent.
         grace_s: How long the group may take to clean up before it is killed.
         echo: Receives each line ``proc.stdout`` still prints (when it is a text pipe).
 
@@ -85,8 +90,12 @@ def stop_group(proc: subprocess.Popen, sig: int, *, grace_s: float = STOP_GRACE_
     """
     with _stop_signals_ignored():
         started = _descendants(proc.pid)
+        for p in started:
+            with contextlib.suppress(psutil.Error, ProcessLookupError):
+                if os.getpgid(p.pid) == proc.pid:
+                    p.send_signal(others_signal)
         with contextlib.suppress(ProcessLookupError, PermissionError):
-            os.killpg(proc.pid, sig)
+            os.kill(proc.pid, leader_signal)
         drain = _drain(proc.stdout, echo)
         try:
             rc = proc.wait(timeout=grace_s)

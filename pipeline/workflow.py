@@ -1159,9 +1159,10 @@ RUN_LOCK = Path(".snakemake") / "biasgt-run.lock"
 def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool) -> tuple[int, list[str]]:
     """Run Snakemake in its own process group, copying its output to ``echo``.
 
-    On Ctrl-C (KeyboardInterrupt), SIGTERM (the CLI's ``Terminated``) or any other exception the
-    whole group gets SIGTERM; Snakemake cancels its jobs and removes their incomplete outputs, and
-    only then does the exception go on (:func:`pipeline.process_group.stop_group`).
+    On Ctrl-C (KeyboardInterrupt), SIGTERM (the CLI's ``Terminated``) or any other exception,
+    Snakemake gets SIGINT and its jobs SIGTERM; Snakemake cancels its jobs and removes their
+    incomplete outputs, and only then does the exception go on
+    (:func:`pipeline.process_group.stop_group`).
 
     Returns:
         Snakemake's exit status and the tail of its output (all of it with ``keep_all``).
@@ -1179,10 +1180,11 @@ def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool) -> tuple[in
                 del tail[:1000]
         return proc.wait(), tail
     except BaseException:
-        # SIGTERM for Ctrl-C too: Snakemake handles both alike, and a Python job stopped by SIGINT would
-        # print a KeyboardInterrupt traceback from wherever it was (an import, say)
+        # Snakemake gets SIGINT for SIGTERM too (it ignores SIGTERM while SLURM jobs run; on SIGINT it
+        # cancels them), its local jobs SIGTERM (a Python job stopped by SIGINT would print a
+        # KeyboardInterrupt traceback from wherever it was, an import say)
         log.warning("stopping Snakemake: it cancels its jobs and removes their incomplete outputs")
-        stop_group(proc, signal.SIGTERM, echo=echo.write)
+        stop_group(proc, signal.SIGINT, signal.SIGTERM, echo=echo.write)
         raise
     finally:
         if proc.stdout is not None:
