@@ -484,3 +484,19 @@ def test_non_finite_loss_before_any_checkpoint_claims_no_kept_checkpoint(trained
     assert rc == 2
     _one_line_error(err, "training loss is nan at step 1", "no checkpoint was written")
     assert "is kept" not in err and str(tmp_path / "run") not in err
+
+
+def test_predictions_that_cannot_be_integrated_are_refused_naming_the_checkpoint(trained, tmp_path, capsys,
+                                                                               monkeypatch):
+    """Finite but absurd predictions make the integrated attitude no rotation (scipy's SVD fails): one line."""
+    import training.evaluate as ev
+
+    def svd_fails(*args, **kwargs):
+        raise np.linalg.LinAlgError("SVD did not converge")
+
+    monkeypatch.setattr(ev, "window_end_errors", svd_fails)
+    rc, err = _run_cli(["evaluate", "--checkpoint", str(trained / "run"), "--dataset", str(trained / "dataset"),
+                        "--out", str(tmp_path / "ev"), *EVAL], capsys)
+    assert rc == 2
+    _one_line_error(err, "cannot be integrated", str(trained / "run" / "best.pt"))
+    assert not (tmp_path / "ev").exists()

@@ -54,7 +54,7 @@ from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
-from training.checkpoint import check_finite_output
+from training.checkpoint import CheckpointError, check_finite_output
 from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, Split, WindowDataset
 from validation.validate import DEFAULT_GRAVITY_MPS2, prmse_m, roe_deg, window_end_errors
@@ -663,8 +663,13 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
     run = load_run(checkpoint, device=device)
     check_compatible(run, windows, checkpoint, method=method)
     predictor = ModelPredictor(run, steps=config.steps)
-    result = evaluate_predictor(predictor, windows, config, kind="learned",
-                                checkpoint=_run_provenance(run, checkpoint))
+    try:
+        result = evaluate_predictor(predictor, windows, config, kind="learned",
+                                    checkpoint=_run_provenance(run, checkpoint))
+    except np.linalg.LinAlgError as exc:  # finite but absurd predictions: the integrated attitude is not a rotation
+        raise CheckpointError(f"the model's predicted bias cannot be integrated ({exc})", path=run.path,
+                              hint="use another checkpoint, or train again with 'biasgt train' (the weights are "
+                                   "damaged or the training diverged)") from None
     if out_dir is not None:
         write_evaluation(result, out_dir)
     return result
