@@ -234,6 +234,9 @@ def test_non_finite_dataset_array_is_named_when_opened(trained, tmp_path, capsys
         out = tmp_path / "ev"
         args = ["evaluate", "--checkpoint", str(trained / "run"), "--dataset", str(data), "--out", str(out), *EVAL]
     rc, err = _run_cli(args, capsys)
+    if array == "bias_std" and np.isnan(value):  # unknown std (a recovery without marginals): accepted
+        assert rc == 0, err
+        return
     assert rc == 2
     _one_line_error(err, f"{array}.npy", "window 2", "non-finite")
     assert not out.exists()

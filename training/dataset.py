@@ -160,8 +160,13 @@ def _load_arrays(folder: Path, temperature: bool = False) -> dict[str, np.ndarra
 _CHECK_CHUNK_WINDOWS = 1024
 
 
+#: Arrays where NaN means "unknown" (a recovery without marginals has no bias std); inf is refused there too.
+NAN_ALLOWED = ("bias_std",)
+
+
 def check_finite_arrays(arrays: Mapping[str, np.ndarray], folder: Path) -> None:
-    """Refuse a sequence whose floating arrays hold NaN or inf, naming the file and the first bad window.
+    """Refuse a sequence whose floating arrays hold NaN or inf (:data:`NAN_ALLOWED`: inf), naming the
+    file and the first bad window.
 
     The arrays are read in chunks of windows, so a memory-mapped dataset larger than RAM is checked too.
 
@@ -172,8 +177,9 @@ def check_finite_arrays(arrays: Mapping[str, np.ndarray], folder: Path) -> None:
         if not np.issubdtype(array.dtype, np.floating):
             continue
         for start in range(0, len(array), _CHECK_CHUNK_WINDOWS):
-            chunk = np.asarray(array[start:start + _CHECK_CHUNK_WINDOWS])
-            bad = ~np.isfinite(chunk.reshape(len(chunk), -1)).all(axis=1)
+            chunk = np.asarray(array[start:start + _CHECK_CHUNK_WINDOWS]).reshape(min(_CHECK_CHUNK_WINDOWS,
+                                                                                      len(array) - start), -1)
+            bad = (np.isinf(chunk) if key in NAN_ALLOWED else ~np.isfinite(chunk)).any(axis=1)
             if bad.any():
                 first = start + int(np.argmax(bad))
                 raise DataError(f"array '{key}' holds non-finite values (NaN or inf), first in window {first} of "
