@@ -632,7 +632,8 @@ def _ignored_units_hint(sequence: Sequence) -> str:
     """The first words of the hint when the user ignored a unit finding (likely the cause)."""
     from pipeline.checks import REPAIR_FOR_CODE
 
-    ignored = list(dict.fromkeys(f.code for f in sequence.findings if f.code in _UNIT_CODES and f.details.get("ignored")))
+    ignored = list(dict.fromkeys(f.code for f in sequence.findings
+                                 if f.code in _UNIT_CODES and f.details.get("ignored")))
     if not ignored:
         return ""
     repairs = ",".join(REPAIR_FOR_CODE[c].value for c in ignored)

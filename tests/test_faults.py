@@ -431,7 +431,8 @@ def test_config_errors_name_the_field_once_and_suggest_the_key(tmp_path, capsys,
 # ----------------------------------------------------------------------------- interruptible sampling
 
 
-@pytest.mark.parametrize(("command", "sig", "code"), [("evaluate", signal.SIGTERM, 143), ("predict", signal.SIGINT, 130)])
+@pytest.mark.parametrize(("command", "sig", "code"),
+                         [("evaluate", signal.SIGTERM, 143), ("predict", signal.SIGINT, 130)])
 def test_sampling_is_interruptible(trained, tmp_path, command, sig, code):
     """A signal during diffusion sampling (many samples and steps: minutes of work) ends the command
     at once with its exit code, and leaves no output."""
@@ -482,7 +483,8 @@ def test_non_finite_loss_before_any_checkpoint_claims_no_kept_checkpoint(trained
     monkeypatch.setattr(BiasModel, "loss", lambda self, *a, **k: torch.tensor(float("nan"), requires_grad=True))
     (tmp_path / "tiny.yaml").write_text("batch_size: 4\ndevice: cpu\nval_every: 1\nwarmup_steps: 1\nthreads: 1\n")
     rc, err = _run_cli(["train", "--dataset", str(trained / "dataset"), "--out", str(tmp_path / "run"), "--method",
-                        "regression_rnn", "--preset", "tiny", "--max-steps", "2", "--config", str(tmp_path / "tiny.yaml")],
+                        "regression_rnn", "--preset", "tiny", "--max-steps", "2",
+                        "--config", str(tmp_path / "tiny.yaml")],
                        capsys)
     assert rc == 2
     _one_line_error(err, "training loss is nan at step 1", "no checkpoint was written")

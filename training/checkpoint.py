@@ -37,8 +37,8 @@ from training.normalizer import Normalizer
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CheckpointError", "check_finite_output", "LoadedRun", "load_run", "load_checkpoint", "save_checkpoint", "weights_hash",
-           "CHECKPOINT_FORMAT", "LAST", "BEST", "METRICS", "RUN_JSON"]
+__all__ = ["CheckpointError", "LoadedRun", "load_run", "load_checkpoint", "save_checkpoint", "weights_hash",
+           "check_finite_output", "CHECKPOINT_FORMAT", "LAST", "BEST", "METRICS", "RUN_JSON"]
 
 CHECKPOINT_FORMAT = 1
 LAST, BEST, METRICS, RUN_JSON = "last.pt", "best.pt", "metrics.csv", "run.json"
@@ -83,7 +83,8 @@ def load_checkpoint(path: str | Path, device: torch.device | str = "cpu") -> dic
     try:
         _check_digests(state, path)
     except (AttributeError, TypeError, RuntimeError) as exc:  # a damaged pickle of odd types
-        raise CheckpointError(f"checkpoint is corrupted ({type(exc).__name__})", path=path, hint=_DAMAGED_HINT) from None
+        raise CheckpointError(f"checkpoint is corrupted ({type(exc).__name__})", path=path,
+                              hint=_DAMAGED_HINT) from None
     return state
 
 
@@ -157,8 +158,8 @@ def load_run(path: str | Path, which: str = "best", device: torch.device | str =
     directly is used whatever state its run is in.
 
     Raises:
-        CheckpointError: An unfinished run folder; missing or damaged file (checksum, non-finite weights), another format, or
-            weights that do not fit.
+        CheckpointError: An unfinished run folder; missing or damaged file (checksum, non-finite
+            weights), another format, or weights that do not fit.
     """
     file = _resolve(Path(path), which)
     state = load_checkpoint(file, device)
