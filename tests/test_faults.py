@@ -1,9 +1,11 @@
 """Fault suite of the learning commands and the workflow: each fault gives one error line naming the
 culprit, a non-zero exit, no traceback and no output; never an exit 0 with wrong or non-finite results.
 
-Faults: corrupted checkpoints (truncated, random bytes, bit-flipped), NaN/inf in each dataset array,
-recordings in the wrong units, output paths that are files (or folders), a model whose output is
-not finite.
+Faults: corrupted checkpoints (truncated, random bytes, bit-flipped, NaN weights, outputs that
+overflow, an unfinished run folder), NaN/inf in each dataset array, recordings in the wrong units or
+with unparseable lines, output paths of the wrong kind, SIGINT/SIGTERM to ``biasgt run`` (no orphan
+process, checked with psutil) and during sampling, a second concurrent run, configs that drop jobs
+or clamp options silently, and the messages of bad configs.
 """
 
 from __future__ import annotations
