@@ -326,7 +326,7 @@ def test_inspect_into_a_closed_pipe_is_no_traceback(trained):
     proc.stdout.close()  # as 'true' does, before the report is written
     err = proc.stderr.read().decode()
     assert proc.wait(timeout=120) == 0, err
-    assert "Traceback" not in err and "BrokenPipeError" not in err
+    assert "Traceback" not in err and "BrokenPipeError" not in err, err
 
 
 def test_gtsam_elimination_tree_error_is_a_one_line_recovery_error(trained, tmp_path, capsys, monkeypatch):
