@@ -7,6 +7,7 @@ a half-written file or folder.
 from __future__ import annotations
 
 import contextlib
+import enum
 import os
 import shutil
 import signal
@@ -121,8 +122,18 @@ def atomic_dir(path: str | Path, *, owned: Collection[str] | None = None) -> Ite
         raise
 
 
-def check_output_location(path: str | Path) -> None:
+class OutputKind(str, enum.Enum):
+    """What a command writes at its output path."""
+
+    FILE = "file"
+    FOLDER = "folder"
+
+
+def check_output_location(path: str | Path, kind: OutputKind | None = None) -> None:
     """Fail early, before any work, if ``path`` cannot be written atomically.
+
+    With ``kind``, an existing ``path`` of the other kind (a file where a folder is written, a
+    folder where a file is) is refused too: the final rename would fail after all the work.
 
     The writers create a temporary sibling of ``path`` and rename it, creating missing parent
     folders first; so the nearest existing ancestor must be a writable folder (probed by really
@@ -139,6 +150,12 @@ def check_output_location(path: str | Path) -> None:
     if not ancestor.is_dir():
         raise OutputLocationError(f"cannot create the output there: {ancestor} is a file, not a folder", path=path,
                                   hint="choose an --out whose parent folders are folders")
+    if kind is OutputKind.FOLDER and path.exists() and not path.is_dir():
+        raise OutputLocationError("the output folder exists as a file", path=path,
+                                  hint="remove the file or choose another --out")
+    if kind is OutputKind.FILE and path.is_dir():
+        raise OutputLocationError("the output file exists as a folder", path=path,
+                                  hint="remove the folder or choose another --out")
     probes = [ancestor] + ([path] if path.is_dir() else [])
     for folder in probes:
         try:

@@ -918,3 +918,13 @@ def stream_summaries(seq: Sequence) -> list[dict[str, Any]]:
         rows.append({"stream": s.name, "kind": s.kind, "count": int(len(s.t_ns)), **_finite_stats(s.t_ns),
                      "frame": frame, "source_kind": kind, "has_orientation": has_q})
     return rows
+
+
+#: Reader findings every command that reads the input repeats as a warning (and keeps in its JSON).
+READER_WARNING_CODES = ("PARSE_SKIPPED_LINES",)
+
+
+def reader_warnings(findings: Iterable[Finding]) -> list[str]:
+    """``"input: <message>"`` of each reader finding in :data:`READER_WARNING_CODES` (skipped
+    unparseable lines: count, first line numbers, file), for a command's warnings and stage JSON."""
+    return [f"input: {f.message}" for f in findings if f.code in READER_WARNING_CODES]

@@ -103,8 +103,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         if getattr(args, "out", None) is not None:  # every writing command names its output --out/OUT
-            check_output_location(args.out)
-        return int(args.func(args) or 0)
+            check_output_location(args.out, getattr(args, "out_kind", None))
+        rc = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not at interpreter exit
+        return rc
     except BiasgtError as exc:
         print(f"biasgt {args.command}: error: {exc}", file=sys.stderr)
         return exc.exit_code
@@ -113,16 +115,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
     except Terminated:
         return _terminated(args.command)
+    except BrokenPipeError:
+        # Output piped into e.g. `head`, which closed early: not an error of ours.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return 0
     except Exception as exc:
         # SIGTERM inside an extension module's code (e.g. while gtsam initialises) surfaces as
         # that module's error, caused by Terminated: still a termination, not a crash.
         if _caused_by_termination(exc):
             return _terminated(args.command)
         raise
-    except BrokenPipeError:
-        # Output piped into e.g. `head`, which closed early: not an error of ours.
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 0
 
 
 if __name__ == "__main__":  # pragma: no cover

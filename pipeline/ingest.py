@@ -26,6 +26,7 @@ from pipeline.checks import (
     apply_repairs,
     fatal_findings,
     parse_repairs,
+    reader_warnings,
     repairable_findings,
     run_checks,
     verdict,
@@ -44,12 +45,18 @@ READER_KWARGS = ("fmt", "name", "csv_mapping", "imu_topic", "pose_topic", "tf_pa
 def load(input_path: str | Path, reader_kwargs: Mapping[str, Any] | None = None) -> Sequence:
     """Load any supported input through :func:`pipeline.io.load_sequence`.
 
+    Skipped unparseable lines are logged as a warning (:func:`pipeline.checks.reader_warnings`),
+    for every command that reads an input (a store repeats its reader's findings).
+
     Args:
         input_path: File or folder.
         reader_kwargs: Keyword arguments for the reader (``None`` values are dropped).
     """
     kwargs = {k: v for k, v in (reader_kwargs or {}).items() if v is not None}
-    return load_sequence(Path(input_path), **kwargs)
+    seq = load_sequence(Path(input_path), **kwargs)
+    for text in reader_warnings(seq.findings):
+        log.warning("%s", text)
+    return seq
 
 
 def input_format(seq: Sequence) -> str | None:

@@ -37,6 +37,7 @@ import enum
 import logging
 import os
 import re
+import signal
 import socket
 import subprocess
 import sys
@@ -54,6 +55,7 @@ from pipeline.checks import CheckOptions, parse_repairs
 from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping, unknown_keys_message
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.ingest import READER_KWARGS, ingest
+from pipeline.process_group import exclusive_lock, start_group, stop_group
 from pipeline.layout import (  # the .smk files read these as wf.<name>
     LOGS_DIR,
     RESULTS_DIR,
@@ -217,6 +219,16 @@ def _json_path(parts: Iterable[Any]) -> str:
     return out or "(top level)"
 
 
+def _schema_keys(schema: Mapping[str, Any]) -> set[str]:
+    """Every key a schema object may hold: its ``properties`` and those of its sub-schemas
+    (``allOf`` / ``anyOf`` / ``oneOf`` / ``then`` / ``else``), the candidates of a did-you-mean."""
+    keys = set(schema.get("properties") or {})
+    for sub in [*schema.get("allOf", []), *schema.get("anyOf", []), *schema.get("oneOf", []),
+                *(schema[k] for k in ("then", "else") if isinstance(schema.get(k), Mapping))]:
+        keys |= _schema_keys(sub)
+    return keys
+
+
 def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
     """(field, problem) of a jsonschema error, naming the sequence where there is one."""
     where = _json_path(error.absolute_path)
@@ -233,6 +245,11 @@ def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
         if unknown:
             message = f"{unknown}: " + (f"allowed here: {', '.join(sorted(allowed))}" if allowed
                                         else "this section has no options")
+    if error.validator == "unevaluatedProperties" and isinstance(error.instance, dict):
+        allowed = _schema_keys(error.schema)
+        unknown = unknown_keys_message([k for k in error.instance if k not in allowed], allowed)
+        if unknown:
+            message = f"{unknown}: allowed here: {', '.join(sorted(allowed))}"
     if error.validator == "enum":
         message = f"{error.instance!r} is not one of {', '.join(map(str, error.validator_value))}"
     elif error.validator == "pattern":
@@ -402,6 +419,21 @@ def check_config(
         _check_ingest_settings(cfg, entry)
         _check_stage_settings(cfg, entry, check_paths)
     return cfg
+
+
+def config_warnings(cfg: WorkflowConfig) -> list[str]:
+    """What a valid config silently leaves out of the run, said once when ``biasgt run`` checks it.
+
+    Today: windowed sequences (split train / val / test) without all three splits, so that no
+    model is trained or evaluated.
+    """
+    present = {s.split for s in cfg.sequences if s.split.windowed}
+    missing = [split.value for split in (Split.TRAIN, Split.VAL, Split.TEST) if split not in present]
+    if not present or not missing:
+        return []
+    return [f"no sequence in split {', '.join(repr(m) for m in missing)}: no model is trained or evaluated "
+            "(training needs train and val sequences, Table I test ones); set 'split:' on the sequences that "
+            "should form them"]
 
 
 def _check_sim_config(sim: dict[str, Any], config_file: Path | None, where: str, check_paths: bool) -> None:
@@ -781,7 +813,7 @@ def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwarg
     """Run one workflow job with the ``pipeline`` loggers writing to ``log_path``.
 
     A known error (:class:`BiasgtError`) is logged on one line and ends the process with the
-    error's exit code (no traceback); any other exception is logged with its traceback and
+    error's exit code (no traceback), Ctrl-C with 130; any other exception is logged with its traceback and
     re-raised.
     """
     log_path = Path(log_path)
@@ -800,6 +832,9 @@ def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwarg
         log.error("%s", exc)
         print(f"biasgt: error: {exc}", file=sys.stderr)
         raise SystemExit(exc.exit_code) from None
+    except KeyboardInterrupt:  # 'biasgt run' forwards Ctrl-C to Snakemake's process group, jobs included
+        log.error("interrupted (SIGINT); nothing half-written was left")
+        raise SystemExit(130) from None
     except Exception:
         log.exception("unexpected error (a bug in biasgt; please report it with this log)")
         raise
@@ -1117,6 +1152,45 @@ def output_locations(workdir: str | Path) -> list[Path]:
     return out
 
 
+#: Held (flock) by a running ``biasgt run`` in its working directory: a second one says so.
+RUN_LOCK = Path(".snakemake") / "biasgt-run.lock"
+
+
+def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool) -> tuple[int, list[str]]:
+    """Run Snakemake in its own process group, copying its output to ``echo``.
+
+    On Ctrl-C (KeyboardInterrupt), SIGTERM (the CLI's ``Terminated``) or any other exception,
+    Snakemake gets SIGINT and its jobs SIGTERM; Snakemake cancels its jobs and removes their
+    incomplete outputs, and only then does the exception go on
+    (:func:`pipeline.process_group.stop_group`).
+
+    Returns:
+        Snakemake's exit status and the tail of its output (all of it with ``keep_all``).
+    """
+    log.info("running %s", " ".join(cmd))
+    tail: list[str] = []
+    proc = start_group(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
+                       errors="replace")
+    try:
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            echo.write(line)
+            tail.append(line.rstrip("\n"))
+            if len(tail) > 4000 and not keep_all:  # a dry run's plan is kept whole for the caller
+                del tail[:1000]
+        return proc.wait(), tail
+    except BaseException:
+        # Snakemake gets SIGINT for SIGTERM too (it ignores SIGTERM while SLURM jobs run; on SIGINT it
+        # cancels them), its local jobs SIGTERM (a Python job stopped by SIGINT would print a
+        # KeyboardInterrupt traceback from wherever it was, an import say)
+        log.warning("stopping Snakemake: it cancels its jobs and removes their incomplete outputs")
+        stop_group(proc, signal.SIGINT, signal.SIGTERM, echo=echo.write)
+        raise
+    finally:
+        if proc.stdout is not None:
+            proc.stdout.close()
+
+
 def run_workflow(
     *,
     config_file: str | Path | None = None,
@@ -1152,22 +1226,19 @@ def run_workflow(
     """
     config_file = Path(config_file or DEFAULT_CONFIG)
     workdir = Path(workdir or Path.cwd()).resolve()
-    load_config(config_file)  # fail early, on one line, for a bad config
+    for warning in config_warnings(load_config(config_file)):  # fail early, on one line, for a bad config
+        log.warning("%s: %s", config_file, warning)
     cmd = snakemake_command(config_file=config_file, cores=cores, workdir=workdir, dry_run=dry_run,
                             until=until, targets=targets, extra=extra)
     workdir.mkdir(parents=True, exist_ok=True)
-    log.info("running %s", " ".join(cmd))
     echo = echo or sys.stderr
-    tail: list[str] = []
-    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
-                          errors="replace") as proc:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            echo.write(line)
-            tail.append(line.rstrip("\n"))
-            if len(tail) > 4000 and not dry_run:  # a dry run's plan is kept whole for the caller
-                del tail[:1000]
-        rc = proc.wait()
+    with exclusive_lock(workdir / RUN_LOCK) as holder:
+        if holder is not None and not dry_run:
+            raise WorkflowRunError(
+                f"another 'biasgt run' (pid {holder or 'unknown'}) is running in {workdir}",
+                hint=f"wait for it to finish, or stop it (kill -INT {holder or 'PID'}) and rerun; its outputs are "
+                     "locked while it runs")
+        rc, tail = _run_snakemake(cmd, echo, keep_all=dry_run)
     if rc != 0:
         raise WorkflowRunError(
             f"workflow failed (snakemake exit {rc}): {describe_failure(tail, workdir)}",

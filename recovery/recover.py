@@ -42,6 +42,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from pipeline.bias_table import BiasTrack
+from pipeline.checks import reader_warnings
 from pipeline.errors import BiasgtError, RecoveryError
 from pipeline.io import select_pose_stream
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence
@@ -606,19 +607,38 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
             g_sensitivity=mode is IntrinsicsMode.WITH_G_SENSITIVITY, block_s=config.intrinsics_block_s, first=first)
         result = _record_intrinsics_mode(result, mode)
         return result if decision is None else decision.annotate(result)
-    except RuntimeError as exc:
-        # GTSAM reports a singular (unobservable) problem as a bare RuntimeError.
+    except (RuntimeError, ValueError) as exc:
+        # GTSAM reports a singular (unobservable) problem as a bare RuntimeError, a factor graph
+        # that a failed solve left inconsistent as a ValueError from its EliminationTree.
         text = str(exc)
-        if "ndetermina" not in text and "ill-posed" not in text and "singular" not in text.lower():
+        if not any(word in text for word in ("ndetermina", "ill-posed", "ingular", "EliminationTree")):
             raise
         first = text.strip().splitlines()[0] if text.strip() else "singular system"
         raise RecoveryError(
             f"sequence '{sequence.name}': the optimisation is degenerate ({first}); the motion does not "
             "make the bias, clock offset or extrinsic observable",
-            hint="for wheel odometry or VIO poses, use fewer keyframes (--keyframe-rate 10); else record "
-                 "more varied motion (rotation about several axes), or fix the extrinsic (--extrinsic known) "
-                 "and the clock offset (--time-offset-s)",
+            hint=_ignored_units_hint(sequence)
+            + "for wheel odometry or VIO poses, use fewer keyframes (--keyframe-rate 10); else record "
+              "more varied motion (rotation about several axes), or fix the extrinsic (--extrinsic known) "
+              "and the clock offset (--time-offset-s)",
         ) from exc
+
+
+#: Unit findings whose --ignore makes a degenerate solve likely.
+_UNIT_CODES = ("GYRO_DEGPS", "ACC_IN_G")
+
+
+def _ignored_units_hint(sequence: Sequence) -> str:
+    """The first words of the hint when the user ignored a unit finding (likely the cause)."""
+    from pipeline.checks import REPAIR_FOR_CODE
+
+    ignored = list(dict.fromkeys(f.code for f in sequence.findings
+                                 if f.code in _UNIT_CODES and f.details.get("ignored")))
+    if not ignored:
+        return ""
+    repairs = ",".join(REPAIR_FOR_CODE[c].value for c in ignored)
+    return (f"the units finding(s) {', '.join(ignored)} were ignored (--ignore) and are likely "
+            f"real: rerun with --repair {repairs} instead; ")
 
 
 def _record_intrinsics_mode(result: RecoveryResult, mode: IntrinsicsMode) -> RecoveryResult:
@@ -672,7 +692,7 @@ class _Inputs:
 
 def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: RecoveryConfig) -> _Inputs:
     """Stage 1: select and clean the pose stream, split the IMU at gaps, resolve the AUTO modes."""
-    warnings: list[str] = []
+    warnings: list[str] = reader_warnings(sequence.findings)  # skipped input lines, kept in recovery.json
     imu = sequence.imu
     if imu is None or len(imu) < 10:
         raise RecoveryError(f"sequence '{sequence.name}' has no IMU data (or fewer than 10 samples)")

@@ -184,7 +184,7 @@ def test_rejects_bad_names_and_unknown_keys(tmp_path):
     msg = _error(tmp_path, {"sequences": [sim_entry("..")]})
     assert "'..' is not a valid name" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a", presett="handheld")]})
-    assert "'presett' was unexpected" in msg
+    assert "unknown key 'presett' (did you mean 'preset'?)" in msg
     msg = _error(tmp_path, {"sequences": [sim_entry("a")], "recover": {}})
     assert "(top level): unknown key 'recover' (did you mean 'recovery'?)" in msg
     msg = _error(tmp_path, {"sequences": []})

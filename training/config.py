@@ -411,9 +411,17 @@ class TrainingPlan:
         return dataclass_from_mapping(cls, d, what="training option", field="training")
 
     def train_config(self, method: Method | str, seed: int) -> TrainConfig:
-        """The :class:`TrainConfig` of one run."""
-        return TrainConfig.from_mapping({**self.options, "method": Method(method), "seed": int(seed),
-                                         "preset": self.preset})
+        """The :class:`TrainConfig` of one run.
+
+        Raises:
+            ConfigError: A bad option, its field named within the section (``options.<key>``).
+        """
+        try:
+            return TrainConfig.from_mapping({**self.options, "method": Method(method), "seed": int(seed),
+                                             "preset": self.preset})
+        except ConfigError as exc:  # TrainConfig names its fields as the top of a 'training:' file does
+            key = (exc.field or "").removeprefix("training").lstrip(".")
+            raise ConfigError(exc.problem, field=f"options.{key}" if key else "options", hint=exc.hint) from None
 
     def run_settings(self, method: Method | str, seed: int | str) -> dict[str, Any]:
         """Parameters of one train job: its resolved :class:`TrainConfig` as a plain mapping (so that

@@ -156,6 +156,37 @@ def _load_arrays(folder: Path, temperature: bool = False) -> dict[str, np.ndarra
                                hint="re-create the dataset with 'biasgt windows'") from None
 
 
+#: Windows read at a time when checking an array (bounds the memory of the check).
+_CHECK_CHUNK_WINDOWS = 1024
+
+
+#: Arrays where NaN means "unknown" (a recovery without marginals has no bias std); inf is refused there too.
+NAN_ALLOWED = ("bias_std",)
+
+
+def check_finite_arrays(arrays: Mapping[str, np.ndarray], folder: Path) -> None:
+    """Refuse a sequence whose floating arrays hold NaN or inf (:data:`NAN_ALLOWED`: inf), naming the
+    file and the first bad window.
+
+    The arrays are read in chunks of windows, so a memory-mapped dataset larger than RAM is checked too.
+
+    Raises:
+        DataError: ``folder/<array>.npy``: the first window with a non-finite value.
+    """
+    for key, array in arrays.items():
+        if not np.issubdtype(array.dtype, np.floating):
+            continue
+        for start in range(0, len(array), _CHECK_CHUNK_WINDOWS):
+            chunk = np.asarray(array[start:start + _CHECK_CHUNK_WINDOWS]).reshape(min(_CHECK_CHUNK_WINDOWS,
+                                                                                      len(array) - start), -1)
+            bad = (np.isinf(chunk) if key in NAN_ALLOWED else ~np.isfinite(chunk)).any(axis=1)
+            if bad.any():
+                first = start + int(np.argmax(bad))
+                raise DataError(f"array '{key}' holds non-finite values (NaN or inf), first in window {first} of "
+                                f"{len(array)}", path=folder / f"{key}.npy",
+                                hint="re-create the dataset with 'biasgt windows' from finite inputs")
+
+
 def write_dataset(
     sequences: Iterable[SequenceWindows],
     out_dir: str | Path,
@@ -359,6 +390,10 @@ class WindowDataset(torch.utils.data.Dataset):
         root: Dataset folder.
         split: Which split to serve (a sequence belongs to exactly one).
         dtype: Floating dtype of the returned tensors (default float32).
+
+    Raises:
+        InputFormatError: No dataset, another format, unreadable arrays.
+        DataError: An array holds NaN or inf (:func:`check_finite_arrays`), found when opened.
     """
 
     def __init__(self, root: str | Path, split: Split | str = Split.TRAIN, dtype: Any = None) -> None:
@@ -377,6 +412,7 @@ class WindowDataset(torch.utils.data.Dataset):
             if entry.windows == 0:
                 continue
             arrays = _load_arrays(self.root / entry.path, self.has_temperature)
+            check_finite_arrays(arrays, self.root / entry.path)
             if len(arrays["imu"]) != entry.windows:
                 raise InputFormatError(f"sequence '{name}' holds {len(arrays['imu'])} windows, the manifest says "
                                        f"{entry.windows}", path=self.root / entry.path,

@@ -59,6 +59,7 @@ from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
+from training.checkpoint import CheckpointError, check_finite_output
 from training.clip import ClipUse, clip_use
 from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, Split, WindowDataset
@@ -270,8 +271,9 @@ class ModelPredictor:
 
             kwargs = {"sampler": sampler, "steps": self.steps,
                       "clip_count": self.clip_counts.setdefault(Sampler(sampler), ClipCount())}
-        out = model.sample(batch, num_samples=k, generator=gen, **kwargs)
-        return out.detach().to("cpu", torch.float64).numpy()
+        out = model.sample(batch, num_samples=k, generator=gen, **kwargs).detach().to("cpu", torch.float64).numpy()
+        check_finite_output(out, self.run.path)
+        return out
 
     def clip_use(self, sampler: Sampler | None) -> ClipUse | None:
         """How often ``sampler``'s clip bound over the predictions so far (None: not a diffusion model)."""
@@ -538,6 +540,8 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
     samplers: tuple[Sampler | None, ...] = config.samplers if predictor.stochastic else (None,)
     rows, calib, clip, frames, examples, predictions = [], [], [], [], [], []
     for sampler in samplers:
+        log.info("%s: sampling %d test windows, %d sample(s) each%s", predictor.name, len(windows.sequence), k,
+                 f" ({sampler.value})" if sampler is not None else "")
         acc, ex, pr = _run_sampler(predictor, windows, sampler, k, config)
         predictions.append(pr)
         rows.extend(_rows_of(acc, windows, sampler))
@@ -692,8 +696,13 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
     run = load_run(checkpoint, device=device)
     check_compatible(run, windows, checkpoint, method=method)
     predictor = ModelPredictor(run, steps=config.steps)
-    result = evaluate_predictor(predictor, windows, config, kind="learned",
-                                checkpoint=_run_provenance(run, checkpoint))
+    try:
+        result = evaluate_predictor(predictor, windows, config, kind="learned",
+                                    checkpoint=_run_provenance(run, checkpoint))
+    except np.linalg.LinAlgError as exc:  # finite but absurd predictions: the integrated attitude is not a rotation
+        raise CheckpointError(f"the model's predicted bias cannot be integrated ({exc})", path=run.path,
+                              hint="use another checkpoint, or train again with 'biasgt train' (the weights are "
+                                   "damaged or the training diverged)") from None
     if out_dir is not None:
         write_evaluation(result, out_dir)
     return result

@@ -16,16 +16,19 @@ It is written as CSV and Parquet (same stem), atomically.
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable, Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
 import torch
 
 from pipeline.bias_table import BIAS_COLUMNS, STD_COLUMNS
-from pipeline.atomic import atomic_path
+from pipeline.atomic import OutputKind, atomic_path, check_output_location
 from pipeline.errors import DataError
 from pipeline.types import NS_PER_S, Sequence
+from training.checkpoint import check_finite_output
 from training.config import Method, Sampler
 
 log = logging.getLogger(__name__)
@@ -46,15 +49,17 @@ def window_starts(n_samples: int, window: int) -> np.ndarray:
     return starts.astype(np.int64)
 
 
-def load_input(path: str | Path) -> Sequence:
-    """A canonical store, or any input the readers load."""
-    from pipeline.store import is_store, read_store
+def load_input(path: str | Path, reader_kwargs: Mapping[str, Any] | None = None, *,
+               repairs: Iterable[Any] = (), check_options: Any = None) -> Sequence:
+    """A canonical store, or any input the readers load, checked as every reader command checks it.
 
-    if is_store(path):
-        return read_store(path)
-    from pipeline.ingest import load
+    Raises:
+        FatalCheckError: Wrong units (acc in g, gyro in deg/s), unsorted stamps, ... as
+            ``biasgt recover`` refuses them (:func:`pipeline.ingest.load_checked`).
+    """
+    from pipeline.ingest import load_checked
 
-    return load(path)
+    return load_checked(path, reader_kwargs, repairs=repairs, check_options=check_options, action="predict")
 
 
 def _batch(imu: np.ndarray, temperature: np.ndarray | None, dtype: torch.dtype):
@@ -81,6 +86,7 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
 
     Raises:
         DataError: No IMU, shorter than one window, or an IMU rate other than the model's.
+        CheckpointError: The model predicts a non-finite bias.
     """
     imu = sequence.imu
     T = int(run.dataset["window_samples"])
@@ -91,7 +97,8 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     model_rate = run.dataset.get("rate_hz")
     if model_rate and abs(rate / float(model_rate) - 1.0) > RATE_TOLERANCE:
         raise DataError(f"'{sequence.name}' has IMU rate {rate:.4g} Hz, the model was trained at {float(model_rate):g} Hz",
-                        hint=f"resample the recording to {float(model_rate):g} Hz (e.g. 'biasgt windows --resample-hz')")
+                        hint=f"resample the recording's IMU to {float(model_rate):g} Hz before predicting, or use a "
+                             f"model trained on windows at {rate:.4g} Hz")
     method = Method(run.config.method)
     k = samples if method.is_diffusion else 1
     starts = window_starts(len(imu), T)
@@ -103,12 +110,14 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     device = next(model.parameters()).device
     gen = torch.Generator(device=device).manual_seed(seed)
     kwargs = {"sampler": sampler, "steps": steps} if method.is_diffusion else {}
+    log.info("sampling '%s': %d windows of %d samples, %d sample(s) each", sequence.name, len(starts), T, k)
     mean = np.empty((len(starts), T, 6))
     std, q_lo, q_hi = np.empty_like(mean), np.empty_like(mean), np.empty_like(mean)
     for b in range(0, len(starts), batch_windows):
         sl = idx[b:b + batch_windows]
         batch = _batch(imu6[sl], None if temp is None else temp[sl], dtype).to(device)
         pred = model.sample(batch, num_samples=k, generator=gen, **kwargs).to("cpu", torch.float64).numpy()  # [B, K, T, 6]
+        check_finite_output(pred, run.path)
         mean[b:b + len(sl)] = pred.mean(axis=1)
         std[b:b + len(sl)] = pred.std(axis=1)
         q_lo[b:b + len(sl)], q_hi[b:b + len(sl)] = np.quantile(pred, (0.025, 0.975), axis=1)
@@ -132,21 +141,28 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
 
 
 def predict_file(checkpoint: str | Path, input_path: str | Path, out_path: str | Path, *, samples: int = 50,
-                 sampler: Sampler = Sampler.DDIM, steps: int = 25, seed: int = 0,
-                 device: str = "cpu") -> list[Path]:
+                 sampler: Sampler = Sampler.DDIM, steps: int = 25, seed: int = 0, device: str = "cpu",
+                 reader_kwargs: Mapping[str, Any] | None = None, repairs: Iterable[Any] = (),
+                 check_options: Any = None) -> list[Path]:
     """Predict the bias of a recording and write ``OUT.csv`` and ``OUT.parquet`` (atomically each).
+
+    Args:
+        reader_kwargs / repairs / check_options: How the input is read and checked
+            (:func:`load_input`).
 
     Returns:
         The two files written.
     """
     from training.checkpoint import load_run
 
-    run = load_run(checkpoint, device=device)
-    frame = predict_sequence(run, load_input(input_path), samples=samples, sampler=Sampler(sampler),
-                             steps=steps, seed=seed)
     out = Path(out_path)
-    out.parent.mkdir(parents=True, exist_ok=True)
     paths = [out.with_suffix(".csv"), out.with_suffix(".parquet")]
+    for path in paths:  # before any work
+        check_output_location(path, OutputKind.FILE)
+    run = load_run(checkpoint, device=device)
+    sequence = load_input(input_path, reader_kwargs, repairs=repairs, check_options=check_options)
+    frame = predict_sequence(run, sequence, samples=samples, sampler=Sampler(sampler), steps=steps, seed=seed)
+    out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(paths[0]) as tmp:
         frame.to_csv(tmp, index=False, float_format="%.9g")
     with atomic_path(paths[1]) as tmp:

@@ -334,9 +334,9 @@ class _Trainer:
         if not math.isfinite(value):
             kept = self.out_dir / LAST
             raise TrainingError(
-                f"training loss is {value} at step {self.run.step + 1}",
-                path=kept if kept.is_file() else self.out_dir,
-                hint="the last good checkpoint is kept; lower lr or check the dataset for non-finite values")
+                f"training loss is {value} at step {self.run.step + 1}", path=kept if kept.is_file() else None,
+                hint=("the last good checkpoint is kept (this file); " if kept.is_file() else
+                      "no checkpoint was written; ") + "lower lr (the training diverged)")
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.config.grad_clip)
@@ -455,6 +455,9 @@ def train(config: TrainConfig, dataset_dir: str | Path, out_dir: str | Path, *, 
 def _fit(tr: _Trainer) -> None:
     config, run = tr.config, tr.run
     order = BatchOrder(len(tr.data.train), config.batch_size, config.seed, tr.rank, tr.world)
+    if order.batch_size < config.batch_size and tr.rank == 0:
+        log.warning("batch_size %d is larger than the train split (%d windows): every step uses all %d "
+                    "(run.json: effective_batch_size)", config.batch_size, len(tr.data.train), order.batch_size)
     loader = DataLoader(tr.data.train, batch_sampler=_StepBatches(order, run.step, config.max_steps),
                         collate_fn=tr.data.collate, num_workers=config.num_workers,
                         generator=_loader_generator(config.seed))
@@ -497,6 +500,7 @@ def _write_summary(tr: _Trainer) -> None:
     summary = {
         "method": tr.config.method.value, "preset": tr.config.preset.value,
         "parameters": count_parameters(tr.model), "steps": r.step, "best_step": r.best_step,
+        "effective_batch_size": min(tr.config.batch_size, len(tr.data.train)),
         "best_val_loss": r.best_val_loss, "train_seconds": round(r.seconds, 3),
         "windows_per_s": round(r.windows / r.seconds, 1) if r.seconds > 0 else None,
         "device": str(tr.device), "processes": tr.world, "dataset": tr.data.info, "config": tr.config.to_dict(),

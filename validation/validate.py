@@ -82,7 +82,9 @@ Verdict (:class:`Verdict`) per sequence, reasons in plain words
     * worse within the margin (WARN): up to ``sqrt((base (1 + margin))^2 + (k sigma_prmse)^2) + tie``;
     * beyond that, FAIL only when a one-sided paired t-test of the per-window errors (squared end
       distances for PRMSE, angles for ROE) over non-overlapping windows says "worse" at
-      ``significance`` (0.01); otherwise WARN ("not significantly").
+      ``significance`` (0.01); otherwise WARN ("not significantly");
+    * worse than the ZERO bias in PRMSE or ROE (beyond the ties): FAIL, always, whatever its sigma
+      (the constant baseline is built from the candidate, so it cannot catch a wholly wrong bias).
 
     A semi-real sequence whose dataset bias is the exact truth thus no longer FAILs a recovered
     bias that sits at its accuracy floor. WARN also when more than ``warn_flagged_fraction``
@@ -114,6 +116,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from interpolation.bias import interpolate_bias
 from pipeline.bias_table import BiasTrack, read_bias_csv
+from pipeline.checks import reader_warnings
 from pipeline.errors import BiasgtError, DataError, InputFormatError, ValidationError
 from pipeline.integration import integrate
 from pipeline.io import select_pose_stream
@@ -855,6 +858,18 @@ def _compare(label: str, unit: str, cand: float, base: float, allowed: tuple[flo
                   f"(paired test p = {p_value:.2g} >= {config.significance:g})")
 
 
+def _worse_than_zero(metrics: Mapping[str, SourceMetrics], candidate: str, config: ValidationConfig) -> list[str]:
+    """FAIL reasons of a candidate that integrates worse than the zero bias (beyond the ties), whatever its sigma."""
+    cand, fails = metrics[candidate], []
+    for zero in (m for name, m in metrics.items() if name != candidate and m.kind is BiasSourceKind.ZERO):
+        for label, unit, c, z, tie in (("PRMSE", "m", cand.prmse_m, zero.prmse_m, config.tie_prmse_m),
+                                       ("ROE", "deg", cand.roe_deg, zero.roe_deg, config.tie_roe_deg)):
+            if c > z + tie:
+                fails.append(f"'{candidate}' {label} {c:.4g} {unit} is worse than the zero bias's {z:.4g} {unit}: "
+                             "subtracting it makes the integration worse than no bias estimate at all")
+    return fails
+
+
 def decide_verdict(
     metrics: Mapping[str, SourceMetrics],
     candidate: str,
@@ -913,6 +928,7 @@ def decide_verdict(
         ):
             fails += [f"{where}: {fail}"] if fail else []
             warns += [f"{where}: {warn}"] if warn else []
+    fails += _worse_than_zero(metrics, candidate, config)
     if cand.windows:
         frac = float(np.mean(cand.flagged))
         if frac > config.warn_flagged_fraction:
@@ -1519,6 +1535,7 @@ def validate_inputs(
         result.notes.append("the reference is the stream the bias was fitted to: the held-out blocks judge the verdict")
     if recovery is not None:
         result.notes.append(f"recovery: {recovery_dir}")
+    result.notes += reader_warnings(sequence.findings)  # skipped input lines
     return result
 
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pipeline.atomic import OutputKind
 from pipeline.checks import parse_repairs
 from pipeline.ingest import (
     add_check_arguments,
@@ -36,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--name", default=None, help="sequence name (default: from the input)")
     add_reader_arguments(p)
     add_check_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pipeline.atomic import OutputKind
+
 DESCRIPTION = """\
 Evaluate a bias predictor on the TEST split of a window dataset, as the paper (after AirIMU) does:
 non-overlapping 1-s windows (every other window of the dataset's 50%-overlap ones), each integrated
@@ -56,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=[m.value for m in Method],
                    help="refuse a checkpoint of another method")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pipeline.atomic import OutputKind
+
 DESCRIPTION = """\
 Export a trained model (rebuilt from its checkpoint) together with its sampler as one graph, for
 deployment without biasgt: TorchScript (torch.jit) or ONNX (run it with onnxruntime).
@@ -36,7 +38,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--sampler", default=Sampler.DDIM.value, choices=[Sampler.DDIM.value, Sampler.RELEASED.value],
                    help="sampler of a diffusion model (default ddim)")
     p.add_argument("--steps", type=int, default=25, metavar="N", help="denoising steps (default 25)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FILE)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -6,6 +6,8 @@ import argparse
 import logging
 from pathlib import Path
 
+from pipeline.atomic import OutputKind
+
 from interpolation.config import InterpolationConfig, InterpolationMethod
 from pipeline.ingest import add_reader_arguments, reader_kwargs_from_args
 
@@ -52,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-csv", action="store_false", dest="write_csv", default=_DEFAULTS.write_csv,
                    help="with a .parquet OUT, do not also write the CSV twin")
     add_reader_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FILE)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,10 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from pipeline.ingest import add_check_arguments, add_reader_arguments, check_options_from_args, reader_kwargs_from_args
+
 DESCRIPTION = """\
 Predict the IMU bias of a recording from its readings alone (no poses needed), with a model trained
 by 'biasgt train' and rebuilt from its checkpoint. INPUT is anything 'biasgt inspect' reads (EuRoC/ASL
-folder, ROS bag, TUM/CSV with IMU) or a canonical store. The IMU is cut into consecutive windows of
+folder, ROS bag, TUM/CSV with IMU) or a canonical store, checked as 'biasgt recover' checks it (an
+accelerometer in g or a gyro in deg/s is refused unless repaired with --repair). The IMU is cut into
+consecutive windows of
 the model's length; a diffusion model draws K samples per window (--samples).
 
 Writes OUT.csv and OUT.parquet (atomically): per IMU sample t_ns, the sample mean bg_x..ba_z
@@ -40,6 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, default=25, metavar="N", help="denoising steps (default 25)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sampling noise (default 0)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    add_reader_arguments(p)
+    add_check_arguments(p)
     p.set_defaults(func=run)
 
 
@@ -47,6 +53,8 @@ def run(args: argparse.Namespace) -> int:
     from training.predict import predict_file
 
     paths = predict_file(args.checkpoint, args.input, args.out, samples=args.samples, sampler=args.sampler,
-                         steps=args.steps, seed=args.seed, device=args.device)
+                         steps=args.steps, seed=args.seed, device=args.device,
+                         reader_kwargs=reader_kwargs_from_args(args), repairs=args.repair,
+                         check_options=check_options_from_args(args))
     print("wrote " + ", ".join(map(str, paths)))
     return 0

@@ -10,6 +10,7 @@ import enum
 import logging
 from pathlib import Path
 
+from pipeline.atomic import OutputKind
 from pipeline.ingest import (
     add_check_arguments,
     add_reader_arguments,
@@ -76,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "dropped; without, every sample is a keyframe: ~5-10x slower on 100-Hz mocap)")
     add_reader_arguments(p)
     add_check_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
 
 def config_from_args(args: argparse.Namespace):

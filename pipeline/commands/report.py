@@ -9,6 +9,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from pipeline.atomic import OutputKind
 from pipeline.errors import ConfigError
 
 log = logging.getLogger(__name__)
@@ -41,7 +42,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "RESULTS_DIR/validation/NAME)")
     p.add_argument("--out", metavar="FILE.html", type=Path, default=None,
                    help="the HTML file to write (default with RESULTS_DIR: RESULTS_DIR/report/NAME/report.html)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FILE)
 
 
 def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | None, Path]:

@@ -10,6 +10,7 @@ from typing import Any
 
 import yaml
 
+from pipeline.atomic import OutputKind
 from pipeline.sim.config import MotionPreset, PoseFormat, SimConfig
 
 log = logging.getLogger(__name__)
@@ -83,7 +84,7 @@ def register(subparsers: Any) -> None:
              "a TUM pose file of the IMU: the motion only (the bias is simulated)",
     )
     p.add_argument("--bag", choices=["ros1", "ros2"], help="also write a ROS1 sim.bag or ROS2 sim_ros2/ bag")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
 
 def build_config(args: argparse.Namespace) -> SimConfig:

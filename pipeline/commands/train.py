@@ -7,6 +7,8 @@ import logging
 import os
 from pathlib import Path
 
+from pipeline.atomic import OutputKind
+
 log = logging.getLogger(__name__)
 
 METHODS = ("diffusion_rnn", "regression_rnn", "diffusion_unet", "regression_unet", "indirect_rnn")
@@ -56,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=int, metavar="S", help="random seed")
     p.add_argument("--device", metavar="DEV", help="auto (default), cpu, cuda or cuda:N")
     p.add_argument("--threads", type=int, metavar="N", help="CPU threads (default: one per core)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
 
 def _read_config(path: Path) -> dict:

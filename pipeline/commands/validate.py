@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
+from pipeline.atomic import OutputKind
 from pipeline.errors import ValidationError
 from pipeline.ingest import (
     add_check_arguments,
@@ -97,7 +98,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help=f"folds of --crossval-block-s (default {d.crossval_folds})")
     add_reader_arguments(p)
     add_check_arguments(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
 
 def _split_bias_arg(value: str) -> tuple[str | None, Path]:

@@ -6,6 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
+from pipeline.atomic import OutputKind
 from pipeline.errors import ConfigError
 from pipeline.types import Split
 from training.windows_config import WindowConfig
@@ -78,7 +79,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "needed when the recovery fitted positions only, e.g. Leica); repeatable")
     p.add_argument("--accept-warn", action="store_true", default=d.accept_warn,
                    help="take sequences whose verdict is WARN too")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
 
 def run(args: argparse.Namespace) -> int:

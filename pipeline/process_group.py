@@ -1,0 +1,143 @@
+"""A child process in its own process group, stopped with everything it started.
+
+``biasgt run`` starts Snakemake this way (:func:`start_group`). On Ctrl-C or SIGTERM the command
+stops the whole group (:func:`stop_group`): Snakemake cancels its running jobs and removes their
+incomplete outputs, and only then does ``biasgt run`` exit; whatever still runs after the grace
+period (a job that ignores the signal) is killed, so no process is left orphaned.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+import signal
+import subprocess
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import IO
+
+import psutil
+
+__all__ = ["STOP_GRACE_S", "start_group", "stop_group", "exclusive_lock"]
+
+#: Seconds the group gets to clean up after the forwarded signal before it is killed (SLURM's
+#: ``scancel`` of many jobs takes a while).
+STOP_GRACE_S = 120.0
+#: Seconds a left-over process gets after SIGTERM before SIGKILL.
+_KILL_AFTER_S = 5.0
+
+
+def start_group(cmd: Sequence[str], **popen_kwargs) -> subprocess.Popen:
+    """``subprocess.Popen(cmd)`` as the leader of a new process group (and session)."""
+    return subprocess.Popen(list(cmd), start_new_session=True, **popen_kwargs)
+
+
+def _descendants(pid: int) -> list[psutil.Process]:
+    try:
+        return psutil.Process(pid).children(recursive=True)
+    except psutil.NoSuchProcess:
+        return []
+
+
+def _drain(stream: IO[str] | None, echo: Callable[[str], None] | None) -> threading.Thread | None:
+    """Copy what the group still prints while it cleans up (a full pipe would block its exit)."""
+    if stream is None:
+        return None
+
+    def copy() -> None:
+        with contextlib.suppress(OSError, ValueError):
+            for line in stream:
+                if echo is not None:
+                    echo(line)
+
+    thread = threading.Thread(target=copy, daemon=True)
+    thread.start()
+    return thread
+
+
+@contextlib.contextmanager
+def _stop_signals_ignored() -> Iterator[None]:
+    """A second Ctrl-C while the group cleans up must not cut the clean-up short."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def stop_group(proc: subprocess.Popen, leader_signal: int = signal.SIGINT, others_signal: int = signal.SIGTERM, *,
+               grace_s: float = STOP_GRACE_S, echo: Callable[[str], None] | None = None) -> int:
+    """Stop ``proc`` and everything it started; wait for its clean-up, then end every process it left.
+
+    ``proc`` gets ``leader_signal`` (Snakemake cancels its jobs on SIGINT, also SLURM ones with
+    ``scancel``), the processes of its group ``others_signal`` (a Python job stopped by SIGTERM
+    ends without a KeyboardInterrupt traceback). After ``grace_s`` the group is killed.
+
+    Args:
+        proc: A process started by :func:`start_group`.
+        leader_signal / others_signal: The signals sent.
+        grace_s: How long the group may take to clean up before it is killed.
+        echo: Receives each line ``proc.stdout`` still prints (when it is a text pipe).
+
+    Returns:
+        ``proc``'s exit status.
+    """
+    with _stop_signals_ignored():
+        started = _descendants(proc.pid)
+        for p in started:
+            with contextlib.suppress(psutil.Error, ProcessLookupError):
+                if os.getpgid(p.pid) == proc.pid:
+                    p.send_signal(others_signal)
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.kill(proc.pid, leader_signal)
+        drain = _drain(proc.stdout, echo)
+        try:
+            rc = proc.wait(timeout=grace_s)
+        except subprocess.TimeoutExpired:
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(proc.pid, signal.SIGKILL)
+            rc = proc.wait()
+        # jobs that left the group (a new session) or outlived their parent
+        left = [p for p in started if p.is_running()]
+        for p in left:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                p.terminate()
+        _, alive = psutil.wait_procs(left, timeout=_KILL_AFTER_S)
+        for p in alive:
+            with contextlib.suppress(psutil.NoSuchProcess):
+                p.kill()
+        psutil.wait_procs(alive, timeout=_KILL_AFTER_S)
+        if drain is not None:
+            drain.join(timeout=_KILL_AFTER_S)
+    return rc
+
+
+@contextlib.contextmanager
+def exclusive_lock(path: str | Path) -> Iterator[int | None]:
+    """Hold an exclusive ``flock`` on ``path`` (holding this process's id) while the block runs.
+
+    Yields:
+        ``None`` when the lock is held; else the process id written by the holder (0 if unknown),
+        and the block runs without the lock.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            text = os.pread(fd, 32, 0).decode(errors="replace").strip()
+            yield int(text) if text.isdigit() else 0
+            return
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, str(os.getpid()).encode(), 0)
+        yield None
+    finally:
+        os.close(fd)
