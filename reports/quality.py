@@ -24,14 +24,14 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from pipeline import __version__
 from pipeline.atomic import atomic_path
@@ -39,7 +39,6 @@ from pipeline.bias_table import BiasTrack, read_bias_csv
 from pipeline.checks import CHECK_CODES, run_checks, stream_summaries
 from pipeline.errors import BiasgtError, ConfigError, InputFormatError
 from pipeline.layout import Stage
-from pipeline.pose_transform import offset_ns, poses_in_imu_frame
 from pipeline.store import is_store, read_store
 from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity
 from recovery.gyro_consistency import rate_coupling
@@ -54,6 +53,7 @@ from recovery.outputs import (
     read_trajectory,
 )
 from reports import plots
+from validation.plausibility import gravity_tilt_deg, pose_residuals
 from validation.outputs import (
     HELDOUT_SOURCE,
     VALIDATION_JSON,
@@ -415,6 +415,17 @@ def checked_and_not(validation: dict[str, Any]) -> list[str]:
     ]
 
 
+def implausible_frame(inp: ReportInputs, check: str, body: Html | None) -> Html | None:
+    """``body`` framed in red, under the finding, when the validation found ``check`` implausible
+    (``validation.json`` ``plausibility``, :mod:`validation.plausibility`); else ``body`` as it is."""
+    found = [x for x in ((inp.validation.get("plausibility") if inp.validation is not None else None) or [])
+             if isinstance(x, Mapping) and x.get("check") == check]
+    if not found or body is None:
+        return body
+    why = p(Html(tag("strong", "Impossible: ") + esc("; ".join(str(x.get("text")) for x in found))), class_="why")
+    return tag("div", join([why, body]), class_="implausible", data_check=check)
+
+
 def _verdict_section(inp: ReportInputs) -> Html:
     word, sentence = verdict_summary(inp.validation)
     cls = {"PASS": "v-pass", "WARN": "v-warn", "FAIL": "v-fail"}.get(word, "v-none")
@@ -524,15 +535,6 @@ def _vec(v: Any, digits: int = 4, scale: float = 1.0) -> str:
     return "[" + ", ".join(fmt(x, digits) for x in arr) + "]"
 
 
-def gravity_tilt_deg(gravity_world_mps2: Any) -> float:
-    """Angle between the gravity vector and the world's -z axis (0 for a z-up world), degrees."""
-    g = np.asarray(gravity_world_mps2, dtype=float).reshape(3)
-    n = float(np.linalg.norm(g))
-    if n == 0:
-        return float("nan")
-    return float(np.degrees(np.arccos(np.clip(-g[2] / n, -1.0, 1.0))))
-
-
 def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
     rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     cal = inp.sequence.calibration
@@ -575,7 +577,8 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
         p(f"What the recovery estimated for pose stream '{rec.get('pose_stream', 'n/a')}' "
           f"({rec.get('pose_source_kind', 'n/a')}, pose factors: {rec.get('pose_factor_mode', 'n/a')}). "
           "Uncertainties are 1σ where the recovery gives them."),
-        table(["quantity", "value", "uncertainty (1σ)", "notes"], rows, numeric_from=99),
+        implausible_frame(inp, "gravity_tilt", table(["quantity", "value", "uncertainty (1σ)", "notes"], rows,
+                                                     numeric_from=99)),
     ]
     if rec.get("extrinsic_rotation_observable") is False:
         parts.append(tag("div", "The motion did not excite rotation enough to observe the extrinsic rotation: "
@@ -672,11 +675,12 @@ def _bias_section(inp: ReportInputs) -> Html:
         row.append("rad/s" if c < 3 else "m/s²")
         rows.append(row)
     headers = ["axis", "mean", "min", "max", "mean σ"] + (["RMS diff. to dataset"] if gt_b is not None else [])
-    parts.append(table(headers + ["unit"], rows, numeric_from=1, text_cols=[len(headers)]))
+    parts.append(implausible_frame(inp, "bias_range", table(headers + ["unit"], rows, numeric_from=1,
+                                                            text_cols=[len(headers)])))
     note = _calibration_uncertainty_note(inp.recovery.data if inp.recovery is not None else None)
     if note is not None:
         parts.append(note)
-    note = gyro_consistency_note(inp)
+    note = implausible_frame(inp, "frame_swap", gyro_consistency_note(inp))
     if note is not None:
         parts.append(note)
     return section("bias", _TITLE["bias"], join(parts))
@@ -738,54 +742,6 @@ def _calibration_uncertainty_note(rec: dict[str, Any] | None) -> Html | None:
 # ----------------------------------------------------------------------------- section 5: residuals
 
 
-def pose_residuals(
-    trajectory: PoseSeries,
-    poses: PoseSeries,
-    T_imu_pose: np.ndarray,
-    time_offset_s: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Distance and angle between the recovered IMU trajectory and a pose stream moved into the IMU frame.
-
-    The pose stream is interpolated at the trajectory's stamps taken back to the pose clock
-    (linear in position, Slerp in rotation), then moved onto the IMU clock and into the IMU
-    frame by :func:`pipeline.pose_transform.poses_in_imu_frame` (for a position-only stream the
-    lever arm is removed with the recovered orientation; when the trajectory has none either,
-    positions are compared as they are). Stamps outside the pose span are skipped.
-
-    Args:
-        trajectory: Recovered ``T_world_imu`` on the IMU clock, [K0] rows.
-        poses: ``T_world_<frame>`` on the pose clock (``quat_wxyz`` may be None).
-        T_imu_pose: 4x4 ``T_imu_<frame>``.
-        time_offset_s: Seconds to ADD to pose stamps to put them on the IMU clock.
-
-    Returns:
-        ``(t_ns [K], pos_err_m [K], rot_err_deg [K] or None)``.
-    """
-    shift_ns = offset_ns(time_offset_s)
-    t_pose = poses.t_ns + shift_ns
-    tq = trajectory.t_ns
-    keep = (tq >= t_pose[0]) & (tq <= t_pose[-1])
-    tq = tq[keep]
-    if len(tq) == 0 or len(t_pose) < 2:
-        return tq, np.zeros(0), None
-    x, xq = (t_pose - t_pose[0]).astype(float), (tq - t_pose[0]).astype(float)
-    p_wp = np.column_stack([np.interp(xq, x, poses.p_m[:, i]) for i in range(3)])
-    quat_wp = None
-    if poses.quat_wxyz is not None:
-        quat_wp = Slerp(x, Rotation.from_quat(poses.quat_wxyz, scalar_first=True))(xq).as_quat(scalar_first=True)
-    traj_q = trajectory.quat_wxyz[keep] if trajectory.quat_wxyz is not None else None
-    if quat_wp is None and traj_q is None:
-        T_imu_pose = np.eye(4)  # no attitude on either side: the lever arm cannot be removed
-    at_pose = replace(poses, t_ns=tq - shift_ns, p_m=p_wp, quat_wxyz=quat_wp)
-    in_imu = poses_in_imu_frame(at_pose, T_imu_pose, time_offset_s, imu_quat_wxyz=traj_q)
-    rot_err = None
-    if in_imu.quat_wxyz is not None and traj_q is not None:
-        R_wi = Rotation.from_quat(in_imu.quat_wxyz, scalar_first=True)
-        rot_err = np.degrees((R_wi.inv() * Rotation.from_quat(traj_q, scalar_first=True)).magnitude())
-    pos_err = np.linalg.norm(trajectory.p_m[keep] - in_imu.p_m, axis=1)
-    return tq, pos_err, rot_err
-
-
 def _residuals_section(inp: ReportInputs) -> Html:
     rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     if rec is None and inp.residuals is None and inp.trajectory is None:
@@ -823,7 +779,7 @@ def _residuals_section(inp: ReportInputs) -> Html:
         parts.append(_missing_box("Per-keyframe residuals are not available: the recovery writes only the "
                                   "statistics above. The figure below compares the recovered trajectory with the "
                                   "pose stream instead."))
-    fig = _pose_residual_figure(inp)
+    fig = implausible_frame(inp, "rotation_residual", _pose_residual_figure(inp))
     if fig is not None:
         parts.append(fig)
     warnings = [str(w) for w in ((rec or {}).get("warnings") or [])]
