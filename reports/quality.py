@@ -159,19 +159,23 @@ def gather_inputs(
     *,
     recovery_dir: str | Path | None = None,
     validation_dir: str | Path | None = None,
+    sequence: Sequence | None = None,
 ) -> ReportInputs:
     """Read every available input; note what is missing or unreadable instead of failing.
 
+    ``sequence``: the sequence already loaded from ``ingest_dir`` (any input the readers take, e.g.
+    a raw ASL folder with added poses); else ``ingest_dir`` must be a canonical store.
+
     Raises:
-        InputFormatError: ``ingest_dir`` is not a canonical store (the report needs it).
+        InputFormatError: ``ingest_dir`` is not a canonical store and no sequence was given.
     """
     ingest_dir = Path(ingest_dir)
-    if not is_store(ingest_dir):
+    if sequence is None and not is_store(ingest_dir):
         raise InputFormatError(
             "no ingest store here (sequence.yaml missing)", path=ingest_dir,
             hint="run the ingest stage ('biasgt convert INPUT --out DIR' or 'biasgt run') first, "
                  "or give the right --ingest folder")
-    inputs = ReportInputs(ingest_dir=ingest_dir, sequence=read_store(ingest_dir))
+    inputs = ReportInputs(ingest_dir=ingest_dir, sequence=read_store(ingest_dir) if sequence is None else sequence)
 
     # --- recovery
     if recovery_dir is None:
@@ -1054,6 +1058,7 @@ def build_quality_report(
     recovery_dir: str | Path | None = None,
     validation_dir: str | Path | None = None,
     out_path: str | Path,
+    sequence: Sequence | None = None,
 ) -> Path:
     """Write the quality report of one sequence as one self-contained HTML file.
 
@@ -1062,6 +1067,8 @@ def build_quality_report(
         recovery_dir: ``results/recovery/<sequence>`` (bias.csv, recovery.json, ...), or None.
         validation_dir: ``results/validation/<sequence>`` (validation.json, windows.parquet), or None.
         out_path: The HTML file to write (atomically; parent folders are created).
+        sequence: The sequence already loaded from ``ingest_dir`` when that is not a store
+            (:func:`gather_inputs`).
 
     Returns:
         ``out_path`` as a Path.
@@ -1074,7 +1081,7 @@ def build_quality_report(
     if out_path.is_dir():
         raise ConfigError("the report output is a folder", path=out_path, field="--out",
                           hint="give a file name such as report.html")
-    inputs = gather_inputs(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir)
+    inputs = gather_inputs(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir, sequence=sequence)
     for note in inputs.missing + inputs.problems:
         log.info("report %s: %s", inputs.sequence.name, note)
     text = render_report(inputs)

@@ -10,6 +10,8 @@ import enum
 import logging
 from pathlib import Path
 
+from pipeline.types import Sequence
+
 from pipeline.ingest import (
     add_check_arguments,
     add_reader_arguments,
@@ -117,6 +119,8 @@ def run(args: argparse.Namespace) -> int:
     seq = load_checked(args.input, reader_kwargs_from_args(args), repairs=args.repair,
                        check_options=check_options_from_args(args), action="recover")
     stream = args.poses
+    if stream is None:
+        print(chosen_stream_sentence(seq))
     result = recover(seq, pose_stream=stream, config=config)
     write_recovery(result, args.out)
     r = result.report
@@ -126,3 +130,16 @@ def run(args: argparse.Namespace) -> int:
     for w in result.warnings:
         print(f"  warning: {w}")
     return 0
+
+
+def chosen_stream_sentence(seq: Sequence) -> str:
+    """Which pose stream the default order chose, why, and the others (said before the solve)."""
+    from pipeline.io import ADDED_POSE_STREAMS_KEY, list_pose_streams, select_pose_stream
+
+    name, poses = select_pose_stream(seq)
+    added = seq.metadata.get(ADDED_POSE_STREAMS_KEY) or ()
+    why = ("given with --add-poses" if name in added
+           else f"{poses.source_kind.value}, first in the default order")
+    others = [s for s in list_pose_streams(seq) if s != name]
+    return (f"pose stream: '{name}' ({why})" + (f"; also in the input: {', '.join(others)} (choose with --poses NAME)"
+                                                 if others else ""))
