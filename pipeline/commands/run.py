@@ -9,14 +9,17 @@ from pathlib import Path
 from pipeline.workflow import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE, resolve_profile, run_workflow
 
 DESCRIPTION = f"""\
-Run the biasgt workflow ({SNAKEFILE}) with Snakemake: simulate / ingest every sequence of the
-config, recover the bias, interpolate it to the IMU rate, validate it, cut the window dataset of
-the train/val/test sequences and write one quality report per sequence. Outputs go to
-results/<stage>/<sequence>/ (stages: simulate, ingest, recovery, interpolation, validation,
-report; the windows go to results/windows/dataset/) and logs to logs/<stage>/<sequence>.log under
-the working directory (--directory, default: the current folder); the reports' paths are printed
-at the end. Finished jobs are kept: rerunning only redoes what a changed input, parameter or code
-affects. The config is checked before Snakemake starts.
+Run the biasgt workflow ({SNAKEFILE}) with Snakemake, stage by stage: simulate / ingest every
+sequence of the config, recover the bias, interpolate it to the IMU rate, validate it, report (one
+quality report per sequence), cut the window dataset of the train/val/test sequences (windows),
+then the learning stages: train every method and seed of the config's training section, evaluate
+each model and the references on the test split, table (Table I) and training_report (the
+training report, results/report/training.html). The learning stages are most of a run's time.
+Outputs go to results/<stage>/<sequence>/ (results/windows/dataset/, results/training/,
+results/evaluation/) and logs to logs/<stage>/<sequence>.log under the working directory
+(--directory, default: the current folder); the reports' paths are printed at the end. Finished
+jobs are kept: rerunning only redoes what a changed input, parameter or code affects. The config is
+checked before Snakemake starts.
 
 On a SLURM cluster: biasgt run --config my.yaml --profile slurm (the Snakemake profile
 workflow/profiles/slurm: executor settings and per-rule cores, memory, time and GPUs; see
@@ -49,7 +52,8 @@ def _cores(value: str) -> int | str:
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run",
-        help="run the whole workflow with Snakemake (simulate/ingest ... report)",
+        help="run the whole workflow with Snakemake (simulate, ingest, recover, interpolate, validate, "
+             "report, windows, train, evaluate, table, training report)",
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
