@@ -615,10 +615,41 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         raise RecoveryError(
             f"sequence '{sequence.name}': the optimisation is degenerate ({first}); the motion does not "
             "make the bias, clock offset or extrinsic observable",
-            hint="for wheel odometry or VIO poses, use fewer keyframes (--keyframe-rate 10); else record "
-                 "more varied motion (rotation about several axes), or fix the extrinsic (--extrinsic known) "
-                 "and the clock offset (--time-offset-s)",
+            hint=degenerate_hint(sequence, pose_stream, config),
         ) from exc
+
+
+#: Keyframe rate the degenerate-recovery hint suggests for relative (odometry, VIO) pose streams.
+DEGENERATE_KEYFRAME_RATE_HZ = 10.0
+
+
+def degenerate_hint(sequence: Sequence, pose_stream: str | None, config: RecoveryConfig) -> str:
+    """The fixes of a degenerate recovery that apply to this case, most promising first: fewer keyframes
+    for a relative (odometry, VIO) stream only when that lowers their rate; fixing the extrinsic and the
+    clock offset only when they are still estimated; more varied motion always."""
+    fixes = []
+    try:
+        _, poses = select_pose_stream(sequence, pose_stream)
+    except BiasgtError:
+        poses = None
+    if poses is not None and poses.source_kind is PoseSourceKind.VIO and len(poses.t_ns) > 1:
+        rate_hz = NS_PER_S / float(np.median(np.diff(poses.t_ns)))
+        current = config.keyframe_rate_hz or rate_hz
+        if current > 1.2 * DEGENERATE_KEYFRAME_RATE_HZ:
+            fixes.append(f"use fewer keyframes for these odometry/VIO poses at {current:.0f} Hz "
+                         f"(--keyframe-rate {DEGENERATE_KEYFRAME_RATE_HZ:g})")
+    if config.extrinsic_mode is not ExtrinsicMode.KNOWN:
+        fixes.append("fix the extrinsic (--extrinsic known, with T_imu_<frame> in the calibration)")
+    fixed_offset = config.time_offset_mode is TimeOffsetMode.FIXED or (
+        config.time_offset_mode is TimeOffsetMode.AUTO and poses is not None
+        and poses.source_kind is PoseSourceKind.GROUND_TRUTH)
+    if not fixed_offset:
+        fixes.append("fix the clock offset (--time-offset-s)")
+    fixes.append("record more varied motion (rotation about several axes)")
+    if len(fixes) == 1 and poses is not None and poses.source_kind is PoseSourceKind.VIO:
+        fixes.append("use a 6-DoF absolute pose source (motion capture): planar odometry leaves roll, pitch and "
+                     "the vertical unobserved")
+    return "; or ".join(fixes)
 
 
 def _record_intrinsics_mode(result: RecoveryResult, mode: IntrinsicsMode) -> RecoveryResult:
