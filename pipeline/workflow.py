@@ -1127,11 +1127,13 @@ def run_workflow(
     targets: Sequence[str] = (),
     extra: Sequence[str] = (),
     echo: IO[str] | None = None,
+    progress_interval_s: float = 30.0,
 ) -> RunResult:
     """Check the config, then run the workflow with Snakemake in a subprocess.
 
     Snakemake's own output (stdout and stderr) is copied to ``echo`` (default ``sys.stderr``) as it
-    comes, so that the caller's stdout holds only its result.
+    comes, so that the caller's stdout holds only its result; every ``progress_interval_s`` one line
+    per running job (its log's last line: :mod:`pipeline.job_progress`) goes there too.
 
     Args:
         config_file: Workflow config (default: the repository's ``config/config.yaml``).
@@ -1159,11 +1161,13 @@ def run_workflow(
     log.info("running %s", " ".join(cmd))
     echo = echo or sys.stderr
     tail: list[str] = []
-    with subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
-                          errors="replace") as proc:
+    from pipeline.job_progress import JobProgress
+
+    with JobProgress(workdir, echo, interval_s=progress_interval_s) as jobs, subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1, errors="replace") as proc:
         assert proc.stdout is not None
         for line in proc.stdout:
-            echo.write(line)
+            jobs.write(line)
             tail.append(line.rstrip("\n"))
             if len(tail) > 4000 and not dry_run:  # a dry run's plan is kept whole for the caller
                 del tail[:1000]

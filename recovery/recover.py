@@ -1298,6 +1298,24 @@ def _segments(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _Gra
     return out
 
 
+#: The rounds of a recovery that :func:`_rounds_bar` counts (extrinsic, clock offset, noise, gravity, solve).
+RECOVERY_ROUNDS = 5
+
+
+def _rounds_bar(name: str):
+    """Progress over the recovery's rounds (rate and ETA; a log line every 30 s off a terminal)."""
+    from pipeline.progress import progress
+
+    bar = progress(RECOVERY_ROUNDS, desc=f"recover {name}", unit="round", logger=log)
+    bar.set_postfix_str("extrinsic", refresh=False)
+    return bar
+
+
+def _next_round(bar, what: str) -> None:
+    bar.update(1)
+    bar.set_postfix_str(what, refresh=False)
+
+
 def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryConfig) -> RecoveryResult:
     """The stages in order (each returns a frozen record); ``problem`` carries the fusion's
     linearisation point (extrinsic, gravity, bias), which the calibration solves update."""
@@ -1305,6 +1323,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     timings: dict[str, float] = {}
     inputs = _checked_inputs(sequence, pose_stream, config)
     problem = _Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse, gravity_mps2=config.gravity_mps2)
+    bar = _rounds_bar(sequence.name)
 
     t0 = time.perf_counter()
     coarse = _coarse_offset(inputs, config)
@@ -1319,6 +1338,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         ext_sol = _solve_extrinsic(problem, inputs, windows.calib_window, T, ext_init.opts, coarse.offset_s, config)
         T = ext_sol.T_imu_pose if ext_sol is not None else T
     timings["extrinsic_s"] = time.perf_counter() - t0
+    _next_round(bar, "clock offset")
 
     t0 = time.perf_counter()
     offset = _refined_offset(problem, inputs, coarse, windows, T, config)
@@ -1326,20 +1346,25 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         ext_sol = _solve_extrinsic(problem, inputs, windows.calib_window, T, ext_init.opts, offset.offset_s, config)
         T = ext_sol.T_imu_pose if ext_sol is not None else T
     timings["offset_refine_s"] = time.perf_counter() - t0
+    _next_round(bar, "noise by evidence")
 
     t0 = time.perf_counter()
     noise = _noise(problem, inputs, windows, offset.offset_s, T, config)
     timings["noise_s"] = time.perf_counter() - t0
+    _next_round(bar, "gravity")
 
     t0 = time.perf_counter()
     gravity = _gravity(problem, inputs, offset.offset_s, T, ext_sol, ext_init.estimate_lever, noise.choice, config,
                        ext_init.opts.extrinsic_prior)
     timings["gravity_s"] = time.perf_counter() - t0
+    _next_round(bar, "full solve")
 
     t0 = time.perf_counter()
     calibration = _calibration_covariance(offset, ext_sol, gravity)
     full = _full_solve(problem, inputs, offset.offset_s, gravity, noise, config, calibration)
     timings["solve_s"] = time.perf_counter() - t0
+    _next_round(bar, "done")
+    bar.close()
 
     extrinsic_info = {**_extrinsic_info(ext_init, ext_sol), **gravity.extrinsic_info}
     refine_warnings = offset.warnings[len(coarse.warnings):]

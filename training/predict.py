@@ -91,7 +91,7 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     model_rate = run.dataset.get("rate_hz")
     if model_rate and abs(rate / float(model_rate) - 1.0) > RATE_TOLERANCE:
         raise DataError(f"'{sequence.name}' has IMU rate {rate:.4g} Hz, the model was trained at {float(model_rate):g} Hz",
-                        hint=f"resample the recording to {float(model_rate):g} Hz (e.g. 'biasgt windows --resample-hz')")
+                        hint=f"resample it to the model's rate: biasgt predict ... --resample-hz {float(model_rate):g}")
     method = Method(run.config.method)
     k = samples if method.is_diffusion else 1
     starts = window_starts(len(imu), T)
@@ -105,6 +105,10 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     kwargs = {"sampler": sampler, "steps": steps} if method.is_diffusion else {}
     mean = np.empty((len(starts), T, 6))
     std, q_lo, q_hi = np.empty_like(mean), np.empty_like(mean), np.empty_like(mean)
+    from pipeline.progress import progress
+
+    bar = progress(len(starts), desc=f"predict {sequence.name} ({k} sample{'s' * (k > 1)})", unit="window",
+                   logger=log)
     for b in range(0, len(starts), batch_windows):
         sl = idx[b:b + batch_windows]
         batch = _batch(imu6[sl], None if temp is None else temp[sl], dtype).to(device)
@@ -112,6 +116,8 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
         mean[b:b + len(sl)] = pred.mean(axis=1)
         std[b:b + len(sl)] = pred.std(axis=1)
         q_lo[b:b + len(sl)], q_hi[b:b + len(sl)] = np.quantile(pred, (0.025, 0.975), axis=1)
+        bar.update(len(sl))
+    bar.close()
     owner = np.full(len(imu), -1)
     for w, s in enumerate(starts):  # each sample from the first window covering it
         seg = slice(s, s + T)
@@ -133,8 +139,11 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
 
 def predict_file(checkpoint: str | Path, input_path: str | Path, out_path: str | Path, *, samples: int = 50,
                  sampler: Sampler = Sampler.DDIM, steps: int = 25, seed: int = 0,
-                 device: str = "cpu") -> list[Path]:
+                 device: str = "cpu", resample_hz: float | None = None) -> list[Path]:
     """Predict the bias of a recording and write ``OUT.csv`` and ``OUT.parquet`` (atomically each).
+
+    ``resample_hz``: resample the IMU to this rate first, anti-alias filtered
+    (:func:`pipeline.resample.resample_imu_filtered`); the output is at the resampled stamps.
 
     Returns:
         The two files written.
@@ -142,7 +151,14 @@ def predict_file(checkpoint: str | Path, input_path: str | Path, out_path: str |
     from training.checkpoint import load_run
 
     run = load_run(checkpoint, device=device)
-    frame = predict_sequence(run, load_input(input_path), samples=samples, sampler=Sampler(sampler),
+    sequence = load_input(input_path)
+    if resample_hz is not None and sequence.imu is not None:
+        from dataclasses import replace
+
+        from pipeline.resample import resample_imu_filtered
+
+        sequence = replace(sequence, imu=resample_imu_filtered(sequence.imu, resample_hz))
+    frame = predict_sequence(run, sequence, samples=samples, sampler=Sampler(sampler),
                              steps=steps, seed=seed)
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -1427,6 +1427,8 @@ _LIMITING_FINDINGS = {
     "CALIBRATION_DEFAULTED": "give the IMU's own noise values (sensor.yaml or the recovery config) and recover again",
     "SATURATION": "record with a larger sensor range, or drop the saturated stretches",
     "STAMP_UNIT_GUESSED": "write the stamps as integer nanoseconds so that their unit is not guessed",
+    "IMU_RATE_MISMATCH": "resample the IMU to the calibration's rate (biasgt convert --resample-hz) or correct "
+                         "rate_hz in sensor.yaml, and recover again",
 }
 
 

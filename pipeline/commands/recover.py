@@ -10,7 +10,10 @@ import enum
 import logging
 from pathlib import Path
 
-from pipeline.types import Sequence
+from pipeline.types import Sequence, Severity
+
+#: Input findings that ``recover`` repeats before its solve: they change what the result is worth.
+SAID_BEFORE_THE_SOLVE = ("IMU_RATE_MISMATCH",)
 
 from pipeline.ingest import (
     add_check_arguments,
@@ -121,6 +124,9 @@ def run(args: argparse.Namespace) -> int:
     stream = args.poses
     if stream is None:
         print(chosen_stream_sentence(seq))
+    for f in seq.findings:
+        if f.code in SAID_BEFORE_THE_SOLVE and f.severity is Severity.WARNING:
+            print(f"  warning: {f.code}: {f.message}")
     result = recover(seq, pose_stream=stream, config=config)
     write_recovery(result, args.out)
     r = result.report

@@ -95,7 +95,7 @@ def run(args: argparse.Namespace) -> int:
 
     ingest, recovery, validation, out = resolve_inputs(args)
     sequence = None
-    if not is_store(ingest) or args.extra_poses or args.fmt:
+    if Path(ingest).exists() and (not is_store(ingest) or args.extra_poses or args.fmt):
         sequence = load_checked(ingest, reader_kwargs_from_args(args), repairs=args.repair,
                                 check_options=check_options_from_args(args), action="report")
     path = build_quality_report(ingest, recovery_dir=recovery, validation_dir=validation, out_path=out,
