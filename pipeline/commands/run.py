@@ -78,7 +78,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    import io
+
+    from pipeline.run_summary import dry_run_summary
+
     profile = [] if args.profile is None else ["--profile", str(resolve_profile(args.profile))]
+    # a dry run prints Snakemake's whole plan only with -v; else one line says what would run and why
+    plan = io.StringIO() if args.dry_run and not getattr(args, "verbose", 0) else None
     result = run_workflow(
         config_file=args.config,
         cores=args.cores,
@@ -87,8 +93,11 @@ def main(args: argparse.Namespace) -> int:
         until=args.until,
         targets=args.target,
         extra=[*profile, *args.snakemake_args],
+        echo=plan,
     )
     if args.dry_run:
+        if plan is not None:
+            print(dry_run_summary(plan.getvalue()) + " (biasgt -v run --dry-run shows the whole plan)")
         return 0
     results = result.workdir / "results"
     print(f"results: {results}" if results.is_dir() else f"results: none yet under {result.workdir}")

@@ -6,7 +6,7 @@
 
 rule evaluate:
     input:
-        dataset=wf.windows_dataset_dir(),
+        dataset=windows_dataset_input,
         run=ts.training_run_dir("{method}", "{seed}"),
     output:
         directory(ts.evaluation_dir("{method}", "{seed}")),
@@ -14,6 +14,7 @@ rule evaluate:
         wf.log_file("evaluate", "{method}_seed{seed}"),
     params:
         settings=ts.evaluation_settings(WF_CONFIG.section("evaluation")),
+        dataset_checksum=windows_dataset_checksum,
     threads: TRAINING_PLAN.threads
     script:
         "../scripts/evaluate.py"
@@ -21,13 +22,14 @@ rule evaluate:
 
 rule evaluate_reference:
     input:
-        dataset=wf.windows_dataset_dir(),
+        dataset=windows_dataset_input,
     output:
         directory(ts.evaluation_dir("{reference}")),
     log:
         wf.log_file("evaluate", "{reference}"),
     params:
-        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation")),
+        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation"), sampled=False),
+        dataset_checksum=windows_dataset_checksum,
     threads: 1
     script:
         "../scripts/evaluate.py"
