@@ -26,7 +26,7 @@ from matplotlib.figure import Figure
 from pipeline.atomic import write_text_atomic
 from reports.html import Html, figure_img, fmt, join, p, page, section, table, tag
 from training.evaluate import CHANNELS, EXAMPLES_PARQUET, EvaluationSummary, read_summary
-from training.table import AVERAGE, TableColumn, build_table, cell_marks, table_columns
+from training.table import AVERAGE, TableColumn, build_table, cell_marks, method_label, table_columns
 
 log = logging.getLogger(__name__)
 
@@ -50,24 +50,27 @@ COVERAGE_TOLERANCE = 0.10
 
 
 def _table_section(columns: list[TableColumn]) -> Html:
+    """Table I transposed: one row per method and variant (grouped), one column per test sequence."""
     frame = build_table(columns)
-    rows = []
-    for row in frame.index:
-        mp, mr = cell_marks(columns, row, "prmse_m"), cell_marks(columns, row, "roe_deg")
+    marks = {seq: (cell_marks(columns, seq, "prmse_m"), cell_marks(columns, seq, "roe_deg")) for seq in frame.index}
+    rows, previous = [], None
+    for c in columns:
         cells = []
-        for c in columns:
-            pr = tag({"best": "strong", "second": "u"}.get(mp.get(c.name), "span"), f"{np.mean(c.prmse_m[row]):.4f}")
-            ro = tag({"best": "strong", "second": "u"}.get(mr.get(c.name), "span"), f"{np.mean(c.roe_deg[row]):.4f}")
+        for seq in frame.index:
+            mp, mr = marks[seq]
+            pr = tag({"best": "strong", "second": "u"}.get(mp.get(c.name), "span"), f"{np.mean(c.prmse_m[seq]):.4f}")
+            ro = tag({"best": "strong", "second": "u"}.get(mr.get(c.name), "span"), f"{np.mean(c.roe_deg[seq]):.4f}")
             cells.append(Html(pr + " / " + ro))
-        rows.append([tag("strong", row) if row == AVERAGE else row, *cells])
-    headers = ["sequence"] + [c.name + ("" if c.ranked else " (oracle)") for c in columns]
+        rows.append([method_label(c) if c.group != previous else "", c.variant, *cells])
+        previous = c.group
+    headers = ["method", "variant"] + [tag("strong", s) if s == AVERAGE else s for s in frame.index]
     note = p("PRMSE (m) / ROE (deg) of non-overlapping 1-s test windows, each integrated from the reference "
              "start state with the predicted bias subtracted; Average = mean over test sequences. Best bold, "
-             "second best underlined among usable methods; oracle columns read the ground truth at test time "
-             "and are not ranked. A diffusion column without suffix averages each metric over the K samples "
+             "second best underlined per sequence among usable methods; oracle rows read the ground truth at test "
+             "time and are not ranked. A diffusion model's first row averages each metric over the K samples "
              "(the paper); 'mean' / 'median' use the sample mean / median as the prediction; 'released' uses the "
              "released code's sampler.", class_="small")
-    return Html(tag("div", table(headers, rows), style="overflow-x:auto") + note)
+    return Html(table(headers, rows) + note)
 
 
 def _curves_figure(runs: Sequence[Path]) -> Figure | None:

@@ -39,12 +39,19 @@ def test_report_sections_and_content(report):
     assert html.startswith("<!DOCTYPE html>")
     for anchor, title in SECTIONS:
         assert f'id="{anchor}"' in html and escape(title) in html
-    # Table I: every column, one best and one second-best mark per metric in the Average row
-    for col in ("diffusion_rnn", "diffusion_rnn mean", "diffusion_rnn released", "regression_rnn", "indirect_rnn",
-                "Zero bias", "Random walk (oracle)"):
-        assert f"<th>{col}" in html, col
-    avg = re.search(r"<tr><td><strong>Average</strong></td>(.*?)</tr>", html, re.S).group(1)
-    assert avg.count("<strong>") == 2 and avg.count("<u>") == 2
+    # Table I: one row per method and variant, grouped; one column per test sequence and the Average, each
+    # with one best and one second-best mark per metric
+    section = html[html.index('id="table"'):html.index('id="curves"')]
+    body_rows = re.findall(r"<tr><td>(.*?)</tr>", section, re.S)
+    cells = [re.findall(r"<td[^>]*>(.*?)</td>", "<td>" + r, re.S) for r in body_rows]
+    labels = [(c[0], c[1]) for c in cells]
+    for label in (("diffusion_rnn", ""), ("", "mean"), ("", "released"), ("regression_rnn", ""),
+                  ("indirect_rnn", ""), ("Zero bias", ""), ("Random walk (oracle)", "")):
+        assert label in labels, label
+    assert re.search(r"<th>variant</th>\s*<th>test0</th>\s*<th><strong>Average</strong></th>", section)
+    for col in (2, 3):
+        column = "".join(c[col] for c in cells)
+        assert column.count("<strong>") == 2 and column.count("<u>") == 2
     assert html.count("data:image/png;base64") == 4  # curves, two example windows, calibration
     assert "diffusion_rnn seed0 ddim" in html and "diffusion_rnn seed0 released" in html
     assert "overconfident" in html or "calibrated within" in html or "too wide" in html

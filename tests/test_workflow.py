@@ -504,11 +504,12 @@ def test_slurm_profile_sets_each_rules_resources(tmp_path, capsys):
     profile = yaml.safe_load((REPO / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
     assert profile["executor"] == "slurm" and profile["set-resources"]["train"]["gpu"] == 1
     cfg = write_config(tmp_path / "c.yaml", {"sequences": [sim_entry("a", split="train")]})
-    assert main(["run", "--config", str(cfg), "--directory", str(tmp_path), "--profile", "slurm", "--dry-run"]) == 0
+    assert main(["-v", "run", "--config", str(cfg), "--directory", str(tmp_path), "--profile", "slurm",
+                 "--dry-run"]) == 0  # -v: the whole plan
     resources = {}  # rule -> its jobs' "resources:" line
     rule = None
     for line in capsys.readouterr().err.splitlines():
-        if m := re.match(r"^\s*(?:local)?rule (\w+):", line):  # indented: a job of a group job
+        if m := re.match(r"^\s*(?:local)?(?:rule|checkpoint) (\w+):", line):  # indented: a job of a group job
             rule = m.group(1)
         elif (m := re.match(r"^\s+resources: (.*)$", line)) and rule:
             resources[rule] = m.group(1)
