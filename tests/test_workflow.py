@@ -784,7 +784,8 @@ def test_real_run_writes_every_stage(e2e_run):
 
     workdir, printed = e2e_run.workdir, e2e_run.printed
     results = workdir / "results"
-    assert printed.splitlines() == [
+    lines = printed.splitlines()
+    assert lines[:lines.index("summary:")] == [
         f"results: {results}",
         *(f"  stage: {results / d}" for d in sorted(
             ["simulate", "ingest", "recovery", "interpolation", "validation", "windows", "report"])),
@@ -792,6 +793,9 @@ def test_real_run_writes_every_stage(e2e_run):
         f"  {results / 'report' / 'tiny_a' / 'report.html'}",
         f"  {results / 'report' / 'tiny_b' / 'report.html'}",
     ]
+    summary = lines[lines.index("summary:") + 1:]  # the verdict per sequence, the dataset, the reports
+    assert [x.split(":")[0] for x in summary[:2]] == ["  tiny_a", "  tiny_b"]
+    assert summary[2].startswith("  windows: 2 sequences in the dataset (test 1, train 1)")
     for name in ("tiny_a", "tiny_b"):
         assert (results / "simulate" / name / "mav0" / "imu0" / "data.csv").is_file()
         seq = read_store(results / "ingest" / name)

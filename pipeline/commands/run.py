@@ -80,7 +80,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     import io
 
-    from pipeline.run_summary import dry_run_summary
+    from pipeline.run_summary import dry_run_summary, finished_summary
 
     profile = [] if args.profile is None else ["--profile", str(resolve_profile(args.profile))]
     # a dry run prints Snakemake's whole plan only with -v; else one line says what would run and why
@@ -109,5 +109,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"reports ({len(reports)}):")
         for path in reports:
             print(f"  {path}")
+    for line in finished_summary(result.workdir):
+        print(line)
     sys.stdout.flush()
     return 0
