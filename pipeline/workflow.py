@@ -1008,6 +1008,8 @@ def parse_dry_run_jobs(text: str) -> list[tuple[str, dict[str, str]]]:
     return jobs
 
 
+#: The SLURM executor plugin's line when sbatch refuses a submission (its error text in quotes).
+_SBATCH_REFUSAL = re.compile(r"SLURM sbatch failed.*?The error message was '(.*?)'\.?\s*$")
 _ERROR_IN_RULE = re.compile(r"^\s*Error in rule ([A-Za-z0-9_]+):")
 _LOG_LINE = re.compile(r"^\s*log:\s*(\S+)")
 _WILDCARDS_LINE = re.compile(r"^\s*wildcards:\s*(.+)$")
@@ -1024,6 +1026,12 @@ def describe_failure(lines: Sequence[str], workdir: str | Path) -> str:
     rules in one cluster job) lists every rule of the group as failed: the one named is the first
     whose log holds an error.
     """
+    refused = next((m.group(1) for ln in lines if (m := _SBATCH_REFUSAL.search(ln))), None)
+    if refused is not None:  # the job never ran (its logs are empty): SLURM's own reason is the story
+        failed = _failed_jobs(lines)
+        where = f"rule '{failed[0][0]}'" if failed else "a job"
+        return (f"SLURM refused to queue {where}: {refused} (ask for fewer resources, e.g. a CPU-only cluster: "
+                "--profile slurm-cpu)")
     failed = _failed_jobs(lines)
     if not failed:
         informative = [ln.strip() for ln in lines if not _NOISE.match(ln)]

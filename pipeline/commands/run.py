@@ -33,6 +33,7 @@ examples:
   biasgt run --until ingest               stop after the ingest jobs
   biasgt run --target results/ingest/sim_handheld_01
   biasgt run --profile slurm -- --default-resources slurm_account=ME slurm_partition=cpu
+  biasgt run --profile slurm-cpu          a SLURM cluster without GPUs
   biasgt run -- --forceall                extra Snakemake arguments after '--'
   biasgt run -- --report run_report.html  Snakemake's HTML report of the finished run"""
 
