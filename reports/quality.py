@@ -357,8 +357,28 @@ _USABILITY = {
 }
 
 
-def verdict_summary(validation: dict[str, Any] | None) -> tuple[str, str]:
-    """``(word, sentence)``: PASS/WARN/FAIL (or NO VERDICT) and one plain-words headline."""
+def mm_pair(a_m: float | None, b_m: float | None) -> tuple[str, str]:
+    """Two distances in mm with the same number of decimals (3 significant digits for the smaller)."""
+    vals = [x for x in (a_m, b_m) if x is not None and math.isfinite(x)]
+    if not vals:
+        return fmt(a_m), fmt(b_m)
+    small = max(min(abs(1e3 * x) for x in vals), 1e-9)
+    decimals = int(min(6, max(0, 2 - math.floor(math.log10(small)))))
+    return tuple("n/a" if x is None or not math.isfinite(x) else f"{1e3 * x:.{decimals}f}"  # type: ignore[return-value]
+                 for x in (a_m, b_m))
+
+
+def dataset_bias_label(sequence: Sequence | None) -> str:
+    """How the DATASET source is named: the simulator's truth for a simulated recording, else the dataset's own."""
+    src = (sequence.metadata.get("source_path") if sequence is not None else None) or ""
+    return ("the simulator's true bias" if src and (Path(src) / "simulation.yaml").is_file()
+            else "the dataset's own bias")
+
+
+def verdict_summary(validation: dict[str, Any] | None,
+                    dataset_label: str = "the dataset's own bias") -> tuple[str, str]:
+    """``(word, sentence)``: PASS/WARN/FAIL (or NO VERDICT) and one plain-words headline (the DATASET source
+    named ``dataset_label``)."""
     if validation is None:
         return "NO VERDICT", "The validation stage's output is missing, so the recovered bias has not been judged."
     word = str(validation.get("verdict", "")).upper() or "NO VERDICT"
@@ -375,18 +395,19 @@ def verdict_summary(validation: dict[str, Any] | None) -> tuple[str, str]:
         bs = sources[const]
         rel = _better_worse(_num(cs, "prmse_m"), _num(bs, "prmse_m"))
         if rel is not None:
+            a, b = mm_pair(_num(cs, "prmse_m"), _num(bs, "prmse_m"))
             parts.append(
                 f"{who} integrates {rel} a constant bias (position error after 1-s windows, PRMSE "
-                f"{fmt(1e3 * _num(cs, 'prmse_m'), 3)} mm vs {fmt(1e3 * _num(bs, 'prmse_m'), 3)} mm; rotation error "
+                f"{a} mm vs {b} mm; rotation error "
                 f"ROE {fmt(_num(cs, 'roe_deg'), 3)} deg vs {fmt(_num(bs, 'roe_deg'), 3)} deg)")
     ds = _first_of_kind(validation, "dataset", cand)
     if ds is not None:
         rel = _better_worse(_num(cs, "prmse_m"), _num(sources[ds], "prmse_m"))
         if rel is not None and parts:
-            parts[-1] += f" and {rel} the dataset's own bias"
+            parts[-1] += f" and {rel} {dataset_label}"
         elif rel is not None:
-            parts.append(f"{who} integrates {rel} the dataset's own bias (PRMSE "
-                         f"{fmt(1e3 * _num(cs, 'prmse_m'), 3)} mm vs {fmt(1e3 * _num(sources[ds], 'prmse_m'), 3)} mm)")
+            a, b = mm_pair(_num(cs, "prmse_m"), _num(sources[ds], "prmse_m"))
+            parts.append(f"{who} integrates {rel} {dataset_label} (PRMSE {a} mm vs {b} mm)")
     if not parts:
         parts.append(f"{who} has PRMSE {fmt(1e3 * (_num(cs, 'prmse_m') or float('nan')), 3)} mm and ROE "
                      f"{fmt(_num(cs, 'roe_deg'), 3)} deg over 1-s windows")
@@ -431,7 +452,7 @@ def implausible_frame(inp: ReportInputs, check: str, body: Html | None) -> Html 
 
 
 def _verdict_section(inp: ReportInputs) -> Html:
-    word, sentence = verdict_summary(inp.validation)
+    word, sentence = verdict_summary(inp.validation, dataset_bias_label(inp.sequence))
     cls = {"PASS": "v-pass", "WARN": "v-warn", "FAIL": "v-fail"}.get(word, "v-none")
     body = [Html(tag("span", word, class_="word") + esc(sentence))]
     if inp.validation is not None:
@@ -657,13 +678,14 @@ def _bias_section(inp: ReportInputs) -> Html:
                "standard deviations of the recovery" + (
                    "; the dashed black line is the dataset's own bias estimate." if gt is not None else
                    "; the dataset has no bias of its own to compare with."))]
-    parts.append(figure_img(plots.bias_figure(t_s, b.bias[:, :3], std[:, :3], quantity="Gyroscope bias",
-                                              unit="rad/s", dataset_t_s=gt_t,
-                                              dataset_bias=None if gt is None else gt.bias_gyro_radps),
+    # milli-units: bias values need no matplotlib offset ("1e-3") on the axis
+    parts.append(figure_img(plots.bias_figure(t_s, 1e3 * b.bias[:, :3], 1e3 * std[:, :3], quantity="Gyroscope bias",
+                                              unit="mrad/s", dataset_t_s=gt_t,
+                                              dataset_bias=None if gt is None else 1e3 * gt.bias_gyro_radps),
                             "gyroscope bias over time", "Gyroscope bias (x, y, z) with ± 3σ."))
-    parts.append(figure_img(plots.bias_figure(t_s, b.bias[:, 3:], std[:, 3:], quantity="Accelerometer bias",
-                                              unit="m/s²", dataset_t_s=gt_t,
-                                              dataset_bias=None if gt is None else gt.bias_acc_mps2),
+    parts.append(figure_img(plots.bias_figure(t_s, 1e3 * b.bias[:, 3:], 1e3 * std[:, 3:],
+                                              quantity="Accelerometer bias", unit="10⁻³ m/s²", dataset_t_s=gt_t,
+                                              dataset_bias=None if gt is None else 1e3 * gt.bias_acc_mps2),
                             "accelerometer bias over time", "Accelerometer bias (x, y, z) with ± 3σ."))
     rows = []
     names = ["gyro x", "gyro y", "gyro z", "acc x", "acc y", "acc z"]
@@ -757,9 +779,13 @@ def _residuals_section(inp: ReportInputs) -> Html:
         kf = _num(rec, "keyframes")
         out = _num(rec, "outliers_rejected")
         rows = [[f"{k.replace('_', ' ')}", fmt(_num(res, k), 4)] for k in res if _num(res, k) is not None]
-        rows.append(["poses rejected as outliers",
+        samples = int(_num(rec.get("pose_fusion") or {}, "samples_rejected") or 0)
+        out = None if out is None else out - samples  # outliers_rejected counts both kinds
+        rows.append(["keyframe poses rejected as outliers",
                      "n/a" if out is None else (f"{int(out)} of {int(kf)} keyframes ({out / kf:.2%})" if kf else
                                                 f"{int(out)}")])
+        if samples:
+            rows.append(["pose samples rejected before fusion into keyframes", f"{samples}"])
         for key, label in (("segments", "solver segments"), ("imu_pieces", "gap-free IMU pieces"),
                            ("duration_s", "duration [s]"), ("runtime_s", "recovery runtime [s]")):
             if _num(rec, key) is not None:
@@ -774,11 +800,17 @@ def _residuals_section(inp: ReportInputs) -> Html:
         parts.append(table(["statistic", "value"], rows, numeric_from=1))
     if inp.residuals is not None and len(inp.residuals):
         frame = inp.residuals
-        cols = [c for c in frame.columns if c != "t_ns" and pd.api.types.is_numeric_dtype(frame[c])][:6]
+        # a flag column (the rejected outliers) is drawn as marks on the residuals, not as a 0/1 series
+        flags = [c for c in frame.columns if pd.api.types.is_bool_dtype(frame[c])]
+        cols = [c for c in frame.columns if c != "t_ns" and c not in flags
+                and pd.api.types.is_numeric_dtype(frame[c])][:6]
         if cols:
             t_s = _rel_s(frame["t_ns"].to_numpy(), inp.t0_ns)
-            parts.append(figure_img(plots.residual_series_figure(t_s, {c: frame[c].to_numpy(float) for c in cols}),
-                                    "residuals per keyframe", "Residuals per keyframe, as written by the recovery."))
+            outliers = frame[flags[0]].to_numpy(bool) if flags else None
+            parts.append(figure_img(plots.residual_series_figure(t_s, {c: frame[c].to_numpy(float) for c in cols},
+                                                                 outliers),
+                                    "residuals per keyframe", "Residuals per keyframe, as written by the recovery"
+                                    + ("; red marks: keyframes rejected as outliers." if flags else ".")))
     else:
         parts.append(_missing_box("Per-keyframe residuals are not available: the recovery writes only the "
                                   "statistics above. The figure below compares the recovered trajectory with the "

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import pytest
+
 from pipeline.run_summary import dry_run_summary, finished_summary
 
 
@@ -49,3 +51,19 @@ def test_dry_run_summary_names_rules_and_reasons() -> None:
         "train 1 (after an upstream job); of these, train run only if the window dataset's content changes "
         "(they depend on its checksum)")
     assert dry_run_summary("Nothing to be done.") == "dry run: nothing to do, every output is up to date"
+
+
+@pytest.mark.slow
+def test_demo_position_only_cart_is_a_warn_that_the_demo_explains(tmp_path: Path) -> None:
+    """The built-in demo's position-only cart: too uncertain to tell from its truth (WARN, never FAIL), as the
+    config says; the reason is the recovery's own sigma, not a wrong bias."""
+    import io
+
+    from pipeline import workflow as wf
+
+    wf.run_workflow(workdir=tmp_path, echo=io.StringIO(), targets=["results/validation/sim_cart_leica_01"])
+    data = json.loads((tmp_path / "results" / "validation" / "sim_cart_leica_01" / "validation.json").read_text())
+    assert data["verdict"] == "WARN" and all("too uncertain" in r for r in data["reasons"])
+    assert data["sources"]["recovered"]["prmse_m"] < data["sources"]["constant"]["prmse_m"]
+    config = (Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text()
+    assert "Expected\n  # verdict WARN" in config

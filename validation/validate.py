@@ -1576,4 +1576,10 @@ def next_steps(result: ValidationResult, limitations: Sequence_[Limitation] = ()
     if result.windows_dropped.get("fraction", 0.0) > result.config.warn_dropped_fraction:
         steps.append("many dropped windows: close the IMU gaps or cover the whole IMU span with poses "
                      "(windows_dropped.by_reason in validation.json says which)")
-    return list(dict.fromkeys(steps))
+    return said_once(steps)
+
+
+def said_once(steps: Sequence_[str]) -> list[str]:
+    """``steps`` without repeats: a step that another repeats with more words is kept the longer way."""
+    steps = list(dict.fromkeys(steps))
+    return [s for s in steps if not any(o != s and o.startswith(s) for o in steps)]

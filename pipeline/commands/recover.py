@@ -131,7 +131,7 @@ def run(args: argparse.Namespace) -> int:
     write_recovery(result, args.out)
     r = result.report
     print(f"wrote {args.out} ({r['keyframes']} keyframes over {r['duration_s']:.1f} s from '{r['pose_stream']}', "
-          f"offset {r['pose_time_offset_s'] * 1e3:+.3f} ms, {r['outliers_rejected']} outliers, "
+          f"offset {r['pose_time_offset_s'] * 1e3:+.3f} ms, {outlier_counts(r)}, "
           f"{r['runtime_s']:.1f} s)")
     for w in result.warnings:
         print(f"  warning: {w}")
@@ -149,3 +149,12 @@ def chosen_stream_sentence(seq: Sequence) -> str:
     others = [s for s in list_pose_streams(seq) if s != name]
     return (f"pose stream: '{name}' ({why})" + (f"; also in the input: {', '.join(others)} (choose with --poses NAME)"
                                                  if others else ""))
+
+
+def outlier_counts(report: dict) -> str:
+    """Which poses were rejected: keyframe poses (the solve's robust loss) and, with pose fusion, pose samples
+    (before fusing them into keyframes); ``outliers_rejected`` is their sum."""
+    samples = int((report.get("pose_fusion") or {}).get("samples_rejected") or 0)
+    keyframes = int(report["outliers_rejected"]) - samples
+    return (f"outliers rejected: {keyframes} of {report['keyframes']} keyframe poses"
+            + (f", {samples} pose samples before fusion" if samples else ""))
