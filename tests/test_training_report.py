@@ -70,3 +70,43 @@ def test_chromium_renders_training_report(report, tmp_path):
     assert 'data-broken-images="0"' in body and 'data-images="4"' in body, body
     for _, title in SECTIONS:
         assert escape(title, quote=False) in dom.stdout
+
+
+def test_summary_on_top_says_the_models_are_demo_sized(report):
+    html = report.read_text()
+    top = html[:html.index('id="table"')]
+    assert 'id="summary"' in top and "Demo-sized models" in top and "preset tiny" in top
+    assert "Best usable average (Table I):" in top
+
+
+def test_curve_legend_sits_beside_the_curves(tmp_path):
+    import pandas as pd
+
+    from reports.training import _curves_figure
+
+    runs = []
+    for method in METHODS:
+        run = tmp_path / method / "seed0"
+        run.mkdir(parents=True)
+        pd.DataFrame({"step": [10, 20, 30], "train_loss": [1.0, 0.5, 0.3], "val_loss": [1.1, 0.6, 0.4]}).to_csv(
+            run / "metrics.csv", index=False)
+        runs.append(run)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = _curves_figure(runs)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is not None:
+            box, area = legend.get_window_extent(renderer), ax.get_window_extent(renderer)
+            assert box.x0 >= area.x1 or box.y1 <= area.y0  # outside the panel
+
+
+def test_demo_training_records_enough_points_for_a_curve():
+    import yaml
+
+    options = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text())
+    options = options["training"]["options"]
+    assert options["max_steps"] // options["val_every"] >= 8  # a validation loss (and a train loss) every val_every
