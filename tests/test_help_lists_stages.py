@@ -39,3 +39,18 @@ def test_readme_introduces_and_lists_the_learning_commands() -> None:
     for command in ("inspect", "convert", "simulate", "recover", "interpolate", "validate", "windows", "train",
                     "evaluate", "predict", "export", "report", "run"):
         assert re.search(rf"^\| `biasgt {command}\b", table, re.M), command
+
+
+def test_make_run_time_comes_from_a_benchmark_that_runs_what_make_run_runs() -> None:
+    import subprocess
+    import sys
+
+    text = (REPO / "README.md").read_text()
+    claim = text[text.index("How long `make run` takes"):text.index("`make test` runs in")]
+    assert "benchmarks/make_run.py" in claim and "about 2 minutes" not in text
+    out = subprocess.run([sys.executable, str(REPO / "benchmarks" / "make_run.py"), "--print-command"],
+                         capture_output=True, text=True, check=True).stdout.split()
+    make = (REPO / "Makefile").read_text()
+    assert "biasgt run --cores $(CORES)" in make and "CORES ?= 2" in make
+    assert out[out.index("run"):out.index("run") + 1] == ["run"] and out[out.index("--cores") + 1] == "2"
+    assert out[out.index("--config") + 1] == str(REPO / "config" / "config.yaml")
