@@ -63,3 +63,12 @@ def test_bias_axes_carry_no_offset_label() -> None:
 def test_recover_says_which_outlier_count_is_which() -> None:
     text = outlier_counts({"outliers_rejected": 4609, "keyframes": 1434, "pose_fusion": {"samples_rejected": 4400}})
     assert text == "outliers rejected: 209 of 1434 keyframe poses, 4400 pose samples before fusion"
+
+
+def test_inspect_names_the_topics_it_cannot_use(shared_data: Path, capsys) -> None:
+    from pipeline.cli import main
+
+    bag = shared_data / "ros_bags" / "robot_localization_test" / "test1.bag"
+    assert main(["inspect", str(bag)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if "TOPICS_NOT_USED" in x)
+    assert "/fix (sensor_msgs/msg/NavSatFix, 989 msgs)" in line and "/imu/data" not in line
