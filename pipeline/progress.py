@@ -45,7 +45,11 @@ def progress(total: int | None, *, desc: str, unit: str, logger: logging.Logger,
         logger: Where the lines go when stderr is not a terminal.
         initial: Units already done (a resumed run).
         interval_s: Least seconds between two log lines.
+
+    Nothing is shown where ``logger`` does not log INFO (``biasgt -q``).
     """
+    if not logger.isEnabledFor(logging.INFO):  # biasgt -q: no progress either
+        return tqdm(total=total, initial=initial, disable=True, **kwargs)
     if sys.stderr.isatty():
         return tqdm(total=total, initial=initial, desc=desc, unit=unit, dynamic_ncols=True, **kwargs)
     return tqdm(total=total, initial=initial, desc=desc, unit=unit, file=_LogLines(logger), ncols=80, ascii=True,
