@@ -13,7 +13,9 @@ rule evaluate:
     log:
         wf.log_file("evaluate", "{method}_seed{seed}"),
     params:
-        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation")),
+        # a regression model draws no samples: the sampling options rerun only the diffusion models'
+        settings=lambda wildcards: ts.evaluation_settings(WF_CONFIG.section("evaluation"),
+                                                          sampled=ts.Method(wildcards.method).is_diffusion),
         dataset_checksum=windows_dataset_checksum,
     threads: TRAINING_PLAN.threads
     script:
