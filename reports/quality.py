@@ -411,6 +411,11 @@ def verdict_summary(validation: dict[str, Any] | None,
     if not parts:
         parts.append(f"{who} has PRMSE {fmt(1e3 * (_num(cs, 'prmse_m') or float('nan')), 3)} mm and ROE "
                      f"{fmt(_num(cs, 'roe_deg'), 3)} deg over 1-s windows")
+    found = [x for x in validation.get("plausibility") or [] if isinstance(x, Mapping)]
+    if found:  # what physics rules out comes before any comparison of errors
+        checks = ", ".join(dict.fromkeys(str(x.get("check", "?")).replace("_", " ") for x in found))
+        parts.insert(0, f"{who} is physically impossible ({len(found)} plausibility finding"
+                        f"{'s' * (len(found) > 1)}: {checks}; framed in red below)")
     sentence = "; ".join(parts) + ". " + (f"It is {usable}" if usable else "")
     return word, sentence.strip()
 
@@ -447,7 +452,8 @@ def implausible_frame(inp: ReportInputs, check: str, body: Html | None) -> Html 
              if isinstance(x, Mapping) and x.get("check") == check]
     if not found or body is None:
         return body
-    why = p(Html(tag("strong", "Impossible: ") + esc("; ".join(str(x.get("text")) for x in found))), class_="why")
+    text = "; ".join(str(x.get("text")) for x in found)
+    why = p(Html(tag("strong", "Plausibility check failed: ") + esc(text)), class_="why")
     return tag("div", join([why, body]), class_="implausible", data_check=check)
 
 
