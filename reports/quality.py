@@ -440,9 +440,20 @@ def checked_and_not(validation: dict[str, Any]) -> list[str]:
                        for k in baselines) + ".",
         "Independent reference: " + ("yes." if independent else "no, the reference is what the bias was fitted "
                                                                   "to (pose errors absorbed by the bias are not seen)."),
+        *plausibility_checked(validation),
         "Not checked: drift over spans longer than one window; errors the reference and the IMU share (e.g. a "
         "wrong extrinsic used by both); IMU scale and misalignment (not modelled: the bias absorbs them).",
     ]
+
+
+def plausibility_checked(validation: dict[str, Any]) -> list[str]:
+    """The sentence on the plausibility checks (run when the validation had the recovery), or none."""
+    notes = validation.get("notes") if isinstance(validation.get("notes"), list) else []
+    if "plausibility" not in validation or not any(str(n).startswith("recovery: ") for n in notes):
+        return []
+    found = validation.get("plausibility") or []
+    return [f"Plausibility of the recovery (bias within the sensor's range, gravity direction, attitude against the "
+            f"poses, gyro axes against the poses' rotation): {len(found) or 'no'} finding{'s' * (len(found) != 1)}."]
 
 
 def implausible_frame(inp: ReportInputs, check: str, body: Html | None) -> Html | None:
