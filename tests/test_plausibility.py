@@ -101,3 +101,12 @@ def test_wheel_odometry_with_the_identity_extrinsic_fails_with_a_plausibility_re
     assert "gyro axes against the poses&#x27; rotation): 4 findings." in html
     for check in checks:  # the figure or table that triggered each check is framed in red
         assert f'class="implausible" data-check="{check}"' in html
+
+
+def test_the_report_note_calls_a_swapped_frame_a_frame_mismatch(sim60: Path) -> None:
+    from recovery.gyro_consistency import rate_coupling
+
+    seq = load_sequence(sim60)
+    sentence = rate_coupling(seq.imu, seq.poses["mocap0"], R_imu_pose=ROTATED[:3, :3]).sentence()
+    assert "frame mismatch" in sentence and "scale error" not in sentence
+    assert "frame mismatch" not in rate_coupling(seq.imu, seq.poses["mocap0"]).sentence()

@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from pipeline.errors import BiasgtError
 from pipeline.pose_transform import offset_ns, poses_in_imu_frame
 from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
-from recovery.gyro_consistency import rate_coupling
+from recovery.gyro_consistency import FRAME_SWAP_GAIN, rate_coupling
 from recovery.outputs import RecoveryOutputs
 
 
@@ -69,7 +69,7 @@ class PlausibilityLimits:
     max_rotation_residual_deg: float = 5.0
     max_relative_rotation_residual_deg: float = 1.0
     relative_interval_s: float = 1.0
-    frame_swap_gain: float = 0.5
+    frame_swap_gain: float = FRAME_SWAP_GAIN
     frame_swap_coherence: float = 0.9
 
 
