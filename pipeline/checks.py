@@ -124,8 +124,11 @@ FATAL_HINTS: dict[str, str] = {
 CHECK_CODES = frozenset({
     "EMPTY_STREAM", "NONFINITE_ROWS", "NON_MONOTONIC", "DUPLICATE_STAMPS", "GAPS", "RATE", "GYRO_DEGPS",
     "ACC_IN_G", "ACC_SCALE_SUSPECT", "SATURATION", "QUAT_NOT_UNIT", "QUAT_SIGN_FLIPS", "NO_TIME_OVERLAP",
-    "CLOCK_MISMATCH", "TOO_SHORT", "NO_IMU", "NO_POSES", "POSE_RATE_LOW",
+    "CLOCK_MISMATCH", "TOO_SHORT", "NO_IMU", "NO_POSES", "POSE_RATE_LOW", "IMU_RATE_MISMATCH",
 })
+
+#: A recorded IMU rate this far (relative) from the calibration's ``rate_hz`` is IMU_RATE_MISMATCH.
+IMU_RATE_TOLERANCE = 0.05
 
 
 class Verdict(str, enum.Enum):
@@ -647,6 +650,24 @@ def _check_overlap(seq: Sequence, spans: dict[str, tuple[int, int]], opts: Check
 # public API
 
 
+def _check_imu_rate(seq: Sequence, s: _Stream, ts: _TimeStats) -> list[Finding]:
+    """IMU_RATE_MISMATCH: the IMU runs far from the rate its calibration file states."""
+    cal = seq.calibration
+    where = cal.sources.get("rate_hz")
+    if s.kind != "imu" or where is None or not math.isfinite(ts.nominal_ns) or ts.nominal_ns <= 0:
+        return []
+    rate = NS_PER_S / ts.nominal_ns
+    if abs(rate / cal.rate_hz - 1.0) <= IMU_RATE_TOLERANCE:
+        return []
+    return [Finding(
+        "IMU_RATE_MISMATCH", Severity.WARNING, s.name,
+        f"imu runs at {rate:.4g} Hz but its calibration ({where}) says {cal.rate_hz:g} Hz: the noise values and a "
+        f"model trained at that rate do not fit this recording; resample it (biasgt convert --resample-hz "
+        f"{cal.rate_hz:g}) or correct rate_hz",
+        {"rate_hz": _round(rate), "calibration_rate_hz": float(cal.rate_hz)},
+    )]
+
+
 def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Finding]:
     """All input checks on ``seq``.
 
@@ -692,6 +713,7 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
         spans[s.name] = (ts.t0_ns, ts.t1_ns)
         findings += _check_stamps(s, ts, opts)
         findings += _check_pose_rate(s, ts, opts)
+        findings += _check_imu_rate(seq, s, ts)
         findings += _check_quaternions(s, valid, opts)
         if s.kind == "imu":
             assert seq.imu is not None

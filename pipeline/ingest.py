@@ -15,6 +15,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from pipeline.checks import (
@@ -34,7 +35,7 @@ from pipeline.checks import (
 from pipeline.errors import ConfigError, FatalCheckError
 from pipeline.io import load_sequence
 from pipeline.store import write_store
-from pipeline.types import Finding, Sequence, Severity
+from pipeline.types import NS_PER_S, Finding, Sequence, Severity
 
 log = logging.getLogger(__name__)
 
@@ -180,6 +181,7 @@ def ingest(
     repairs: Iterable[Repair | str] = (),
     reader_kwargs: Mapping[str, Any] | None = None,
     check_options: CheckOptions | None = None,
+    resample_hz: float | None = None,
 ) -> Sequence:
     """Load, check, repair (only what ``repairs`` allows), re-check and write the canonical store.
 
@@ -189,6 +191,9 @@ def ingest(
         repairs: Allowed repairs (:class:`Repair` members or flag names, ``"all"``).
         reader_kwargs: Keyword arguments for :func:`pipeline.io.load_sequence`.
         check_options: Check thresholds.
+        resample_hz: Resample the IMU to this rate (anti-alias filtered,
+            :func:`pipeline.resample.resample_imu_filtered`) after the checks; the calibration's
+            ``rate_hz`` becomes it and ``metadata["resampled_from_hz"]`` keeps the recorded rate.
 
     Returns:
         The sequence as written (findings and repairs recorded in it).
@@ -203,6 +208,14 @@ def ingest(
     if refusal is not None:
         raise FatalCheckError(refusal[0], path=input_path, hint=refusal[1])
     out = checked.sequence
+    if resample_hz is not None and out.imu is not None:
+        from pipeline.resample import resample_imu_filtered
+
+        recorded = NS_PER_S / float(np.median(np.diff(out.imu.t_ns)))
+        out = replace(out, imu=resample_imu_filtered(out.imu, resample_hz),
+                      calibration=replace(out.calibration, rate_hz=float(resample_hz)),
+                      metadata={**out.metadata, "resampled_from_hz": round(recorded, 6)})
+        log.info("resampled the IMU from %.4g Hz to %g Hz (anti-alias filtered)", recorded, resample_hz)
     out.metadata.setdefault("source_path", str(input_path))
     write_store(out, out_dir)
     log.info("wrote %s (%s)", out_dir, "; ".join(checked.changes) or "no repairs")

@@ -294,6 +294,11 @@ class ImuCalibration:
         acc_noise_density: m/s^2/sqrt(Hz).
         acc_random_walk: m/s^3/sqrt(Hz).
         rate_hz: Nominal IMU rate.
+        gyro_bias_max_radps: The largest gyro bias per axis the sensor can have (its datasheet's bias
+            range); a recovered bias beyond it is impossible. Default 0.35 rad/s (20 deg/s): well above
+            the specified bias range of MEMS gyros (a few deg/s); ``gyroscope_bias_max`` in sensor.yaml.
+        acc_bias_max_mps2: The same for the accelerometer. Default 2 m/s^2 (0.2 g): well above the
+            specified bias range of MEMS accelerometers (tens of mg); ``accelerometer_bias_max``.
         T_body_imu: 4x4 pose of the IMU in the body frame (EuRoC ``T_BS`` of imu0).
         T_imu_frames: Known 4x4 ``T_imu_<frame>`` per tracked-frame name.
         sources: Where each noise value came from (attribute name -> a file path, or
@@ -306,6 +311,8 @@ class ImuCalibration:
     acc_noise_density: float = 2.0e-3
     acc_random_walk: float = 3.0e-3
     rate_hz: float = 200.0
+    gyro_bias_max_radps: float = 0.35
+    acc_bias_max_mps2: float = 2.0
     T_body_imu: np.ndarray = field(default_factory=lambda: np.eye(4))
     T_imu_frames: dict[str, np.ndarray] = field(default_factory=dict)
     sources: dict[str, str] = field(default_factory=dict)
@@ -325,6 +332,8 @@ class ImuCalibration:
             "acc_noise_density": float(self.acc_noise_density),
             "acc_random_walk": float(self.acc_random_walk),
             "rate_hz": float(self.rate_hz),
+            "gyro_bias_max_radps": float(self.gyro_bias_max_radps),
+            "acc_bias_max_mps2": float(self.acc_bias_max_mps2),
             "T_body_imu": np.asarray(self.T_body_imu, dtype=float).tolist(),
             "T_imu_frames": {k: np.asarray(v, dtype=float).tolist() for k, v in self.T_imu_frames.items()},
             "sources": dict(self.sources),
@@ -338,6 +347,8 @@ class ImuCalibration:
             acc_noise_density=float(d["acc_noise_density"]),
             acc_random_walk=float(d["acc_random_walk"]),
             rate_hz=float(d["rate_hz"]),
+            gyro_bias_max_radps=float(d.get("gyro_bias_max_radps", cls.gyro_bias_max_radps)),
+            acc_bias_max_mps2=float(d.get("acc_bias_max_mps2", cls.acc_bias_max_mps2)),
             T_body_imu=np.asarray(d.get("T_body_imu", np.eye(4)), dtype=float),
             T_imu_frames={k: np.asarray(v, dtype=float) for k, v in d.get("T_imu_frames", {}).items()},
             sources={str(k): str(v) for k, v in (d.get("sources") or {}).items()},

@@ -1043,6 +1043,8 @@ def parse_dry_run_jobs(text: str) -> list[tuple[str, dict[str, str]]]:
     return jobs
 
 
+#: The SLURM executor plugin's line when sbatch refuses a submission (its error text in quotes).
+_SBATCH_REFUSAL = re.compile(r"SLURM sbatch failed.*?The error message was '(.*?)'\.?\s*$")
 _ERROR_IN_RULE = re.compile(r"^\s*Error in rule ([A-Za-z0-9_]+):")
 _LOG_LINE = re.compile(r"^\s*log:\s*(\S+)")
 _WILDCARDS_LINE = re.compile(r"^\s*wildcards:\s*(.+)$")
@@ -1059,6 +1061,12 @@ def describe_failure(lines: Sequence[str], workdir: str | Path) -> str:
     rules in one cluster job) lists every rule of the group as failed: the one named is the first
     whose log holds an error.
     """
+    refused = next((m.group(1) for ln in lines if (m := _SBATCH_REFUSAL.search(ln))), None)
+    if refused is not None:  # the job never ran (its logs are empty): SLURM's own reason is the story
+        failed = _failed_jobs(lines)
+        where = f"rule '{failed[0][0]}'" if failed else "a job"
+        return (f"SLURM refused to queue {where}: {refused} (ask for fewer resources, e.g. a CPU-only cluster: "
+                "--profile slurm-cpu)")
     failed = _failed_jobs(lines)
     if not failed:
         informative = [ln.strip() for ln in lines if not _NOISE.match(ln)]
@@ -1156,8 +1164,10 @@ def output_locations(workdir: str | Path) -> list[Path]:
 RUN_LOCK = Path(".snakemake") / "biasgt-run.lock"
 
 
-def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool) -> tuple[int, list[str]]:
-    """Run Snakemake in its own process group, copying its output to ``echo``.
+def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool, workdir: Path,
+                   progress_interval_s: float) -> tuple[int, list[str]]:
+    """Run Snakemake in its own process group, copying its output to ``echo`` with one line per running
+    job every ``progress_interval_s`` (:mod:`pipeline.job_progress`).
 
     On Ctrl-C (KeyboardInterrupt), SIGTERM (the CLI's ``Terminated``) or any other exception,
     Snakemake gets SIGINT and its jobs SIGTERM; Snakemake cancels its jobs and removes their
@@ -1167,17 +1177,20 @@ def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool) -> tuple[in
     Returns:
         Snakemake's exit status and the tail of its output (all of it with ``keep_all``).
     """
+    from pipeline.job_progress import JobProgress
+
     log.info("running %s", " ".join(cmd))
     tail: list[str] = []
     proc = start_group(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
                        errors="replace")
     try:
         assert proc.stdout is not None
-        for line in proc.stdout:
-            echo.write(line)
-            tail.append(line.rstrip("\n"))
-            if len(tail) > 4000 and not keep_all:  # a dry run's plan is kept whole for the caller
-                del tail[:1000]
+        with JobProgress(workdir, echo, interval_s=progress_interval_s) as jobs:
+            for line in proc.stdout:
+                jobs.write(line)
+                tail.append(line.rstrip("\n"))
+                if len(tail) > 4000 and not keep_all:  # a dry run's plan is kept whole for the caller
+                    del tail[:1000]
         return proc.wait(), tail
     except BaseException:
         # Snakemake gets SIGINT for SIGTERM too (it ignores SIGTERM while SLURM jobs run; on SIGINT it
@@ -1201,11 +1214,13 @@ def run_workflow(
     targets: Sequence[str] = (),
     extra: Sequence[str] = (),
     echo: IO[str] | None = None,
+    progress_interval_s: float = 30.0,
 ) -> RunResult:
     """Check the config, then run the workflow with Snakemake in a subprocess.
 
     Snakemake's own output (stdout and stderr) is copied to ``echo`` (default ``sys.stderr``) as it
-    comes, so that the caller's stdout holds only its result.
+    comes, so that the caller's stdout holds only its result; every ``progress_interval_s`` one line
+    per running job (its log's last line: :mod:`pipeline.job_progress`) goes there too.
 
     Args:
         config_file: Workflow config (default: the repository's ``config/config.yaml``).
@@ -1238,7 +1253,7 @@ def run_workflow(
                 f"another 'biasgt run' (pid {holder or 'unknown'}) is running in {workdir}",
                 hint=f"wait for it to finish, or stop it (kill -INT {holder or 'PID'}) and rerun; its outputs are "
                      "locked while it runs")
-        rc, tail = _run_snakemake(cmd, echo, keep_all=dry_run)
+        rc, tail = _run_snakemake(cmd, echo, keep_all=dry_run, workdir=workdir, progress_interval_s=progress_interval_s)
     if rc != 0:
         raise WorkflowRunError(
             f"workflow failed (snakemake exit {rc}): {describe_failure(tail, workdir)}",

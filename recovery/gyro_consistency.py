@@ -93,6 +93,9 @@ COUPLING_CHANCE = 0.001
 COUPLING_MIN_GAIN = 2e-3
 # Bands from this frequency up tell an intrinsic error (every band) from a slow process.
 FAST_BAND_HZ = 0.2
+# A share of the rate this large is no IMU intrinsic error (those are percents) but a frame mismatch: a gyro
+# axis reading another axis's rotation, or a rotation the pose stream lacks (validation.plausibility).
+FRAME_SWAP_GAIN = 0.5
 
 
 class CouplingKind(str, enum.Enum):
@@ -181,6 +184,11 @@ class RateCoupling:
                     else "too few independent averages in that band to tell it from chance")
             return (f"The gyro follows the pose stream's rotation: no share of the rate counts (most coherent: "
                     f"{where}, coherence {self.coherence[b, r]:.2f}; {need}).")
+        if abs(self.gain[b, r, c]) >= FRAME_SWAP_GAIN:
+            return (f"Against this pose stream {where} (coherence {self.coherence[b, r]:.2f}): a share of "
+                    f"{abs(self.gain[b, r, c]):.2f} of the rate is no IMU error (scale and misalignment are percents) "
+                    "but a frame mismatch: a gyro axis reads another axis's rotation, or one the pose stream lacks "
+                    "(a wrong pose-to-IMU rotation, planar odometry).")
         if kind is CouplingKind.INTRINSIC:
             return (f"Against this pose stream {where} (coherence {self.coherence[b, r]:.2f}), the "
                     f"{'xyz'[c]} term alike in every band where it counts up to {self.bands_hz[-1, 1]:g} Hz: a "

@@ -617,10 +617,7 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         raise RecoveryError(
             f"sequence '{sequence.name}': the optimisation is degenerate ({first}); the motion does not "
             "make the bias, clock offset or extrinsic observable",
-            hint=_ignored_units_hint(sequence)
-            + "for wheel odometry or VIO poses, use fewer keyframes (--keyframe-rate 10); else record "
-              "more varied motion (rotation about several axes), or fix the extrinsic (--extrinsic known) "
-              "and the clock offset (--time-offset-s)",
+            hint=_ignored_units_hint(sequence) + degenerate_hint(sequence, pose_stream, config),
         ) from exc
 
 
@@ -639,6 +636,39 @@ def _ignored_units_hint(sequence: Sequence) -> str:
     repairs = ",".join(REPAIR_FOR_CODE[c].value for c in ignored)
     return (f"the units finding(s) {', '.join(ignored)} were ignored (--ignore) and are likely "
             f"real: rerun with --repair {repairs} instead; ")
+
+
+#: Keyframe rate the degenerate-recovery hint suggests for relative (odometry, VIO) pose streams.
+DEGENERATE_KEYFRAME_RATE_HZ = 10.0
+
+
+def degenerate_hint(sequence: Sequence, pose_stream: str | None, config: RecoveryConfig) -> str:
+    """The fixes of a degenerate recovery that apply to this case, most promising first: fewer keyframes
+    for a relative (odometry, VIO) stream only when that lowers their rate; fixing the extrinsic and the
+    clock offset only when they are still estimated; more varied motion always."""
+    fixes = []
+    try:
+        _, poses = select_pose_stream(sequence, pose_stream)
+    except BiasgtError:
+        poses = None
+    if poses is not None and poses.source_kind is PoseSourceKind.VIO and len(poses.t_ns) > 1:
+        rate_hz = NS_PER_S / float(np.median(np.diff(poses.t_ns)))
+        current = config.keyframe_rate_hz or rate_hz
+        if current > 1.2 * DEGENERATE_KEYFRAME_RATE_HZ:
+            fixes.append(f"use fewer keyframes for these odometry/VIO poses at {current:.0f} Hz "
+                         f"(--keyframe-rate {DEGENERATE_KEYFRAME_RATE_HZ:g})")
+    if config.extrinsic_mode is not ExtrinsicMode.KNOWN:
+        fixes.append("fix the extrinsic (--extrinsic known, with T_imu_<frame> in the calibration)")
+    fixed_offset = config.time_offset_mode is TimeOffsetMode.FIXED or (
+        config.time_offset_mode is TimeOffsetMode.AUTO and poses is not None
+        and poses.source_kind is PoseSourceKind.GROUND_TRUTH)
+    if not fixed_offset:
+        fixes.append("fix the clock offset (--time-offset-s)")
+    fixes.append("record more varied motion (rotation about several axes)")
+    if len(fixes) == 1 and poses is not None and poses.source_kind is PoseSourceKind.VIO:
+        fixes.append("use a 6-DoF absolute pose source (motion capture): planar odometry leaves roll, pitch and "
+                     "the vertical unobserved")
+    return "; or ".join(fixes)
 
 
 def _record_intrinsics_mode(result: RecoveryResult, mode: IntrinsicsMode) -> RecoveryResult:
@@ -1287,6 +1317,24 @@ def _segments(problem: _Problem, inputs: _Inputs, offset_s: float, gravity: _Gra
     return out
 
 
+#: The rounds of a recovery that :func:`_rounds_bar` counts (extrinsic, clock offset, noise, gravity, solve).
+RECOVERY_ROUNDS = 5
+
+
+def _rounds_bar(name: str):
+    """Progress over the recovery's rounds (rate and ETA; a log line every 30 s off a terminal)."""
+    from pipeline.progress import progress
+
+    bar = progress(RECOVERY_ROUNDS, desc=f"recover {name}", unit="round", logger=log)
+    bar.set_postfix_str("extrinsic", refresh=False)
+    return bar
+
+
+def _next_round(bar, what: str) -> None:
+    bar.update(1)
+    bar.set_postfix_str(what, refresh=False)
+
+
 def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryConfig) -> RecoveryResult:
     """The stages in order (each returns a frozen record); ``problem`` carries the fusion's
     linearisation point (extrinsic, gravity, bias), which the calibration solves update."""
@@ -1294,6 +1342,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     timings: dict[str, float] = {}
     inputs = _checked_inputs(sequence, pose_stream, config)
     problem = _Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse, gravity_mps2=config.gravity_mps2)
+    bar = _rounds_bar(sequence.name)
 
     t0 = time.perf_counter()
     coarse = _coarse_offset(inputs, config)
@@ -1308,6 +1357,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         ext_sol = _solve_extrinsic(problem, inputs, windows.calib_window, T, ext_init.opts, coarse.offset_s, config)
         T = ext_sol.T_imu_pose if ext_sol is not None else T
     timings["extrinsic_s"] = time.perf_counter() - t0
+    _next_round(bar, "clock offset")
 
     t0 = time.perf_counter()
     offset = _refined_offset(problem, inputs, coarse, windows, T, config)
@@ -1315,20 +1365,25 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         ext_sol = _solve_extrinsic(problem, inputs, windows.calib_window, T, ext_init.opts, offset.offset_s, config)
         T = ext_sol.T_imu_pose if ext_sol is not None else T
     timings["offset_refine_s"] = time.perf_counter() - t0
+    _next_round(bar, "noise by evidence")
 
     t0 = time.perf_counter()
     noise = _noise(problem, inputs, windows, offset.offset_s, T, config)
     timings["noise_s"] = time.perf_counter() - t0
+    _next_round(bar, "gravity")
 
     t0 = time.perf_counter()
     gravity = _gravity(problem, inputs, offset.offset_s, T, ext_sol, ext_init.estimate_lever, noise.choice, config,
                        ext_init.opts.extrinsic_prior)
     timings["gravity_s"] = time.perf_counter() - t0
+    _next_round(bar, "full solve")
 
     t0 = time.perf_counter()
     calibration = _calibration_covariance(offset, ext_sol, gravity)
     full = _full_solve(problem, inputs, offset.offset_s, gravity, noise, config, calibration)
     timings["solve_s"] = time.perf_counter() - t0
+    _next_round(bar, "done")
+    bar.close()
 
     extrinsic_info = {**_extrinsic_info(ext_init, ext_sol), **gravity.extrinsic_info}
     refine_warnings = offset.warnings[len(coarse.warnings):]

@@ -123,6 +123,8 @@ margin-top:2.2em}h3{font-size:1.05em;margin:1.4em 0 .4em}
 .v-fail{background:#fdecec;border-color:#c9302c}.v-fail .word{color:#a4231f}
 .v-none{background:#eef1f5;border-color:#8a96a3}.v-none .word{color:#4b5661}
 .missing{background:#eef1f5;border-left:4px solid #8a96a3;padding:.5em .9em;margin:.6em 0}
+.implausible{background:#fdecec;border:3px solid #c9302c;border-radius:6px;padding:.4em .9em;margin:.6em 0}
+.implausible>p.why{color:#a4231f;margin:.2em 0 .4em}
 .warnbox{background:#fff6e0;border-left:4px solid #d99a00;padding:.5em .9em;margin:.6em 0}
 table.data{border-collapse:collapse;margin:.6em 0 1em;font-size:.92em}
 table.data th,table.data td{border:1px solid #d8dee6;padding:.25em .6em;vertical-align:top}

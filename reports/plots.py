@@ -58,7 +58,7 @@ def bias_figure(
                     label="dataset's own bias")
         ax.set_ylabel(f"{AXIS_NAMES[i]} [{unit}]")
         ax.grid(True, alpha=0.3)
-        ax.ticklabel_format(axis="y", style="sci", scilimits=(-3, 3))
+        ax.ticklabel_format(axis="y", style="plain", useOffset=False)  # the unit says the scale
     axes[0].legend(loc="upper right", fontsize=8, ncol=3)
     axes[0].set_title(quantity)
     axes[-1].set_xlabel("time since the first IMU sample [s]")
@@ -94,15 +94,27 @@ def pose_residual_figure(
     return fig
 
 
-def residual_series_figure(t_s: np.ndarray, series: Mapping[str, np.ndarray]) -> Figure:
-    """One panel per residual series (e.g. whitened pose and IMU residuals per keyframe)."""
+#: Axis labels of the recovery's residual columns (residuals.csv); others keep their name.
+RESIDUAL_LABELS = {
+    "pose_whitened_rms": "pose residual\n[σ, whitened RMS]",
+    "imu_whitened_rms": "IMU residual\n[σ, whitened RMS]",
+}
+
+
+def residual_series_figure(t_s: np.ndarray, series: Mapping[str, np.ndarray],
+                           outliers: np.ndarray | None = None) -> Figure:
+    """One panel per residual series (whitened pose and IMU residuals per keyframe), labelled with what it is
+    and its unit; keyframes rejected as outliers (``outliers``, bool [K]) are red marks, not a 0/1 line."""
     names = list(series)
     fig = Figure(figsize=(10, 2.2 * len(names) + 0.6))
     axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
     k = _stride(len(t_s))
     for ax, name, color in zip(axes, names, SOURCE_COLORS):
-        ax.plot(t_s[::k], np.asarray(series[name])[::k], color=color, linewidth=0.9)
-        ax.set_ylabel(name, fontsize=8)
+        values = np.asarray(series[name], dtype=float)
+        ax.plot(t_s[::k], values[::k], color=color, linewidth=0.9)
+        if outliers is not None and np.any(outliers):
+            ax.plot(t_s[outliers], values[outliers], "o", color="red", markersize=3, label="rejected as outlier")
+        ax.set_ylabel(RESIDUAL_LABELS.get(name, name), fontsize=8)
         ax.grid(True, alpha=0.3)
     axes[0].set_title("Residuals per keyframe (from the recovery)")
     axes[-1].set_xlabel("time since the first IMU sample [s]")

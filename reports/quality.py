@@ -24,14 +24,14 @@ from __future__ import annotations
 import datetime as _dt
 import logging
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from collections.abc import Callable, Mapping
 from typing import Any
 
 import numpy as np
 import pandas as pd
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from pipeline import __version__
 from pipeline.atomic import atomic_path
@@ -39,7 +39,6 @@ from pipeline.bias_table import BiasTrack, read_bias_csv
 from pipeline.checks import CHECK_CODES, run_checks, stream_summaries
 from pipeline.errors import BiasgtError, ConfigError, InputFormatError
 from pipeline.layout import Stage
-from pipeline.pose_transform import offset_ns, poses_in_imu_frame
 from pipeline.store import is_store, read_store
 from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity
 from recovery.gyro_consistency import rate_coupling
@@ -54,6 +53,7 @@ from recovery.outputs import (
     read_trajectory,
 )
 from reports import plots
+from validation.plausibility import gravity_tilt_deg, pose_residuals
 from validation.outputs import (
     HELDOUT_SOURCE,
     VALIDATION_JSON,
@@ -159,19 +159,23 @@ def gather_inputs(
     *,
     recovery_dir: str | Path | None = None,
     validation_dir: str | Path | None = None,
+    sequence: Sequence | None = None,
 ) -> ReportInputs:
     """Read every available input; note what is missing or unreadable instead of failing.
 
+    ``sequence``: the sequence already loaded from ``ingest_dir`` (any input the readers take, e.g.
+    a raw ASL folder with added poses); else ``ingest_dir`` must be a canonical store.
+
     Raises:
-        InputFormatError: ``ingest_dir`` is not a canonical store (the report needs it).
+        InputFormatError: ``ingest_dir`` is not a canonical store and no sequence was given.
     """
     ingest_dir = Path(ingest_dir)
-    if not is_store(ingest_dir):
+    if sequence is None and not is_store(ingest_dir):
         raise InputFormatError(
             "no ingest store here (sequence.yaml missing)", path=ingest_dir,
             hint="run the ingest stage ('biasgt convert INPUT --out DIR' or 'biasgt run') first, "
                  "or give the right --ingest folder")
-    inputs = ReportInputs(ingest_dir=ingest_dir, sequence=read_store(ingest_dir))
+    inputs = ReportInputs(ingest_dir=ingest_dir, sequence=read_store(ingest_dir) if sequence is None else sequence)
 
     # --- recovery
     if recovery_dir is None:
@@ -353,8 +357,28 @@ _USABILITY = {
 }
 
 
-def verdict_summary(validation: dict[str, Any] | None) -> tuple[str, str]:
-    """``(word, sentence)``: PASS/WARN/FAIL (or NO VERDICT) and one plain-words headline."""
+def mm_pair(a_m: float | None, b_m: float | None) -> tuple[str, str]:
+    """Two distances in mm with the same number of decimals (3 significant digits for the smaller)."""
+    vals = [x for x in (a_m, b_m) if x is not None and math.isfinite(x)]
+    if not vals:
+        return fmt(a_m), fmt(b_m)
+    small = max(min(abs(1e3 * x) for x in vals), 1e-9)
+    decimals = int(min(6, max(0, 2 - math.floor(math.log10(small)))))
+    return tuple("n/a" if x is None or not math.isfinite(x) else f"{1e3 * x:.{decimals}f}"  # type: ignore[return-value]
+                 for x in (a_m, b_m))
+
+
+def dataset_bias_label(sequence: Sequence | None) -> str:
+    """How the DATASET source is named: the simulator's truth for a simulated recording, else the dataset's own."""
+    src = (sequence.metadata.get("source_path") if sequence is not None else None) or ""
+    return ("the simulator's true bias" if src and (Path(src) / "simulation.yaml").is_file()
+            else "the dataset's own bias")
+
+
+def verdict_summary(validation: dict[str, Any] | None,
+                    dataset_label: str = "the dataset's own bias") -> tuple[str, str]:
+    """``(word, sentence)``: PASS/WARN/FAIL (or NO VERDICT) and one plain-words headline (the DATASET source
+    named ``dataset_label``)."""
     if validation is None:
         return "NO VERDICT", "The validation stage's output is missing, so the recovered bias has not been judged."
     word = str(validation.get("verdict", "")).upper() or "NO VERDICT"
@@ -371,21 +395,27 @@ def verdict_summary(validation: dict[str, Any] | None) -> tuple[str, str]:
         bs = sources[const]
         rel = _better_worse(_num(cs, "prmse_m"), _num(bs, "prmse_m"))
         if rel is not None:
+            a, b = mm_pair(_num(cs, "prmse_m"), _num(bs, "prmse_m"))
             parts.append(
                 f"{who} integrates {rel} a constant bias (position error after 1-s windows, PRMSE "
-                f"{fmt(1e3 * _num(cs, 'prmse_m'), 3)} mm vs {fmt(1e3 * _num(bs, 'prmse_m'), 3)} mm; rotation error "
+                f"{a} mm vs {b} mm; rotation error "
                 f"ROE {fmt(_num(cs, 'roe_deg'), 3)} deg vs {fmt(_num(bs, 'roe_deg'), 3)} deg)")
     ds = _first_of_kind(validation, "dataset", cand)
     if ds is not None:
         rel = _better_worse(_num(cs, "prmse_m"), _num(sources[ds], "prmse_m"))
         if rel is not None and parts:
-            parts[-1] += f" and {rel} the dataset's own bias"
+            parts[-1] += f" and {rel} {dataset_label}"
         elif rel is not None:
-            parts.append(f"{who} integrates {rel} the dataset's own bias (PRMSE "
-                         f"{fmt(1e3 * _num(cs, 'prmse_m'), 3)} mm vs {fmt(1e3 * _num(sources[ds], 'prmse_m'), 3)} mm)")
+            a, b = mm_pair(_num(cs, "prmse_m"), _num(sources[ds], "prmse_m"))
+            parts.append(f"{who} integrates {rel} {dataset_label} (PRMSE {a} mm vs {b} mm)")
     if not parts:
         parts.append(f"{who} has PRMSE {fmt(1e3 * (_num(cs, 'prmse_m') or float('nan')), 3)} mm and ROE "
                      f"{fmt(_num(cs, 'roe_deg'), 3)} deg over 1-s windows")
+    found = [x for x in validation.get("plausibility") or [] if isinstance(x, Mapping)]
+    if found:  # what physics rules out comes before any comparison of errors
+        checks = ", ".join(dict.fromkeys(str(x.get("check", "?")).replace("_", " ") for x in found))
+        parts.insert(0, f"{who} is physically impossible ({len(found)} plausibility finding"
+                        f"{'s' * (len(found) > 1)}: {checks}; framed in red below)")
     sentence = "; ".join(parts) + ". " + (f"It is {usable}" if usable else "")
     return word, sentence.strip()
 
@@ -410,13 +440,36 @@ def checked_and_not(validation: dict[str, Any]) -> list[str]:
                        for k in baselines) + ".",
         "Independent reference: " + ("yes." if independent else "no, the reference is what the bias was fitted "
                                                                   "to (pose errors absorbed by the bias are not seen)."),
+        *plausibility_checked(validation),
         "Not checked: drift over spans longer than one window; errors the reference and the IMU share (e.g. a "
         "wrong extrinsic used by both); IMU scale and misalignment (not modelled: the bias absorbs them).",
     ]
 
 
+def plausibility_checked(validation: dict[str, Any]) -> list[str]:
+    """The sentence on the plausibility checks (run when the validation had the recovery), or none."""
+    notes = validation.get("notes") if isinstance(validation.get("notes"), list) else []
+    if "plausibility" not in validation or not any(str(n).startswith("recovery: ") for n in notes):
+        return []
+    found = validation.get("plausibility") or []
+    return [f"Plausibility of the recovery (bias within the sensor's range, gravity direction, attitude against the "
+            f"poses, gyro axes against the poses' rotation): {len(found) or 'no'} finding{'s' * (len(found) != 1)}."]
+
+
+def implausible_frame(inp: ReportInputs, check: str, body: Html | None) -> Html | None:
+    """``body`` framed in red, under the finding, when the validation found ``check`` implausible
+    (``validation.json`` ``plausibility``, :mod:`validation.plausibility`); else ``body`` as it is."""
+    found = [x for x in ((inp.validation.get("plausibility") if inp.validation is not None else None) or [])
+             if isinstance(x, Mapping) and x.get("check") == check]
+    if not found or body is None:
+        return body
+    text = "; ".join(str(x.get("text")) for x in found)
+    why = p(Html(tag("strong", "Plausibility check failed: ") + esc(text)), class_="why")
+    return tag("div", join([why, body]), class_="implausible", data_check=check)
+
+
 def _verdict_section(inp: ReportInputs) -> Html:
-    word, sentence = verdict_summary(inp.validation)
+    word, sentence = verdict_summary(inp.validation, dataset_bias_label(inp.sequence))
     cls = {"PASS": "v-pass", "WARN": "v-warn", "FAIL": "v-fail"}.get(word, "v-none")
     body = [Html(tag("span", word, class_="word") + esc(sentence))]
     if inp.validation is not None:
@@ -524,15 +577,6 @@ def _vec(v: Any, digits: int = 4, scale: float = 1.0) -> str:
     return "[" + ", ".join(fmt(x, digits) for x in arr) + "]"
 
 
-def gravity_tilt_deg(gravity_world_mps2: Any) -> float:
-    """Angle between the gravity vector and the world's -z axis (0 for a z-up world), degrees."""
-    g = np.asarray(gravity_world_mps2, dtype=float).reshape(3)
-    n = float(np.linalg.norm(g))
-    if n == 0:
-        return float("nan")
-    return float(np.degrees(np.arccos(np.clip(-g[2] / n, -1.0, 1.0))))
-
-
 def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
     rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     cal = inp.sequence.calibration
@@ -575,7 +619,8 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
         p(f"What the recovery estimated for pose stream '{rec.get('pose_stream', 'n/a')}' "
           f"({rec.get('pose_source_kind', 'n/a')}, pose factors: {rec.get('pose_factor_mode', 'n/a')}). "
           "Uncertainties are 1σ where the recovery gives them."),
-        table(["quantity", "value", "uncertainty (1σ)", "notes"], rows, numeric_from=99),
+        implausible_frame(inp, "gravity_tilt", table(["quantity", "value", "uncertainty (1σ)", "notes"], rows,
+                                                     numeric_from=99)),
     ]
     diff = ext.get("difference_from_calibration")
     if isinstance(diff, dict):
@@ -675,13 +720,14 @@ def _bias_section(inp: ReportInputs) -> Html:
                "standard deviations of the recovery" + (
                    "; the dashed black line is the dataset's own bias estimate." if gt is not None else
                    "; the dataset has no bias of its own to compare with."))]
-    parts.append(figure_img(plots.bias_figure(t_s, b.bias[:, :3], std[:, :3], quantity="Gyroscope bias",
-                                              unit="rad/s", dataset_t_s=gt_t,
-                                              dataset_bias=None if gt is None else gt.bias_gyro_radps),
+    # milli-units: bias values need no matplotlib offset ("1e-3") on the axis
+    parts.append(figure_img(plots.bias_figure(t_s, 1e3 * b.bias[:, :3], 1e3 * std[:, :3], quantity="Gyroscope bias",
+                                              unit="mrad/s", dataset_t_s=gt_t,
+                                              dataset_bias=None if gt is None else 1e3 * gt.bias_gyro_radps),
                             "gyroscope bias over time", "Gyroscope bias (x, y, z) with ± 3σ."))
-    parts.append(figure_img(plots.bias_figure(t_s, b.bias[:, 3:], std[:, 3:], quantity="Accelerometer bias",
-                                              unit="m/s²", dataset_t_s=gt_t,
-                                              dataset_bias=None if gt is None else gt.bias_acc_mps2),
+    parts.append(figure_img(plots.bias_figure(t_s, 1e3 * b.bias[:, 3:], 1e3 * std[:, 3:],
+                                              quantity="Accelerometer bias", unit="10⁻³ m/s²", dataset_t_s=gt_t,
+                                              dataset_bias=None if gt is None else 1e3 * gt.bias_acc_mps2),
                             "accelerometer bias over time", "Accelerometer bias (x, y, z) with ± 3σ."))
     rows = []
     names = ["gyro x", "gyro y", "gyro z", "acc x", "acc y", "acc z"]
@@ -697,11 +743,12 @@ def _bias_section(inp: ReportInputs) -> Html:
         row.append("rad/s" if c < 3 else "m/s²")
         rows.append(row)
     headers = ["axis", "mean", "min", "max", "mean σ"] + (["RMS diff. to dataset"] if gt_b is not None else [])
-    parts.append(table(headers + ["unit"], rows, numeric_from=1, text_cols=[len(headers)]))
+    parts.append(implausible_frame(inp, "bias_range", table(headers + ["unit"], rows, numeric_from=1,
+                                                            text_cols=[len(headers)])))
     note = _calibration_uncertainty_note(inp.recovery.data if inp.recovery is not None else None)
     if note is not None:
         parts.append(note)
-    note = gyro_consistency_note(inp)
+    note = implausible_frame(inp, "frame_swap", gyro_consistency_note(inp))
     if note is not None:
         parts.append(note)
     return section("bias", _TITLE["bias"], join(parts))
@@ -763,54 +810,6 @@ def _calibration_uncertainty_note(rec: dict[str, Any] | None) -> Html | None:
 # ----------------------------------------------------------------------------- section 5: residuals
 
 
-def pose_residuals(
-    trajectory: PoseSeries,
-    poses: PoseSeries,
-    T_imu_pose: np.ndarray,
-    time_offset_s: float,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Distance and angle between the recovered IMU trajectory and a pose stream moved into the IMU frame.
-
-    The pose stream is interpolated at the trajectory's stamps taken back to the pose clock
-    (linear in position, Slerp in rotation), then moved onto the IMU clock and into the IMU
-    frame by :func:`pipeline.pose_transform.poses_in_imu_frame` (for a position-only stream the
-    lever arm is removed with the recovered orientation; when the trajectory has none either,
-    positions are compared as they are). Stamps outside the pose span are skipped.
-
-    Args:
-        trajectory: Recovered ``T_world_imu`` on the IMU clock, [K0] rows.
-        poses: ``T_world_<frame>`` on the pose clock (``quat_wxyz`` may be None).
-        T_imu_pose: 4x4 ``T_imu_<frame>``.
-        time_offset_s: Seconds to ADD to pose stamps to put them on the IMU clock.
-
-    Returns:
-        ``(t_ns [K], pos_err_m [K], rot_err_deg [K] or None)``.
-    """
-    shift_ns = offset_ns(time_offset_s)
-    t_pose = poses.t_ns + shift_ns
-    tq = trajectory.t_ns
-    keep = (tq >= t_pose[0]) & (tq <= t_pose[-1])
-    tq = tq[keep]
-    if len(tq) == 0 or len(t_pose) < 2:
-        return tq, np.zeros(0), None
-    x, xq = (t_pose - t_pose[0]).astype(float), (tq - t_pose[0]).astype(float)
-    p_wp = np.column_stack([np.interp(xq, x, poses.p_m[:, i]) for i in range(3)])
-    quat_wp = None
-    if poses.quat_wxyz is not None:
-        quat_wp = Slerp(x, Rotation.from_quat(poses.quat_wxyz, scalar_first=True))(xq).as_quat(scalar_first=True)
-    traj_q = trajectory.quat_wxyz[keep] if trajectory.quat_wxyz is not None else None
-    if quat_wp is None and traj_q is None:
-        T_imu_pose = np.eye(4)  # no attitude on either side: the lever arm cannot be removed
-    at_pose = replace(poses, t_ns=tq - shift_ns, p_m=p_wp, quat_wxyz=quat_wp)
-    in_imu = poses_in_imu_frame(at_pose, T_imu_pose, time_offset_s, imu_quat_wxyz=traj_q)
-    rot_err = None
-    if in_imu.quat_wxyz is not None and traj_q is not None:
-        R_wi = Rotation.from_quat(in_imu.quat_wxyz, scalar_first=True)
-        rot_err = np.degrees((R_wi.inv() * Rotation.from_quat(traj_q, scalar_first=True)).magnitude())
-    pos_err = np.linalg.norm(trajectory.p_m[keep] - in_imu.p_m, axis=1)
-    return tq, pos_err, rot_err
-
-
 def _residuals_section(inp: ReportInputs) -> Html:
     rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     if rec is None and inp.residuals is None and inp.trajectory is None:
@@ -822,9 +821,13 @@ def _residuals_section(inp: ReportInputs) -> Html:
         kf = _num(rec, "keyframes")
         out = _num(rec, "outliers_rejected")
         rows = [[f"{k.replace('_', ' ')}", fmt(_num(res, k), 4)] for k in res if _num(res, k) is not None]
-        rows.append(["poses rejected as outliers",
+        samples = int(_num(rec.get("pose_fusion") or {}, "samples_rejected") or 0)
+        out = None if out is None else out - samples  # outliers_rejected counts both kinds
+        rows.append(["keyframe poses rejected as outliers",
                      "n/a" if out is None else (f"{int(out)} of {int(kf)} keyframes ({out / kf:.2%})" if kf else
                                                 f"{int(out)}")])
+        if samples:
+            rows.append(["pose samples rejected before fusion into keyframes", f"{samples}"])
         for key, label in (("segments", "solver segments"), ("imu_pieces", "gap-free IMU pieces"),
                            ("duration_s", "duration [s]"), ("runtime_s", "recovery runtime [s]")):
             if _num(rec, key) is not None:
@@ -839,16 +842,22 @@ def _residuals_section(inp: ReportInputs) -> Html:
         parts.append(table(["statistic", "value"], rows, numeric_from=1))
     if inp.residuals is not None and len(inp.residuals):
         frame = inp.residuals
-        cols = [c for c in frame.columns if c != "t_ns" and pd.api.types.is_numeric_dtype(frame[c])][:6]
+        # a flag column (the rejected outliers) is drawn as marks on the residuals, not as a 0/1 series
+        flags = [c for c in frame.columns if pd.api.types.is_bool_dtype(frame[c])]
+        cols = [c for c in frame.columns if c != "t_ns" and c not in flags
+                and pd.api.types.is_numeric_dtype(frame[c])][:6]
         if cols:
             t_s = _rel_s(frame["t_ns"].to_numpy(), inp.t0_ns)
-            parts.append(figure_img(plots.residual_series_figure(t_s, {c: frame[c].to_numpy(float) for c in cols}),
-                                    "residuals per keyframe", "Residuals per keyframe, as written by the recovery."))
+            outliers = frame[flags[0]].to_numpy(bool) if flags else None
+            parts.append(figure_img(plots.residual_series_figure(t_s, {c: frame[c].to_numpy(float) for c in cols},
+                                                                 outliers),
+                                    "residuals per keyframe", "Residuals per keyframe, as written by the recovery"
+                                    + ("; red marks: keyframes rejected as outliers." if flags else ".")))
     else:
         parts.append(_missing_box("Per-keyframe residuals are not available: the recovery writes only the "
                                   "statistics above. The figure below compares the recovered trajectory with the "
                                   "pose stream instead."))
-    fig = _pose_residual_figure(inp)
+    fig = implausible_frame(inp, "rotation_residual", _pose_residual_figure(inp))
     if fig is not None:
         parts.append(fig)
     warnings = [str(w) for w in ((rec or {}).get("warnings") or [])]
@@ -1123,6 +1132,7 @@ def build_quality_report(
     recovery_dir: str | Path | None = None,
     validation_dir: str | Path | None = None,
     out_path: str | Path,
+    sequence: Sequence | None = None,
 ) -> Path:
     """Write the quality report of one sequence as one self-contained HTML file.
 
@@ -1131,6 +1141,8 @@ def build_quality_report(
         recovery_dir: ``results/recovery/<sequence>`` (bias.csv, recovery.json, ...), or None.
         validation_dir: ``results/validation/<sequence>`` (validation.json, windows.parquet), or None.
         out_path: The HTML file to write (atomically; parent folders are created).
+        sequence: The sequence already loaded from ``ingest_dir`` when that is not a store
+            (:func:`gather_inputs`).
 
     Returns:
         ``out_path`` as a Path.
@@ -1143,7 +1155,7 @@ def build_quality_report(
     if out_path.is_dir():
         raise ConfigError("the report output is a folder", path=out_path, field="--out",
                           hint="give a file name such as report.html")
-    inputs = gather_inputs(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir)
+    inputs = gather_inputs(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir, sequence=sequence)
     for note in inputs.missing + inputs.problems:
         log.info("report %s: %s", inputs.sequence.name, note)
     text = render_report(inputs)

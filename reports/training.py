@@ -15,6 +15,7 @@ Inputs are the workflow's folders (``results/evaluation/...`` written by
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Sequence
 from pathlib import Path
@@ -24,9 +25,9 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from pipeline.atomic import write_text_atomic
-from reports.html import Html, figure_img, fmt, join, p, page, section, table, tag
+from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
 from training.evaluate import CHANNELS, EXAMPLES_PARQUET, EvaluationSummary, read_summary
-from training.table import AVERAGE, TableColumn, build_table, cell_marks, table_columns
+from training.table import AVERAGE, TableColumn, build_table, cell_marks, method_label, table_columns
 
 log = logging.getLogger(__name__)
 
@@ -50,24 +51,27 @@ COVERAGE_TOLERANCE = 0.10
 
 
 def _table_section(columns: list[TableColumn]) -> Html:
+    """Table I transposed: one row per method and variant (grouped), one column per test sequence."""
     frame = build_table(columns)
-    rows = []
-    for row in frame.index:
-        mp, mr = cell_marks(columns, row, "prmse_m"), cell_marks(columns, row, "roe_deg")
+    marks = {seq: (cell_marks(columns, seq, "prmse_m"), cell_marks(columns, seq, "roe_deg")) for seq in frame.index}
+    rows, previous = [], None
+    for c in columns:
         cells = []
-        for c in columns:
-            pr = tag({"best": "strong", "second": "u"}.get(mp.get(c.name), "span"), f"{np.mean(c.prmse_m[row]):.4f}")
-            ro = tag({"best": "strong", "second": "u"}.get(mr.get(c.name), "span"), f"{np.mean(c.roe_deg[row]):.4f}")
+        for seq in frame.index:
+            mp, mr = marks[seq]
+            pr = tag({"best": "strong", "second": "u"}.get(mp.get(c.name), "span"), f"{np.mean(c.prmse_m[seq]):.4f}")
+            ro = tag({"best": "strong", "second": "u"}.get(mr.get(c.name), "span"), f"{np.mean(c.roe_deg[seq]):.4f}")
             cells.append(Html(pr + " / " + ro))
-        rows.append([tag("strong", row) if row == AVERAGE else row, *cells])
-    headers = ["sequence"] + [c.name + ("" if c.ranked else " (oracle)") for c in columns]
+        rows.append([method_label(c) if c.group != previous else "", c.variant, *cells])
+        previous = c.group
+    headers = ["method", "variant"] + [tag("strong", s) if s == AVERAGE else s for s in frame.index]
     note = p("PRMSE (m) / ROE (deg) of non-overlapping 1-s test windows, each integrated from the reference "
              "start state with the predicted bias subtracted; Average = mean over test sequences. Best bold, "
-             "second best underlined among usable methods; oracle columns read the ground truth at test time "
-             "and are not ranked. A diffusion column without suffix averages each metric over the K samples "
+             "second best underlined per sequence among usable methods; oracle rows read the ground truth at test "
+             "time and are not ranked. A diffusion model's first row averages each metric over the K samples "
              "(the paper); 'mean' / 'median' use the sample mean / median as the prediction; 'released' uses the "
              "released code's sampler.", class_="small")
-    return Html(tag("div", table(headers, rows), style="overflow-x:auto") + note)
+    return Html(table(headers, rows) + note)
 
 
 def _curves_figure(runs: Sequence[Path]) -> Figure | None:
@@ -87,7 +91,8 @@ def _curves_figure(runs: Sequence[Path]) -> Figure | None:
         ax.set_xlabel("step")
         ax.set_title(title)
         ax.grid(True, alpha=0.3)
-    ax_v.legend(fontsize=7)
+    # the legend beside the panels, not over the curves
+    ax_v.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     return fig
 
@@ -113,8 +118,9 @@ def _example_figure(examples: dict[str, pd.DataFrame], window: int) -> Figure:
         ax.grid(True, alpha=0.3)
     for ax in axes[3:]:
         ax.set_xlabel("time in window [s]")
-    axes[0].legend(fontsize=6.5, loc="best")
-    fig.tight_layout()
+    handles, labels = axes[0].get_legend_handles_labels()
+    fig.legend(handles, labels, fontsize=7, loc="lower center", ncol=min(4, max(1, len(labels))))
+    fig.tight_layout(rect=(0, 0.08, 1, 1))  # room for the legend under the panels, off the curves
     return fig
 
 
@@ -216,6 +222,38 @@ def _cost_section(summaries: list[tuple[Path, EvaluationSummary]]) -> Html:
 # ----------------------------------------------------------------------------- page
 
 
+#: Fewest optimiser steps of a run that is more than a demonstration of the pipeline.
+DEMO_STEPS = 2000
+
+
+def summary_box(columns: list[TableColumn], run_dirs: Sequence[Path]) -> Html:
+    """What the report says on top: how many models, how trained, the best usable average, and whether the
+    models are demo-sized (a CPU preset or fewer than :data:`DEMO_STEPS` steps)."""
+    runs = []
+    for r in run_dirs:
+        try:
+            runs.append(json.loads((Path(r) / "run.json").read_text(encoding="utf-8")))
+        except (OSError, ValueError):
+            continue
+    items = []
+    if runs:
+        presets = sorted({str(x.get("preset")) for x in runs})
+        steps = sorted({int(x.get("steps") or 0) for x in runs})
+        items.append(f"{len(runs)} trained models ({len({x.get('method') for x in runs})} methods), preset "
+                     f"{'/'.join(presets)}, {'/'.join(map(str, steps))} optimiser steps each.")
+        if max(steps) < DEMO_STEPS or any(x != "paper" for x in presets):
+            items.append(Html(tag("strong", "Demo-sized models: ") + esc(
+                f"a CPU preset or fewer than {DEMO_STEPS} steps exercise the whole learning stage; their errors "
+                "are not the paper's and say nothing about the methods (train with preset: paper, on a GPU, for "
+                "that).")))
+    ranked = [c for c in columns if c.ranked]
+    if ranked:
+        best = min(ranked, key=lambda c: float(np.mean(c.prmse_m[AVERAGE])))
+        items.append(f"Best usable average (Table I): {best.name}, PRMSE {np.mean(best.prmse_m[AVERAGE]):.4f} m, "
+                     f"ROE {np.mean(best.roe_deg[AVERAGE]):.4f} deg, over {len(ranked)} usable rows.")
+    return tag("div", ul(items), class_="verdict v-none", id="summary")
+
+
 def build_training_report(evaluation_dirs: Sequence[str | Path], run_dirs: Sequence[str | Path],
                           out_path: str | Path, *, title: str = "biasgt training report") -> Path:
     """Write the training report (one self-contained HTML file) atomically.
@@ -243,7 +281,8 @@ def build_training_report(evaluation_dirs: Sequence[str | Path], run_dirs: Seque
     meta = p(f"Dataset {dataset.get('path', 'n/a')} (config hash {dataset.get('config_hash', 'n/a')}), "
              f"{summaries[0][1].windows if summaries else 0} test windows of {dataset.get('window_samples', 'n/a')} "
              f"samples at {fmt(dataset.get('rate_hz'))} Hz.", class_="meta")
-    body = join([tag("h1", title), meta, toc, *(section(a, t, bodies[a]) for a, t in SECTIONS)])
+    body = join([tag("h1", title), meta, summary_box(columns, [Path(r) for r in run_dirs]), toc,
+                 *(section(a, t, bodies[a]) for a, t in SECTIONS)])
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out, page(title, body))

@@ -566,10 +566,31 @@ def test_degenerate_problem_is_a_recovery_error(monkeypatch):
     with pytest.raises(RecoveryError, match=r"degenerate \(Indeterminant linear system detected") as info:
         rr.recover(Sequence(name="flat"))
     assert "\n" not in str(info.value) and "--extrinsic known" in str(info.value)
-    assert "--keyframe-rate 10" in str(info.value)  # the option that works on wheel odometry (test_user_path)
+    assert "--keyframe-rate" not in str(info.value)  # no odometry stream to thin out
     monkeypatch.setattr(rr, "_recover", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("other bug")))
     with pytest.raises(RuntimeError, match="other bug"):
         rr.recover(Sequence(name="x"))
+
+
+@pytest.mark.parametrize(("rate_hz", "changes", "expected", "absent"), [
+    (50.0, {}, ["--keyframe-rate 10", "--extrinsic known", "--time-offset-s"], []),
+    (10.0, {}, ["--extrinsic known", "--time-offset-s"], ["--keyframe-rate"]),  # 10-Hz odometry: already 10 Hz
+    (10.0, {"extrinsic_mode": "known", "time_offset_mode": "fixed"}, ["varied motion", "motion capture"],
+     ["--keyframe-rate", "--extrinsic known", "--time-offset-s"]),
+])
+def test_degenerate_hint_suggests_only_fixes_that_apply(rate_hz, changes, expected, absent) -> None:
+    from pipeline.types import PoseSeries, PoseSourceKind, Sequence
+    from recovery.config import RecoveryConfig
+    from recovery.recover import degenerate_hint
+
+    n = 50
+    t_ns = 1_000_000_000 + np.arange(n, dtype=np.int64) * int(1e9 / rate_hz)
+    odom = PoseSeries(t_ns, np.zeros((n, 3)), np.tile([1.0, 0, 0, 0], (n, 1)), "base_link", PoseSourceKind.VIO)
+    hint = degenerate_hint(Sequence(name="odom", poses={"/odom": odom}), None, RecoveryConfig(**changes))
+    for text in expected:
+        assert text in hint, hint
+    for text in absent:
+        assert text not in hint, hint
 
 
 def test_agreement_z_is_zero_for_identical_and_scales_with_sigma(clean_run):

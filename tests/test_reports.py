@@ -18,7 +18,7 @@ from pipeline.errors import DataError, InputFormatError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind
 from reports.html import fmt
 from reports.allan import allan_deviation, fit_noise_parameters, imu_allan, white_noise_upper_bound
-from reports.quality import SECTIONS, build_quality_report, flagged_stretches, gravity_tilt_deg, pose_residuals, \
+from reports.quality import SECTIONS, build_quality_report, mm_pair, flagged_stretches, gravity_tilt_deg, pose_residuals, \
     other_estimates_sentence, stage_dirs, verdict_summary
 
 SEQ = "simseq"
@@ -270,7 +270,9 @@ def test_recovery_finds_the_injected_outliers_and_the_report_shows_them(full_rep
     assert len(found) == OUTLIERS == recovery_json["outliers_rejected"]
     assert np.max(np.abs(np.sort(found) - np.sort(expect_ns))) < 1_000_000  # within 1 ms (offset estimate)
     assert "Red lines: poses rejected as outliers." in full_report
-    assert f"{OUTLIERS} of {recovery_json['keyframes']} keyframes" in full_report
+    samples = int(recovery_json["pose_fusion"].get("samples_rejected") or 0)  # rejected before fusion
+    assert f"{OUTLIERS - samples} of {recovery_json['keyframes']} keyframes" in full_report
+    assert not samples or "pose samples rejected before fusion into keyframes" in full_report
     assert f"{OUTLIERS} samples rejected as outliers" in full_report  # pose fusion rejected them
 
 
@@ -289,8 +291,8 @@ def test_report_shows_the_numbers(full_report, recovery_json, validation_json):
     assert tilt < 0.5 and f"{tilt:.3f} deg" in text  # the simulated world is z-up
     assert "about axis" in text and "roll" in text
     src = validation_json["sources"]
-    assert f"PRMSE {fmt(src['recovered']['prmse_m'] * 1e3, 3)} mm vs {fmt(src['constant']['prmse_m'] * 1e3, 3)} mm" \
-        in text
+    a, b = mm_pair(src["recovered"]["prmse_m"], src["constant"]["prmse_m"])  # one format for both
+    assert f"PRMSE {a} mm vs {b} mm" in text
     flagged = src["recovered"]["flagged"]
     assert flagged and "Flagged windows" in text and f"Every flagged window ({len(flagged)})" in text
     assert "imu: sorted 4001 rows by time (1 backward steps)" in text  # the one swapped pair, 20 s at 200 Hz

@@ -37,8 +37,10 @@ def test_table_values_and_marks(evaluated):
         assert csv.loc["test1", f"{s.label} ROE_deg"] == pytest.approx(row.sequences["test1"].roe_deg, rel=1e-5)
     assert table.shape == (3, 3 * len(Baseline))
     md = (evaluated / TABLE_MD).read_text()
-    avg = next(line for line in md.splitlines() if line.startswith("| **Average**"))
-    cells = [c.strip() for c in avg.split("|")[2:-1]]
+    lines = [line for line in md.splitlines() if line.startswith("| ")]
+    assert [c.strip() for c in lines[0].split("|")[1:-1]] == ["method", "variant", "test0", "test1", "**Average**"]
+    # one row per method; the Average column is the last
+    cells = [[c.strip() for c in line.split("|")[1:-1]][-1] for line in lines[1:]]
     # ranked: zero and train mean only (the GT bias and the random-walk oracle are oracles)
     z, m = (table.loc[AVERAGE, f"{b.label} PRMSE_m"] for b in (Baseline.ZERO, Baseline.TRAIN_MEAN))
     order = [Baseline(p.parent.name) for p in paths]
@@ -67,3 +69,24 @@ def test_seeds_give_mean_and_std(evaluated, tmp_path):
     assert f"{2 * a:.4f} ± {a:.4f}" in md  # mean of (a, 3a) and population std
     with pytest.raises(DataError, match="no evaluation"):
         write_table([], tmp_path / "empty")
+
+
+def test_twenty_rows_with_their_variants_fit_a_page() -> None:
+    """Methods are rows, grouped with their sampler / aggregation variants; sequences are the columns."""
+    from training.table import TableColumn, format_markdown
+
+    seqs = ["MH_02_easy", "V1_03_difficult", "V2_02_medium"]
+    columns = []
+    for method in ("diffusion_rnn", "diffusion_unet", "regression_rnn", "regression_unet", "indirect_rnn"):
+        variants = ["", "mean", "median", "released", "released mean"] if "diffusion" in method else [""]
+        for v in variants:
+            values = {s: [0.123456] for s in [*seqs, AVERAGE]}
+            columns.append(TableColumn(f"{method} {v}".strip(), True, values, dict(values), method, v))
+    while len(columns) < 20:
+        values = {s: [1.0] for s in [*seqs, AVERAGE]}
+        columns.append(TableColumn(f"ref{len(columns)}", False, values, dict(values), f"ref{len(columns)}", ""))
+    md = format_markdown(columns)
+    rows = [line for line in md.splitlines() if line.startswith("| ")]
+    assert len(rows) == 21 and all(len(r.split("|")) == len(seqs) + 5 for r in rows)
+    assert max(len(r) for r in rows) <= 140  # ~8 px a character at the report's font: well inside 1280 px
+    assert [r.split("|")[1].strip() for r in rows[1:6]] == ["diffusion_rnn", "", "", "", ""]  # grouped

@@ -39,12 +39,19 @@ def test_report_sections_and_content(report):
     assert html.startswith("<!DOCTYPE html>")
     for anchor, title in SECTIONS:
         assert f'id="{anchor}"' in html and escape(title) in html
-    # Table I: every column, one best and one second-best mark per metric in the Average row
-    for col in ("diffusion_rnn", "diffusion_rnn mean", "diffusion_rnn released", "regression_rnn", "indirect_rnn",
-                "Zero bias", "Random walk (oracle)"):
-        assert f"<th>{col}" in html, col
-    avg = re.search(r"<tr><td><strong>Average</strong></td>(.*?)</tr>", html, re.S).group(1)
-    assert avg.count("<strong>") == 2 and avg.count("<u>") == 2
+    # Table I: one row per method and variant, grouped; one column per test sequence and the Average, each
+    # with one best and one second-best mark per metric
+    section = html[html.index('id="table"'):html.index('id="curves"')]
+    body_rows = re.findall(r"<tr><td>(.*?)</tr>", section, re.S)
+    cells = [re.findall(r"<td[^>]*>(.*?)</td>", "<td>" + r, re.S) for r in body_rows]
+    labels = [(c[0], c[1]) for c in cells]
+    for label in (("diffusion_rnn", ""), ("", "mean"), ("", "released"), ("regression_rnn", ""),
+                  ("indirect_rnn", ""), ("Zero bias", ""), ("Random walk (oracle)", "")):
+        assert label in labels, label
+    assert re.search(r"<th>variant</th>\s*<th>test0</th>\s*<th><strong>Average</strong></th>", section)
+    for col in (2, 3):
+        column = "".join(c[col] for c in cells)
+        assert column.count("<strong>") == 2 and column.count("<u>") == 2
     assert html.count("data:image/png;base64") == 4  # curves, two example windows, calibration
     assert "diffusion_rnn seed0 ddim" in html and "diffusion_rnn seed0 released" in html
     assert "overconfident" in html or "calibrated within" in html or "too wide" in html
@@ -63,3 +70,43 @@ def test_chromium_renders_training_report(report, tmp_path):
     assert 'data-broken-images="0"' in body and 'data-images="4"' in body, body
     for _, title in SECTIONS:
         assert escape(title, quote=False) in dom.stdout
+
+
+def test_summary_on_top_says_the_models_are_demo_sized(report):
+    html = report.read_text()
+    top = html[:html.index('id="table"')]
+    assert 'id="summary"' in top and "Demo-sized models" in top and "preset tiny" in top
+    assert "Best usable average (Table I):" in top
+
+
+def test_curve_legend_sits_beside_the_curves(tmp_path):
+    import pandas as pd
+
+    from reports.training import _curves_figure
+
+    runs = []
+    for method in METHODS:
+        run = tmp_path / method / "seed0"
+        run.mkdir(parents=True)
+        pd.DataFrame({"step": [10, 20, 30], "train_loss": [1.0, 0.5, 0.3], "val_loss": [1.1, 0.6, 0.4]}).to_csv(
+            run / "metrics.csv", index=False)
+        runs.append(run)
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    fig = _curves_figure(runs)
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    renderer = canvas.get_renderer()
+    for ax in fig.axes:
+        legend = ax.get_legend()
+        if legend is not None:
+            box, area = legend.get_window_extent(renderer), ax.get_window_extent(renderer)
+            assert box.x0 >= area.x1 or box.y1 <= area.y0  # outside the panel
+
+
+def test_demo_training_records_enough_points_for_a_curve():
+    import yaml
+
+    options = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text())
+    options = options["training"]["options"]
+    assert options["max_steps"] // options["val_every"] >= 8  # a validation loss (and a train loss) every val_every

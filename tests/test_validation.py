@@ -470,7 +470,7 @@ def test_constructed_fail_with_a_biased_candidate(clean_sim):
 
 
 EXPECTED_KEYS = {"schema_version", "sequence", "verdict", "reasons", "candidate", "config", "reference",
-                 "gravity_mps2", "sources", "windows_dropped", "notes", "next_steps"}
+                 "gravity_mps2", "sources", "windows_dropped", "notes", "next_steps", "plausibility"}
 EXPECTED_SOURCE_KEYS = {"kind", "prmse_m", "roe_deg", "windows", "flagged", "flag_threshold_pos_m",
                         "flag_threshold_rot_deg", "sigma_prmse_m", "sigma_roe_deg", "mean_bias", "gravity_mps2"}
 
@@ -556,7 +556,8 @@ def _true_recovery(sim, folder: Path, bias: BiasTrack) -> Path:
               "T_imu_pose": {"p_m": T[:3, 3].tolist(), "quat_wxyz": q.tolist()},
               "gravity_world_mps2": sim.truth.gravity_mps2.tolist(),
               "noise": {"gyro_random_walk": 1e-4, "acc_random_walk": 1e-3}}
-    return write_recovery_folder(folder, bias, report)
+    # the true IMU trajectory: a placeholder at rest would be (rightly) an implausible recovery
+    return write_recovery_folder(folder, bias, report, trajectory=sim.sequence.ground_truth.to_pose_series())
 
 
 def test_recovery_folder_round_trip(noisy_sim, tmp_path):

@@ -504,11 +504,12 @@ def test_slurm_profile_sets_each_rules_resources(tmp_path, capsys):
     profile = yaml.safe_load((REPO / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
     assert profile["executor"] == "slurm" and profile["set-resources"]["train"]["gpu"] == 1
     cfg = write_config(tmp_path / "c.yaml", {"sequences": [sim_entry("a", split="train")]})
-    assert main(["run", "--config", str(cfg), "--directory", str(tmp_path), "--profile", "slurm", "--dry-run"]) == 0
+    assert main(["-v", "run", "--config", str(cfg), "--directory", str(tmp_path), "--profile", "slurm",
+                 "--dry-run"]) == 0  # -v: the whole plan
     resources = {}  # rule -> its jobs' "resources:" line
     rule = None
     for line in capsys.readouterr().err.splitlines():
-        if m := re.match(r"^\s*(?:local)?rule (\w+):", line):  # indented: a job of a group job
+        if m := re.match(r"^\s*(?:local)?(?:rule|checkpoint) (\w+):", line):  # indented: a job of a group job
             rule = m.group(1)
         elif (m := re.match(r"^\s+resources: (.*)$", line)) and rule:
             resources[rule] = m.group(1)
@@ -783,7 +784,8 @@ def test_real_run_writes_every_stage(e2e_run):
 
     workdir, printed = e2e_run.workdir, e2e_run.printed
     results = workdir / "results"
-    assert printed.splitlines() == [
+    lines = printed.splitlines()
+    assert lines[:lines.index("summary:")] == [
         f"results: {results}",
         *(f"  stage: {results / d}" for d in sorted(
             ["simulate", "ingest", "recovery", "interpolation", "validation", "windows", "report"])),
@@ -791,6 +793,9 @@ def test_real_run_writes_every_stage(e2e_run):
         f"  {results / 'report' / 'tiny_a' / 'report.html'}",
         f"  {results / 'report' / 'tiny_b' / 'report.html'}",
     ]
+    summary = lines[lines.index("summary:") + 1:]  # the verdict per sequence, the dataset, the reports
+    assert [x.split(":")[0] for x in summary[:2]] == ["  tiny_a", "  tiny_b"]
+    assert summary[2].startswith("  windows: 2 sequences in the dataset (test 1, train 1)")
     for name in ("tiny_a", "tiny_b"):
         assert (results / "simulate" / name / "mav0" / "imu0" / "data.csv").is_file()
         seq = read_store(results / "ingest" / name)

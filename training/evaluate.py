@@ -452,6 +452,10 @@ def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | 
     examples = _example_rows(windows, config.examples, config.seed)
     ex_frames, pred_frames = [], []
     aggs = (Aggregation.MEAN, Aggregation.MEDIAN) if k > 1 else ()
+    from pipeline.progress import progress
+
+    what = f"evaluate ({sampler.value}, {k} samples)" if sampler is not None else "evaluate"
+    bar = progress(len(windows), desc=what, unit="window", logger=log)
     for name, rows in _batches(windows, config.batch_windows):
         items = windows.items(rows)
         pred = predictor.predict(items, name, k, sampler, config.seed)  # [B, K, T, 6]
@@ -473,6 +477,8 @@ def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | 
         if sel.any():
             sub = {key: (v[sel] if torch.is_tensor(v) else v) for key, v in items.items()}
             ex_frames.append(_example_frame(pred[sel], sub, rows[sel], sampler, windows))
+        bar.update(len(rows))
+    bar.close()
     return (acc, pd.concat(ex_frames, ignore_index=True) if ex_frames else pd.DataFrame(),
             pd.concat(pred_frames, ignore_index=True))
 

@@ -97,8 +97,8 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     model_rate = run.dataset.get("rate_hz")
     if model_rate and abs(rate / float(model_rate) - 1.0) > RATE_TOLERANCE:
         raise DataError(f"'{sequence.name}' has IMU rate {rate:.4g} Hz, the model was trained at {float(model_rate):g} Hz",
-                        hint=f"resample the recording's IMU to {float(model_rate):g} Hz before predicting, or use a "
-                             f"model trained on windows at {rate:.4g} Hz")
+                        hint=f"resample it to the model's rate: biasgt predict ... --resample-hz {float(model_rate):g}, "
+                             f"or use a model trained on windows at {rate:.4g} Hz")
     method = Method(run.config.method)
     k = samples if method.is_diffusion else 1
     starts = window_starts(len(imu), T)
@@ -113,6 +113,10 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     log.info("sampling '%s': %d windows of %d samples, %d sample(s) each", sequence.name, len(starts), T, k)
     mean = np.empty((len(starts), T, 6))
     std, q_lo, q_hi = np.empty_like(mean), np.empty_like(mean), np.empty_like(mean)
+    from pipeline.progress import progress
+
+    bar = progress(len(starts), desc=f"predict {sequence.name} ({k} sample{'s' * (k > 1)})", unit="window",
+                   logger=log)
     for b in range(0, len(starts), batch_windows):
         sl = idx[b:b + batch_windows]
         batch = _batch(imu6[sl], None if temp is None else temp[sl], dtype).to(device)
@@ -121,6 +125,8 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
         mean[b:b + len(sl)] = pred.mean(axis=1)
         std[b:b + len(sl)] = pred.std(axis=1)
         q_lo[b:b + len(sl)], q_hi[b:b + len(sl)] = np.quantile(pred, (0.025, 0.975), axis=1)
+        bar.update(len(sl))
+    bar.close()
     owner = np.full(len(imu), -1)
     for w, s in enumerate(starts):  # each sample from the first window covering it
         seg = slice(s, s + T)
@@ -143,12 +149,14 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
 def predict_file(checkpoint: str | Path, input_path: str | Path, out_path: str | Path, *, samples: int = 50,
                  sampler: Sampler = Sampler.DDIM, steps: int = 25, seed: int = 0, device: str = "cpu",
                  reader_kwargs: Mapping[str, Any] | None = None, repairs: Iterable[Any] = (),
-                 check_options: Any = None) -> list[Path]:
+                 check_options: Any = None, resample_hz: float | None = None) -> list[Path]:
     """Predict the bias of a recording and write ``OUT.csv`` and ``OUT.parquet`` (atomically each).
 
     Args:
         reader_kwargs / repairs / check_options: How the input is read and checked
             (:func:`load_input`).
+        resample_hz: Resample the IMU to this rate first, anti-alias filtered
+            (:func:`pipeline.resample.resample_imu_filtered`); the output is at the resampled stamps.
 
     Returns:
         The two files written.
@@ -161,6 +169,12 @@ def predict_file(checkpoint: str | Path, input_path: str | Path, out_path: str |
         check_output_location(path, OutputKind.FILE)
     run = load_run(checkpoint, device=device)
     sequence = load_input(input_path, reader_kwargs, repairs=repairs, check_options=check_options)
+    if resample_hz is not None and sequence.imu is not None:
+        from dataclasses import replace
+
+        from pipeline.resample import resample_imu_filtered
+
+        sequence = replace(sequence, imu=resample_imu_filtered(sequence.imu, resample_hz))
     frame = predict_sequence(run, sequence, samples=samples, sampler=Sampler(sampler), steps=steps, seed=seed)
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(paths[0]) as tmp:

@@ -88,10 +88,50 @@ def train_step(dataset_dir: str | Path, out_dir: str | Path, config: Mapping[str
     return train(cfg, Path(dataset_dir), Path(out_dir))
 
 
-def evaluation_settings(section: Mapping[str, Any]) -> dict[str, Any]:
+def evaluation_settings(section: Mapping[str, Any], *, sampled: bool = True) -> dict[str, Any]:
     """Parameters of an evaluate job: the ``evaluation:`` section without ``references`` (which
-    only says which reference jobs exist), so that listing another reference re-evaluates nothing."""
-    return {k: v for k, v in section.items() if k != "references"}
+    only says which reference jobs exist), so that listing another reference re-evaluates nothing;
+    without the sampling options (``samples``, ``samplers``, ``steps``) for a job that draws no
+    samples (``sampled`` False: the references), so that changing them reruns only the models'."""
+    drop = {"references"} | (set() if sampled else set(SAMPLING_OPTIONS))
+    return {k: v for k, v in section.items() if k not in drop}
+
+
+#: Evaluation options that only matter where samples are drawn (a diffusion model).
+SAMPLING_OPTIONS = ("samples", "samplers", "steps")
+
+#: Manifest entries that do not change what a model learns or is tested on (why sequences were left
+#: out, with the verdict's wording; the code version): left out of :func:`dataset_checksum`.
+_VOLATILE_MANIFEST_KEYS = frozenset({"excluded", "code_version", "reasons"})
+
+
+def _stable(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {k: _stable(v) for k, v in value.items() if k not in _VOLATILE_MANIFEST_KEYS}
+    if isinstance(value, list):
+        return [_stable(v) for v in value]
+    return value
+
+
+def dataset_checksum(root: str | Path) -> str | None:
+    """SHA-256 of a window dataset's content: every array file's bytes and the manifest without
+    :data:`_VOLATILE_MANIFEST_KEYS`; None when there is no dataset yet. The learning jobs depend on
+    it (not on the folder's time stamp): a dataset rewritten with the same content retrains nothing."""
+    import hashlib
+    import json
+
+    root = Path(root)
+    manifest = root / "manifest.json"
+    if not manifest.is_file():
+        return None
+    h = hashlib.sha256()
+    h.update(json.dumps(_stable(json.loads(manifest.read_text(encoding="utf-8"))), sort_keys=True).encode())
+    for path in sorted(root.rglob("*.npy")):
+        h.update(str(path.relative_to(root)).encode())
+        with path.open("rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
 
 
 def torchrun_command(config: TrainConfig, dataset_dir: Path, out_dir: Path, processes: int,

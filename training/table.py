@@ -1,7 +1,9 @@
 """Table I: per test sequence and on average, PRMSE (m) / ROE (deg) of every evaluated row.
 
-Rows are the test sequences and ``Average`` (the mean over sequences, as in the paper);
-columns are the evaluated methods and references. A diffusion model gives one column per
+In ``table.csv`` rows are the test sequences and ``Average`` (the mean over sequences, as in the
+paper) and columns the evaluated methods and references; ``table.md`` (and the training report)
+shows it transposed, one row per method and variant, grouped by method, and one column per
+sequence, so that twenty rows still fit a page. A diffusion model gives one column per
 sampler and aggregation (:class:`training.evaluate.Aggregation`): ``diffusion_rnn`` is the
 paper's figure (correct DDIM, metrics averaged over the K samples), ``diffusion_rnn mean`` /
 ``median`` use the mean / median of the samples as the prediction, ``diffusion_rnn released``
@@ -39,7 +41,7 @@ if TYPE_CHECKING:  # the evaluation (and torch) is imported when a table is writ
 
 log = logging.getLogger(__name__)
 
-__all__ = ["TableColumn", "build_table", "cell_marks", "format_markdown", "table_columns", "write_table"]
+__all__ = ["TableColumn", "build_table", "cell_marks", "format_markdown", "method_label", "table_columns", "write_table"]
 
 TABLE_CSV = "table.csv"
 TABLE_MD = "table.md"
@@ -54,12 +56,16 @@ class TableColumn:
         name: Column header.
         ranked: Takes part in best / second-best marks (not an oracle).
         prmse_m / roe_deg: Row name -> values over seeds.
+        group: The method or reference (the row group of the transposed table).
+        variant: The sampler and aggregation within the group ('' for the headline row).
     """
 
     name: str
     ranked: bool
     prmse_m: dict[str, list[float]]
     roe_deg: dict[str, list[float]]
+    group: str = ""
+    variant: str = ""
 
     @property
     def seeds(self) -> int:
@@ -77,7 +83,7 @@ def table_columns(summaries: Iterable[EvaluationSummary]) -> list[TableColumn]:
     for s in sorted(summaries, key=_order):
         for row in s.rows:
             name = f"{s.label} {row.key}".strip()
-            col = columns.setdefault(name, TableColumn(name, s.kind != "oracle", {}, {}))
+            col = columns.setdefault(name, TableColumn(name, s.kind != "oracle", {}, {}, s.label, row.key.strip()))
             for seq, m in [*row.sequences.items(), (AVERAGE, row.average)]:
                 col.prmse_m.setdefault(seq, []).append(m.prmse_m)
                 col.roe_deg.setdefault(seq, []).append(m.roe_deg)
@@ -122,24 +128,33 @@ def cell_marks(columns: list[TableColumn], row: str, metric: str) -> dict[str, s
     return out
 
 
+def method_label(column: TableColumn) -> str:
+    """A row's method cell: the group, marked as an oracle where it is not ranked."""
+    group = column.group or column.name
+    return group + (" (oracle)" if not column.ranked and "oracle" not in group.lower() else "")
+
+
 def format_markdown(columns: list[TableColumn], title: str = "Table I") -> str:
-    """The marked Markdown table (see the module docstring)."""
+    """The marked Markdown table, one row per method and variant (see the module docstring)."""
     table = build_table(columns)
     wrap = {"best": "**{}**", "second": "<u>{}</u>", None: "{}"}
+    marks = {seq: (cell_marks(columns, seq, "prmse_m"), cell_marks(columns, seq, "roe_deg")) for seq in table.index}
     lines = [f"### {title}: PRMSE (m) / ROE (deg) on 1-s test windows", "",
-             "| sequence | " + " | ".join(c.name + (" (oracle)" if not c.ranked and "oracle" not in c.name.lower()
-                                                     else "") for c in columns) + " |",
-             "|---|" + "---|" * len(columns)]
-    for row in table.index:
-        mp, mr = cell_marks(columns, row, "prmse_m"), cell_marks(columns, row, "roe_deg")
-        cells = [wrap[mp.get(c.name)].format(_cell(c.prmse_m[row], 4)) + " / "
-                 + wrap[mr.get(c.name)].format(_cell(c.roe_deg[row], 4)) for c in columns]
-        name = f"**{row}**" if row == AVERAGE else row
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+             "| method | variant | " + " | ".join(f"**{s}**" if s == AVERAGE else s for s in table.index) + " |",
+             "|---|---|" + "---|" * len(table.index)]
+    previous = None
+    for c in columns:
+        cells = [wrap[marks[seq][0].get(c.name)].format(_cell(c.prmse_m[seq], 4)) + " / "
+                 + wrap[marks[seq][1].get(c.name)].format(_cell(c.roe_deg[seq], 4)) for seq in table.index]
+        group = method_label(c) if c.group != previous else ""
+        previous = c.group
+        lines.append(f"| {group} | {c.variant} | " + " | ".join(cells) + " |")
     seeds = max(c.seeds for c in columns)
-    lines += ["", "Best **bold**, second best <u>underlined</u> among usable methods (oracle columns use the "
-                  "ground truth at test time and are not ranked). Average = mean over test sequences."
-              + (f" Learned columns: mean ± std over {seeds} training seeds." if seeds > 1 else "")]
+    lines += ["", "Best **bold**, second best <u>underlined</u> per sequence among usable methods (oracle rows use "
+                  "the ground truth at test time and are not ranked). Average = mean over test sequences. A "
+                  "diffusion model's first row averages each metric over its K samples (the paper); 'mean' / "
+                  "'median' use the sample mean / median as the prediction; 'released' uses the released code's "
+                  "sampler." + (f" Learned rows: mean ± std over {seeds} training seeds." if seeds > 1 else "")]
     return "\n".join(lines) + "\n"
 
 

@@ -381,13 +381,11 @@ def _global_mean(x: torch.Tensor) -> float:
     return float(y) / dist.get_world_size()
 
 
-def _progress(total: int, initial: int):
-    """A tqdm bar on a terminal, else None (plain log lines)."""
-    if not sys.stderr.isatty():
-        return None
-    from tqdm import tqdm
+def _progress(method: str, total: int, initial: int):
+    """The training's progress bar: rate and ETA on a terminal, a log line every 30 s elsewhere."""
+    from pipeline.progress import progress
 
-    return tqdm(total=total, initial=initial, unit="step", dynamic_ncols=True)
+    return progress(total, initial=initial, desc=f"train {method}", unit="step", logger=log)
 
 
 def _distributed(device: str) -> tuple[int, int, bool]:
@@ -465,14 +463,15 @@ def _fit(tr: _Trainer) -> None:
     log.info("training %s (%s preset, %d parameters) on %d windows, %d validation windows, %s",
              config.method.value, config.preset.value, count_parameters(tr.model), len(tr.data.train),
              len(tr.data.val), tr.device)
-    bar = _progress(config.max_steps, run.step) if writer else None
+    bar = _progress(config.method.value, config.max_steps, run.step) if writer else None
+    on_terminal = sys.stderr.isatty()
     tick = time.perf_counter()
     for batch in loader:
         run.losses.append(tr.train_step(batch.to(tr.device)))
         run.windows += order.batch_size
         if bar is not None:
             bar.update(1)
-            bar.set_postfix(loss=f"{run.losses[-1]:.4g}")
+            bar.set_postfix(loss=f"{run.losses[-1]:.4g}", refresh=False)
         end = run.step == config.max_steps
         validate, save = run.step % config.val_every == 0 or end, run.step % config.checkpoint_every == 0 or end
         if not (validate or save):
@@ -481,7 +480,7 @@ def _fit(tr: _Trainer) -> None:
         if writer and validate:
             train_loss = float(np.mean(run.losses))
             val = tr.validate_and_record()
-            if bar is None:
+            if not on_terminal:
                 log.info("step %d/%d  train loss %.5g  val loss %.5g  lr %.3g", run.step, config.max_steps,
                          train_loss, val, tr.lr_schedule.get_last_lr()[0])
         if validate:

@@ -126,6 +126,7 @@ from pipeline.so3 import rotation_angle_deg
 from pipeline.types import NS_PER_S, ImuSeries, IntegrationScheme, PoseSeries, Sequence, Severity, StateSeries
 from recovery.outputs import RecoveryOutputs
 from validation.config import CrossvalMode, ValidationConfig
+from validation.plausibility import plausibility_findings
 from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, Verdict, write_folder
 
 log = logging.getLogger(__name__)
@@ -978,6 +979,7 @@ class ValidationResult:
     notes: list[str] = field(default_factory=list)
     next_steps: list[str] = field(default_factory=list)
     heldout: dict[str, Any] | None = None
+    plausibility: list[dict[str, Any]] = field(default_factory=list)
 
     def windows_frame(self) -> pd.DataFrame:
         """Per-window errors: t0_ns, source, pos_err_m, rot_err_deg, flagged."""
@@ -1003,6 +1005,7 @@ class ValidationResult:
             "notes": list(self.notes),
             "next_steps": list(self.next_steps),
             **({} if self.heldout is None else {"heldout": self.heldout}),
+            "plausibility": list(self.plausibility),
         }
 
 
@@ -1056,6 +1059,7 @@ def validate_sequence(
     heldout: BiasSource | None = None,
     judge_heldout: bool = False,
     heldout_info: Mapping[str, Any] | None = None,
+    fails: Sequence_[str] = (),
 ) -> ValidationResult:
     """Validate bias trajectories by 1-s integration error against a reference (AirIMU metrics).
 
@@ -1078,6 +1082,8 @@ def validate_sequence(
         judge_heldout: The held-out errors judge the verdict (the reference is the stream the bias
             was fitted to): worse than the zero or the constant bias on those windows is a FAIL.
         heldout_info: What the cross-validation did (blocks, folds, dropped folds), for the output.
+        fails: Reasons for a FAIL found before the integration (e.g. :mod:`validation.plausibility`),
+            listed first.
 
     Returns:
         The result, with per-source metrics, the verdict and its reasons.
@@ -1199,7 +1205,7 @@ def validate_sequence(
             imu, heldout, reference, plan, starts, gravity, metrics, config, judge_heldout, dict(heldout_info or {}))
         limitations = [*heldout_warns, *limitations]
     verdict, reasons = decide_verdict(metrics, candidate, dropped_fraction=dropped["fraction"], config=config,
-                                      limitations=limitations, fails=heldout_fails)
+                                      limitations=limitations, fails=[*fails, *heldout_fails])
     ref_info = {"kind": reference.kind.value, **reference.info}
     return ValidationResult(sequence.name, verdict, reasons, candidate, config, metrics, dropped, ref_info,
                             gravity, notes, heldout=heldout_part)
@@ -1449,6 +1455,8 @@ _LIMITING_FINDINGS = {
     "CALIBRATION_DEFAULTED": "give the IMU's own noise values (sensor.yaml or the recovery config) and recover again",
     "SATURATION": "record with a larger sensor range, or drop the saturated stretches",
     "STAMP_UNIT_GUESSED": "write the stamps as integer nanoseconds so that their unit is not guessed",
+    "IMU_RATE_MISMATCH": "resample the IMU to the calibration's rate (biasgt convert --resample-hz) or correct "
+                         "rate_hz in sensor.yaml, and recover again",
 }
 
 
@@ -1514,6 +1522,7 @@ def validate_inputs(
         if heldout is not None and own_gravity is not None:
             heldout = replace(heldout, gravity_mps2=own_gravity)
     judged = fitted and heldout is not None and len(heldout_info["dropped_folds"]) < config.crossval_folds
+    implausible = plausibility_findings(sequence, recovery) if recovery is not None else []
     limitations = input_limitations(sequence)
     limitations += recovery_limitations(recovery, config) if recovery is not None else []
     if fitted and not judged:
@@ -1525,8 +1534,9 @@ def validate_inputs(
             "cross-validate (--crossval on)"))
     result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config,
                                limitations=[lim.text for lim in limitations], heldout=heldout, judge_heldout=judged,
-                               heldout_info=heldout_info)
-    result.next_steps = next_steps(result, limitations)
+                               heldout_info=heldout_info, fails=[x.text for x in implausible])
+    result.plausibility = [x.to_dict() for x in implausible]
+    result.next_steps = next_steps(result, [Limitation(x.text, x.next_step) for x in implausible] + limitations)
     if own_gravity is not None:
         result.notes.append(f"'recovered' is integrated with the recovery's gravity {np.round(own_gravity, 4).tolist()} "
                             f"m/s^2 (the reference is the stream it was fitted to); the other rows with "
@@ -1595,4 +1605,10 @@ def next_steps(result: ValidationResult, limitations: Sequence_[Limitation] = ()
     if result.windows_dropped.get("fraction", 0.0) > result.config.warn_dropped_fraction:
         steps.append("many dropped windows: close the IMU gaps or cover the whole IMU span with poses "
                      "(windows_dropped.by_reason in validation.json says which)")
-    return list(dict.fromkeys(steps))
+    return said_once(steps)
+
+
+def said_once(steps: Sequence_[str]) -> list[str]:
+    """``steps`` without repeats: a step that another repeats with more words is kept the longer way."""
+    steps = list(dict.fromkeys(steps))
+    return [s for s in steps if not any(o != s and o.startswith(s) for o in steps)]

@@ -35,6 +35,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("input", metavar="INPUT", help="file or folder to convert")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="store folder to write")
     p.add_argument("--name", default=None, help="sequence name (default: from the input)")
+    p.add_argument("--resample-hz", type=float, default=None, metavar="HZ",
+                   help="resample the IMU to HZ (e.g. a model's or the calibration's rate) with an anti-alias "
+                        "filter; the store's calibration rate becomes HZ")
     add_reader_arguments(p)
     add_check_arguments(p)
     p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
@@ -44,7 +47,7 @@ def run(args: argparse.Namespace) -> int:
 
     repairs = parse_repairs(args.repair)
     seq = ingest(args.input, args.out, repairs=repairs, reader_kwargs=reader_kwargs_from_args(args),
-                 check_options=check_options_from_args(args))
+                 check_options=check_options_from_args(args), resample_hz=args.resample_hz)
     parts = []
     if seq.imu is not None:
         parts.append(f"imu {len(seq.imu)} rows, {seq.imu.duration_s:.1f} s")

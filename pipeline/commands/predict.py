@@ -44,6 +44,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, default=25, metavar="N", help="denoising steps (default 25)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sampling noise (default 0)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
+    p.add_argument("--resample-hz", type=float, default=None, metavar="HZ",
+                   help="resample the IMU to HZ first (the model's rate), with an anti-alias filter; the output is "
+                        "at the resampled stamps")
     add_reader_arguments(p)
     add_check_arguments(p)
     p.set_defaults(func=run)
@@ -55,6 +58,6 @@ def run(args: argparse.Namespace) -> int:
     paths = predict_file(args.checkpoint, args.input, args.out, samples=args.samples, sampler=args.sampler,
                          steps=args.steps, seed=args.seed, device=args.device,
                          reader_kwargs=reader_kwargs_from_args(args), repairs=args.repair,
-                         check_options=check_options_from_args(args))
+                         check_options=check_options_from_args(args), resample_hz=args.resample_hz)
     print("wrote " + ", ".join(map(str, paths)))
     return 0

@@ -11,6 +11,7 @@ import logging
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
+from pipeline.types import Sequence, Severity
 from pipeline.ingest import (
     add_check_arguments,
     add_reader_arguments,
@@ -28,6 +29,9 @@ from recovery.config import (
 )
 
 log = logging.getLogger(__name__)
+
+#: Input findings that ``recover`` repeats before its solve: they change what the result is worth.
+SAID_BEFORE_THE_SOLVE = ("IMU_RATE_MISMATCH",)
 
 
 def _values(kind: type[enum.Enum]) -> list[str]:
@@ -118,12 +122,39 @@ def run(args: argparse.Namespace) -> int:
     seq = load_checked(args.input, reader_kwargs_from_args(args), repairs=args.repair,
                        check_options=check_options_from_args(args), action="recover")
     stream = args.poses
+    if stream is None:
+        print(chosen_stream_sentence(seq))
+    for f in seq.findings:
+        if f.code in SAID_BEFORE_THE_SOLVE and f.severity is Severity.WARNING:
+            print(f"  warning: {f.code}: {f.message}")
     result = recover(seq, pose_stream=stream, config=config)
     write_recovery(result, args.out)
     r = result.report
     print(f"wrote {args.out} ({r['keyframes']} keyframes over {r['duration_s']:.1f} s from '{r['pose_stream']}', "
-          f"offset {r['pose_time_offset_s'] * 1e3:+.3f} ms, {r['outliers_rejected']} outliers, "
+          f"offset {r['pose_time_offset_s'] * 1e3:+.3f} ms, {outlier_counts(r)}, "
           f"{r['runtime_s']:.1f} s)")
     for w in result.warnings:
         print(f"  warning: {w}")
     return 0
+
+
+def chosen_stream_sentence(seq: Sequence) -> str:
+    """Which pose stream the default order chose, why, and the others (said before the solve)."""
+    from pipeline.io import ADDED_POSE_STREAMS_KEY, list_pose_streams, select_pose_stream
+
+    name, poses = select_pose_stream(seq)
+    added = seq.metadata.get(ADDED_POSE_STREAMS_KEY) or ()
+    why = ("given with --add-poses" if name in added
+           else f"{poses.source_kind.value}, first in the default order")
+    others = [s for s in list_pose_streams(seq) if s != name]
+    return (f"pose stream: '{name}' ({why})" + (f"; also in the input: {', '.join(others)} (choose with --poses NAME)"
+                                                 if others else ""))
+
+
+def outlier_counts(report: dict) -> str:
+    """Which poses were rejected: keyframe poses (the solve's robust loss) and, with pose fusion, pose samples
+    (before fusing them into keyframes); ``outliers_rejected`` is their sum."""
+    samples = int((report.get("pose_fusion") or {}).get("samples_rejected") or 0)
+    keyframes = int(report["outliers_rejected"]) - samples
+    return (f"outliers rejected: {keyframes} of {report['keyframes']} keyframe poses"
+            + (f", {samples} pose samples before fusion" if samples else ""))

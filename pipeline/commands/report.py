@@ -7,10 +7,18 @@ from __future__ import annotations
 
 import argparse
 import logging
+import textwrap
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
 from pipeline.errors import ConfigError
+from pipeline.ingest import (
+    add_check_arguments,
+    add_reader_arguments,
+    check_options_from_args,
+    load_checked,
+    reader_kwargs_from_args,
+)
 
 log = logging.getLogger(__name__)
 
@@ -19,22 +27,28 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "report",
         help="write the dataset quality report of one sequence (self-contained HTML)",
-        description=(
+        description=textwrap.fill(
             "Write one self-contained HTML page (figures embedded, no network needed) that says whether a "
             "sequence's recovered bias is usable and why: the validation verdict in plain words, the streams and "
             "input checks, the estimated calibration (clock offset, extrinsic, gravity, noise), the recovered bias "
             "with its uncertainty, residuals, the integration error per bias source, and the IMU's Allan deviation. "
             "Give a results folder and --sequence NAME (reads results/ingest|recovery|validation/NAME), or the "
-            "stage folders with --ingest/--recovery/--validation. Missing recovery or validation outputs are "
+            "input and the stage folders with --ingest/--recovery/--validation; the input may be a canonical store "
+            "or any input that recover and validate read (an ASL folder, a bag, ...), with the same reader options "
+            "(--add-poses, --format, ...). Missing recovery or validation outputs are "
             "reported in the page; a missing ingest store is an error. Prints the path of the written file."
         ),
-        epilog="Example: biasgt report results --sequence MH_01_easy --out MH_01_easy.html",
+        epilog=("examples:\n  biasgt report results --sequence MH_01_easy --out MH_01_easy.html\n"
+                "  biasgt report --ingest data/V1_01_easy --add-poses data/V1_01_easy/ov_data/V1_01_easy_original.txt"
+                ":ground_truth \\\n      --recovery out/V1_01 --validation out/V1_01/validation --out out/V1_01/quality.html"),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("results", metavar="RESULTS_DIR", nargs="?", type=Path, default=None,
                    help="the workflow's results/ folder (or the folder holding it)")
     p.add_argument("--sequence", metavar="NAME", default=None, help="sequence name (with RESULTS_DIR)")
-    p.add_argument("--ingest", metavar="DIR", type=Path, default=None,
-                   help="the sequence's canonical store (overrides RESULTS_DIR/ingest/NAME)")
+    p.add_argument("--ingest", metavar="INPUT", type=Path, default=None,
+                   help="the sequence: its canonical store or any input recover reads (overrides "
+                        "RESULTS_DIR/ingest/NAME)")
     p.add_argument("--recovery", metavar="DIR", type=Path, default=None,
                    help="the recovery output folder (bias.csv, recovery.json; overrides RESULTS_DIR/recovery/NAME)")
     p.add_argument("--validation", metavar="DIR", type=Path, default=None,
@@ -42,6 +56,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "RESULTS_DIR/validation/NAME)")
     p.add_argument("--out", metavar="FILE.html", type=Path, default=None,
                    help="the HTML file to write (default with RESULTS_DIR: RESULTS_DIR/report/NAME/report.html)")
+    add_reader_arguments(p)
+    add_check_arguments(p)
     p.set_defaults(func=run, out_kind=OutputKind.FILE)
 
 
@@ -76,7 +92,14 @@ def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | 
 def run(args: argparse.Namespace) -> int:
     from reports.quality import build_quality_report  # matplotlib: off the CLI start-up path
 
+    from pipeline.store import is_store
+
     ingest, recovery, validation, out = resolve_inputs(args)
-    path = build_quality_report(ingest, recovery_dir=recovery, validation_dir=validation, out_path=out)
+    sequence = None
+    if Path(ingest).exists() and (not is_store(ingest) or args.extra_poses or args.fmt):
+        sequence = load_checked(ingest, reader_kwargs_from_args(args), repairs=args.repair,
+                                check_options=check_options_from_args(args), action="report")
+    path = build_quality_report(ingest, recovery_dir=recovery, validation_dir=validation, out_path=out,
+                                sequence=sequence)
     print(path)
     return 0

@@ -9,14 +9,17 @@ from pathlib import Path
 from pipeline.workflow import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE, resolve_profile, run_workflow
 
 DESCRIPTION = f"""\
-Run the biasgt workflow ({SNAKEFILE}) with Snakemake: simulate / ingest every sequence of the
-config, recover the bias, interpolate it to the IMU rate, validate it, cut the window dataset of
-the train/val/test sequences and write one quality report per sequence. Outputs go to
-results/<stage>/<sequence>/ (stages: simulate, ingest, recovery, interpolation, validation,
-report; the windows go to results/windows/dataset/) and logs to logs/<stage>/<sequence>.log under
-the working directory (--directory, default: the current folder); the reports' paths are printed
-at the end. Finished jobs are kept: rerunning only redoes what a changed input, parameter or code
-affects. The config is checked before Snakemake starts.
+Run the biasgt workflow ({SNAKEFILE}) with Snakemake, stage by stage: simulate / ingest every
+sequence of the config, recover the bias, interpolate it to the IMU rate, validate it, report (one
+quality report per sequence), cut the window dataset of the train/val/test sequences (windows),
+then the learning stages: train every method and seed of the config's training section, evaluate
+each model and the references on the test split, table (Table I) and training_report (the
+training report, results/report/training.html). The learning stages are most of a run's time.
+Outputs go to results/<stage>/<sequence>/ (results/windows/dataset/, results/training/,
+results/evaluation/) and logs to logs/<stage>/<sequence>.log under the working directory
+(--directory, default: the current folder); the reports' paths are printed at the end. Finished
+jobs are kept: rerunning only redoes what a changed input, parameter or code affects. The config is
+checked before Snakemake starts.
 
 On a SLURM cluster: biasgt run --config my.yaml --profile slurm (the Snakemake profile
 workflow/profiles/slurm: executor settings and per-rule cores, memory, time and GPUs; see
@@ -30,6 +33,7 @@ examples:
   biasgt run --until ingest               stop after the ingest jobs
   biasgt run --target results/ingest/sim_handheld_01
   biasgt run --profile slurm -- --default-resources slurm_account=ME slurm_partition=cpu
+  biasgt run --profile slurm-cpu          a SLURM cluster without GPUs
   biasgt run -- --forceall                extra Snakemake arguments after '--'
   biasgt run -- --report run_report.html  Snakemake's HTML report of the finished run"""
 
@@ -49,7 +53,8 @@ def _cores(value: str) -> int | str:
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run",
-        help="run the whole workflow with Snakemake (simulate/ingest ... report)",
+        help="run the whole workflow with Snakemake (simulate, ingest, recover, interpolate, validate, "
+             "report, windows, train, evaluate, table, training report)",
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -74,7 +79,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    import io
+
+    from pipeline.run_summary import dry_run_summary, finished_summary
+
     profile = [] if args.profile is None else ["--profile", str(resolve_profile(args.profile))]
+    # a dry run prints Snakemake's whole plan only with -v; else one line says what would run and why
+    plan = io.StringIO() if args.dry_run and not getattr(args, "verbose", 0) else None
     result = run_workflow(
         config_file=args.config,
         cores=args.cores,
@@ -83,8 +94,11 @@ def main(args: argparse.Namespace) -> int:
         until=args.until,
         targets=args.target,
         extra=[*profile, *args.snakemake_args],
+        echo=plan,
     )
     if args.dry_run:
+        if plan is not None:
+            print(dry_run_summary(plan.getvalue()) + " (biasgt -v run --dry-run shows the whole plan)")
         return 0
     results = result.workdir / "results"
     print(f"results: {results}" if results.is_dir() else f"results: none yet under {result.workdir}")
@@ -96,5 +110,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"reports ({len(reports)}):")
         for path in reports:
             print(f"  {path}")
+    for line in finished_summary(result.workdir):
+        print(line)
     sys.stdout.flush()
     return 0

@@ -610,6 +610,21 @@ def _read_tf_job(reader: AnyReader, job: _PoseJob, messages: list, path: Path, f
     return streams, pairs
 
 
+def _unused_topics(topics: dict[str, tuple[str, int]], needed: set[str], tf_topics: list[str]) -> list[Finding]:
+    """TOPICS_NOT_USED (info): the bag's topics that nothing reads (e.g. a GNSS fix), so that a user sees them."""
+    unused = sorted(n for n in topics if n not in needed and n not in tf_topics)
+    if not unused:
+        return []
+    listed = ", ".join(f"{n} ({topics[n][0]}, {topics[n][1]} msgs)" for n in unused)
+    return [Finding(
+        "TOPICS_NOT_USED", Severity.INFO, "bag",
+        f"topics not used: {listed}; biasgt reads sensor_msgs/Imu and pose topics (PoseStamped, "
+        "PoseWithCovarianceStamped, TransformStamped, Odometry, /tf); a GNSS fix (NavSatFix) has no orientation "
+        "and no metric frame: convert it to poses first if it should be a pose stream",
+        {"topics": unused},
+    )]
+
+
 def _read_open_bag(
     reader: AnyReader,
     path: Path,
@@ -633,6 +648,7 @@ def _read_open_bag(
     needed = {imu_name} if imu_name else set()
     for job in jobs:
         needed.update(_tf_sources(job.topic, tf_topics) if job.kind is _PoseJobKind.TF else [job.topic])
+    findings += _unused_topics(topics, needed, tf_topics)
     by_topic: dict[str, list] = {t: [] for t in needed}
     if needed:
         for item in reader.messages([c for c in reader.connections if c.topic in needed]):

@@ -27,6 +27,12 @@ IMU_NOISE_KEYS = {
     "rate_hz": "rate_hz",
 }
 
+#: sensor.yaml key -> ImuCalibration field: the sensor's bias range (optional; plausibility limits).
+IMU_LIMIT_KEYS = {
+    "gyroscope_bias_max": "gyro_bias_max_radps",
+    "accelerometer_bias_max": "acc_bias_max_mps2",
+}
+
 _DIRECTIVE = re.compile(r"^[ \t]*%YAML[: ]\s*\d+\.\d+[^\n]*\n", re.MULTILINE)
 
 
@@ -162,13 +168,14 @@ def read_imu_calibration(path: str | Path) -> ImuCalibration:
     path = Path(path)
     data = load_sensor_yaml(path)
     kwargs: dict[str, Any] = {}
-    for key, attr in IMU_NOISE_KEYS.items():
+    for key, attr in {**IMU_NOISE_KEYS, **IMU_LIMIT_KEYS}.items():
         if key in data:
             kwargs[attr] = _positive_float(data, key, path)
     T_BS = read_T_BS(path, data)
     if T_BS is not None:
         kwargs["T_body_imu"] = T_BS
-    sources = {attr: str(path) for attr in kwargs if attr in CALIBRATION_NOISE_FIELDS}
+    sources = {attr: str(path) for attr in kwargs
+               if attr in CALIBRATION_NOISE_FIELDS or attr in IMU_LIMIT_KEYS.values() or attr == "rate_hz"}
     return ImuCalibration(**kwargs, sources=sources)
 
 

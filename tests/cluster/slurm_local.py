@@ -319,16 +319,17 @@ def biasgt_run(config: Path, workdir: Path, *args: str) -> tuple[int, str, float
     return start_run(config, workdir, *args).wait()
 
 
+#: The shipped profile the test runs as it is (a CPU-only node: no GPU for the learning stage).
+PROFILE = "slurm-cpu"
+
+
 def slurm_args(*extra: str) -> list[str]:
-    """The SLURM run: the repository's profile, squeue status polling, the test's small sizes."""
-    return ["--profile", "slurm", "--",
+    """The SLURM run: a shipped profile with its own resources (no overrides), squeue status polling and
+    this cluster's fast status checks."""
+    return ["--profile", PROFILE, "--",
             "--slurm-status-command", "squeue",
             "--slurm-init-seconds-before-status-checks", str(INIT_SECONDS),
             "--jobs", "4", "--latency-wait", "5",
-            "--default-resources", "mem_mb=500", "runtime=10",
-            # the test machine has little memory: every rule asks for 500 MB (attempt 1 and 2)
-            *(f"--set-resources={rule}:mem_mb=500" for rule in
-              ("simulate", "ingest", "recover", "interpolate", "validate", "windows", "report")),
             *extra]
 
 

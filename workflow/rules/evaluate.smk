@@ -6,14 +6,17 @@
 
 rule evaluate:
     input:
-        dataset=wf.windows_dataset_dir(),
+        dataset=windows_dataset_input,
         run=ts.training_run_dir("{method}", "{seed}"),
     output:
         directory(ts.evaluation_dir("{method}", "{seed}")),
     log:
         wf.log_file("evaluate", "{method}_seed{seed}"),
     params:
-        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation")),
+        # a regression model draws no samples: the sampling options rerun only the diffusion models'
+        settings=lambda wildcards: ts.evaluation_settings(WF_CONFIG.section("evaluation"),
+                                                          sampled=ts.Method(wildcards.method).is_diffusion),
+        dataset_checksum=windows_dataset_checksum,
     threads: TRAINING_PLAN.threads
     script:
         "../scripts/evaluate.py"
@@ -21,13 +24,14 @@ rule evaluate:
 
 rule evaluate_reference:
     input:
-        dataset=wf.windows_dataset_dir(),
+        dataset=windows_dataset_input,
     output:
         directory(ts.evaluation_dir("{reference}")),
     log:
         wf.log_file("evaluate", "{reference}"),
     params:
-        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation")),
+        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation"), sampled=False),
+        dataset_checksum=windows_dataset_checksum,
     threads: 1
     script:
         "../scripts/evaluate.py"

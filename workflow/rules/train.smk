@@ -18,13 +18,14 @@ wildcard_constraints:
 
 rule train:
     input:
-        dataset=wf.windows_dataset_dir(),
+        dataset=windows_dataset_input,
     output:
         directory(ts.training_run_dir("{method}", "{seed}")),
     log:
         wf.log_file("train", "{method}_seed{seed}"),
     params:
         config=lambda wildcards: TRAINING_PLAN.run_settings(wildcards.method, wildcards.seed),
+        dataset_checksum=windows_dataset_checksum,
         processes=TRAINING_PLAN.processes,
     threads: TRAINING_PLAN.threads
     script:

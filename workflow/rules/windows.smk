@@ -2,9 +2,12 @@
 # results/windows/dataset/ (manifest.json + arrays, see training/windows.py).
 # params: the 'windows:' section and the (name, split) list, so that a changed split or window
 # option reruns this job only.
+# A checkpoint: the learning jobs depend on the dataset's content (checksum), read after it is written
+# (windows_dataset_input / windows_dataset_checksum), so that a dataset rewritten unchanged (say, after a
+# verdict threshold changed no verdict) retrains and re-evaluates nothing.
 
 
-rule windows:
+checkpoint windows:
     input:
         unpack(get_windows_inputs),
     output:
@@ -25,3 +28,15 @@ rule windows:
 
 
 final_output("windows", wf.window_outputs)
+
+
+def windows_dataset_input(wildcards):
+    """The window dataset as a learning job's input: ancient (its time stamp alone reruns nothing)."""
+    return ancient(checkpoints.windows.get().output[0])
+
+
+def windows_dataset_checksum(wildcards):
+    """The dataset's content checksum (training.stages.dataset_checksum): a learning job's parameter."""
+    from training.stages import dataset_checksum
+
+    return dataset_checksum(wf.windows_dataset_dir())

@@ -1,0 +1,74 @@
+"""Report details: one number format, units without offsets, named residuals, the truth called the truth."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from pipeline.commands.recover import outlier_counts
+from reports import plots
+from reports.quality import dataset_bias_label, mm_pair, verdict_summary
+from validation.validate import said_once
+
+
+def test_distances_side_by_side_share_one_format() -> None:
+    assert mm_pair(0.930, 5.68) == ("930", "5680")
+    assert mm_pair(0.0021, 0.0412) == ("2.10", "41.20")
+    validation = {"verdict": "WARN", "candidate": "recovered", "sources": {
+        "recovered": {"kind": "recovered", "prmse_m": 0.930, "roe_deg": 1.0},
+        "constant": {"kind": "constant_first_window", "prmse_m": 5.68, "roe_deg": 2.0},
+        "dataset": {"kind": "dataset", "prmse_m": 1.2, "roe_deg": 2.0}}}
+    _, sentence = verdict_summary(validation, "the simulator's true bias")
+    assert "PRMSE 930 mm vs 5680 mm" in sentence and "e+" not in sentence
+    assert "better than the simulator's true bias" in sentence and "dataset's own" not in sentence
+
+
+def test_a_simulated_recording_calls_its_bias_the_truth(tmp_path: Path, shared_data: Path) -> None:
+    from pipeline.cli import main
+    from pipeline.io import load_sequence
+
+    assert main(["-q", "simulate", "--duration", "3", str(tmp_path / "sim")]) == 0
+    assert dataset_bias_label(load_sequence(tmp_path / "sim")) == "the simulator's true bias"
+    real = load_sequence(shared_data / "euroc" / "MH_04_difficult")
+    assert dataset_bias_label(real) == "the dataset's own bias"
+
+
+def test_a_next_step_is_said_once() -> None:
+    short = "check the IMU noise values of the calibration (sensor.yaml: random walks)"
+    longer = short + "; widen recovery.random_walk_scales only if the calibration is known to be wrong"
+    assert said_once([short, "other", longer, "other"]) == ["other", longer]
+
+
+def test_residual_panels_are_named_with_units_and_outliers_are_marks() -> None:
+    t = np.linspace(0, 10, 50)
+    outliers = np.zeros(50, bool)
+    outliers[[5, 20]] = True
+    fig = plots.residual_series_figure(t, {"pose_whitened_rms": np.ones(50), "imu_whitened_rms": np.ones(50)},
+                                       outliers)
+    labels = [ax.get_ylabel() for ax in fig.axes]
+    assert labels == ["pose residual\n[σ, whitened RMS]", "IMU residual\n[σ, whitened RMS]"]
+    marks = [ln for ln in fig.axes[0].lines if ln.get_marker() == "o"]
+    assert len(marks) == 1 and len(marks[0].get_xdata()) == 2  # not a 0/1 series
+
+
+def test_bias_axes_carry_no_offset_label() -> None:
+    t = np.linspace(0, 10, 100)
+    bias = 2e-3 + 1e-5 * np.random.default_rng(0).standard_normal((100, 3))  # small values: an offset would show
+    fig = plots.bias_figure(t, bias, np.full((100, 3), 1e-5), quantity="Gyroscope bias", unit="rad/s")
+    fig.canvas.draw()
+    assert all(ax.yaxis.get_offset_text().get_text() == "" for ax in fig.axes)
+
+
+def test_recover_says_which_outlier_count_is_which() -> None:
+    text = outlier_counts({"outliers_rejected": 4609, "keyframes": 1434, "pose_fusion": {"samples_rejected": 4400}})
+    assert text == "outliers rejected: 209 of 1434 keyframe poses, 4400 pose samples before fusion"
+
+
+def test_inspect_names_the_topics_it_cannot_use(shared_data: Path, capsys) -> None:
+    from pipeline.cli import main
+
+    bag = shared_data / "ros_bags" / "robot_localization_test" / "test1.bag"
+    assert main(["inspect", str(bag)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if "TOPICS_NOT_USED" in x)
+    assert "/fix (sensor_msgs/msg/NavSatFix, 989 msgs)" in line and "/imu/data" not in line

@@ -1,0 +1,65 @@
+"""The shipped SLURM profiles: a CPU-only one that asks for no GPU, and SLURM's own refusal text on failure."""
+
+from __future__ import annotations
+
+import re
+import sys
+from pathlib import Path
+
+import yaml
+
+from pipeline import workflow as wf
+from pipeline.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_cpu_profile_asks_for_no_gpu_and_little_memory() -> None:
+    profile = yaml.safe_load((wf.resolve_profile("slurm-cpu") / "config.yaml").read_text())
+    gpu = yaml.safe_load((wf.resolve_profile("slurm") / "config.yaml").read_text())
+    assert "gpu" not in profile["set-resources"]["train"] and profile["set-threads"]["train"] <= 2
+    assert all(eval(str(r["mem_mb"]), {"attempt": 1}) <= 8000 for r in profile["set-resources"].values())
+    # everything else as in the GPU profile
+    assert {k: v for k, v in profile.items() if k not in ("set-resources", "set-threads")} == {
+        k: v for k, v in gpu.items() if k not in ("set-resources", "set-threads")}
+
+
+def test_cpu_profile_dry_run_plans_train_jobs_without_a_gpu(tmp_path: Path, capsys) -> None:
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text(yaml.safe_dump({"sequences": [
+        {"name": n, "source": "simulate", "duration_s": 3, "seed": i + 1, "split": n}
+        for i, n in enumerate(("train", "val", "test"))],
+        "training": {"methods": ["regression_rnn"], "seeds": [0], "preset": "tiny"}}))
+    assert main(["-v", "run", "--config", str(cfg), "--directory", str(tmp_path), "--profile", "slurm-cpu",
+                 "--dry-run"]) == 0
+    err = capsys.readouterr().err
+    blocks = re.findall(r"rule train:\n((?:\s+\w+: .*\n)+)", err)
+    assert blocks and all("gpu" not in b and "mem_mb=8000" in b for b in blocks)
+
+
+def test_the_local_slurm_test_runs_a_shipped_profile_as_it_is() -> None:
+    sys.path.insert(0, str(REPO / "tests" / "cluster"))
+    try:
+        import slurm_local
+    finally:
+        sys.path.pop(0)
+    args = slurm_local.slurm_args()
+    assert args[:2] == ["--profile", slurm_local.PROFILE] and (wf.PROFILES_DIR / slurm_local.PROFILE).is_dir()
+    assert not any(a.startswith(("--default-resources", "--set-resources", "--set-threads")) for a in args)
+
+
+def test_sbatch_refusal_is_shown(tmp_path: Path) -> None:
+    lines = [
+        "[Tue Dec  1 19:30:00 2026] Group job learning (jobs in lexicogr. order):",
+        "    rule train:", "        jobid: 7", "        wildcards: method=regression_rnn, seed=0",
+        "SLURM sbatch failed. The error message was 'sbatch: error: Batch job submission failed: Requested node "
+        "configuration is not available'.",
+        "    sbatch call:", "        sbatch --gpus=1 ...",
+        "    message: Error in group learning",
+        "    Error in rule train:", "        jobid: 7", "        output: results/training/regression_rnn/seed0",
+        "        log: logs/train/regression_rnn_seed0.log (check log file(s) for error details)",
+    ]
+    text = wf.describe_failure(lines, tmp_path)
+    assert text.startswith("SLURM refused to queue rule 'train': sbatch: error: Batch job submission failed: "
+                           "Requested node configuration is not available")
+    assert "--profile slurm-cpu" in text
