@@ -1,4 +1,4 @@
-"""Is EuRoC's V1_01 bias estimate consistent with its own static start? (issue 3, v101 figure)
+"""Is EuRoC's V1_01 bias estimate consistent with its own static start? 
 
 Kinematics only, no graph: with the EuRoC GT poses (IMU frame, IMU clock) the specific force
 must satisfy ``f_k = R_k^T (a_k - g) + b_a`` (``a_k`` from the GT positions). The script prints

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import time
 from dataclasses import replace
 
 import numpy as np
@@ -511,7 +510,8 @@ def test_all_repairs_together_give_a_clean_sequence():
     assert len(changes) == 5
 
 
-def test_checks_on_one_hour_at_200_hz_are_fast():
+def test_checks_on_one_hour_at_200_hz():
+    """One hour at 200 Hz passes the checks (their speed: benchmarks/ingest.py)."""
     n = 720_000
     rng = np.random.default_rng(0)
     t = T0_NS + np.arange(n, dtype=np.int64) * 5_000_000
@@ -520,12 +520,6 @@ def test_checks_on_one_hour_at_200_hz_are_fast():
     acc = np.array([0, 0, 9.81]) + 0.5 * np.cos(np.outer(t_s, [0.2, 0.5, 0.9])) + rng.normal(0, 0.03, (n, 3))
     poses = make_poses(duration_s=3600.0, rate_hz=100.0)
     seq = Sequence("hour", imu=ImuSeries(t, gyro, acc), poses={"vicon0": poses})
-    run_checks(seq)  # warm-up
-    elapsed = []
-    for _ in range(2):  # CPU time, best of two: the test machine is shared
-        t0 = time.process_time()
-        findings = run_checks(seq)
-        elapsed.append(time.process_time() - t0)
+    findings = run_checks(seq)
     assert verdict(findings) is Verdict.OK
-    assert min(elapsed) < 1.0, f"checks took {min(elapsed):.3f} s CPU"
     assert math.isfinite(one(findings, "RATE", "imu").details["rate_hz"])

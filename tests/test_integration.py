@@ -274,8 +274,8 @@ def test_one_second_window_end_pose(window):
     mid = _errors(_run(gyro, acc, R_true, v_true, p_true, dt, IntegrationScheme.MIDPOINT), *end)
     eul = _errors(_run(gyro, acc, R_true, v_true, p_true, dt, IntegrationScheme.EULER), *end)
     pos, vel, rot = mid
-    assert pos < 1e-4, mid  # brief: 1e-4 m
-    assert rot < 1e-3, mid  # brief: 1e-3 deg
+    assert pos < 1e-4, mid  # the integration's accuracy target: 1e-4 m
+    assert rot < 1e-3, mid  # and 1e-3 deg
     assert vel < 2e-4, mid
     pos_e, vel_e, rot_e = eul
     assert pos_e > 1e-3 and rot_e > 1e-2, eul  # Euler lags by half a sample

@@ -41,7 +41,7 @@ def _static_start_check(shared_data):
 
 def test_v101_gt_poses_vs_euroc_bias_first_5s(shared_data):
     """EuRoC GT poses (IMU frame, IMU clock), whole sequence, default settings: over the first 5 s
-    the gyro bias and acc x/z agree with EuRoC's own estimate (issue 3: 2e-3 rad/s, 0.08 m/s^2).
+    the gyro bias and acc x/z agree with EuRoC's own estimate (targets: 2e-3 rad/s, 0.08 m/s^2).
     Acc y misses by ~0.002 because EuRoC's value (a sequence constant) contradicts its own static
     start by 0.06 m/s^2; the recovered bias agrees with what the static data say."""
     seq = _v101(shared_data, 1e6)
@@ -106,7 +106,7 @@ def test_mh01_leica_agrees_with_gt_recovery(shared_data):
     assert ra.report["flags"]["noise_window_s"] > 150 and ra.report["segments"] == 1
     assert ra.report["noise"]["gyro_random_walk_scale"] > 2.0  # the 60-s window said ~0.7x
     frac = (agreement_z(ra, rb) < 3).mean(axis=0)
-    # Acceptance target (issue 3): >= 95% of keyframes within the combined 3 sigma, every axis
+    # Acceptance target: >= 95% of keyframes within the combined 3 sigma, every axis
     assert (frac >= 0.95).all(), frac
     # the gyro bias itself agrees to ~1e-3 rad/s on average
     sel = (ra.t_ns >= rb.t_ns[0]) & (ra.t_ns <= rb.t_ns[-1])
@@ -116,7 +116,7 @@ def test_mh01_leica_agrees_with_gt_recovery(shared_data):
 
 @pytest.mark.slow
 def test_mh01_leica_agrees_with_gt_recovery_with_intrinsics_on(shared_data):
-    """Issue 12: with the IMU intrinsics on, the Leica and GT-pose recoveries still agree within 3 sigma
+    """With the IMU intrinsics on, the Leica and GT-pose recoveries still agree within 3 sigma
     (measured, benchmarks/recovery.py --only mh01 --config '{"intrinsics": "with_g_sensitivity"}': 1.000 on
     every axis but acc z, 0.998). From the Leica positions nothing is estimated (position-only stream);
     before that rule the fit's 6.7 % accelerometer scale left gyro y at 0 % agreement."""
