@@ -54,3 +54,22 @@ def test_make_run_time_comes_from_a_benchmark_that_runs_what_make_run_runs() -> 
     assert "biasgt run --cores $(CORES)" in make and "CORES ?= 2" in make
     assert out[out.index("run"):out.index("run") + 1] == ["run"] and out[out.index("--cores") + 1] == "2"
     assert out[out.index("--config") + 1] == str(REPO / "config" / "config.yaml")
+
+
+def test_help_imports_no_model_or_solver_library():
+    """Registering the commands imports none of their implementations: ``biasgt --help`` and a command's
+    ``--help`` load neither torch nor GTSAM, scipy or pandas (checked in a fresh interpreter)."""
+    import subprocess
+    import sys
+
+    code = ("import contextlib, io, sys\n"
+            "from pipeline.cli import main\n"
+            "for argv in (['--help'], ['recover', '--help'], ['evaluate', '--help'], ['export', '--help']):\n"
+            "    with contextlib.redirect_stdout(io.StringIO()):\n"
+            "        try:\n"
+            "            main(argv)\n"
+            "        except SystemExit:\n"
+            "            pass\n"
+            "print(sorted(m for m in ('torch', 'gtsam', 'scipy', 'pandas') if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]", out.stdout + out.stderr

@@ -328,6 +328,13 @@ class TrainConfig:
 # ----------------------------------------------------------------------------- workflow sections
 
 
+class ExportFormat(str, enum.Enum):
+    """File format of an exported model."""
+
+    TORCHSCRIPT = "torchscript"
+    ONNX = "onnx"
+
+
 class Baseline(str, enum.Enum):
     """Evaluation rows without training (see the module docstring)."""
 

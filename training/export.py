@@ -16,7 +16,6 @@ through ``torch.onnx.export`` and is run with onnxruntime (:func:`onnx_session`)
 
 from __future__ import annotations
 
-import enum
 import logging
 import warnings
 from pathlib import Path
@@ -26,20 +25,13 @@ from torch import nn
 
 from pipeline.atomic import atomic_path
 from pipeline.errors import BiasgtError, ConfigError
-from training.config import IMU_CHANNELS, Sampler
+from training.config import IMU_CHANNELS, ExportFormat, Sampler
 
 log = logging.getLogger(__name__)
 
 __all__ = ["ExportFormat", "ExportedSampler", "example_inputs", "export_run", "onnx_session", "write_export"]
 
 ONNX_OPSET = 17
-
-
-class ExportFormat(str, enum.Enum):
-    """File format of an exported model."""
-
-    TORCHSCRIPT = "torchscript"
-    ONNX = "onnx"
 
 
 class ExportError(BiasgtError):

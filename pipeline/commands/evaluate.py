@@ -39,8 +39,7 @@ examples:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from training.baselines import Baseline
-    from training.config import Method, Sampler
+    from training.config import Baseline, Method, Sampler
 
     p = subparsers.add_parser("evaluate", help="PRMSE / ROE of a trained model or a reference on the test split",
                               description=DESCRIPTION, epilog=EPILOG,

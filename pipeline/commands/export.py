@@ -26,8 +26,7 @@ examples:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from training.config import Sampler
-    from training.export import ExportFormat
+    from training.config import ExportFormat, Sampler
 
     p = subparsers.add_parser("export", help="export a trained model with its sampler (TorchScript or ONNX)",
                               description=DESCRIPTION, epilog=EPILOG,
