@@ -74,11 +74,12 @@ from typing import Any
 import numpy as np
 
 from pipeline.errors import ConfigError
-from pipeline.types import NS_PER_S, Finding, ImuSeries, PoseSeries, Sequence, Severity, StateSeries
+from pipeline.types import (NS_PER_S, STANDARD_GRAVITY_MPS2, Finding, ImuSeries, PoseSeries, Sequence, Severity,
+                            StateSeries)
 
 log = logging.getLogger(__name__)
 
-G_MPS2 = 9.80665
+G_MPS2 = STANDARD_GRAVITY_MPS2
 DEG_TO_RAD = math.pi / 180.0
 EPOCH_2000_S = 946_684_800  # stamps after this are (almost surely) Unix epoch time
 MAX_LISTED = 20  # at most this many items (gaps, indices) are listed in details

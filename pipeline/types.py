@@ -21,6 +21,11 @@ import numpy as np
 from pipeline.errors import DataError
 
 NS_PER_S = 1_000_000_000
+#: Gravity's magnitude in biasgt's level world frames (EuRoC's, the simulator's) and its vector there
+#: (z up); the standard gravity converts accelerometer readings in g.
+GRAVITY_MPS2 = 9.81
+DEFAULT_GRAVITY_MPS2 = (0.0, 0.0, -GRAVITY_MPS2)
+STANDARD_GRAVITY_MPS2 = 9.80665
 
 
 class Split(str, enum.Enum):

@@ -17,7 +17,7 @@ import yaml
 
 from pipeline.configs import dataclass_from_mapping
 from pipeline.errors import ConfigError
-from pipeline.types import PoseSourceKind
+from pipeline.types import GRAVITY_MPS2, PoseSourceKind
 
 
 class PoseFactorMode(str, enum.Enum):
@@ -281,7 +281,7 @@ class RecoveryConfig:
     extrinsic_prior_translation_m: float = 0.05
     extrinsic_max_sigmas: float = 3.0
     estimate_gravity: bool | None = None
-    gravity_mps2: float = 9.81
+    gravity_mps2: float = GRAVITY_MPS2
     gravity_window_s: float = 300.0
     gravity_keyframe_rate_hz: float | None = None
     gravity_tilt_sigmas: float = 3.0

@@ -27,7 +27,7 @@ from scipy.special import chdtri
 from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
-from pipeline.types import NS_PER_S, PoseSourceKind
+from pipeline.types import GRAVITY_MPS2, NS_PER_S, PoseSourceKind
 from recovery.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, OFFSET_INDEX, CalibrationCovariance, \
     KeyframeKinematics, added_bias_variance, measurement_columns, parameter_slope_and_information
 from recovery.config import PoseFactorMode, RobustLoss
@@ -108,7 +108,7 @@ class SolveOptions:
     outlier_threshold: float = 5.0
     reject_outliers: bool = True
     estimate_gravity: bool = True
-    gravity_mps2: float = 9.81
+    gravity_mps2: float = GRAVITY_MPS2
     estimate_extrinsic: bool = False
     estimate_lever_arm: bool = False  # 6-DoF sources: rotation of T_imu_pose fixed, lever arm L(0) free (native factors)
     max_iterations: int = 30

@@ -64,7 +64,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.errors import BiasgtError
-from pipeline.types import NS_PER_S, ImuSeries, Sequence
+from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.gyro_consistency import CouplingKind, rate_coupling
 from recovery.outputs import RecoveryReport
@@ -528,7 +528,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     rounds = 0
     present: dict[str, np.ndarray] | None = None
     for rounds in range(1, max_rounds + 1):
-        gravity = np.asarray(result.report.get("gravity_world_mps2", [0.0, 0.0, -9.81]), dtype=float)
+        gravity = np.asarray(result.report.get("gravity_world_mps2", DEFAULT_GRAVITY_MPS2), dtype=float)
         fit = fit_intrinsics(work.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
                              _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s,
                              present=present)

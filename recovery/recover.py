@@ -45,7 +45,7 @@ from pipeline.bias_table import BiasTrack
 from pipeline.checks import reader_warnings
 from pipeline.errors import BiasgtError, RecoveryError
 from pipeline.io import select_pose_stream
-from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence
+from pipeline.types import GRAVITY_MPS2, NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import (
     DEFAULT_POSE_SIGMAS,
     CalibrationSolve,
@@ -226,7 +226,7 @@ class _Problem:
     """
 
     def __init__(self, imu: ImuSeries, poses: PoseSeries, pieces: list[tuple[int, int]], fuse: bool = False,
-                 gravity_mps2: float = 9.81) -> None:
+                 gravity_mps2: float = GRAVITY_MPS2) -> None:
         self.imu = imu
         self.imu_6 = imu.imu_6
         self.poses = poses

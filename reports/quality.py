@@ -40,7 +40,7 @@ from pipeline.checks import CHECK_CODES, run_checks, stream_summaries
 from pipeline.errors import BiasgtError, ConfigError, InputFormatError
 from pipeline.layout import Stage
 from pipeline.store import is_store, read_store
-from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity
+from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, Finding, PoseSeries, Sequence, Severity
 from recovery.gyro_consistency import rate_coupling
 from recovery.outputs import (
     BIAS_CSV,
@@ -319,7 +319,7 @@ def other_estimates_sentence(validation: dict[str, Any]) -> str | None:
     if cand is None or not others:
         return None
     base = _num(sources[cand], "prmse_m")
-    g = float(np.linalg.norm(validation.get("gravity_mps2") or [0.0, 0.0, 9.81]))
+    g = float(np.linalg.norm(validation.get("gravity_mps2") or DEFAULT_GRAVITY_MPS2))
     parts = []
     for name in others:
         s = sources[name]

@@ -9,6 +9,7 @@ import time
 
 import torch
 
+from pipeline.types import GRAVITY_MPS2
 from training.batch import WindowBatch
 from training.config import IMU_CHANNELS, Method, ModelConfig, Preset, Sampler
 from training.models import BiasModel, build_model
@@ -23,7 +24,7 @@ def synthetic_batch(batch_size: int, window_samples: int, rate_hz: float = 200.0
     B, T = batch_size, window_samples
     eye = torch.eye(3).expand(B, 3, 3).clone()
     imu = torch.randn(B, T, IMU_CHANNELS, generator=g)
-    imu[..., 5] += 9.81
+    imu[..., 5] += GRAVITY_MPS2
     return WindowBatch(imu=imu, bias=0.01 * torch.randn(B, T, IMU_CHANNELS, generator=g),
                        bias_std=torch.full((B, T, IMU_CHANNELS), 1e-3), dt_s=torch.full((B, T - 1), 1.0 / rate_hz),
                        start_R=eye, start_v=torch.zeros(B, 3), start_p=torch.zeros(B, 3), end_R=eye.clone(),

@@ -123,15 +123,14 @@ from pipeline.io import select_pose_stream
 from pipeline.io.asl import read_asl_state_csv
 from pipeline.pose_transform import as_transform, poses_in_imu_frame
 from pipeline.so3 import rotation_angle_deg
-from pipeline.types import NS_PER_S, ImuSeries, IntegrationScheme, PoseSeries, Sequence, Severity, StateSeries
+from pipeline.types import (DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, IntegrationScheme, PoseSeries, Sequence,
+                            Severity, StateSeries)
 from recovery.outputs import RecoveryOutputs
 from validation.config import CrossvalMode, ValidationConfig
 from validation.plausibility import plausibility_findings
 from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, Verdict, write_folder
 
 log = logging.getLogger(__name__)
-
-DEFAULT_GRAVITY_MPS2 = (0.0, 0.0, -9.81)
 
 __all__ = [
     "BiasSource",
@@ -152,7 +151,6 @@ __all__ = [
     "prmse_m",
     "read_bias_file",
     "sigma_window_errors",
-    "read_recovery_dir",
     "recovery_limitations",
     "input_limitations",
     "Limitation",

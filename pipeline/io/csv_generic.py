@@ -31,12 +31,10 @@ import yaml
 
 from pipeline.errors import ConfigError, InputFormatError
 from pipeline.io._text import Delimiter, Header, TimeUnit, parse_table, read_text, split_header, table_findings
-from pipeline.types import Finding, ImuSeries, PoseSeries, PoseSourceKind, Sequence
+from pipeline.types import STANDARD_GRAVITY_MPS2, Finding, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 
 log = logging.getLogger(__name__)
 
-#: Standard gravity, m/s^2 per g (for ``AccUnit.G``).
-STANDARD_GRAVITY_MPS2 = 9.80665
 
 Column = str | int
 

@@ -33,6 +33,7 @@ import yaml
 
 from pipeline.configs import unknown_keys_message
 from pipeline.errors import ConfigError
+from pipeline.types import DEFAULT_GRAVITY_MPS2
 
 # EuRoC / ADIS16448 datasheet values (mav0/imu0/sensor.yaml).
 EUROC_GYRO_NOISE_DENSITY = 1.6968e-4  # rad/s/sqrt(Hz)
@@ -203,7 +204,7 @@ class MotionConfig:
     position_amplitude_m: tuple[float, float, float] | None = None
     max_roll_pitch_deg: float | None = None
     yaw_step_deg: float | None = None
-    gravity_mps2: tuple[float, float, float] = (0.0, 0.0, -9.81)
+    gravity_mps2: tuple[float, float, float] = DEFAULT_GRAVITY_MPS2
     ground_truth_path: str | None = None
     gt_position_knot_interval_s: float = 0.1
     gt_orientation_key_interval_s: float = 0.05

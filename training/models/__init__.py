@@ -27,14 +27,14 @@ from pipeline.so3 import so3_log
 from training.batch import WindowBatch
 from training.config import IMU_CHANNELS, Method, ModelConfig, Sampler
 from training.normalizer import Normalizer
+from pipeline.types import DEFAULT_GRAVITY_MPS2
 from training.scheduler import ClipCount, NoiseScheduler, randn
 from training.models.rnn import GruDenoiser, GruRegressor
 from training.models.unet import UnetDenoiser, UnetRegressor
 
 __all__ = ["BiasModel", "build_model", "count_parameters", "DEFAULT_GRAVITY_MPS2"]
 
-#: Gravity used by the indirect loss when a batch carries none (validation's default, world z up).
-DEFAULT_GRAVITY_MPS2 = (0.0, 0.0, -9.81)
+#: Gravity used by the indirect loss when a batch carries none: pipeline.types.DEFAULT_GRAVITY_MPS2.
 
 
 class BiasModel(nn.Module):
