@@ -56,7 +56,7 @@ from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping, unkno
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.ingest import READER_KWARGS, ingest
 from pipeline.process_group import exclusive_lock, start_group, stop_group
-from pipeline.layout import (  # the .smk files read these as wf.<name>
+from pipeline.layout import (  # noqa: F401  (the .smk files read these as wf.<name>)
     LOGS_DIR,
     RESULTS_DIR,
     WINDOWS_DATASET,

@@ -58,7 +58,6 @@ def _numerical_jacobian(f, values: gtsam.Values, key: int, dim: int, eps: float 
     for i in range(dim):
         d = np.zeros(dim)
         d[i] = eps
-        plus, minus = gtsam.Values(values), gtsam.Values(values)
         delta_p, delta_m = gtsam.VectorValues(), gtsam.VectorValues()
         delta_p.insert(key, d)
         delta_m.insert(key, -d)

@@ -6,11 +6,9 @@ import functools
 import json
 import re
 import shutil
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from pipeline.cli import main as cli_main

@@ -69,7 +69,6 @@ from validation.validate import (
 )
 from training.dataset import ARRAYS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
 from training.windows_config import WindowConfig
-from validation.config import ValidationConfig
 from validation.outputs import Verdict, read_summary
 
 log = logging.getLogger(__name__)

@@ -641,8 +641,6 @@ def parse_table(
     Raises:
         InputFormatError: No data, more than 10 % bad lines, or unconvertible stamps.
     """
-    import pandas as pd  # slow to import: only for tables pyarrow's reader rejects
-
     data = text[header.data_offset:]
     if not data.strip():
         raise InputFormatError(f"no data lines (expected a {what})", path=path,
