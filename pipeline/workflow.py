@@ -896,7 +896,7 @@ def interpolate_step(recovery_dir: str | Path, store_dir: str | Path, out_path: 
                      settings: dict[str, Any]) -> list[Path]:
     """Interpolate a recovery's keyframe bias to the store's IMU stamps (settings:
     :func:`interpolation_settings`)."""
-    from interpolation.pipeline import interpolate_recovery  # pandas: only in the job that runs the step
+    from interpolation.interpolate import interpolate_recovery  # pandas: only in the job that runs the step
 
     config = stage_config("interpolation", settings)
     written = interpolate_recovery(recovery_dir, store_dir, out_path, config)

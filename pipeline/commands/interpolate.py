@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from interpolation.pipeline import interpolate_recovery  # pandas/pyarrow: off the CLI start-up path
+    from interpolation.interpolate import interpolate_recovery  # pandas/pyarrow: off the CLI start-up path
 
     written = interpolate_recovery(
         args.recovery,
