@@ -315,7 +315,7 @@ def test_commands_registered_are_the_modules_that_exist():
     from pipeline.cli import COMMANDS, build_parser
 
     commands_dir = Path(pipeline.ingest.__file__).parent / "commands"
-    modules = {p.stem for p in commands_dir.glob("*.py") if p.stem != "__init__"}
+    modules = {p.stem for p in commands_dir.glob("*.py") if not p.stem.startswith("_")}  # _args: shared flags
     assert {c.__name__.rsplit(".", 1)[1] for c in COMMANDS} == modules
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
     assert set(sub.choices) == modules

@@ -9,6 +9,7 @@ from typing import Any
 
 from pipeline.atomic import OutputKind
 from pipeline.errors import ValidationError
+from pipeline.commands._args import add_window_arguments
 from pipeline.ingest import (
     add_check_arguments,
     add_reader_arguments,
@@ -74,10 +75,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--poses", metavar="STREAM", help="use this pose stream as reference (default: ground-truth "
                                                      "state, else the default pose stream)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (written atomically)")
-    p.add_argument("--window-s", type=float, default=d.window_s, metavar="S",
-                   help=f"window length in seconds (default {d.window_s:g})")
-    p.add_argument("--overlap", type=float, default=d.overlap, metavar="F",
-                   help=f"overlap of consecutive windows, in [0, 1) (default {d.overlap:g})")
+    add_window_arguments(p, d.window_s, d.overlap)
     p.add_argument("--gravity", type=float, nargs=3, metavar=("GX", "GY", "GZ"),
                    help="gravity in the reference world frame for every row, m/s^2 (default: 0 0 -|g| for each "
                         "row, the recovery's own gravity for the recovered bias against the stream it was fitted "

@@ -7,6 +7,7 @@ import logging
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
+from pipeline.commands._args import add_window_arguments
 from pipeline.errors import ConfigError
 from pipeline.types import Split
 from training.windows_config import WindowConfig
@@ -61,10 +62,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="workflow results folder holding ingest/NAME and recovery/NAME (with --splits)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="dataset folder (written atomically)")
     d = WindowConfig()  # the defaults, defined once
-    p.add_argument("--window-s", type=float, default=d.window_s, metavar="S",
-                   help=f"window length in seconds (default {d.window_s:g})")
-    p.add_argument("--overlap", type=float, default=d.overlap, metavar="F",
-                   help=f"overlap of consecutive windows, in [0, 1) (default {d.overlap:g})")
+    add_window_arguments(p, d.window_s, d.overlap)
     p.add_argument("--resample-hz", type=float, default=d.resample_hz, metavar="HZ",
                    help="resample IMU streams not at HZ onto a uniform HZ grid (default: refuse other rates)")
     p.add_argument("--gap-factor", type=float, default=d.gap_factor, metavar="K",
