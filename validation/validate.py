@@ -1,100 +1,28 @@
 """Validation of a bias trajectory by 1-second integration error (AirIMU's metrics).
 
-A recovered bias is "ground truth" only if removing it from the IMU makes short strapdown
-integrations land where the reference trajectory says they should. This module reproduces
-the evaluation of AirIMU (haleqiu/AirIMU, ``evaluation``): the IMU is cut into windows of
-``window_s`` (default 1 s), each window is integrated from the reference position, velocity
-and orientation at its first sample with ``imu - bias`` and gravity, and the end state is
-compared with the reference at its last sample:
+The IMU is cut into windows of ``window_s`` (default 1 s, ``overlap`` 0.5); each window is
+integrated (:func:`pipeline.integration.integrate`, MIDPOINT, float64) from the reference state at
+its first sample with ``imu - bias`` and gravity, and its end compared with the reference:
 
-    pos_err  = |p_end - p_ref_end|                          [m]
-    rot_err  = |Log(R_ref_end^T R_end)|                     [deg]
-    PRMSE    = sqrt(mean over windows of pos_err^2)         [m]
-    ROE      = mean over windows of rot_err                 [deg]
+    pos_err = |p_end - p_ref_end| [m]     rot_err = |Log(R_ref_end^T R_end)| [deg]
+    PRMSE   = sqrt(mean pos_err^2) [m]     ROE     = mean rot_err [deg]
 
-Integration goes through :func:`pipeline.integration.integrate` (the project's one
-integrator, MIDPOINT scheme by default), in float64, batched by chunks of windows.
+Contracts:
+    * References (:class:`ReferenceStates`): a full state (linear p, v; Slerp R), else a pose
+      stream on the IMU clock and in the IMU frame, its velocity from one smoothing spline
+      whose cutoff follows the discrepancy principle.
+    * Every source (:class:`BiasSourceKind`) is judged on the SAME windows; a window is dropped,
+      counted per reason, when it crosses an IMU gap, holds a non-finite sample, lacks a
+      reference end or a bias.
+    * Each row is integrated with its own gravity (stated per source in validation.json).
+    * The verdict (:func:`decide_verdict`): equal to a baseline up to the candidate's own sigma,
+      WARN within the margin, FAIL beyond it only when a paired one-sided t-test over
+      non-overlapping windows says so; worse than zero bias is always FAIL; limitations
+      (:func:`recovery_limitations`) make a PASS a WARN; every WARN/FAIL has next steps.
+    * Where the reference is the stream the bias was fitted to, the held-out blocks of the
+      cross-validation judge (FAIL when significantly worse than zero or constant bias).
 
-Reference states (:class:`ReferenceStates`, :class:`ReferenceKind`)
-    STATE: a full state (EuRoC ground truth, simulator truth) interpolated to the IMU stamps:
-    linear in p and v, Slerp in R.
-    POSES: a pose stream when there is no full state. Poses are moved onto the IMU clock
-    (``t_imu = t_pose + pose_time_offset_s``) and into the IMU frame
-    (``T_world_imu = T_world_pose @ inv(T_imu_pose)``) by
-    :func:`pipeline.pose_transform.poses_in_imu_frame`. Position and velocity come from ONE
-    smoothing spline per sequence (:func:`scipy.interpolate.make_smoothing_spline`, penalty
-    ``lam * int p''^2``), differentiated for v: a finite difference of 0.5-mm mocap noise at
-    100 Hz has ~0.1 m/s of noise, i.e. 10 cm of error after 1 s, far above any bias effect.
-    The penalty is set from a cutoff frequency f_c (for samples ``h`` s apart the spline acts
-    like ``1 / (1 + (f / f_c)^4)``, so ``lam = 1 / (h (2 pi f_c)^4)``); GCV is not used (about
-    80 s for 30 000 samples). f_c is chosen by the discrepancy principle: the position noise
-    sigma is estimated from third differences (robust MAD), and f_c is the lowest value of a
-    grid (0.5 ... 30 Hz) whose fit residual RMS is <= sigma. Velocity RMS error measured on
-    the simulator against the true state (60 s, seed 3, clock offset 12.3 ms, 5 deg / 8 cm
-    extrinsic, rotation noise = position noise in rad; a sweep of ``simulate`` +
-    :func:`reference_from_poses`; tests/test_validation.py::test_pose_reference_velocity_error
-    checks the handheld 100 Hz / 0.5 mm case on 20 s):
-
-        motion            pose rate, noise     chosen f_c   v error     p error
-        handheld          100 Hz, 0.5 mm       3 Hz         3.7 mm/s    0.23 mm
-        handheld          200 Hz, 0.5 mm       3 Hz         3.4 mm/s    0.17 mm
-        handheld          100 Hz, 2 mm         2 Hz         7.4 mm/s    0.74 mm
-        aggressive_drone  100 Hz, 0.5 mm       5 Hz         9.4 mm/s    0.32 mm
-        aggressive_drone  100 Hz, 2 mm         3 Hz        21.2 mm/s    1.25 mm
-        slow_cart         100 Hz, 0.5 mm       1.5 Hz       1.8 mm/s    0.17 mm
-
-    each within one grid step of the best fixed cutoff (a fixed 2 Hz gives 40 mm/s on the
-    drone; a fixed 10 Hz gives 13 mm/s on the handheld). ``velocity_cutoff_hz`` fixes f_c.
-    Rotation is Slerp of the raw poses (0.5 mrad of rotation noise puts a floor of ~0.03 deg
-    under every source's ROE). Stamps inside a pose gap (> ``reference_gap_factor`` x the median pose interval)
-    have no reference.
-
-Windows
-    Samples ``[i, i + n]`` with ``n = round(window_s * rate)`` and a stride of
-    ``round(n * (1 - overlap))`` samples. A window is dropped (and counted, under every reason
-    that applies) when it crosses an IMU gap (an interval > ``gap_factor`` x the nominal one),
-    holds a non-finite IMU sample, has no reference at either end, or is not covered by one of
-    the bias sources. All sources are compared on the SAME windows.
-
-Bias sources (:class:`BiasSourceKind`)
-    ZERO; CONSTANT_FIRST_WINDOW (the candidate's mean bias over the first kept window, held
-    constant: what a calibration at start-up would give); DATASET (the sequence's own
-    ground-truth bias); RECOVERED (the recovery's ``bias.csv``); FILE (any other bias file).
-    The *candidate* judged by the verdict is the first RECOVERED source, else the first FILE
-    source, else DATASET.
-
-Quality flags
-    Per source, a window is flagged when ``pos_err > max(k * median(pos_err), flag_min_pos_m)``
-    or ``rot_err > max(k * median(rot_err), flag_min_rot_deg)`` (default k = 5; the floors,
-    1 mm and 0.01 deg, keep noise-free simulations from flagging integrator round-off).
-
-Verdict (:class:`Verdict`) per sequence, reasons in plain words
-    The candidate is compared, per metric, with each baseline (CONSTANT_FIRST_WINDOW, and
-    DATASET when present). Its own bias sigma explains some error: a constant bias error of
-    sigma ``s`` moves a window's end point by ``sigma_pos`` (acc: ``s_a T^2 / 2``; gyro: the
-    tilt it leaks into gravity, ``|g| s_g T^3 / 6``) and turns it by ``s_g T``
-    (:func:`sigma_window_errors`), so with ``k = sigma_k`` (2):
-
-    * equal: ``cand <= sqrt(base^2 + (k sigma_prmse)^2) + tie`` (ROE: ``base + k sigma_roe + tie``);
-      but where ``k sigma`` exceeds the baseline's own error, the candidate is too uncertain to be
-      useful beside it: at best WARN, saying so (a large sigma excuses an error, it does not make the
-      bias good: an unobservable recovery never PASSes against the truth);
-    * worse within the margin (WARN): up to ``sqrt((base (1 + margin))^2 + (k sigma_prmse)^2) + tie``;
-    * beyond that, FAIL only when a one-sided paired t-test of the per-window errors (squared end
-      distances for PRMSE, angles for ROE) over non-overlapping windows says "worse" at
-      ``significance`` (0.01); otherwise WARN ("not significantly");
-    * worse than the ZERO bias in PRMSE or ROE (beyond the ties): FAIL, always, whatever its sigma
-      (the constant baseline is built from the candidate, so it cannot catch a wholly wrong bias).
-
-    A semi-real sequence whose dataset bias is the exact truth thus no longer FAILs a recovered
-    bias that sits at its accuracy floor. WARN also when more than ``warn_flagged_fraction``
-    (5 %) of the candidate's windows are flagged, more than ``warn_dropped_fraction`` (20 %) of
-    the windows were dropped, or a *limitation* applies (:func:`recovery_limitations`: a noise
-    estimate at its search bound, a random walk more than ``max_random_walk_scale`` off the
-    calibration's, an unobservable extrinsic rotation; a reference that is the very pose stream
-    the bias was fitted to: not an independent test); limitations are listed among the reasons
-    and every WARN/FAIL comes with ``next_steps``. PASS otherwise. ``tie`` (``tie_prmse_m`` =
-    0.1 mm, ``tie_roe_deg`` = 0.001 deg) makes differences below measurement resolution equal.
+The derivations and measured figures behind these choices: docs/validation.md.
 """
 
 from __future__ import annotations
