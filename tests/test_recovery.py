@@ -355,12 +355,12 @@ def test_newton_clock_offset_equals_the_cost_parabola(seed, monkeypatch):
     """The Newton refinement (analytic slope and curvature of the cost in the offset) lands where
     the parabola through three re-solved costs puts the vertex (within 0.1 sigma, same sigma to 3 %),
     from a coarse value ~0.1 ms off, in one solve; both near the truth."""
-    from recovery import recover as rr
+    from recovery import offset as ro
 
     sim = _sim(40.0, seed=seed, clock_offset_s=0.012, dropouts=1, outliers=4, outlier_offset_m=0.1)
     cfg = RecoveryConfig(**FAST, intrinsics="off")
     newton = recover(sim.sequence, config=cfg).report
-    monkeypatch.setattr(rr, "_newton_offset", lambda *a, **k: None)
+    monkeypatch.setattr(ro, "_newton_offset", lambda *a, **k: None)
     parabola = recover(sim.sequence, config=cfg).report
     assert newton["pose_time_offset_method"].endswith("+graph_cost_newton")
     assert parabola["pose_time_offset_method"].endswith("+graph_cost_parabola")
