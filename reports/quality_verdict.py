@@ -1,0 +1,229 @@
+"""Sections 1 and 2 of the quality report: the verdict box and the streams.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from pathlib import Path
+from collections.abc import Mapping
+from typing import Any
+
+
+from pipeline.checks import CHECK_CODES, run_checks, stream_summaries
+from pipeline.errors import BiasgtError
+from pipeline.types import NS_PER_S, Finding, Sequence, Severity
+from reports.html import Html, esc, fmt, join, p, section, table, tag, ul
+from reports.quality_inputs import (_TITLE, ReportInputs, _better_worse, _candidate, _first_of_kind, _num,
+                                    _source_label, _sources)
+
+log = logging.getLogger(__name__)
+
+
+# ----------------------------------------------------------------------------- section 1: verdict
+
+
+_USABILITY = {
+    "PASS": "usable for training.",
+    "WARN": "usable with care: read the reasons below before training on it.",
+    "FAIL": "not usable for training as it is.",
+}
+
+
+def mm_pair(a_m: float | None, b_m: float | None) -> tuple[str, str]:
+    """Two distances in mm with the same number of decimals (3 significant digits for the smaller)."""
+    vals = [x for x in (a_m, b_m) if x is not None and math.isfinite(x)]
+    if not vals:
+        return fmt(a_m), fmt(b_m)
+    small = max(min(abs(1e3 * x) for x in vals), 1e-9)
+    decimals = int(min(6, max(0, 2 - math.floor(math.log10(small)))))
+    return tuple("n/a" if x is None or not math.isfinite(x) else f"{1e3 * x:.{decimals}f}"  # type: ignore[return-value]
+                 for x in (a_m, b_m))
+
+
+def dataset_bias_label(sequence: Sequence | None) -> str:
+    """How the DATASET source is named: the simulator's truth for a simulated recording, else the dataset's own."""
+    src = (sequence.metadata.get("source_path") if sequence is not None else None) or ""
+    return ("the simulator's true bias" if src and (Path(src) / "simulation.yaml").is_file()
+            else "the dataset's own bias")
+
+
+def verdict_summary(validation: dict[str, Any] | None,
+                    dataset_label: str = "the dataset's own bias") -> tuple[str, str]:
+    """``(word, sentence)``: PASS/WARN/FAIL (or NO VERDICT) and one plain-words headline (the DATASET source
+    named ``dataset_label``)."""
+    if validation is None:
+        return "NO VERDICT", "The validation stage's output is missing, so the recovered bias has not been judged."
+    word = str(validation.get("verdict", "")).upper() or "NO VERDICT"
+    cand = _candidate(validation)
+    sources = _sources(validation)
+    usable = _USABILITY.get(word, "")
+    if cand is None:
+        return word, f"The validation holds no bias source. {usable}".strip()
+    cs = sources[cand]
+    who = _source_label(cand, cs.get("kind"))
+    const = _first_of_kind(validation, "constant_first_window", cand)
+    parts = []
+    if const is not None:
+        bs = sources[const]
+        rel = _better_worse(_num(cs, "prmse_m"), _num(bs, "prmse_m"))
+        if rel is not None:
+            a, b = mm_pair(_num(cs, "prmse_m"), _num(bs, "prmse_m"))
+            parts.append(
+                f"{who} integrates {rel} a constant bias (position error after 1-s windows, PRMSE "
+                f"{a} mm vs {b} mm; rotation error "
+                f"ROE {fmt(_num(cs, 'roe_deg'), 3)} deg vs {fmt(_num(bs, 'roe_deg'), 3)} deg)")
+    ds = _first_of_kind(validation, "dataset", cand)
+    if ds is not None:
+        rel = _better_worse(_num(cs, "prmse_m"), _num(sources[ds], "prmse_m"))
+        if rel is not None and parts:
+            parts[-1] += f" and {rel} {dataset_label}"
+        elif rel is not None:
+            a, b = mm_pair(_num(cs, "prmse_m"), _num(sources[ds], "prmse_m"))
+            parts.append(f"{who} integrates {rel} {dataset_label} (PRMSE {a} mm vs {b} mm)")
+    if not parts:
+        parts.append(f"{who} has PRMSE {fmt(1e3 * (_num(cs, 'prmse_m') or float('nan')), 3)} mm and ROE "
+                     f"{fmt(_num(cs, 'roe_deg'), 3)} deg over 1-s windows")
+    found = [x for x in validation.get("plausibility") or [] if isinstance(x, Mapping)]
+    if found:  # what physics rules out comes before any comparison of errors
+        checks = ", ".join(dict.fromkeys(str(x.get("check", "?")).replace("_", " ") for x in found))
+        parts.insert(0, f"{who} is physically impossible ({len(found)} plausibility finding"
+                        f"{'s' * (len(found) > 1)}: {checks}; framed in red below)")
+    sentence = "; ".join(parts) + ". " + (f"It is {usable}" if usable else "")
+    return word, sentence.strip()
+
+
+def checked_and_not(validation: dict[str, Any]) -> list[str]:
+    """Plain sentences: what the validation checked, and what it did not."""
+    ref, cfg, dropped = (validation.get(k) if isinstance(validation.get(k), dict) else {}
+                         for k in ("reference", "config", "windows_dropped"))
+    kept = dropped.get("kept", "?")
+    if ref.get("kind") == "state":
+        against = "the sequence's ground-truth state (position, velocity, orientation)"
+    else:
+        against = f"the pose stream '{ref.get('stream', '?')}' (velocity from a smoothing spline of its positions)"
+    reasons = validation.get("reasons") if isinstance(validation.get("reasons"), list) else []
+    independent = not any("not an independent test" in str(r) for r in reasons)
+    baselines = sorted({str(s.get("kind")) for s in _sources(validation).values()}
+                       & {"constant_first_window", "dataset"})
+    return [
+        f"Checked: {kept} integrations of {fmt(_num(cfg, 'window_s') or 1.0, 3)} s of the IMU minus the bias, each "
+        f"from and against {against}; end-point position and rotation errors (PRMSE, ROE) compared with "
+        + " and ".join({"constant_first_window": "a constant bias", "dataset": "the dataset's own bias"}[k]
+                       for k in baselines) + ".",
+        "Independent reference: " + ("yes." if independent else "no, the reference is what the bias was fitted "
+                                                                  "to (pose errors absorbed by the bias are not seen)."),
+        *plausibility_checked(validation),
+        "Not checked: drift over spans longer than one window; errors the reference and the IMU share (e.g. a "
+        "wrong extrinsic used by both); IMU scale and misalignment (not modelled: the bias absorbs them).",
+    ]
+
+
+def plausibility_checked(validation: dict[str, Any]) -> list[str]:
+    """The sentence on the plausibility checks (run when the validation had the recovery), or none."""
+    notes = validation.get("notes") if isinstance(validation.get("notes"), list) else []
+    if "plausibility" not in validation or not any(str(n).startswith("recovery: ") for n in notes):
+        return []
+    found = validation.get("plausibility") or []
+    return [f"Plausibility of the recovery (bias within the sensor's range, gravity direction, attitude against the "
+            f"poses, gyro axes against the poses' rotation): {len(found) or 'no'} finding{'s' * (len(found) != 1)}."]
+
+
+def implausible_frame(inp: ReportInputs, check: str, body: Html | None) -> Html | None:
+    """``body`` framed in red, under the finding, when the validation found ``check`` implausible
+    (``validation.json`` ``plausibility``, :mod:`validation.plausibility`); else ``body`` as it is."""
+    found = [x for x in ((inp.validation.get("plausibility") if inp.validation is not None else None) or [])
+             if isinstance(x, Mapping) and x.get("check") == check]
+    if not found or body is None:
+        return body
+    text = "; ".join(str(x.get("text")) for x in found)
+    why = p(Html(tag("strong", "Plausibility check failed: ") + esc(text)), class_="why")
+    return tag("div", join([why, body]), class_="implausible", data_check=check)
+
+
+def _verdict_section(inp: ReportInputs) -> Html:
+    word, sentence = verdict_summary(inp.validation, dataset_bias_label(inp.sequence))
+    cls = {"PASS": "v-pass", "WARN": "v-warn", "FAIL": "v-fail"}.get(word, "v-none")
+    body = [Html(tag("span", word, class_="word") + esc(sentence))]
+    if inp.validation is not None:
+        reasons = [str(r) for r in inp.validation.get("reasons") or []]
+        if reasons:
+            body.append(p("Reasons:"))
+            body.append(ul(reasons))
+        elif word == "PASS":
+            body.append(p("No reason for concern was found in what was checked: the candidate is at least as good "
+                          "as every baseline, few windows are flagged and few were dropped."))
+        steps = [str(x) for x in inp.validation.get("next_steps") or [] if isinstance(x, str)]
+        if steps:
+            body.append(p("What to do next:"))
+            body.append(ul(steps))
+        body.append(p("What was checked:"))
+        body.append(ul(checked_and_not(inp.validation)))
+    else:
+        where = inp.validation_dir if inp.validation_dir is not None else "(not given)"
+        body.append(p(f"Looked for the validation output in {where}. Run the validation stage to get a verdict; "
+                      "the sections below show what is available."))
+    notes = []
+    fatal = [f for f in _current_findings(inp.sequence) if f.severity == Severity.FATAL]
+    if fatal:
+        notes.append(f"The input checks report {len(fatal)} fatal problem(s) (section 2).")
+    warnings = (inp.recovery or {}).get("warnings") or []
+    if warnings:
+        notes.append(f"The recovery reported {len(warnings)} warning(s) (section 5).")
+    notes += inp.missing + inp.problems
+    if notes:
+        body.append(p("Also note:"))
+        body.append(ul(notes))
+    return section("verdict", _TITLE["verdict"], tag("div", join(body), class_=f"verdict {cls}"))
+
+
+# ----------------------------------------------------------------------------- section 2: streams
+
+
+def _current_findings(seq: Sequence) -> list[Finding]:
+    try:
+        return run_checks(seq)
+    except BiasgtError as exc:  # checks of a store should not fail; show it rather than crash
+        return [Finding("CHECKS_FAILED", Severity.WARNING, "all", f"the input checks could not run: {exc}")]
+
+
+def _streams_section(inp: ReportInputs) -> Html:
+    seq = inp.sequence
+    rows = []
+    for s in stream_summaries(seq):
+        kind = s["kind"] if s.get("source_kind") in (None, s["kind"]) else f"{s['kind']} ({s['source_kind']})"
+        t0 = None if s.get("t0_ns") is None else (s["t0_ns"] - inp.t0_ns) / NS_PER_S
+        t1 = None if s.get("t1_ns") is None else (s["t1_ns"] - inp.t0_ns) / NS_PER_S
+        span = "n/a" if t0 is None else f"{t0:.3f} – {t1:.3f} s ({fmt(s.get('duration_s'), 5)} s)"
+        rows.append([s["stream"], kind, f"{s['count']:,}", span, fmt(s.get("rate_hz"), 5, "Hz"),
+                     fmt(s.get("dt_std_ms"), 3, "ms"), fmt(s.get("dt_max_ms"), 4, "ms"), s.get("frame") or "—"])
+    parts = [
+        p("Every stream of the canonical store. Span: first and last stamp, in seconds from the first IMU sample. "
+          "Rate: from the median step. Jitter: standard deviation of the steps; max step: the longest one "
+          "(a gap shows up here)."),
+        table(["stream", "kind", "samples", "span", "rate", "jitter", "max step", "frame"], rows, numeric_from=2,
+              text_cols=[7]),
+    ]
+    findings = _current_findings(seq)
+    parts.append(tag("h3", "Input checks on the stored data"))
+    if findings:
+        order = {Severity.FATAL: 0, Severity.REPAIRABLE: 1, Severity.WARNING: 2, Severity.INFO: 3}
+        frows = [[tag("span", f.severity.value, class_=f"sev-{f.severity.value}"), f.code, f.stream, f.message]
+                 for f in sorted(findings, key=lambda f: order.get(f.severity, 9))]
+        parts.append(table(["severity", "code", "stream", "message"], frows, numeric_from=99))
+    else:
+        parts.append(p("No finding."))
+    current = {(f.code, f.stream) for f in findings}
+    earlier = [f for f in seq.findings if f.code in CHECK_CODES and (f.code, f.stream) not in current]
+    if earlier:
+        parts.append(tag("h3", "Found at conversion (before the repairs below)"))
+        parts.append(table(["severity", "code", "stream", "message"],
+                           [[tag("span", f.severity.value, class_=f"sev-{f.severity.value}"), f.code, f.stream,
+                             f.message] for f in earlier], numeric_from=99))
+    repairs = [str(r) for r in (seq.metadata.get("repairs") or [])]
+    parts.append(tag("h3", "Repairs applied at conversion"))
+    parts.append(ul(repairs) if repairs else p("None: the data is stored as it was read."))
+    prov = {k: v for k, v in seq.metadata.items() if k != "repairs" and isinstance(v, (str, int, float))}
+    if prov:
+        parts.append(p(Html("Provenance: " + join((f"{k} = {v}" for k, v in prov.items()), "; ")), class_="small"))
+    return section("streams", _TITLE["streams"], join(parts))
