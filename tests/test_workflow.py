@@ -75,11 +75,11 @@ def test_defaults_filled_like_snakemake_validate(tmp_path):
     assert mine["data_root"] == "." and mine["check_input_paths"] is True
 
 
-def test_euroc_config_is_valid(shared_data):
-    data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
+def test_euroc_semireal_config_is_valid(shared_data):
+    data = yaml.safe_load((REPO / "config" / "euroc_semireal.yaml").read_text())
     data["data_root"] = str(shared_data)  # the fixture's folder (may come from BIASGT_SHARED_DATA)
     wf.validate_schema(data)
-    cfg = wf.check_config(data, REPO / "config" / "euroc.yaml")
+    cfg = wf.check_config(data, REPO / "config" / "euroc_semireal.yaml")
     mh01 = cfg.sequence("MH_01_easy")
     assert mh01.source is wf.SourceKind.ASL and mh01.path == shared_data / "euroc" / "MH_01_easy"
     semi = wf.simulate_settings(cfg, "semi_MH_04_difficult")
@@ -117,9 +117,9 @@ def test_euroc_config_is_valid(shared_data):
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
 
 
-def test_euroc_config_default_data_root_points_at_shared_data():
-    data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
-    root = wf.data_root(wf.validate_schema(data), REPO / "config" / "euroc.yaml")
+def test_euroc_semireal_config_default_data_root_points_at_shared_data():
+    data = yaml.safe_load((REPO / "config" / "euroc_semireal.yaml").read_text())
+    root = wf.data_root(wf.validate_schema(data), REPO / "config" / "euroc_semireal.yaml")
     assert root.resolve() == (REPO.parent / "shared" / "data").resolve()
 
 
