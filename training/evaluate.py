@@ -10,9 +10,11 @@ reset to the ground-truth state of every segment):
   as AirIMU's segments do).
 * Each window is integrated from the reference position, velocity and orientation at its
   first sample with ``imu - bias_pred`` (the learned bias is subtracted from the readings),
-  with :func:`validation.validate.window_end_errors`, the project's one metric; gravity is the
-  recovery's estimate kept in the manifest (``info.gravity_mps2``), else
-  :data:`validation.validate.DEFAULT_GRAVITY_MPS2`.
+  with :func:`validation.validate.window_end_errors`, the project's one metric. Gravity is a
+  stated choice (``EvaluationConfig.gravity``, :class:`training.config.EvalGravity`): ``nominal``
+  (:data:`validation.validate.DEFAULT_GRAVITY_MPS2` in the reference world frame, as AirIMU and
+  the paper) or ``recovered`` (the recovery's estimate kept in the manifest, ``info.gravity_mps2``,
+  else the nominal one); the summary's ``gravity_source`` names it per sequence.
 * Per sequence: ``PRMSE = sqrt(mean_w |p_end - p_gt|^2)`` (m) and ``ROE = mean_w |Log(R_gt^T
   R_end)|`` (deg) (:func:`validation.validate.prmse_m`, :func:`~validation.validate.roe_deg`);
   the **Average** row is the mean over test sequences, as in the paper's Table I.
@@ -60,8 +62,8 @@ from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
 from training.clip import ClipUse, clip_use
-from training.config import Baseline, EvaluationConfig, Method, Sampler
-from training.dataset import FORMAT_VERSION, Split, WindowDataset
+from training.config import Baseline, EvalGravity, EvaluationConfig, Method, OracleWalk, Sampler
+from training.dataset import FORMAT_VERSION, STATE_BIAS, Split, WindowDataset
 from training.predictions import CHANNELS, PREDICTIONS_PARQUET, prediction_frame
 from validation.validate import DEFAULT_GRAVITY_MPS2, prmse_m, roe_deg, window_end_errors
 
@@ -115,9 +117,11 @@ class TestWindows:
         sequence: Sequence name of each kept window, [W].
         t0_ns: First stamp of each kept window, [W].
         gravity_mps2: Sequence -> gravity in its world frame, [3].
-        gravity_source: Sequence -> "recovery" or "default".
-        random_walk: Sequence -> bias random-walk strengths, [6] (NaN when unknown).
+        gravity_source: Sequence -> "nominal", "recovery" or "default" (recovered asked, none kept).
+        random_walk: Sequence -> bias random-walk strengths of the oracle, [6] (NaN when unknown).
         bias_mean: The train split's mean bias, [6].
+        state_bias: The dataset's ground-truth-state bias of each kept window, [W, T, 6] (NaN where
+            the sequence has none).
     """
 
     dataset: WindowDataset
@@ -128,6 +132,7 @@ class TestWindows:
     gravity_source: dict[str, str]
     random_walk: dict[str, np.ndarray]
     bias_mean: np.ndarray
+    state_bias: np.ndarray | None = None
 
     @property
     def root(self) -> Path:
@@ -145,8 +150,11 @@ class TestWindows:
         return [s for s in self.dataset.sequences if np.any(self.sequence == s)]
 
     def items(self, rows: np.ndarray) -> dict[str, Any]:
-        """Collated float64 items of the kept windows ``rows`` (positions in ``index``)."""
-        return default_collate([self.dataset[int(i)] for i in self.index[rows]])
+        """Collated float64 items of the kept windows ``rows`` (positions in ``index``), with ``state_bias``."""
+        items = default_collate([self.dataset[int(i)] for i in self.index[rows]])
+        if self.state_bias is not None:
+            items[STATE_BIAS] = torch.from_numpy(np.ascontiguousarray(self.state_bias[rows]))
+        return items
 
 
 def _non_overlapping(t_ns: np.ndarray) -> np.ndarray:
@@ -159,8 +167,8 @@ def _non_overlapping(t_ns: np.ndarray) -> np.ndarray:
     return np.asarray(keep, dtype=np.int64)
 
 
-def load_test_windows(root: str | Path) -> TestWindows:
-    """The non-overlapping test windows of the dataset at ``root``.
+def load_test_windows(root: str | Path, config: EvaluationConfig = EvaluationConfig()) -> TestWindows:
+    """The non-overlapping test windows of the dataset at ``root``, with ``config``'s gravity and oracle walks.
 
     Raises:
         InputFormatError: Not a dataset, another format version.
@@ -170,7 +178,7 @@ def load_test_windows(root: str | Path) -> TestWindows:
     if len(ds) == 0:
         raise DataError("the dataset has no test window", hint="assign sequences to split 'test' in 'biasgt windows' "
                         f"(--splits) and re-create {Path(root)}")
-    index, names, t0 = [], [], []
+    index, names, t0, state = [], [], [], []
     gravity, gsource, walk = {}, {}, {}
     offset = 0
     for name in ds.sequences:
@@ -180,14 +188,25 @@ def load_test_windows(root: str | Path) -> TestWindows:
         names.append(np.full(len(keep), name, dtype=object))
         t0.append(t_ns[keep, 0])
         offset += len(t_ns)
-        info = ds.manifest["sequences"][name].get("info", {})
-        g = info.get("gravity_mps2")
+        entry = ds.manifest["sequences"][name]
+        info = entry.get("info", {})
+        g = None if config.gravity is EvalGravity.NOMINAL else info.get("gravity_mps2")
         gravity[name] = np.asarray(DEFAULT_GRAVITY_MPS2 if g is None else g, dtype=np.float64)
-        gsource[name] = "default" if g is None else "recovery"
-        rw = info.get("bias_random_walk")
+        gsource[name] = "nominal" if config.gravity is EvalGravity.NOMINAL else "default" if g is None else "recovery"
+        rw = info.get("sensor_random_walk" if config.oracle_random_walk is OracleWalk.SENSOR else "bias_random_walk")
         walk[name] = np.full(6, np.nan) if rw is None else np.asarray(rw, dtype=np.float64)
+        state.append(_state_bias(Path(root) / entry["path"], keep, t_ns.shape[1]))
     return TestWindows(ds, np.concatenate(index), np.concatenate(names), np.concatenate(t0), gravity, gsource, walk,
-                       np.asarray(ds.manifest["normalization"]["bias_mean"], dtype=np.float64))
+                       np.asarray(ds.manifest["normalization"]["bias_mean"], dtype=np.float64),
+                       np.concatenate(state))
+
+
+def _state_bias(folder: Path, keep: np.ndarray, samples: int) -> np.ndarray:
+    """The ground-truth-state bias of the kept windows of one sequence folder, [K, T, 6] (NaN when absent)."""
+    path = folder / f"{STATE_BIAS}.npy"
+    if not path.is_file():
+        return np.full((len(keep), samples, 6), np.nan)
+    return np.asarray(np.load(path, mmap_mode="r")[keep], dtype=np.float64)
 
 
 # ----------------------------------------------------------------------------- predictors
@@ -559,7 +578,8 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
         method=predictor.name, label=predictor.label, kind=kind, samples=k, seed=config.seed,
         steps=config.steps if predictor.stochastic else None, windows=len(windows),
         windows_per_sequence={n: int(np.sum(windows.sequence == n)) for n in windows.sequences()},
-        protocol=PROTOCOL, gravity_source=dict(windows.gravity_source), rows=tuple(rows), calibration=tuple(calib),
+        protocol=f"{PROTOCOL}; gravity: {config.gravity.value}; oracle random walk: {config.oracle_random_walk.value}",
+        gravity_source=dict(windows.gravity_source), rows=tuple(rows), calibration=tuple(calib),
         clip=tuple(clip),
         checkpoint=dict(checkpoint or {}),
         dataset={"path": str(windows.root), "format_version": m.get("format_version"),
@@ -612,7 +632,7 @@ def evaluate_reference(baseline: Baseline | str, dataset_dir: str | Path, out_di
                        config: EvaluationConfig = EvaluationConfig()) -> EvaluationResult:
     """Evaluate a reference row (:class:`training.baselines.Baseline`); write it when ``out_dir`` is given."""
     baseline = Baseline(baseline)
-    windows = load_test_windows(dataset_dir)
+    windows = load_test_windows(dataset_dir, config)
     kind = "oracle" if baseline.is_oracle else "reference"
     result = evaluate_predictor(ReferencePredictor(baseline, windows), windows, config, kind=kind)
     if out_dir is not None:
@@ -688,7 +708,7 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
     from training.checkpoint import load_run
 
     checkpoint = Path(checkpoint)
-    windows = load_test_windows(dataset_dir)
+    windows = load_test_windows(dataset_dir, config)
     run = load_run(checkpoint, device=device)
     check_compatible(run, windows, checkpoint, method=method)
     predictor = ModelPredictor(run, steps=config.steps)
