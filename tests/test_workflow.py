@@ -117,6 +117,36 @@ def test_euroc_semireal_config_is_valid(shared_data):
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
 
 
+def test_euroc_config_is_the_papers_split_on_the_real_recordings(shared_data):
+    from training.config import EvalGravity, EvaluationConfig, OracleWalk
+
+    data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
+    assert wf.data_root(wf.validate_schema(dict(data)), REPO / "config" / "euroc.yaml").resolve() == (
+        REPO.parent / "shared" / "data").resolve()
+    data["data_root"] = str(shared_data)
+    wf.validate_schema(data)
+    cfg = wf.check_config(data, REPO / "config" / "euroc.yaml")
+    assert not any(s.is_simulated for s in cfg.sequences)  # real IMU recordings only
+    names = lambda split: {s.name for s in cfg.select(splits=[split])}  # noqa: E731
+    assert names("train") == {"MH_01_easy", "MH_03_medium", "MH_05_difficult", "V1_02_medium", "V2_01_easy",
+                              "V2_03_difficult"}
+    assert names("test") == {"MH_04_difficult", "V1_03_difficult", "V2_02_medium"}  # MH_02: no IMU available
+    assert names("val") == {"V1_01_easy"}
+    for s in cfg.sequences:
+        assert (s.path / "mav0" / "imu0" / "data.csv").is_file()
+    stream = {s.name: wf.recovery_settings(cfg, s.name)["pose_stream"] for s in cfg.sequences}
+    assert {n for n, v in stream.items() if v == "vicon0"} == {"V1_02_medium", "V2_01_easy", "V2_03_difficult"}
+    assert {n for n, v in stream.items() if v == "ground_truth"} == {"MH_04_difficult", "MH_05_difficult",
+                                                                     "V1_03_difficult", "V2_02_medium"}
+    assert stream["MH_01_easy"] == stream["MH_03_medium"] == "groundtruth_poses"  # EuRoC's poses (TUM)
+    # the test sequences' windows take EuRoC's ground-truth state (validation poses left at null)
+    for name in names("test"):
+        assert wf.validation_settings(cfg, name)["poses"] is None
+        assert (shared_data / "euroc" / name / "mav0" / "state_groundtruth_estimate0" / "data.csv").is_file()
+    ev = EvaluationConfig.from_mapping(data["evaluation"])
+    assert ev.gravity is EvalGravity.NOMINAL and ev.oracle_random_walk is OracleWalk.SENSOR
+
+
 def test_euroc_semireal_config_default_data_root_points_at_shared_data():
     data = yaml.safe_load((REPO / "config" / "euroc_semireal.yaml").read_text())
     root = wf.data_root(wf.validate_schema(data), REPO / "config" / "euroc_semireal.yaml")
