@@ -333,9 +333,9 @@ class Baseline(str, enum.Enum):
 
     ZERO = "zero"
     TRAIN_MEAN = "train_mean"
+    STATE_BIAS = "state_bias"
     GROUND_TRUTH = "ground_truth"
     RANDOM_WALK_ORACLE = "random_walk_oracle"
-    STATE_BIAS = "state_bias"
 
     @property
     def label(self) -> str:

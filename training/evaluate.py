@@ -584,7 +584,10 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
         checkpoint=dict(checkpoint or {}),
         dataset={"path": str(windows.root), "format_version": m.get("format_version"),
                  "config_hash": m.get("config_hash"), "rate_hz": m.get("rate_hz"),
-                 "window_samples": m.get("window_samples")},
+                 "window_samples": m.get("window_samples"),
+                 "label_pose_stream": {n: e.get("info", {}).get("label_pose_stream")
+                                       for n, e in m.get("sequences", {}).items()},
+                 "reference": {n: m["sequences"][n].get("info", {}).get("reference") for n in windows.sequences()}},
         seconds=time.perf_counter() - t_start,
     )
     return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True),

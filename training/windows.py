@@ -20,8 +20,9 @@ exactly ``window_s``) and starts every ``round(n * (1 - overlap))`` samples. For
   dataset keeps it only when every sequence does, see :func:`training.dataset.write_dataset`).
 
 The manifest entry of each sequence keeps its provenance (``info``): rates, reference kind,
-the recovery folder, the bias random walks the recovery used (``bias_random_walk``, [6]) and
-the recovery's gravity estimate in the reference world frame (``gravity_mps2``, [3] or None) and
+the recovery folder, the pose stream its labels were recovered from (``label_pose_stream``),
+the bias random walks the recovery used (``bias_random_walk``, [6]), the recovery's gravity
+estimate in the reference world frame (``gravity_mps2``, [3] or None) and
 the random walks of the sensor's own calibration (``sensor_random_walk``, [6]: e.g. EuRoC's
 ``imu0/sensor.yaml``). A sequence with a ground-truth state also keeps that state's own bias at
 the window stamps (``state_bias``, for the evaluation's oracle and dataset-bias rows).
@@ -353,6 +354,7 @@ def extract_windows(
         reference=reference.kind.value,
         reference_info=dict(reference.info),
         recovery_dir=str(recovery_dir),
+        label_pose_stream=recovery.report.pose_stream,
         bias_random_walk=random_walk.tolist(),
         sensor_random_walk=[cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3,
         gravity_mps2=None if gravity is None else gravity.tolist(),
