@@ -25,12 +25,13 @@ Measured (50 candidates, seed 0; PRMSE m / ROE deg, Average over MH_04, V1_03, V
   decimals (it hardly moves within a second), so the oracle's walks gain only 1-3 % over it;
 * gravity magnitude 9.81 / 9.81007 (AirIMU's EuRoC loader) / 9.8066: no change at 4 decimals;
 * window alignment: windows start on IMU stamps with the ground-truth state interpolated to them,
-  as AirIMU's loader does (its evaluation resets to the ground truth every 200 samples).
+  as AirIMU's loader does (its evaluation resets to the ground truth every 200 samples); the start
+  velocity is EuRoC's state velocity at the stamp, as AirIMU's (checked: identical).
 
 So the gap to the paper's column is not the oracle's selection, gravity magnitude or
 integration scheme (ROE excepted: Euler is nearer the paper). Not yet ruled out: the tilt of
 EuRoC's ground-truth world frame against gravity (a stated choice: the evaluation's ``gravity:
-recovered`` absorbs it), and how the paper's own windows and start velocities were taken.
+recovered`` absorbs it), and how the paper's own windows were cut (not in its released text).
 """
 
 from __future__ import annotations
