@@ -145,6 +145,22 @@ def test_euroc_config_is_the_papers_split_on_the_real_recordings(shared_data):
         assert (shared_data / "euroc" / name / "mav0" / "state_groundtruth_estimate0" / "data.csv").is_file()
     ev = EvaluationConfig.from_mapping(data["evaluation"])
     assert ev.gravity is EvalGravity.NOMINAL and ev.oracle_random_walk is OracleWalk.SENSOR
+    assert "state_bias" in data["evaluation"]["references"]
+
+
+def test_euroc_config_pose_streams_exist_in_the_recordings(shared_data):
+    """Each sequence's recovery stream is in its recording, and the sensor's random walks are EuRoC's."""
+    from pipeline.ingest import load
+
+    data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
+    data["data_root"] = str(shared_data)
+    cfg = wf.check_config(wf.validate_schema(data), REPO / "config" / "euroc.yaml")
+    for s in cfg.sequences:
+        seq = load(s.path, wf.ingest_settings(cfg, s.name)["reader_kwargs"])
+        stream = wf.recovery_settings(cfg, s.name)["pose_stream"]
+        assert stream in seq.poses or (stream == "ground_truth" and seq.ground_truth is not None), s.name
+        assert (s.split is wf.Split.TEST) <= (seq.ground_truth is not None)  # the evaluation reference
+        assert (seq.calibration.gyro_random_walk, seq.calibration.acc_random_walk) == (1.9393e-05, 3.0e-3)
 
 
 def test_euroc_semireal_config_default_data_root_points_at_shared_data():

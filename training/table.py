@@ -184,13 +184,16 @@ def protocol_notes(summaries: Iterable[EvaluationSummary]) -> list[str]:
                      + ", ".join(f"{k} {v}" for k, v in sorted(refs.items())) + " (state = the dataset's "
                      "ground-truth state).")
     streams = {k: v for s in summaries for k, v in s.dataset.get("label_pose_stream", {}).items() if v}
-    from_gt = sorted(k for k, v in streams.items() if v not in RAW_POSE_STREAMS)
     if streams:
-        raw = sorted(k for k in streams if k not in from_gt)
-        notes.append("Labels (biasgt's recovered bias): "
-                     + (f"from the raw Vicon/Leica stream for {', '.join(raw)}; " if raw else "")
-                     + (f"from ground-truth poses for {', '.join(from_gt)} (no raw stream, or its recovery does "
-                        "not yet meet the recovery goals)." if from_gt else "none from ground-truth poses."))
+        by: dict[str, list[str]] = {}
+        for seq, stream in sorted(streams.items()):
+            by.setdefault(stream, []).append(seq)
+        notes.append("Labels (biasgt's recovered bias) fitted to the pose stream: "
+                     + "; ".join(f"{stream}: {', '.join(seqs)}" for stream, seqs in by.items())
+                     + (". Where not a raw stream (" + "/".join(RAW_POSE_STREAMS) + "), the sequence has none or "
+                        "its raw-stream recovery does not yet meet the recovery goals (ground_truth, "
+                        "groundtruth_poses: EuRoC's ground-truth poses)."
+                        if set(by) - set(RAW_POSE_STREAMS) else "."))
     return notes
 
 
