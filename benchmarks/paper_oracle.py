@@ -7,7 +7,7 @@ Usage::
 Needs no recovery and no training: every figure comes from the real IMU and EuRoC's ground-truth
 state (``state_groundtruth_estimate0``) of MH_04, V1_03 and V2_02. The windows are the evaluation's
 (1 s, the 50 %-overlap candidates of :func:`validation.validate.plan_windows` with a reference at both
-ends, every other one kept as :func:`training.evaluate._non_overlapping` keeps them), each integrated
+ends, every other one kept as :func:`training.eval_windows.non_overlapping` keeps them), each integrated
 from the ground-truth state at its first stamp, PRMSE / ROE per sequence, Average over the three.
 
 Rows: zero bias; EuRoC's own bias; EuRoC's bias at the window start held constant; the random-walk
@@ -49,7 +49,7 @@ sys.path.insert(0, str(REPO))
 from pipeline.io import load_sequence  # noqa: E402
 from pipeline.types import IntegrationScheme  # noqa: E402
 from training.baselines import Baseline, baseline_bias  # noqa: E402
-from training.evaluate import _non_overlapping  # noqa: E402
+from training.eval_windows import non_overlapping  # noqa: E402
 from training.paper import TABLE_I, paper_average, paper_sequence  # noqa: E402
 from training.windows import state_bias_at  # noqa: E402
 from validation.validate import (DEFAULT_GRAVITY_MPS2, ValidationConfig, build_reference, plan_windows,  # noqa: E402
@@ -70,7 +70,7 @@ def test_windows(folder: Path) -> tuple[dict[str, np.ndarray], np.ndarray]:
     s = s[keep]
     idx = s[:, None] + np.arange(n + 1)[None]
     t = seq.imu.t_ns[idx]
-    s, idx, t = s[_non_overlapping(t)], idx[_non_overlapping(t)], t[_non_overlapping(t)]
+    s, idx, t = s[non_overlapping(t)], idx[non_overlapping(t)], t[non_overlapping(t)]
     e = s + n
     items = {"imu": seq.imu.imu_6[idx], "dt_s": np.diff(t, axis=1) / 1e9, "t_ns": t,
              "start_R": ref.R[s], "start_v": ref.v[s], "start_p": ref.p[s], "end_R": ref.R[e], "end_p": ref.p[e],
