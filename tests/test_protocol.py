@@ -120,6 +120,10 @@ def test_oracle_with_the_recoverys_walks_and_the_label_start_when_no_state_bias(
                         random_walk=np.tile(w.random_walk["test0"], (2, 1)), gravity_mps2=w.gravity_mps2["test0"],
                         rng=np.random.default_rng(0), candidates=4)
     np.testing.assert_array_equal(out[:, 0, 0], items["bias"].numpy()[:, 0])
+    with pytest.raises(InputFormatError, match="sensor_random_walk") as exc:  # a dataset cut before it was kept
+        baseline_bias(Baseline.RANDOM_WALK_ORACLE, items, bias_mean=np.zeros(6), random_walk=np.full((2, 6), np.nan),
+                      gravity_mps2=w.gravity_mps2["test0"], rng=np.random.default_rng(0))
+    assert "\n" not in str(exc.value)
     with pytest.raises(InputFormatError, match="state_bias") as exc:
         baseline_bias(Baseline.STATE_BIAS, items, bias_mean=np.zeros(6), random_walk=np.zeros((2, 6)),
                       gravity_mps2=w.gravity_mps2["test0"], rng=np.random.default_rng(0))

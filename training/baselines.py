@@ -96,8 +96,9 @@ def baseline_bias(baseline: Baseline, items: dict, *, bias_mean: np.ndarray, ran
         return state[:, None].copy()
     rw = np.asarray(random_walk, dtype=np.float64)
     if rw.shape != (B, 6) or not np.all(np.isfinite(rw)):
-        raise InputFormatError("the dataset has no bias random walks for the oracle (info.bias_random_walk)",
-                               hint="re-create the dataset with 'biasgt windows' from recovery folders")
+        raise InputFormatError("the dataset has no bias random walks for the oracle (manifest info."
+                               "bias_random_walk or info.sensor_random_walk)",
+                               hint="re-create the dataset with this version's 'biasgt windows' from recovery folders")
     dt = np.asarray(items["dt_s"], dtype=np.float64)
     start = gt[:, 0] if state is None or not np.all(np.isfinite(state[:, 0])) else state[:, 0]
     paths = random_walk_paths(start, rw, dt, candidates, rng)  # [B, K, T, 6]
