@@ -483,7 +483,8 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
                  "window_samples": m.get("window_samples"),
                  "label_pose_stream": {n: e.get("info", {}).get("label_pose_stream")
                                        for n, e in m.get("sequences", {}).items()},
-                 "reference": {n: m["sequences"][n].get("info", {}).get("reference") for n in windows.sequences()}},
+                 "reference": {n: m["sequences"][n].get("info", {}).get("reference") for n in windows.sequences()},
+                 "excluded": dict(m.get("excluded", {}))},
         seconds=time.perf_counter() - t_start,
     )
     return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True),

@@ -194,6 +194,10 @@ def protocol_notes(summaries: Iterable[EvaluationSummary]) -> list[str]:
                         "its raw-stream recovery does not yet meet the recovery goals (ground_truth, "
                         "groundtruth_poses: EuRoC's ground-truth poses)."
                         if set(by) - set(RAW_POSE_STREAMS) else "."))
+    excluded = {k: str(v).split(":")[0] for s in summaries for k, v in s.dataset.get("excluded", {}).items()}
+    if excluded:
+        notes.append("Left out of the window dataset: " + ", ".join(f"{k} ({v})" for k, v in sorted(excluded.items()))
+                     + "; the dataset manifest's 'excluded' says why.")
     return notes
 
 
