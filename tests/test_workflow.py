@@ -138,7 +138,10 @@ def test_euroc_config_is_the_papers_split_on_the_real_recordings(shared_data):
     assert {n for n, v in stream.items() if v == "vicon0"} == {"V1_02_medium", "V2_01_easy", "V2_03_difficult"}
     assert {n for n, v in stream.items() if v == "ground_truth"} == {"MH_04_difficult", "MH_05_difficult",
                                                                      "V1_03_difficult", "V2_02_medium"}
-    assert stream["MH_01_easy"] == stream["MH_03_medium"] == "groundtruth_poses"  # EuRoC's poses (TUM)
+    # no ground-truth state: raw Leica labels, validated against (and windows' states from) EuRoC's poses
+    assert stream["MH_01_easy"] == stream["MH_03_medium"] == "leica0"
+    assert wf.validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
+    assert wf.windows_settings(cfg)["sequences"][0] == ["MH_01_easy", "train", "groundtruth_poses"]
     # the test sequences' windows take EuRoC's ground-truth state (validation poses left at null)
     for name in names("test"):
         assert wf.validation_settings(cfg, name)["poses"] is None
