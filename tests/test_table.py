@@ -90,3 +90,71 @@ def test_twenty_rows_with_their_variants_fit_a_page() -> None:
     assert len(rows) == 21 and all(len(r.split("|")) == len(seqs) + 5 for r in rows)
     assert max(len(r) for r in rows) <= 140  # ~8 px a character at the report's font: well inside 1280 px
     assert [r.split("|")[1].strip() for r in rows[1:6]] == ["diffusion_rnn", "", "", "", ""]  # grouped
+
+
+EUROC = {"test0": "MH_04_difficult", "test1": "V1_03_difficult"}
+
+
+def _as_euroc(s, extra: str = "V2_02_medium"):
+    """The summary with its test sequences renamed to the paper's EuRoC test sequences (test1 doubling as
+    ``extra``), the Average recomputed over the three."""
+    import numpy as np
+
+    rows = []
+    for r in s.rows:
+        seqs = {EUROC[k]: v for k, v in r.sequences.items()}
+        seqs[extra] = r.sequences["test1"]
+        avg = Metrics(float(np.mean([m.prmse_m for m in seqs.values()])),
+                      float(np.mean([m.roe_deg for m in seqs.values()])))
+        rows.append(dataclasses.replace(r, sequences=seqs, average=avg))
+    return dataclasses.replace(s, rows=tuple(rows), dataset={**s.dataset, "excluded": {
+        "MH_03_medium": "validation FAIL: held out: worse than the constant bias"}, "label_pose_stream": {
+        "MH_04_difficult": "ground_truth", "V1_03_difficult": "ground_truth", "V2_02_medium": "ground_truth",
+        "V2_01_easy": "vicon0"}})
+
+
+def test_paper_shape_with_the_papers_block_and_protocol_footnote(evaluated, tmp_path):
+    paths = []
+    for p in sorted(evaluated.glob("*/summary.json")):
+        out = tmp_path / p.parent.name / "summary.json"
+        out.parent.mkdir()
+        out.write_text(json.dumps(_as_euroc(read_summary(p)).to_dict()))
+        paths.append(out)
+    write_table(paths, tmp_path)
+    md = (tmp_path / TABLE_MD).read_text()
+    paper = md[md.index("### Table I in the paper's shape"):]
+    lines = paper.splitlines()
+    assert lines[2] == "| method | MH_02 | MH_04 | V1_03 | V2_02 | Average (MH_04, V1_03, V2_02) |"
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]] for line in lines[4:]
+            if line.startswith("| ")}
+    zero = read_summary(tmp_path / Baseline.ZERO.value / "summary.json")
+    cells = rows[Baseline.ZERO.label]
+    assert cells[0] == "no IMU available"
+    for cell, seq in zip(cells[1:], ["MH_04_difficult", "V1_03_difficult", "V2_02_medium"]):
+        m = zero.row().sequences[seq]
+        assert cell.strip("*<u>/ ").replace("*", "").replace("<u>", "").replace("</u>", "") == \
+            f"{m.prmse_m:.4f} / {m.roe_deg:.4f}"
+    assert f"{zero.row().average.prmse_m:.4f}" in cells[4]
+    assert rows[Baseline.RANDOM_WALK_ORACLE.label][0] == "no IMU available"
+    assert rows[Baseline.GROUND_TRUTH.label + " (oracle)"][0] == "no IMU available"
+    # rows: zero, train mean, the dataset's own bias, the recovered bias, the random-walk oracle
+    names = [n for n in rows if "paper" not in n]
+    assert names == [Baseline.ZERO.label, Baseline.TRAIN_MEAN.label, Baseline.STATE_BIAS.label + " (oracle)",
+                     Baseline.GROUND_TRUTH.label + " (oracle)", Baseline.RANDOM_WALK_ORACLE.label]
+    # the paper's block: printed values, averages over the same three sequences
+    assert rows["paper: Ours (RNN)"] == ["0.0225 / 0.0604", "0.0410 / 0.0636", "0.0561 / 0.1931", "0.0703 / 0.2557",
+                                         "0.0558 / 0.1708"]
+    assert rows["paper: Random Walk"][-1] == "0.0718 / 0.1684"
+    assert {"paper: AirIMU", "paper: Ours (UNet)", "paper: Direct Regression (RNN)",
+            "paper: Direct Regression (UNet)"} <= set(rows)
+    # the footnote states the protocol the evaluations used
+    assert "MH_02: no IMU available" in paper
+    assert "Gravity: each sequence's recovered gravity" in paper  # the evaluations above used the default
+    assert "ground_truth: MH_04_difficult, V1_03_difficult, V2_02_medium; vicon0: V2_01_easy." in paper
+    assert "does not yet meet the recovery goals" in paper
+    assert "Left out of the window dataset: MH_03_medium (validation FAIL)" in paper
+
+
+def test_no_paper_block_for_other_sequences(evaluated, tmp_path):
+    write_table(sorted(evaluated.glob("*/summary.json")), tmp_path)
+    assert "paper's shape" not in (tmp_path / TABLE_MD).read_text()

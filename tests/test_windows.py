@@ -19,10 +19,10 @@ from pipeline import __version__
 from pipeline.cli import main
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.sim import ImuNoiseConfig, PoseStreamConfig, SimConfig, simulate
-from pipeline.store import write_store
+from pipeline.store import read_store, write_store
 from pipeline.types import ImuSeries
 from synth import write_recovery_folder
-from training.dataset import ARRAYS, TEMPERATURE, Split, WindowDataset, read_manifest
+from training.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, Split, WindowDataset, read_manifest
 from training.windows import (
     WindowConfig,
     WindowSource,
@@ -307,7 +307,9 @@ def test_manifest_content(dataset, tmp_path):
                                        "temperature_std"}
     assert m["has_temperature"] is True  # the simulator reports the IMU temperature
     assert sorted(p.name for p in (root / "sequences" / "A").iterdir()) == sorted(
-        f"{k}.npy" for k in (*ARRAYS, TEMPERATURE))
+        f"{k}.npy" for k in (*ARRAYS, TEMPERATURE, STATE_BIAS))  # the simulator writes a ground-truth state
+    cal = read_store(sources[0].store_dir).calibration
+    assert m["sequences"]["A"]["info"]["sensor_random_walk"] == [cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3
     m2 = build_window_dataset(sources[:1], tmp_path / "ds2", WindowConfig(window_s=2.0))
     assert m2["config_hash"] != m["config_hash"]
     m3 = build_window_dataset(sources[:1], tmp_path / "ds3", WindowConfig())

@@ -75,11 +75,11 @@ def test_defaults_filled_like_snakemake_validate(tmp_path):
     assert mine["data_root"] == "." and mine["check_input_paths"] is True
 
 
-def test_euroc_config_is_valid(shared_data):
-    data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
+def test_euroc_semireal_config_is_valid(shared_data):
+    data = yaml.safe_load((REPO / "config" / "euroc_semireal.yaml").read_text())
     data["data_root"] = str(shared_data)  # the fixture's folder (may come from BIASGT_SHARED_DATA)
     wf.validate_schema(data)
-    cfg = wf.check_config(data, REPO / "config" / "euroc.yaml")
+    cfg = wf.check_config(data, REPO / "config" / "euroc_semireal.yaml")
     mh01 = cfg.sequence("MH_01_easy")
     assert mh01.source is wf.SourceKind.ASL and mh01.path == shared_data / "euroc" / "MH_01_easy"
     semi = wf.simulate_settings(cfg, "semi_MH_04_difficult")
@@ -117,9 +117,58 @@ def test_euroc_config_is_valid(shared_data):
     assert wf.window_outputs(cfg) == ["results/windows/dataset"]
 
 
-def test_euroc_config_default_data_root_points_at_shared_data():
+def test_euroc_config_is_the_papers_split_on_the_real_recordings(shared_data):
+    from training.config import EvalGravity, EvaluationConfig, OracleWalk
+
     data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
-    root = wf.data_root(wf.validate_schema(data), REPO / "config" / "euroc.yaml")
+    assert wf.data_root(wf.validate_schema(dict(data)), REPO / "config" / "euroc.yaml").resolve() == (
+        REPO.parent / "shared" / "data").resolve()
+    data["data_root"] = str(shared_data)
+    wf.validate_schema(data)
+    cfg = wf.check_config(data, REPO / "config" / "euroc.yaml")
+    assert not any(s.is_simulated for s in cfg.sequences)  # real IMU recordings only
+    names = lambda split: {s.name for s in cfg.select(splits=[split])}  # noqa: E731
+    assert names("train") == {"MH_01_easy", "MH_03_medium", "MH_05_difficult", "V1_02_medium", "V2_01_easy",
+                              "V2_03_difficult"}
+    assert names("test") == {"MH_04_difficult", "V1_03_difficult", "V2_02_medium"}  # MH_02: no IMU available
+    assert names("val") == {"V1_01_easy"}
+    for s in cfg.sequences:
+        assert (s.path / "mav0" / "imu0" / "data.csv").is_file()
+    stream = {s.name: wf.recovery_settings(cfg, s.name)["pose_stream"] for s in cfg.sequences}
+    assert {n for n, v in stream.items() if v == "vicon0"} == {"V1_02_medium", "V2_01_easy", "V2_03_difficult"}
+    assert {n for n, v in stream.items() if v == "ground_truth"} == {"MH_04_difficult", "MH_05_difficult",
+                                                                     "V1_03_difficult", "V2_02_medium"}
+    # no ground-truth state: raw Leica labels, validated against (and windows' states from) EuRoC's poses
+    assert stream["MH_01_easy"] == stream["MH_03_medium"] == "leica0"
+    assert wf.validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
+    assert wf.windows_settings(cfg)["sequences"][0] == ["MH_01_easy", "train", "groundtruth_poses"]
+    # the test sequences' windows take EuRoC's ground-truth state (validation poses left at null)
+    for name in names("test"):
+        assert wf.validation_settings(cfg, name)["poses"] is None
+        assert (shared_data / "euroc" / name / "mav0" / "state_groundtruth_estimate0" / "data.csv").is_file()
+    ev = EvaluationConfig.from_mapping(data["evaluation"])
+    assert ev.gravity is EvalGravity.NOMINAL and ev.oracle_random_walk is OracleWalk.SENSOR
+    assert "state_bias" in data["evaluation"]["references"]
+
+
+def test_euroc_config_pose_streams_exist_in_the_recordings(shared_data):
+    """Each sequence's recovery stream is in its recording, and the sensor's random walks are EuRoC's."""
+    from pipeline.ingest import load
+
+    data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
+    data["data_root"] = str(shared_data)
+    cfg = wf.check_config(wf.validate_schema(data), REPO / "config" / "euroc.yaml")
+    for s in cfg.sequences:
+        seq = load(s.path, wf.ingest_settings(cfg, s.name)["reader_kwargs"])
+        stream = wf.recovery_settings(cfg, s.name)["pose_stream"]
+        assert stream in seq.poses or (stream == "ground_truth" and seq.ground_truth is not None), s.name
+        assert (s.split is wf.Split.TEST) <= (seq.ground_truth is not None)  # the evaluation reference
+        assert (seq.calibration.gyro_random_walk, seq.calibration.acc_random_walk) == (1.9393e-05, 3.0e-3)
+
+
+def test_euroc_semireal_config_default_data_root_points_at_shared_data():
+    data = yaml.safe_load((REPO / "config" / "euroc_semireal.yaml").read_text())
+    root = wf.data_root(wf.validate_schema(data), REPO / "config" / "euroc_semireal.yaml")
     assert root.resolve() == (REPO.parent / "shared" / "data").resolve()
 
 

@@ -10,15 +10,21 @@
 ``ground_truth``
     The recovered ground-truth bias of each window itself (the dataset's ``bias`` array): what
     the labels allow; no learned model should beat it.
+``state_bias``
+    The dataset's own ground-truth-state bias (EuRoC's ``state_groundtruth_estimate0``) at every
+    window sample (the dataset's ``state_bias`` array): the labels of the paper and AirIMU.
 ``random_walk_oracle``
-    The ground-truth bias at each window's first sample, continued by ``K`` random-walk paths
+    The ground-truth bias at each window's first sample (the dataset's own ground-truth-state
+    bias where the sequence has one, as in the paper; else the recovered label), continued by
+    ``K`` random-walk paths
     ``b_k(t_{j+1}) = b_k(t_j) + sigma_rw sqrt(h_j) n_j`` (``n_j ~ N(0, I)``), of which the one
     with the smallest end-of-window position error against the ground-truth end pose is kept.
     It uses the ground truth twice (start bias and end pose): an **oracle upper bound**, not a
     usable method, as in the paper's Table I. The random-walk strengths ``sigma_rw`` [6]
-    (gyro rad/s/sqrt(s), acc m/s^2/sqrt(s)) are those the recovery of each sequence used
-    (``recovery.json`` ``noise``), kept by ``biasgt windows`` in the manifest entry of the
-    sequence (``info.bias_random_walk``): the sensor model behind the labels themselves.
+    (gyro rad/s/sqrt(s), acc m/s^2/sqrt(s)) are chosen by the evaluation
+    (:class:`training.config.OracleWalk`): the sensor's own calibration (``info.sensor_random_walk``,
+    EuRoC's ``imu0/sensor.yaml``, as the paper) or those the recovery of each sequence used
+    (``info.bias_random_walk``, ``recovery.json`` ``noise``).
 """
 
 from __future__ import annotations
@@ -75,18 +81,27 @@ def baseline_bias(baseline: Baseline, items: dict, *, bias_mean: np.ndarray, ran
     """
     gt = np.asarray(items["bias"], dtype=np.float64)
     B, T, _ = gt.shape
+    state = np.asarray(items["state_bias"], dtype=np.float64) if "state_bias" in items else None
     if baseline is Baseline.ZERO:
         return np.zeros((B, 1, T, 6))
     if baseline is Baseline.TRAIN_MEAN:
         return np.broadcast_to(np.asarray(bias_mean, dtype=np.float64), (B, 1, T, 6)).copy()
     if baseline is Baseline.GROUND_TRUTH:
         return gt[:, None].copy()
+    if baseline is Baseline.STATE_BIAS:
+        if state is None or not np.all(np.isfinite(state)):
+            raise InputFormatError("the test windows have no ground-truth-state bias (state_bias) to evaluate",
+                                   hint="evaluate 'state_bias' only on sequences with a ground-truth state "
+                                        "(EuRoC's state_groundtruth_estimate0), re-created with 'biasgt windows'")
+        return state[:, None].copy()
     rw = np.asarray(random_walk, dtype=np.float64)
     if rw.shape != (B, 6) or not np.all(np.isfinite(rw)):
-        raise InputFormatError("the dataset has no bias random walks for the oracle (info.bias_random_walk)",
-                               hint="re-create the dataset with 'biasgt windows' from recovery folders")
+        raise InputFormatError("the dataset has no bias random walks for the oracle (manifest info."
+                               "bias_random_walk or info.sensor_random_walk)",
+                               hint="re-create the dataset with this version's 'biasgt windows' from recovery folders")
     dt = np.asarray(items["dt_s"], dtype=np.float64)
-    paths = random_walk_paths(gt[:, 0], rw, dt, candidates, rng)  # [B, K, T, 6]
+    start = gt[:, 0] if state is None or not np.all(np.isfinite(state[:, 0])) else state[:, 0]
+    paths = random_walk_paths(start, rw, dt, candidates, rng)  # [B, K, T, 6]
     rep = lambda key: np.repeat(np.asarray(items[key], dtype=np.float64), candidates, axis=0)  # noqa: E731
     pos, _ = window_end_errors(rep("imu"), paths.reshape(B * candidates, T, 6), rep("dt_s"), rep("start_R"),
                                rep("start_v"), rep("start_p"), rep("end_R"), rep("end_p"),

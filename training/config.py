@@ -340,6 +340,7 @@ class Baseline(str, enum.Enum):
 
     ZERO = "zero"
     TRAIN_MEAN = "train_mean"
+    STATE_BIAS = "state_bias"
     GROUND_TRUTH = "ground_truth"
     RANDOM_WALK_ORACLE = "random_walk_oracle"
 
@@ -351,12 +352,27 @@ class Baseline(str, enum.Enum):
             Baseline.TRAIN_MEAN: "Train-mean bias",
             Baseline.GROUND_TRUTH: "Recovered GT bias",
             Baseline.RANDOM_WALK_ORACLE: "Random walk (oracle)",
+            Baseline.STATE_BIAS: "Dataset GT-state bias",
         }[self]
 
     @property
     def is_oracle(self) -> bool:
         """Uses ground truth at test time (a bound, not a method)."""
-        return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE)
+        return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE, Baseline.STATE_BIAS)
+
+
+class EvalGravity(str, enum.Enum):
+    """Gravity the evaluation integrates every window with."""
+
+    NOMINAL = "nominal"  # validation.validate.DEFAULT_GRAVITY_MPS2 in the reference world frame (the paper)
+    RECOVERED = "recovered"  # each sequence's recovered gravity (the nominal one when it has none)
+
+
+class OracleWalk(str, enum.Enum):
+    """Random-walk strengths of the random-walk oracle."""
+
+    SENSOR = "sensor"  # the sensor's own calibration (EuRoC's imu0/sensor.yaml; the paper)
+    RECOVERY = "recovery"  # those each sequence's recovery used
 
 
 @dataclass(frozen=True)
@@ -456,6 +472,8 @@ class EvaluationConfig:
         batch_windows: Windows per model call (times K samples).
         examples: Test windows kept for the report's figure.
         references: Reference rows evaluated by the workflow.
+        gravity: Gravity of the integration (:class:`EvalGravity`).
+        oracle_random_walk: Random-walk strengths of the oracle (:class:`OracleWalk`).
     """
 
     samples: int = 50
@@ -464,9 +482,18 @@ class EvaluationConfig:
     seed: int = 0
     batch_windows: int = 32
     examples: int = 4
-    references: tuple[Baseline, ...] = tuple(Baseline)
+    references: tuple[Baseline, ...] = tuple(b for b in Baseline if b is not Baseline.STATE_BIAS)
+    gravity: EvalGravity = EvalGravity.RECOVERED
+    oracle_random_walk: OracleWalk = OracleWalk.RECOVERY
 
     def __post_init__(self) -> None:
+        for name, kind in (("gravity", EvalGravity), ("oracle_random_walk", OracleWalk)):
+            try:
+                object.__setattr__(self, name, kind(getattr(self, name)))
+            except ValueError:
+                raise ConfigError(f"evaluation {name} {getattr(self, name)!r} is not one of "
+                                  f"{[k.value for k in kind]}", field=name,
+                                  hint=f"give one of {', '.join(k.value for k in kind)}") from None
         object.__setattr__(self, "samplers", tuple(Sampler(s) for s in self.samplers))
         object.__setattr__(self, "references", tuple(Baseline(b) for b in self.references))
         for name in ("samples", "steps", "batch_windows"):
@@ -485,4 +512,6 @@ class EvaluationConfig:
         d = dataclasses.asdict(self)
         d["samplers"] = [s.value for s in self.samplers]
         d["references"] = [b.value for b in self.references]
+        d["gravity"] = self.gravity.value
+        d["oracle_random_walk"] = self.oracle_random_walk.value
         return d

@@ -14,6 +14,8 @@ Layout (``biasgt windows`` writes it atomically)::
       sequences/<name>/end_R.npy, end_v.npy, end_p.npy   the same at the last stamp
       sequences/<name>/temperature_degc.npy [W, T] IMU temperature (degC); only when every
                                           sequence carries one (manifest: has_temperature)
+      sequences/<name>/state_bias.npy     [W, T, 6] the ground-truth state's own bias (e.g. EuRoC's),
+                                          when the sequence has one; for the evaluation only
 
 Arrays are plain ``.npy`` files so that :class:`WindowDataset` memory-maps them: a dataset
 larger than RAM is read window by window. The split is a property of a *sequence*; a
@@ -49,6 +51,10 @@ MANIFEST = "manifest.json"
 ARRAYS = ("imu", "bias", "bias_std", "t_ns", "start_R", "start_v", "start_p", "end_R", "end_v", "end_p")
 #: The optional array: the IMU temperature [W, T] (degC).
 TEMPERATURE = "temperature_degc"
+#: The optional array of the evaluation: the dataset's own ground-truth-state bias (EuRoC's
+#: ``state_groundtruth_estimate0``) at the window stamps, [W, T, 6]; NaN outside its span. Read by
+#: the evaluation only (the random-walk oracle's start bias and the dataset-bias row), never trained on.
+STATE_BIAS = "state_bias"
 
 
 @dataclass
@@ -77,7 +83,7 @@ class SequenceWindows:
         missing = [a for a in ARRAYS if a not in self.arrays]
         if missing:
             raise DataError(f"windows of {self.name} lack arrays {missing}")
-        n = {len(self.arrays[a]) for a in (*ARRAYS, TEMPERATURE) if a in self.arrays}
+        n = {len(self.arrays[a]) for a in (*ARRAYS, TEMPERATURE, STATE_BIAS) if a in self.arrays}
         if len(n) != 1:
             raise DataError(f"windows of {self.name} have inconsistent counts {sorted(n)}")
         self.split = Split(self.split)
@@ -258,7 +264,7 @@ def write_dataset(
                     manifest["rate_hz"] = float(seq.info["rate_hz"])
             folder = tmp / "sequences" / seq.name
             folder.mkdir(parents=True)
-            for key in (*ARRAYS, TEMPERATURE):
+            for key in (*ARRAYS, TEMPERATURE, STATE_BIAS):
                 if key in seq.arrays:
                     np.save(folder / f"{key}.npy", np.ascontiguousarray(seq.arrays[key]))
             if TEMPERATURE not in seq.arrays:

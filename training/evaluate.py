@@ -10,9 +10,11 @@ reset to the ground-truth state of every segment):
   as AirIMU's segments do).
 * Each window is integrated from the reference position, velocity and orientation at its
   first sample with ``imu - bias_pred`` (the learned bias is subtracted from the readings),
-  with :func:`validation.validate.window_end_errors`, the project's one metric; gravity is the
-  recovery's estimate kept in the manifest (``info.gravity_mps2``), else
-  :data:`validation.validate.DEFAULT_GRAVITY_MPS2`.
+  with :func:`validation.validate.window_end_errors`, the project's one metric. Gravity is a
+  stated choice (``EvaluationConfig.gravity``, :class:`training.config.EvalGravity`): ``nominal``
+  (:data:`validation.validate.DEFAULT_GRAVITY_MPS2` in the reference world frame, as AirIMU and
+  the paper) or ``recovered`` (the recovery's estimate kept in the manifest, ``info.gravity_mps2``,
+  else the nominal one); the summary's ``gravity_source`` names it per sequence.
 * Per sequence: ``PRMSE = sqrt(mean_w |p_end - p_gt|^2)`` (m) and ``ROE = mean_w |Log(R_gt^T
   R_end)|`` (deg) (:func:`validation.validate.prmse_m`, :func:`~validation.validate.roe_deg`);
   the **Average** row is the mean over test sequences, as in the paper's Table I.
@@ -53,18 +55,18 @@ from typing import Any, Protocol
 import numpy as np
 import pandas as pd
 import torch
-from torch.utils.data import default_collate
 
 from pipeline.atomic import atomic_dir
-from pipeline.errors import ConfigError, DataError, InputFormatError
+from pipeline.errors import ConfigError, InputFormatError
 from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
 from training.checkpoint import CheckpointError, check_finite_output
 from training.clip import ClipUse, clip_use
 from training.config import Baseline, EvaluationConfig, Method, Sampler
-from training.dataset import FORMAT_VERSION, Split, WindowDataset
+from training.dataset import FORMAT_VERSION
+from training.eval_windows import TestWindows, load_test_windows
 from training.predictions import CHANNELS, PREDICTIONS_PARQUET, prediction_frame
-from validation.validate import DEFAULT_GRAVITY_MPS2, prmse_m, roe_deg, window_end_errors
+from validation.validate import prmse_m, roe_deg, window_end_errors
 
 log = logging.getLogger(__name__)
 
@@ -78,6 +80,7 @@ __all__ = [
     "evaluate_predictor",
     "evaluate_reference",
     "evaluate_run",
+    "load_test_windows",
     "read_summary",
     "write_evaluation",
 ]
@@ -101,94 +104,6 @@ class Aggregation(str, enum.Enum):
     SAMPLES = "samples"  # metrics per sample, averaged over the K samples (the paper)
     MEAN = "mean"  # the per-time-step mean of the K samples as the prediction
     MEDIAN = "median"  # the per-time-step median of the K samples as the prediction
-
-
-# ----------------------------------------------------------------------------- test windows
-
-
-@dataclass(frozen=True)
-class TestWindows:
-    """The non-overlapping test windows of a dataset.
-
-    Attributes:
-        dataset: The test split, float64 items.
-        index: Dataset item of each kept window, [W].
-        sequence: Sequence name of each kept window, [W].
-        t0_ns: First stamp of each kept window, [W].
-        gravity_mps2: Sequence -> gravity in its world frame, [3].
-        gravity_source: Sequence -> "recovery" or "default".
-        random_walk: Sequence -> bias random-walk strengths, [6] (NaN when unknown).
-        bias_mean: The train split's mean bias, [6].
-    """
-
-    dataset: WindowDataset
-    index: np.ndarray
-    sequence: np.ndarray
-    t0_ns: np.ndarray
-    gravity_mps2: dict[str, np.ndarray]
-    gravity_source: dict[str, str]
-    random_walk: dict[str, np.ndarray]
-    bias_mean: np.ndarray
-
-    @property
-    def root(self) -> Path:
-        return self.dataset.root
-
-    @property
-    def manifest(self) -> dict[str, Any]:
-        return self.dataset.manifest
-
-    def __len__(self) -> int:
-        return len(self.index)
-
-    def sequences(self) -> list[str]:
-        """Test sequences with at least one window, in dataset order."""
-        return [s for s in self.dataset.sequences if np.any(self.sequence == s)]
-
-    def items(self, rows: np.ndarray) -> dict[str, Any]:
-        """Collated float64 items of the kept windows ``rows`` (positions in ``index``)."""
-        return default_collate([self.dataset[int(i)] for i in self.index[rows]])
-
-
-def _non_overlapping(t_ns: np.ndarray) -> np.ndarray:
-    """Positions of the windows kept greedily in time order so that no two overlap (see module docstring)."""
-    keep, last_end = [], None
-    for w in np.argsort(t_ns[:, 0], kind="stable"):
-        if last_end is None or t_ns[w, 0] >= last_end:
-            keep.append(int(w))
-            last_end = t_ns[w, -1]
-    return np.asarray(keep, dtype=np.int64)
-
-
-def load_test_windows(root: str | Path) -> TestWindows:
-    """The non-overlapping test windows of the dataset at ``root``.
-
-    Raises:
-        InputFormatError: Not a dataset, another format version.
-        DataError: The test split has no window.
-    """
-    ds = WindowDataset(root, Split.TEST, dtype=torch.float64)
-    if len(ds) == 0:
-        raise DataError("the dataset has no test window", hint="assign sequences to split 'test' in 'biasgt windows' "
-                        f"(--splits) and re-create {Path(root)}")
-    index, names, t0 = [], [], []
-    gravity, gsource, walk = {}, {}, {}
-    offset = 0
-    for name in ds.sequences:
-        t_ns = np.asarray(ds.arrays(name)["t_ns"])
-        keep = _non_overlapping(t_ns)
-        index.append(offset + keep)
-        names.append(np.full(len(keep), name, dtype=object))
-        t0.append(t_ns[keep, 0])
-        offset += len(t_ns)
-        info = ds.manifest["sequences"][name].get("info", {})
-        g = info.get("gravity_mps2")
-        gravity[name] = np.asarray(DEFAULT_GRAVITY_MPS2 if g is None else g, dtype=np.float64)
-        gsource[name] = "default" if g is None else "recovery"
-        rw = info.get("bias_random_walk")
-        walk[name] = np.full(6, np.nan) if rw is None else np.asarray(rw, dtype=np.float64)
-    return TestWindows(ds, np.concatenate(index), np.concatenate(names), np.concatenate(t0), gravity, gsource, walk,
-                       np.asarray(ds.manifest["normalization"]["bias_mean"], dtype=np.float64))
 
 
 # ----------------------------------------------------------------------------- predictors
@@ -569,12 +484,17 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
         method=predictor.name, label=predictor.label, kind=kind, samples=k, seed=config.seed,
         steps=config.steps if predictor.stochastic else None, windows=len(windows),
         windows_per_sequence={n: int(np.sum(windows.sequence == n)) for n in windows.sequences()},
-        protocol=PROTOCOL, gravity_source=dict(windows.gravity_source), rows=tuple(rows), calibration=tuple(calib),
+        protocol=f"{PROTOCOL}; gravity: {config.gravity.value}; oracle random walk: {config.oracle_random_walk.value}",
+        gravity_source=dict(windows.gravity_source), rows=tuple(rows), calibration=tuple(calib),
         clip=tuple(clip),
         checkpoint=dict(checkpoint or {}),
         dataset={"path": str(windows.root), "format_version": m.get("format_version"),
                  "config_hash": m.get("config_hash"), "rate_hz": m.get("rate_hz"),
-                 "window_samples": m.get("window_samples")},
+                 "window_samples": m.get("window_samples"),
+                 "label_pose_stream": {n: e.get("info", {}).get("label_pose_stream")
+                                       for n, e in m.get("sequences", {}).items()},
+                 "reference": {n: m["sequences"][n].get("info", {}).get("reference") for n in windows.sequences()},
+                 "excluded": dict(m.get("excluded", {}))},
         seconds=time.perf_counter() - t_start,
     )
     return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True),
@@ -622,7 +542,7 @@ def evaluate_reference(baseline: Baseline | str, dataset_dir: str | Path, out_di
                        config: EvaluationConfig = EvaluationConfig()) -> EvaluationResult:
     """Evaluate a reference row (:class:`training.baselines.Baseline`); write it when ``out_dir`` is given."""
     baseline = Baseline(baseline)
-    windows = load_test_windows(dataset_dir)
+    windows = load_test_windows(dataset_dir, config)
     kind = "oracle" if baseline.is_oracle else "reference"
     result = evaluate_predictor(ReferencePredictor(baseline, windows), windows, config, kind=kind)
     if out_dir is not None:
@@ -698,7 +618,7 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
     from training.checkpoint import load_run
 
     checkpoint = Path(checkpoint)
-    windows = load_test_windows(dataset_dir)
+    windows = load_test_windows(dataset_dir, config)
     run = load_run(checkpoint, device=device)
     check_compatible(run, windows, checkpoint, method=method)
     predictor = ModelPredictor(run, steps=config.steps)

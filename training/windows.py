@@ -20,8 +20,12 @@ exactly ``window_s``) and starts every ``round(n * (1 - overlap))`` samples. For
   dataset keeps it only when every sequence does, see :func:`training.dataset.write_dataset`).
 
 The manifest entry of each sequence keeps its provenance (``info``): rates, reference kind,
-the recovery folder, the bias random walks the recovery used (``bias_random_walk``, [6]) and
-the recovery's gravity estimate in the reference world frame (``gravity_mps2``, [3] or None).
+the recovery folder, the pose stream its labels were recovered from (``label_pose_stream``),
+the bias random walks the recovery used (``bias_random_walk``, [6]), the recovery's gravity
+estimate in the reference world frame (``gravity_mps2``, [3] or None) and
+the random walks of the sensor's own calibration (``sensor_random_walk``, [6]: e.g. EuRoC's
+``imu0/sensor.yaml``). A sequence with a ground-truth state also keeps that state's own bias at
+the window stamps (``state_bias``, for the evaluation's oracle and dataset-bias rows).
 
 Dropped windows (counted per reason in the manifest; a window counts under every reason that
 applies): ``imu_gap`` (an IMU interval > ``gap_factor`` x the nominal one inside the window),
@@ -67,7 +71,7 @@ from validation.validate import (
     recovered_bias_at_imu,
     windows_with_any,
 )
-from training.dataset import ARRAYS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
+from training.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
 from training.windows_config import WindowConfig
 from validation.outputs import Verdict, read_summary
 
@@ -229,6 +233,23 @@ def _uniform_imu(sequence: Sequence, config: WindowConfig, rate_hz: float | None
 # ----------------------------------------------------------------------------- extraction
 
 
+def state_bias_at(sequence: Sequence, t_ns: np.ndarray) -> np.ndarray | None:
+    """The sequence's ground-truth-state bias (gyro, acc) at the stamps ``t_ns`` [...], [..., 6].
+
+    Linear in time between the state's samples (:func:`numpy.interp`); NaN outside its span.
+    None when the sequence has no ground-truth state.
+    """
+    gt = sequence.ground_truth
+    if gt is None or len(gt) < 2:
+        return None
+    x = (gt.t_ns - gt.t_ns[0]).astype(np.float64)
+    xq = (np.asarray(t_ns, dtype=np.int64) - gt.t_ns[0]).astype(np.float64).reshape(-1)
+    values = np.column_stack([gt.bias_gyro_radps, gt.bias_acc_mps2])
+    out = np.column_stack([np.interp(xq, x, values[:, i]) for i in range(6)])
+    out[(xq < x[0]) | (xq > x[-1])] = np.nan
+    return out.reshape(*np.shape(t_ns), 6)
+
+
 def _empty_arrays(samples: int) -> dict[str, np.ndarray]:
     shapes = {"imu": (samples, 6), "bias": (samples, 6), "bias_std": (samples, 6), "t_ns": (samples,),
               "start_R": (3, 3), "start_v": (3,), "start_p": (3,), "end_R": (3, 3), "end_v": (3,), "end_p": (3,)}
@@ -322,13 +343,19 @@ def extract_windows(
         else:
             log.warning("sequence '%s': non-finite IMU temperatures in the windows; temperature left out",
                         sequence.name)
+    state_bias = state_bias_at(sequence, imu.t_ns[idx]) if len(s) else None
+    if state_bias is not None:
+        arrays[STATE_BIAS] = state_bias
     gravity = recovery.report.gravity_world_mps2
+    cal = sequence.calibration
     info.update(
         window_samples=n + 1,
         reference=reference.kind.value,
         reference_info=dict(reference.info),
         recovery_dir=str(recovery_dir),
+        label_pose_stream=recovery.report.pose_stream,
         bias_random_walk=random_walk.tolist(),
+        sensor_random_walk=[cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3,
         gravity_mps2=None if gravity is None else gravity.tolist(),
     )
     if not len(s):

@@ -39,7 +39,7 @@ examples:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from training.config import Baseline, Method, Sampler
+    from training.config import Baseline, EvalGravity, Method, OracleWalk, Sampler
 
     p = subparsers.add_parser("evaluate", help="PRMSE / ROE of a trained model or a reference on the test split",
                               description=DESCRIPTION, epilog=EPILOG,
@@ -54,6 +54,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="sampler of a diffusion model (repeatable; default ddim)")
     p.add_argument("--steps", type=int, default=25, metavar="N", help="denoising steps (default 25)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sampling noise (default 0)")
+    p.add_argument("--gravity", choices=[g.value for g in EvalGravity], default=EvalGravity.RECOVERED.value,
+                   help="gravity of the integration: nominal (0, 0, -9.81), as the paper, or each sequence's "
+                        "recovered one (default recovered)")
+    p.add_argument("--oracle-random-walk", choices=[w.value for w in OracleWalk], default=OracleWalk.RECOVERY.value,
+                   help="random walks of the random-walk oracle: the sensor's calibration (sensor.yaml), as the "
+                        "paper, or the recovery's (default recovery)")
     p.add_argument("--method", choices=[m.value for m in Method],
                    help="refuse a checkpoint of another method")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
@@ -64,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from training.evaluate import EvaluationConfig, evaluate_reference, evaluate_run
 
     config = EvaluationConfig(samples=args.samples, samplers=tuple(args.sampler or ("ddim",)), steps=args.steps,
-                              seed=args.seed)
+                              seed=args.seed, gravity=args.gravity, oracle_random_walk=args.oracle_random_walk)
     if args.reference:
         result = evaluate_reference(args.reference, args.dataset, args.out, config)
     else:

@@ -28,7 +28,7 @@ docs/cluster.md). Everything after '--' goes to Snakemake unchanged and wins ove
 EPILOG = f"""\
 examples:
   biasgt run                              the default config ({DEFAULT_CONFIG.name}: simulated data)
-  biasgt run --config config/euroc.yaml --cores 4
+  biasgt run --config config/euroc.yaml --cores 2
   biasgt run --dry-run                    show what would run
   biasgt run --until ingest               stop after the ingest jobs
   biasgt run --target results/ingest/sim_handheld_01
