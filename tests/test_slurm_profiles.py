@@ -48,6 +48,26 @@ def test_the_local_slurm_test_runs_a_shipped_profile_as_it_is() -> None:
     assert not any(a.startswith(("--default-resources", "--set-resources", "--set-threads")) for a in args)
 
 
+def test_the_local_slurm_test_finds_a_submitted_checkpoint_job(tmp_path: Path) -> None:
+    """The window dataset is a Snakemake checkpoint: the SLURM test must find its announcement in the log
+    (Snakemake writes ``checkpoint windows:`` where a rule says ``rule ...:``)."""
+    sys.path.insert(0, str(REPO / "tests" / "cluster"))
+    try:
+        import slurm_local
+    finally:
+        sys.path.pop(0)
+    log_dir = tmp_path / ".snakemake" / "log"
+    log_dir.mkdir(parents=True)
+    (log_dir / "2026-12-02T171648.1.snakemake.log").write_text("\n".join([
+        "[Wed Dec  2 17:18:02 2026]", "checkpoint windows:", "    output: results/windows/dataset",
+        "    log: logs/windows/dataset.log", "    jobid: 20", "DAG of jobs will be updated after completion.",
+        "Job 20 has been submitted with SLURM jobid 5 (log: x/5.log).",
+        "[Wed Dec  2 17:18:34 2026]", "rule table:", "    output: results/evaluation/table.csv",
+        "    log: logs/table/dataset.log", "    jobid: 21",
+        "Job 21 has been submitted with SLURM jobid 8 (log: x/8.log).", ""]))
+    assert slurm_local.submitted_jobs(tmp_path) == [("windows", "dataset", "5"), ("table", "dataset", "8")]
+
+
 def test_sbatch_refusal_is_shown(tmp_path: Path) -> None:
     lines = [
         "[Tue Dec  1 19:30:00 2026] Group job learning (jobs in lexicogr. order):",

@@ -334,7 +334,7 @@ def slurm_args(*extra: str) -> list[str]:
 
 
 _SUBMITTED = re.compile(r"Job (\S+) has been submitted with SLURM jobid (\d+)")
-_RULE_BLOCK = re.compile(r"^\s*rule (\w+):\n((?:\s+\w+: .*\n?)*)", re.M)
+_RULE_BLOCK = re.compile(r"^\s*(?:rule|checkpoint) (\w+):\n((?:\s+\w+: .*\n?)*)", re.M)
 
 
 @dataclass(frozen=True)
