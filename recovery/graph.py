@@ -32,6 +32,7 @@ from recovery.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, OFFSET_I
     KeyframeKinematics, added_bias_variance, measurement_columns, parameter_slope_and_information
 from recovery.config import PoseFactorMode, RobustLoss
 from recovery.fusion import FusedPoses, PerBin, WithinBinStats
+from recovery.gaps import bridge_gaps, gap_keyframe_stamps
 from recovery.pose_error import PoseErrorModel, add_error_states, error_key, imu_pose_factor, tracked_pose_factor, \
     velocity_fit_variance
 from recovery.preintegration import ImuNoise, MidpointSamples, NoiseBasis, make_params, preintegrate
@@ -59,6 +60,9 @@ class KeyframePoses:
             (``sum dt^2`` of the bin), [K] (0: no velocity measurement).
         per_bin: Within-bin residual sums of the fused samples (for the noise evidence).
         rejected_t_ns: Pose samples rejected while fusing (outliers), int64 [R].
+        measured: Whether each keyframe has a pose measurement, bool [K] (None: all have). The
+            others sit inside pose gaps (:mod:`recovery.gaps`): no pose factor, their ``p_m`` and
+            ``quat_wxyz`` only placeholders (interpolated, held).
     """
 
     t_ns: np.ndarray
@@ -70,9 +74,37 @@ class KeyframePoses:
     dt2_s2: np.ndarray | None = None
     per_bin: PerBin | None = None
     rejected_t_ns: np.ndarray | None = None
+    measured: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.t_ns)
+
+    @property
+    def unmeasured(self) -> np.ndarray:
+        """Indices of the keyframes without a pose measurement, int [U]."""
+        return np.zeros(0, dtype=int) if self.measured is None else np.nonzero(~self.measured)[0]
+
+    def with_gap_keyframes(self) -> "KeyframePoses":
+        """These keyframes plus unmeasured ones inside the pose gaps (:func:`recovery.gaps.gap_keyframe_stamps`)."""
+        t_ns, measured = gap_keyframe_stamps(self.t_ns)
+        if measured.all():
+            return self
+        src = np.cumsum(measured) - 1  # the measured keyframe at or before each
+        t_s, t_meas = t_ns / NS_PER_S, self.t_ns / NS_PER_S
+        p_m = np.column_stack([np.interp(t_s, t_meas, self.p_m[:, i]) for i in range(3)])
+        q = None if self.quat_wxyz is None else self.quat_wxyz[src]
+        if self.count is None:
+            return replace(self, t_ns=t_ns, p_m=p_m, quat_wxyz=q, measured=measured)
+
+        def put(x: np.ndarray, fill: float) -> np.ndarray:
+            out = np.full((len(t_ns), *x.shape[1:]), fill, dtype=x.dtype)
+            out[measured] = x
+            return out
+
+        pb = self.per_bin
+        return replace(self, t_ns=t_ns, p_m=p_m, quat_wxyz=q, count=put(self.count, 1), v_mps=put(self.v_mps, 0.0),
+                       dt2_s2=put(self.dt2_s2, 0.0), measured=measured,
+                       per_bin=PerBin(put(pb.pos_sq, 0.0), put(pb.pos_dof, 0), put(pb.rot_sq, 0.0), put(pb.rot_dof, 0)))
 
     @classmethod
     def from_fused(cls, fused: FusedPoses, source_kind: PoseSourceKind) -> "KeyframePoses":
@@ -86,13 +118,14 @@ class KeyframePoses:
 
     def take(self, index: np.ndarray | slice) -> "KeyframePoses":
         q = None if self.quat_wxyz is None else self.quat_wxyz[index]
+        measured = None if self.measured is None else self.measured[index]
         if self.count is None:
-            return KeyframePoses(self.t_ns[index], self.p_m[index], q, self.source_kind)
+            return KeyframePoses(self.t_ns[index], self.p_m[index], q, self.source_kind, measured=measured)
         pb = self.per_bin
         return KeyframePoses(self.t_ns[index], self.p_m[index], q, self.source_kind, self.count[index],
                              self.v_mps[index], self.dt2_s2[index],
                              PerBin(pb.pos_sq[index], pb.pos_dof[index], pb.rot_sq[index], pb.rot_dof[index]),
-                             self.rejected_t_ns)
+                             self.rejected_t_ns, measured)
 
 
 @dataclass
@@ -347,12 +380,13 @@ def propagate_orientations(
     known: np.ndarray,
     bias_gyro: np.ndarray,
 ) -> np.ndarray:
-    """Fill unknown keyframe orientations by gyro integration from the last known one.
+    """Fill unknown keyframe orientations by gyro integration from the last known one (rows
+    before the first known one: backwards from it).
 
     Args:
         samples: The window's midpoint samples.
         q_wxyz: Orientations [K, 4]; rows where ``known`` is False are overwritten.
-        known: Mask [K]; at least the first row must be known.
+        known: Mask [K]; at least one row must be known.
         bias_gyro: Gyro bias subtracted while integrating, [3].
 
     Returns:
@@ -360,8 +394,11 @@ def propagate_orientations(
     """
     out = np.array(q_wxyz, dtype=float, copy=True)
     known = np.asarray(known, dtype=bool)
+    if not known.any():
+        return out
     last = np.maximum.accumulate(np.where(known, np.arange(len(out)), -1))  # last known row at or before
-    fill = np.nonzero(~known & (last >= 0))[0]
+    last[last < 0] = int(np.argmax(known))
+    fill = np.nonzero(~known)[0]
     if len(fill):
         gyro = gyro_keyframe_rotations(samples, bias_gyro)
         src = last[fill]
@@ -426,15 +463,17 @@ def initial_orientations(
     out = np.zeros((K, 4))
     edges = np.arange(0.0, t[-1] + window_s, window_s)
     prev = None
+    measured = np.ones(K, dtype=bool) if kf.measured is None else kf.measured
     for w0 in edges:
         idx = np.nonzero((t >= w0) & (t < w0 + window_s))[0]
         if len(idx) == 0:
             continue
-        a_vec = acc_w[idx] - g  # = R f
-        b_vec = rel[idx].apply(f_kf[idx])  # = R_rel f ; world = R0 R_rel f
+        m = idx[measured[idx]]  # keyframes in pose gaps have no measured acceleration
+        a_vec = acc_w[m] - g  # = R f
+        b_vec = rel[m].apply(f_kf[m])  # = R_rel f ; world = R0 R_rel f
         try:
             R0, _ = Rotation.align_vectors(a_vec, b_vec)
-        except Exception:  # degenerate window
+        except Exception:  # degenerate window (or no measured keyframe in it)
             R0 = prev if prev is not None else Rotation.identity()
         prev = R0
         q = (R0 * rel[idx]).as_quat()
@@ -502,12 +541,15 @@ def build_window(
     Xs, Z = _initial_poses(samples, kf, T_imu_pose, opts, init)
     built = _Built(gtsam.NonlinearFactorGraph(), _bias_values(bias0, len(kf)), [], [], 0.0)
     vel = _initial_velocities(kf, Xs, init)
+    if kf.measured is not None and init.values is None:
+        Xs, vel = bridge_gaps(pims, Xs, vel, kf.t_ns, kf.measured)
     for k in range(len(kf)):
         built.values.insert(X(k), Xs[k])
         built.values.insert(V(k), vel[k])
     _add_imu_factors(built, pims, opts, init, bias0, models)
     built.imu_part = (int(built.graph.size()), built.neg_log_const)
     skip_set = set() if skip is None else set(int(i) for i in skip)
+    skip_set.update(int(i) for i in kf.unmeasured)
     _add_pose_factors(built, kf, Xs, Z, T_imu_pose, opts, skip_set)
     position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or kf.quat_wxyz is None
     if (kf.v_mps is not None and not position_only and opts.pose_mode != PoseFactorMode.RELATIVE
@@ -540,7 +582,14 @@ def _initial_velocities(kf: KeyframePoses, Xs: list[Any], init: WindowInit) -> n
     if init.velocity is not None:
         return np.ascontiguousarray(init.velocity, dtype=float)
     t = (kf.t_ns - kf.t_ns[0]) / NS_PER_S
-    vel = initial_velocity(t, np.array([x.translation() for x in Xs]))
+    pos = np.array([x.translation() for x in Xs])
+    if kf.measured is None:
+        vel = initial_velocity(t, pos)
+    else:  # per run of measured keyframes; the pauses' keyframes are bridged by the IMU later
+        vel = np.zeros_like(pos)
+        idx = np.nonzero(kf.measured)[0]
+        for run in np.split(idx, np.nonzero(np.diff(idx) > 1)[0] + 1):
+            vel[run] = initial_velocity(t[run], pos[run])
     if kf.v_mps is not None:  # fused keyframes measured their velocity: a better start for LM
         vel[kf.dt2_s2 > 0] = kf.v_mps[kf.dt2_s2 > 0]
     return np.ascontiguousarray(vel, dtype=float)

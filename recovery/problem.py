@@ -10,6 +10,7 @@ from dataclasses import replace
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.errors import RecoveryError
 from pipeline.io import select_pose_stream
@@ -19,7 +20,8 @@ from recovery.config import (
     RecoveryConfig,
 )
 from recovery.fusion import fuse_poses
-from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, propagate_orientations, solve_window
+from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, gyro_keyframe_rotations, \
+    propagate_orientations, solve_window
 from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
 from recovery.segments import plan_segments, stitch
 
@@ -157,6 +159,7 @@ class _Problem:
             kf = KeyframePoses(t[sel], self.poses.p_m[sel],
                                None if self.poses.quat_wxyz is None else self.poses.quat_wxyz[sel],
                                self.poses.source_kind)
+        kf = kf.with_gap_keyframes()  # pose pauses: keyframes without pose factors (recovery.gaps)
         return midpoint_samples(self.imu.t_ns, self.imu_6, kf.t_ns), kf
 
 
@@ -203,39 +206,50 @@ def _longest_pause_s(t_ns: np.ndarray, start_ns: int, end_ns: int) -> float:
 
 
 def _continue_from(prev: WindowSolution, w: tuple[MidpointSamples, KeyframePoses],
-                   gravity_unit: np.ndarray) -> WindowInit:
-    """Initial values of a position-only segment from the previous segment's solution.
+                   gravity_unit: np.ndarray, imu: tuple[np.ndarray, np.ndarray] | None = None) -> WindowInit:
+    """Initial values of a position-only segment from another segment's solution ``prev``.
 
     Orientation is the weak direction of position-only sources: a segment started from
     the closed-form guess can settle in a wrong minimum (a tilted attitude explained by a
-    large gyro bias). Overlap keyframes take the previous solution; later ones are
-    propagated with the gyro minus the previous bias.
+    large gyro bias). Keyframes within ``prev``'s span take its solution (interpolated in time);
+    the others are propagated from the nearest of them with the gyro minus ``prev``'s bias there.
+    A segment wholly after ``prev`` (their overlap in a pose gap) starts from ``prev``'s last
+    orientation carried forward by ``imu`` (stamps int64 [N], readings [N, 6] gyro then acc);
+    otherwise, or without ``imu``, from the closed-form guess.
     """
     samples, kf = w
     K = len(kf)
     q = np.zeros((K, 4))
     q[:, 0] = 1.0
-    _, ia, ib = np.intersect1d(kf.t_ns, prev.t_ns, assume_unique=True, return_indices=True)
-    known = np.zeros(K, dtype=bool)
-    if len(ia) == 0 or ia[0] != 0:
+    known = (kf.t_ns >= prev.t_ns[0]) & (kf.t_ns <= prev.t_ns[-1])
+    x, xq = (prev.t_ns - prev.t_ns[0]).astype(float), (kf.t_ns - prev.t_ns[0]).astype(float)
+    bias = np.stack([np.interp(xq, x, prev.bias[:, c]) for c in range(6)], axis=1)
+    if known.any():
+        q[known] = Slerp(x, Rotation.from_quat(prev.quat_wxyz, scalar_first=True))(xq[known]).as_quat(scalar_first=True)
+        edge_bias = bias[np.nonzero(known)[0][-1]]
+    elif imu is not None and prev.t_ns[-1] < kf.t_ns[0]:
+        edge_bias = prev.bias[-1]
+        across = midpoint_samples(imu[0], imu[1], np.array([prev.t_ns[-1], kf.t_ns[0]], dtype=np.int64))
+        rel = gyro_keyframe_rotations(across, edge_bias[:3])[1]
+        q[0] = (Rotation.from_quat(prev.quat_wxyz[-1], scalar_first=True) * rel).as_quat(scalar_first=True)
+        known[0] = True
+        bias[:] = edge_bias
+    else:
         return WindowInit(gravity_unit=gravity_unit)
-    q[ia] = prev.quat_wxyz[ib]
-    known[ia] = True
-    last_bias = prev.bias[ib[-1]]
-    q = propagate_orientations(samples, q, known, last_bias[:3])
-    bias = np.tile(last_bias, (K, 1))
-    bias[ia] = prev.bias[ib]
+    q = propagate_orientations(samples, q, known, edge_bias[:3])
     return WindowInit(gravity_unit=gravity_unit, bias=bias, rot_wxyz=q)
 
 
 def _chained_solution(problem: "_Problem", offset_s: float, win: tuple[int, int], rate_hz: float | None,
                       imu_noise: ImuNoise, T: np.ndarray, opts: SolveOptions, gravity_unit: np.ndarray,
-                      piece_s: float, overlap_s: float) -> Any:
+                      piece_s: float, overlap_s: float, seed: WindowSolution | None = None) -> Any:
     """Position-only streams: an initial guess over a long window, by consecutive shorter solves.
 
     One graph over minutes of positions, started from the closed-form attitude guess, can settle
     in a wrong attitude minimum (seen on EuRoC MH_01: 180 s at 10 Hz, pose residuals 2.4 sigma);
-    solves of ``piece_s`` chained by :func:`_continue_from` (as the segments are) do not.
+    solves of ``piece_s`` chained by :func:`_continue_from` (as the segments are) do not. The
+    first solve starts from ``seed`` (a solution inside ``win``, e.g. the calibration window's)
+    where given: the closed-form guess fails more easily where the positions pause.
 
     Returns:
         The stitched solutions (``t_ns``, ``quat_wxyz``, ``bias``, ``v_mps``), or None.
@@ -246,7 +260,9 @@ def _chained_solution(problem: "_Problem", offset_s: float, win: tuple[int, int]
         w = problem.window(offset_s, s_ns, e_ns, rate_hz)
         if w is None or len(w[1]) < 3:
             continue
-        init = _continue_from(sols[-1], w, gravity_unit) if sols else WindowInit(gravity_unit=gravity_unit)
+        prev = sols[-1] if sols else seed
+        init = (_continue_from(prev, w, gravity_unit, (problem.imu.t_ns, problem.imu_6)) if prev is not None
+                else WindowInit(gravity_unit=gravity_unit))
         sols.append(solve_window(w[0], w[1], imu_noise, T, o, init))
     return stitch(sols) if sols else None
 

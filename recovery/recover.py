@@ -445,14 +445,20 @@ def _noise(problem: _Problem, inputs: Inputs, windows: CalibrationWindows, offse
         noise_win = _calibration_window(inputs.imu, inputs.pieces, windows.overlap, config.position_only_window_s,
                                         _shifted_stamps(inputs.poses, offset_s))
         if noise_win != calib:
+            # seeded by the calibration window's solve (it sees the same data as the offset search did)
+            wc = problem.window(offset_s, calib[0], calib[1], rate)
+            seed = None if wc is None else solve_window(
+                wc[0], wc[1], inputs.calibration_noise, T,
+                replace(inputs.opts, compute_marginals=False, marginal_extras=False, reject_outliers=False),
+                WindowInit(gravity_unit=down))
             chain = _chained_solution(problem, offset_s, noise_win, rate, inputs.calibration_noise, T, inputs.opts,
-                                      down, config.calib_window_s, config.calib_window_s / 6)
+                                      down, config.calib_window_s, config.calib_window_s / 6, seed)
     w = problem.window(offset_s, noise_win[0], noise_win[1], rate)
     if w is None:
         raise RecoveryError("too few poses in the calibration window to estimate the noise",
                             hint="set noise_estimation: fixed and give the random walks")
     if chain is not None:
-        init = _continue_from(chain, w, down)
+        init = _continue_from(chain, w, down, (problem.imu.t_ns, problem.imu_6))
     elif problem.bias is not None:
         # start (and preintegrate) at the calibration solves' gravity and bias: fewer LM iterations
         bias = problem.bias(w[1].t_ns) if callable(problem.bias) else problem.bias
@@ -581,7 +587,8 @@ def _segments(problem: _Problem, inputs: Inputs, offset_s: float, gravity: Gravi
                          else np.tile(np.asarray(problem.bias, dtype=float), (len(w[1]), 1)))
             init = WindowInit(gravity_unit=gravity.unit, bias=guess)
             if not inputs.has_rot and (prev is not None or noise.chain is not None):
-                init = _continue_from(prev if prev is not None else noise.chain, w, gravity.unit)
+                init = _continue_from(prev if prev is not None else noise.chain, w, gravity.unit,
+                                      (problem.imu.t_ns, problem.imu_6))
             seg_opts = full_opts
             if full_opts.gravity_prior_cov is not None:
                 # the calibration solve saw this segment's data too: keep only the information
