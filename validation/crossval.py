@@ -10,8 +10,8 @@ poses around it. The windows judged are those wholly inside one block (no window
 recoveries), integrated against the FULL pose stream with the project's one metric
 (:mod:`validation.heldout`: :func:`validation.validate.window_errors`, PRMSE, ROE).
 
-A recovery sees a held-out block as a pose gap bridged by one preintegrated IMU interval: the block's
-own IMU readings still enter through it, its poses do not.
+A recovery sees a held-out block as a pose gap, spanned by keyframes without pose factors
+(:mod:`recovery.gaps`): the block's own IMU readings still enter, its poses do not.
 
 A fold whose recovery fails (too few poses left, too little motion, a degenerate optimisation) is
 dropped and counted: its blocks have no held-out bias, and the other folds still judge theirs.
