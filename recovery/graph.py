@@ -1038,12 +1038,18 @@ def solve_window(
 ) -> WindowSolution:
     """Build, solve (with outlier rejection) and summarise one window (``basis``: see :func:`build_window`).
 
+    A position-only window with no attitude to start from is solved from each of the closed-form
+    guesses of :data:`ATTITUDE_GUESS_WINDOWS_S` and the lowest cost kept.
+
     Raises:
         RecoveryError: if the optimiser diverges (non-finite cost).
     """
     K = len(kf)
     if K < 3:
         raise RecoveryError(f"a recovery window needs >= 3 keyframes, got {K}")
+    position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or kf.quat_wxyz is None
+    if position_only and (init is None or (init.rot_wxyz is None and init.values is None)):
+        return _best_attitude_start(samples, kf, imu_noise, T_imu_pose, opts, init, want_evidence, basis)
     built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init, basis=basis)
     want_marginals = opts.compute_marginals or opts.marginal_extras or opts.offset_sensitivity
     result, iters, lin = _optimize(built, opts, keep_linearisation=want_marginals)
@@ -1117,6 +1123,34 @@ def solve_window(
         outliers=outliers, iterations=iters, log_evidence=ev, extras=extras,
         pose_residual=pose_res, imu_residual=imu_res, values=result if want_evidence else None,
     )
+
+
+#: Wahba windows of the closed-form attitude guesses a position-only solve starts from (the first is
+#: the default of :func:`initial_orientations`). From positions alone a poor start settles in a wrong
+#: minimum, a tilted attitude explained by a gyro bias of ~0.1 rad/s, at several times the cost of
+#: the right one; which guess is good depends on the motion and on the gyro bias the guess ignores.
+ATTITUDE_GUESS_WINDOWS_S = (8.0, 16.0, 4.0)
+
+
+def _best_attitude_start(samples: MidpointSamples, kf: KeyframePoses, imu_noise: ImuNoise, T_imu_pose: np.ndarray,
+                         opts: SolveOptions, init: WindowInit | None, want_evidence: bool,
+                         basis: NoiseBasis | None) -> WindowSolution:
+    """:func:`solve_window` from each attitude guess; the solution of lowest cost (the last error
+    raised when every start fails)."""
+    best, error = None, None
+    for window_s in ATTITUDE_GUESS_WINDOWS_S:
+        rot = initial_orientations(samples, kf, opts.gravity_mps2, window_s=window_s)
+        try:
+            sol = solve_window(samples, kf, imu_noise, T_imu_pose, opts, replace(init or WindowInit(), rot_wxyz=rot),
+                               want_evidence, basis)
+        except RecoveryError as exc:
+            error = exc
+            continue
+        if best is None or sol.cost < best.cost:
+            best = sol
+    if best is None:
+        raise error
+    return best
 
 
 def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf: KeyframePoses,
