@@ -499,12 +499,15 @@ def _grid_edge_warnings(choice: NoiseChoice, kind: PoseSourceKind, config: Recov
     out = []
     grid = config.random_walk_scales
     for sensor, scale in (("gyro", choice.gyro_rw_scale), ("acc", choice.acc_rw_scale)):
-        if scale <= min(grid) or scale >= max(grid):
-            out.append(
-                f"{sensor} random walk: the evidence search hit its bound ({scale:g}x the calibration; "
-                f"random_walk_scales spans {min(grid):g}x-{max(grid):g}x). Either the calibration's random "
-                "walk is far off or the pose stream has artefacts the bias would absorb; widen "
-                "random_walk_scales only if the calibration is known to be wrong")
+        bound = (f"{sensor} random walk: the evidence search hit its bound ({scale:g}x the calibration; "
+                 f"random_walk_scales spans {min(grid):g}x-{max(grid):g}x). ")
+        if scale >= max(grid):
+            out.append(bound + "Either the calibration's random walk is far off or the pose stream has artefacts the "
+                       "bias would absorb; widen random_walk_scales only if the calibration is known to be wrong")
+        elif scale <= min(grid):
+            out.append(bound + "The bias drifts less than the calibration's random walk allows (datasheet walks are "
+                       "upper limits): the bias is steadier, not less certain; judge it by the held-out blocks, and "
+                       "lower random_walk_scales' smallest value to let the search go further")
     grid = config.pose_sigma_scales
     # a fixed pose sigma is not searched; smoothed ground-truth poses legitimately hit the lower edge
     searched = config.position_sigma_m is None and kind != PoseSourceKind.GROUND_TRUTH

@@ -205,6 +205,22 @@ def test_acc_nees_honest_with_gravity_uncertainty():
     assert (nees_axes < 1.6).all(), nees_axes
 
 
+def test_a_walk_at_either_bound_says_what_that_bound_means():
+    """At the upper bound the bias may be absorbing pose artefacts; at the lower one the bias is steadier than
+    the datasheet's walk (an upper limit), which is no reason to distrust it."""
+    from pipeline.types import PoseSourceKind
+    from recovery.noise import NoiseChoice
+    from recovery.preintegration import ImuNoise
+    from recovery.recover import _grid_edge_warnings
+
+    cfg = RecoveryConfig(random_walk_scales=[0.3, 1.0, 300.0])
+    choice = NoiseChoice(ImuNoise(1e-4, 1e-3, 1e-5, 1e-4), 1e-3, 1e-3, gyro_rw_scale=0.3, acc_rw_scale=300.0)
+    gyro, acc = _grid_edge_warnings(choice, PoseSourceKind.MOCAP, cfg)
+    assert gyro.startswith("gyro random walk: the evidence search hit its bound (0.3x") and "steadier" in gyro
+    assert acc.startswith("acc random walk: the evidence search hit its bound (300x") and "artefacts" in acc
+    assert "artefacts" not in gyro and "steadier" not in acc
+
+
 def test_random_walk_bound_is_reported():
     """The evidence search stays inside random_walk_scales and says so when it hits a bound
     (the simulated random walk is 10x the calibration, above this 0.5x-3x range)."""
