@@ -104,7 +104,8 @@ RESIDUAL_LABELS = {
 def residual_series_figure(t_s: np.ndarray, series: Mapping[str, np.ndarray],
                            outliers: np.ndarray | None = None) -> Figure:
     """One panel per residual series (whitened pose and IMU residuals per keyframe), labelled with what it is
-    and its unit; keyframes rejected as outliers (``outliers``, bool [K]) are red marks, not a 0/1 line."""
+    and its unit; keyframes rejected as outliers (``outliers``, bool [K]) are red vertical lines across every
+    panel (a rejected pose has no pose residual to mark), not a 0/1 line."""
     names = list(series)
     fig = Figure(figsize=(10, 2.2 * len(names) + 0.6))
     axes = np.atleast_1d(fig.subplots(len(names), 1, sharex=True))
@@ -113,7 +114,8 @@ def residual_series_figure(t_s: np.ndarray, series: Mapping[str, np.ndarray],
         values = np.asarray(series[name], dtype=float)
         ax.plot(t_s[::k], values[::k], color=color, linewidth=0.9)
         if outliers is not None and np.any(outliers):
-            ax.plot(t_s[outliers], values[outliers], "o", color="red", markersize=3, label="rejected as outlier")
+            ax.vlines(t_s[outliers], 0, 1, transform=ax.get_xaxis_transform(), color="red", linewidth=0.8,
+                      alpha=0.6, label="rejected as outlier")
         ax.set_ylabel(RESIDUAL_LABELS.get(name, name), fontsize=8)
         ax.grid(True, alpha=0.3)
     axes[0].set_title("Residuals per keyframe (from the recovery)")
@@ -188,8 +190,10 @@ def allan_figure(
     sensor_white: float | None,
     sensor_random_walk: float | None,
     fits_are_bounds: bool = False,
+    sensor_label: str = "sensor.yaml",
 ) -> Figure:
-    """Allan deviation per axis (log-log) with the fitted -1/2 and +1/2 lines and sensor.yaml's.
+    """Allan deviation per axis (log-log) with the fitted -1/2 and +1/2 lines and the calibration's
+    (labelled ``sensor_label``: where the values come from).
 
     With ``fits_are_bounds`` (a recording in motion) the white-noise line is labelled as an
     upper bound and no random-walk line is drawn.
@@ -211,10 +215,10 @@ def allan_figure(
         ax.plot([3.0], [k_mean], "s", color="#333333", markersize=4)
     if sensor_white:
         ax.loglog(tt, sensor_white / np.sqrt(tt), ":", color="#ff7f0e", linewidth=1.4,
-                  label="sensor.yaml white noise")
+                  label=f"{sensor_label} white noise")
     if sensor_random_walk:
         ax.loglog(tt, sensor_random_walk * np.sqrt(tt / 3.0), "-.", color="#ff7f0e", linewidth=1.4,
-                  label="sensor.yaml random walk")
+                  label=f"{sensor_label} random walk")
     lo = float(np.nanmin(adev[adev > 0])) if np.any(adev > 0) else 1e-6
     hi = float(np.nanmax(adev)) if np.isfinite(adev).any() else 1.0
     # keep sensor.yaml's lines in view (within two decades of the data)

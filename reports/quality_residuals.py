@@ -69,7 +69,7 @@ def _residuals_section(inp: ReportInputs) -> Html:
             parts.append(figure_img(plots.residual_series_figure(t_s, {c: frame[c].to_numpy(float) for c in cols},
                                                                  outliers),
                                     "residuals per keyframe", "Residuals per keyframe, as written by the recovery"
-                                    + ("; red marks: keyframes rejected as outliers." if flags else ".")))
+                                    + ("; red lines: keyframes rejected as outliers." if flags else ".")))
     else:
         parts.append(_missing_box("Per-keyframe residuals are not available: the recovery writes only the "
                                   "statistics above. The figure below compares the recovered trajectory with the "
@@ -273,15 +273,18 @@ def _allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None)
              p("Overlapping Allan deviation per axis. Dotted line: white noise (slope −½, its value at τ = 1 s is "
                "the noise density); dash-dotted line: bias random walk (slope +½, its value at τ = 3 s is the random "
                "walk). Black: fitted to this recording; orange: the calibration.")]
+    # a calibration nobody gave (a bag, a CSV) is the datasheet default: the legend says so
+    defaulted = cal.defaulted()
+    label = "default (EuRoC ADIS16448)" if defaulted else "sensor.yaml"
     parts.append(figure_img(plots.allan_figure(
         allan.taus, allan.adev_gyro, title="Gyroscope", unit="rad/s", white=allan.gyro_white,
         random_walk=allan.gyro_rw, sensor_white=cal.gyro_noise_density, sensor_random_walk=cal.gyro_random_walk,
-        fits_are_bounds=not allan.static),
+        fits_are_bounds=not allan.static, sensor_label=label),
         "gyroscope Allan deviation", "Gyroscope Allan deviation."))
     parts.append(figure_img(plots.allan_figure(
         allan.taus, allan.adev_acc, title="Accelerometer", unit="m/s²", white=allan.acc_white,
         random_walk=allan.acc_rw, sensor_white=cal.acc_noise_density, sensor_random_walk=cal.acc_random_walk,
-        fits_are_bounds=not allan.static),
+        fits_are_bounds=not allan.static, sensor_label=label),
         "accelerometer Allan deviation", "Accelerometer Allan deviation."))
     rows = []
     for label, fits, yaml_v, unit, is_rw in (

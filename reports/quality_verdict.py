@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from pathlib import Path
 from collections.abc import Mapping
 from typing import Any
@@ -87,8 +88,10 @@ def verdict_summary(validation: dict[str, Any] | None,
     found = [x for x in validation.get("plausibility") or [] if isinstance(x, Mapping)]
     if found:  # what physics rules out comes before any comparison of errors
         checks = ", ".join(dict.fromkeys(str(x.get("check", "?")).replace("_", " ") for x in found))
-        parts.insert(0, f"{who} is physically impossible ({len(found)} plausibility finding"
-                        f"{'s' * (len(found) > 1)}: {checks}; framed in red below)")
+        # its 1-s errors are then no evidence for it: said as such, not as a second, contrary finding
+        errors = "; ".join(re.sub(f"^{re.escape(who)} ", "it ", x) for x in parts)
+        parts = [f"{who} is physically impossible ({len(found)} plausibility finding{'s' * (len(found) > 1)}: "
+                 f"{checks}; framed in red below), so its 1-s errors do not count for it ({errors})"]
     sentence = "; ".join(parts) + ". " + (f"It is {usable}" if usable else "")
     return word, sentence.strip()
 
@@ -187,11 +190,17 @@ def _current_findings(seq: Sequence) -> list[Finding]:
         return [Finding("CHECKS_FAILED", Severity.WARNING, "all", f"the input checks could not run: {exc}")]
 
 
+#: How each pose source kind reads in the streams table (the enum's value says "vio" for any odometry).
+_SOURCE_KIND_WORDS = {"mocap": "motion capture, 6-DoF", "position_tracker": "position tracker",
+                      "vio": "odometry (visual or wheel): drifts", "ground_truth": "ground truth"}
+
+
 def _streams_section(inp: ReportInputs) -> Html:
     seq = inp.sequence
     rows = []
     for s in stream_summaries(seq):
-        kind = s["kind"] if s.get("source_kind") in (None, s["kind"]) else f"{s['kind']} ({s['source_kind']})"
+        words = _SOURCE_KIND_WORDS.get(s.get("source_kind"), s.get("source_kind"))
+        kind = s["kind"] if s.get("source_kind") in (None, s["kind"]) else f"{s['kind']} ({words})"
         t0 = None if s.get("t0_ns") is None else (s["t0_ns"] - inp.t0_ns) / NS_PER_S
         t1 = None if s.get("t1_ns") is None else (s["t1_ns"] - inp.t0_ns) / NS_PER_S
         span = "n/a" if t0 is None else f"{t0:.3f} – {t1:.3f} s ({fmt(s.get('duration_s'), 5)} s)"

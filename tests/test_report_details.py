@@ -40,16 +40,20 @@ def test_a_next_step_is_said_once() -> None:
     assert said_once([short, "other", longer, "other"]) == ["other", longer]
 
 
-def test_residual_panels_are_named_with_units_and_outliers_are_marks() -> None:
+def test_residual_panels_are_named_with_units_and_outliers_are_lines_on_every_panel() -> None:
+    """A rejected pose has no pose residual (NaN): its mark is a vertical line at its time on every panel."""
     t = np.linspace(0, 10, 50)
     outliers = np.zeros(50, bool)
     outliers[[5, 20]] = True
-    fig = plots.residual_series_figure(t, {"pose_whitened_rms": np.ones(50), "imu_whitened_rms": np.ones(50)},
-                                       outliers)
+    pose = np.ones(50)
+    pose[outliers] = np.nan
+    fig = plots.residual_series_figure(t, {"pose_whitened_rms": pose, "imu_whitened_rms": np.ones(50)}, outliers)
     labels = [ax.get_ylabel() for ax in fig.axes]
     assert labels == ["pose residual\n[σ, whitened RMS]", "IMU residual\n[σ, whitened RMS]"]
-    marks = [ln for ln in fig.axes[0].lines if ln.get_marker() == "o"]
-    assert len(marks) == 1 and len(marks[0].get_xdata()) == 2  # not a 0/1 series
+    for ax in fig.axes:
+        lines = [c for c in ax.collections if c.get_label() == "rejected as outlier"]
+        xs = sorted(seg[0][0] for seg in lines[0].get_segments())
+        assert len(lines) == 1 and np.allclose(xs, t[[5, 20]])  # not a 0/1 series, and seen on the pose panel
 
 
 def test_bias_axes_carry_no_offset_label() -> None:
@@ -72,3 +76,26 @@ def test_inspect_names_the_topics_it_cannot_use(shared_data: Path, capsys) -> No
     assert main(["inspect", str(bag)]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines() if "TOPICS_NOT_USED" in x)
     assert "/fix (sensor_msgs/msg/NavSatFix, 989 msgs)" in line and "/imu/data" not in line
+
+
+def test_allan_legend_names_where_the_calibration_came_from() -> None:
+    """Datasheet defaults (no sensor.yaml given) are not labelled as a sensor.yaml."""
+    from pipeline.types import ImuCalibration
+
+    assert ImuCalibration().defaulted()  # nothing given: all four noise values are defaults
+    taus = np.geomspace(0.01, 10.0, 20)
+    adev = np.tile(1e-3 / np.sqrt(taus)[:, None], (1, 3))
+    fig = plots.allan_figure(taus, adev, title="Gyroscope", unit="rad/s", white=np.full(3, 1e-3),
+                             random_walk=np.full(3, 1e-5), sensor_white=2e-3, sensor_random_walk=2e-5,
+                             sensor_label="default (EuRoC ADIS16448)")
+    labels = [ln.get_label() for ln in fig.axes[0].lines]
+    assert "default (EuRoC ADIS16448) white noise" in labels and not any("sensor.yaml" in x for x in labels)
+
+
+def test_every_pose_source_kind_reads_in_plain_words() -> None:
+    """The streams table says what a stream is: odometry (a wheel or VIO stream) is not labelled 'vio'."""
+    from pipeline.types import PoseSourceKind
+    from reports.quality_verdict import _SOURCE_KIND_WORDS
+
+    assert set(_SOURCE_KIND_WORDS) == {k.value for k in PoseSourceKind}
+    assert "wheel" in _SOURCE_KIND_WORDS[PoseSourceKind.VIO.value]
