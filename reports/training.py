@@ -104,10 +104,17 @@ def _example_figure(examples: dict[str, pd.DataFrame], window: int) -> Figure:
     for name, ex in examples.items():
         w = ex[ex["window"] == window]
         color = METHOD_COLORS.get(name, "#7f7f7f")
+        samples = sorted(col for col in w.columns if col.startswith("sample") and col[6:].isdigit())
         for i, ch in enumerate(CHANNELS):
             c = w[w["channel"] == ch]
             if not truth_drawn:
                 axes[i].plot(c["t_s"], c["truth"], color="black", linewidth=1.6, label="recovered GT bias")
+                if "dataset" in c and np.isfinite(c["dataset"]).any():
+                    axes[i].plot(c["t_s"], c["dataset"], color="black", linestyle="--", linewidth=1.2,
+                                 label="the dataset's own bias")
+            for j, col in enumerate(samples):
+                axes[i].plot(c["t_s"], c[col], color=color, linewidth=0.5, alpha=0.5,
+                             label=f"{name} samples" if j == 0 else None)
             if (c["q0.975"] > c["q0.025"]).any():
                 axes[i].fill_between(c["t_s"], c["q0.025"], c["q0.975"], color=color, alpha=0.18, linewidth=0,
                                      label=f"{name} 95% of samples")
@@ -142,8 +149,9 @@ def _examples_section(summaries: list[tuple[Path, EvaluationSummary]]) -> Html:
         seq = next(iter(examples.values()))
         seq = seq[seq["window"] == w]["sequence"].iloc[0]
         parts.append(figure_img(_example_figure(examples, w), f"bias of test window {w}",
-                                f"Test window {w} of {seq}: recovered ground-truth bias (black), each method's "
-                                "prediction (the sample mean for diffusion models, with the band holding the "
+                                f"Test window {w} of {seq}: recovered ground-truth bias (black), the dataset's own "
+                                "bias where it has one (dashed), each method's prediction (the sample mean for "
+                                "diffusion models, with a few of its samples as thin lines and the band holding the "
                                 "central 95% of the samples). Windows drawn at random, the same for every method."))
     return join(parts)
 

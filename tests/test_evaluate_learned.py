@@ -76,6 +76,14 @@ def test_diffusion_summary_rows_and_calibration(trained):
     ex = pd.read_parquet(trained / "evaluation" / "diffusion_rnn" / "examples.parquet")
     assert ex["window"].nunique() == 2 and set(ex["sampler"]) == {"ddim", "released"}
     assert np.all(ex["q0.025"] <= ex["q0.975"])
+    # the paper's Fig. 3: a few samples and the dataset's own bias beside the label, in the windows' layout
+    from training.evaluate import EXAMPLE_SAMPLES
+
+    kept = [c for c in ex.columns if c.startswith("sample") and c[6:].isdigit()]
+    assert kept == [f"sample{j}" for j in range(min(EXAMPLE_SAMPLES, EVAL["samples"]))]
+    tw = load_test_windows(trained / "dataset")
+    for (window, ch), part in ex[ex["sampler"] == "ddim"].groupby(["window", "channel"]):
+        np.testing.assert_allclose(part["dataset"].to_numpy(), tw.state_bias[window][:, CHANNELS.index(ch)], atol=1e-12)
 
 
 def _midpoint_end_states(imu: np.ndarray, bias: np.ndarray, dt_s: np.ndarray, R0: np.ndarray, v0: np.ndarray,

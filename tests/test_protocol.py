@@ -179,3 +179,42 @@ def test_real_euroc_windows_take_the_ground_truth_state_interpolated_to_their_st
     stamps = seq.imu.t_ns[s[:, None] + np.arange(plan.n + 1)]
     bias = interp1d(x, np.hstack([gt.bias_gyro_radps, gt.bias_acc_mps2]), axis=0)(rel(stamps))
     np.testing.assert_allclose(state_bias_at(seq, stamps), bias, atol=1e-12)
+
+
+def test_paper_walks_step_by_sigma_over_sqrt_dt_and_are_chosen_by_position_and_rotation(data):
+    """The paper's random-walk column as its figures imply: per-sample increments sigma / sqrt(h) and the walk
+    with the smallest 3 x position error [m] + rotation error [deg] kept, checked against the walks built
+    step by step here and integrated by an independent RK4."""
+    from training.baselines import PAPER_POSITION_WEIGHT
+
+    w = load_test_windows(data, PAPER)
+    name = "test0"
+    items = w.items(np.flatnonzero(w.sequence == name)[:3])
+    B, T, _ = items["bias"].shape
+    rw = np.tile(w.random_walk[name], (B, 1))
+    K, seed = 20, 7
+    out = baseline_bias(Baseline.RANDOM_WALK_PAPER, items, bias_mean=np.zeros(6), random_walk=rw,
+                        gravity_mps2=w.gravity_mps2[name], rng=np.random.default_rng(seed), candidates=K)
+    normals = np.random.default_rng(seed).standard_normal((B, K, T - 1, 6))
+    dt, imu = items["dt_s"].numpy(), items["imu"].numpy()
+    start = items["state_bias"].numpy()[:, 0]
+    q0 = Rotation.from_matrix(items["start_R"].numpy()).as_quat(scalar_first=True)
+    end_R = Rotation.from_matrix(items["end_R"].numpy())
+    for b in range(B):
+        paths = np.empty((K, T, 6))
+        paths[:, 0] = start[b]
+        for j in range(T - 1):
+            paths[:, j + 1] = paths[:, j] + rw[b] / np.sqrt(dt[b, j]) * normals[b, :, j]
+        corrected = imu[b][None] - paths
+        q, _, p = rk4_integrate(corrected[..., :3], corrected[..., 3:], float(dt[b].mean()), np.repeat(q0[b:b + 1], K, 0),
+                                np.repeat(items["start_v"].numpy()[b:b + 1], K, 0),
+                                np.repeat(items["start_p"].numpy()[b:b + 1], K, 0), gravity_mps2=NOMINAL_GRAVITY_MPS2)
+        pos = np.linalg.norm(p - items["end_p"].numpy()[b], axis=1)
+        rot = np.degrees((end_R[b].inv() * Rotation.from_quat(q, scalar_first=True)).magnitude())
+        score = PAPER_POSITION_WEIGHT * pos + rot
+        chosen = int(np.argmin(np.abs(paths - out[b, 0][None]).max(axis=(1, 2))))
+        np.testing.assert_allclose(out[b, 0], paths[chosen], rtol=0, atol=1e-12)
+        assert score[chosen] <= score.min() + 1e-4
+        # the walk's spread over the window: sigma * sqrt(sum 1/h) per channel, 200x sigma * sqrt(1 s) at 200 Hz
+        spread = (paths[:, -1] - paths[:, 0]).std(axis=0)
+        np.testing.assert_allclose(spread / (rw[b] * np.sqrt((1.0 / dt[b]).sum())), 1.0, atol=0.5)

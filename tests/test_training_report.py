@@ -110,3 +110,26 @@ def test_demo_training_records_enough_points_for_a_curve():
     options = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text())
     options = options["training"]["options"]
     assert options["max_steps"] // options["val_every"] >= 8  # a validation loss (and a train loss) every val_every
+
+
+def test_example_figure_draws_samples_and_the_dataset_bias_like_the_papers_fig_3():
+    """A test window's panels: the recovered label, the dataset's own bias (where finite), the sample mean
+    with its 95% band and each kept sample."""
+    import numpy as np
+    import pandas as pd
+
+    from reports.training import _example_figure
+    from training.evaluate import CHANNELS
+
+    T = 11
+    rows = []
+    for ch in CHANNELS:
+        for k in range(T):
+            rows.append({"window": 3, "sequence": "s", "t_s": k * 0.1, "channel": ch, "sampler": "ddim",
+                         "truth": 0.01, "dataset": 0.012, "mean": 0.011, "q0.025": 0.009, "q0.975": 0.013,
+                         "sample0": 0.010, "sample1": 0.012})
+    fig = _example_figure({"diffusion_rnn": pd.DataFrame(rows)}, 3)
+    labels = [ln.get_label() for ln in fig.axes[0].lines]
+    assert {"recovered GT bias", "the dataset's own bias", "diffusion_rnn samples", "diffusion_rnn (mean)"} <= set(labels)
+    assert sum(1 for ln in fig.axes[0].lines if ln.get_linewidth() == 0.5) == 2  # one thin line per sample
+    assert np.allclose(next(ln for ln in fig.axes[0].lines if ln.get_label() == "the dataset's own bias").get_ydata(), 0.012)

@@ -343,6 +343,7 @@ class Baseline(str, enum.Enum):
     STATE_BIAS = "state_bias"
     GROUND_TRUTH = "ground_truth"
     RANDOM_WALK_ORACLE = "random_walk_oracle"
+    RANDOM_WALK_PAPER = "random_walk_paper"
 
     @property
     def label(self) -> str:
@@ -352,13 +353,15 @@ class Baseline(str, enum.Enum):
             Baseline.TRAIN_MEAN: "Train-mean bias",
             Baseline.GROUND_TRUTH: "Recovered GT bias",
             Baseline.RANDOM_WALK_ORACLE: "Random walk (oracle)",
+            Baseline.RANDOM_WALK_PAPER: "Random walk (oracle, paper's walks)",
             Baseline.STATE_BIAS: "Dataset GT-state bias",
         }[self]
 
     @property
     def is_oracle(self) -> bool:
         """Uses ground truth at test time (a bound, not a method)."""
-        return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE, Baseline.STATE_BIAS)
+        return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE, Baseline.RANDOM_WALK_PAPER,
+                        Baseline.STATE_BIAS)
 
 
 class EvalGravity(str, enum.Enum):
@@ -482,7 +485,8 @@ class EvaluationConfig:
     seed: int = 0
     batch_windows: int = 32
     examples: int = 4
-    references: tuple[Baseline, ...] = tuple(b for b in Baseline if b is not Baseline.STATE_BIAS)
+    references: tuple[Baseline, ...] = tuple(b for b in Baseline
+                                             if b not in (Baseline.STATE_BIAS, Baseline.RANDOM_WALK_PAPER))
     gravity: EvalGravity = EvalGravity.RECOVERED
     oracle_random_walk: OracleWalk = OracleWalk.RECOVERY
 

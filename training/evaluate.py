@@ -63,7 +63,7 @@ from training.baselines import baseline_bias
 from training.checkpoint import CheckpointError, check_finite_output
 from training.clip import ClipUse, clip_use
 from training.config import Baseline, EvaluationConfig, Method, Sampler
-from training.dataset import FORMAT_VERSION
+from training.dataset import FORMAT_VERSION, STATE_BIAS
 from training.eval_windows import TestWindows, load_test_windows
 from training.predictions import CHANNELS, PREDICTIONS_PARQUET, prediction_frame
 from validation.validate import prmse_m, roe_deg, window_end_errors
@@ -93,6 +93,7 @@ EXAMPLES_PARQUET = "examples.parquet"
 CALIBRATION_LEVELS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.68, 0.7, 0.8, 0.9, 0.95)
 #: Quantiles of the samples kept per time step for the report's example windows.
 EXAMPLE_QUANTILES = (0.025, 0.16, 0.5, 0.84, 0.975)
+EXAMPLE_SAMPLES = 5  # individual prediction samples kept per example window (the paper's Fig. 3)
 PROTOCOL = ("non-overlapping windows of the test split (every other 50%-overlap window), each integrated "
             "from the reference start state; end-point PRMSE (m) and ROE (deg) per sequence; Average = "
             "mean over sequences")
@@ -345,7 +346,8 @@ def _example_rows(windows: TestWindows, n: int, seed: int) -> np.ndarray:
 
 def _example_frame(pred: np.ndarray, items: dict[str, Any], rows: np.ndarray, sampler: Sampler | None,
                    windows: TestWindows) -> pd.DataFrame:
-    """Long frame of example windows: per time step and channel, truth, sample mean and quantiles."""
+    """Long frame of example windows: per time step and channel, truth, the dataset's own bias (``dataset``,
+    NaN without a ground-truth state), sample mean, quantiles and the first ``EXAMPLE_SAMPLES`` samples."""
     gt = items["bias"].numpy()
     t_s = np.concatenate([np.zeros((len(gt), 1)), np.cumsum(items["dt_s"].numpy(), axis=1)], axis=1)
     q = np.quantile(pred, EXAMPLE_QUANTILES, axis=1)  # [Q, B, T, 6]
@@ -355,7 +357,11 @@ def _example_frame(pred: np.ndarray, items: dict[str, Any], rows: np.ndarray, sa
         "t_s": np.repeat(t_s.reshape(-1), 6), "channel": np.tile(np.array(CHANNELS), B * T),
         "sampler": "" if sampler is None else sampler.value,
         "truth": gt.reshape(-1), "mean": pred.mean(axis=1).reshape(-1),
+        "dataset": (items[STATE_BIAS].numpy().reshape(-1) if STATE_BIAS in items
+                    else np.full(gt.size, np.nan)),
     }
+    for j in range(min(EXAMPLE_SAMPLES, pred.shape[1]) if pred.shape[1] > 1 else 0):
+        frame[f"sample{j}"] = pred[:, j].reshape(-1)
     for level, qq in zip(EXAMPLE_QUANTILES, q):
         frame[f"q{level:g}"] = qq.reshape(-1)
     return pd.DataFrame(frame)

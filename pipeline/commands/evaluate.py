@@ -21,13 +21,15 @@ too. The spread is checked for calibration: per channel, the fraction of ground-
 central 68% / 95% (and other levels) of the K samples.
 
 --reference NAME evaluates a row that needs no training: zero, train_mean (the train split's mean
-bias), ground_truth (the recovered bias itself) or random_walk_oracle (ground-truth bias at each
-window start plus 50 random walks with the recovery's random-walk strengths, the best chosen with the
-ground-truth end pose: an oracle upper bound, not a usable method).
+bias), ground_truth (the recovered bias itself), state_bias (the dataset's own ground-truth-state
+bias), random_walk_oracle (ground-truth bias at each window start plus 50 random walks with the
+evaluation's random-walk strengths, the best chosen with the ground-truth end pose: an oracle upper
+bound, not a usable method) or random_walk_paper (the same with the walks the paper's column implies).
 
 Writes OUT atomically: summary.json, windows.parquet (errors per window and sample),
 predictions.parquet (every window's predicted bias: per time step the samples' mean, std, median
-and quantiles), examples.parquet (a few test windows: truth, sample mean and quantiles).
+and quantiles), examples.parquet (a few test windows: truth, the dataset's own bias, sample mean, quantiles and a
+few samples).
 """
 
 EPILOG = """\
