@@ -27,7 +27,7 @@ import pytest
 import torch
 import yaml
 
-from pipeline.cli import main
+from pipeline.cli.app import main
 from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
 from pipeline.sim.writer import write_simulation
 from training.checkpoint import BEST, load_checkpoint, load_run, save_checkpoint

@@ -61,7 +61,7 @@ def test_train_evaluate_and_predict_report_progress(data: Path, tmp_path: Path, 
 
 
 def test_recover_reports_its_rounds(tmp_path: Path, caplog) -> None:
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     assert main(["-q", "simulate", "--duration", "10", "--seed", "4", str(tmp_path / "sim")]) == 0
     with caplog.at_level(logging.INFO, logger="recovery.recover"):

@@ -9,7 +9,7 @@ import pytest
 import yaml
 
 from pipeline import workflow as wf
-from pipeline.cli import main
+from pipeline.cli.app import main
 from pipeline.run_summary import dry_run_jobs, dry_run_summary
 from training.stages import dataset_checksum
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import yaml
 
 from pipeline import workflow as wf
-from pipeline.cli import main
+from pipeline.cli.app import main
 
 REPO = Path(__file__).resolve().parents[1]
 

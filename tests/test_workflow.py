@@ -548,7 +548,7 @@ def test_resolve_profile(tmp_path):
 @SPINE_GROUP
 def test_slurm_profile_sets_each_rules_resources(tmp_path, capsys):
     """A dry run with --profile slurm gives every job the profile's memory and time (attempt 1)."""
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     profile = yaml.safe_load((REPO / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
     assert profile["executor"] == "slurm" and profile["set-resources"]["train"]["gpu"] == 1
@@ -660,7 +660,7 @@ def test_parse_dry_run_jobs():
 
 
 def test_cli_reports_bad_config_on_one_line(tmp_path, capsys):
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     cfg = write_config(tmp_path / "bad.yaml", {"sequences": [sim_entry("a"), sim_entry("a")]})
     assert main(["run", "--config", str(cfg), "--directory", str(tmp_path)]) == 2
@@ -812,7 +812,7 @@ def e2e_run(tmp_path_factory) -> E2E:
     })
     import argparse
 
-    from pipeline.commands import run
+    from pipeline.cli.commands import run
 
     parser = argparse.ArgumentParser()
     run.register(parser.add_subparsers())

@@ -9,7 +9,7 @@ from typing import Any
 
 from pipeline.atomic import OutputKind
 from pipeline.errors import ValidationError
-from pipeline.commands._args import add_window_arguments
+from pipeline.cli.commands._args import add_window_arguments
 from pipeline.ingest import (
     add_check_arguments,
     add_reader_arguments,
