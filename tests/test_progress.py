@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.job_progress import JobProgress, last_line, running_lines
+from pipeline.workflow.job_progress import JobProgress, last_line, running_lines
 from pipeline.progress import progress
 
 #: tqdm's "[elapsed<remaining, rate]" part of a progress line: the ETA and the rate.
