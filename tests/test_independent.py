@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 import independent as ind
 from pipeline.cli.app import main as cli_main
-from pipeline.integration import IntegrationScheme, integrate
+from pipeline.geometry.integration import IntegrationScheme, integrate
 from pipeline.io import load_sequence
 from pipeline.types import PoseSourceKind
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from pipeline.geometry.pose_transform import poses_in_imu_frame
 from pipeline.io import load_sequence
-from pipeline.pose_transform import poses_in_imu_frame
 from validation.plausibility import (PlausibilityCheck, bias_range_findings, frame_swap_findings, gravity_findings,
                                      rotation_findings)
 

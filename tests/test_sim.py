@@ -12,7 +12,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from pipeline.errors import ConfigError, InputFormatError
-from pipeline.integration import integrate
+from pipeline.geometry.integration import integrate
 from pipeline.sim import (
     ImuNoiseConfig,
     MotionConfig,

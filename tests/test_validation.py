@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.bias_table import BiasTrack, write_bias_table
 from pipeline.errors import DataError, InputFormatError, ValidationError
-from pipeline.pose_transform import IMU_FRAME, poses_in_imu_frame, transform_from_json
+from pipeline.geometry.pose_transform import IMU_FRAME, poses_in_imu_frame, transform_from_json
 from pipeline.sim import PoseStreamConfig, SimConfig, simulate
 from pipeline.store import write_store
 from pipeline.types import ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence

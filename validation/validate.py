@@ -1,7 +1,7 @@
 """Validation of a bias trajectory by 1-second integration error (AirIMU's metrics).
 
 The IMU is cut into windows of ``window_s`` (default 1 s, ``overlap`` 0.5); each window is
-integrated (:func:`pipeline.integration.integrate`, MIDPOINT, float64) from the reference state at
+integrated (:func:`pipeline.geometry.integration.integrate`, MIDPOINT, float64) from the reference state at
 its first sample with ``imu - bias`` and gravity, and its end compared with the reference:
 
     pos_err = |p_end - p_ref_end| [m]     rot_err = |Log(R_ref_end^T R_end)| [deg]
