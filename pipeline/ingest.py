@@ -15,20 +15,9 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.checks import (
-    FATAL_HINTS,
-    REPAIR_FOR_CODE,
-    CheckOptions,
-    Repair,
-    Verdict,
-    apply_repairs,
-    fatal_findings,
-    parse_repairs,
-    reader_warnings,
-    repairable_findings,
-    run_checks,
-    verdict,
-)
+from pipeline.checks.options import FATAL_HINTS, REPAIR_FOR_CODE, CheckOptions, Repair, Verdict
+from pipeline.checks.repairs import apply_repairs, parse_repairs
+from pipeline.checks.run import fatal_findings, reader_warnings, repairable_findings, run_checks, verdict
 from pipeline.errors import FatalCheckError
 from pipeline.io import load_sequence
 from pipeline.store import write_store
@@ -44,7 +33,7 @@ READER_KWARGS = ("fmt", "name", "csv_mapping", "imu_topic", "pose_topic", "tf_pa
 def load(input_path: str | Path, reader_kwargs: Mapping[str, Any] | None = None) -> Sequence:
     """Load any supported input through :func:`pipeline.io.load_sequence`.
 
-    Skipped unparseable lines are logged as a warning (:func:`pipeline.checks.reader_warnings`),
+    Skipped unparseable lines are logged as a warning (:func:`pipeline.checks.run.reader_warnings`),
     for every command that reads an input (a store repeats its reader's findings).
 
     Args:

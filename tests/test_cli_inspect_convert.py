@@ -16,7 +16,9 @@ from synth import T0_NS, make_imu, make_poses, make_sequence
 
 import pipeline.ingest
 import pipeline.io
-from pipeline.checks import STREAM_SUMMARY_KEYS, CheckOptions, Repair, detect_acc_in_g, detect_gyro_degps
+from pipeline.checks.options import CheckOptions, Repair
+from pipeline.checks.run import STREAM_SUMMARY_KEYS
+from pipeline.checks.stream_checks import detect_acc_in_g, detect_gyro_degps
 from pipeline.cli.app import main
 from pipeline.cli.commands.inspect import JSON_KEYS
 from pipeline.errors import FatalCheckError, InputFormatError

@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.bias_table import BiasTrack
-from pipeline.checks import reader_warnings
+from pipeline.checks.run import reader_warnings
 from pipeline.errors import ValidationError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.outputs import RecoveryOutputs

@@ -16,7 +16,8 @@ from pathlib import Path
 from typing import Any
 
 from interpolation.config import InterpolationConfig
-from pipeline.checks import CheckOptions, parse_repairs
+from pipeline.checks.options import CheckOptions
+from pipeline.checks.repairs import parse_repairs
 from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping, unknown_keys_message
 from pipeline.errors import ConfigError
 from pipeline.ingest import READER_KWARGS
@@ -138,7 +139,7 @@ def ingest_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
 
 
 def make_check_options(options: dict[str, Any]) -> Any:
-    """A :class:`pipeline.checks.CheckOptions` from a config mapping.
+    """A :class:`pipeline.checks.options.CheckOptions` from a config mapping.
 
     Raises:
         ConfigError: Unknown key or invalid value.

@@ -8,7 +8,7 @@ from typing import Any
 
 import yaml
 
-from pipeline.checks import CheckOptions, Repair
+from pipeline.checks.options import CheckOptions, Repair
 from pipeline.errors import ConfigError
 
 

@@ -10,7 +10,7 @@ import argparse
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
-from pipeline.checks import parse_repairs
+from pipeline.checks.repairs import parse_repairs
 from pipeline.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,

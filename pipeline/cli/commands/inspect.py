@@ -11,7 +11,8 @@ import argparse
 import math
 from typing import Any
 
-from pipeline.checks import Verdict, run_checks, stream_summaries, verdict
+from pipeline.checks.options import Verdict
+from pipeline.checks.run import run_checks, stream_summaries, verdict
 from pipeline.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
