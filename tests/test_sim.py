@@ -378,7 +378,7 @@ def test_write_position_and_vio_formats(tmp_path: Path) -> None:
 
 
 def test_write_bag(tmp_path: Path) -> None:
-    from pipeline.io.rosbag import read_bag
+    from pipeline.io.rosbag.reader import read_bag
 
     sim = simulate(SimConfig(duration_s=2.0, seed=3))
     out = write_simulation(sim, tmp_path / "s", bag="ros1")

@@ -187,7 +187,7 @@ def write_simulation(
         out_dir: Output folder; replaced only once the new content is complete.
         pose_format: How to write the pose stream; default the config's format. POSITION writes
             only the positions of a 6-DoF stream; MOCAP and VIO need a stream with orientation.
-        bag: A :class:`pipeline.io.rosbag.RosVersion` (or "ros1"/"ros2") to also write
+        bag: A :class:`pipeline.io.rosbag.formats.RosVersion` (or "ros1"/"ros2") to also write
             ``sim.bag`` (ROS1) or ``sim_ros2/`` (ROS2) with the IMU and the pose stream.
 
     Returns:
@@ -262,7 +262,8 @@ def write_simulation(
 
 
 def _write_bag(sim: Simulation, tmp: Path, bag: Any, pose_format: PoseFormat) -> None:
-    from pipeline.io.rosbag import PoseMsgType, RosVersion, write_bag  # rosbags (~0.3 s): only to write a bag
+    from pipeline.io.rosbag.formats import PoseMsgType, RosVersion  # rosbags (~0.3 s): only to write a bag
+    from pipeline.io.rosbag.writer import write_bag
 
     version = RosVersion(bag)
     seq = sim.sequence
