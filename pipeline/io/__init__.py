@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import AmbiguousInputError, ConfigError, DataError, InputFormatError, UnsupportedInputError
-from pipeline.io._text import TimeUnit
+from pipeline.io._stamps import TimeUnit
 from pipeline.io.asl import (
     CODE_CALIBRATION_DEFAULTED,
     AslTable,

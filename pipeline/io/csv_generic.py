@@ -30,7 +30,8 @@ import numpy as np
 import yaml
 
 from pipeline.errors import ConfigError, InputFormatError
-from pipeline.io._text import Delimiter, Header, TimeUnit, parse_table, read_text, split_header, table_findings
+from pipeline.io._stamps import TimeUnit
+from pipeline.io._text import Delimiter, Header, parse_table, read_text, split_header, table_findings
 from pipeline.types import STANDARD_GRAVITY_MPS2, Finding, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 
 log = logging.getLogger(__name__)
