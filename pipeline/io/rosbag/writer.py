@@ -7,6 +7,7 @@ import logging
 import os
 import shutil
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -29,7 +30,7 @@ from pipeline.io.rosbag.formats import (
     Ros2Storage,
     RosVersion,
 )
-from pipeline.types import NS_PER_S, PoseSeries, Sequence
+from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence
 
 logger = logging.getLogger(__package__)  # reader and writer log as one: 'pipeline.io.rosbag'
 
@@ -126,7 +127,7 @@ def write_bag(
 
     Header stamps and bag receive times are both the sequence's ``t_ns`` (exact ns). A
     position-only stream (``quat_wxyz is None``) is written with all-zero quaternions, which
-    :func:`read_bag` reads back as ``quat_wxyz=None``. IMU orientation is marked unknown
+    :func:`~pipeline.io.rosbag.reader.read_bag` reads back as ``quat_wxyz=None``. IMU orientation is marked unknown
     (``orientation_covariance[0] = -1``).
 
     Args:
@@ -155,29 +156,12 @@ def write_bag(
         raise ConfigError("a ROS1 bag must be a .bag file", path=path, hint="give an output path ending in .bag")
     if pose_topic is None:
         pose_topic = "/tf" if pose_msg == PoseMsgType.TF else "/pose"
-    poses: PoseSeries | None = None
-    if pose_stream is not None:
-        if pose_stream not in sequence.poses:
-            raise ConfigError(f"sequence has no pose stream '{pose_stream}'", field=pose_stream,
-                              hint=f"choose one of: {', '.join(sequence.poses) or 'none'}")
-        poses = sequence.poses[pose_stream]
-    elif sequence.poses:
-        poses = next(iter(sequence.poses.values()))
-    imu = sequence.imu
-    if imu is None and poses is None:
-        raise DataError(f"sequence '{sequence.name}' has neither IMU nor poses; nothing to write", path=path)
-    if imu is not None:
-        _check_stamps("imu.t_ns", imu.t_ns)
-    if poses is not None:
-        _check_stamps("poses.t_ns", poses.t_ns)
+    imu, poses = _streams_to_write(sequence, pose_stream, path)
 
     # merge both streams in time order (stable: IMU before pose at equal stamps)
     t_imu = imu.t_ns if imu is not None else np.empty(0, np.int64)
     t_pose = poses.t_ns if poses is not None else np.empty(0, np.int64)
-    t_all = np.concatenate([t_imu, t_pose])
-    which = np.concatenate([np.zeros(len(t_imu), np.int8), np.ones(len(t_pose), np.int8)])
-    index = np.concatenate([np.arange(len(t_imu)), np.arange(len(t_pose))])
-    order = np.argsort(t_all, kind="stable")
+    t_all, which, index, order = _merged_order(t_imu, t_pose)
 
     fac = _MsgFactory(ros_version)
 
@@ -202,6 +186,53 @@ def write_bag(
                 msg, typ = fac.pose_msg(pose_msg, t, poses.p_m[i], q, poses.world_frame, poses.frame)
                 writer.write(conn_pose, t, fac.serialize(msg, typ))
 
+    _write_bag_file(path, ros_version, storage, write_all)
+    logger.info("wrote %s bag %s: imu=%d, poses=%d", ros_version.value, path,
+                len(t_imu), len(t_pose))
+    return path
+
+
+def _merged_order(t_imu: np.ndarray, t_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(t_all, which, index, order)``: both streams' stamps, the stream of each (0 IMU, 1 pose), its
+    row in that stream, and the stable time order of them all."""
+    t_all = np.concatenate([t_imu, t_pose])
+    which = np.concatenate([np.zeros(len(t_imu), np.int8), np.ones(len(t_pose), np.int8)])
+    index = np.concatenate([np.arange(len(t_imu)), np.arange(len(t_pose))])
+    order = np.argsort(t_all, kind="stable")
+    return t_all, which, index, order
+
+
+def _streams_to_write(sequence: Sequence, pose_stream: str | None, path: Path
+                      ) -> tuple[ImuSeries | None, PoseSeries | None]:
+    """``(imu, poses)`` of ``sequence`` to write: the named pose stream (default the first one),
+    stamps checked.
+
+    Raises:
+        ConfigError: Unknown pose stream.
+        DataError: Nothing to write, or negative stamps.
+    """
+    poses: PoseSeries | None = None
+    if pose_stream is not None:
+        if pose_stream not in sequence.poses:
+            raise ConfigError(f"sequence has no pose stream '{pose_stream}'", field=pose_stream,
+                              hint=f"choose one of: {', '.join(sequence.poses) or 'none'}")
+        poses = sequence.poses[pose_stream]
+    elif sequence.poses:
+        poses = next(iter(sequence.poses.values()))
+    imu = sequence.imu
+    if imu is None and poses is None:
+        raise DataError(f"sequence '{sequence.name}' has neither IMU nor poses; nothing to write", path=path)
+    if imu is not None:
+        _check_stamps("imu.t_ns", imu.t_ns)
+    if poses is not None:
+        _check_stamps("poses.t_ns", poses.t_ns)
+    return imu, poses
+
+
+def _write_bag_file(path: Path, ros_version: RosVersion, storage: Ros2Storage,
+                    write_all: Callable[[Any], None]) -> None:
+    """Open a ROS1 or ROS2 bag writer on a temporary path, let ``write_all`` fill it, and move it
+    to ``path`` atomically."""
     if ros_version == RosVersion.ROS1:
         with atomic_path(path) as tmp:
             tmp.unlink()  # rosbags refuses to overwrite; the name stays reserved by us
@@ -222,6 +253,3 @@ def write_bag(
                     os.replace(f, tmp / f.name)
         finally:
             shutil.rmtree(work, ignore_errors=True)
-    logger.info("wrote %s bag %s: imu=%d, poses=%d", ros_version.value, path,
-                len(t_imu), len(t_pose))
-    return path
