@@ -78,59 +78,12 @@ def apply_repairs(seq: Sequence, repairs: Iterable[Repair | str], options: Check
     changes: list[str] = []
     imu, poses, gt = seq.imu, dict(seq.poses), seq.ground_truth
 
-    def fix_rows(name: str, obj: Any, valid: np.ndarray) -> Any:
-        n0 = len(obj)
-        if Repair.DROP_NONFINITE in allowed and not valid.all():
-            obj = obj.take(np.flatnonzero(valid))
-            changes.append(f"{name}: dropped {n0 - len(obj)} rows with non-finite values or zero quaternions")
-        t = obj.t_ns
-        if Repair.SORT in allowed and len(t) > 1 and bool(np.any(t[1:] < t[:-1])):
-            steps = int((t[1:] < t[:-1]).sum())
-            obj = obj.take(np.argsort(t, kind="stable"))
-            changes.append(f"{name}: sorted {len(t)} rows by time ({steps} backward steps)")
-            t = obj.t_ns
-        if Repair.DROP_DUPLICATES in allowed and len(t) > 1:
-            if bool(np.all(t[1:] >= t[:-1])):
-                keep = np.concatenate([[True], t[1:] != t[:-1]])
-                idx = np.flatnonzero(keep)
-            else:
-                _, first = np.unique(t, return_index=True)
-                idx = np.sort(first)
-            if len(idx) < len(t):
-                obj = obj.take(idx)
-                changes.append(f"{name}: dropped {len(t) - len(idx)} rows with repeated stamps (kept the first)")
-        return obj
-
-    def fix_quat(name: str, obj: Any) -> Any:
-        q = obj.quat_wxyz
-        if q is None or len(q) == 0:
-            return obj
-        if Repair.NORMALISE_QUATERNIONS in allowed:
-            norm = np.linalg.norm(q, axis=1, keepdims=True)
-            dev = np.abs(norm[:, 0] - 1.0)
-            n_off = int((dev > opts.quat_norm_tol).sum())
-            max_dev = float(np.nanmax(dev)) if np.isfinite(dev).any() else 0.0
-            if max_dev > 1e-12:  # leave already-unit quaternions bit-identical
-                with np.errstate(divide="ignore", invalid="ignore"):
-                    q = q / norm
-                obj = _replace_stream(obj, quat_wxyz=q)
-                changes.append(f"{name}: normalised quaternions (max norm deviation {max_dev:.3g}; "
-                               f"{n_off} rows beyond {opts.quat_norm_tol:g})")
-        if Repair.CONTINUOUS_QUATERNIONS in allowed and len(q) > 1:
-            dots = np.einsum("ij,ij->i", q[1:], q[:-1])
-            flips = int((dots < 0).sum())
-            if flips:
-                sign = np.concatenate([[1.0], np.cumprod(np.where(dots < 0, -1.0, 1.0))])
-                obj = _replace_stream(obj, quat_wxyz=q * sign[:, None])
-                changes.append(f"{name}: made quaternions continuous ({flips} sign flips)")
-        return obj
-
     for s in _streams(seq):
         if len(s.t_ns) == 0:
             continue
-        obj = fix_rows(s.name, s.obj, _valid_rows(s))
+        obj = _fix_rows(s.name, s.obj, _valid_rows(s), allowed, changes)
         if s.kind != "imu":
-            obj = fix_quat(s.name, obj)
+            obj = _fix_quat(s.name, obj, allowed, opts, changes)
         if s.kind == "imu":
             imu = obj
         elif s.kind == "poses":
@@ -139,20 +92,77 @@ def apply_repairs(seq: Sequence, repairs: Iterable[Repair | str], options: Check
             gt = obj
     work = replace(seq, imu=imu, poses=poses, ground_truth=gt)
     if imu is not None and len(imu) > 1:
-        valid = _finite_rows(imu.gyro_radps) & _finite_rows(imu.acc_mps2)
-        if Repair.GYRO_DEG_TO_RAD in allowed and "GYRO_DEGPS" not in opts.ignore:
-            hit = detect_gyro_degps(work, valid)
-            if hit is not None:
-                imu = _replace_stream(imu, gyro_radps=imu.gyro_radps * DEG_TO_RAD)
-                changes.append(f"imu: scaled gyro by pi/180 (deg/s to rad/s, rule {hit['rule']}; {len(imu)} rows)")
-        if Repair.ACC_G_TO_MPS2 in allowed and "ACC_IN_G" not in opts.ignore:
-            if detect_acc_in_g(_rows(imu.acc_mps2, valid)) is not None:
-                imu = _replace_stream(imu, acc_mps2=imu.acc_mps2 * G_MPS2)
-                changes.append(f"imu: scaled accelerometer by {G_MPS2} (g to m/s^2; {len(imu)} rows)")
-        work = replace(work, imu=imu)
+        work = replace(work, imu=_fix_imu_units(work, imu, allowed, opts, changes))
     metadata = dict(seq.metadata)
     metadata["repairs"] = list(metadata.get("repairs") or []) + changes
     work = replace(work, metadata=metadata, findings=list(seq.findings))
     for c in changes:
         log.info("repair: %s", c)
     return work, changes
+
+
+def _fix_rows(name: str, obj: Any, valid: np.ndarray, allowed: set[Repair], changes: list[str]) -> Any:
+    """Drop non-finite rows, sort, drop repeated stamps (as allowed); says what it did in ``changes``."""
+    n0 = len(obj)
+    if Repair.DROP_NONFINITE in allowed and not valid.all():
+        obj = obj.take(np.flatnonzero(valid))
+        changes.append(f"{name}: dropped {n0 - len(obj)} rows with non-finite values or zero quaternions")
+    t = obj.t_ns
+    if Repair.SORT in allowed and len(t) > 1 and bool(np.any(t[1:] < t[:-1])):
+        steps = int((t[1:] < t[:-1]).sum())
+        obj = obj.take(np.argsort(t, kind="stable"))
+        changes.append(f"{name}: sorted {len(t)} rows by time ({steps} backward steps)")
+        t = obj.t_ns
+    if Repair.DROP_DUPLICATES in allowed and len(t) > 1:
+        if bool(np.all(t[1:] >= t[:-1])):
+            keep = np.concatenate([[True], t[1:] != t[:-1]])
+            idx = np.flatnonzero(keep)
+        else:
+            _, first = np.unique(t, return_index=True)
+            idx = np.sort(first)
+        if len(idx) < len(t):
+            obj = obj.take(idx)
+            changes.append(f"{name}: dropped {len(t) - len(idx)} rows with repeated stamps (kept the first)")
+    return obj
+
+def _fix_quat(name: str, obj: Any, allowed: set[Repair], opts: CheckOptions, changes: list[str]) -> Any:
+    """Normalise quaternions and make them continuous (as allowed); says what it did in ``changes``."""
+    q = obj.quat_wxyz
+    if q is None or len(q) == 0:
+        return obj
+    if Repair.NORMALISE_QUATERNIONS in allowed:
+        norm = np.linalg.norm(q, axis=1, keepdims=True)
+        dev = np.abs(norm[:, 0] - 1.0)
+        n_off = int((dev > opts.quat_norm_tol).sum())
+        max_dev = float(np.nanmax(dev)) if np.isfinite(dev).any() else 0.0
+        if max_dev > 1e-12:  # leave already-unit quaternions bit-identical
+            with np.errstate(divide="ignore", invalid="ignore"):
+                q = q / norm
+            obj = _replace_stream(obj, quat_wxyz=q)
+            changes.append(f"{name}: normalised quaternions (max norm deviation {max_dev:.3g}; "
+                           f"{n_off} rows beyond {opts.quat_norm_tol:g})")
+    if Repair.CONTINUOUS_QUATERNIONS in allowed and len(q) > 1:
+        dots = np.einsum("ij,ij->i", q[1:], q[:-1])
+        flips = int((dots < 0).sum())
+        if flips:
+            sign = np.concatenate([[1.0], np.cumprod(np.where(dots < 0, -1.0, 1.0))])
+            obj = _replace_stream(obj, quat_wxyz=q * sign[:, None])
+            changes.append(f"{name}: made quaternions continuous ({flips} sign flips)")
+    return obj
+
+
+def _fix_imu_units(work: Sequence, imu: ImuSeries, allowed: set[Repair], opts: CheckOptions, changes: list[str]
+                   ) -> ImuSeries:
+    """Scale the gyro from deg/s and the accelerometer from g where their checks fire (as allowed and
+    not ignored); says what it did in ``changes``."""
+    valid = _finite_rows(imu.gyro_radps) & _finite_rows(imu.acc_mps2)
+    if Repair.GYRO_DEG_TO_RAD in allowed and "GYRO_DEGPS" not in opts.ignore:
+        hit = detect_gyro_degps(work, valid)
+        if hit is not None:
+            imu = _replace_stream(imu, gyro_radps=imu.gyro_radps * DEG_TO_RAD)
+            changes.append(f"imu: scaled gyro by pi/180 (deg/s to rad/s, rule {hit['rule']}; {len(imu)} rows)")
+    if Repair.ACC_G_TO_MPS2 in allowed and "ACC_IN_G" not in opts.ignore:
+        if detect_acc_in_g(_rows(imu.acc_mps2, valid)) is not None:
+            imu = _replace_stream(imu, acc_mps2=imu.acc_mps2 * G_MPS2)
+            changes.append(f"imu: scaled accelerometer by {G_MPS2} (g to m/s^2; {len(imu)} rows)")
+    return imu
