@@ -68,16 +68,7 @@ def decimal_to_ns(strings: pd.Series | np.ndarray | list[str], unit: TimeUnit) -
         raise ValueError("missing stamp")
     trimmed = pc.utf8_trim_whitespace(arr)
     if pc.all(pc.match_substring_regex(trimmed, r"^[+-]?\d{1,19}$")).as_py():
-        try:
-            ints = pc.cast(trimmed, pa.int64()).to_numpy(zero_copy_only=False).astype(np.int64)
-        except pa.ArrowInvalid:
-            return _decimal_to_ns_slow(arr, exp_unit), False
-        scale = 10**exp_unit
-        if scale > 1:
-            if np.any(np.abs(ints) > _INT64_MAX // scale):
-                raise ValueError("stamp does not fit int64 nanoseconds")
-            ints = ints * np.int64(scale)
-        return ints, False
+        return _integer_stamps_to_ns(trimmed, arr, exp_unit), False
     scientific = bool(pc.any(pc.match_substring_regex(trimmed, "[eE]")).as_py())
     parts = pc.extract_regex(trimmed, _DECIMAL_PARTS)
     if parts.null_count:
@@ -100,6 +91,32 @@ def decimal_to_ns(strings: pd.Series | np.ndarray | list[str], unit: TimeUnit) -
     exp = pc.cast(exp_txt, pa.int64()).to_numpy(zero_copy_only=False).astype(np.int64)
     e = exp - pc.utf8_length(frac_s).to_numpy(zero_copy_only=False).astype(np.int64) + exp_unit
     negative = pc.equal(sign_s, "-").to_numpy(zero_copy_only=False)
+    out = _scaled_to_ns(mant, e)
+    out[negative] = -out[negative]
+    return out, scientific
+
+
+def _integer_stamps_to_ns(trimmed: pa.Array, arr: pa.Array, exp_unit: int) -> np.ndarray:
+    """Integer stamp texts (at most 19 digits) times ``10**exp_unit``; the exact slow path when a
+    text overflows int64."""
+    try:
+        ints = pc.cast(trimmed, pa.int64()).to_numpy(zero_copy_only=False).astype(np.int64)
+    except pa.ArrowInvalid:
+        return _decimal_to_ns_slow(arr, exp_unit)
+    scale = 10**exp_unit
+    if scale > 1:
+        if np.any(np.abs(ints) > _INT64_MAX // scale):
+            raise ValueError("stamp does not fit int64 nanoseconds")
+        ints = ints * np.int64(scale)
+    return ints
+
+
+def _scaled_to_ns(mant: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """``mant * 10**e`` as int64, exactly; a negative ``e`` rounds half to even.
+
+    Raises:
+        ValueError: A value does not fit int64.
+    """
     out = np.empty(len(mant), dtype=np.int64)
     pos = e >= 0
     if np.any(pos):
@@ -121,8 +138,7 @@ def decimal_to_ns(strings: pd.Series | np.ndarray | list[str], unit: TimeUnit) -
         q = q + round_up.astype(np.int64)
         q[big] = 0
         out[neg] = q
-    out[negative] = -out[negative]
-    return out, scientific
+    return out
 
 
 def _decimal_to_ns_slow(arr: pa.Array, exp_unit: int) -> np.ndarray:
