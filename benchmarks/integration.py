@@ -18,7 +18,7 @@ import time
 import torch
 
 from pipeline.geometry.integration import IntegrationScheme, integrate
-from pipeline.geometry.so3 import so3_exp
+from pipeline.geometry.so3_torch import so3_exp
 
 RATE_HZ = 200.0
 T = 201  # one second: 200 intervals

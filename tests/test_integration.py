@@ -1,4 +1,4 @@
-"""Tests of pipeline.geometry.so3 and the IMU integration engine pipeline.geometry.integration (values asserted)."""
+"""Tests of pipeline.geometry.so3_torch, so3_numpy and the IMU integration engine pipeline.geometry.integration (values asserted)."""
 
 from __future__ import annotations
 
@@ -11,20 +11,15 @@ from scipy.spatial.transform import Rotation, RotationSpline
 
 from pipeline.errors import DataError
 from pipeline.geometry.integration import IntegrationResult, IntegrationScheme, integrate, integrate_numpy
-from pipeline.geometry.so3 import (
-    hat,
+from pipeline.geometry.so3_numpy import (
     hat_np,
-    matrix_to_quat_wxyz,
     matrix_to_quat_wxyz_np,
-    quat_wxyz_to_matrix,
     quat_wxyz_to_matrix_np,
     rotation_angle_deg,
-    so3_exp,
     so3_exp_np,
-    so3_log,
     so3_log_np,
-    vee,
 )
+from pipeline.geometry.so3_torch import hat, matrix_to_quat_wxyz, quat_wxyz_to_matrix, so3_exp, so3_log, vee
 
 G = np.array([0.0, 0.0, -9.81])
 RATE_HZ = 200.0

@@ -13,7 +13,7 @@ import torch
 
 from pipeline.errors import ValidationError
 from pipeline.geometry.integration import integrate
-from pipeline.geometry.so3 import rotation_angle_deg
+from pipeline.geometry.so3_numpy import rotation_angle_deg
 from pipeline.types import (NS_PER_S, ImuSeries, IntegrationScheme)
 from validation.config import ValidationConfig
 from validation.reference import ReferenceStates, check_increasing

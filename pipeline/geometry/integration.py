@@ -38,7 +38,7 @@ Implementation (speed matters: this runs on 10^4-10^5 windows per training step)
       contiguous rows and a batched 3x3 product is three broadcast multiply-adds over [3, 3, B]
       (~8x faster on CPU than ``torch.bmm`` on [B, 3, 3], whose per-matrix overhead dominates);
     * time is processed in blocks of a few steps (on CPU ~64k step-windows per block) so the
-      working set stays in cache: per block, one batched :func:`pipeline.geometry.so3.so3_exp_entries`
+      working set stays in cache: per block, one batched :func:`pipeline.geometry.so3_torch.so3_exp_entries`
       call gives every ``Exp(phi_k)``, a short loop of batched products extends the cumulative
       orientation ``R_k = R_0 Exp(phi_0) ... Exp(phi_{k-1})`` (the only sequential part: T-1
       small batched steps in all), and ``R_k a_k`` is formed while the block is hot;
@@ -60,7 +60,7 @@ import numpy as np
 import torch
 
 from pipeline.errors import DataError
-from pipeline.geometry.so3 import so3_exp_entries
+from pipeline.geometry.so3_torch import so3_exp_entries
 from pipeline.types import IntegrationScheme
 
 __all__ = ["IntegrationScheme", "IntegrationResult", "integrate", "integrate_numpy"]

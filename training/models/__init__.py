@@ -23,7 +23,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from pipeline.geometry.integration import integrate
-from pipeline.geometry.so3 import so3_log
+from pipeline.geometry.so3_torch import so3_log
 from training.batch import WindowBatch
 from training.config import IMU_CHANNELS, Method, ModelConfig, Sampler
 from training.normalizer import Normalizer
