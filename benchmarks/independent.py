@@ -12,7 +12,7 @@ are written as EuRoC ASL folders by that module's own writer, read back with
 ``pipeline.io.load_sequence`` and recovered with the default ``RecoveryConfig``.
 
 Cases:
-    integration  1-s MIDPOINT end-pose errors of ``pipeline.integration.integrate`` on the
+    integration  1-s MIDPOINT end-pose errors of ``pipeline.geometry.integration.integrate`` on the
                  independent noise-free IMU (200 and 400 Hz), and the independent RK4 on
                  ``pipeline.sim``'s IMU vs its ground truth.
     bound        the optimal (Kalman/RTS smoother) acc-bias RMSE for one axis with perfect
@@ -52,7 +52,7 @@ def case_integration() -> None:
     import torch
     from scipy.spatial.transform import Rotation
 
-    from pipeline.integration import IntegrationScheme, integrate
+    from pipeline.geometry.integration import IntegrationScheme, integrate
 
     for rate in (200.0, 400.0):
         s = ind.make_sequence(60.0, seed=0, noise=False, rate_hz=rate)

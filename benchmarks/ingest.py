@@ -63,7 +63,7 @@ def write_hour_asl(root: Path, duration_s: float = 3600.0, rate_hz: float = 200.
 
 def measure(input_path: Path) -> dict:
     """Read and check ``input_path`` in this process; seconds exclude the imports."""
-    from pipeline.checks import run_checks
+    from pipeline.checks.run import run_checks
     from pipeline.io import load_sequence
 
     c0, t0 = time.process_time(), time.perf_counter()

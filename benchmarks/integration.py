@@ -1,4 +1,4 @@
-"""Throughput of the IMU integration engine (pipeline.integration.integrate).
+"""Throughput of the IMU integration engine (pipeline.geometry.integration.integrate).
 
 Integrates batches of one-second, 200-Hz windows (T = 201 samples, 200 intervals of 5 ms,
 MIDPOINT scheme, random gyro/acc, per-window [B, 3] biases) on the CPU with
@@ -17,8 +17,8 @@ import time
 
 import torch
 
-from pipeline.integration import IntegrationScheme, integrate
-from pipeline.so3 import so3_exp
+from pipeline.geometry.integration import IntegrationScheme, integrate
+from pipeline.geometry.so3_torch import so3_exp
 
 RATE_HZ = 200.0
 T = 201  # one second: 200 intervals

@@ -44,7 +44,7 @@ class Split(str, enum.Enum):
 
 
 class IntegrationScheme(str, enum.Enum):
-    """How samples are integrated between two stamps (see :mod:`pipeline.integration`)."""
+    """How samples are integrated between two stamps (see :mod:`pipeline.geometry.integration`)."""
 
     EULER = "euler"  # sample k held over [t_k, t_{k+1}] (AirIMU / GTSAM), first order
     MIDPOINT = "midpoint"  # mid-point rotation, trapezoid velocity, second order

@@ -22,9 +22,9 @@ import pandas as pd
 from pipeline.atomic import atomic_dir
 from pipeline.bias_table import CSV_HEADER, BiasTrack, read_bias_csv
 from pipeline.errors import BiasgtError, InputFormatError
+from pipeline.geometry.pose_transform import transform_from_json
 from pipeline.io.tum import read_tum_poses, write_tum
 from pipeline.jsonio import JsonRecord, dumps, number, read_json_object
-from pipeline.pose_transform import transform_from_json
 from pipeline.types import PoseSeries, PoseSourceKind
 
 BIAS_CSV = "bias.csv"

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.checks import reader_warnings
+from pipeline.checks.run import reader_warnings
 from pipeline.errors import BiasgtError, RecoveryError
 from pipeline.io import select_pose_stream
 from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
@@ -161,7 +161,7 @@ _UNIT_CODES = ("GYRO_DEGPS", "ACC_IN_G")
 
 def _ignored_units_hint(sequence: Sequence) -> str:
     """The first words of the hint when the user ignored a unit finding (likely the cause)."""
-    from pipeline.checks import REPAIR_FOR_CODE
+    from pipeline.checks.options import REPAIR_FOR_CODE
 
     ignored = list(dict.fromkeys(f.code for f in sequence.findings
                                  if f.code in _UNIT_CODES and f.details.get("ignored")))

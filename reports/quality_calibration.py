@@ -52,6 +52,51 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
         return section("calibration", _TITLE["calibration"],
                        _missing_box("Not available: the recovery output (recovery.json) is missing. The sensor's "
                                     "datasheet noise values are shown in section 7."))
+    rows = _estimate_rows(rec)
+    parts = [
+        p(f"What the recovery estimated for pose stream '{rec.get('pose_stream', 'n/a')}' "
+          f"({rec.get('pose_source_kind', 'n/a')}, pose factors: {rec.get('pose_factor_mode', 'n/a')}). "
+          "Uncertainties are 1σ where the recovery gives them."),
+        implausible_frame(inp, "gravity_tilt", table(["quantity", "value", "uncertainty (1σ)", "notes"], rows,
+                                                     numeric_from=99)),
+    ]
+    ext = rec.get("extrinsic") if isinstance(rec.get("extrinsic"), dict) else {}
+    diff = ext.get("difference_from_calibration")
+    if isinstance(diff, dict):
+        parts.append(tag("div", _difference_text(diff),
+                         class_="warnbox" if diff.get("exceeds") else "small"))
+    if rec.get("extrinsic_rotation_observable") is False:
+        parts.append(tag("div", "The motion did not excite rotation enough to observe the extrinsic rotation: "
+                                "the calibration's (or identity) rotation was used.", class_="warnbox"))
+    noise = rec.get("noise") if isinstance(rec.get("noise"), dict) else {}
+    nrows = _noise_rows(rec, noise, cal, allan)
+    parts.append(tag("h3", "Noise strengths: used by the recovery vs. the calibration"))
+    parts.append(table(["parameter", "used", "calibration", "used / calibration", "Allan fit (section 7)", "unit",
+                        "calibration from"], nrows, numeric_from=1, text_cols=[5, 6]))
+    extra = _noise_notes(noise)
+    if extra:
+        parts.append(p("; ".join(extra) + ".", class_="small"))
+    fusion = rec.get("pose_fusion") if isinstance(rec.get("pose_fusion"), dict) else {}
+    if fusion.get("enabled") and _num(fusion, "samples_per_keyframe_mean") is not None:
+        parts.append(p(
+            f"Pose fusion: {fmt(_num(fusion, 'samples_per_keyframe_mean'), 3)} pose samples per "
+            f"{fmt(_num(fusion, 'keyframe_rate_hz'), 3)}-Hz keyframe, moved to it through the IMU and fused; "
+            f"{int(_num(fusion, 'samples_rejected') or 0)} samples rejected as outliers; scatter about the "
+            f"keyframes {fmt(_num(fusion, 'within_bin_position_rms_m'), 3)} m / "
+            f"{fmt(_num(fusion, 'within_bin_rotation_rms_rad'), 3)} rad RMS.", class_="small"))
+    floor = rec.get("accuracy_floor") if isinstance(rec.get("accuracy_floor"), dict) else {}
+    if _num(floor, "acc_mps2") is not None:
+        gyro_txt = (f"gyro {fmt(_num(floor, 'gyro_radps'), 3)} rad/s, " if _num(floor, "gyro_radps") is not None
+                    else "")
+        parts.append(p(
+            f"Accuracy floor for this noise (optimal smoother, per axis): {gyro_txt}accelerometer "
+            f"{fmt(_num(floor, 'acc_mps2'), 3)} m/s²: no recovery of this recording is more accurate; the bias "
+            "sigmas of section 4 sit somewhat above it.", class_="small"))
+    return section("calibration", _TITLE["calibration"], join(parts))
+
+
+def _estimate_rows(rec: dict) -> list[list[Any]]:
+    """Table rows of the recovery's estimates: clock offset, extrinsic translation and rotation, gravity."""
     rows = []
     off = _num(rec, "pose_time_offset_s")
     off_std = _num(rec, "pose_time_offset_std_s")
@@ -83,21 +128,11 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
         rows.append(["Tilt of gravity from the world −z axis", f"{gravity_tilt_deg(g):.3f} deg",
                      "n/a" if tilt_std is None else f"{math.degrees(tilt_std):.3f} deg",
                      "0 means the pose world frame is z-up"])
-    parts = [
-        p(f"What the recovery estimated for pose stream '{rec.get('pose_stream', 'n/a')}' "
-          f"({rec.get('pose_source_kind', 'n/a')}, pose factors: {rec.get('pose_factor_mode', 'n/a')}). "
-          "Uncertainties are 1σ where the recovery gives them."),
-        implausible_frame(inp, "gravity_tilt", table(["quantity", "value", "uncertainty (1σ)", "notes"], rows,
-                                                     numeric_from=99)),
-    ]
-    diff = ext.get("difference_from_calibration")
-    if isinstance(diff, dict):
-        parts.append(tag("div", _difference_text(diff),
-                         class_="warnbox" if diff.get("exceeds") else "small"))
-    if rec.get("extrinsic_rotation_observable") is False:
-        parts.append(tag("div", "The motion did not excite rotation enough to observe the extrinsic rotation: "
-                                "the calibration's (or identity) rotation was used.", class_="warnbox"))
-    noise = rec.get("noise") if isinstance(rec.get("noise"), dict) else {}
+    return rows
+
+
+def _noise_rows(rec: dict, noise: dict, cal: Any, allan: ImuAllan | None) -> list[list[Any]]:
+    """Table rows of the noise strengths: used by the recovery, the calibration's, their ratio, the Allan fit."""
     nrows = []
     for key, label, unit, al in (
         ("gyro_noise_density", "gyro white noise", "rad/s/√Hz", None if allan is None else allan.gyro_white),
@@ -117,9 +152,11 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
         else:
             al_v = _allan_cell(float(np.nanmean(al)), allan is not None and allan.static, "random_walk" in key)
         nrows.append([label, fmt(used, 4), fmt(yaml_v, 4), ratio, al_v, unit, _calibration_origin(cal, key)])
-    parts.append(tag("h3", "Noise strengths: used by the recovery vs. the calibration"))
-    parts.append(table(["parameter", "used", "calibration", "used / calibration", "Allan fit (section 7)", "unit",
-                        "calibration from"], nrows, numeric_from=1, text_cols=[5, 6]))
+    return nrows
+
+
+def _noise_notes(noise: dict) -> list[str]:
+    """The other noise values the recovery chose (pose sigmas, scales, correlated pose error) and how."""
     extra = []
     for key, label in (("position_sigma_m", "pose position sigma [m]"), ("rotation_sigma_rad", "pose rotation "
                        "sigma [rad]"), ("gyro_random_walk_scale", "gyro random-walk scale"),
@@ -136,25 +173,7 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
         extra.append(f"chosen by: {noise['method']}")
     if noise.get("pose_sigma_method"):
         extra.append(f"pose sigmas from: {str(noise['pose_sigma_method']).replace('_', ' ')}")
-    if extra:
-        parts.append(p("; ".join(extra) + ".", class_="small"))
-    fusion = rec.get("pose_fusion") if isinstance(rec.get("pose_fusion"), dict) else {}
-    if fusion.get("enabled") and _num(fusion, "samples_per_keyframe_mean") is not None:
-        parts.append(p(
-            f"Pose fusion: {fmt(_num(fusion, 'samples_per_keyframe_mean'), 3)} pose samples per "
-            f"{fmt(_num(fusion, 'keyframe_rate_hz'), 3)}-Hz keyframe, moved to it through the IMU and fused; "
-            f"{int(_num(fusion, 'samples_rejected') or 0)} samples rejected as outliers; scatter about the "
-            f"keyframes {fmt(_num(fusion, 'within_bin_position_rms_m'), 3)} m / "
-            f"{fmt(_num(fusion, 'within_bin_rotation_rms_rad'), 3)} rad RMS.", class_="small"))
-    floor = rec.get("accuracy_floor") if isinstance(rec.get("accuracy_floor"), dict) else {}
-    if _num(floor, "acc_mps2") is not None:
-        gyro_txt = (f"gyro {fmt(_num(floor, 'gyro_radps'), 3)} rad/s, " if _num(floor, "gyro_radps") is not None
-                    else "")
-        parts.append(p(
-            f"Accuracy floor for this noise (optimal smoother, per axis): {gyro_txt}accelerometer "
-            f"{fmt(_num(floor, 'acc_mps2'), 3)} m/s²: no recovery of this recording is more accurate; the bias "
-            "sigmas of section 4 sit somewhat above it.", class_="small"))
-    return section("calibration", _TITLE["calibration"], join(parts))
+    return extra
 
 
 def _difference_text(diff: dict) -> str:

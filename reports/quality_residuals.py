@@ -123,18 +123,7 @@ def _integration_section(inp: ReportInputs) -> Html:
     sources = _sources(v)
     cand = _candidate(v)
     const = _first_of_kind(v, "constant_first_window", None)
-    rows = []
-    for name, s in sources.items():
-        prmse, roe = _num(s, "prmse_m"), _num(s, "roe_deg")
-        rel = "—"
-        if const is not None and name != const:
-            bp = _num(sources[const], "prmse_m")
-            if prmse is not None and bp:
-                rel = f"{(prmse / bp - 1.0) * 100:+.1f} %"
-        nflag = len(s.get("flagged") or [])
-        label = name + (" (judged)" if name == cand else "")
-        rows.append([label, s.get("kind", "n/a"), fmt(_num(s, "windows"), 6),
-                     fmt(None if prmse is None else 1e3 * prmse, 4), fmt(roe, 4), rel, str(nflag)])
+    rows = _source_rows(sources, cand, const)
     cfg = v.get("config") if isinstance(v.get("config"), dict) else {}
     win = _num(cfg, "window_s") or 1.0
     parts = [
@@ -181,27 +170,7 @@ def _integration_section(inp: ReportInputs) -> Html:
     parts.append(tag("h3", "Flagged windows" + (f" of '{cand}'" if cand else "")))
     flagged_list = (sources.get(cand) or {}).get("flagged") or [] if cand else []
     if flagged_list:
-        overlap = _num(cfg, "overlap")
-        stride_s = win * (1.0 - (0.5 if overlap is None else overlap))
-        parts.append(p("Windows whose error is far above the source's median (an outlier in the pose stream, a "
-                       "bias jump, or a stretch the IMU model does not fit), merged into stretches of consecutive "
-                       "windows. Times in seconds from the first IMU sample."))
-        srows = [[f"{(a - inp.t0_ns) / NS_PER_S:.3f}", f"{(b - inp.t0_ns) / NS_PER_S + win:.3f}", str(n),
-                  fmt(1e3 * pmax, 4), fmt(rmax, 4)]
-                 for a, b, n, pmax, rmax in flagged_stretches(flagged_list, stride_s)]
-        parts.append(table(["from [s]", "to [s]", "windows", "max position error [mm]", "max rotation error [deg]"],
-                           srows, numeric_from=0))
-        frows = []
-        for f in flagged_list[:MAX_FLAGGED_ROWS]:
-            t0 = int(f.get("t0_ns", 0))
-            frows.append([f"{(t0 - inp.t0_ns) / NS_PER_S:.3f}", str(t0),
-                          fmt(1e3 * (_num(f, "pos_err_m") or math.nan), 4), fmt(_num(f, "rot_err_deg"), 4)])
-        more = len(flagged_list) - MAX_FLAGGED_ROWS
-        detail = join([
-            table(["start [s]", "start t_ns", "position error [mm]", "rotation error [deg]"], frows, numeric_from=0),
-            p(f"… and {more} more (all are in validation.json).", class_="small") if more > 0 else "",
-        ])
-        parts.append(tag("details", Html(tag("summary", f"Every flagged window ({len(flagged_list)})") + detail)))
+        parts += _flagged_parts(inp, flagged_list, cfg, win)
     else:
         parts.append(p("None."))
     notes = [str(n) for n in v.get("notes") or []]
@@ -209,6 +178,50 @@ def _integration_section(inp: ReportInputs) -> Html:
         parts.append(p("Notes of the validation:"))
         parts.append(ul(notes))
     return section("integration", _TITLE["integration"], join(parts))
+
+
+def _source_rows(sources: dict[str, Any], cand: str | None, const: str | None) -> list[list[Any]]:
+    """One table row per bias source: windows, PRMSE, ROE, PRMSE relative to the constant bias, flags."""
+    rows = []
+    for name, s in sources.items():
+        prmse, roe = _num(s, "prmse_m"), _num(s, "roe_deg")
+        rel = "—"
+        if const is not None and name != const:
+            bp = _num(sources[const], "prmse_m")
+            if prmse is not None and bp:
+                rel = f"{(prmse / bp - 1.0) * 100:+.1f} %"
+        nflag = len(s.get("flagged") or [])
+        label = name + (" (judged)" if name == cand else "")
+        rows.append([label, s.get("kind", "n/a"), fmt(_num(s, "windows"), 6),
+                     fmt(None if prmse is None else 1e3 * prmse, 4), fmt(roe, 4), rel, str(nflag)])
+    return rows
+
+
+def _flagged_parts(inp: ReportInputs, flagged_list: list[dict[str, Any]], cfg: dict, win: float) -> list[Any]:
+    """The flagged windows of the judged source: merged into stretches, then every one (folded)."""
+    out: list[Any] = []
+    overlap = _num(cfg, "overlap")
+    stride_s = win * (1.0 - (0.5 if overlap is None else overlap))
+    out.append(p("Windows whose error is far above the source's median (an outlier in the pose stream, a "
+               "bias jump, or a stretch the IMU model does not fit), merged into stretches of consecutive "
+               "windows. Times in seconds from the first IMU sample."))
+    srows = [[f"{(a - inp.t0_ns) / NS_PER_S:.3f}", f"{(b - inp.t0_ns) / NS_PER_S + win:.3f}", str(n),
+              fmt(1e3 * pmax, 4), fmt(rmax, 4)]
+             for a, b, n, pmax, rmax in flagged_stretches(flagged_list, stride_s)]
+    out.append(table(["from [s]", "to [s]", "windows", "max position error [mm]", "max rotation error [deg]"],
+                     srows, numeric_from=0))
+    frows = []
+    for f in flagged_list[:MAX_FLAGGED_ROWS]:
+        t0 = int(f.get("t0_ns", 0))
+        frows.append([f"{(t0 - inp.t0_ns) / NS_PER_S:.3f}", str(t0),
+                      fmt(1e3 * (_num(f, "pos_err_m") or math.nan), 4), fmt(_num(f, "rot_err_deg"), 4)])
+    more = len(flagged_list) - MAX_FLAGGED_ROWS
+    detail = join([
+        table(["start [s]", "start t_ns", "position error [mm]", "rotation error [deg]"], frows, numeric_from=0),
+        p(f"… and {more} more (all are in validation.json).", class_="small") if more > 0 else "",
+    ])
+    out.append(tag("details", Html(tag("summary", f"Every flagged window ({len(flagged_list)})") + detail)))
+    return out
 
 
 def flagged_stretches(flagged: list[dict[str, Any]], stride_s: float) -> list[tuple[int, int, int, float, float]]:

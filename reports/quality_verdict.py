@@ -11,7 +11,8 @@ from collections.abc import Mapping
 from typing import Any
 
 
-from pipeline.checks import CHECK_CODES, run_checks, stream_summaries
+from pipeline.checks.options import CHECK_CODES
+from pipeline.checks.run import run_checks, stream_summaries
 from pipeline.errors import BiasgtError
 from pipeline.types import NS_PER_S, Finding, Sequence, Severity
 from reports.html import Html, esc, fmt, join, p, section, table, tag, ul

@@ -443,7 +443,7 @@ def rk4_integrate(gyro_radps: np.ndarray, acc_mps2: np.ndarray, h_s: float, q0_w
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Classical RK4 of ``q' = 1/2 q (0, w)``, ``v' = R(q) f + g``, ``p' = v``.
 
-    Written independently of :mod:`pipeline.integration`. Samples are uniformly ``h_s``
+    Written independently of :mod:`pipeline.geometry.integration`. Samples are uniformly ``h_s``
     apart; one RK4 step spans two sample intervals (stages at samples k, k+1, k+1, k+2), so
     the number of samples must be odd. Batched over a leading window axis.
 

@@ -10,19 +10,9 @@ import numpy as np
 import pytest
 from synth import T0_NS, make_imu, make_poses, make_sequence
 
-from pipeline.checks import (
-    CHECK_CODES,
-    STREAM_SUMMARY_KEYS,
-    CheckOptions,
-    Repair,
-    Verdict,
-    apply_repairs,
-    fatal_findings,
-    parse_repairs,
-    run_checks,
-    stream_summaries,
-    verdict,
-)
+from pipeline.checks.options import CHECK_CODES, CheckOptions, Repair, Verdict
+from pipeline.checks.repairs import apply_repairs, parse_repairs
+from pipeline.checks.run import STREAM_SUMMARY_KEYS, fatal_findings, run_checks, stream_summaries, verdict
 from pipeline.errors import ConfigError
 from pipeline.types import NS_PER_S, Finding, ImuSeries, Sequence, Severity, StateSeries
 

@@ -1,4 +1,4 @@
-"""``biasgt inspect`` / ``biasgt convert`` and :func:`pipeline.ingest.ingest`, through ``pipeline.cli.main``."""
+"""``biasgt inspect`` / ``biasgt convert`` and :func:`pipeline.ingest.ingest`, through ``pipeline.cli.app.main``."""
 
 from __future__ import annotations
 
@@ -16,9 +16,11 @@ from synth import T0_NS, make_imu, make_poses, make_sequence
 
 import pipeline.ingest
 import pipeline.io
-from pipeline.checks import STREAM_SUMMARY_KEYS, CheckOptions, Repair, detect_acc_in_g, detect_gyro_degps
-from pipeline.cli import main
-from pipeline.commands.inspect import JSON_KEYS
+from pipeline.checks.options import CheckOptions, Repair
+from pipeline.checks.run import STREAM_SUMMARY_KEYS
+from pipeline.checks.stream_checks import detect_acc_in_g, detect_gyro_degps
+from pipeline.cli.app import main
+from pipeline.cli.commands.inspect import JSON_KEYS
 from pipeline.errors import FatalCheckError, InputFormatError
 from pipeline.ingest import ingest
 from pipeline.store import read_store
@@ -312,9 +314,9 @@ def test_inspect_and_convert_v101(shared_data, tmp_path, capsys):
 
 
 def test_commands_registered_are_the_modules_that_exist():
-    from pipeline.cli import COMMANDS, build_parser
+    from pipeline.cli.app import COMMANDS, build_parser
 
-    commands_dir = Path(pipeline.ingest.__file__).parent / "commands"
+    commands_dir = Path(pipeline.ingest.__file__).parent / "cli" / "commands"
     modules = {p.stem for p in commands_dir.glob("*.py") if not p.stem.startswith("_")}  # _args: shared flags
     assert {c.__name__.rsplit(".", 1)[1] for c in COMMANDS} == modules
     sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))

@@ -12,7 +12,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from pipeline.cli import main
+from pipeline.cli.app import main
 from pipeline.errors import ConfigError, InputFormatError
 from training.baselines import Baseline
 from training.config import Method, Sampler

@@ -27,7 +27,7 @@ import pytest
 import torch
 import yaml
 
-from pipeline.cli import main
+from pipeline.cli.app import main
 from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
 from pipeline.sim.writer import write_simulation
 from training.checkpoint import BEST, load_checkpoint, load_run, save_checkpoint
@@ -382,17 +382,18 @@ def test_skipped_lines_are_a_warning_of_every_reading_command_and_kept_in_the_st
 def test_config_without_a_test_split_says_so_once_at_config_check(tmp_path, caplog):
     import io
 
-    import pipeline.workflow as wf
+    from pipeline.workflow.config import config_warnings, load_config
+    from pipeline.workflow.run import run_workflow
 
     cfg = tmp_path / "cfg.yaml"
     cfg.write_text(yaml.safe_dump({"sequences": [
         {"name": "a", "source": "simulate", "duration_s": 3, "seed": 1, "split": "train"},
         {"name": "b", "source": "simulate", "duration_s": 3, "seed": 2, "split": "val"}]}))
     caplog.set_level("WARNING")
-    wf.run_workflow(config_file=cfg, workdir=tmp_path, dry_run=True, echo=io.StringIO())
+    run_workflow(config_file=cfg, workdir=tmp_path, dry_run=True, echo=io.StringIO())
     said = [r.getMessage() for r in caplog.records if "split 'test'" in r.getMessage()]
     assert len(said) == 1 and "no model is trained or evaluated" in said[0], said
-    assert said[0] == f"{cfg}: {wf.config_warnings(wf.load_config(cfg))[0]}"
+    assert said[0] == f"{cfg}: {config_warnings(load_config(cfg))[0]}"
 
 
 def test_batch_size_larger_than_the_train_split_is_said_and_recorded(trained, tmp_path, caplog):

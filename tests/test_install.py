@@ -43,7 +43,7 @@ def test_biasgt_run_from_a_non_editable_install_outside_the_source_tree(tmp_path
 
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    where = _run([python, "-c", "import pipeline.workflow as wf; print(wf.__file__); print(wf.SNAKEFILE)"],
+    where = _run([python, "-c", "import pipeline.workflow.config as wf; print(wf.__file__); print(wf.SNAKEFILE)"],
                  elsewhere, env).stdout.split()
     assert all(Path(p).is_relative_to(purelib) for p in where), where
     out = _run([venv / "bin" / "biasgt", "-v", "run", "--dry-run"], elsewhere, env)  # -v: the whole plan

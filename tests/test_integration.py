@@ -1,4 +1,4 @@
-"""Tests of pipeline.so3 and the IMU integration engine pipeline.integration (values asserted)."""
+"""Tests of pipeline.geometry.so3_torch, so3_numpy and the IMU integration engine pipeline.geometry.integration (values asserted)."""
 
 from __future__ import annotations
 
@@ -10,21 +10,16 @@ import torch
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from pipeline.errors import DataError
-from pipeline.integration import IntegrationResult, IntegrationScheme, integrate, integrate_numpy
-from pipeline.so3 import (
-    hat,
+from pipeline.geometry.integration import IntegrationResult, IntegrationScheme, integrate, integrate_numpy
+from pipeline.geometry.so3_numpy import (
     hat_np,
-    matrix_to_quat_wxyz,
     matrix_to_quat_wxyz_np,
-    quat_wxyz_to_matrix,
     quat_wxyz_to_matrix_np,
     rotation_angle_deg,
-    so3_exp,
     so3_exp_np,
-    so3_log,
     so3_log_np,
-    vee,
 )
+from pipeline.geometry.so3_torch import hat, matrix_to_quat_wxyz, quat_wxyz_to_matrix, so3_exp, so3_log, vee
 
 G = np.array([0.0, 0.0, -9.81])
 RATE_HZ = 200.0
@@ -476,7 +471,7 @@ def test_cuda_matches_cpu():
 def test_end_state_matches_trajectory_for_every_dt_form_and_time_blocking(scheme, monkeypatch):
     """The end-state fast path (weighted sums) equals the trajectory path, for dt given as a
     float, [T-1], [B, 1] and per-window [B, T-1], and with time processed in many blocks."""
-    import pipeline.integration as integration
+    import pipeline.geometry.integration as integration
 
     B, T = 3, 23
     gyro, acc, R0, v0, p0, bg, ba = _random_batch(B, T)
@@ -511,7 +506,7 @@ def test_end_state_matches_trajectory_for_every_dt_form_and_time_blocking(scheme
 
 @pytest.mark.parametrize("scheme", list(IntegrationScheme))
 def test_gradcheck_end_state_path(scheme, monkeypatch):
-    import pipeline.integration as integration
+    import pipeline.geometry.integration as integration
 
     monkeypatch.setattr(integration, "_CPU_BLOCK_ELEMENTS", 1)  # several time blocks
     gyro, acc, R0, v0, p0, bg, ba = _random_batch(2, 7, seed=2)

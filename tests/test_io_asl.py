@@ -530,7 +530,7 @@ def test_load_standalone_asl_imu_csv(shared_data: Path) -> None:
 
 
 def test_load_sequence_dispatches_bags(shared_data: Path) -> None:
-    pytest.importorskip("pipeline.io.rosbag")
+    pytest.importorskip("pipeline.io.rosbag.reader")
     seq = load_sequence(shared_data / "ros_bags/evo_test_data/ROS_example.bag", pose_topic="groundtruth")
     assert len(seq.poses["groundtruth"]) == 12765
     seq = load_sequence(shared_data / "ros_bags/evo_test_data/ROS_example.bag", fmt="rosbag",

@@ -1,4 +1,4 @@
-"""Tests of pipeline.io.rosbag on the real bags in shared/data/ros_bags and on synthetic round trips."""
+"""Tests of pipeline.io.rosbag (reader and writer) on the real bags in shared/data/ros_bags and on synthetic round trips."""
 
 from __future__ import annotations
 
@@ -12,7 +12,9 @@ from rosbags.typesys import Stores, get_typestore
 from scipy.spatial.transform import Rotation
 
 from pipeline.errors import AmbiguousInputError, ConfigError, InputFormatError, UnsupportedInputError
-from pipeline.io.rosbag import PoseMsgType, Ros2Storage, RosVersion, read_bag, write_bag
+from pipeline.io.rosbag.formats import PoseMsgType, Ros2Storage, RosVersion
+from pipeline.io.rosbag.reader import read_bag
+from pipeline.io.rosbag.writer import write_bag
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind, Sequence, Severity
 
 

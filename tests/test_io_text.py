@@ -9,7 +9,7 @@ import pytest
 
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.io import CsvMapping, SourceFormat, TimeUnit, detect_format, load_sequence, read_csv_generic, read_tum
-from pipeline.io._text import decimal_to_ns, guess_time_unit, stamp_resolution_ns
+from pipeline.io._stamps import decimal_to_ns, guess_time_unit, stamp_resolution_ns
 from pipeline.io.csv_generic import AccUnit, GyroUnit, QuatOrder
 from pipeline.types import STANDARD_GRAVITY_MPS2
 from pipeline.io.tum import format_stamps_s, write_tum

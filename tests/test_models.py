@@ -78,7 +78,7 @@ def test_released_sampler_clips_in_raw_units():
 
 def test_indirect_loss_is_zero_at_the_true_bias():
     """The integration loss, independent of labels: windows integrated from consistent states."""
-    from pipeline.integration import integrate
+    from pipeline.geometry.integration import integrate
 
     torch.manual_seed(0)
     batch = _batch(B=4, T=41)

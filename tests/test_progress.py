@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.job_progress import JobProgress, last_line, running_lines
+from pipeline.workflow.job_progress import JobProgress, last_line, running_lines
 from pipeline.progress import progress
 
 #: tqdm's "[elapsed<remaining, rate]" part of a progress line: the ETA and the rate.
@@ -61,7 +61,7 @@ def test_train_evaluate_and_predict_report_progress(data: Path, tmp_path: Path, 
 
 
 def test_recover_reports_its_rounds(tmp_path: Path, caplog) -> None:
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     assert main(["-q", "simulate", "--duration", "10", "--seed", "4", str(tmp_path / "sim")]) == 0
     with caplog.at_level(logging.INFO, logger="recovery.recover"):

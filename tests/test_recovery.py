@@ -536,7 +536,7 @@ def test_no_rotation_excitation_flags_extrinsic_unobservable():
 
 
 def test_cli_recover_on_store(tmp_path, clean_run, capsys):
-    from pipeline.cli import main
+    from pipeline.cli.app import main
     from pipeline.store import write_store
 
     sim, _ = clean_run

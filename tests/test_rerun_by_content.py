@@ -8,9 +8,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipeline import workflow as wf
-from pipeline.cli import main
-from pipeline.run_summary import dry_run_jobs, dry_run_summary
+from pipeline.cli.app import main
+from pipeline.workflow.run import run_workflow
+from pipeline.workflow.run_summary import dry_run_jobs, dry_run_summary
 from training.stages import dataset_checksum
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("workflow_snakemake")]
@@ -38,14 +38,14 @@ def _config(path: Path, **sections) -> Path:
 @pytest.fixture(scope="module")
 def learned(tmp_path_factory: pytest.TempPathFactory) -> Path:
     workdir = tmp_path_factory.mktemp("content")
-    wf.run_workflow(config_file=_config(workdir / "config.yaml"), workdir=workdir, cores=2, echo=io.StringIO(),
+    run_workflow(config_file=_config(workdir / "config.yaml"), workdir=workdir, cores=2, echo=io.StringIO(),
                     targets=TARGETS)
     return workdir
 
 
 def _plan(workdir: Path, cfg: Path) -> str:
     echo = io.StringIO()
-    wf.run_workflow(config_file=cfg, workdir=workdir, dry_run=True, echo=echo,
+    run_workflow(config_file=cfg, workdir=workdir, dry_run=True, echo=echo,
                     targets=TARGETS)
     return echo.getvalue()
 
@@ -57,7 +57,7 @@ def test_a_margin_that_changes_no_verdict_retrains_nothing(learned: Path, capsys
     summary = dry_run_summary(_plan(learned, cfg))
     assert "validate 3 (parameters changed)" in summary and "windows 1" in summary
     assert "train, evaluate, evaluate_reference run only if the window dataset's content changes" in summary
-    wf.run_workflow(config_file=cfg, workdir=learned, cores=2, echo=io.StringIO(),
+    run_workflow(config_file=cfg, workdir=learned, cores=2, echo=io.StringIO(),
                     targets=TARGETS)
     after = (run_dir / "run.json").stat().st_mtime_ns, dataset_checksum(learned / "results" / "windows" / "dataset")
     assert after == before  # the dataset was rewritten with the same content: no training ran
@@ -69,7 +69,7 @@ def test_the_sample_count_reruns_only_the_diffusion_models_evaluation(learned: P
     # only the sample count differs
     margin = _config(learned / "margin.yaml", validation={"margin": 0.12})
     if dry_run_jobs(_plan(learned, margin)):
-        wf.run_workflow(config_file=margin, workdir=learned, cores=2, echo=io.StringIO(), targets=TARGETS)
+        run_workflow(config_file=margin, workdir=learned, cores=2, echo=io.StringIO(), targets=TARGETS)
     jobs = dry_run_jobs(_plan(learned, _config(learned / "samples.yaml", validation={"margin": 0.12},
                                                 evaluation={"samples": 3, "steps": 2, "samplers": ["ddim"],
                                                             "references": ["zero"]})))

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from scipy.signal import resample_poly
 
-from pipeline.cli import main
+from pipeline.cli.app import main
 from pipeline.resample import resample_imu_filtered
 from pipeline.types import ImuSeries
 
@@ -73,7 +73,7 @@ def copy_100hz(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_a_rate_far_from_the_calibration_is_a_finding_and_convert_resamples_it(copy_100hz: Path, tmp_path: Path,
                                                                             capsys) -> None:
-    from pipeline.checks import run_checks
+    from pipeline.checks.run import run_checks
     from pipeline.io import load_sequence
     from pipeline.store import read_store
 

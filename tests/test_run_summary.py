@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.run_summary import dry_run_summary, finished_summary
+from pipeline.workflow.run_summary import dry_run_summary, finished_summary
 
 
 def _write(path: Path, text: str) -> None:
@@ -59,9 +59,9 @@ def test_demo_position_only_cart_is_a_warn_that_the_demo_explains(tmp_path: Path
     config says; the reason is the recovery's own sigma, not a wrong bias."""
     import io
 
-    from pipeline import workflow as wf
+    from pipeline.workflow.run import run_workflow
 
-    wf.run_workflow(workdir=tmp_path, echo=io.StringIO(), targets=["results/validation/sim_cart_leica_01"])
+    run_workflow(workdir=tmp_path, echo=io.StringIO(), targets=["results/validation/sim_cart_leica_01"])
     data = json.loads((tmp_path / "results" / "validation" / "sim_cart_leica_01" / "validation.json").read_text())
     assert data["verdict"] == "WARN" and all("too uncertain" in r for r in data["reasons"])
     assert data["sources"]["recovered"]["prmse_m"] < data["sources"]["constant"]["prmse_m"]

@@ -12,7 +12,7 @@ import yaml
 from scipy.spatial.transform import Rotation
 
 from pipeline.errors import ConfigError, InputFormatError
-from pipeline.integration import integrate
+from pipeline.geometry.integration import integrate
 from pipeline.sim import (
     ImuNoiseConfig,
     MotionConfig,
@@ -378,7 +378,7 @@ def test_write_position_and_vio_formats(tmp_path: Path) -> None:
 
 
 def test_write_bag(tmp_path: Path) -> None:
-    from pipeline.io.rosbag import read_bag
+    from pipeline.io.rosbag.reader import read_bag
 
     sim = simulate(SimConfig(duration_s=2.0, seed=3))
     out = write_simulation(sim, tmp_path / "s", bag="ros1")
@@ -469,7 +469,7 @@ def test_ground_truth_file_errors(tmp_path: Path) -> None:
 
 
 def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     out = tmp_path / "cli"
     rc = main(["simulate", str(out), "--duration", "4", "--seed", "3", "--preset", "slow_cart",

@@ -8,15 +8,16 @@ from pathlib import Path
 
 import yaml
 
-from pipeline import workflow as wf
-from pipeline.cli import main
+from pipeline.cli.app import main
+from pipeline.workflow.config import PROFILES_DIR
+from pipeline.workflow.run import describe_failure, resolve_profile
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def test_cpu_profile_asks_for_no_gpu_and_little_memory() -> None:
-    profile = yaml.safe_load((wf.resolve_profile("slurm-cpu") / "config.yaml").read_text())
-    gpu = yaml.safe_load((wf.resolve_profile("slurm") / "config.yaml").read_text())
+    profile = yaml.safe_load((resolve_profile("slurm-cpu") / "config.yaml").read_text())
+    gpu = yaml.safe_load((resolve_profile("slurm") / "config.yaml").read_text())
     assert "gpu" not in profile["set-resources"]["train"] and profile["set-threads"]["train"] <= 2
     assert all(eval(str(r["mem_mb"]), {"attempt": 1}) <= 8000 for r in profile["set-resources"].values())
     # everything else as in the GPU profile
@@ -44,7 +45,7 @@ def test_the_local_slurm_test_runs_a_shipped_profile_as_it_is() -> None:
     finally:
         sys.path.pop(0)
     args = slurm_local.slurm_args()
-    assert args[:2] == ["--profile", slurm_local.PROFILE] and (wf.PROFILES_DIR / slurm_local.PROFILE).is_dir()
+    assert args[:2] == ["--profile", slurm_local.PROFILE] and (PROFILES_DIR / slurm_local.PROFILE).is_dir()
     assert not any(a.startswith(("--default-resources", "--set-resources", "--set-threads")) for a in args)
 
 
@@ -79,7 +80,7 @@ def test_sbatch_refusal_is_shown(tmp_path: Path) -> None:
         "    Error in rule train:", "        jobid: 7", "        output: results/training/regression_rnn/seed0",
         "        log: logs/train/regression_rnn_seed0.log (check log file(s) for error details)",
     ]
-    text = wf.describe_failure(lines, tmp_path)
+    text = describe_failure(lines, tmp_path)
     assert text.startswith("SLURM refused to queue rule 'train': sbatch: error: Batch job submission failed: "
                            "Requested node configuration is not available")
     assert "--profile slurm-cpu" in text

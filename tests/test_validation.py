@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.bias_table import BiasTrack, write_bias_table
 from pipeline.errors import DataError, InputFormatError, ValidationError
-from pipeline.pose_transform import IMU_FRAME, poses_in_imu_frame, transform_from_json
+from pipeline.geometry.pose_transform import IMU_FRAME, poses_in_imu_frame, transform_from_json
 from pipeline.sim import PoseStreamConfig, SimConfig, simulate
 from pipeline.store import write_store
 from pipeline.types import ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence
@@ -574,7 +574,7 @@ def test_recovery_folder_round_trip(noisy_sim, tmp_path):
 
 
 def test_cli_recovery_poses_reference_pass_and_fail(noisy_sim, tmp_path, capsys):
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     store = write_store(dataclasses.replace(noisy_sim.sequence, ground_truth=None), tmp_path / "store")
     true = _true_track(noisy_sim)
@@ -616,14 +616,14 @@ def test_cli_recovery_poses_reference_pass_and_fail(noisy_sim, tmp_path, capsys)
 
 
 def test_cli_defaults_match_the_config():
-    from pipeline.commands.validate import DEFAULTS
+    from pipeline.cli.commands.validate import DEFAULTS
 
     d = ValidationConfig()
     assert vars(DEFAULTS) == {k: getattr(d, k) for k in vars(DEFAULTS)}
 
 
 def test_cli_bad_input_exit_2_and_nothing_written(noisy_sim, tmp_path, capsys):
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     store = write_store(noisy_sim.sequence, tmp_path / "store")
     (tmp_path / "bad.csv").write_text("hello,world\n1,2\n")

@@ -15,8 +15,57 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipeline import workflow as wf
 from pipeline.errors import ConfigError, DataError
+from pipeline.layout import (
+    WINDOWS_DATASET,
+    Stage,
+    interpolated_bias_path,
+    log_file,
+    report_path,
+    stage_dir,
+    windows_dataset_dir,
+)
+from pipeline.types import Split
+from pipeline.workflow.config import (
+    DEFAULT_CONFIG,
+    SCHEMA_FILE,
+    check_config,
+    load_config,
+    load_schema,
+    validate_schema,
+)
+from pipeline.workflow.params import (
+    STAGE_CONFIGS,
+    FinalOutput,
+    final_outputs,
+    ingest_extra_inputs,
+    ingest_input,
+    ingest_settings,
+    interpolation_outputs,
+    interpolation_settings,
+    make_check_options,
+    names_regex,
+    recovery_settings,
+    simulate_inputs,
+    simulate_settings,
+    stage_config,
+    validation_settings,
+    window_outputs,
+    windowed_sequences,
+    windows_inputs,
+    windows_settings,
+)
+from pipeline.workflow.run import (
+    WorkflowRunError,
+    describe_failure,
+    parse_dry_run_jobs,
+    resolve_profile,
+    run_workflow,
+    snakemake_command,
+)
+from pipeline.workflow.steps import interpolate_step, recover_step, report_step, run_step, validate_step, windows_step
+from pipeline.workflow.table import SourceKind, WorkflowConfig, data_root
+
 REPO = Path(__file__).resolve().parents[1]
 
 SPINE_GROUP = pytest.mark.xdist_group("workflow_snakemake")
@@ -36,15 +85,15 @@ def sim_entry(name: str, **kw) -> dict:
 
 
 def test_default_config_is_valid_with_defaults():
-    cfg = wf.load_config(REPO / "config" / "config.yaml")
+    cfg = load_config(REPO / "config" / "config.yaml")
     assert cfg.names == ["sim_handheld_01", "sim_drone_01", "sim_cart_leica_01", "sim_handheld_val_01",
                          "sim_handheld_test_01"]
-    assert all(s.source is wf.SourceKind.SIMULATE for s in cfg.sequences)
-    assert all(wf.simulate_settings(cfg, n)["duration_s"] <= 60 for n in cfg.names)  # 'make run' stays quick
+    assert all(s.source is SourceKind.SIMULATE for s in cfg.sequences)
+    assert all(simulate_settings(cfg, n)["duration_s"] <= 60 for n in cfg.names)  # 'make run' stays quick
     assert [s.name for s in cfg.select(splits=["test"])] == ["sim_handheld_test_01"]
     assert [s.name for s in cfg.select(splits=["val"])] == ["sim_handheld_val_01"]
     assert len(cfg.select(splits=["train"])) == 3
-    assert wf.window_outputs(cfg) == ["results/windows/dataset"]
+    assert window_outputs(cfg) == ["results/windows/dataset"]
     assert cfg.data["report"] == {}
     from training.config import EvaluationConfig, TrainingPlan
 
@@ -64,9 +113,9 @@ def test_defaults_filled_like_snakemake_validate(tmp_path):
     from snakemake.utils import validate
 
     data = {"sequences": [{"name": "a", "source": "simulate"}, {"name": "b", "source": "tum", "path": "x.txt"}]}
-    mine = wf.validate_schema(yaml.safe_load(yaml.safe_dump(data)))
+    mine = validate_schema(yaml.safe_load(yaml.safe_dump(data)))
     theirs = yaml.safe_load(yaml.safe_dump(data))
-    validate(theirs, str(wf.SCHEMA_FILE))
+    validate(theirs, str(SCHEMA_FILE))
     assert mine == theirs
     a, b = mine["sequences"]
     assert a == {"name": "a", "source": "simulate", "split": "none", "preset": "handheld", "duration_s": 60,
@@ -78,11 +127,11 @@ def test_defaults_filled_like_snakemake_validate(tmp_path):
 def test_euroc_semireal_config_is_valid(shared_data):
     data = yaml.safe_load((REPO / "config" / "euroc_semireal.yaml").read_text())
     data["data_root"] = str(shared_data)  # the fixture's folder (may come from BIASGT_SHARED_DATA)
-    wf.validate_schema(data)
-    cfg = wf.check_config(data, REPO / "config" / "euroc_semireal.yaml")
+    validate_schema(data)
+    cfg = check_config(data, REPO / "config" / "euroc_semireal.yaml")
     mh01 = cfg.sequence("MH_01_easy")
-    assert mh01.source is wf.SourceKind.ASL and mh01.path == shared_data / "euroc" / "MH_01_easy"
-    semi = wf.simulate_settings(cfg, "semi_MH_04_difficult")
+    assert mh01.source is SourceKind.ASL and mh01.path == shared_data / "euroc" / "MH_01_easy"
+    semi = simulate_settings(cfg, "semi_MH_04_difficult")
     assert semi["duration_s"] is None
     assert Path(semi["motion"]["ground_truth_path"]).is_file()
     # AirIMU's EuRoC split (which the paper follows), V1_01 aside: every sequence of it is there
@@ -92,40 +141,40 @@ def test_euroc_semireal_config_is_valid(shared_data):
     assert euroc_names("test") == {"MH_02", "MH_04", "V1_03", "V2_02"}
     assert euroc_names("train") == {"MH_01", "MH_03", "MH_05", "V1_02", "V2_01", "V2_03"}
     # the poses-only sequences (MH_02, MH_03) are labelled: their bias is simulated
-    poses_only = wf.simulate_settings(cfg, "semi_MH_02_easy_simbias")["motion"]["ground_truth_path"]
+    poses_only = simulate_settings(cfg, "semi_MH_02_easy_simbias")["motion"]["ground_truth_path"]
     assert poses_only.endswith("MH_02_easy.txt") and Path(poses_only).is_file()
     # MH_01: recovered from the raw Leica positions, validated against independent GT poses
-    assert wf.recovery_settings(cfg, "MH_01_easy")["pose_stream"] == "leica0"
-    assert wf.validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
+    assert recovery_settings(cfg, "MH_01_easy")["pose_stream"] == "leica0"
+    assert validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
     # V1_01: OpenVINS's re-estimated bias integrated next to the recovered one (a file resolved against data_root)
-    [[name, path]] = wf.validation_settings(cfg, "V1_01_easy")["bias"]
+    [[name, path]] = validation_settings(cfg, "V1_01_easy")["bias"]
     assert name == "openvins" and path.endswith("V1_01_easy/ov_data/V1_01_easy.csv") and Path(path).is_file()
-    assert wf.validation_settings(cfg, "MH_01_easy")["bias"] == []
-    assert wf.ingest_settings(cfg, "MH_01_easy")["reader_kwargs"]["extra_poses"][0]["kind"] == "ground_truth"
-    assert wf.recovery_settings(cfg, "V1_02_medium_excerpt")["pose_stream"] == "ground_truth"  # GT state only
+    assert validation_settings(cfg, "MH_01_easy")["bias"] == []
+    assert ingest_settings(cfg, "MH_01_easy")["reader_kwargs"]["extra_poses"][0]["kind"] == "ground_truth"
+    assert recovery_settings(cfg, "V1_02_medium_excerpt")["pose_stream"] == "ground_truth"  # GT state only
     # every entry goes through every per-sequence stage; MH_01's real windows take the validation's
     # reference (its GT poses: Leica positions have no orientation)
-    assert mh01.split is wf.Split.TRAIN
-    assert [s.name for s in wf.windowed_sequences(cfg)] == ["MH_01_easy", "V1_01_easy_openvins"] + [
+    assert mh01.split is Split.TRAIN
+    assert [s.name for s in windowed_sequences(cfg)] == ["MH_01_easy", "V1_01_easy_openvins"] + [
         s.name for s in cfg.sequences if s.is_simulated]
-    assert wf.windows_settings(cfg)["sequences"][0] == ["MH_01_easy", "train", "groundtruth_poses"]
+    assert windows_settings(cfg)["sequences"][0] == ["MH_01_easy", "train", "groundtruth_poses"]
     # the validation split: the real V1_01 IMU labelled from OpenVINS's poses (EuRoC's ground-truth frame
     # puts V1_01's ba_y far outside the training sequences'), read as its own pose stream
     assert [s.name for s in cfg.select(splits=["val"])] == ["V1_01_easy_openvins"]
-    assert wf.recovery_settings(cfg, "V1_01_easy_openvins")["pose_stream"] == "openvins_poses"
-    assert cfg.sequence("V1_01_easy").split is wf.Split.NONE
-    assert wf.window_outputs(cfg) == ["results/windows/dataset"]
+    assert recovery_settings(cfg, "V1_01_easy_openvins")["pose_stream"] == "openvins_poses"
+    assert cfg.sequence("V1_01_easy").split is Split.NONE
+    assert window_outputs(cfg) == ["results/windows/dataset"]
 
 
 def test_euroc_config_is_the_papers_split_on_the_real_recordings(shared_data):
     from training.config import EvalGravity, EvaluationConfig, OracleWalk
 
     data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
-    assert wf.data_root(wf.validate_schema(dict(data)), REPO / "config" / "euroc.yaml").resolve() == (
+    assert data_root(validate_schema(dict(data)), REPO / "config" / "euroc.yaml").resolve() == (
         REPO.parent / "shared" / "data").resolve()
     data["data_root"] = str(shared_data)
-    wf.validate_schema(data)
-    cfg = wf.check_config(data, REPO / "config" / "euroc.yaml")
+    validate_schema(data)
+    cfg = check_config(data, REPO / "config" / "euroc.yaml")
     assert not any(s.is_simulated for s in cfg.sequences)  # real IMU recordings only
     names = lambda split: {s.name for s in cfg.select(splits=[split])}  # noqa: E731
     assert names("train") == {"MH_01_easy", "MH_03_medium", "MH_05_difficult", "V1_02_medium", "V2_01_easy",
@@ -134,17 +183,17 @@ def test_euroc_config_is_the_papers_split_on_the_real_recordings(shared_data):
     assert names("val") == {"V1_01_easy"}
     for s in cfg.sequences:
         assert (s.path / "mav0" / "imu0" / "data.csv").is_file()
-    stream = {s.name: wf.recovery_settings(cfg, s.name)["pose_stream"] for s in cfg.sequences}
+    stream = {s.name: recovery_settings(cfg, s.name)["pose_stream"] for s in cfg.sequences}
     assert {n for n, v in stream.items() if v == "vicon0"} == {"V1_02_medium", "V2_01_easy", "V2_03_difficult"}
     assert {n for n, v in stream.items() if v == "ground_truth"} == {"MH_04_difficult", "MH_05_difficult",
                                                                      "V1_03_difficult", "V2_02_medium"}
     # no ground-truth state: raw Leica labels, validated against (and windows' states from) EuRoC's poses
     assert stream["MH_01_easy"] == stream["MH_03_medium"] == "leica0"
-    assert wf.validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
-    assert wf.windows_settings(cfg)["sequences"][0] == ["MH_01_easy", "train", "groundtruth_poses"]
+    assert validation_settings(cfg, "MH_01_easy")["poses"] == "groundtruth_poses"
+    assert windows_settings(cfg)["sequences"][0] == ["MH_01_easy", "train", "groundtruth_poses"]
     # the test sequences' windows take EuRoC's ground-truth state (validation poses left at null)
     for name in names("test"):
-        assert wf.validation_settings(cfg, name)["poses"] is None
+        assert validation_settings(cfg, name)["poses"] is None
         assert (shared_data / "euroc" / name / "mav0" / "state_groundtruth_estimate0" / "data.csv").is_file()
     ev = EvaluationConfig.from_mapping(data["evaluation"])
     assert ev.gravity is EvalGravity.NOMINAL and ev.oracle_random_walk is OracleWalk.SENSOR
@@ -157,28 +206,28 @@ def test_euroc_config_pose_streams_exist_in_the_recordings(shared_data):
 
     data = yaml.safe_load((REPO / "config" / "euroc.yaml").read_text())
     data["data_root"] = str(shared_data)
-    cfg = wf.check_config(wf.validate_schema(data), REPO / "config" / "euroc.yaml")
+    cfg = check_config(validate_schema(data), REPO / "config" / "euroc.yaml")
     for s in cfg.sequences:
-        seq = load(s.path, wf.ingest_settings(cfg, s.name)["reader_kwargs"])
-        stream = wf.recovery_settings(cfg, s.name)["pose_stream"]
+        seq = load(s.path, ingest_settings(cfg, s.name)["reader_kwargs"])
+        stream = recovery_settings(cfg, s.name)["pose_stream"]
         assert stream in seq.poses or (stream == "ground_truth" and seq.ground_truth is not None), s.name
-        assert (s.split is wf.Split.TEST) <= (seq.ground_truth is not None)  # the evaluation reference
+        assert (s.split is Split.TEST) <= (seq.ground_truth is not None)  # the evaluation reference
         assert (seq.calibration.gyro_random_walk, seq.calibration.acc_random_walk) == (1.9393e-05, 3.0e-3)
 
 
 def test_euroc_semireal_config_default_data_root_points_at_shared_data():
     data = yaml.safe_load((REPO / "config" / "euroc_semireal.yaml").read_text())
-    root = wf.data_root(wf.validate_schema(data), REPO / "config" / "euroc_semireal.yaml")
+    root = data_root(validate_schema(data), REPO / "config" / "euroc_semireal.yaml")
     assert root.resolve() == (REPO.parent / "shared" / "data").resolve()
 
 
 def test_schema_enums_match_code():
     from pipeline.sim.config import MotionPreset, PoseFormat
 
-    schema = wf.load_schema()
+    schema = load_schema()
     entry = schema["properties"]["sequences"]["items"]
-    assert entry["properties"]["source"]["enum"] == [s.value for s in wf.SourceKind]
-    assert entry["properties"]["split"]["enum"] == [s.value for s in wf.Split]
+    assert entry["properties"]["source"]["enum"] == [s.value for s in SourceKind]
+    assert entry["properties"]["split"]["enum"] == [s.value for s in Split]
     sim_props = entry["allOf"][0]["then"]["properties"]
     assert sim_props["preset"]["enum"] == [p.value for p in MotionPreset]
     assert sim_props["pose_format"]["enum"] == [p.value for p in PoseFormat]
@@ -187,7 +236,7 @@ def test_schema_enums_match_code():
 def _error(tmp_path: Path, data: dict, name: str = "bad.yaml") -> str:
     path = write_config(tmp_path / name, data)
     with pytest.raises(ConfigError) as info:
-        wf.load_config(path)
+        load_config(path)
     msg = str(info.value)
     assert "\n" not in msg
     assert msg.startswith(str(path)), msg  # every config error names the file
@@ -210,7 +259,7 @@ def test_rejects_missing_input_path(tmp_path):
     assert f"sequences[0] ('real'): input path {tmp_path / 'nowhere' / 'mav0'} does not exist" in msg
     assert f"data_root = {tmp_path}" in msg
     # inputs in remote storage: the check can be switched off
-    cfg = wf.load_config(write_config(tmp_path / "remote.yaml", {
+    cfg = load_config(write_config(tmp_path / "remote.yaml", {
         "check_input_paths": False, "sequences": [{"name": "real", "source": "asl", "path": "nowhere/mav0"}]}))
     assert cfg.sequence("real").path == tmp_path / "nowhere" / "mav0"
 
@@ -264,20 +313,20 @@ def test_stage_sections_take_options_and_defaults_from_the_dataclasses():
     from training.windows_config import WindowConfig
     from validation.config import ValidationConfig
 
-    props = wf.load_schema()["properties"]
-    assert set(wf.STAGE_CONFIGS) <= set(props)
-    for section in wf.STAGE_CONFIGS:
+    props = load_schema()["properties"]
+    assert set(STAGE_CONFIGS) <= set(props)
+    for section in STAGE_CONFIGS:
         assert "properties" not in props[section] and "additionalProperties" not in props[section], section
-    cfg = wf.check_config(wf.validate_schema({"sequences": [sim_entry("a")]}))
-    assert wf.stage_config("recovery", wf.recovery_settings(cfg, "a")["config"]) == RecoveryConfig()
-    assert wf.stage_config("validation", wf.validation_settings(cfg, "a")["config"]) == ValidationConfig()
-    assert wf.stage_config("windows", wf.windows_settings(cfg)["config"]) == WindowConfig()
-    assert wf.stage_config("interpolation", wf.interpolation_settings(cfg, "a")) == InterpolationConfig()
+    cfg = check_config(validate_schema({"sequences": [sim_entry("a")]}))
+    assert stage_config("recovery", recovery_settings(cfg, "a")["config"]) == RecoveryConfig()
+    assert stage_config("validation", validation_settings(cfg, "a")["config"]) == ValidationConfig()
+    assert stage_config("windows", windows_settings(cfg)["config"]) == WindowConfig()
+    assert stage_config("interpolation", interpolation_settings(cfg, "a")) == InterpolationConfig()
     # a changed option reaches the stage; the others keep their defaults
-    cfg = wf.check_config(wf.validate_schema({"sequences": [sim_entry("a", recovery={"keyframe_rate_hz": 20})],
+    cfg = check_config(validate_schema({"sequences": [sim_entry("a", recovery={"keyframe_rate_hz": 20})],
                                               "windows": {"window_s": 2}}))
-    assert wf.stage_config("recovery", wf.recovery_settings(cfg, "a")["config"]) == RecoveryConfig(keyframe_rate_hz=20)
-    assert wf.stage_config("windows", wf.windows_settings(cfg)["config"]) == WindowConfig(window_s=2)
+    assert stage_config("recovery", recovery_settings(cfg, "a")["config"]) == RecoveryConfig(keyframe_rate_hz=20)
+    assert stage_config("windows", windows_settings(cfg)["config"]) == WindowConfig(window_s=2)
 
 
 def test_rejects_unknown_and_invalid_stage_options(tmp_path):
@@ -312,14 +361,14 @@ def test_rejects_unknown_and_invalid_stage_options(tmp_path):
 
 def test_rejects_unreadable_config(tmp_path):
     with pytest.raises(ConfigError, match="config file not found"):
-        wf.load_config(tmp_path / "missing.yaml")
+        load_config(tmp_path / "missing.yaml")
     bad = tmp_path / "bad.yaml"
     bad.write_text("sequences:\n  - name: a\n    source: [simulate\n")
     with pytest.raises(ConfigError, match=r"bad.yaml:4: not valid YAML"):
-        wf.load_config(bad)
+        load_config(bad)
     bad.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="the config must be a mapping, got list"):
-        wf.load_config(bad)
+        load_config(bad)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -327,7 +376,7 @@ def test_rejects_unreadable_config(tmp_path):
 
 
 @pytest.fixture()
-def mixed_cfg(tmp_path) -> wf.WorkflowConfig:
+def mixed_cfg(tmp_path) -> WorkflowConfig:
     (tmp_path / "data" / "seqA" / "mav0").mkdir(parents=True)
     (tmp_path / "data" / "poses.txt").write_text("")
     (tmp_path / "gt.csv").write_text("")
@@ -342,33 +391,33 @@ def mixed_cfg(tmp_path) -> wf.WorkflowConfig:
         ],
         "ingest": {"repairs": ["drop-duplicates"], "check_options": {"gap_factor": 3.0}},
     }
-    return wf.load_config(write_config(tmp_path / "cfg.yaml", data))
+    return load_config(write_config(tmp_path / "cfg.yaml", data))
 
 
 def test_stage_paths():
-    assert wf.stage_dir("ingest", "s1") == "results/ingest/s1"
-    assert wf.stage_dir(wf.Stage.SIMULATE, "s1") == "results/simulate/s1"
-    assert wf.log_file("ingest", "s1") == "logs/ingest/s1.log"
+    assert stage_dir("ingest", "s1") == "results/ingest/s1"
+    assert stage_dir(Stage.SIMULATE, "s1") == "results/simulate/s1"
+    assert log_file("ingest", "s1") == "logs/ingest/s1.log"
     with pytest.raises(ValueError):
-        wf.stage_dir("nonsense", "s1")
+        stage_dir("nonsense", "s1")
 
 
 def test_ingest_input_paths(mixed_cfg, tmp_path):
-    assert wf.ingest_input(mixed_cfg, "sim1", tmp_path) == "results/simulate/sim1"
+    assert ingest_input(mixed_cfg, "sim1", tmp_path) == "results/simulate/sim1"
     # inside the working directory: relative (portable); outside: absolute
-    assert wf.ingest_input(mixed_cfg, "seqA", tmp_path) == "data/seqA"
-    assert wf.ingest_input(mixed_cfg, "tum1", tmp_path / "elsewhere") == str(tmp_path / "data" / "poses.txt")
-    assert wf.simulate_inputs(mixed_cfg, "sim1", tmp_path) == []
-    assert wf.simulate_inputs(mixed_cfg, "semi", tmp_path) == ["gt.csv"]
+    assert ingest_input(mixed_cfg, "seqA", tmp_path) == "data/seqA"
+    assert ingest_input(mixed_cfg, "tum1", tmp_path / "elsewhere") == str(tmp_path / "data" / "poses.txt")
+    assert simulate_inputs(mixed_cfg, "sim1", tmp_path) == []
+    assert simulate_inputs(mixed_cfg, "semi", tmp_path) == ["gt.csv"]
     with pytest.raises(ConfigError, match=r"no sequence named 'nope' \(field 'sequences'\); "
                                           r"configured sequences: sim1, seqA, tum1, semi"):
-        wf.ingest_input(mixed_cfg, "nope", tmp_path)
+        ingest_input(mixed_cfg, "nope", tmp_path)
 
 
 def test_simulate_settings(mixed_cfg, tmp_path):
     from pipeline.sim.config import MotionPreset, PoseFormat, SimConfig
 
-    settings = wf.simulate_settings(mixed_cfg, "sim1")
+    settings = simulate_settings(mixed_cfg, "sim1")
     assert settings == {
         "name": "sim1", "duration_s": 3, "seed": 1,
         "motion": {"preset": "slow_cart"},
@@ -378,44 +427,44 @@ def test_simulate_settings(mixed_cfg, tmp_path):
     sim = SimConfig.from_dict(settings)
     assert sim.motion.preset is MotionPreset.SLOW_CART and sim.poses.format is PoseFormat.POSITION
     assert sim.poses.rate_hz == 20.0 and sim.imu.temperature.enabled is False
-    semi = wf.simulate_settings(mixed_cfg, "semi")
+    semi = simulate_settings(mixed_cfg, "semi")
     assert semi["duration_s"] is None and semi["motion"]["ground_truth_path"] == str(tmp_path / "gt.csv")
     with pytest.raises(ConfigError, match=r"sequences\[1\] \('seqA'\) is not simulated"):
-        wf.simulate_settings(mixed_cfg, "seqA")
+        simulate_settings(mixed_cfg, "seqA")
 
 
 def test_ingest_settings(mixed_cfg):
-    assert wf.ingest_settings(mixed_cfg, "sim1") == {
+    assert ingest_settings(mixed_cfg, "sim1") == {
         "reader_kwargs": {"fmt": "asl", "name": "sim1"},
         "repairs": ["drop-duplicates"],
         "check_options": {"gap_factor": 3.0},
     }
-    assert wf.ingest_settings(mixed_cfg, "seqA")["repairs"] == ["sort"]  # the entry's list replaces the default
-    tum = wf.ingest_settings(mixed_cfg, "tum1")
+    assert ingest_settings(mixed_cfg, "seqA")["repairs"] == ["sort"]  # the entry's list replaces the default
+    tum = ingest_settings(mixed_cfg, "tum1")
     assert tum["reader_kwargs"] == {"fmt": "tum", "name": "tum1"}
     assert tum["check_options"] == {"gap_factor": 3.0, "allow_pose_only": True}
-    opts = wf.make_check_options(tum["check_options"] | {"ignore": ["gyro_degps"]})
+    opts = make_check_options(tum["check_options"] | {"ignore": ["gyro_degps"]})
     assert opts.gap_factor == 3.0 and opts.allow_pose_only is True and opts.ignore == frozenset({"GYRO_DEGPS"})
 
 
 def test_stage_folders_and_files():
-    assert wf.stage_dir("recover", "s") == "results/recovery/s"
-    assert wf.stage_dir(wf.Stage.INTERPOLATE, "s") == "results/interpolation/s"
-    assert wf.stage_dir("validate", "s") == "results/validation/s"
-    assert wf.log_file("recover", "s") == "logs/recovery/s.log"
-    assert wf.log_file("windows", wf.WINDOWS_DATASET) == "logs/windows/dataset.log"
-    assert wf.windows_dataset_dir() == "results/windows/dataset"
-    assert wf.interpolated_bias_path("s") == "results/interpolation/s/bias_imu.parquet"
-    assert wf.report_path("s") == "results/report/s/report.html"
+    assert stage_dir("recover", "s") == "results/recovery/s"
+    assert stage_dir(Stage.INTERPOLATE, "s") == "results/interpolation/s"
+    assert stage_dir("validate", "s") == "results/validation/s"
+    assert log_file("recover", "s") == "logs/recovery/s.log"
+    assert log_file("windows", WINDOWS_DATASET) == "logs/windows/dataset.log"
+    assert windows_dataset_dir() == "results/windows/dataset"
+    assert interpolated_bias_path("s") == "results/interpolation/s/bias_imu.parquet"
+    assert report_path("s") == "results/report/s/report.html"
     # the report's reader finds the workflow's stage folders
     from reports.quality import STAGE_FOLDERS
 
-    assert STAGE_FOLDERS["recovery"][0] == wf.Stage.RECOVER.folder
-    assert STAGE_FOLDERS["validation"][0] == wf.Stage.VALIDATE.folder
+    assert STAGE_FOLDERS["recovery"][0] == Stage.RECOVER.folder
+    assert STAGE_FOLDERS["validation"][0] == Stage.VALIDATE.folder
 
 
 def test_stage_settings_merge_entry_overrides(tmp_path):
-    cfg = wf.load_config(write_config(tmp_path / "c.yaml", {
+    cfg = load_config(write_config(tmp_path / "c.yaml", {
         "sequences": [
             sim_entry("a", split="train", recovery={"pose_stream": "ground_truth", "keyframe_rate_hz": 20},
                       validation={"poses": "mocap0", "margin": 0.5}),
@@ -428,62 +477,62 @@ def test_stage_settings_merge_entry_overrides(tmp_path):
         "validation": {"window_s": 2.0, "gravity_mps2": [0, 0, -9.8]},
         "windows": {"window_s": 2.0},
     }))
-    a, b = wf.recovery_settings(cfg, "a"), wf.recovery_settings(cfg, "b")
+    a, b = recovery_settings(cfg, "a"), recovery_settings(cfg, "b")
     assert a["pose_stream"] == "ground_truth" and b["pose_stream"] is None
     assert a["config"]["keyframe_rate_hz"] == 20 and b["config"]["keyframe_rate_hz"] == 50
     assert a["config"]["robust_loss"] == b["config"]["robust_loss"] == "cauchy"
     assert "pose_stream" not in a["config"]
-    rc = wf.stage_config("recovery", a["config"])
+    rc = stage_config("recovery", a["config"])
     assert rc.keyframe_rate_hz == 20 and rc.robust_loss.value == "cauchy"
-    va, vb = wf.validation_settings(cfg, "a"), wf.validation_settings(cfg, "b")
+    va, vb = validation_settings(cfg, "a"), validation_settings(cfg, "b")
     assert va["poses"] == "mocap0" and vb["poses"] is None
     assert va["bias"] == vb["bias"] == [] and "bias" not in va["config"]
     assert va["gravity_mps2"] == vb["gravity_mps2"] == [0, 0, -9.8]
     assert va["config"]["margin"] == 0.5 and vb["config"]["margin"] == 0.1 and va["config"]["window_s"] == 2.0
-    assert wf.interpolation_settings(cfg, "a") == {"method": "cubic", "clamp": True, "write_csv": False}
-    assert wf.interpolation_outputs(cfg) == ["results/interpolation/{sequence}/bias_imu.parquet"]
-    assert wf.windows_settings(cfg) == {
+    assert interpolation_settings(cfg, "a") == {"method": "cubic", "clamp": True, "write_csv": False}
+    assert interpolation_outputs(cfg) == ["results/interpolation/{sequence}/bias_imu.parquet"]
+    assert windows_settings(cfg) == {
         "sequences": [["a", "train", "mocap0"], ["b", "val", None], ["d", "test", None]],  # the validation's poses
         "config": {"window_s": 2.0, "overlap": 0.5, "resample_hz": None, "gap_factor": 2.0, "accept_warn": False},
     }
-    assert wf.windows_inputs(cfg) == {
+    assert windows_inputs(cfg) == {
         "stores": ["results/ingest/a", "results/ingest/b", "results/ingest/d"],
         "recoveries": ["results/recovery/a", "results/recovery/b", "results/recovery/d"],
         "validations": ["results/validation/a", "results/validation/b", "results/validation/d"],
     }
-    assert wf.window_outputs(cfg) == ["results/windows/dataset"]
-    no_train = wf.load_config(write_config(tmp_path / "t.yaml", {"sequences": [sim_entry("x", split="test")]}))
-    assert wf.window_outputs(no_train) == []  # no train split: no dataset (normalisation needs train)
-    assert wf.interpolation_outputs(no_train) == ["results/interpolation/{sequence}/bias_imu.parquet",
+    assert window_outputs(cfg) == ["results/windows/dataset"]
+    no_train = load_config(write_config(tmp_path / "t.yaml", {"sequences": [sim_entry("x", split="test")]}))
+    assert window_outputs(no_train) == []  # no train split: no dataset (normalisation needs train)
+    assert interpolation_outputs(no_train) == ["results/interpolation/{sequence}/bias_imu.parquet",
                                                   "results/interpolation/{sequence}/bias_imu.csv"]
     with pytest.raises(ConfigError, match="unknown key 'windw_s' .did you mean 'window_s'"):
-        wf.stage_config("validation", {"windw_s": 1})
+        stage_config("validation", {"windw_s": 1})
     with pytest.raises(ConfigError, match="invalid overlap"):
-        wf.stage_config("validation", {"overlap": 1.5})
+        stage_config("validation", {"overlap": 1.5})
 
 
 def test_final_outputs_registry(mixed_cfg):
     registry = [
-        wf.FinalOutput("ingest", "results/ingest/{sequence}"),
-        wf.FinalOutput("evaluate", "results/evaluate/{sequence}/metrics.json", splits=(wf.Split.TEST,)),
-        wf.FinalOutput("train", "results/train/model.pt"),
-        wf.FinalOutput("report", lambda cfg: [f"results/report/{len(cfg.names)}.html"]),
-        wf.FinalOutput("simulate", "results/simulate/{sequence}", sources=(wf.SourceKind.SIMULATE,)),
+        FinalOutput("ingest", "results/ingest/{sequence}"),
+        FinalOutput("evaluate", "results/evaluate/{sequence}/metrics.json", splits=(Split.TEST,)),
+        FinalOutput("train", "results/train/model.pt"),
+        FinalOutput("report", lambda cfg: [f"results/report/{len(cfg.names)}.html"]),
+        FinalOutput("simulate", "results/simulate/{sequence}", sources=(SourceKind.SIMULATE,)),
     ]
-    assert wf.final_outputs(registry, mixed_cfg) == [
+    assert final_outputs(registry, mixed_cfg) == [
         "results/ingest/sim1", "results/ingest/seqA", "results/ingest/tum1", "results/ingest/semi",
         "results/evaluate/seqA/metrics.json", "results/train/model.pt", "results/report/4.html",
         "results/simulate/sim1", "results/simulate/semi",
     ]
-    assert wf.final_outputs(registry[:1] * 2, mixed_cfg) == wf.final_outputs(registry[:1], mixed_cfg)
+    assert final_outputs(registry[:1] * 2, mixed_cfg) == final_outputs(registry[:1], mixed_cfg)
 
 
 def test_names_regex():
     import re
 
-    rx = wf.names_regex(["a.b", "c"])
+    rx = names_regex(["a.b", "c"])
     assert re.fullmatch(rx, "a.b") and re.fullmatch(rx, "c") and not re.fullmatch(rx, "axb")
-    assert not re.fullmatch(wf.names_regex([]), "")
+    assert not re.fullmatch(names_regex([]), "")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -497,14 +546,14 @@ def test_run_step_logs_and_maps_errors(tmp_path):
         logging.getLogger("pipeline.test").info("adding %s", a)
         return a + b
 
-    assert wf.run_step(log_path, ok, 1, 2) == 3
+    assert run_step(log_path, ok, 1, 2) == 3
     assert "adding 1" in log_path.read_text()
 
     def bad():
         raise DataError("the data is wrong", path="in.csv", hint="fix it")
 
     with pytest.raises(SystemExit) as info:
-        wf.run_step(log_path, bad)
+        run_step(log_path, bad)
     assert info.value.code == 2
     assert "ERROR pipeline.workflow: in.csv: the data is wrong; fix it" in log_path.read_text()
 
@@ -512,7 +561,7 @@ def test_run_step_logs_and_maps_errors(tmp_path):
         raise KeyError("k")
 
     with pytest.raises(KeyError):
-        wf.run_step(log_path, bug)
+        run_step(log_path, bug)
     text = log_path.read_text()
     assert "unexpected error" in text and "Traceback" in text
 
@@ -520,35 +569,36 @@ def test_run_step_logs_and_maps_errors(tmp_path):
 def test_run_step_names_the_slurm_job(tmp_path, monkeypatch):
     log_path = tmp_path / "x.log"
     monkeypatch.delenv("SLURM_JOB_ID", raising=False)
-    wf.run_step(log_path, lambda: None)
+    run_step(log_path, lambda: None)
     assert "job on host" in log_path.read_text() and "SLURM job" not in log_path.read_text()
     monkeypatch.setenv("SLURM_JOB_ID", "4711")
-    wf.run_step(log_path, lambda: None)
+    run_step(log_path, lambda: None)
     assert ", SLURM job 4711" in log_path.read_text()
 
 
 def test_snakefile_imports_no_torch():
     """The Snakefile's imports (pipeline.workflow, training.stages) leave PyTorch out: Snakemake
     parses the Snakefile twice in every cluster job, and importing torch cost 1.3 s each time."""
-    code = "import sys; import pipeline.workflow, training.stages; print('torch' in sys.modules)"
+    code = ("import sys; import pipeline.workflow.config, pipeline.workflow.params, training.stages; "
+            "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True,
                          env={"PYTHONPATH": str(REPO)})
     assert out.stdout.strip() == "False"
 
 
 def test_resolve_profile(tmp_path):
-    assert wf.resolve_profile("slurm") == REPO / "workflow" / "profiles" / "slurm"
+    assert resolve_profile("slurm") == REPO / "workflow" / "profiles" / "slurm"
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "config.yaml").write_text("jobs: 2\n")
-    assert wf.resolve_profile(tmp_path / "mine") == tmp_path / "mine"
+    assert resolve_profile(tmp_path / "mine") == tmp_path / "mine"
     with pytest.raises(ConfigError, match="no Snakemake profile 'nope'.*use one of slurm"):
-        wf.resolve_profile("nope")
+        resolve_profile("nope")
 
 
 @SPINE_GROUP
 def test_slurm_profile_sets_each_rules_resources(tmp_path, capsys):
     """A dry run with --profile slurm gives every job the profile's memory and time (attempt 1)."""
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     profile = yaml.safe_load((REPO / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
     assert profile["executor"] == "slurm" and profile["set-resources"]["train"]["gpu"] == 1
@@ -571,7 +621,7 @@ def test_slurm_profile_sets_each_rules_resources(tmp_path, capsys):
 
 
 def test_snakemake_command(tmp_path):
-    cmd = wf.snakemake_command(config_file=tmp_path / "c.yaml", cores=3, workdir=tmp_path, dry_run=True,
+    cmd = snakemake_command(config_file=tmp_path / "c.yaml", cores=3, workdir=tmp_path, dry_run=True,
                                until=["ingest"], targets=["results/ingest/a"], extra=["--forceall"])
     assert cmd[:3] == [sys.executable, "-m", "snakemake"]
     assert cmd[cmd.index("--snakefile") + 1] == str(REPO / "Snakefile")
@@ -606,13 +656,13 @@ def test_describe_failure(tmp_path):
         "Shutting down, this might take some time.",
         "Exiting because a job execution failed. Look below for error messages",
     ]
-    msg = wf.describe_failure(lines, tmp_path)
+    msg = describe_failure(lines, tmp_path)
     assert msg == (f"rule 'ingest' (sequence=a) failed: in.csv: refusing to convert; rerun with --repair sort "
                    f"(log: {tmp_path / 'logs' / 'ingest' / 'a.log'})")
     slurm = [ln.replace("log: logs/ingest/a.log (", "log: logs/ingest/a.log, /x/.snakemake/slurm_logs/rule_ingest/a/7.log (")
              for ln in lines]  # the SLURM executor adds its own log
-    assert wf.describe_failure(slurm, tmp_path) == msg
-    assert wf.describe_failure(["WorkflowError:", "Target rules may not contain wildcards.", ""], tmp_path) == (
+    assert describe_failure(slurm, tmp_path) == msg
+    assert describe_failure(["WorkflowError:", "Target rules may not contain wildcards.", ""], tmp_path) == (
         "Target rules may not contain wildcards.")
 
 
@@ -645,7 +695,7 @@ def test_describe_failure_of_a_group_job(tmp_path):
         *error_block("interpolate", 5, "logs/interpolation/b.log"),  # never ran: no log
         *error_block("recover", 4, "logs/recovery/b.log"),
     ]
-    assert wf.describe_failure(lines, tmp_path) == (
+    assert describe_failure(lines, tmp_path) == (
         f"rule 'recover' (sequence=b) failed: no pose stream in b (log: {tmp_path / 'logs' / 'recovery' / 'b.log'})")
 
 
@@ -655,12 +705,12 @@ def test_parse_dry_run_jobs():
         "localrule ingest:\n    input: results/simulate/a\n    wildcards: sequence=a\n"
         "localrule all:\n    input: results/ingest/a\n    jobid: 0\n"
     )
-    assert wf.parse_dry_run_jobs(text) == [("simulate", {"sequence": "a"}), ("ingest", {"sequence": "a"}),
+    assert parse_dry_run_jobs(text) == [("simulate", {"sequence": "a"}), ("ingest", {"sequence": "a"}),
                                            ("all", {})]
 
 
 def test_cli_reports_bad_config_on_one_line(tmp_path, capsys):
-    from pipeline.cli import main
+    from pipeline.cli.app import main
 
     cfg = write_config(tmp_path / "bad.yaml", {"sequences": [sim_entry("a"), sim_entry("a")]})
     assert main(["run", "--config", str(cfg), "--directory", str(tmp_path)]) == 2
@@ -693,10 +743,10 @@ def test_validate_step_fail_is_a_result_and_bad_input_stops(e2e_run, tmp_path):
     bias = pd.read_csv(recovery / "bias.csv")
     bias["ba_x"] += 0.5  # 0.5 m/s^2 off: far worse than a constant bias
     bias.to_csv(recovery / "bias.csv", index=False)
-    cfg = wf.load_config(e2e_run.config)
-    settings = {**wf.validation_settings(cfg, "tiny_b"), "bias": [["unshifted", str(tmp_path / "unshifted.csv")]]}
+    cfg = load_config(e2e_run.config)
+    settings = {**validation_settings(cfg, "tiny_b"), "bias": [["unshifted", str(tmp_path / "unshifted.csv")]]}
     log_path = tmp_path / "logs" / "validate.log"
-    result = wf.run_step(log_path, wf.validate_step, store, recovery, tmp_path / "val", settings)
+    result = run_step(log_path, validate_step, store, recovery, tmp_path / "val", settings)
     assert result.verdict is Verdict.FAIL
     data = _json.loads((tmp_path / "val" / "validation.json").read_text())
     assert data["verdict"] == "FAIL" and data["reasons"]
@@ -707,7 +757,7 @@ def test_validate_step_fail_is_a_result_and_bad_input_stops(e2e_run, tmp_path):
     assert "WARNING pipeline.workflow: verdict FAIL for 'tiny_b'" in log_path.read_text()
     # a missing recovery is an input error: exit 2, one logged line, nothing written
     with pytest.raises(SystemExit) as info:
-        wf.run_step(log_path, wf.validate_step, store, tmp_path / "nowhere", tmp_path / "val2", settings)
+        run_step(log_path, validate_step, store, tmp_path / "nowhere", tmp_path / "val2", settings)
     assert info.value.code == 2 and not (tmp_path / "val2").exists()
     assert "recovery output lacks recovery.json" in log_path.read_text()
 
@@ -724,27 +774,27 @@ def test_other_step_functions_in_process(e2e_run, tmp_path):
     log_path = tmp_path / "step.log"
     # interpolate: cubic, Parquet only
     out = tmp_path / "interp" / "bias_imu.parquet"
-    written = wf.run_step(log_path, wf.interpolate_step, recovery, store, out,
+    written = run_step(log_path, interpolate_step, recovery, store, out,
                           {"method": "cubic", "clamp": True, "write_csv": False})
     assert written == [out] and not out.with_suffix(".csv").exists()
     assert pq.read_table(out).num_rows == len(read_store(store).imu)
     with pytest.raises(SystemExit) as info:
-        wf.run_step(log_path, wf.interpolate_step, recovery, store, tmp_path / "x.parquet", {"method": "spline"})
+        run_step(log_path, interpolate_step, recovery, store, tmp_path / "x.parquet", {"method": "spline"})
     assert info.value.code == 2 and "method 'spline' is not one of linear, cubic" in log_path.read_text()
     # recover: an unknown pose stream is a one-line input error naming the streams
     with pytest.raises(SystemExit) as info:
-        wf.run_step(log_path, wf.recover_step, store, tmp_path / "rec", {"pose_stream": "vicon9", "config": {}})
+        run_step(log_path, recover_step, store, tmp_path / "rec", {"pose_stream": "vicon9", "config": {}})
     assert info.value.code == 2 and "vicon9" in log_path.read_text() and "mocap0" in log_path.read_text()
     assert not (tmp_path / "rec").exists()
     # report: one HTML file from the three stage folders
-    html = wf.run_step(log_path, wf.report_step, store, recovery, results / "validation" / "tiny_a",
+    html = run_step(log_path, report_step, store, recovery, results / "validation" / "tiny_a",
                        tmp_path / "r" / "report.html")
     assert html.read_text().lower().lstrip().startswith("<!doctype html")
     # windows: inputs and names must line up; options are checked
     with pytest.raises(ConfigError, match="1 sequences but 2 stores"):
-        wf.windows_step([store, store], [recovery, recovery], [recovery, recovery], tmp_path / "ds", {"sequences": [["tiny_a", "train"]]})
+        windows_step([store, store], [recovery, recovery], [recovery, recovery], tmp_path / "ds", {"sequences": [["tiny_a", "train"]]})
     with pytest.raises(ConfigError, match="window_len"):
-        wf.stage_config("windows", {"window_len": 2})
+        stage_config("windows", {"window_len": 2})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -753,8 +803,8 @@ def test_other_step_functions_in_process(e2e_run, tmp_path):
 
 def _dry_run_jobs(cfg: Path, workdir: Path) -> list[tuple[str, dict[str, str]]]:
     echo = io.StringIO()
-    wf.run_workflow(config_file=cfg, workdir=workdir, dry_run=True, echo=echo)
-    return [(rule, w) for rule, w in wf.parse_dry_run_jobs(echo.getvalue()) if rule != "all"]
+    run_workflow(config_file=cfg, workdir=workdir, dry_run=True, echo=echo)
+    return [(rule, w) for rule, w in parse_dry_run_jobs(echo.getvalue()) if rule != "all"]
 
 
 STAGE_RULES = ("simulate", "ingest", "recover", "interpolate", "validate", "windows", "report")
@@ -763,9 +813,9 @@ STAGE_RULES = ("simulate", "ingest", "recover", "interpolate", "validate", "wind
 @SPINE_GROUP
 def test_dry_run_of_default_workflow(tmp_path):
     echo = io.StringIO()
-    result = wf.run_workflow(workdir=tmp_path, dry_run=True, echo=echo)
-    jobs = wf.parse_dry_run_jobs(echo.getvalue())
-    names = wf.load_config(wf.DEFAULT_CONFIG).names
+    result = run_workflow(workdir=tmp_path, dry_run=True, echo=echo)
+    jobs = parse_dry_run_jobs(echo.getvalue())
+    names = load_config(DEFAULT_CONFIG).names
     for rule in STAGE_RULES:
         if rule != "windows":
             assert sorted(w["sequence"] for r, w in jobs if r == rule) == sorted(names), rule
@@ -812,7 +862,7 @@ def e2e_run(tmp_path_factory) -> E2E:
     })
     import argparse
 
-    from pipeline.commands import run
+    from pipeline.cli.commands import run
 
     parser = argparse.ArgumentParser()
     run.register(parser.add_subparsers())
@@ -923,8 +973,8 @@ def test_failed_job_is_one_line_error(tmp_path):
     (tmp_path / "empty_mav0").mkdir()
     cfg = write_config(tmp_path / "cfg.yaml", {"sequences": [{"name": "broken", "source": "asl",
                                                              "path": "empty_mav0"}]})
-    with pytest.raises(wf.WorkflowRunError) as info:
-        wf.run_workflow(config_file=cfg, workdir=tmp_path, echo=io.StringIO())
+    with pytest.raises(WorkflowRunError) as info:
+        run_workflow(config_file=cfg, workdir=tmp_path, echo=io.StringIO())
     msg = str(info.value)
     assert "\n" not in msg
     assert msg.startswith("workflow failed (snakemake exit 1): rule 'ingest' (sequence=broken) failed: ")
@@ -935,8 +985,6 @@ def test_failed_job_is_one_line_error(tmp_path):
 
 def test_extra_pose_inputs_in_config(tmp_path):
     """A real entry may merge poses from other files; they become ingest inputs and reader options."""
-    from pipeline import workflow as wf
-
     (tmp_path / "data").mkdir()
     (tmp_path / "data" / "imu").mkdir()
     (tmp_path / "data" / "gt.txt").write_text("1.0 0 0 0 0 0 0 1\n")
@@ -945,12 +993,12 @@ def test_extra_pose_inputs_in_config(tmp_path):
         "data_root: data\nsequences:\n  - name: s\n    source: asl\n    path: imu\n"
         "    poses: [{path: gt.txt, kind: ground_truth, stream: gt}]\n"
     )
-    cfg = wf.load_config(cfg_file)
-    settings = wf.ingest_settings(cfg, "s")
+    cfg = load_config(cfg_file)
+    settings = ingest_settings(cfg, "s")
     assert settings["reader_kwargs"]["extra_poses"] == [
         {"path": str((tmp_path / "data" / "gt.txt").resolve()), "kind": "ground_truth", "stream": "gt"}
     ]
-    assert wf.ingest_extra_inputs(cfg, "s", tmp_path) == ["data/gt.txt"]
+    assert ingest_extra_inputs(cfg, "s", tmp_path) == ["data/gt.txt"]
     cfg_file.write_text(cfg_file.read_text().replace("gt.txt", "nope.txt"))
     with pytest.raises(ConfigError, match=r"poses\[0\].path"):
-        wf.load_config(cfg_file)
+        load_config(cfg_file)

@@ -23,7 +23,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.integration import integrate_numpy
+from pipeline.geometry.integration import integrate_numpy
 from training.dataset import SequenceWindows, Split, write_dataset
 
 GRAVITY = (0.0, 0.0, -9.81)

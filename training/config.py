@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from pipeline.configs import dataclass_from_mapping
+from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping
 from pipeline.errors import ConfigError
 
 __all__ = ["Method", "Preset", "Sampler", "ClipRange", "ModelConfig", "TrainConfig", "IMU_CHANNELS"]
@@ -187,7 +187,7 @@ class ModelConfig:
         return cls(method=Method(method), preset=preset, **values)
 
     def to_dict(self) -> dict[str, Any]:
-        return _plain(dataclasses.asdict(self))
+        return dataclass_to_mapping(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> ModelConfig:
@@ -201,16 +201,6 @@ _PRESETS: dict[Preset, dict[str, Any]] = {
     Preset.TINY: dict(tcn_channels=(16, 16, 16, 16), tcn_dropout=0.0, cond_dim=32, step_embed_dim=32, hidden=64,
                       gru_layers=2, unet_dims=(16, 32, 64)),
 }
-
-
-def _plain(obj: Any) -> Any:
-    if isinstance(obj, dict):
-        return {k: _plain(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    return obj
 
 
 @dataclass(frozen=True)
@@ -322,7 +312,7 @@ class TrainConfig:
         return dataclasses.replace(self, **changes)
 
     def to_dict(self) -> dict[str, Any]:
-        return _plain(dataclasses.asdict(self))
+        return dataclass_to_mapping(self)
 
 
 # ----------------------------------------------------------------------------- workflow sections

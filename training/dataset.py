@@ -244,29 +244,8 @@ def write_dataset(
         lengths: dict[int, str] = {}
         without_temperature: list[str] = []
         for seq in sequences:
-            if seq.name in manifest["sequences"]:
-                other = manifest["sequences"][seq.name]["split"]
-                raise ConfigError(f"sequence '{seq.name}' is given twice (splits {other} and {seq.split.value})",
-                                  field=seq.name, hint="list every sequence once, in exactly one split")
-            if not _SAFE_NAME.match(seq.name):
-                raise ConfigError(f"sequence name '{seq.name}' cannot be a folder name", field=seq.name,
-                                  hint="use letters, digits, '_', '-' and '.'")
-            if len(seq):
-                length = int(seq.arrays["imu"].shape[1])
-                lengths.setdefault(length, seq.name)
-                if len(lengths) > 1:
-                    (l0, n0), = [(k, v) for k, v in lengths.items() if k != length]
-                    raise DataError(
-                        f"windows of '{seq.name}' have {length} samples but those of '{n0}' have {l0} "
-                        "(IMU rates differ)",
-                        hint="resample every sequence onto one rate (--resample-hz HZ)")
-                if manifest["rate_hz"] is None and seq.info.get("rate_hz") is not None:
-                    manifest["rate_hz"] = float(seq.info["rate_hz"])
-            folder = tmp / "sequences" / seq.name
-            folder.mkdir(parents=True)
-            for key in (*ARRAYS, TEMPERATURE, STATE_BIAS):
-                if key in seq.arrays:
-                    np.save(folder / f"{key}.npy", np.ascontiguousarray(seq.arrays[key]))
+            _check_sequence(seq, manifest, lengths)
+            _write_arrays(tmp / "sequences" / seq.name, seq)
             if TEMPERATURE not in seq.arrays:
                 without_temperature.append(seq.name)
             manifest["sequences"][seq.name] = {
@@ -281,12 +260,7 @@ def write_dataset(
             log.info("%s (%s): %d windows kept of %d", seq.name, seq.split.value, len(seq), seq.candidates)
         manifest["window_samples"] = next(iter(lengths), 0)
         manifest["has_temperature"] = _keep_temperature(tmp, manifest, without_temperature)
-        for split, names in manifest["splits"].items():
-            entries = [manifest["sequences"][n] for n in names]
-            kept = sum(e["windows"] for e in entries)
-            cand = sum(e["candidates"] for e in entries)
-            manifest["totals"][split] = {"sequences": len(names), "windows": kept, "candidates": cand,
-                                         "dropped": cand - kept}
+        manifest["totals"] = _split_totals(manifest)
         train = [
             SequenceWindows(name, Split.TRAIN, _load_arrays(tmp / manifest["sequences"][name]["path"],
                                                             manifest["has_temperature"]))
@@ -296,6 +270,54 @@ def write_dataset(
         del train  # close the memory maps before the folder is renamed
         (tmp / MANIFEST).write_text(dumps(manifest), encoding="utf-8")
     return WindowManifest.from_json(manifest)
+
+
+def _check_sequence(seq: SequenceWindows, manifest: dict[str, Any], lengths: dict[int, str]) -> None:
+    """Check one sequence against those before it (name once and safe, same window length), noting
+    its window length in ``lengths`` and the first rate in ``manifest["rate_hz"]``.
+
+    Raises:
+        ConfigError: A sequence name used twice or unsafe as a folder name.
+        DataError: Windows of different lengths.
+    """
+    if seq.name in manifest["sequences"]:
+        other = manifest["sequences"][seq.name]["split"]
+        raise ConfigError(f"sequence '{seq.name}' is given twice (splits {other} and {seq.split.value})",
+                          field=seq.name, hint="list every sequence once, in exactly one split")
+    if not _SAFE_NAME.match(seq.name):
+        raise ConfigError(f"sequence name '{seq.name}' cannot be a folder name", field=seq.name,
+                          hint="use letters, digits, '_', '-' and '.'")
+    if len(seq):
+        length = int(seq.arrays["imu"].shape[1])
+        lengths.setdefault(length, seq.name)
+        if len(lengths) > 1:
+            (l0, n0), = [(k, v) for k, v in lengths.items() if k != length]
+            raise DataError(
+                f"windows of '{seq.name}' have {length} samples but those of '{n0}' have {l0} "
+                "(IMU rates differ)",
+                hint="resample every sequence onto one rate (--resample-hz HZ)")
+        if manifest["rate_hz"] is None and seq.info.get("rate_hz") is not None:
+            manifest["rate_hz"] = float(seq.info["rate_hz"])
+
+
+def _write_arrays(folder: Path, seq: SequenceWindows) -> None:
+    """The sequence's arrays as ``<key>.npy`` files in a new ``folder``."""
+    folder.mkdir(parents=True)
+    for key in (*ARRAYS, TEMPERATURE, STATE_BIAS):
+        if key in seq.arrays:
+            np.save(folder / f"{key}.npy", np.ascontiguousarray(seq.arrays[key]))
+
+
+def _split_totals(manifest: dict[str, Any]) -> dict[str, dict[str, int]]:
+    """Per split: sequences, kept windows, candidates and dropped windows."""
+    totals: dict[str, dict[str, int]] = {}
+    for split, names in manifest["splits"].items():
+        entries = [manifest["sequences"][n] for n in names]
+        kept = sum(e["windows"] for e in entries)
+        cand = sum(e["candidates"] for e in entries)
+        totals[split] = {"sequences": len(names), "windows": kept, "candidates": cand,
+                         "dropped": cand - kept}
+    return totals
 
 
 def _keep_temperature(tmp: Path, manifest: dict[str, Any], without: list[str]) -> bool:

@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from pipeline.bias_table import BiasTrack
 from pipeline.errors import ConfigError, DataError, InputFormatError, ValidationError
 from pipeline.ingest import load
 from pipeline.store import is_store, read_store
@@ -73,6 +74,7 @@ from validation.validate import (
 )
 from training.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
 from training.windows_config import WindowConfig
+from validation.config import ValidationConfig
 from validation.outputs import Verdict, read_summary
 
 log = logging.getLogger(__name__)
@@ -307,8 +309,39 @@ def extract_windows(
     dropped[DropReason.OUTSIDE_RECOVERY.value] = int(outside.sum())
     keep &= ~outside
 
-    # the validation's reference: the ground-truth state, else ``reference_stream`` (e.g. ground-truth
-    # poses when the bias was recovered from position-only Leica data), else the recovery's stream
+    reference = _window_reference(sequence, reference_stream, recovery, vcfg)
+    no_ref = ~(reference.valid[starts] & reference.valid[starts + n])
+    dropped[DropReason.NO_REFERENCE.value] = int(no_ref.sum())
+    keep &= ~no_ref
+
+    s = starts[keep]
+    arrays = _window_arrays(sequence, imu, bias, reference, s, n)
+    gravity = recovery.report.gravity_world_mps2
+    cal = sequence.calibration
+    info.update(
+        window_samples=n + 1,
+        reference=reference.kind.value,
+        reference_info=dict(reference.info),
+        recovery_dir=str(recovery_dir),
+        label_pose_stream=recovery.report.pose_stream,
+        bias_random_walk=random_walk.tolist(),
+        sensor_random_walk=[cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3,
+        gravity_mps2=None if gravity is None else gravity.tolist(),
+    )
+    if not len(s):
+        log.warning("sequence '%s': all %d windows dropped (%s)", sequence.name, len(starts),
+                    ", ".join(f"{k} {v}" for k, v in dropped.items() if v))
+    elif len(s) < len(starts):
+        log.info("sequence '%s': %d of %d windows kept (%s)", sequence.name, len(s), len(starts),
+                 ", ".join(f"{k} {v}" for k, v in dropped.items() if v))
+    return SequenceWindows(sequence.name, split, arrays, dropped, candidates=len(starts), info=info)
+
+
+
+def _window_reference(sequence: Sequence, reference_stream: str | None, recovery: RecoveryOutputs,
+                      vcfg: ValidationConfig) -> ReferenceStates:
+    """The validation's reference: the ground-truth state, else ``reference_stream`` (e.g. ground-truth
+    poses when the bias was recovered from position-only Leica data), else the recovery's stream."""
     try:
         reference: ReferenceStates = build_reference(sequence, pose_stream=reference_stream, recovery=recovery,
                                                      config=vcfg)
@@ -320,11 +353,14 @@ def extract_windows(
                               hint=(exc.hint or "").replace("validate against", "take the states from")
                               .replace("--poses ", f"--reference {sequence.name}=")
                               + " (workflow: the entry's validation: {poses: STREAM})") from None
-    no_ref = ~(reference.valid[starts] & reference.valid[starts + n])
-    dropped[DropReason.NO_REFERENCE.value] = int(no_ref.sum())
-    keep &= ~no_ref
+    return reference
 
-    s = starts[keep]
+
+def _window_arrays(sequence: Sequence, imu: ImuSeries, bias: BiasTrack, reference: ReferenceStates,
+                   s: np.ndarray, n: int) -> dict[str, np.ndarray]:
+    """The arrays of the windows starting at ``s`` (``n`` steps each): IMU, bias and its std, stamps, the
+    reference's start and end states, and (where available and finite) the temperature and the
+    ground-truth state's bias."""
     idx = s[:, None] + np.arange(n + 1)[None, :]
     e = s + n
     if len(s):
@@ -346,25 +382,7 @@ def extract_windows(
     state_bias = state_bias_at(sequence, imu.t_ns[idx]) if len(s) else None
     if state_bias is not None:
         arrays[STATE_BIAS] = state_bias
-    gravity = recovery.report.gravity_world_mps2
-    cal = sequence.calibration
-    info.update(
-        window_samples=n + 1,
-        reference=reference.kind.value,
-        reference_info=dict(reference.info),
-        recovery_dir=str(recovery_dir),
-        label_pose_stream=recovery.report.pose_stream,
-        bias_random_walk=random_walk.tolist(),
-        sensor_random_walk=[cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3,
-        gravity_mps2=None if gravity is None else gravity.tolist(),
-    )
-    if not len(s):
-        log.warning("sequence '%s': all %d windows dropped (%s)", sequence.name, len(starts),
-                    ", ".join(f"{k} {v}" for k, v in dropped.items() if v))
-    elif len(s) < len(starts):
-        log.info("sequence '%s': %d of %d windows kept (%s)", sequence.name, len(s), len(starts),
-                 ", ".join(f"{k} {v}" for k, v in dropped.items() if v))
-    return SequenceWindows(sequence.name, split, arrays, dropped, candidates=len(starts), info=info)
+    return arrays
 
 
 # ----------------------------------------------------------------------------- dataset

@@ -12,8 +12,8 @@ import numpy as np
 import torch
 
 from pipeline.errors import ValidationError
-from pipeline.integration import integrate
-from pipeline.so3 import rotation_angle_deg
+from pipeline.geometry.integration import integrate
+from pipeline.geometry.so3_numpy import rotation_angle_deg
 from pipeline.types import (NS_PER_S, ImuSeries, IntegrationScheme)
 from validation.config import ValidationConfig
 from validation.reference import ReferenceStates, check_increasing
@@ -218,7 +218,7 @@ def window_end_errors(
     """End-of-window errors of windows integrated from their reference start with ``imu - bias``.
 
     The one metric of the project (validation and the evaluation of learned models): float64,
-    :func:`pipeline.integration.integrate`, no gradient.
+    :func:`pipeline.geometry.integration.integrate`, no gradient.
 
     Args:
         imu: Gyro (rad/s) then acc (m/s^2), [B, T, 6].

@@ -34,7 +34,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.errors import BiasgtError
-from pipeline.pose_transform import offset_ns, poses_in_imu_frame
+from pipeline.geometry.pose_transform import offset_ns, poses_in_imu_frame
 from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
 from recovery.gyro_consistency import FRAME_SWAP_GAIN, rate_coupling
 from recovery.outputs import RecoveryOutputs
@@ -167,7 +167,7 @@ def pose_residuals(
 
     The pose stream is interpolated at the trajectory's stamps taken back to the pose clock
     (linear in position, Slerp in rotation), then moved onto the IMU clock and into the IMU
-    frame by :func:`pipeline.pose_transform.poses_in_imu_frame` (for a position-only stream the
+    frame by :func:`pipeline.geometry.pose_transform.poses_in_imu_frame` (for a position-only stream the
     lever arm is removed with the recovered orientation; when the trajectory has none either,
     positions are compared as they are). Stamps outside the pose span are skipped.
 

@@ -15,8 +15,8 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.errors import BiasgtError, DataError, ValidationError
+from pipeline.geometry.pose_transform import as_transform, poses_in_imu_frame
 from pipeline.io import select_pose_stream
-from pipeline.pose_transform import as_transform, poses_in_imu_frame
 from pipeline.types import (NS_PER_S, PoseSeries, Sequence,
                             StateSeries)
 from recovery.outputs import RecoveryOutputs

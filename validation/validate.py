@@ -1,7 +1,7 @@
 """Validation of a bias trajectory by 1-second integration error (AirIMU's metrics).
 
 The IMU is cut into windows of ``window_s`` (default 1 s, ``overlap`` 0.5); each window is
-integrated (:func:`pipeline.integration.integrate`, MIDPOINT, float64) from the reference state at
+integrated (:func:`pipeline.geometry.integration.integrate`, MIDPOINT, float64) from the reference state at
 its first sample with ``imu - bias`` and gravity, and its end compared with the reference:
 
     pos_err = |p_end - p_ref_end| [m]     rot_err = |Log(R_ref_end^T R_end)| [deg]
@@ -39,7 +39,7 @@ import numpy as np
 import pandas as pd
 
 from pipeline.bias_table import BiasTrack
-from pipeline.checks import reader_warnings
+from pipeline.checks.run import reader_warnings
 from pipeline.errors import ValidationError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.outputs import RecoveryOutputs
@@ -248,6 +248,29 @@ def validate_sequence(
     plan = plan_windows(imu, config)
     notes += _imu_notes(imu, sequence, plan)
 
+    reference = _reference_at_imu(sequence, reference, imu, config)
+    given, candidate = _given_sources(sequence, sources, config, notes)
+    keep, at_imu, dropped = _kept_windows(sequence, imu, plan, reference, given)
+    starts = plan.starts[keep]
+    evaluated = _evaluated_sources(imu, plan, starts, given, at_imu, candidate, config, notes)
+    metrics = _source_metrics(imu, plan, starts, evaluated, at_imu, reference, gravity, config)
+    heldout_part, heldout_fails = None, []
+    limitations = list(limitations)
+    if heldout is not None:
+        heldout_part, heldout_fails, heldout_warns = _heldout_metrics(
+            imu, heldout, reference, plan, starts, gravity, metrics, config, judge_heldout, dict(heldout_info or {}))
+        limitations = [*heldout_warns, *limitations]
+    verdict, reasons = decide_verdict(metrics, candidate, dropped_fraction=dropped["fraction"], config=config,
+                                      limitations=limitations, fails=[*fails, *heldout_fails])
+    ref_info = {"kind": reference.kind.value, **reference.info}
+    return ValidationResult(sequence.name, verdict, reasons, candidate, config, metrics, dropped, ref_info,
+                            gravity, notes, heldout=heldout_part)
+
+
+def _reference_at_imu(sequence: Sequence, reference: ReferenceStates | None, imu: ImuSeries,
+                      config: ValidationConfig) -> ReferenceStates:
+    """The reference at the IMU stamps: the ground-truth state by default, else ``reference``
+    (re-interpolated when built for other stamps)."""
     if reference is None:
         if sequence.ground_truth is None:
             raise ValidationError(
@@ -260,7 +283,13 @@ def validate_sequence(
         reference = reference_from_states(reference, imu.t_ns, gap_factor=config.reference_gap_factor)
         reference = ReferenceStates(reference.t_ns, reference.R, reference.v, reference.p, reference.valid, kind,
                                     reference.info)
+    return reference
 
+
+def _given_sources(sequence: Sequence, sources: Mapping[str, BiasTrack | BiasSource], config: ValidationConfig,
+                   notes: list[str]) -> tuple[list[BiasSource], str]:
+    """The given sources (with the DATASET one when ``config.include_dataset``) and the candidate's
+    name: the first of recovered, file, dataset. A missing DATASET source is said in ``notes``."""
     given = _normalise_sources(sources)
     if config.include_dataset and not any(s.kind is BiasSourceKind.DATASET for s in given):
         ds = dataset_bias(sequence)
@@ -276,8 +305,13 @@ def validate_sequence(
     if not judged:
         raise ValidationError("no bias source to judge (only zero / constant given)",
                               hint="give a recovered, dataset or file bias")
-    candidate = judged[0].name
+    return given, judged[0].name
 
+
+def _kept_windows(sequence: Sequence, imu: ImuSeries, plan: WindowPlan, reference: ReferenceStates,
+                  given: list[BiasSource]) -> tuple[np.ndarray, dict[str, np.ndarray], dict[str, Any]]:
+    """``(keep, at_imu, dropped)``: the planned windows the reference and every source cover, each
+    source's bias at the IMU stamps, and what was dropped, by reason."""
     s, e = plan.starts, plan.starts + plan.n
     keep = plan.keep.copy()
     by_reason = dict(plan.dropped)
@@ -308,8 +342,14 @@ def validate_sequence(
     if n_cand - n_keep:
         log.info("validating %d of %d windows (%s)", n_keep, n_cand,
                  ", ".join(f"{k} {v}" for k, v in by_reason.items() if v))
+    return keep, at_imu, dropped
 
-    starts = s[keep]
+
+def _evaluated_sources(imu: ImuSeries, plan: WindowPlan, starts: np.ndarray, given: list[BiasSource],
+                       at_imu: dict[str, np.ndarray], candidate: str, config: ValidationConfig,
+                       notes: list[str]) -> list[BiasSource]:
+    """The rows to integrate: the zero and the constant bias (as configured; added to ``at_imu``),
+    then the given sources. Two sources with one name are an error."""
     evaluated: list[BiasSource] = []
     if config.include_zero:
         zero = np.zeros((len(imu), 6))
@@ -330,7 +370,14 @@ def validate_sequence(
                                   hint="give each --bias a distinct NAME (zero and constant are reserved)")
         evaluated.append(src)
         names.append(src.name)
+    return evaluated
 
+
+def _source_metrics(imu: ImuSeries, plan: WindowPlan, starts: np.ndarray, evaluated: list[BiasSource],
+                    at_imu: dict[str, np.ndarray], reference: ReferenceStates, gravity: np.ndarray,
+                    config: ValidationConfig) -> dict[str, SourceMetrics]:
+    """Each row's window errors, PRMSE / ROE and flags over the kept windows (``starts``), integrated
+    with the row's own gravity where it names one, else ``gravity``."""
     metrics: dict[str, SourceMetrics] = {}
     t0 = imu.t_ns[starts]
     window_s = plan.n / plan.rate_hz
@@ -345,17 +392,7 @@ def validate_sequence(
         )
         log.info("%-12s PRMSE %.4f m  ROE %.4f deg  (%d windows, %d flagged)", src.name,
                  metrics[src.name].prmse_m, metrics[src.name].roe_deg, len(pos), int(flagged.sum()))
-    heldout_part, heldout_fails = None, []
-    limitations = list(limitations)
-    if heldout is not None:
-        heldout_part, heldout_fails, heldout_warns = _heldout_metrics(
-            imu, heldout, reference, plan, starts, gravity, metrics, config, judge_heldout, dict(heldout_info or {}))
-        limitations = [*heldout_warns, *limitations]
-    verdict, reasons = decide_verdict(metrics, candidate, dropped_fraction=dropped["fraction"], config=config,
-                                      limitations=limitations, fails=[*fails, *heldout_fails])
-    ref_info = {"kind": reference.kind.value, **reference.info}
-    return ValidationResult(sequence.name, verdict, reasons, candidate, config, metrics, dropped, ref_info,
-                            gravity, notes, heldout=heldout_part)
+    return metrics
 
 
 def _heldout_metrics(imu: ImuSeries, heldout: BiasSource, reference: ReferenceStates, plan: WindowPlan,
@@ -453,15 +490,7 @@ def validate_inputs(
     reference = build_reference(sequence, pose_stream=pose_stream, recovery=recovery, config=config)
     fitted = recovery is not None and reference.kind is ReferenceKind.POSES and (
         recovery.report.pose_stream is None or reference.info.get("stream") == recovery.report.pose_stream)
-    own_gravity = None  # the recovery's gravity for its own rows, in the fitted stream's frame
-    if gravity_mps2 is not None:
-        gravity = np.asarray(gravity_mps2, dtype=float)
-    else:
-        gravity = nominal_gravity(recovery)
-        if fitted and recovery.report.gravity_world_mps2 is not None:
-            own_gravity = np.asarray(recovery.report.gravity_world_mps2, dtype=float)
-            sources = {k: (replace(s, gravity_mps2=own_gravity) if s.kind is BiasSourceKind.RECOVERED else s)
-                       for k, s in sources.items()}
+    gravity, own_gravity, sources = _row_gravity(gravity_mps2, recovery, fitted, sources)
     heldout, heldout_info = None, None
     if config.crossval_block_s is not None and (config.crossval is CrossvalMode.ON or
                                                 (config.crossval is CrossvalMode.AUTO and fitted)):
@@ -470,15 +499,7 @@ def validate_inputs(
             heldout = replace(heldout, gravity_mps2=own_gravity)
     judged = fitted and heldout is not None and len(heldout_info["dropped_folds"]) < config.crossval_folds
     implausible = plausibility_findings(sequence, recovery) if recovery is not None else []
-    limitations = input_limitations(sequence)
-    limitations += recovery_limitations(recovery, config) if recovery is not None else []
-    if fitted and not judged:
-        limitations.append(Limitation(
-            "not an independent test: the reference poses are those the recovery fitted, so pose errors that "
-            "the bias absorbed are not seen" + (" (and no cross-validation fold could be recovered)"
-                                                if heldout is not None else ""),
-            "validate against another pose stream or a ground truth (--poses STREAM, --add-poses FILE:KIND), or "
-            "cross-validate (--crossval on)"))
+    limitations = _limitations(sequence, recovery, config, fitted and not judged, heldout is not None)
     result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config,
                                limitations=[lim.text for lim in limitations], heldout=heldout, judge_heldout=judged,
                                heldout_info=heldout_info, fails=[x.text for x in implausible])
@@ -494,6 +515,39 @@ def validate_inputs(
         result.notes.append(f"recovery: {recovery_dir}")
     result.notes += reader_warnings(sequence.findings)  # skipped input lines
     return result
+
+
+def _row_gravity(gravity_mps2: Any, recovery: RecoveryOutputs | None, fitted: bool, sources: dict[str, BiasSource]
+                 ) -> tuple[np.ndarray, np.ndarray | None, dict[str, BiasSource]]:
+    """``(gravity, own_gravity, sources)``: the gravity every row is integrated with (``gravity_mps2``,
+    else the nominal one), and, against the stream the recovery was fitted to, the recovery's own
+    gravity, set on its rows (``None`` otherwise)."""
+    own_gravity = None  # the recovery's gravity for its own rows, in the fitted stream's frame
+    if gravity_mps2 is not None:
+        gravity = np.asarray(gravity_mps2, dtype=float)
+    else:
+        gravity = nominal_gravity(recovery)
+        if fitted and recovery.report.gravity_world_mps2 is not None:
+            own_gravity = np.asarray(recovery.report.gravity_world_mps2, dtype=float)
+            sources = {k: (replace(s, gravity_mps2=own_gravity) if s.kind is BiasSourceKind.RECOVERED else s)
+                       for k, s in sources.items()}
+    return gravity, own_gravity, sources
+
+
+def _limitations(sequence: Sequence, recovery: RecoveryOutputs | None, config: ValidationConfig,
+                 not_independent: bool, has_heldout: bool) -> list[Limitation]:
+    """What limits the candidate: the input's, the recovery's, and, when the reference is the stream
+    the bias was fitted to and no held-out blocks judge it, that the test is not independent."""
+    limitations = input_limitations(sequence)
+    limitations += recovery_limitations(recovery, config) if recovery is not None else []
+    if not_independent:
+        limitations.append(Limitation(
+            "not an independent test: the reference poses are those the recovery fitted, so pose errors that "
+            "the bias absorbed are not seen" + (" (and no cross-validation fold could be recovered)"
+                                                if has_heldout else ""),
+            "validate against another pose stream or a ground truth (--poses STREAM, --add-poses FILE:KIND), or "
+            "cross-validate (--crossval on)"))
+    return limitations
 
 
 def nominal_gravity(recovery: RecoveryOutputs | None = None) -> np.ndarray:

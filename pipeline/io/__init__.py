@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import AmbiguousInputError, ConfigError, DataError, InputFormatError, UnsupportedInputError
-from pipeline.io._text import TimeUnit
+from pipeline.io._stamps import TimeUnit
 from pipeline.io.asl import (
     CODE_CALIBRATION_DEFAULTED,
     AslTable,
@@ -201,7 +201,7 @@ def load_sequence(
             and ground-truth or VIO poses from a TUM file): :class:`PoseInput`, ``"PATH"``,
             ``"PATH:KIND"`` or a dict with ``path`` and optional ``fmt``, ``stream``, ``kind``.
         all_pose_topics: ROS bags: read every pose topic (or tf pair) instead of refusing the
-            choice (for describing a bag, :func:`pipeline.io.rosbag.read_bag`).
+            choice (for describing a bag, :func:`pipeline.io.rosbag.reader.read_bag`).
 
     Returns:
         The sequence, with the reader's findings and ``metadata["source_format"]``.
@@ -286,7 +286,7 @@ def _load_one(
                      + SUPPORTED_HINT,
             )
         return read_csv_generic(path, mapping, name=name)
-    from pipeline.io.rosbag import read_bag  # rosbags takes ~0.3 s to import: load it for bags only
+    from pipeline.io.rosbag.reader import read_bag  # rosbags takes ~0.3 s to import: load it for bags only
 
     return read_bag(path, name=name, all_pose_topics=all_pose_topics, **bag_opts)
 

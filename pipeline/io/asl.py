@@ -33,16 +33,8 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import InputFormatError
-from pipeline.io._text import (
-    Delimiter,
-    Header,
-    ParsedTable,
-    TimeUnit,
-    parse_table,
-    read_text,
-    split_header,
-    table_findings,
-)
+from pipeline.io._stamps import TimeUnit
+from pipeline.io._text import Delimiter, Header, ParsedTable, parse_table, read_text, split_header, table_findings
 from pipeline.io.sensor_yaml import IMU_NOISE_KEYS, load_sensor_yaml, read_imu_calibration, read_T_BS
 from pipeline.types import (
     Finding,

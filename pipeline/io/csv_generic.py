@@ -30,7 +30,8 @@ import numpy as np
 import yaml
 
 from pipeline.errors import ConfigError, InputFormatError
-from pipeline.io._text import Delimiter, Header, TimeUnit, parse_table, read_text, split_header, table_findings
+from pipeline.io._stamps import TimeUnit
+from pipeline.io._text import Delimiter, Header, parse_table, read_text, split_header, table_findings
 from pipeline.types import STANDARD_GRAVITY_MPS2, Finding, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 
 log = logging.getLogger(__name__)
@@ -234,6 +235,42 @@ def _resolve(col: Column, header: Header, key: str, path: Path, ncols: int) -> i
                            hint=f"the header has: {', '.join(names)}")
 
 
+def _column_count(text: str, header: Header, delimiter: Delimiter) -> int:
+    """The number of columns: the header's, else the first data line's (trailing separators ignored)."""
+    if header.names is not None:
+        ncols = len(header.names)
+    else:
+        end = text.find("\n", header.data_offset)
+        first = text[header.data_offset:end if end >= 0 else None].strip()
+        if delimiter is not Delimiter.WHITESPACE:
+            first = first.rstrip(delimiter.value)
+        ncols = len(delimiter.split(first))
+    return ncols
+
+
+def _mapped_columns(mapping: CsvMapping, header: Header, path: Path, ncols: int
+                    ) -> tuple[int, list[int], list[int], list[int], list[int], list[int]]:
+    """``(t_col, gyro, acc, pos, quat, value_cols)``: the mapping's columns as indices; ``value_cols``
+    all value columns once each, in that order.
+
+    Raises:
+        ConfigError / InputFormatError: Unknown column, or the time column used as a value too.
+    """
+    def res(cols: tuple[Column, ...] | None, key: str) -> list[int]:
+        return [] if cols is None else [_resolve(c, header, key, path, ncols) for c in cols]
+
+    t_col = _resolve(mapping.time_column, header, "time_column", path, ncols)
+    gyro = res(mapping.gyro_columns, "gyro_columns")
+    acc = res(mapping.acc_columns, "acc_columns")
+    pos = res(mapping.position_columns, "position_columns")
+    quat = res(mapping.quat_columns, "quat_columns")
+    value_cols = list(dict.fromkeys(gyro + acc + pos + quat))
+    if t_col in value_cols:
+        raise ConfigError("time_column is also used as a value column", path=path, field="time_column",
+                          hint="map each column to one quantity")
+    return t_col, gyro, acc, pos, quat, value_cols
+
+
 def read_csv_generic(
     path: str | Path,
     mapping: CsvMapping | dict[str, Any],
@@ -261,27 +298,8 @@ def read_csv_generic(
         mapping = CsvMapping.from_dict(mapping)
     text = read_text(path)
     header = split_header(text, mapping.delimiter)
-    if header.names is not None:
-        ncols = len(header.names)
-    else:
-        end = text.find("\n", header.data_offset)
-        first = text[header.data_offset:end if end >= 0 else None].strip()
-        if mapping.delimiter is not Delimiter.WHITESPACE:
-            first = first.rstrip(mapping.delimiter.value)
-        ncols = len(mapping.delimiter.split(first))
-
-    def res(cols: tuple[Column, ...] | None, key: str) -> list[int]:
-        return [] if cols is None else [_resolve(c, header, key, path, ncols) for c in cols]
-
-    t_col = _resolve(mapping.time_column, header, "time_column", path, ncols)
-    gyro = res(mapping.gyro_columns, "gyro_columns")
-    acc = res(mapping.acc_columns, "acc_columns")
-    pos = res(mapping.position_columns, "position_columns")
-    quat = res(mapping.quat_columns, "quat_columns")
-    value_cols = list(dict.fromkeys(gyro + acc + pos + quat))
-    if t_col in value_cols:
-        raise ConfigError("time_column is also used as a value column", path=path, field="time_column",
-                          hint="map each column to one quantity")
+    ncols = _column_count(text, header, mapping.delimiter)
+    t_col, gyro, acc, pos, quat, value_cols = _mapped_columns(mapping, header, path, ncols)
     parsed = parse_table(path, text, header, ncols=ncols, stamp_col=t_col, value_cols=value_cols,
                          delimiter=mapping.delimiter, unit=mapping.time_unit,
                          what=f"CSV with {ncols} {mapping.delimiter.label}-separated columns")

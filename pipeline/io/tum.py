@@ -16,7 +16,8 @@ import numpy as np
 
 from pipeline.atomic import atomic_path
 from pipeline.errors import DataError
-from pipeline.io._text import Delimiter, TimeUnit, parse_table, read_text, split_header, table_findings
+from pipeline.io._stamps import TimeUnit
+from pipeline.io._text import Delimiter, parse_table, read_text, split_header, table_findings
 from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
 
 log = logging.getLogger(__name__)

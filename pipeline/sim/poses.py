@@ -154,41 +154,10 @@ def simulate_pose_stream(
     p_true = p_imu + rot_imu.apply(T_imu_frame[:3, 3])
     rot_true = rot_imu * R_ie
 
-    m = len(t_s)
-    rng_vio = rngs["vio"]
-    vio_steps = rng_vio.normal(0.0, 1.0, size=(max(m - 1, 0), 4)) * np.sqrt(1.0 / cfg.rate_hz)
-    drift_p = np.zeros((m, 3))
-    drift_yaw = np.zeros(m)
-    if cfg.format is PoseFormat.VIO and m > 1:
-        drift_p[1:] = np.cumsum(vio_steps[:, :3], axis=0) * cfg.vio_position_drift_m_per_sqrt_s
-        drift_yaw[1:] = np.cumsum(vio_steps[:, 3]) * cfg.vio_yaw_drift_rad_per_sqrt_s
-        rz = Rotation.from_rotvec(np.column_stack([np.zeros(m), np.zeros(m), drift_yaw]))
-        p_true = rz.apply(p_true) + drift_p
-        rot_true = rz * rot_true
-
-    noise = rngs["noise"].normal(0.0, 1.0, size=(m, 6))
-    slow = gauss_markov(t_s, cfg.correlated_noise_tau_s, rngs["correlated"]) if m else np.zeros((0, 6))
-    p_meas = p_true + noise[:, :3] * cfg.position_noise_m + slow[:, :3] * cfg.correlated_position_noise_m
-    if cfg.format is PoseFormat.POSITION or cfg.rotation_noise_rad == cfg.correlated_rotation_noise_rad == 0:
-        rot_meas = rot_true
-    else:
-        rot_meas = rot_true * Rotation.from_rotvec(noise[:, 3:] * cfg.rotation_noise_rad
-                                                   + slow[:, 3:] * cfg.correlated_rotation_noise_rad)
-
-    gaps_s = _dropout_intervals(cfg, duration_s, rngs["dropouts"])
-    keep = np.ones(m, dtype=bool)
-    for start, end in gaps_s:
-        keep &= ~((t_s >= start) & (t_s < end))
-    gaps_ns = imu_t0_ns - offset_ns + np.round(gaps_s * NS_PER_S).astype(np.int64).reshape(-1, 2)
-
-    kept_idx = np.flatnonzero(keep)
-    if cfg.outliers > len(kept_idx):
-        raise ConfigError(f"poses.outliers={cfg.outliers} exceeds the {len(kept_idx)} poses", field="poses.outliers")
-    rng_out = rngs["outliers"]
-    out_idx = np.sort(rng_out.choice(kept_idx, size=cfg.outliers, replace=False)) if cfg.outliers else np.zeros(0, int)
-    directions = rng_out.normal(size=(len(out_idx), 3))
-    directions /= np.linalg.norm(directions, axis=1, keepdims=True).clip(1e-12)
-    p_meas[out_idx] += directions * cfg.outlier_offset_m
+    p_true, rot_true, drift_p, drift_yaw = _vio_drift(cfg, t_s, p_true, rot_true, rngs["vio"])
+    p_meas, rot_meas = _measured(cfg, t_s, p_true, rot_true, rngs)
+    keep, gaps_ns = _kept_poses(cfg, t_s, duration_s, imu_t0_ns - offset_ns, rngs["dropouts"])
+    out_idx = _add_outliers(cfg, keep, p_meas, rngs["outliers"])
 
     quat = None if cfg.format is PoseFormat.POSITION else quat_wxyz_continuous(rot_meas[keep])
     series = PoseSeries(stamps_ns[keep], p_meas[keep], quat, frame, kind, world)
@@ -207,3 +176,60 @@ def simulate_pose_stream(
         vio_drift_yaw_rad=drift_yaw[keep],
     )
     return series, truth
+
+
+def _vio_drift(cfg: PoseStreamConfig, t_s: np.ndarray, p_true: np.ndarray, rot_true: Rotation,
+               rng_vio: np.random.Generator) -> tuple[np.ndarray, Rotation, np.ndarray, np.ndarray]:
+    """``(p_true, rot_true, drift_p, drift_yaw)``: a VIO stream's true poses drift (random walks in
+    position and yaw); other formats keep theirs (the steps are drawn all the same)."""
+    m = len(t_s)
+    vio_steps = rng_vio.normal(0.0, 1.0, size=(max(m - 1, 0), 4)) * np.sqrt(1.0 / cfg.rate_hz)
+    drift_p = np.zeros((m, 3))
+    drift_yaw = np.zeros(m)
+    if cfg.format is PoseFormat.VIO and m > 1:
+        drift_p[1:] = np.cumsum(vio_steps[:, :3], axis=0) * cfg.vio_position_drift_m_per_sqrt_s
+        drift_yaw[1:] = np.cumsum(vio_steps[:, 3]) * cfg.vio_yaw_drift_rad_per_sqrt_s
+        rz = Rotation.from_rotvec(np.column_stack([np.zeros(m), np.zeros(m), drift_yaw]))
+        p_true = rz.apply(p_true) + drift_p
+        rot_true = rz * rot_true
+    return p_true, rot_true, drift_p, drift_yaw
+
+
+def _measured(cfg: PoseStreamConfig, t_s: np.ndarray, p_true: np.ndarray, rot_true: Rotation,
+              rngs: dict[str, np.random.Generator]) -> tuple[np.ndarray, Rotation]:
+    """The measured poses: white plus correlated (Gauss-Markov) noise on the true ones."""
+    m = len(t_s)
+    noise = rngs["noise"].normal(0.0, 1.0, size=(m, 6))
+    slow = gauss_markov(t_s, cfg.correlated_noise_tau_s, rngs["correlated"]) if m else np.zeros((0, 6))
+    p_meas = p_true + noise[:, :3] * cfg.position_noise_m + slow[:, :3] * cfg.correlated_position_noise_m
+    if cfg.format is PoseFormat.POSITION or cfg.rotation_noise_rad == cfg.correlated_rotation_noise_rad == 0:
+        rot_meas = rot_true
+    else:
+        rot_meas = rot_true * Rotation.from_rotvec(noise[:, 3:] * cfg.rotation_noise_rad
+                                                   + slow[:, 3:] * cfg.correlated_rotation_noise_rad)
+    return p_meas, rot_meas
+
+
+def _kept_poses(cfg: PoseStreamConfig, t_s: np.ndarray, duration_s: float, t0_pose_clock_ns: int,
+                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``(keep, gaps_ns)``: the poses outside the dropouts, and the dropouts on the pose clock."""
+    gaps_s = _dropout_intervals(cfg, duration_s, rng)
+    keep = np.ones(len(t_s), dtype=bool)
+    for start, end in gaps_s:
+        keep &= ~((t_s >= start) & (t_s < end))
+    gaps_ns = t0_pose_clock_ns + np.round(gaps_s * NS_PER_S).astype(np.int64).reshape(-1, 2)
+    return keep, gaps_ns
+
+
+def _add_outliers(cfg: PoseStreamConfig, keep: np.ndarray, p_meas: np.ndarray, rng_out: np.random.Generator
+                  ) -> np.ndarray:
+    """Move ``cfg.outliers`` kept positions by ``cfg.outlier_offset_m`` in random directions (in place);
+    returns their indices."""
+    kept_idx = np.flatnonzero(keep)
+    if cfg.outliers > len(kept_idx):
+        raise ConfigError(f"poses.outliers={cfg.outliers} exceeds the {len(kept_idx)} poses", field="poses.outliers")
+    out_idx = np.sort(rng_out.choice(kept_idx, size=cfg.outliers, replace=False)) if cfg.outliers else np.zeros(0, int)
+    directions = rng_out.normal(size=(len(out_idx), 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True).clip(1e-12)
+    p_meas[out_idx] += directions * cfg.outlier_offset_m
+    return out_idx

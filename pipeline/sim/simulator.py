@@ -26,7 +26,7 @@ from pipeline.sim.motion import (
     read_ground_truth_file,
 )
 from pipeline.sim.poses import PoseTruth, simulate_pose_stream
-from pipeline.types import CALIBRATION_NOISE_FIELDS, ImuCalibration, ImuSeries, Sequence, StateSeries
+from pipeline.types import CALIBRATION_NOISE_FIELDS, ImuCalibration, ImuSeries, PoseSeries, Sequence, StateSeries
 
 log = logging.getLogger(__name__)
 
@@ -138,8 +138,68 @@ def simulate(config: SimConfig) -> Simulation:
         InputFormatError / DataError: Unreadable ground-truth file in semi-real mode.
     """
     config.validate()
-    imu_cfg = config.imu
     gravity = np.asarray(config.motion.gravity_mps2, dtype=float)
+    config, gt_file, trajectory, t0_ns, duration_s = _motion(config)
+    imu_cfg = config.imu
+
+    period_ns = NS_PER_S / imu_cfg.rate_hz
+    n = int(np.floor(duration_s * NS_PER_S / period_ns + 1e-9)) + 1
+    rel_ns = np.round(np.arange(n) * period_ns).astype(np.int64)
+    t_ns = t0_ns + rel_ns
+    t_s = rel_ns / NS_PER_S
+
+    motion = trajectory.sample(t_s)
+    f_body = motion.specific_force(gravity)
+    bias = _bias_truth(config, gt_file, t0_ns, rel_ns, t_s)
+    matrices = sensor_matrices(imu_cfg, _rng(config.seed, _Stream.MATRICES))
+    gyro, acc = measure(
+        imu_cfg,
+        motion.omega_body_radps,
+        f_body,
+        bias.bias_gyro_radps,
+        bias.bias_acc_mps2,
+        matrices,
+        _rng(config.seed, _Stream.IMU_NOISE),
+    )
+    pose_series, pose_truth = simulate_pose_stream(config.poses, trajectory, t0_ns, duration_s,
+                                                   _pose_rngs(config.seed))
+
+    quat_wxyz = quat_wxyz_continuous(motion.rotation)
+    ground_truth = StateSeries(t_ns, motion.p_m, quat_wxyz, motion.v_mps, bias.bias_gyro_radps, bias.bias_acc_mps2)
+    sequence = Sequence(
+        name=config.name,
+        imu=ImuSeries(t_ns, gyro, acc, bias.temperature_degc),
+        poses={pose_truth.stream: pose_series},
+        ground_truth=ground_truth,
+        calibration=_calibration(config, pose_truth),
+        metadata={
+            "source_kind": "simulation",
+            "seed": int(config.seed),
+            "ground_truth_path": None
+            if config.motion.ground_truth_path is None
+            else str(Path(config.motion.ground_truth_path)),
+        },
+    )
+    truth = SimTruth(
+        t_ns=t_ns,
+        bias_gyro_radps=bias.bias_gyro_radps,
+        bias_acc_mps2=bias.bias_acc_mps2,
+        bias=bias,
+        matrices=matrices,
+        poses=pose_truth,
+        gravity_mps2=gravity,
+        motion_source=(MotionSource.RANDOM if gt_file is None else MotionSource.GROUND_TRUTH_STATE
+                       if isinstance(gt_file, StateSeries) else MotionSource.GROUND_TRUTH_POSES),
+        bias_source=BiasSource.GROUND_TRUTH_FILE if isinstance(gt_file, StateSeries) else BiasSource.SIMULATED,
+    )
+    return Simulation(config=config, sequence=sequence, truth=truth, trajectory=trajectory)
+
+
+def _motion(config: SimConfig) -> tuple[SimConfig, StateSeries | PoseSeries | None, Trajectory, int, float]:
+    """``(config, gt_file, trajectory, t0_ns, duration_s)``: the motion to simulate, random or (semi-real)
+    from the ground-truth file, whose span sets the start time and may shorten the duration
+    (``config`` is updated to match)."""
+    imu_cfg = config.imu
     gt_file = None
     if config.motion.ground_truth_path is not None:
         gt_file = read_ground_truth_file(config.motion.ground_truth_path)
@@ -173,16 +233,13 @@ def simulate(config: SimConfig) -> Simulation:
         trajectory = random_trajectory(
             params, duration_s, _rng(config.seed, _Stream.MOTION), pad_s=2 * params.key_interval_s
         )
+    return config, gt_file, trajectory, t0_ns, duration_s
 
-    period_ns = NS_PER_S / imu_cfg.rate_hz
-    n = int(np.floor(duration_s * NS_PER_S / period_ns + 1e-9)) + 1
-    rel_ns = np.round(np.arange(n) * period_ns).astype(np.int64)
-    t_ns = t0_ns + rel_ns
-    t_s = rel_ns / NS_PER_S
 
-    motion = trajectory.sample(t_s)
-    f_body = motion.specific_force(gravity)
-
+def _bias_truth(config: SimConfig, gt_file: StateSeries | PoseSeries | None, t0_ns: int, rel_ns: np.ndarray,
+                t_s: np.ndarray) -> BiasTruth:
+    """The true bias at the IMU stamps: the ground-truth state's (interpolated), else simulated."""
+    imu_cfg = config.imu
     if isinstance(gt_file, StateSeries):
         # interpolate on times relative to t0 (int64 epoch ns do not fit float64 exactly)
         t_file = (gt_file.t_ns - t0_ns).astype(np.float64)
@@ -198,31 +255,27 @@ def simulate(config: SimConfig) -> Simulation:
             _rng(config.seed, _Stream.WALK),
             _rng(config.seed, _Stream.TEMPERATURE),
         )
-    matrices = sensor_matrices(imu_cfg, _rng(config.seed, _Stream.MATRICES))
-    gyro, acc = measure(
-        imu_cfg,
-        motion.omega_body_radps,
-        f_body,
-        bias.bias_gyro_radps,
-        bias.bias_acc_mps2,
-        matrices,
-        _rng(config.seed, _Stream.IMU_NOISE),
-    )
+    return bias
 
-    pose_rngs = {
-        "extrinsic": _rng(config.seed, _Stream.EXTRINSIC),
-        "phase": _rng(config.seed, _Stream.POSE_PHASE),
-        "noise": _rng(config.seed, _Stream.POSE_NOISE),
-        "dropouts": _rng(config.seed, _Stream.DROPOUTS),
-        "outliers": _rng(config.seed, _Stream.OUTLIERS),
-        "vio": _rng(config.seed, _Stream.VIO),
-        "correlated": _rng(config.seed, _Stream.POSE_CORRELATED),
+
+def _pose_rngs(seed: int) -> dict[str, np.random.Generator]:
+    """One random stream per part of the pose simulation."""
+    return {
+        "extrinsic": _rng(seed, _Stream.EXTRINSIC),
+        "phase": _rng(seed, _Stream.POSE_PHASE),
+        "noise": _rng(seed, _Stream.POSE_NOISE),
+        "dropouts": _rng(seed, _Stream.DROPOUTS),
+        "outliers": _rng(seed, _Stream.OUTLIERS),
+        "vio": _rng(seed, _Stream.VIO),
+        "correlated": _rng(seed, _Stream.POSE_CORRELATED),
     }
-    pose_series, pose_truth = simulate_pose_stream(config.poses, trajectory, t0_ns, duration_s, pose_rngs)
 
-    quat_wxyz = quat_wxyz_continuous(motion.rotation)
-    ground_truth = StateSeries(t_ns, motion.p_m, quat_wxyz, motion.v_mps, bias.bias_gyro_radps, bias.bias_acc_mps2)
-    calibration = ImuCalibration(
+
+def _calibration(config: SimConfig, pose_truth: PoseTruth) -> ImuCalibration:
+    """The calibration a simulated recording ships: the datasheet (reported) noise values, and the
+    pose frame's extrinsic when ``config.poses.extrinsic_known``."""
+    imu_cfg = config.imu
+    return ImuCalibration(
         gyro_noise_density=imu_cfg.reported_gyro_noise_density,
         gyro_random_walk=imu_cfg.reported_gyro_random_walk,
         acc_noise_density=imu_cfg.reported_acc_noise_density,
@@ -232,30 +285,3 @@ def simulate(config: SimConfig) -> Simulation:
         T_imu_frames={pose_truth.frame: pose_truth.T_imu_frame.copy()} if config.poses.extrinsic_known else {},
         sources=dict.fromkeys(CALIBRATION_NOISE_FIELDS, "simulator config (reported datasheet values)"),
     )
-    sequence = Sequence(
-        name=config.name,
-        imu=ImuSeries(t_ns, gyro, acc, bias.temperature_degc),
-        poses={pose_truth.stream: pose_series},
-        ground_truth=ground_truth,
-        calibration=calibration,
-        metadata={
-            "source_kind": "simulation",
-            "seed": int(config.seed),
-            "ground_truth_path": None
-            if config.motion.ground_truth_path is None
-            else str(Path(config.motion.ground_truth_path)),
-        },
-    )
-    truth = SimTruth(
-        t_ns=t_ns,
-        bias_gyro_radps=bias.bias_gyro_radps,
-        bias_acc_mps2=bias.bias_acc_mps2,
-        bias=bias,
-        matrices=matrices,
-        poses=pose_truth,
-        gravity_mps2=gravity,
-        motion_source=(MotionSource.RANDOM if gt_file is None else MotionSource.GROUND_TRUTH_STATE
-                       if isinstance(gt_file, StateSeries) else MotionSource.GROUND_TRUTH_POSES),
-        bias_source=BiasSource.GROUND_TRUTH_FILE if isinstance(gt_file, StateSeries) else BiasSource.SIMULATED,
-    )
-    return Simulation(config=config, sequence=sequence, truth=truth, trajectory=trajectory)

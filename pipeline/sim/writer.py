@@ -32,7 +32,7 @@ from pipeline.errors import ConfigError
 from pipeline.io.tum import write_tum
 from pipeline.sim.config import PoseFormat
 from pipeline.sim.simulator import Simulation
-from pipeline.types import ImuSeries
+from pipeline.types import ImuSeries, PoseSeries, StateSeries
 
 SIMULATION_YAML = "simulation.yaml"
 VIO_TUM_FILE = "vio_tum.txt"
@@ -187,7 +187,7 @@ def write_simulation(
         out_dir: Output folder; replaced only once the new content is complete.
         pose_format: How to write the pose stream; default the config's format. POSITION writes
             only the positions of a 6-DoF stream; MOCAP and VIO need a stream with orientation.
-        bag: A :class:`pipeline.io.rosbag.RosVersion` (or "ros1"/"ros2") to also write
+        bag: A :class:`pipeline.io.rosbag.formats.RosVersion` (or "ros1"/"ros2") to also write
             ``sim.bag`` (ROS1) or ``sim_ros2/`` (ROS2) with the IMU and the pose stream.
 
     Returns:
@@ -218,37 +218,8 @@ def write_simulation(
         (mav0 / "imu0" / "data.csv").write_text(_imu_csv_text(seq.imu), encoding="utf-8")
         (mav0 / "imu0" / "sensor.yaml").write_text(imu_sensor_yaml(sim), encoding="utf-8")
 
-        gt_dir = mav0 / "state_groundtruth_estimate0"
-        gt_dir.mkdir()
-        gt_values = np.hstack([gt.p_m, gt.quat_wxyz, gt.v_mps, gt.bias_gyro_radps, gt.bias_acc_mps2])
-        (gt_dir / "data.csv").write_text(_csv_text(GT_HEADER, gt.t_ns, gt_values), encoding="utf-8")
-        (gt_dir / "sensor.yaml").write_text(
-            _pose_sensor_yaml("visual-inertial", "biasgt simulation: the TRUE IMU state and bias", np.eye(4)),
-            encoding="utf-8",
-        )
-
-        if pose_format is PoseFormat.MOCAP:
-            d = mav0 / "mocap0"
-            d.mkdir()
-            (d / "data.csv").write_text(
-                _csv_text(MOCAP_HEADER, poses.t_ns, np.hstack([poses.p_m, poses.quat_wxyz])), encoding="utf-8"
-            )
-            (d / "sensor.yaml").write_text(
-                _pose_sensor_yaml("pose", "biasgt simulated motion capture (marker pose)", T_frame if known else None),
-                encoding="utf-8",
-            )
-        elif pose_format is PoseFormat.POSITION:
-            d = mav0 / "leica0"
-            d.mkdir()
-            (d / "data.csv").write_text(_csv_text(POSITION_HEADER, poses.t_ns, poses.p_m), encoding="utf-8")
-            lever = np.eye(4)
-            lever[:3, 3] = T_frame[:3, 3]
-            (d / "sensor.yaml").write_text(
-                _pose_sensor_yaml("position", "biasgt simulated position tracker (prism)", lever if known else None),
-                encoding="utf-8",
-            )
-        else:
-            write_tum(tmp / VIO_TUM_FILE, poses)
+        _write_ground_truth(mav0, gt)
+        _write_poses(tmp, poses, pose_format, T_frame, known)
 
         if bag is not None:
             _write_bag(sim, tmp, bag, pose_format)
@@ -261,8 +232,49 @@ def write_simulation(
     return out_dir
 
 
+def _write_ground_truth(mav0: Path, gt: StateSeries) -> None:
+    """``mav0/state_groundtruth_estimate0/``: the true IMU state and bias."""
+    gt_dir = mav0 / "state_groundtruth_estimate0"
+    gt_dir.mkdir()
+    gt_values = np.hstack([gt.p_m, gt.quat_wxyz, gt.v_mps, gt.bias_gyro_radps, gt.bias_acc_mps2])
+    (gt_dir / "data.csv").write_text(_csv_text(GT_HEADER, gt.t_ns, gt_values), encoding="utf-8")
+    (gt_dir / "sensor.yaml").write_text(
+        _pose_sensor_yaml("visual-inertial", "biasgt simulation: the TRUE IMU state and bias", np.eye(4)),
+        encoding="utf-8",
+    )
+
+
+def _write_poses(tmp: Path, poses: PoseSeries, pose_format: PoseFormat, T_frame: np.ndarray, known: bool) -> None:
+    """The pose stream as ``mav0/mocap0/`` (MOCAP), ``mav0/leica0/`` (POSITION) or a TUM file (VIO);
+    its sensor.yaml states the extrinsic ``T_frame`` only when it is ``known``."""
+    mav0 = tmp / "mav0"
+    if pose_format is PoseFormat.MOCAP:
+        d = mav0 / "mocap0"
+        d.mkdir()
+        (d / "data.csv").write_text(
+            _csv_text(MOCAP_HEADER, poses.t_ns, np.hstack([poses.p_m, poses.quat_wxyz])), encoding="utf-8"
+        )
+        (d / "sensor.yaml").write_text(
+            _pose_sensor_yaml("pose", "biasgt simulated motion capture (marker pose)", T_frame if known else None),
+            encoding="utf-8",
+        )
+    elif pose_format is PoseFormat.POSITION:
+        d = mav0 / "leica0"
+        d.mkdir()
+        (d / "data.csv").write_text(_csv_text(POSITION_HEADER, poses.t_ns, poses.p_m), encoding="utf-8")
+        lever = np.eye(4)
+        lever[:3, 3] = T_frame[:3, 3]
+        (d / "sensor.yaml").write_text(
+            _pose_sensor_yaml("position", "biasgt simulated position tracker (prism)", lever if known else None),
+            encoding="utf-8",
+        )
+    else:
+        write_tum(tmp / VIO_TUM_FILE, poses)
+
+
 def _write_bag(sim: Simulation, tmp: Path, bag: Any, pose_format: PoseFormat) -> None:
-    from pipeline.io.rosbag import PoseMsgType, RosVersion, write_bag  # rosbags (~0.3 s): only to write a bag
+    from pipeline.io.rosbag.formats import PoseMsgType, RosVersion  # rosbags (~0.3 s): only to write a bag
+    from pipeline.io.rosbag.writer import write_bag
 
     version = RosVersion(bag)
     seq = sim.sequence

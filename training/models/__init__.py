@@ -10,7 +10,7 @@ the bias at IMU rate in raw units (rad/s, m/s^2).
   the bias in raw units. Its RELEASED sampler's [-1, 1] clip is applied in raw units, as there.
 * Regression (``regression_rnn``, ``regression_unet``): MSE on the normalised bias.
 * Indirect (``indirect_rnn``): AirIMU-style. The regressor's output is a bias correction; it is
-  subtracted from the readings, which :func:`pipeline.integration.integrate` integrates from the
+  subtracted from the readings, which :func:`pipeline.geometry.integration.integrate` integrates from the
   reference start state; the loss compares the end state with the reference end state
   (rotation error ``||Log(R_gt^T R)||^2`` in rad^2, velocity and position errors squared), so no
   bias label is read.
@@ -22,8 +22,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from pipeline.integration import integrate
-from pipeline.so3 import so3_log
+from pipeline.geometry.integration import integrate
+from pipeline.geometry.so3_torch import so3_log
 from training.batch import WindowBatch
 from training.config import IMU_CHANNELS, Method, ModelConfig, Sampler
 from training.normalizer import Normalizer

@@ -1,9 +1,10 @@
 # Config validation, the sequence table and every input function (get_*) of the workflow.
-# The logic lives in pipeline/workflow.py (unit-tested); these are one-line adapters.
+# The logic lives in pipeline/workflow/ (unit-tested); these are one-line adapters.
 
 import os
 
-from pipeline import workflow as wf
+from pipeline.workflow import config as wf_config  # not 'config': that is Snakemake's config dict
+from pipeline.workflow import params as wf
 
 
 def _config_file():
@@ -13,7 +14,7 @@ def _config_file():
 
 
 # One validator for 'biasgt run' and Snakemake: the schema, then the stage sections' dataclasses.
-WF_CONFIG = wf.check_config(wf.validate_schema(config, config_file=_config_file()), _config_file())
+WF_CONFIG = wf_config.check_config(wf_config.validate_schema(config, config_file=_config_file()), _config_file())
 SEQUENCES = WF_CONFIG.names
 SIMULATED = [s.name for s in WF_CONFIG.select(sources=["simulate"])]
 

@@ -1,6 +1,6 @@
 """Adapter of rules evaluate and evaluate_reference: all work is training.stages.evaluate_step (unit-tested)."""
 
-from pipeline.workflow import run_step
+from pipeline.workflow.steps import run_step
 from training.stages import evaluate_step
 
 wildcards = snakemake.wildcards  # noqa: F821

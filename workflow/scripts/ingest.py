@@ -1,6 +1,6 @@
-"""Adapter of rule ingest: all work is pipeline.workflow.ingest_step (unit-tested)."""
+"""Adapter of rule ingest: all work is pipeline.workflow.steps.ingest_step (unit-tested)."""
 
-from pipeline.workflow import ingest_step, run_step
+from pipeline.workflow.steps import ingest_step, run_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

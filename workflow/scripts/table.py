@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from pipeline.workflow import run_step
+from pipeline.workflow.steps import run_step
 from training.stages import table_step
 
 run_step(

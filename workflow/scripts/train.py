@@ -1,6 +1,6 @@
 """Adapter of rule train: all work is training.stages.train_step (unit-tested)."""
 
-from pipeline.workflow import run_step
+from pipeline.workflow.steps import run_step
 from training.stages import train_step
 
 run_step(

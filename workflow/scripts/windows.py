@@ -1,6 +1,6 @@
-"""Adapter of rule windows: all work is pipeline.workflow.windows_step (unit-tested)."""
+"""Adapter of rule windows: all work is pipeline.workflow.steps.windows_step (unit-tested)."""
 
-from pipeline.workflow import run_step, windows_step
+from pipeline.workflow.steps import run_step, windows_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

@@ -38,7 +38,7 @@ Implementation (speed matters: this runs on 10^4-10^5 windows per training step)
       contiguous rows and a batched 3x3 product is three broadcast multiply-adds over [3, 3, B]
       (~8x faster on CPU than ``torch.bmm`` on [B, 3, 3], whose per-matrix overhead dominates);
     * time is processed in blocks of a few steps (on CPU ~64k step-windows per block) so the
-      working set stays in cache: per block, one batched :func:`pipeline.so3.so3_exp_entries`
+      working set stays in cache: per block, one batched :func:`pipeline.geometry.so3_torch.so3_exp_entries`
       call gives every ``Exp(phi_k)``, a short loop of batched products extends the cumulative
       orientation ``R_k = R_0 Exp(phi_0) ... Exp(phi_{k-1})`` (the only sequential part: T-1
       small batched steps in all), and ``R_k a_k`` is formed while the block is hot;
@@ -60,7 +60,7 @@ import numpy as np
 import torch
 
 from pipeline.errors import DataError
-from pipeline.so3 import so3_exp_entries
+from pipeline.geometry.so3_torch import so3_exp_entries
 from pipeline.types import IntegrationScheme
 
 __all__ = ["IntegrationScheme", "IntegrationResult", "integrate", "integrate_numpy"]
@@ -219,6 +219,42 @@ def integrate(
         ValueError: When ``scheme`` is not an :class:`IntegrationScheme` value.
     """
     scheme = IntegrationScheme(scheme)
+    w, a, R0, v0, p0, g, bg, ba, h = _checked_inputs(gyro_radps, acc_mps2, dt_s, R0, v0, p0, gravity_mps2,
+                                                     bias_gyro_radps, bias_acc_mps2)
+    B, T, _ = w.shape
+
+    # Internal layout (see module docstring): [T, 3, B] vectors, [T, 3, 3, B] matrices.
+    wt = _to_internal(w)
+    at = _to_internal(a)
+    if bg is not None:
+        wt = wt - bg
+    if ba is not None:
+        at = at - ba
+    R0t = _to_internal(R0)  # [3, 3, B]
+    v0t = v0.transpose(0, 1).contiguous()  # [3, B]
+    p0t = p0.transpose(0, 1).contiguous()
+    gt = g.reshape(3, 1)
+    if T == 1:
+        return _result(R0t[None], v0t[None], p0t[None], return_trajectory)
+    ht = _step_lengths(h, B, T)
+    midpoint = scheme is IntegrationScheme.MIDPOINT
+    R, ra, R_blocks = _orientations(R0t, wt, at, ht, midpoint, return_trajectory, _time_block(B, T - 1, w.device))
+    if not return_trajectory:
+        return _end_state(R, ra, ht, v0t, p0t, gt, scheme)
+    return _trajectory(ra, R_blocks, ht, v0t, p0t, gt, midpoint)
+
+
+def _checked_inputs(
+    gyro_radps: torch.Tensor, acc_mps2: torch.Tensor, dt_s: torch.Tensor | float, R0: torch.Tensor,
+    v0: torch.Tensor, p0: torch.Tensor, gravity_mps2: torch.Tensor | Sequence[float],
+    bias_gyro_radps: torch.Tensor | None, bias_acc_mps2: torch.Tensor | None,
+) -> tuple[torch.Tensor, ...]:
+    """:func:`integrate`'s inputs as tensors of ``gyro_radps``'s dtype and device, shapes checked:
+    ``(w, a, R0, v0, p0, g, bg, ba, h)``.
+
+    Raises:
+        DataError: When shapes do not match.
+    """
     if not isinstance(gyro_radps, torch.Tensor):
         raise DataError("gyro_radps must be a torch.Tensor (use integrate_numpy for numpy)", field="gyro_radps")
     if gyro_radps.dim() != 3 or gyro_radps.shape[-1] != 3 or gyro_radps.shape[1] < 1:
@@ -245,32 +281,30 @@ def integrate(
             field="dt_s",
             hint="pass the intervals t_{k+1} - t_k in seconds",
         ) from None
+    return w, a, R0, v0, p0, g, bg, ba, h
 
-    # Internal layout (see module docstring): [T, 3, B] vectors, [T, 3, 3, B] matrices.
-    wt = _to_internal(w)
-    at = _to_internal(a)
-    if bg is not None:
-        wt = wt - bg
-    if ba is not None:
-        at = at - ba
-    R0t = _to_internal(R0)  # [3, 3, B]
-    v0t = v0.transpose(0, 1).contiguous()  # [3, B]
-    p0t = p0.transpose(0, 1).contiguous()
-    gt = g.reshape(3, 1)
-    if T == 1:
-        return _result(R0t[None], v0t[None], p0t[None], return_trajectory)
-    # Step lengths as [T-1, 1, Bh], Bh = 1 when all windows share them.
+
+def _step_lengths(h: torch.Tensor, B: int, T: int) -> torch.Tensor:
+    """Step lengths as [T-1, 1, Bh], Bh = 1 when all windows share them."""
     if h.dim() == 0:
         ht = h.expand(T - 1).reshape(T - 1, 1, 1)
     elif h.dim() == 1 or h.shape[0] == 1:
         ht = h.reshape(-1).expand(T - 1).reshape(T - 1, 1, 1)
     else:
         ht = h.expand(B, T - 1).transpose(0, 1).unsqueeze(1).contiguous()
-    midpoint = scheme is IntegrationScheme.MIDPOINT
+    return ht
 
-    # --- block loop over time: Exp of every step, cumulative orientation, R_k a_k.
-    n_steps = T - 1
-    blk = _time_block(B, n_steps, w.device)
+
+def _orientations(R0t: torch.Tensor, wt: torch.Tensor, at: torch.Tensor, ht: torch.Tensor, midpoint: bool,
+                  return_trajectory: bool, blk: int
+                  ) -> tuple[torch.Tensor, list[torch.Tensor], list[torch.Tensor] | None]:
+    """Block loop over time: Exp of every step, cumulative orientation, R_k a_k.
+
+    Returns:
+        ``(R, ra, R_blocks)``: the end orientation [3, 3, B], R_k a_k in blocks of [n, 3, B], and
+        (with ``return_trajectory``) the orientations in blocks of [n, 3, 3, B].
+    """
+    n_steps = wt.shape[0] - 1
     R = R0t
     ra = [_rotate(R0t, at[0])[None]]  # R_k a_k, blocks of [n, 3, B]
     R_blocks = [R0t[None]] if return_trajectory else None
@@ -295,21 +329,27 @@ def integrate(
         ra.append(_rotate(Rb, at[s + 1 : e + 1]))
         if R_blocks is not None:
             R_blocks.append(Rb)
+    return R, ra, R_blocks
 
-    if not return_trajectory:
-        # End state as weighted sums of f_k = g + R_k a_k (see _end_weights).
-        alpha, beta, H = _end_weights(ht, scheme)
-        v_end = v0t + gt * alpha.sum(0)
-        p_end = p0t + H * v0t + gt * beta.sum(0)
-        k = 0
-        for block in ra:
-            n = block.shape[0]
-            v_end = v_end + (alpha[k : k + n] * block).sum(0)
-            p_end = p_end + (beta[k : k + n] * block).sum(0)
-            k += n
-        return _result(R[None], v_end[None], p_end[None], False)
 
-    # Trajectory: increments per step, then cumulative sums over time.
+def _end_state(R: torch.Tensor, ra: list[torch.Tensor], ht: torch.Tensor, v0t: torch.Tensor, p0t: torch.Tensor,
+               gt: torch.Tensor, scheme: IntegrationScheme) -> IntegrationResult:
+    """The end state as weighted sums of f_k = g + R_k a_k (see _end_weights)."""
+    alpha, beta, H = _end_weights(ht, scheme)
+    v_end = v0t + gt * alpha.sum(0)
+    p_end = p0t + H * v0t + gt * beta.sum(0)
+    k = 0
+    for block in ra:
+        n = block.shape[0]
+        v_end = v_end + (alpha[k : k + n] * block).sum(0)
+        p_end = p_end + (beta[k : k + n] * block).sum(0)
+        k += n
+    return _result(R[None], v_end[None], p_end[None], False)
+
+
+def _trajectory(ra: list[torch.Tensor], R_blocks: list[torch.Tensor], ht: torch.Tensor, v0t: torch.Tensor,
+                p0t: torch.Tensor, gt: torch.Tensor, midpoint: bool) -> IntegrationResult:
+    """The state at every stamp: increments per step, then cumulative sums over time."""
     f = torch.cat(ra, 0) + gt  # [T, 3, B]
     f0, f1 = f[:-1], f[1:]
     if midpoint:

@@ -11,17 +11,16 @@ import argparse
 import math
 from typing import Any
 
-from pipeline.checks import Verdict, run_checks, stream_summaries, verdict
-from pipeline.errors import BiasgtError
-from pipeline.ingest import (
+from pipeline.checks.options import Verdict
+from pipeline.checks.run import run_checks, stream_summaries, verdict
+from pipeline.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
     check_options_from_args,
-    input_format,
-    load,
     reader_kwargs_from_args,
-    severity_rank,
 )
+from pipeline.errors import BiasgtError
+from pipeline.ingest import input_format, load, severity_rank
 from pipeline.jsonio import dumps, to_plain
 from pipeline.types import Finding, Sequence, Severity
 

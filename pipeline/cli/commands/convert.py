@@ -10,14 +10,14 @@ import argparse
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
-from pipeline.checks import parse_repairs
-from pipeline.ingest import (
+from pipeline.checks.repairs import parse_repairs
+from pipeline.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
     check_options_from_args,
-    ingest,
     reader_kwargs_from_args,
 )
+from pipeline.ingest import ingest
 from pipeline.types import Severity
 
 

@@ -5,7 +5,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.ingest import add_check_arguments, add_reader_arguments, check_options_from_args, reader_kwargs_from_args
+from pipeline.cli.commands._args import (
+    add_check_arguments,
+    add_reader_arguments,
+    check_options_from_args,
+    reader_kwargs_from_args,
+)
 
 DESCRIPTION = """\
 Predict the IMU bias of a recording from its readings alone (no poses needed), with a model trained

@@ -11,14 +11,14 @@ import textwrap
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
-from pipeline.errors import ConfigError
-from pipeline.ingest import (
+from pipeline.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
     check_options_from_args,
-    load_checked,
     reader_kwargs_from_args,
 )
+from pipeline.errors import ConfigError
+from pipeline.ingest import load_checked
 
 log = logging.getLogger(__name__)
 
@@ -90,9 +90,8 @@ def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | 
 
 
 def run(args: argparse.Namespace) -> int:
-    from reports.quality import build_quality_report  # matplotlib: off the CLI start-up path
-
     from pipeline.store import is_store
+    from reports.quality import build_quality_report  # matplotlib: off the CLI start-up path
 
     ingest, recovery, validation, out = resolve_inputs(args)
     sequence = None

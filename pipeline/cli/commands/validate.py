@@ -8,15 +8,15 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.atomic import OutputKind
-from pipeline.errors import ValidationError
-from pipeline.commands._args import add_window_arguments
-from pipeline.ingest import (
+from pipeline.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
+    add_window_arguments,
     check_options_from_args,
-    load_checked,
     reader_kwargs_from_args,
 )
+from pipeline.errors import ValidationError
+from pipeline.ingest import load_checked
 from validation.config import CrossvalMode, ValidationConfig
 
 log = logging.getLogger(__name__)

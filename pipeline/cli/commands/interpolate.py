@@ -6,10 +6,9 @@ import argparse
 import logging
 from pathlib import Path
 
-from pipeline.atomic import OutputKind
-
 from interpolation.config import InterpolationConfig, InterpolationMethod
-from pipeline.ingest import add_reader_arguments, reader_kwargs_from_args
+from pipeline.atomic import OutputKind
+from pipeline.cli.commands._args import add_reader_arguments, reader_kwargs_from_args
 
 log = logging.getLogger(__name__)
 _DEFAULTS = InterpolationConfig()

@@ -11,14 +11,14 @@ import logging
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
-from pipeline.types import Sequence, Severity
-from pipeline.ingest import (
+from pipeline.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
     check_options_from_args,
-    load_checked,
     reader_kwargs_from_args,
 )
+from pipeline.ingest import load_checked
+from pipeline.types import Sequence, Severity
 from recovery.config import (
     ExtrinsicMode,
     NoiseEstimation,

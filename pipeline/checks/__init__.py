@@ -1,0 +1,19 @@
+"""Input checks and repairs: what is wrong with a loaded :class:`~pipeline.types.Sequence`, and how to fix it.
+
+Readers return what a file holds; this package reports every problem as a
+:class:`~pipeline.types.Finding` with a stable ``code`` (part of the
+``biasgt inspect --json`` contract), a :class:`~pipeline.types.Severity`, a
+one-line message that says how to fix it and JSON-serialisable ``details``.
+``biasgt convert`` applies only the repairs the user allows
+(:func:`~pipeline.checks.repairs.apply_repairs`), re-checks, and refuses while a fatal or an
+unrepaired repairable problem remains.
+
+Streams are named ``"imu"``, ``"poses/<stream>"`` and ``"ground_truth"``.
+
+* :mod:`~pipeline.checks.options`: the options, the finding codes, repairs and verdicts;
+* :mod:`~pipeline.checks.streams`: a uniform view of each stream;
+* :mod:`~pipeline.checks.stream_checks`: the checks of one stream, unit heuristics included;
+* :mod:`~pipeline.checks.run`: :func:`~pipeline.checks.run.run_checks` (with the cross-stream
+  checks), the verdict, the stream summaries;
+* :mod:`~pipeline.checks.repairs`: :func:`~pipeline.checks.repairs.apply_repairs`.
+"""

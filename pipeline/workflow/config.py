@@ -1,0 +1,268 @@
+"""Reading a workflow config: :func:`load_config` / :func:`validate_schema` / :func:`check_config`.
+
+Apply the JSON schema (``workflow/schemas/config.schema.yaml``, with its defaults, exactly as
+``snakemake.utils.validate`` does) and check what a schema cannot say (unique names, existing
+input paths, simulator settings, the stage sections). Errors are
+:class:`~pipeline.errors.ConfigError` naming the config file and the sequence entry. Also where
+the workflow's files are (:data:`SNAKEFILE`, :data:`SCHEMA_FILE`, :data:`DEFAULT_CONFIG`,
+:data:`PROFILES_DIR`).
+"""
+
+from __future__ import annotations
+
+import copy
+import importlib.resources
+import re
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+import yaml
+from jsonschema import Draft202012Validator, validators
+
+from pipeline.configs import unknown_keys_message
+from pipeline.errors import ConfigError
+from pipeline.sim.config import SimConfig
+from pipeline.types import Split
+from pipeline.workflow.params import STAGE_CONFIGS, _check_ingest_settings, _check_stage_settings, resolved_section
+from pipeline.workflow.table import SequenceEntry, SourceKind, WorkflowConfig, _sim_dict, data_root, resolve_input_path
+
+
+def _workflow_root() -> Path:
+    """The folder holding the Snakefile, ``workflow/`` and ``config/config.yaml``: the copy an
+    installed package ships (``pipeline/workflow_files``, see setup.py), else the source checkout
+    the package runs from (an editable install or ``PYTHONPATH``)."""
+    shipped = importlib.resources.files("pipeline") / "workflow_files"
+    if shipped.joinpath("Snakefile").is_file():
+        return Path(str(shipped))
+    return Path(__file__).resolve().parents[2]
+
+
+WORKFLOW_ROOT = _workflow_root()
+SNAKEFILE = WORKFLOW_ROOT / "Snakefile"
+SCHEMA_FILE = WORKFLOW_ROOT / "workflow" / "schemas" / "config.schema.yaml"
+DEFAULT_CONFIG = WORKFLOW_ROOT / "config" / "config.yaml"
+#: Snakemake profiles shipped with the workflow (``biasgt run --profile NAME``), e.g. ``slurm``.
+PROFILES_DIR = WORKFLOW_ROOT / "workflow" / "profiles"
+
+NAME_PATTERN = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.-]*$")
+
+
+def load_schema(schema_file: str | Path = SCHEMA_FILE) -> dict[str, Any]:
+    """The workflow config JSON schema (YAML file) as a dict."""
+    return yaml.safe_load(Path(schema_file).read_text(encoding="utf-8"))
+
+
+def _json_path(parts: Iterable[Any]) -> str:
+    out = ""
+    for p in parts:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out or "(top level)"
+
+
+def _schema_keys(schema: Mapping[str, Any]) -> set[str]:
+    """Every key a schema object may hold: its ``properties`` and those of its sub-schemas
+    (``allOf`` / ``anyOf`` / ``oneOf`` / ``then`` / ``else``), the candidates of a did-you-mean."""
+    keys = set(schema.get("properties") or {})
+    for sub in [*schema.get("allOf", []), *schema.get("anyOf", []), *schema.get("oneOf", []),
+                *(schema[k] for k in ("then", "else") if isinstance(schema.get(k), Mapping))]:
+        keys |= _schema_keys(sub)
+    return keys
+
+
+def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
+    """(field, problem) of a jsonschema error, naming the sequence where there is one."""
+    where = _json_path(error.absolute_path)
+    parts = list(error.absolute_path)
+    if len(parts) >= 2 and parts[0] == "sequences" and isinstance(parts[1], int):
+        seqs = data.get("sequences") or []
+        entry = seqs[parts[1]] if parts[1] < len(seqs) else None
+        if isinstance(entry, dict) and "name" in entry:
+            where += f" (sequence '{entry['name']}')"
+    message = error.message
+    if error.validator == "additionalProperties" and isinstance(error.instance, dict):
+        allowed = set(error.schema.get("properties") or {})
+        unknown = unknown_keys_message(error.instance, allowed)
+        if unknown:
+            message = f"{unknown}: " + (f"allowed here: {', '.join(sorted(allowed))}" if allowed
+                                        else "this section has no options")
+    if error.validator == "unevaluatedProperties" and isinstance(error.instance, dict):
+        allowed = _schema_keys(error.schema)
+        unknown = unknown_keys_message([k for k in error.instance if k not in allowed], allowed)
+        if unknown:
+            message = f"{unknown}: allowed here: {', '.join(sorted(allowed))}"
+    if error.validator == "enum":
+        message = f"{error.instance!r} is not one of {', '.join(map(str, error.validator_value))}"
+    elif error.validator == "pattern":
+        message = (f"{error.instance!r} is not a valid name: use letters, digits, '_', '.', '-' "
+                   "and do not start with '.' or '-'")
+    return where, message
+
+
+def validate_schema(
+    data: Any, *, config_file: str | Path | None = None, schema_file: str | Path = SCHEMA_FILE
+) -> dict[str, Any]:
+    """Validate ``data`` against the workflow schema and fill in its defaults, in place.
+
+    Same semantics as ``snakemake.utils.validate(config, schema)`` (draft 2020-12, defaults of
+    ``properties`` set before validating), usable without Snakemake.
+
+    Args:
+        data: The parsed config.
+        config_file: Named in the error message.
+        schema_file: The schema.
+
+    Returns:
+        ``data`` with defaults filled in.
+
+    Raises:
+        ConfigError: The first (most relevant) schema violation, with its location.
+    """
+    if not isinstance(data, dict):
+        raise ConfigError(f"the config must be a mapping, got {type(data).__name__}", path=config_file,
+                          hint="see config/config.yaml for an example")
+    schema = load_schema(schema_file)
+    validate_properties = Draft202012Validator.VALIDATORS["properties"]
+
+    def set_defaults(validator: Any, properties: dict, instance: Any, schema_: dict) -> Iterable[Any]:
+        if isinstance(instance, dict):
+            for prop, sub in properties.items():
+                if "default" in sub:
+                    instance.setdefault(prop, copy.deepcopy(sub["default"]))
+        yield from validate_properties(validator, properties, instance, schema_)
+
+    validator_cls = validators.extend(Draft202012Validator, {"properties": set_defaults})
+    errors = list(validator_cls(schema).iter_errors(data))
+    if errors:
+        # An unknown key is reported only when nothing else is wrong: with an invalid 'source',
+        # for example, the source's own keys also look "unevaluated".
+        primary = [e for e in errors if e.validator != "unevaluatedProperties"] or errors
+        best = jsonschema.exceptions.best_match(primary)
+        where, message = _schema_error_message(best, data)
+        raise ConfigError(f"{where}: {message}", path=config_file,
+                          hint="see workflow/schemas/config.schema.yaml for the allowed keys and values")
+    return data
+
+
+def check_config(
+    data: dict[str, Any], config_file: str | Path | None = None, *, check_paths: bool = True
+) -> WorkflowConfig:
+    """Check a schema-valid config for what the schema cannot express and build the table.
+
+    Checks: unique sequence names; real sources' paths exist (when ``check_paths``); simulated
+    entries make a valid :class:`pipeline.sim.config.SimConfig` (and semi-real ground-truth
+    files exist); reader options, repairs and check options are known to the ingest stage.
+
+    Args:
+        data: Config already passed through :func:`validate_schema`.
+        config_file: The config file; relative paths resolve against its folder.
+        check_paths: Check that input paths exist (also switched off by the config's
+            ``check_input_paths: false``).
+
+    Returns:
+        The checked config.
+
+    Raises:
+        ConfigError: Naming the config file, the entry (``sequences[i] ('name')``) and the field.
+    """
+    config_file = None if config_file is None else Path(config_file)
+    check_paths = check_paths and bool(data.get("check_input_paths", True))
+    root = data_root(data, config_file)
+    seen: dict[str, int] = {}
+    entries: list[SequenceEntry] = []
+    for i, raw in enumerate(data.get("sequences") or []):
+        name = raw["name"]
+        where = f"sequences[{i}] ('{name}')"
+        if not NAME_PATTERN.match(name):  # also enforced by the schema
+            raise ConfigError(f"{where}: invalid sequence name", path=config_file, field="name",
+                              hint="use letters, digits, '_', '.', '-'")
+        if name in seen:
+            raise ConfigError(
+                f"{where}: duplicate sequence name '{name}' (also sequences[{seen[name]}])",
+                path=config_file, field="name", hint="give every sequence a unique name",
+            )
+        seen[name] = i
+        source = SourceKind(raw["source"])
+        path = None
+        if source is SourceKind.SIMULATE:
+            sim = _sim_dict(raw, root, config_file, where)
+            _check_sim_config(sim, config_file, where, check_paths)
+        else:
+            path = resolve_input_path(raw["path"], root)
+            extra = [resolve_input_path(p["path"], root) for p in raw.get("poses") or []]
+            for field_name, p in [("path", path)] + [(f"poses[{j}].path", e) for j, e in enumerate(extra)]:
+                if check_paths and not p.exists():
+                    raise ConfigError(
+                        f"{where}: input path {p} does not exist", path=config_file, field=field_name,
+                        hint=f"fix '{field_name}' (relative paths are resolved against data_root = {root})",
+                    )
+        entries.append(SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw))
+    for section in STAGE_CONFIGS:  # the top-level sections first, so that their errors name them
+        try:
+            data[section] = resolved_section(section, data.get(section) or {})
+        except ConfigError as exc:
+            raise ConfigError(f"{section}: {exc.problem}", path=config_file, field=exc.field, hint=exc.hint) from None
+    cfg = WorkflowConfig(data, config_file, tuple(entries))
+    for entry in cfg.sequences:
+        _check_ingest_settings(cfg, entry)
+        _check_stage_settings(cfg, entry, check_paths)
+    return cfg
+
+
+def config_warnings(cfg: WorkflowConfig) -> list[str]:
+    """What a valid config silently leaves out of the run, said once when ``biasgt run`` checks it.
+
+    Today: windowed sequences (split train / val / test) without all three splits, so that no
+    model is trained or evaluated.
+    """
+    present = {s.split for s in cfg.sequences if s.split.windowed}
+    missing = [split.value for split in (Split.TRAIN, Split.VAL, Split.TEST) if split not in present]
+    if not present or not missing:
+        return []
+    return [f"no sequence in split {', '.join(repr(m) for m in missing)}: no model is trained or evaluated "
+            "(training needs train and val sequences, Table I test ones); set 'split:' on the sequences that "
+            "should form them"]
+
+
+def _check_sim_config(sim: dict[str, Any], config_file: Path | None, where: str, check_paths: bool) -> None:
+    try:
+        cfg = SimConfig.from_dict(sim)
+    except ConfigError as exc:
+        raise ConfigError(f"{where}: simulator setting: {exc.problem}", path=config_file,
+                          field=exc.field, hint=exc.hint) from None
+    gt = cfg.motion.ground_truth_path
+    if check_paths and gt is not None and not Path(gt).is_file():
+        raise ConfigError(f"{where}: ground-truth file {gt} does not exist", path=config_file,
+                          field="overrides.motion.ground_truth_path",
+                          hint="fix the path (relative paths are resolved against data_root)")
+
+
+def read_config_file(path: str | Path) -> Any:
+    """Parse a YAML (or JSON) config file.
+
+    Raises:
+        ConfigError: Missing file or invalid YAML.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError("config file not found", path=path,
+                          hint="give an existing file with --config (see config/config.yaml)") from None
+    except IsADirectoryError:
+        raise ConfigError("config path is a folder, not a file", path=path) from None
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        raise ConfigError(f"not valid YAML: {getattr(exc, 'problem', exc)}", path=path,
+                          line=None if mark is None else mark.line + 1) from None
+
+
+def load_config(path: str | Path, *, check_paths: bool = True) -> WorkflowConfig:
+    """Read, schema-validate (with defaults) and check a workflow config file."""
+    path = Path(path)
+    data = read_config_file(path)
+    validate_schema(data, config_file=path)
+    return check_config(data, path, check_paths=check_paths)
