@@ -5,8 +5,8 @@ pays a per-call overhead that dominates batched products of a few thousand rotat
 the same conversions with closed forms on rows of arrays. Quaternions are Hamilton, scalar first
 (``quat_wxyz``), returned with ``w >= 0``; rotation vectors have ``|phi| <= pi``. Each equals
 SciPy's to ~1e-15 (``tests/test_rotations.py``). They live here rather than in
-:mod:`pipeline.so3`, whose NumPy helpers are SciPy's and which imports torch: the recovery
-processes load neither torch nor more of SciPy than they need.
+:mod:`pipeline.geometry.so3_numpy`, whose helpers go through SciPy's ``Rotation`` (per-call
+overhead, orthonormalisation) for the rest of the project.
 """
 
 from __future__ import annotations
