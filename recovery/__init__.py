@@ -10,8 +10,10 @@ Public API::
     back = RecoveryOutputs.read("out/recovery")  # the same folder, typed
 
 Modules: :mod:`recovery.config` (options and mode enums), :mod:`recovery.preintegration`
-(midpoint preintegration at keyframes off the IMU stamps), :mod:`recovery.graph` (one
-window's factor graph, solve, marginals), :mod:`recovery.noise` (random walks and pose
+(midpoint preintegration at keyframes off the IMU stamps), :mod:`recovery.window` (one window's
+records), :mod:`recovery.initial` (its initial states), :mod:`recovery.factors` (its factor graph),
+:mod:`recovery.gaps` (keyframes in pose gaps), :mod:`recovery.graph` (its solve and marginals),
+:mod:`recovery.noise` (random walks and pose
 sigma by maximum evidence), :mod:`recovery.segments` (overlapping segments, stitching),
 :mod:`recovery.recover` (the whole stage), :mod:`recovery.outputs` (files),
 :mod:`recovery.calibration_init` (closed-form offset / extrinsic / gravity initialisation).

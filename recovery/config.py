@@ -240,7 +240,7 @@ class RecoveryConfig:
         robust_k: Threshold of the M-estimator, in sigmas of a 1-D error. GTSAM weighs a
             factor by the norm of its whole whitened error, so a factor of dimension d gets the
             chi(d) threshold with the same tail probability (3 -> 3.76 for the 3-D velocity
-            priors, 4.48 for 6-DoF pose factors; :func:`recovery.graph.robust_norm_threshold`).
+            priors, 4.48 for 6-DoF pose factors; :func:`recovery.factors.robust_norm_threshold`).
         outlier_threshold: After convergence, a pose factor whose whitened residual
             (per-DoF RMS) exceeds this many sigmas is counted in ``outliers_rejected``,
             removed, and the window solved again.

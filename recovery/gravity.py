@@ -16,7 +16,8 @@ from recovery.config import (
     CalibrationSolve,
     RecoveryConfig,
 )
-from recovery.graph import WindowInit, WindowSolution, solve_window
+from recovery.graph import solve_window
+from recovery.window import WindowInit, WindowSolution
 from recovery.noise import NoiseChoice
 from recovery.segments import plan_segments
 from recovery.problem import _Problem, _shifted_stamps

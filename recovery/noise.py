@@ -37,7 +37,9 @@ from typing import Any
 import numpy as np
 
 from recovery.config import NoiseEstimation, PoseSigmaMethod
-from recovery.graph import KeyframePoses, SolveOptions, WindowInit, evidence_step, noise_basis, solve_window
+from recovery.factors import noise_basis
+from recovery.graph import evidence_step, solve_window
+from recovery.window import KeyframePoses, SolveOptions, WindowInit
 from recovery.pose_error import PoseErrorModel
 from recovery.preintegration import ImuNoise, MidpointSamples
 

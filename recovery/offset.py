@@ -17,7 +17,8 @@ from recovery.config import (
     OffsetRefineMethod,
     RecoveryConfig,
 )
-from recovery.graph import SolveOptions, WindowInit, solve_window
+from recovery.graph import solve_window
+from recovery.window import SolveOptions, WindowInit
 from recovery.preintegration import ImuNoise
 from recovery.problem import COARSE_OFFSET_SPAN_S, _calibration_window, _Problem
 

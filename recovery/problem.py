@@ -20,8 +20,9 @@ from recovery.config import (
     RecoveryConfig,
 )
 from recovery.fusion import fuse_poses
-from recovery.graph import KeyframePoses, SolveOptions, WindowInit, WindowSolution, gyro_keyframe_rotations, \
-    propagate_orientations, solve_window
+from recovery.graph import solve_window
+from recovery.initial import gyro_keyframe_rotations, propagate_orientations
+from recovery.window import KeyframePoses, SolveOptions, WindowInit, WindowSolution
 from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
 from recovery.segments import plan_segments, stitch
 

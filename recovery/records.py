@@ -16,7 +16,7 @@ from recovery.config import (
     TimeOffsetMode,
 )
 from recovery.calibration_uncertainty import CalibrationCovariance
-from recovery.graph import SolveOptions, WindowSolution
+from recovery.window import SolveOptions, WindowSolution
 from recovery.noise import NoiseChoice
 from recovery.preintegration import ImuNoise
 

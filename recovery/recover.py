@@ -58,7 +58,8 @@ from recovery.config import (
 from recovery import calibration_init as ci
 from recovery.extrinsic import CalibrationDifference, calibration_difference
 from recovery.calibration_uncertainty import CalibrationCovariance
-from recovery.graph import SolveOptions, WindowInit, WindowSolution, solve_window
+from recovery.graph import solve_window
+from recovery.window import SolveOptions, WindowInit, WindowSolution
 from recovery.noise import NoiseChoice, PoseErrorGrid, estimate_noise
 from recovery.pose_error import PoseErrorModel
 from recovery.outputs import RecoveryReport

@@ -24,7 +24,7 @@ from recovery.config import (
 )
 from recovery.bounds import bias_rmse_floor
 from recovery.calibration_uncertainty import OFFSET_INDEX
-from recovery.graph import KeyframePoses, WindowSolution
+from recovery.window import KeyframePoses, WindowSolution
 from recovery.noise import NoiseChoice
 from recovery.outputs import RecoveryOutputs, RecoveryReport
 from recovery.problem import FUSED_KEYFRAME_RATE_HZ, _Problem

@@ -25,7 +25,8 @@ from recovery import graph
 from recovery import recover as rr
 from recovery.calibration_uncertainty import CALIBRATION_DIM, OFFSET_INDEX, CalibrationCovariance
 from recovery.config import RecoveryConfig
-from recovery.graph import WindowInit, solve_window
+from recovery.graph import solve_window
+from recovery.window import WindowInit
 
 HARD = dict(extrinsic_rotation_deg=15.0, extrinsic_translation_m=0.10, clock_offset_s=0.012, dropouts=4,
             dropout_max_s=1.5, outliers=20, outlier_offset_m=0.1)

@@ -107,7 +107,7 @@ def test_recovery_across_a_ten_second_pose_gap_tracks_the_true_bias_and_motion()
 
 def _true_solution(gt, idx: np.ndarray):
     """A WindowSolution holding the simulator's true state at ground-truth rows ``idx``."""
-    from recovery.graph import WindowSolution
+    from recovery.window import WindowSolution
 
     bias = np.hstack([gt.bias_gyro_radps[idx], gt.bias_acc_mps2[idx]])
     return WindowSolution(gt.t_ns[idx], gt.p_m[idx], gt.quat_wxyz[idx], gt.v_mps[idx], bias, np.full_like(bias, np.nan),
@@ -119,7 +119,7 @@ def test_a_position_only_segment_starts_from_another_solution_inside_it_or_acros
     covers only its middle (filled forwards and backwards with the gyro) or that ends before it, with no
     keyframe in common (carried across the gap with the IMU): within 0.2 deg of the simulator's truth at every
     keyframe, where the closed-form guess would be used otherwise."""
-    from recovery.graph import KeyframePoses
+    from recovery.window import KeyframePoses
     from recovery.problem import _continue_from
     from pipeline.types import PoseSourceKind
 

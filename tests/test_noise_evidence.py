@@ -20,7 +20,9 @@ from pipeline.sim.config import SimConfig
 from recovery import graph
 from recovery import recover as rr
 from recovery.config import RecoveryConfig
-from recovery.graph import SolveOptions, WindowInit, evidence_step, noise_basis, solve_window
+from recovery.factors import noise_basis
+from recovery.graph import evidence_step, solve_window
+from recovery.window import SolveOptions, WindowInit
 from recovery.preintegration import make_params, preintegrate
 
 

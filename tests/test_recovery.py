@@ -245,7 +245,7 @@ def test_numpy_replacements_match_scipy():
     from scipy.integrate import cumulative_trapezoid
 
     from recovery.calibration_init import _correlate_valid, _cumtrapz
-    from recovery.graph import _savgol
+    from recovery.initial import _savgol
 
     rng = np.random.default_rng(0)
     a, v = rng.normal(size=500), rng.normal(size=380)
@@ -265,7 +265,7 @@ def test_bias_values_pool_round_trip():
     """Bias initial values built from the cached zero pool carry the requested values, any K."""
     from gtsam.symbol_shorthand import B
 
-    from recovery.graph import _bias_values
+    from recovery.factors import _bias_values
 
     rng = np.random.default_rng(3)
     for K in (5, 12, 7):
@@ -629,7 +629,7 @@ def test_robust_threshold_has_the_one_dimensional_tail_in_every_dimension():
 
     import gtsam
 
-    from recovery.graph import _robust, robust_norm_threshold
+    from recovery.factors import _robust, robust_norm_threshold
 
     k = 3.0
     p = math.erfc(k / math.sqrt(2.0))  # P(|z| > 3) = 0.0027
@@ -682,7 +682,7 @@ def test_gyro_keyframe_rotations_equal_composing_every_sample():
     sub-interval rotations one by one with scipy."""
     from scipy.spatial.transform import Rotation
 
-    from recovery.graph import gyro_keyframe_rotations
+    from recovery.initial import gyro_keyframe_rotations
 
     sim = _sim(6.0, seed=3)
     imu = sim.sequence.imu
@@ -702,7 +702,7 @@ def test_gyro_keyframe_rotations_equal_composing_every_sample():
 def test_propagated_orientations_equal_composing_every_sample_from_the_last_known():
     from scipy.spatial.transform import Rotation
 
-    from recovery.graph import propagate_orientations
+    from recovery.initial import propagate_orientations
 
     sim = _sim(6.0, seed=3)
     imu = sim.sequence.imu
@@ -734,7 +734,8 @@ def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
 
     from gtsam.symbol_shorthand import X
 
-    from recovery.graph import _Built, _refuse_unconverged
+    from recovery.factors import _Built
+    from recovery.graph import _refuse_unconverged
 
     graph = gtsam.NonlinearFactorGraph()
     target = gtsam.Pose3(gtsam.Rot3.Rz(0.3), gtsam.Point3(1.0, 2.0, 3.0))
