@@ -439,6 +439,24 @@ def test_verdict_difference_explained_by_the_candidates_own_sigma_passes():
     assert v is Verdict.WARN and any("too uncertain" in r for r in reasons), reasons
 
 
+def test_a_candidate_near_a_perfect_baseline_is_not_too_uncertain_however_wide_its_sigma():
+    """Beside the zero bias, 'too uncertain' takes a material excess: more than the margin of what the baseline
+    gains over zero. 0.8 mm above a simulator's truth (0.0019 m, zero at 0.159 m) with a 2-sigma of 18 mm is
+    agreement, PASS; the position-only cart, 39 mm above it, stays a WARN."""
+    truth = _metrics("dataset", BiasSourceKind.DATASET, 0.0019, 0.0132, n=40)
+    zero = _metrics("zero", BiasSourceKind.ZERO, 0.159, 2.93, n=40)
+
+    def judge(cand: SourceMetrics) -> tuple[Verdict, list[str]]:
+        m = {"constant": _metrics("constant", BiasSourceKind.CONSTANT_FIRST_WINDOW, 0.13, 0.13, n=40),
+             "recovered": cand, "dataset": truth, "zero": zero}
+        return decide_verdict(m, "recovered", dropped_fraction=0.0)
+
+    v, reasons = judge(_metrics("recovered", BiasSourceKind.RECOVERED, 0.0027, 0.0116, n=40, sigma=(0.009, 0.0)))
+    assert v is Verdict.PASS, reasons
+    v, reasons = judge(_metrics("recovered", BiasSourceKind.RECOVERED, 0.0412, 0.0132, n=40, sigma=(0.046, 0.0)))
+    assert v is Verdict.WARN and any("too uncertain" in r for r in reasons), reasons
+
+
 def test_verdict_limitations_make_a_pass_a_warn_listed_first():
     cand = _metrics("recovered", BiasSourceKind.RECOVERED, 0.050, 0.20)
     base = _metrics("dataset", BiasSourceKind.DATASET, 0.052, 0.21)

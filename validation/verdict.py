@@ -140,14 +140,21 @@ def decide_verdict(
     k = config.sigma_k
     baselines = [m for name, m in metrics.items() if name != candidate
                  and m.kind in (BiasSourceKind.CONSTANT_FIRST_WINDOW, BiasSourceKind.DATASET)]
+    zero = next((m for name, m in metrics.items() if name != candidate and m.kind is BiasSourceKind.ZERO), None)
     for base in baselines:
         where = f"'{candidate}' against '{base.name}' ({base.kind.value})"
         sigma_pos, sigma_rot = k * cand.sigma_prmse_m, k * cand.sigma_roe_deg
         # a sigma beyond the baseline's own error excuses the candidate's error, but leaves it too
-        # uncertain to be useful beside that baseline (an unobservable position-only recovery, say)
-        for label, unit, s, c, b, tie in (("PRMSE", "m", sigma_pos, cand.prmse_m, base.prmse_m, config.tie_prmse_m),
-                                           ("ROE", "deg", sigma_rot, cand.roe_deg, base.roe_deg, config.tie_roe_deg)):
-            if s > b + tie and c > b + tie:
+        # uncertain to be useful beside that baseline (an unobservable position-only recovery, say),
+        # when the candidate is materially worse: by more than ``margin`` of what the baseline gains
+        # over the zero bias (a near-perfect baseline, a simulator's truth, makes any relative margin moot)
+        for label, unit, s, c, b, tie, z in (
+                ("PRMSE", "m", sigma_pos, cand.prmse_m, base.prmse_m, config.tie_prmse_m,
+                 None if zero is None else zero.prmse_m),
+                ("ROE", "deg", sigma_rot, cand.roe_deg, base.roe_deg, config.tie_roe_deg,
+                 None if zero is None else zero.roe_deg)):
+            material = z is None or c - b > config.margin * max(z - b, 0.0)
+            if s > b + tie and c > b + tie and material:
                 warns.append(f"{where}: its own {k:g} sigma ({s:.4g} {unit} of {label}) exceed that baseline's error "
                              f"({b:.4g} {unit}): too uncertain to tell it from the baseline")
         prmse_allowed = tuple(float(np.hypot(base.prmse_m * f, sigma_pos)) + config.tie_prmse_m
