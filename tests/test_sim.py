@@ -215,6 +215,26 @@ def test_one_imu_unit_in_every_sequence_and_a_temperature_reference() -> None:
     assert SimConfig.from_dict(SimConfig(imu=imu).to_dict()).imu.temperature == temperature
 
 
+
+def test_one_imu_unit_repeats_its_turn_on_bias_with_a_small_spread() -> None:
+    """The unit's turn-on mean in every run, plus each run's draw of the (small) sigmas: the runs' biases
+    scatter about the mean by the sigmas, and without the mean about zero by the same draws."""
+    mean_g, mean_a = (0.012, -0.008, 0.015), (0.08, -0.05, 0.12)
+    quiet = dict(white_noise=False, bias_random_walk=False, temperature=TemperatureConfig(enabled=False),
+                 gyro_turn_on_sigma=1e-3, acc_turn_on_sigma=1e-2)
+    unit = ImuNoiseConfig(gyro_turn_on_mean_radps=mean_g, acc_turn_on_mean_mps2=mean_a, **quiet)
+    bare = ImuNoiseConfig(**quiet)
+    gyro = []
+    for seed in range(8):
+        a = simulate(SimConfig(duration_s=2.0, seed=seed, imu=unit)).truth
+        b = simulate(SimConfig(duration_s=2.0, seed=seed, imu=bare)).truth
+        np.testing.assert_allclose(a.bias_gyro_radps[0] - b.bias_gyro_radps[0], mean_g, atol=1e-12)
+        np.testing.assert_allclose(a.bias_acc_mps2[0] - b.bias_acc_mps2[0], mean_a, atol=1e-12)
+        gyro.append(a.bias_gyro_radps[0])
+    assert np.abs(np.array(gyro) - mean_g).max() < 5e-3  # within 5 sigmas of the unit's mean
+    assert SimConfig.from_dict(SimConfig(imu=unit).to_dict()).imu == unit
+
+
 # ---------------------------------------------------------------------------------------------- poses
 
 

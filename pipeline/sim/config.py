@@ -147,6 +147,8 @@ class ImuNoiseConfig:
         turn_on_bias: Add a random constant turn-on bias.
         gyro_turn_on_sigma: rad/s.
         acc_turn_on_sigma: m/s^2.
+        gyro_turn_on_mean_radps / acc_turn_on_mean_mps2: The unit's repeatable turn-on bias [3], to which
+            each run adds its draw of the sigmas above (one IMU unit: the same in every sequence; None: 0).
         temperature: Temperature-driven bias term.
         gyro_scale_sigma / acc_scale_sigma: Std of the diagonal scale-factor errors (0 = off).
         gyro_misalignment_sigma / acc_misalignment_sigma: Std of the off-diagonal terms, rad (0 = off).
@@ -166,6 +168,8 @@ class ImuNoiseConfig:
     turn_on_bias: bool = True
     gyro_turn_on_sigma: float = 0.02
     acc_turn_on_sigma: float = 0.1
+    gyro_turn_on_mean_radps: tuple[float, float, float] | None = None
+    acc_turn_on_mean_mps2: tuple[float, float, float] | None = None
     temperature: TemperatureConfig = field(default_factory=TemperatureConfig)
     gyro_scale_sigma: float = 0.0
     acc_scale_sigma: float = 0.0

@@ -91,6 +91,9 @@ def simulate_bias(
     ta = rng_turn_on.normal(0.0, 1.0, 3) * cfg.acc_turn_on_sigma
     if not cfg.turn_on_bias:
         tg, ta = np.zeros(3), np.zeros(3)
+    else:  # the unit's repeatable part, the same in every run
+        tg = tg + (0.0 if cfg.gyro_turn_on_mean_radps is None else np.asarray(cfg.gyro_turn_on_mean_radps, float))
+        ta = ta + (0.0 if cfg.acc_turn_on_mean_mps2 is None else np.asarray(cfg.acc_turn_on_mean_mps2, float))
     bg = np.broadcast_to(tg, (n, 3)).copy()
     ba = np.broadcast_to(ta, (n, 3)).copy()
     if cfg.bias_random_walk and n > 1:
