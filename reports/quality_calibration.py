@@ -219,15 +219,15 @@ def _bias_section(inp: ReportInputs) -> Html:
     rows = []
     names = ["gyro x", "gyro y", "gyro z", "acc x", "acc y", "acc z"]
     gt_b = None if gt is None else np.hstack([gt.bias_gyro_radps, gt.bias_acc_mps2])
-    for c in range(6):
-        v = b.bias[:, c]
+    for c in range(6):  # in the units of the bias plots above: mrad/s and 10^-3 m/s^2
+        v = 1e3 * b.bias[:, c]
         row = [names[c], fmt(v.mean(), 4), fmt(v.min(), 4), fmt(v.max(), 4),
-               fmt(np.nanmean(std[:, c]) if np.isfinite(std[:, c]).any() else None, 3)]
+               fmt(1e3 * np.nanmean(std[:, c]) if np.isfinite(std[:, c]).any() else None, 3)]
         if gt_b is not None:
-            ref = np.interp(b.t_ns.astype(float), gt.t_ns.astype(float), gt_b[:, c])
+            ref = 1e3 * np.interp(b.t_ns.astype(float), gt.t_ns.astype(float), gt_b[:, c])
             inside = (b.t_ns >= gt.t_ns[0]) & (b.t_ns <= gt.t_ns[-1])
             row.append(fmt(np.sqrt(np.mean((v[inside] - ref[inside]) ** 2)) if inside.any() else None, 3))
-        row.append("rad/s" if c < 3 else "m/s²")
+        row.append("mrad/s" if c < 3 else "10⁻³ m/s²")
         rows.append(row)
     headers = ["axis", "mean", "min", "max", "mean σ"] + (["RMS diff. to dataset"] if gt_b is not None else [])
     parts.append(implausible_frame(inp, "bias_range", table(headers + ["unit"], rows, numeric_from=1,

@@ -279,7 +279,7 @@ def _offset_text(offset_s: float) -> str:
     return f"{offset_s * 1e3:.3f} ms"
 
 
-def test_report_shows_the_numbers(full_report, recovery_json, validation_json):
+def test_report_shows_the_numbers(full_report, recovery_json, validation_json, results_dir):
     text, rec = full_report, recovery_json
     offset_s = rec["pose_time_offset_s"]
     assert abs(offset_s - CLOCK_OFFSET_S) < 5e-4  # the estimate is near the truth
@@ -304,6 +304,12 @@ def test_report_shows_the_numbers(full_report, recovery_json, validation_json):
     assert "pose sigmas from: within bin residuals" in text
     floor = rec["accuracy_floor"]["gyro_radps"]
     assert f"Accuracy floor for this noise (optimal smoother, per axis): gyro {fmt(floor, 3)} rad/s" in text
+    # the bias table in the plots' units: the gyro x mean of bias.csv, in mrad/s
+    import pandas as pd
+
+    bias = pd.read_csv(results_dir / "recovery" / SEQ / "bias.csv")
+    assert f"<td class=\"num\">{fmt(1e3 * bias['bg_x'].mean(), 4)}</td>" in text
+    assert "<td>mrad/s</td>" in text and "<td>10⁻³ m/s²</td>" in text
     cu = rec["calibration_uncertainty"]  # offset and extrinsic estimated: their uncertainty is in the sigmas
     assert cu["included_in_bias_std"] and "extrinsic_rotation" in cu["parameters"]
     assert f"(gyro x, y, z, acc x, y, z) by {(cu['std_inflation_mean'][0] - 1) * 100:.1f} %" in text
