@@ -30,8 +30,8 @@ __all__ = ["GAP_KEYFRAME_PERIOD_S", "GAP_MIN_S", "bridge_gaps", "gap_keyframe_st
 GAP_MIN_S = 0.3
 #: Their spacing (or the stream's own keyframe period where that is longer): short enough for the
 #: first-order bias correction (a 10 mrad/s gyro-bias change turns an interval by 5 mrad: its
-#: second-order position term is ~2e-5 m), long enough to keep the chain well conditioned (at 0.1 s
-#: the Bayes tree's marginals along a 10-s pause lost definiteness on EuRoC V1_01).
+#: second-order position term is ~2e-5 m), long enough to keep the chain well conditioned (much
+#: shorter, the time-ordered Bayes tree's marginals can lose definiteness along a 10-s pause).
 GAP_KEYFRAME_PERIOD_S = 0.5
 
 
