@@ -103,6 +103,26 @@ def _worse_than_zero(metrics: Mapping[str, SourceMetrics], candidate: str, confi
     return fails
 
 
+def _too_uncertain(cand: SourceMetrics, base: SourceMetrics, zero: SourceMetrics | None,
+                   config: ValidationConfig) -> list[str]:
+    """WARN reasons where the candidate's own sigma exceeds ``base``'s error: it excuses the candidate's
+    error but leaves it too uncertain to be useful beside that baseline (an unobservable position-only
+    recovery, say), when the candidate is also materially worse: by more than ``margin`` of what the
+    baseline gains over the ``zero`` bias (a near-perfect baseline, a simulator's truth, makes any
+    relative margin moot; without a zero row any excess counts)."""
+    k, out = config.sigma_k, []
+    for label, unit, s, c, b, tie, z in (
+            ("PRMSE", "m", k * cand.sigma_prmse_m, cand.prmse_m, base.prmse_m, config.tie_prmse_m,
+             None if zero is None else zero.prmse_m),
+            ("ROE", "deg", k * cand.sigma_roe_deg, cand.roe_deg, base.roe_deg, config.tie_roe_deg,
+             None if zero is None else zero.roe_deg)):
+        material = z is None or c - b > config.margin * max(z - b, 0.0)
+        if s > b + tie and c > b + tie and material:
+            out.append(f"its own {k:g} sigma ({s:.4g} {unit} of {label}) exceed that baseline's error "
+                       f"({b:.4g} {unit}): too uncertain to tell it from the baseline")
+    return out
+
+
 def decide_verdict(
     metrics: Mapping[str, SourceMetrics],
     candidate: str,
@@ -144,19 +164,7 @@ def decide_verdict(
     for base in baselines:
         where = f"'{candidate}' against '{base.name}' ({base.kind.value})"
         sigma_pos, sigma_rot = k * cand.sigma_prmse_m, k * cand.sigma_roe_deg
-        # a sigma beyond the baseline's own error excuses the candidate's error, but leaves it too
-        # uncertain to be useful beside that baseline (an unobservable position-only recovery, say),
-        # when the candidate is materially worse: by more than ``margin`` of what the baseline gains
-        # over the zero bias (a near-perfect baseline, a simulator's truth, makes any relative margin moot)
-        for label, unit, s, c, b, tie, z in (
-                ("PRMSE", "m", sigma_pos, cand.prmse_m, base.prmse_m, config.tie_prmse_m,
-                 None if zero is None else zero.prmse_m),
-                ("ROE", "deg", sigma_rot, cand.roe_deg, base.roe_deg, config.tie_roe_deg,
-                 None if zero is None else zero.roe_deg)):
-            material = z is None or c - b > config.margin * max(z - b, 0.0)
-            if s > b + tie and c > b + tie and material:
-                warns.append(f"{where}: its own {k:g} sigma ({s:.4g} {unit} of {label}) exceed that baseline's error "
-                             f"({b:.4g} {unit}): too uncertain to tell it from the baseline")
+        warns += [f"{where}: {w}" for w in _too_uncertain(cand, base, zero, config)]
         prmse_allowed = tuple(float(np.hypot(base.prmse_m * f, sigma_pos)) + config.tie_prmse_m
                               for f in (1.0, 1.0 + config.margin))
         roe_allowed = tuple(base.roe_deg * f + sigma_rot + config.tie_roe_deg for f in (1.0, 1.0 + config.margin))
