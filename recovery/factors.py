@@ -106,7 +106,7 @@ def _extrinsic_error(z: gtsam.Pose3):
 
 
 @dataclass
-class _Built:
+class BuiltWindow:
     graph: gtsam.NonlinearFactorGraph
     values: gtsam.Values
     pose_factors: list[tuple[int, Any, Any]]  # (keyframe index, factor, gaussian model)
@@ -156,7 +156,7 @@ def build_window(
     init: WindowInit | None = None,
     skip: np.ndarray | None = None,
     basis: NoiseBasis | None = None,
-) -> _Built:
+) -> BuiltWindow:
     """Build the factor graph and initial values of one window.
 
     In order: the initial states, the IMU factors (with the gravity direction when estimated)
@@ -174,7 +174,7 @@ def build_window(
         pims = basis.pims
         models = [gtsam.noiseModel.Gaussian.Covariance(c) for c in basis.covariances(imu_noise)]
     Xs, Z = _initial_poses(samples, kf, T_imu_pose, opts, init)
-    built = _Built(gtsam.NonlinearFactorGraph(), _bias_values(bias0, len(kf)), [], [], 0.0)
+    built = BuiltWindow(gtsam.NonlinearFactorGraph(), _bias_values(bias0, len(kf)), [], [], 0.0)
     vel = _initial_velocities(kf, Xs, init)
     if kf.measured is not None and init.values is None:
         Xs, vel = bridge_gaps(pims, Xs, vel, kf.t_ns, kf.measured)
@@ -244,7 +244,7 @@ def noise_basis(samples: MidpointSamples, imu_noise: ImuNoise, opts: SolveOption
                                  bias0 if bias0.ndim == 1 else bias0[:-1])
 
 
-def _add_imu_factors(built: _Built, pims: list[Any], opts: SolveOptions, init: WindowInit, bias0: np.ndarray,
+def _add_imu_factors(built: BuiltWindow, pims: list[Any], opts: SolveOptions, init: WindowInit, bias0: np.ndarray,
                      models: list[Any] | None = None) -> None:
     """The IMU factors between consecutive keyframes (gravity direction as a variable when estimated,
     with its prior) and the prior on the first bias. ``models``: noise models replacing the
@@ -274,7 +274,7 @@ def _add_imu_factors(built: _Built, pims: list[Any], opts: SolveOptions, init: W
     graph.add(gtsam.PriorFactorConstantBias(B(0), gtsam.imuBias.ConstantBias(b0[3:], b0[:3]), prior_b))
 
 
-def _add_pose(built: _Built, k: int, factor: Any, base: Any) -> None:
+def _add_pose(built: BuiltWindow, k: int, factor: Any, base: Any) -> None:
     """Add keyframe ``k``'s pose factor (``base``: its Gaussian model, for residuals and the evidence)."""
     built.pose_index.append(int(built.graph.size()))
     built.graph.add(factor)
@@ -299,7 +299,7 @@ class _FusedModels:
         return self.cache[(kind, n)]
 
 
-def _add_pose_factors(built: _Built, kf: KeyframePoses, Xs: list[Any], Z: list[Any] | None, T_imu_pose: np.ndarray,
+def _add_pose_factors(built: BuiltWindow, kf: KeyframePoses, Xs: list[Any], Z: list[Any] | None, T_imu_pose: np.ndarray,
                       opts: SolveOptions, skip: set[int]) -> None:
     """The pose factors: position-only, lever arm only, relative (VIO), or absolute 6-DoF."""
     position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or kf.quat_wxyz is None
@@ -313,7 +313,7 @@ def _add_pose_factors(built: _Built, kf: KeyframePoses, Xs: list[Any], Z: list[A
         _add_absolute_factors(built, kf, Xs, Z, T_imu_pose, opts, skip)
 
 
-def _add_position_factors(built: _Built, kf: KeyframePoses, T_imu_pose: np.ndarray, opts: SolveOptions,
+def _add_position_factors(built: BuiltWindow, kf: KeyframePoses, T_imu_pose: np.ndarray, opts: SolveOptions,
                           skip: set[int]) -> None:
     """Position-only streams: the tracked point at the lever arm (a variable with ``estimate_extrinsic``)."""
     base = gtsam.noiseModel.Isotropic.Sigma(3, opts.position_sigma_m)
@@ -332,7 +332,7 @@ def _add_position_factors(built: _Built, kf: KeyframePoses, T_imu_pose: np.ndarr
         _add_pose(built, k, f, base)
 
 
-def _add_lever_arm_factors(built: _Built, kf: KeyframePoses, Z: list[Any], T_imu_pose: np.ndarray,
+def _add_lever_arm_factors(built: BuiltWindow, kf: KeyframePoses, Z: list[Any], T_imu_pose: np.ndarray,
                            opts: SolveOptions, skip: set[int]) -> None:
     """z = X E with R_E fixed: rotation prior on X (R_z R_E^T, isotropic noise stays isotropic) and a
     position-with-lever-arm factor on (X, L) -- both native GTSAM factors, cheap at any rate."""
@@ -350,7 +350,7 @@ def _add_lever_arm_factors(built: _Built, kf: KeyframePoses, Z: list[Any], T_imu
         _add_pose(built, k, gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model_p), base_p)
 
 
-def _add_lever_arm_prior(built: _Built, opts: SolveOptions) -> None:
+def _add_lever_arm_prior(built: BuiltWindow, opts: SolveOptions) -> None:
     """The calibration's lever arm as a prior on ``L(0)`` (with ``extrinsic_prior``)."""
     if opts.extrinsic_prior is None:
         return
@@ -360,7 +360,7 @@ def _add_lever_arm_prior(built: _Built, opts: SolveOptions) -> None:
     built.neg_log_const += prior.negLogConstant()
 
 
-def _add_relative_factors(built: _Built, Xs: list[Any], T_imu_pose: np.ndarray, opts: SolveOptions,
+def _add_relative_factors(built: BuiltWindow, Xs: list[Any], T_imu_pose: np.ndarray, opts: SolveOptions,
                           skip: set[int]) -> None:
     """VIO: BetweenFactors from every keyframe to the next ``relative_horizon`` ones, weakly anchored."""
     K = len(Xs)
@@ -386,7 +386,7 @@ def _add_relative_factors(built: _Built, Xs: list[Any], T_imu_pose: np.ndarray, 
                 _add_pose(built, j, gtsam.BetweenFactorPose3(X(k), X(j), Xs[k].between(Xs[j]), model), base)
 
 
-def _add_absolute_factors(built: _Built, kf: KeyframePoses, Xs: list[Any], Z: list[Any], T_imu_pose: np.ndarray,
+def _add_absolute_factors(built: BuiltWindow, kf: KeyframePoses, Xs: list[Any], Z: list[Any], T_imu_pose: np.ndarray,
                           opts: SolveOptions, skip: set[int]) -> None:
     """6-DoF absolute poses: a prior on each IMU pose, or (extrinsic estimated) z = X E with E a variable;
     with a correlated error model, its states ``N(k)`` enter each factor (:mod:`recovery.pose_error`)."""
@@ -420,7 +420,7 @@ def _add_absolute_factors(built: _Built, kf: KeyframePoses, Xs: list[Any], Z: li
         _add_pose(built, k, f, base)
 
 
-def _add_velocity_priors(built: _Built, kf: KeyframePoses, opts: SolveOptions, skip: set[int]) -> None:
+def _add_velocity_priors(built: BuiltWindow, kf: KeyframePoses, opts: SolveOptions, skip: set[int]) -> None:
     """The fused keyframes' velocities (the bins' line fits): std sigma_p / sqrt(sum dt^2), decoupled
     from the position because the keyframe sits at the bin's mean sample time, and widened by the
     slope a correlated position error puts into the fit (:func:`recovery.pose_error.velocity_fit_variance`).

@@ -238,6 +238,108 @@ def _standardised_norm(res: np.ndarray, sample: np.ndarray, floor: float) -> np.
     return np.linalg.norm(res / scale, axis=1)
 
 
+class _BinFit:
+    """Per-bin fits of the samples moved to their keyframe stamps (the module docstring's model).
+
+    Holds what every refit needs, prepared once, and the last fit's IMU relative motions, so a
+    refit integrates again only the bins whose keyframe stamp moved (a rejected sample moves its
+    own bin's only).
+    """
+
+    def __init__(self, t_ns: np.ndarray, p_m: np.ndarray, quat_wxyz: np.ndarray, imu_t_ns: np.ndarray,
+                 imu_6: np.ndarray, rate_hz: float, origin_ns: int, T_imu_pose: np.ndarray,
+                 gravity_world_mps2: np.ndarray, bias: np.ndarray):
+        self.t_ns, self.p_m, self.imu_t_ns, self.imu_6, self.bias = t_ns, p_m, imu_t_ns, imu_6, bias
+        self.origin_ns = origin_ns
+        period = NS_PER_S / rate_hz
+        raw_bins = np.floor((t_ns - origin_ns) / period).astype(np.int64)
+        _, self.bins = np.unique(raw_bins, return_inverse=True)
+        self.K = int(self.bins.max()) + 1 if len(t_ns) else 0
+        self.R_E = np.asarray(T_imu_pose, dtype=float)[:3, :3]
+        self.lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
+        self.g = np.asarray(gravity_world_mps2, dtype=float)
+        R_pose = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
+        self.R_imu_j = R_pose @ self.R_E.T  # [M, 3, 3]
+        self.moved: dict[str, np.ndarray] = {}  # the last fit's keyframe stamps and relative motions
+
+    def relative(self, t_k_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """dR [M, 3, 3], dp [M, 3] from each sample's keyframe stamp."""
+        bins, moved = self.bins, self.moved
+        if not moved:
+            dR, dp = relative_motion(self.imu_t_ns, self.imu_6, t_k_ns[bins], self.t_ns, self.bias)
+        else:
+            dR, dp = moved["dR"].copy(), moved["dp"].copy()
+            redo = np.nonzero(t_k_ns[bins] != moved["t_k_ns"][bins])[0]
+            if len(redo):
+                b = self.bias if self.bias.ndim == 1 else self.bias[redo]
+                dR[redo], dp[redo] = relative_motion(self.imu_t_ns, self.imu_6, t_k_ns[bins[redo]], self.t_ns[redo], b)
+        moved.update(t_k_ns=t_k_ns, dR=dR, dp=dp)
+        return dR, dp
+
+    def fit(self, keep: np.ndarray) -> dict[str, np.ndarray]:
+        """Keyframe stamps, rotations, positions and rates from the kept samples, with residuals."""
+        bins, K, t_ns = self.bins, self.K, self.t_ns
+        cnt = np.bincount(bins, weights=keep.astype(float), minlength=K)
+        t_k = _bin_mean(t_ns[:, None].astype(np.float64) - float(self.origin_ns), bins, K, keep)[:, 0]
+        t_k_ns = np.round(np.nan_to_num(t_k)).astype(np.int64) + self.origin_ns
+        dt_j = (t_ns - t_k_ns[bins]) / NS_PER_S
+        dR, dp = self.relative(t_k_ns)
+        # rotation: each sample's estimate of R_k, averaged in the tangent space of a reference
+        R_k_j = self.R_imu_j @ np.transpose(dR, (0, 2, 1))
+        first = np.zeros(K, dtype=np.int64)
+        idx = np.nonzero(keep)[0]
+        first[bins[idx[::-1]]] = idx[::-1]  # the first kept sample of each bin
+        ref = R_k_j[first]
+        delta = matrix_to_rotvec(np.transpose(ref[bins], (0, 2, 1)) @ R_k_j)
+        mean_delta = _bin_mean(delta, bins, K, keep)
+        R_k = ref @ Rotation.from_rotvec(np.nan_to_num(mean_delta)).as_matrix()
+        dt2 = np.bincount(bins, weights=np.where(keep, dt_j**2, 0.0), minlength=K)
+        dt2[cnt < 2] = 0.0  # one sample: no rate (its dt is only the rounding of t_k to 1 ns)
+        # a rate term absorbs a gyro-bias error of the linearisation (delta drifts by db * dt); it is
+        # orthogonal to the mean because sum dt = 0, so the fused rotation loses nothing
+        rate = _bin_slope(delta, dt_j, bins, K, keep, dt2)
+        rot_res = delta - mean_delta[bins] - rate[bins] * dt_j[:, None]
+        # position of the tracked frame moved to t_k; a line in dt per bin (sum dt = 0 by construction)
+        Rk_j = R_k[bins]
+        lever = self.lever
+        y = (self.p_m - 0.5 * self.g * (dt_j**2)[:, None] - np.einsum("mij,mj->mi", Rk_j, dp)
+             - np.einsum("mij,mj->mi", Rk_j, np.einsum("mij,j->mi", dR, lever) - lever))
+        p_k = _bin_mean(y, bins, K, keep)
+        v_k = _bin_slope(y, dt_j, bins, K, keep, dt2)
+        pos_res = y - p_k[bins] - v_k[bins] * dt_j[:, None]
+        # standardised residuals (leverage of a line fit)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lev = 1.0 / cnt[bins] + np.where(dt2[bins] > 0, dt_j**2 / dt2[bins], 0.0)
+            scale = np.sqrt(np.maximum(1.0 - lev, 1e-3))
+        return dict(cnt=cnt, t_k_ns=t_k_ns, R_k=R_k, p_k=p_k, v_k=v_k, dt2=dt2, pos_res=pos_res / scale[:, None],
+                    rot_res=rot_res / scale[:, None], pos_raw=pos_res, rot_raw=rot_res)
+
+
+def _fit_rejecting(bf: _BinFit, keep: np.ndarray, outlier_sigmas: float) -> dict[str, np.ndarray]:
+    """Fit, then drop the worst sample of each bin beyond ``outlier_sigmas`` and refit (up to 8 times).
+
+    Updates ``keep`` in place. One glitch biases its whole bin's fit, hence one sample per bin at a
+    time; the robust scales are per axis (mocap noise is anisotropic), from bins with spare degrees
+    of freedom.
+    """
+    bins = bf.bins
+    f = bf.fit(keep)
+    for _ in range(8):
+        spare = keep & (f["cnt"][bins] >= 3)
+        if spare.sum() < 10:
+            break
+        z = np.where(spare, np.maximum(_standardised_norm(f["pos_res"], spare, MIN_SCALE_M),
+                                       _standardised_norm(f["rot_res"], spare, MIN_SCALE_RAD)), 0.0)
+        zmax = np.zeros(bf.K)
+        np.maximum.at(zmax, bins, z)
+        cand = np.nonzero((z > outlier_sigmas) & (z == zmax[bins]))[0]
+        if len(cand) == 0:
+            break
+        keep[cand] = False
+        f = bf.fit(keep)
+    return f
+
+
 def fuse_poses(
     t_ns: np.ndarray,
     p_m: np.ndarray,
@@ -269,85 +371,11 @@ def fuse_poses(
         The fused keyframes.
     """
     t_ns = np.asarray(t_ns, dtype=np.int64)
-    M = len(t_ns)
     bias = np.zeros(6) if bias is None else np.asarray(bias, dtype=float)
-    period = NS_PER_S / rate_hz
-    raw_bins = np.floor((t_ns - origin_ns) / period).astype(np.int64)
-    _, bins = np.unique(raw_bins, return_inverse=True)
-    K = int(bins.max()) + 1 if M else 0
-    R_E = np.asarray(T_imu_pose, dtype=float)[:3, :3]
-    lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
-    g = np.asarray(gravity_world_mps2, dtype=float)
-    R_pose = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
-    R_imu_j = R_pose @ R_E.T  # [M, 3, 3]
-    keep = np.ones(M, dtype=bool)
-    moved: dict[str, np.ndarray] = {}  # the last fit's keyframe stamps and relative motions
-
-    def relative(t_k_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """dR [M, 3, 3], dp [M, 3] from each sample's keyframe stamp; integrated again only for the
-        bins whose stamp moved since the last fit (a rejected sample moves its own bin's only)."""
-        if not moved:
-            dR, dp = relative_motion(imu_t_ns, imu_6, t_k_ns[bins], t_ns, bias)
-        else:
-            dR, dp = moved["dR"].copy(), moved["dp"].copy()
-            redo = np.nonzero(t_k_ns[bins] != moved["t_k_ns"][bins])[0]
-            if len(redo):
-                b = bias if bias.ndim == 1 else bias[redo]
-                dR[redo], dp[redo] = relative_motion(imu_t_ns, imu_6, t_k_ns[bins[redo]], t_ns[redo], b)
-        moved.update(t_k_ns=t_k_ns, dR=dR, dp=dp)
-        return dR, dp
-
-    def fit(keep: np.ndarray) -> dict[str, np.ndarray]:
-        cnt = np.bincount(bins, weights=keep.astype(float), minlength=K)
-        t_k = _bin_mean(t_ns[:, None].astype(np.float64) - float(origin_ns), bins, K, keep)[:, 0]
-        t_k_ns = np.round(np.nan_to_num(t_k)).astype(np.int64) + origin_ns
-        dt_j = (t_ns - t_k_ns[bins]) / NS_PER_S
-        dR, dp = relative(t_k_ns)
-        # rotation: each sample's estimate of R_k, averaged in the tangent space of a reference
-        R_k_j = R_imu_j @ np.transpose(dR, (0, 2, 1))
-        first = np.zeros(K, dtype=np.int64)
-        idx = np.nonzero(keep)[0]
-        first[bins[idx[::-1]]] = idx[::-1]  # the first kept sample of each bin
-        ref = R_k_j[first]
-        delta = matrix_to_rotvec(np.transpose(ref[bins], (0, 2, 1)) @ R_k_j)
-        mean_delta = _bin_mean(delta, bins, K, keep)
-        R_k = ref @ Rotation.from_rotvec(np.nan_to_num(mean_delta)).as_matrix()
-        dt2 = np.bincount(bins, weights=np.where(keep, dt_j**2, 0.0), minlength=K)
-        dt2[cnt < 2] = 0.0  # one sample: no rate (its dt is only the rounding of t_k to 1 ns)
-        # a rate term absorbs a gyro-bias error of the linearisation (delta drifts by db * dt); it is
-        # orthogonal to the mean because sum dt = 0, so the fused rotation loses nothing
-        rate = _bin_slope(delta, dt_j, bins, K, keep, dt2)
-        rot_res = delta - mean_delta[bins] - rate[bins] * dt_j[:, None]
-        # position of the tracked frame moved to t_k; a line in dt per bin (sum dt = 0 by construction)
-        Rk_j = R_k[bins]
-        y = (p_m - 0.5 * g * (dt_j**2)[:, None] - np.einsum("mij,mj->mi", Rk_j, dp)
-             - np.einsum("mij,mj->mi", Rk_j, np.einsum("mij,j->mi", dR, lever) - lever))
-        p_k = _bin_mean(y, bins, K, keep)
-        v_k = _bin_slope(y, dt_j, bins, K, keep, dt2)
-        pos_res = y - p_k[bins] - v_k[bins] * dt_j[:, None]
-        # standardised residuals (leverage of a line fit)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            lev = 1.0 / cnt[bins] + np.where(dt2[bins] > 0, dt_j**2 / dt2[bins], 0.0)
-            scale = np.sqrt(np.maximum(1.0 - lev, 1e-3))
-        return dict(cnt=cnt, t_k_ns=t_k_ns, R_k=R_k, p_k=p_k, v_k=v_k, dt2=dt2, pos_res=pos_res / scale[:, None],
-                    rot_res=rot_res / scale[:, None], pos_raw=pos_res, rot_raw=rot_res)
-
-    f = fit(keep)
-    for _ in range(8):
-        # robust scales per axis (mocap noise is anisotropic) from bins with spare degrees of freedom
-        spare = keep & (f["cnt"][bins] >= 3)
-        if spare.sum() < 10:
-            break
-        z = np.where(spare, np.maximum(_standardised_norm(f["pos_res"], spare, MIN_SCALE_M),
-                                       _standardised_norm(f["rot_res"], spare, MIN_SCALE_RAD)), 0.0)
-        # drop the worst sample of each bin at a time (one glitch biases its whole bin's fit)
-        zmax = np.zeros(K)
-        np.maximum.at(zmax, bins, z)
-        cand = np.nonzero((z > outlier_sigmas) & (z == zmax[bins]))[0]
-        if len(cand) == 0:
-            break
-        keep[cand] = False
-        f = fit(keep)
+    bf = _BinFit(t_ns, p_m, quat_wxyz, imu_t_ns, imu_6, rate_hz, origin_ns, T_imu_pose, gravity_world_mps2, bias)
+    bins, K = bf.bins, bf.K
+    keep = np.ones(len(t_ns), dtype=bool)
+    f = _fit_rejecting(bf, keep, outlier_sigmas)
     cnt, t_k_ns, R_k, p_k, v_k, dt2 = f["cnt"], f["t_k_ns"], f["R_k"], f["p_k"], f["v_k"], f["dt2"]
     pos_res, rot_res = f["pos_raw"], f["rot_raw"]
 
@@ -357,7 +385,7 @@ def fuse_poses(
     rot_sq = np.bincount(bins, weights=np.where(keep, np.sum(rot_res**2, axis=1), 0.0), minlength=K)
     dof = 3 * np.maximum(n[has] - 2, 0)  # a line per axis: position + velocity, rotation + rate
     per_bin = PerBin(pos_sq[has], dof, rot_sq[has], dof)
-    R_pose_k = R_k[has] @ R_E
+    R_pose_k = R_k[has] @ bf.R_E
     return FusedPoses(
         t_ns=t_k_ns[has],
         p_m=p_k[has],

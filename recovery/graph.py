@@ -22,7 +22,7 @@ from recovery.config import PoseFactorMode
 from recovery.pose_error import error_key
 from recovery.preintegration import ImuNoise, MidpointSamples, NoiseBasis
 from recovery.rotations import matrix_to_quat_wxyz
-from recovery.factors import _add_imu_factors, _Built, build_window, result_subset
+from recovery.factors import _add_imu_factors, BuiltWindow, build_window, result_subset
 from recovery.initial import initial_orientations
 from recovery.window import KeyframePoses, SolveOptions, WindowInit, WindowSolution
 
@@ -105,13 +105,13 @@ class _Linearised:
 _LAMBDA_UPPER_BOUND = gtsam.LevenbergMarquardtParams().getlambdaUpperBound()  # LM gives up beyond
 
 
-def _lm(built: _Built, values: gtsam.Values, order: gtsam.Ordering) -> Any:
+def _lm(built: BuiltWindow, values: gtsam.Values, order: gtsam.Ordering) -> Any:
     params = gtsam.LevenbergMarquardtParams()
     params.setOrdering(order)
     return gtsam.LevenbergMarquardtOptimizer(built.graph, values, params)
 
 
-def _optimize(built: _Built, opts: SolveOptions, keep_linearisation: bool = False
+def _optimize(built: BuiltWindow, opts: SolveOptions, keep_linearisation: bool = False
               ) -> tuple[gtsam.Values, int, _Linearised | None]:
     """Gauss-Newton steps from ``built.values`` until :func:`_converged`, Levenberg-Marquardt where
     they do not descend.
@@ -175,7 +175,7 @@ def _optimize(built: _Built, opts: SolveOptions, keep_linearisation: bool = Fals
 UNCONVERGED_PREDICTED_SHARE = 1e-3
 
 
-def _refuse_unconverged(built: _Built, values: gtsam.Values, order: gtsam.Ordering, cost: float) -> None:
+def _refuse_unconverged(built: BuiltWindow, values: gtsam.Values, order: gtsam.Ordering, cost: float) -> None:
     """Raise where LM stopped at its damping bound though a Gauss-Newton step from there predicts a
     decrease beyond ``UNCONVERGED_PREDICTED_SHARE`` of the cost: its result is no optimum.
 
@@ -200,7 +200,7 @@ def _whitened_norms(factors: list[tuple[int, Any, Any]], values: gtsam.Values) -
     return out
 
 
-def log_evidence(built: _Built, values: gtsam.Values) -> float:
+def log_evidence(built: BuiltWindow, values: gtsam.Values) -> float:
     """Laplace approximation of log p(measurements | noise model), up to a constant.
 
     ``-E(x*) - sum_f negLogConstant_f - 0.5 log det H``; the constant ``n/2 log 2 pi``
@@ -211,14 +211,14 @@ def log_evidence(built: _Built, values: gtsam.Values) -> float:
     return -built.graph.error(values) - built.neg_log_const - bn.logDeterminant()
 
 
-def _reweighted(prev: _Built, basis: NoiseBasis, imu_noise: ImuNoise, opts: SolveOptions,
-                init: WindowInit) -> _Built:
+def _reweighted(prev: BuiltWindow, basis: NoiseBasis, imu_noise: ImuNoise, opts: SolveOptions,
+                init: WindowInit) -> BuiltWindow:
     """``prev`` (a window built on ``basis``) with its IMU part built again for ``imu_noise`` and
     ``init`` (the IMU factors' noise models, the bias and gravity priors' centres) and every other
     factor shared, starting at ``init.values``: what :func:`build_window` would build, without
     building the pose factors and initial values again."""
     bias0 = np.zeros(6) if init.bias is None else np.asarray(init.bias, dtype=float)
-    built = _Built(gtsam.NonlinearFactorGraph(), gtsam.Values(), prev.pose_factors, [], 0.0)
+    built = BuiltWindow(gtsam.NonlinearFactorGraph(), gtsam.Values(), prev.pose_factors, [], 0.0)
     _add_imu_factors(built, basis.pims, opts, init,
                      bias0, [gtsam.noiseModel.Gaussian.Covariance(c) for c in basis.covariances(imu_noise)])
     size, nlc = int(built.graph.size()), built.neg_log_const
@@ -239,8 +239,8 @@ def evidence_step(
     opts: SolveOptions,
     init: WindowInit,
     basis: NoiseBasis | None = None,
-    like: _Built | None = None,
-) -> tuple[float, WindowInit, _Built] | None:
+    like: BuiltWindow | None = None,
+) -> tuple[float, WindowInit, BuiltWindow] | None:
     """Log evidence (:func:`log_evidence`) one Gauss-Newton step from ``init.values``, the optimum
     under a nearby noise model, where the step ends (the start of a next candidate), and the graph
     (``like`` of a next step with the same pose noise: its pose factors are shared, see
@@ -264,6 +264,84 @@ def evidence_step(
         return None
     ev = -cost - built.neg_log_const - bn.logDeterminant()
     return ev, replace(_init_from(values, len(kf), opts, init), values=values), built
+
+
+def _solve_rejecting(samples: MidpointSamples, kf: KeyframePoses, imu_noise: ImuNoise, T_imu_pose: np.ndarray,
+                     opts: SolveOptions, init: WindowInit | None, basis: NoiseBasis | None, want_marginals: bool):
+    """Solve once; with ``opts.reject_outliers``, drop the keyframes whose pose factor exceeds the
+    threshold and solve again from the first optimum.
+
+    Returns:
+        ``(built, result, iterations, linearisation, outliers [n], pose_norms)``; ``pose_norms``
+        is None when the window was solved again (the first solve's norms no longer apply).
+    """
+    built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init, basis=basis)
+    result, iters, lin = _optimize(built, opts, keep_linearisation=want_marginals)
+    outliers = np.zeros(0, dtype=int)
+    if not (opts.reject_outliers and built.pose_factors):
+        return built, result, iters, lin, outliers, None
+    norms = _whitened_norms(built.pose_factors, result)
+    bad = norms > opts.outlier_threshold
+    if not bad.any():
+        return built, result, iters, lin, outliers, norms
+    K = len(kf)
+    outliers = np.unique([built.pose_factors[i][0] for i in np.nonzero(bad)[0]])
+    if len(outliers) > 0.2 * K:
+        log.warning("%d of %d pose factors exceed %.1f sigma: the pose noise may be underestimated",
+                    len(outliers), K, opts.outlier_threshold)
+    init2 = _init_from(result, K, opts, init)
+    built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init2, skip=outliers, basis=basis)
+    built.values = result_subset(result, built.values)
+    result, iters, lin = _optimize(built, opts, keep_linearisation=want_marginals)
+    return built, result, iters, lin, outliers, None
+
+
+def _residual_summary(built: BuiltWindow, result: gtsam.Values, K: int, opts: SolveOptions,
+                      pose_norms: np.ndarray | None) -> tuple[float, float, np.ndarray, np.ndarray]:
+    """Whitened RMS of the pose and IMU factors, overall and per keyframe [K] (NaN where none).
+
+    Per keyframe, for plots over time: its pose factor(s), and the IMU factor that ends at it
+    (factor k links keyframes k and k+1).
+    """
+    if pose_norms is None:
+        pose_norms = (_whitened_norms(built.pose_factors, result) if built.pose_factors and opts.residuals
+                      else np.zeros(0))
+    pose_rms = float(np.sqrt(np.mean(pose_norms**2))) if len(pose_norms) else float("nan")
+    imu_sq = []
+    for f in built.imu_factors if opts.residuals else []:
+        r = f.whitenedError(result)
+        imu_sq.append(float(r @ r) / len(r))
+    imu_rms = float(np.sqrt(np.mean(imu_sq))) if imu_sq else float("nan")
+    pose_res = np.full(K, np.nan)
+    if len(pose_norms):
+        sq = np.zeros(K)
+        cnt = np.zeros(K)
+        idx = np.array([k for k, _, _ in built.pose_factors], dtype=int)
+        np.add.at(sq, idx, pose_norms**2)
+        np.add.at(cnt, idx, 1.0)
+        has = cnt > 0
+        pose_res[has] = np.sqrt(sq[has] / cnt[has])
+    imu_res = np.full(K, np.nan)
+    if imu_sq and len(imu_sq) == K - 1:
+        imu_res[1:] = np.sqrt(imu_sq)
+    return pose_rms, imu_rms, pose_res, imu_res
+
+
+def _solved_frame(result: gtsam.Values, opts: SolveOptions, init: WindowInit | None,
+                  T_imu_pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The gravity unit vector [3] and T_imu_pose [4, 4] the window used: estimated where it estimated them."""
+    if opts.estimate_gravity:
+        gu = result.atUnit3(G(0)).unitVector()
+    elif init is not None and init.gravity_unit is not None:
+        gu = np.asarray(init.gravity_unit, dtype=float) / np.linalg.norm(init.gravity_unit)
+    else:
+        gu = np.array([0.0, 0.0, -1.0])
+    T_used = np.asarray(T_imu_pose, dtype=float).copy()
+    if result.exists(E(0)):
+        T_used = result.atPose3(E(0)).matrix()
+    elif result.exists(L(0)):
+        T_used[:3, 3] = result.atPoint3(L(0))
+    return gu, T_used
 
 
 def solve_window(
@@ -290,66 +368,17 @@ def solve_window(
     position_only = kf.source_kind == PoseSourceKind.POSITION_TRACKER or kf.quat_wxyz is None
     if position_only and (init is None or (init.rot_wxyz is None and init.values is None)):
         return _best_attitude_start(samples, kf, imu_noise, T_imu_pose, opts, init, want_evidence, basis)
-    built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init, basis=basis)
     want_marginals = opts.compute_marginals or opts.marginal_extras or opts.offset_sensitivity
-    result, iters, lin = _optimize(built, opts, keep_linearisation=want_marginals)
-    outliers = np.zeros(0, dtype=int)
-    pose_norms = None
-    if opts.reject_outliers and built.pose_factors:
-        norms = _whitened_norms(built.pose_factors, result)
-        bad = norms > opts.outlier_threshold
-        pose_norms = norms  # still valid unless the window is solved again below
-        if bad.any():
-            pose_norms = None
-            outliers = np.unique([built.pose_factors[i][0] for i in np.nonzero(bad)[0]])
-            if len(outliers) > 0.2 * K:
-                log.warning("%d of %d pose factors exceed %.1f sigma: the pose noise may be underestimated",
-                            len(outliers), K, opts.outlier_threshold)
-            init2 = _init_from(result, K, opts, init)
-            built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init2, skip=outliers, basis=basis)
-            built.values = result_subset(result, built.values)
-            result, iters, lin = _optimize(built, opts, keep_linearisation=want_marginals)
+    built, result, iters, lin, outliers, pose_norms = _solve_rejecting(
+        samples, kf, imu_noise, T_imu_pose, opts, init, basis, want_marginals)
     cost = float(built.graph.error(result))
     if not math.isfinite(cost):
         raise RecoveryError("the optimisation diverged (non-finite cost)",
                             hint="check the pose stream, its clock offset and the extrinsic")
-    if pose_norms is None:
-        pose_norms = (_whitened_norms(built.pose_factors, result) if built.pose_factors and opts.residuals
-                      else np.zeros(0))
-    pose_rms = float(np.sqrt(np.mean(pose_norms**2))) if len(pose_norms) else float("nan")
-    imu_sq = []
-    for f in built.imu_factors if opts.residuals else []:
-        r = f.whitenedError(result)
-        imu_sq.append(float(r @ r) / len(r))
-    imu_rms = float(np.sqrt(np.mean(imu_sq))) if imu_sq else float("nan")
-    # Per keyframe, for plots over time: the whitened RMS of its pose factor(s) and of the IMU
-    # factor that ends at it (factor k links keyframes k and k+1).
-    pose_res = np.full(K, np.nan)
-    if len(pose_norms):
-        sq = np.zeros(K)
-        cnt = np.zeros(K)
-        idx = np.array([k for k, _, _ in built.pose_factors], dtype=int)
-        np.add.at(sq, idx, pose_norms**2)
-        np.add.at(cnt, idx, 1.0)
-        has = cnt > 0
-        pose_res[has] = np.sqrt(sq[has] / cnt[has])
-    imu_res = np.full(K, np.nan)
-    if imu_sq and len(imu_sq) == K - 1:
-        imu_res[1:] = np.sqrt(imu_sq)
-
+    pose_rms, imu_rms, pose_res, imu_res = _residual_summary(built, result, K, opts, pose_norms)
     P, Q, Vv = _keyframe_states(result, K)
     bias = _keyframe_biases(result, K)
-    if opts.estimate_gravity:
-        gu = result.atUnit3(G(0)).unitVector()
-    elif init is not None and init.gravity_unit is not None:
-        gu = np.asarray(init.gravity_unit, dtype=float) / np.linalg.norm(init.gravity_unit)
-    else:
-        gu = np.array([0.0, 0.0, -1.0])
-    T_used = np.asarray(T_imu_pose, dtype=float).copy()
-    if result.exists(E(0)):
-        T_used = result.atPose3(E(0)).matrix()
-    elif result.exists(L(0)):
-        T_used[:3, 3] = result.atPoint3(L(0))
+    gu, T_used = _solved_frame(result, opts, init, T_imu_pose)
     bias_std = np.full((K, 6), np.nan)
     extras: dict[str, Any] = {}
     if opts.offset_sensitivity:
@@ -393,7 +422,7 @@ def _best_attitude_start(samples: MidpointSamples, kf: KeyframePoses, imu_noise:
     return best
 
 
-def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf: KeyframePoses,
+def _marginals(built: BuiltWindow, result: gtsam.Values, samples: MidpointSamples, kf: KeyframePoses,
                state: tuple[np.ndarray, np.ndarray, np.ndarray], T_imu_pose: np.ndarray, opts: SolveOptions,
                extras: dict[str, Any], lin: _Linearised | None = None) -> np.ndarray:
     """Bias 1-sigma [K, 6] (NaN without ``compute_marginals``; including the fixed calibration's
@@ -434,7 +463,7 @@ def _marginals(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf
     return bias_std
 
 
-def _linearised_at_optimum(built: _Built, result: gtsam.Values, lin: _Linearised | None
+def _linearised_at_optimum(built: BuiltWindow, result: gtsam.Values, lin: _Linearised | None
                            ) -> tuple[gtsam.GaussianFactorGraph, gtsam.GaussianBayesTree, gtsam.Values]:
     """The linearisation the marginals and the calibration's sensitivities come from, its Bayes tree
     and where it was taken: the optimiser's last one (``lin``, a step before the result) when it
@@ -447,7 +476,7 @@ def _linearised_at_optimum(built: _Built, result: gtsam.Values, lin: _Linearised
     return gfg, gfg.eliminateMultifrontal(elimination_order(result)), result
 
 
-def _calibration_columns(built: _Built, samples: MidpointSamples, kf: KeyframePoses,
+def _calibration_columns(built: BuiltWindow, samples: MidpointSamples, kf: KeyframePoses,
                          state: tuple[np.ndarray, np.ndarray, np.ndarray], T_imu_pose: np.ndarray, opts: SolveOptions
                          ) -> tuple[list[tuple[int, int, str]], tuple[np.ndarray, np.ndarray]] | None:
     """The pose and velocity factors ``(graph index, keyframe, kind)`` and their measurement columns
@@ -466,7 +495,7 @@ def _calibration_columns(built: _Built, samples: MidpointSamples, kf: KeyframePo
     return [f for f in factors if f[2] in ("x", "v")], measurement_columns(kin, T_imu_pose)
 
 
-def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBayesTree | None, built: _Built,
+def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBayesTree | None, built: BuiltWindow,
                           result: gtsam.Values, samples: MidpointSamples,
                           kf: KeyframePoses, state: tuple[np.ndarray, np.ndarray, np.ndarray],
                           T_imu_pose: np.ndarray, opts: SolveOptions, idx: np.ndarray) -> np.ndarray | None:
@@ -481,7 +510,7 @@ def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBa
                                zero=None if tree is None else result.zeroVectors())
 
 
-def _offset_sensitivity(built: _Built, result: gtsam.Values, samples: MidpointSamples, kf: KeyframePoses,
+def _offset_sensitivity(built: BuiltWindow, result: gtsam.Values, samples: MidpointSamples, kf: KeyframePoses,
                         state: tuple[np.ndarray, np.ndarray, np.ndarray], T_imu_pose: np.ndarray, opts: SolveOptions,
                         extras: dict[str, Any], lin: _Linearised | None) -> None:
     """``extras["offset_slope"]`` / ``["offset_information"]``: the cost's slope and information in

@@ -17,14 +17,11 @@ is a continuous-time density, so decimation changes how much information the
 window carries but not what the optimum estimates.
 
 What it costs: each coordinate is a bracketing search on the grid with a parabola
-through the best point and its neighbours (usually 3 candidates; 5 for the two random
-walks together, the later searched at the earlier one's best grid point). The window is
-preintegrated once (:class:`recovery.preintegration.NoiseBasis`: the random walks
-re-weight it exactly). The first candidate is solved; a random-walk candidate next to a
-solved one takes one Gauss-Newton step from that optimum
-(:func:`recovery.graph.evidence_step`), which differs from the full solve's log evidence by
-0.1-1.6, against differences of tens to hundreds between candidates (the chosen scales move by
-~0.1 %).
+through the best point and its neighbours. The window is preintegrated once
+(:class:`recovery.preintegration.NoiseBasis`: the random walks re-weight it exactly). The
+first candidate is solved; a random-walk candidate next to a solved one takes one
+Gauss-Newton step from that optimum (:func:`recovery.graph.evidence_step`), whose log
+evidence is close to the full solve's on the scale of the differences between candidates.
 """
 
 from __future__ import annotations
@@ -139,6 +136,122 @@ class PoseErrorGrid:
     taus_s: tuple[float, ...]
 
 
+_STATE_KEYS = ("g", "a", "gn", "an", "p", "rs", "rt", "ps", "pt")
+
+
+class _EvidenceSearch:
+    """Log evidence of noise candidates on one window, cached, each warm-started from the best so far.
+
+    A candidate is a state over ``_STATE_KEYS``: random-walk scales (g, a), white-density
+    scales (gn, an), the pose-sigma scale (p) and the correlated pose error's sigma scale and
+    correlation time per axis group (rs, rt rotation; ps, pt position).
+    """
+
+    def __init__(self, samples: MidpointSamples, kf: KeyframePoses, base_imu: ImuNoise, base_position_sigma_m: float,
+                 base_rotation_sigma_rad: float, T_imu_pose: np.ndarray, opts: SolveOptions,
+                 init: WindowInit | None, pose_error: PoseErrorGrid | None, start: dict[str, float]):
+        self.samples, self.kf, self.base_imu, self.T_imu_pose, self.opts = samples, kf, base_imu, T_imu_pose, opts
+        self.base_position_sigma_m, self.base_rotation_sigma_rad = base_position_sigma_m, base_rotation_sigma_rad
+        self.pose_error = pose_error
+        self.table: list[dict[str, float]] = []
+        self.cache: dict[tuple[float, ...], float] = {}
+        # Warm start of each candidate: the optimum of the best candidate so far (same graph, nearby
+        # noise: LM needs ~2 iterations instead of ~5, and the optimum is the same). From the best one,
+        # not the last one: a candidate far off (e.g. a pose sigma 30x too small for a position-only
+        # stream over minutes) can settle in a wrong attitude minimum, and chaining from it would
+        # carry that minimum into every later candidate.
+        self.warm: dict[str, Any] = {"init": init, "ev": float("-inf"), "pose": None}
+        self.like: dict[tuple[float, ...], Any] = {}  # per pose model: the last evidence step's graph
+        self.within = kf.within_bin()
+        # one preintegration for every candidate, at the start's noise and bias (the candidates differ
+        # in their random walks only, which re-weight it exactly: NoiseBasis)
+        self.basis = noise_basis(samples, _imu_noise(base_imu, start["g"], start["a"]), opts, init)
+
+    def model_of(self, st: dict[str, float]) -> PoseErrorModel | None:
+        """The correlated pose error of a state (None without a pose-error grid)."""
+        if self.pose_error is None:
+            return None
+        return PoseErrorModel(self.base_rotation_sigma_rad * st["rs"], st["rt"],
+                              self.base_position_sigma_m * st["ps"], st["pt"])
+
+    def evaluate(self, st: dict[str, float]) -> float:
+        """Log evidence of one state (-inf when its solve fails); cached and tabled."""
+        key = tuple(round(st[k], 6) for k in _STATE_KEYS)
+        if key not in self.cache:
+            self.cache[key] = ev = self._solve(st, key[4:])
+            self.table.append({"gyro_rw_scale": st["g"], "acc_rw_scale": st["a"], "gyro_density_scale": st["gn"],
+                               "acc_density_scale": st["an"], "pose_scale": st["p"],
+                               **({} if self.pose_error is None else {
+                                   "rotation_error_sigma_scale": st["rs"], "rotation_error_tau_s": st["rt"],
+                                   "position_error_sigma_scale": st["ps"], "position_error_tau_s": st["pt"]}),
+                               "log_evidence": float(ev)})
+        return self.cache[key]
+
+    def _solve(self, st: dict[str, float], pose_key: tuple[float, ...]) -> float:
+        o = replace(self.opts, position_sigma_m=self.base_position_sigma_m * st["p"],
+                    rotation_sigma_rad=self.base_rotation_sigma_rad * st["p"], pose_error=self.model_of(st))
+        noise = _imu_noise(self.base_imu, st["g"], st["a"], st["gn"], st["an"])
+        warm = self.warm
+        try:
+            # a random walk next to a solved candidate: one Gauss-Newton step from its optimum
+            # (graph.evidence_step); solved: the pose models, whose candidates lie further apart, and
+            # position-only streams, whose attitude (seen through positions alone) is less linear
+            step = None
+            if (pose_key == warm["pose"] and self.kf.quat_wxyz is not None and warm["init"] is not None
+                    and warm["init"].values is not None):
+                step = evidence_step(self.samples, self.kf, noise, self.T_imu_pose, o, warm["init"], self.basis,
+                                     self.like.get(pose_key))
+            if step is not None:
+                ev, start, self.like[pose_key] = step
+            else:
+                sol = solve_window(self.samples, self.kf, noise, self.T_imu_pose, o, warm["init"],
+                                   want_evidence=True, basis=self.basis)
+                ev, start = sol.log_evidence, WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias,
+                                                         values=sol.values)
+            if self.within is not None:  # fused keyframes: the samples' scatter about them
+                ev += self.within.log_likelihood(o.position_sigma_m, o.rotation_sigma_rad)
+            if ev > warm["ev"]:
+                warm.update(ev=ev, init=start, pose=pose_key)
+            return ev
+        except Exception as exc:  # a diverged candidate is simply not chosen
+            log.debug("noise candidate %s failed: %s", st, exc, exc_info=True)
+            return float("-inf")
+
+    def search(self, state: dict[str, float], chosen: dict[str, float], name: str, grid: list[float]) -> None:
+        """Bracketing search along one coordinate, updating ``state`` and ``chosen`` in place.
+
+        Starts at the current value's grid neighbours and walks uphill until the best point has
+        evaluated neighbours on both sides (or is at the grid edge); then a parabola in log-scale.
+        On a unimodal evidence curve this returns what the full grid would, at 3-4 instead of 6-7
+        solves. A coordinate is searched at the others' best grid points (already evaluated: its
+        search starts there without a new solve), not at their parabolas' vertices, which lie within
+        half a grid step of them. The pose sigma, which trades off against both random walks, is
+        fixed at its vertex before they are searched.
+        """
+        grid = sorted(grid)
+        n = len(grid)
+        i0 = _grid_index(grid, state[name])
+        evs: dict[int, float] = {}
+
+        def at(j: int) -> float:
+            if j not in evs:
+                evs[j] = self.evaluate({**state, name: grid[j]})
+            return evs[j]
+
+        for j in sorted(range(max(i0 - 1, 0), min(i0 + 1, n - 1) + 1), key=lambda j: abs(j - i0)):
+            at(j)  # the current value first: the start of the warm-start chain
+        while True:
+            best = max(evs, key=lambda j: (evs[j], -abs(j - i0)))
+            if best == min(evs) and best > 0:
+                at(best - 1)
+            elif best == max(evs) and best < n - 1:
+                at(best + 1)
+            else:
+                break
+        chosen[name] = _argmax_parabolic_log(grid, [evs.get(j, float("nan")) for j in range(n)])
+        state[name] = chosen[name] if name == "p" else grid[max(evs, key=lambda j: evs[j])]
+
+
 def estimate_noise(
     samples: MidpointSamples,
     kf: KeyframePoses,
@@ -170,123 +283,33 @@ def estimate_noise(
     start_rw = 10.0 if 10.0 in rw_scales else rw_scales[len(rw_scales) // 2]
     state = {"g": start_rw if estimate_gyro else 1.0, "a": start_rw if estimate_acc else 1.0, "p": 1.0,
              "rs": 0.0, "rt": 1.0, "ps": 0.0, "pt": 1.0, "gn": 1.0, "an": 1.0}
-    table: list[dict[str, float]] = []
-    cache: dict[tuple[float, ...], float] = {}
-
-    # Warm start of each candidate: the optimum of the best candidate so far (same graph, nearby
-    # noise: LM needs ~2 iterations instead of ~5, and the optimum is the same). From the best one,
-    # not the last one: a candidate far off (e.g. a pose sigma 30x too small for a position-only
-    # stream over minutes) can settle in a wrong attitude minimum, and chaining from it would
-    # carry that minimum into every later candidate.
-    warm: dict[str, Any] = {"init": init, "ev": float("-inf"), "pose": None}
-    like: dict[tuple[float, ...], Any] = {}  # per pose model: the last evidence step's graph (its pose factors are shared)
-    within = kf.within_bin()
-    # one preintegration for every candidate, at the start's noise and bias (the candidates differ
-    # in their random walks only, which re-weight it exactly: NoiseBasis)
-    basis = noise_basis(samples, _imu_noise(base_imu, state["g"], state["a"]), opts, init)
-
-    def model_of(st: dict[str, float]) -> PoseErrorModel | None:
-        if pose_error is None:
-            return None
-        return PoseErrorModel(base_rotation_sigma_rad * st["rs"], st["rt"], base_position_sigma_m * st["ps"], st["pt"])
-
-    def evaluate(st: dict[str, float]) -> float:
-        key = tuple(round(st[k], 6) for k in ("g", "a", "gn", "an", "p", "rs", "rt", "ps", "pt"))
-        if key in cache:
-            return cache[key]
-        pose_key = key[4:]
-        o = replace(opts, position_sigma_m=base_position_sigma_m * st["p"],
-                    rotation_sigma_rad=base_rotation_sigma_rad * st["p"], pose_error=model_of(st))
-        noise = _imu_noise(base_imu, st["g"], st["a"], st["gn"], st["an"])
-        try:
-            # a random walk next to a solved candidate: one Gauss-Newton step from its optimum
-            # (graph.evidence_step); solved: the pose models, whose candidates lie further apart, and
-            # position-only streams, whose attitude (seen through positions alone) is less linear
-            step = None
-            if (pose_key == warm["pose"] and kf.quat_wxyz is not None and warm["init"] is not None
-                    and warm["init"].values is not None):
-                step = evidence_step(samples, kf, noise, T_imu_pose, o, warm["init"], basis, like.get(pose_key))
-            if step is not None:
-                ev, start, like[pose_key] = step
-            else:
-                sol = solve_window(samples, kf, noise, T_imu_pose, o, warm["init"], want_evidence=True, basis=basis)
-                ev, start = sol.log_evidence, WindowInit(gravity_unit=sol.gravity_unit, bias=sol.bias,
-                                                         values=sol.values)
-            if within is not None:  # fused keyframes: the samples' scatter about them
-                ev += within.log_likelihood(o.position_sigma_m, o.rotation_sigma_rad)
-            if ev > warm["ev"]:
-                warm.update(ev=ev, init=start, pose=pose_key)
-        except Exception as exc:  # a diverged candidate is simply not chosen
-            log.debug("noise candidate %s failed: %s", key, exc, exc_info=True)
-            ev = float("-inf")
-        cache[key] = ev
-        table.append({"gyro_rw_scale": st["g"], "acc_rw_scale": st["a"], "gyro_density_scale": st["gn"],
-                      "acc_density_scale": st["an"], "pose_scale": st["p"],
-                      **({} if pose_error is None else {"rotation_error_sigma_scale": st["rs"], "rotation_error_tau_s": st["rt"],
-                                                        "position_error_sigma_scale": st["ps"], "position_error_tau_s": st["pt"]}),
-                      "log_evidence": float(ev)})
-        return ev
-
+    ev = _EvidenceSearch(samples, kf, base_imu, base_position_sigma_m, base_rotation_sigma_rad, T_imu_pose, opts,
+                         init, pose_error, state)
     chosen = dict(state)
-
-    def search(name: str, grid: list[float]) -> None:
-        """Bracketing search along one coordinate: start at the current value's grid
-        neighbours and walk uphill until the best point has evaluated neighbours on both
-        sides (or is at the grid edge); then a parabola in log-scale. On a unimodal
-        evidence curve this returns what the full grid would, at ~3-4 instead of 6-7 solves.
-        A coordinate is searched at the others' best grid points (already evaluated: its
-        search starts there without a new solve), not at their parabolas' vertices, which lie
-        within half a grid step of them (the random walks act on different bias components: the
-        acc evidence curve at the gyro's grid point and at its vertex differ by ~0.1 in log
-        evidence, the acc choice by ~0.1 %). The pose sigma, which trades off against both, is
-        fixed at its vertex before they are searched."""
-        grid = sorted(grid)
-        n = len(grid)
-        i0 = _grid_index(grid, state[name])
-        evs: dict[int, float] = {}
-
-        def at(j: int) -> float:
-            if j not in evs:
-                evs[j] = evaluate({**state, name: grid[j]})
-            return evs[j]
-
-        for j in sorted(range(max(i0 - 1, 0), min(i0 + 1, n - 1) + 1), key=lambda j: abs(j - i0)):
-            at(j)  # the current value first: the start of the warm-start chain
-        while True:
-            best = max(evs, key=lambda j: (evs[j], -abs(j - i0)))
-            if best == min(evs) and best > 0:
-                at(best - 1)
-            elif best == max(evs) and best < n - 1:
-                at(best + 1)
-            else:
-                break
-        chosen[name] = _argmax_parabolic_log(grid, [evs.get(j, float("nan")) for j in range(n)])
-        state[name] = chosen[name] if name == "p" else grid[max(evs, key=lambda j: evs[j])]
-
     if estimate_pose:
-        search("p", list(pose_scales or POSE_SCALES))
+        ev.search(state, chosen, "p", list(pose_scales or POSE_SCALES))
     passes = 2 if pose_error is not None or density_scales is not None else 1
     for _ in range(passes):
         if pose_error is not None:
             for group in ("r", "p"):
-                search(group + "s", list(pose_error.sigma_scales))
+                ev.search(state, chosen, group + "s", list(pose_error.sigma_scales))
                 if state[group + "s"] > 0:
-                    search(group + "t", list(pose_error.taus_s))
+                    ev.search(state, chosen, group + "t", list(pose_error.taus_s))
         if density_scales is not None:
-            search("an", list(density_scales))
-            search("gn", list(density_scales))
+            ev.search(state, chosen, "an", list(density_scales))
+            ev.search(state, chosen, "gn", list(density_scales))
         if estimate_gyro:
-            search("g", list(rw_scales))
+            ev.search(state, chosen, "g", list(rw_scales))
         if estimate_acc:
-            search("a", list(rw_scales))
+            ev.search(state, chosen, "a", list(rw_scales))
     for name in ("rs", "rt", "ps", "pt", "gn", "an"):
         chosen[name] = state[name]  # grid points: these coordinates are not interpolated
     noise = _imu_noise(base_imu, chosen["g"], chosen["a"], chosen["gn"], chosen["an"])
-    model = model_of(chosen)
+    model = ev.model_of(chosen)
     log.info("noise by evidence: gyro rw x%.3g, acc rw x%.3g, gyro / acc density x%.3g / x%.3g, pose sigma x%.3g, "
              "correlated error %s (%d candidates)", chosen["g"], chosen["a"], chosen["gn"], chosen["an"], chosen["p"],
-             None if model is None else model.to_dict(), len(table))
+             None if model is None else model.to_dict(), len(ev.table))
     return NoiseChoice(noise, base_position_sigma_m * chosen["p"], base_rotation_sigma_rad * chosen["p"],
-                       chosen["g"], chosen["a"], chosen["p"], NoiseEstimation.EVIDENCE, table,
+                       chosen["g"], chosen["a"], chosen["p"], NoiseEstimation.EVIDENCE, ev.table,
                        pose_error=model if model is not None and model.active else None,
                        gyro_density_scale=chosen["gn"], acc_density_scale=chosen["an"])

@@ -244,7 +244,7 @@ def test_numpy_replacements_match_scipy():
     from scipy import signal
     from scipy.integrate import cumulative_trapezoid
 
-    from recovery.calibration_init import _correlate_valid, _cumtrapz
+    from recovery.calibration_init.common import _correlate_valid, _cumtrapz
     from recovery.initial import _savgol
 
     rng = np.random.default_rng(0)
@@ -734,7 +734,7 @@ def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
 
     from gtsam.symbol_shorthand import X
 
-    from recovery.factors import _Built
+    from recovery.factors import BuiltWindow
     from recovery.graph import _refuse_unconverged
 
     graph = gtsam.NonlinearFactorGraph()
@@ -742,7 +742,7 @@ def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
     graph.add(gtsam.PriorFactorPose3(X(0), target, gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
     far = gtsam.Values()
     far.insert(X(0), gtsam.Pose3())
-    built = _Built(graph, far, [], [], 0.0)
+    built = BuiltWindow(graph, far, [], [], 0.0)
     order = gtsam.Ordering()
     order.push_back(X(0))
     with pytest.raises(RecoveryError, match="did not converge"):
