@@ -1,4 +1,4 @@
-"""What a newcomer types: options with typos, comparison files from other tools, README commands."""
+"""What a newcomer types: options with typos, comparison files from other tools, documented examples."""
 
 from __future__ import annotations
 
@@ -186,16 +186,16 @@ def test_report_first_box_says_what_was_checked_and_what_to_do(wrong_datasheet, 
     assert "What was checked:" in box and "ground-truth state" in box and "Not checked:" in box
 
 
-def test_readme_csv_mapping_example_reads_a_csv(tmp_path: Path) -> None:
-    """The mapping printed in the README works as written (units converted, quaternion order honoured)."""
+def test_docs_csv_mapping_example_reads_a_csv(tmp_path: Path) -> None:
+    """The mapping printed in docs/inputs.md works as written (units converted, quaternion order honoured)."""
     import re
 
     import yaml
 
     from pipeline.io import load_sequence
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    block = re.search(r"```yaml\n(# imu_and_mocap\.yaml.*?)```", readme, re.S).group(1)
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "inputs.md").read_text()
+    block = re.search(r"```yaml\n(# imu_and_mocap\.yaml.*?)```", doc, re.S).group(1)
     mapping = yaml.safe_load(block)
     rows = ["time(ns),wx,wy,wz,ax,ay,az,px,py,pz,qx,qy,qz,qw"]
     for i in range(500):
