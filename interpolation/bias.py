@@ -1,34 +1,24 @@
 """Bias at IMU rate, with uncertainty, from keyframe estimates.
 
-Model: each bias component b(t) is a random walk (Brownian motion) with
-diffusion ``q`` [unit^2/s] (``q = sigma_rw^2``, sigma_rw the continuous-time
-random-walk strength used by the recovery). Between two keyframes
-``t0 < t < t1`` with estimates ``b0``, ``b1`` and marginal variances
-``P0``, ``P1``:
+Model: each bias component b(t) is a random walk with diffusion ``q`` [unit^2/s]
+(``q = sigma_rw^2``, the continuous-time random-walk strength the recovery used). Between two
+keyframes ``t0 < t < t1`` with estimates ``b0``, ``b1`` and marginal sigmas ``sigma0``, ``sigma1``:
 
-* **Linear (default).** Given the endpoint values, the random walk between them
-  is a Brownian bridge whose mean is the straight line
+* **Linear (default).** The Brownian bridge between the endpoints: mean
+  ``b(t) = (1 - s) b0 + s b1`` with ``s = (t - t0) / (t1 - t0)``, and variance
 
-      b(t) = (1 - s) b0 + s b1,              s = (t - t0) / (t1 - t0)
+      sigma(t)^2 = ((1 - s) sigma0 + s sigma1)^2 + q (t - t0)(t1 - t) / (t1 - t0),
 
-  and whose variance is the bridge variance ``q (t - t0)(t1 - t) / (t1 - t0)``.
-  The endpoint uncertainty adds ``Var[(1 - s) b0 + s b1]``; consecutive
-  keyframe estimates are strongly correlated (they share almost all their
-  information), and only marginals are stored, so we use the upper bound for
-  correlation 1: ``((1 - s) sigma0 + s sigma1)^2``. Total:
+  the first term the endpoint uncertainty at correlation 1 (an upper bound: consecutive
+  keyframe estimates share almost all their information, and only marginals are stored). It
+  equals the keyframe marginal at the keyframes and is continuous.
+* **Cubic / Akima.** A smooth curve through the keyframes (``scipy``'s Akima1DInterpolator,
+  robust to overshoot); the sigma is the same as for the linear method.
 
-      sigma(t)^2 = ((1 - s) sigma0 + s sigma1)^2 + q (t - t0)(t1 - t) / (t1 - t0)
-
-  It equals the keyframe marginal at the keyframes and is continuous.
-
-* **Cubic / Akima.** A smooth curve through the keyframes (``scipy``'s
-  Akima1DInterpolator, robust to overshoot) for users who want C1 bias; the
-  sigma is the same as for the linear method.
-
-Stamps outside the recovered span are never extrapolated silently: the default
-refuses; with ``clamp=True`` the nearest keyframe value is held, its sigma grows
-with the random walk (``sigma0^2 + q |t - t_end|``) and the rows are counted and
-flagged in :class:`pipeline.bias_table.BiasTrack`.
+Stamps outside the recovered span are never extrapolated silently: the default refuses; with
+``clamp=True`` the nearest keyframe value is held, its sigma grows with the random walk
+(``sigma0^2 + q |t - t_end|``) and the rows are counted and flagged in
+:class:`pipeline.bias_table.BiasTrack`.
 """
 
 from __future__ import annotations

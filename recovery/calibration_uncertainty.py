@@ -6,57 +6,27 @@ calibration moves the solve's optimum by ``J dc`` (``J = d bias* / d c``), hence
 
     Cov_b = Cov_b|c + J Cov_c J^T,
 
-with ``Cov_c`` the covariance of the values used, from the solves that estimated them: the
-joint extrinsic solve's marginal (rotation; translation too unless refined later), the lever-arm
-solve's marginal, the clock-offset search's curvature.
+with ``Cov_c`` the covariance of the values used, from the solves that estimated them (the
+joint extrinsic solve's marginal, the lever-arm solve's, the clock-offset search's curvature).
 
-Why this rather than calibration variables in the final solve:
+``J`` costs no nonlinear solve. The solve's linear system at its optimum is augmented with one
+variable ``C = dc`` = [extrinsic rotation (3), extrinsic translation (3) as the right-perturbation
+tangent of ``T_imu_pose`` (GTSAM Pose3 order), clock offset (s)], whose whitened columns follow
+from the measurements in closed form:
 
-* the clock offset is no variable GTSAM's factors know (a time shift of every pose sample); the
-  extrinsic as a variable needs a Python ``CustomFactor`` per keyframe (each linearisation
-  calls back into Python) and rules out the fused keyframes' velocity priors, which were computed
-  through the extrinsic;
-* the calibration used was estimated on the calibration windows, not on the full data: a
-  variable in the full graph would re-estimate it (a different value) and report the full data's
-  smaller uncertainty, not the uncertainty of the value used;
-* ``J`` by re-solving with each parameter perturbed costs a solve per parameter (7).
+* a pose measured through the extrinsic, ``X_meas = Z E^-1``: a column ``Ad_E``;
+* a pose stamped ``d`` later: a column ``-zeta`` (``zeta = [omega; R^T v]``, the body twist);
+* the fused keyframe velocity: ``[0, R [omega]_x] Ad_E`` and ``-a``.
 
-``J`` here costs no solve of the nonlinear problem. The solve's linear system at its optimum
-(the one the marginals come from) is augmented with one variable ``C = dc`` = [extrinsic rotation (3),
-extrinsic translation (3) as the right-perturbation tangent of ``T_imu_pose`` (GTSAM Pose3
-order), clock offset (s)]. The measurements depend on ``c`` in closed form:
+``J l_i`` (``l_i`` the columns of a square root of ``Cov_c``) comes either from the solve's own
+Bayes tree (two back-substitutions per column) or from a partial elimination of everything but
+``C``, the cheaper for the rank. The same columns give the cost's slope and curvature in one
+calibration parameter (:func:`parameter_slope_and_information`), on which the clock offset's
+refinement takes Newton steps (:mod:`recovery.recover`).
 
-* IMU pose measured through the extrinsic, ``X_meas = Z E^-1``: ``E -> E Exp(xi)`` moves it to
-  ``X_meas Exp(-Ad_E xi)``, an error column ``Ad_E``;
-* a pose stamped ``d`` later is the pose ``d`` later, ``X_meas Exp(d zeta)`` with ``zeta =
-  [omega; R^T v]`` the body twist: an error column ``-zeta``;
-* the fused keyframe velocity (of the IMU origin): ``v - R (omega x eta_t)`` with ``eta =
-  Ad_E xi``, a column ``[0, R [omega]_x] Ad_E``; and ``v + d a``, a column ``-a``.
-
-At the optimum a pose (velocity) factor's error has the identity as its Jacobian in ``X``
-(``V``), so the whitened block of ``C`` is the factor's whitened block times its column.
-``C`` is expressed in the coordinates of the columns ``l_i`` of a square root of ``Cov_c``
-(``c = L u``, ``u`` of Cov_c's rank: one dimension when only the clock offset was estimated), and
-``sum_i (J l_i)^2`` is the added variance per keyframe and axis. Two ways to ``J l_i``, the
-cheaper one for the rank:
-
-* ``J l_i = -H^-1 g_i`` with ``H = R^T R`` the solve's own Gauss-Newton system, whose Bayes tree
-  the marginals already come from, and ``g_i = A^T A x_i`` (``x_i``: the measurement columns
-  times ``l_i`` on the pose and velocity keys; ``A``: those factors' whitened Jacobians). The
-  tree's cliques, children first, form a Bayes net that solves with another right-hand side:
-  two back-substitutions per column, no elimination.
-* Eliminating every variable but ``C`` of the augmented system (GTSAM's partial sequential
-  elimination) leaves the Bayes net ``x = R^-1 (d - S c)``; back-substitution with ``C = e_i``
-  gives ``J l_i``: one elimination, then one back-substitution per column.
-
-The same columns give the cost's slope and curvature in one calibration parameter with every
-other variable optimised (:func:`parameter_slope_and_information`): the clock offset's
-refinement takes Newton steps on them (:mod:`recovery.recover`).
-
-Neglected: the correlation between the calibration's error and the full solve's noise
-(the calibration windows are part of the data), and the cross-covariance between the offset and
-the extrinsic (separate solves). Validated by NEES on the hard simulated and the independent
-hard cases (``tests/test_calibration_uncertainty.py``, ``benchmarks/recovery.py --only hard``).
+Neglected: the correlation between the calibration's error and the full solve's noise, and the
+cross-covariance between the offset and the extrinsic. Why this rather than calibration
+variables in the final solve, and the derivation: ``docs/internals.md``.
 """
 
 from __future__ import annotations

@@ -170,7 +170,7 @@ class RecoveryConfig:
         pose_fusion: Fuse the pose samples between keyframes into them through the IMU
             (:mod:`recovery.fusion`; 6-DoF absolute streams). ``False``: keyframes are single
             samples and the samples between them are dropped (every sample with
-            ``keyframe_rate_hz: null``; ~5x slower on 100-Hz mocap, same accuracy).
+            ``keyframe_rate_hz: null``: slower, the same information).
         relative_horizon: RELATIVE mode: number of keyframes each BetweenFactor spans
             (factors from every keyframe to the next ``relative_horizon`` ones).
         time_offset_mode: See :class:`TimeOffsetMode`.
@@ -183,8 +183,7 @@ class RecoveryConfig:
             the same for the other calibration solves below).
         calib_window_s: Length of data used for offset / extrinsic / noise estimation.
         offset_refine_window_s: Length of the (most rotating) data the clock-offset refinement
-            solves; ``None``: :data:`OFFSET_WINDOW_FUSED_S` with fused keyframes (100-Hz mocap pins
-            the offset to ~0.05 ms in 20 s), else ``calib_window_s``.
+            solves; ``None``: :data:`OFFSET_WINDOW_FUSED_S` with fused keyframes, else ``calib_window_s``.
         extrinsic_mode: See :class:`ExtrinsicMode`.
         extrinsic_keyframe_rate_hz: Keyframe rate of the joint extrinsic solve.
         extrinsic_prior_rotation_deg / extrinsic_prior_translation_m: 1-sigma per axis of the prior a
@@ -211,9 +210,8 @@ class RecoveryConfig:
         noise_estimation: See :class:`NoiseEstimation`.
         random_walk_scales: Candidate inflation factors of the random walks (relative to
             the calibration / sensor.yaml) for EVIDENCE; their min and max bound the search.
-            A narrow range (e.g. ``[0.5, 1, 3, 10, 30]``) keeps a pose stream with artefacts
-            (e.g. EuRoC GT jumps) from choosing a random walk so loose that the bias absorbs
-            them; hitting a bound is reported in ``recovery.json`` warnings.
+            A narrow range keeps a pose stream with artefacts from choosing a random walk so loose
+            that the bias absorbs them; hitting a bound is reported in ``recovery.json`` warnings.
         noise_density_scales: Candidate factors of the calibration's white noise densities (gyro and
             acc separately) for EVIDENCE (a flying platform's vibration raises them far above a
             datasheet's); ``[1]``: as given.
@@ -231,9 +229,7 @@ class RecoveryConfig:
             evidence window and the segments span up to this long instead of ``calib_window_s`` /
             ``segment_s``. From positions the gyro bias about gravity is seen only through the
             heading drift it causes (information ~ window^3), so the walk of the bias and the
-            bias itself need minutes: on EuRoC MH_01 (Leica, 20 Hz) a 60-s window chose 0.7x the
-            datasheet gyro random walk where the whole recording (and the ground-truth poses)
-            say 2-7x, and 60-s segments were over-confident in the gyro bias ~2x.
+            bias itself need minutes of data.
             Memory grows with the keyframes per segment (300 s at 20 Hz: 6000).
         integration_sigma: Preintegration integration noise (GTSAM integrationCovariance).
         robust_loss: See :class:`RobustLoss`.

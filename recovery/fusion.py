@@ -40,7 +40,7 @@ from recovery.rotations import matrix_to_quat_wxyz, matrix_to_rotvec
 
 INTEGRATION_STEP_S = 0.005  # sub-step of the relative-motion integration (IMU linearly interpolated)
 # Floors of the robust residual scales used to reject samples: smoothed ground-truth poses have
-# almost no within-bin scatter (EuRoC V1_01: 1.5e-5 m), so their small model errors (spline knots,
+# almost no within-bin scatter (hundredths of a millimetre), so their small model errors (spline knots,
 # the IMU's own scale errors over a bin) would otherwise count as outliers. With these floors a
 # sample within 5e-4 m / 5e-4 rad of its bin's fit is never rejected; a mocap glitch is centimetres.
 MIN_SCALE_M = 1e-4

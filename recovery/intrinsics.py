@@ -6,52 +6,26 @@ Measurement model (the seed paper's Eq. 2, Kalibr's scale-misalignment model; bo
     acc  = M_a f     + b_a + n_a,            M_a = I + S_a      (S_a: 9 terms)
 
 ``S`` holds the scale errors on its diagonal and the misalignments off it; ``G`` (rad/s per
-m/s^2) is the gyro's g-sensitivity. The factor graph of :mod:`recovery.graph` has no such terms:
-on real data the bias absorbs them. (On EuRoC V1_01 the evidence search picks a gyro random walk
-~100x the datasheet and the bias follows the slow angular rate, but that is not an intrinsic
-error: :mod:`recovery.gyro_consistency` finds the coupling below 0.2 Hz only and only against
-EuRoC's ground-truth poses, and ``benchmarks/intrinsics.py`` prints the figures.)
+m/s^2) is the gyro's g-sensitivity. The factor graph of :mod:`recovery.graph` has no such terms,
+so they are estimated in an alternating outer loop (the intrinsics are constants observed
+through the trajectory, which the pose stream pins down whatever the bias does):
 
-Why an alternating outer loop rather than a factor of our own. ``CombinedImuFactor`` takes
-corrected readings; a custom factor with intrinsics would have to re-preintegrate in Python at
-every linearisation (GTSAM's Python ``CustomFactor``), ~100x slower than the C++ factor over
-thousands of keyframes. The intrinsics are constants, observed through the *trajectory*, which
-the pose stream pins down whatever the bias does. So:
-
-1. solve as usual (the trajectory follows the poses);
+1. solve as usual;
 2. fit, by linear least squares over every keyframe interval, the intrinsics together with a
    piecewise-constant bias correction (one value per ``block_s``, so slow drift stays with the
-   bias and only rate- or force-correlated error goes to the intrinsics):
+   bias); a term whose sigma exceeds ``max_sigma`` is not observable from this motion: it is
+   fixed to zero and named in a warning;
+3. correct the readings, ``acc' = M_a^-1 acc``, ``gyro' = M_g^-1 (gyro - G f)``, and solve again;
+   a term enters when it differs from zero by 3 sigma, and later fits refine it while they move
+   a term by more than ``REFINE_SIGMAS`` sigma (at most ``max_rounds``);
+4. after the last round, drop every term within 3 sigma of zero and solve once more
+   (:func:`drop_insignificant`).
 
-   * rotation: ``Log(dR_imu^T dR_traj) = sum_i J_i d_omega_i dt_i`` with ``J_i`` the rotation
-     from sample ``i`` to the interval's end and ``d_omega = -(S_g omega + G f) - db_g``;
-   * velocity: ``dv_traj - dv_imu = sum_i R_i d_f_i dt_i`` with ``d_f = -S_a f - db_a``;
-
-   weighted per group by the residual variance; the covariance of the fit gives each term's
-   sigma. A term whose sigma exceeds ``max_sigma`` is not observable from this motion: it is
-   fixed to zero (identity) and named in a warning;
-3. correct the readings, ``acc' = M_a^-1 acc``, ``gyro' = M_g^-1 (gyro - G f)``, and solve again
-   (noise evidence, offset and extrinsic included); repeat the fit on the corrected readings
-   while it still moves a term by more than ``REFINE_SIGMAS`` (1) sigma (at most ``max_rounds``).
-   A term enters when it differs from zero by 3 sigma; once in, each later fit refines it by its
-   least-squares estimate of what is left, significant or not. The trajectory solved on readings
-   with intrinsic errors follows them in part, so each fit recovers only part of what is left
-   (on the benchmark's drone 50-90 %): gating every refinement at 3 sigma again stopped the
-   terms up to 3 sigma short, which the gravity-axis terms (acc zz scale, G zz) turned into a z
-   bias offset of that times ~g (acc z bias RMSE 1.5x, gyro z 2.3x that of a sequence without
-   intrinsic errors; with the refinements 1.06x and 1.26x);
-4. after the last round, drop every term whose total (raw convention) is within 3 sigma of zero
-   and solve once more (:func:`drop_insignificant`; gyro z 1.26x -> 1.00x).
-
-A position-only pose stream (no orientation) does not pin the trajectory down: its orientation is
-then the gyro's own integration. Nothing is estimated for it (identity, with a warning; see
-:func:`_not_estimated`).
-
-The bias is reported in the raw readings' convention: the solve on corrected readings recovers
-``b' = M^-1 b``, so ``b = M b'`` (and its sigma likewise). Its sigma includes the uncertainty of
-the estimated terms (:func:`intrinsics_bias_variance`, first order): a gravity-axis term (acc zz
-scale, the G column of f_z) times ``f ~ g`` is nearly a constant bias offset, which the solve
-cannot tell from the bias.
+A position-only pose stream does not pin the trajectory down: nothing is estimated for it
+(identity, with a warning). The bias is reported in the raw readings' convention (``b = M b'``),
+and its sigma includes the uncertainty of the estimated terms (:func:`intrinsics_bias_variance`):
+a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. Design notes and the
+reasons for this scheme: ``docs/internals.md``.
 """
 
 from __future__ import annotations
@@ -571,10 +545,8 @@ def _not_estimated(result, stream: str):
 
     From positions alone the solved trajectory's orientation is the gyro's own integration and its
     acceleration is smoothed by the IMU itself, so the premise of the loop (a trajectory pinned down by the
-    poses, whatever the readings) fails: on EuRoC MH_01 (Leica, 20 Hz) the fit found a 6.7 % accelerometer
-    scale at 38 sigma that the ground-truth poses of the same flight do not show, and it took the gyro and
-    accelerometer bias out of agreement with the ground-truth recovery (gyro y: 0 % of keyframes within
-    3 sigma instead of 100 %).
+    poses, whatever the readings) fails: the fit would find significant scale errors that a 6-DoF
+    reference of the same motion does not show, and move the bias away from it.
     """
     reason = (f"pose stream '{stream}' has positions only: the trajectory's orientation and acceleration come from "
               "the IMU itself, so its intrinsics cannot be fitted against it")

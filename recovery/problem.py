@@ -247,7 +247,7 @@ def _chained_solution(problem: "_Problem", offset_s: float, win: tuple[int, int]
     """Position-only streams: an initial guess over a long window, by consecutive shorter solves.
 
     One graph over minutes of positions, started from the closed-form attitude guess, can settle
-    in a wrong attitude minimum (seen on EuRoC MH_01: 180 s at 10 Hz, pose residuals 2.4 sigma);
+    in a wrong attitude minimum (its pose residuals stay at a few sigma);
     solves of ``piece_s`` chained by :func:`_continue_from` (as the segments are) do not. The
     first solve starts from ``seed`` (a solution inside ``win``, e.g. the calibration window's)
     where given: the closed-form guess fails more easily where the positions pause.

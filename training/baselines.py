@@ -5,32 +5,23 @@
 ``zero``
     No bias correction: the raw readings are integrated.
 ``train_mean``
-    The train split's mean bias, held constant: the manifest's ``normalization.bias_mean``
-    (computed from the train windows only, :func:`training.dataset.normalization_stats`).
+    The train split's mean bias, held constant (the manifest's ``normalization.bias_mean``).
 ``ground_truth``
-    The recovered ground-truth bias of each window itself (the dataset's ``bias`` array): what
-    the labels allow; no learned model should beat it.
+    The recovered ground-truth bias of each window itself: what the labels allow.
 ``state_bias``
-    The dataset's own ground-truth-state bias (EuRoC's ``state_groundtruth_estimate0``) at every
-    window sample (the dataset's ``state_bias`` array): the labels of the paper and AirIMU.
+    The dataset's own ground-truth-state bias (EuRoC's ``state_groundtruth_estimate0``): the
+    labels of the paper and AirIMU.
 ``random_walk_oracle``
-    The ground-truth bias at each window's first sample (the dataset's own ground-truth-state
-    bias where the sequence has one, as in the paper; else the recovered label), continued by
-    ``K`` random-walk paths
-    ``b_k(t_{j+1}) = b_k(t_j) + sigma_rw sqrt(h_j) n_j`` (``n_j ~ N(0, I)``), of which the one
-    with the smallest end-of-window position error against the ground-truth end pose is kept.
-    It uses the ground truth twice (start bias and end pose): an **oracle upper bound**, not a
-    usable method, as in the paper's Table I. The random-walk strengths ``sigma_rw`` [6]
-    (gyro rad/s/sqrt(s), acc m/s^2/sqrt(s)) are chosen by the evaluation
-    (:class:`training.config.OracleWalk`): the sensor's own calibration (``info.sensor_random_walk``,
-    EuRoC's ``imu0/sensor.yaml``, as the paper) or those the recovery of each sequence used
-    (``info.bias_random_walk``, ``recovery.json`` ``noise``).
+    The ground-truth bias at each window's first sample, continued by ``K`` random-walk paths
+    ``b_k(t_{j+1}) = b_k(t_j) + sigma_rw sqrt(h_j) n_j``, of which the one with the smallest
+    end-of-window position error against the ground-truth end pose is kept: an **oracle upper
+    bound** (it uses the ground truth twice), as in the paper's Table I. The walks ``sigma_rw``
+    [6] are the sensor's calibration or the recovery's (:class:`training.config.OracleWalk`).
 ``random_walk_paper``
-    The same oracle with the walks the paper's random-walk column implies (its released code has no
-    baseline; inferred by reproducing the column): increments ``sigma_rw / sqrt(h_j) n_j``, the
-    walk's density taken per sample (200x the stated walk over 1 s at 200 Hz), and the path kept by
-    ``3 * position error [m] + rotation error [deg]`` (the weighting the released code ranks
-    checkpoints by). Kept beside the stated model's row so that Table I can be set beside the paper's.
+    The same oracle with the walks the paper's random-walk column implies: increments
+    ``sigma_rw / sqrt(h_j) n_j`` (the density taken per sample) and the path kept by
+    ``3 * position error [m] + rotation error [deg]`` (the released code's checkpoint ranking).
+    Kept beside the stated model's row so that Table I can be set beside the paper's.
 """
 
 from __future__ import annotations

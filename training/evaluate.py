@@ -1,43 +1,28 @@
 """Evaluation of bias predictors on the test split (the paper's protocol, after AirIMU).
 
-Protocol (AirIMU's ``evaluation/evaluate_state.py``: ``step_size = seqlen``, the integrator
-reset to the ground-truth state of every segment):
+Protocol (AirIMU's ``evaluation/evaluate_state.py``: ``step_size = seqlen``, the integrator reset
+to the ground-truth state of every segment):
 
-* **Windows**: the test split of a window dataset, made **non-overlapping**: the dataset cuts
-  windows with 50 % overlap, so per sequence the windows are taken in time order and one is
-  kept when its first stamp is at or after the last stamp of the previously kept one (every
-  other window when none was dropped; consecutive kept windows share their boundary sample,
-  as AirIMU's segments do).
-* Each window is integrated from the reference position, velocity and orientation at its
-  first sample with ``imu - bias_pred`` (the learned bias is subtracted from the readings),
-  with :func:`validation.validate.window_end_errors`, the project's one metric. Gravity is a
-  stated choice (``EvaluationConfig.gravity``, :class:`training.config.EvalGravity`): ``nominal``
-  (:data:`validation.validate.DEFAULT_GRAVITY_MPS2` in the reference world frame, as AirIMU and
-  the paper) or ``recovered`` (the recovery's estimate kept in the manifest, ``info.gravity_mps2``,
-  else the nominal one); the summary's ``gravity_source`` names it per sequence.
+* **Windows**: the test split made **non-overlapping**: per sequence, in time order, a window is
+  kept when its first stamp is at or after the last stamp of the previously kept one.
+* Each window is integrated from the reference state at its first sample with
+  ``imu - bias_pred`` (:func:`validation.metrics.window_end_errors`, the project's one metric),
+  under a stated gravity (:class:`training.config.EvalGravity`: ``nominal`` or ``recovered``; the
+  summary's ``gravity_source`` names it per sequence).
 * Per sequence: ``PRMSE = sqrt(mean_w |p_end - p_gt|^2)`` (m) and ``ROE = mean_w |Log(R_gt^T
-  R_end)|`` (deg) (:func:`validation.validate.prmse_m`, :func:`~validation.validate.roe_deg`);
-  the **Average** row is the mean over test sequences, as in the paper's Table I.
-* A diffusion model draws ``K`` samples per window (default 50). Three rows
-  (:class:`Aggregation`): ``samples``: each metric computed per sample and averaged over the
-  K samples (the paper's figure; the spread over samples is kept too); ``mean`` and
-  ``median``: the per-time-step mean / median of the K samples used as one prediction.
-  Deterministic predictors (regression, indirect, references) have one ``samples`` row.
-* **Calibration** of a diffusion model's spread, per channel: the fraction of ground-truth
-  bias values (every sample of every test window) inside the central interval of the K
-  samples, for nominal levels in :data:`CALIBRATION_LEVELS` (68 % and 95 % among them).
-  A calibrated model has coverage = level.
-* **Clip use** of a diffusion model, per sampler and channel (:class:`training.clip.ClipUse`):
-  the x0 clip's range and the fraction of sample values sitting on it (a prediction the clip
-  kept from going further) or clipped at some step.
+  R_end)|`` (deg); the **Average** row is the mean over test sequences, as in Table I.
+* A diffusion model draws ``K`` samples per window. Rows (:class:`Aggregation`): ``samples``
+  (each metric per sample, averaged: the paper's figure), ``mean`` and ``median`` (the
+  per-time-step mean / median of the K samples as one prediction). Deterministic predictors
+  have one ``samples`` row.
+* **Calibration** of a diffusion model's spread, per channel: the fraction of ground-truth bias
+  values inside the central interval of the K samples, for :data:`CALIBRATION_LEVELS`.
+* **Clip use** per sampler and channel (:class:`training.clip.ClipUse`).
 
-Outputs (``OUT/``, written atomically): ``summary.json`` (:class:`EvaluationSummary`),
-``windows.parquet`` (one row per window, sampler, aggregation and sample: ``pos_err_m``,
-``rot_err_deg``), ``predictions.parquet`` (every window's prediction: per time step and channel
-the mean of the K samples and, for K > 1, their std, median and quantiles;
-:mod:`training.predictions`) and ``examples.parquet`` (a few randomly chosen test windows, the
-same for every method: ground truth and the sample mean and quantiles per time step and
-channel, for the report's figure).
+Outputs (``OUT/``, written atomically): ``summary.json``,
+``windows.parquet`` (one row per window, sampler, aggregation and sample), ``predictions.parquet``
+(per time step and channel: the samples' mean and, for K > 1, std, median and quantiles) and
+``examples.parquet`` (a few test windows, the same for every method, for the report's figure).
 """
 
 from __future__ import annotations

@@ -2,38 +2,28 @@
 
 Notation (Ho et al. 2020, "DDPM"; Song et al. 2021, "DDIM"): ``beta_t`` the forward-process
 variances (linear from ``beta_start`` to ``beta_end`` over ``N`` steps), ``alpha_t = 1 - beta_t``,
-``alpha_bar_t = prod_{s<=t} alpha_s`` (``alphas_cumprod``). With the default schedule
-(1e-4 .. 0.02, N = 1000) ``alpha_bar_999`` is about 4.04e-5, so ``x_999`` is almost pure noise.
+``alpha_bar_t = prod_{s<=t} alpha_s`` (``alphas_cumprod``); ``t_prev = t - N // S`` for ``S``
+sampling steps, with ``alpha_bar_{t_prev} = 1`` below 0; ``alpha'_t = alpha_bar_t / alpha_bar_prev``,
+``beta'_t = 1 - alpha'_t``.
 
-* Forward process (DDPM eq. 4): ``x_t = sqrt(alpha_bar_t) x_0 + sqrt(1 - alpha_bar_t) eps``.
-* Sampling visits the timesteps ``set_timesteps(S)`` chose: "leading" spacing
-  ``t_i = i * (N // S)``, from ``(S - 1) * (N // S)`` down to 0 (960, 920, ..., 0 for S = 25, as in
-  diffusers), with ``t_prev = t - N // S`` and ``alpha_bar_{t_prev} = 1`` below 0.
-* Both samplers first estimate ``x_0`` from the noise estimate ``eps`` (DDPM eq. 15, DDIM eq. 9):
-  ``x0_hat = (x_t - sqrt(1 - alpha_bar_t) eps) / sqrt(alpha_bar_t)``.
-* DDPM step (DDPM eqs. 6-7, posterior q(x_{t_prev} | x_t, x_0) with the "fixed small" variance):
-  ``mu = sqrt(alpha_bar_prev) beta'_t / (1 - alpha_bar_t) x0_hat
-  + sqrt(alpha'_t) (1 - alpha_bar_prev) / (1 - alpha_bar_t) x_t``, ``alpha'_t = alpha_bar_t /
-  alpha_bar_prev``, ``beta'_t = 1 - alpha'_t``, ``sigma^2 = (1 - alpha_bar_prev) / (1 - alpha_bar_t)
-  beta'_t``; noise is added except at t = 0.
-* DDIM step (DDIM eq. 12 with eq. 16's sigma): ``sigma = eta sqrt((1 - alpha_bar_prev) /
-  (1 - alpha_bar_t)) sqrt(1 - alpha_bar_t / alpha_bar_prev)``, ``x_prev = sqrt(alpha_bar_prev)
-  x0_hat + sqrt(1 - alpha_bar_prev - sigma^2) eps + sigma z``. With eta = 0 it is deterministic,
-  and with the true noise as ``eps`` it returns ``x_0`` exactly at the last step.
-* Clipping (diffusers' ``clip_sample``; DDPM's and DDIM's reference code for images in [-1, 1]):
-  ``x0_hat`` is clamped to ``[-c, c]`` (or to per-channel bounds ``[lo, hi]``) before the step uses
-  it, ``eps`` is not re-derived. The samples here are z-scored biases, so ``c`` is in sigmas of the
-  train split (:class:`training.config.ClipRange` chooses the bounds). The last step returns the
-  clipped ``x0_hat``, so no sample leaves the bounds; :class:`ClipCount` counts how often they
-  bind. Without it a noise estimate slightly off at high t (``x0_hat`` amplifies its error by
-  ``1 / sqrt(alpha_bar_t)``, ~125x at t = 960) runs away: later steps see ``x_t`` far outside anything trained on and do not
-  pull it back (on EuRoC's validation split unclipped DDIM samples reached 14-17 sigmas).
-* RELEASED (the published code's DDIM, ShenghaoZhou/ioo_diffusion ``scheduler/ddim.py``): its
-  ``set_timesteps`` computes the step ratio as ``S // S = 1`` so the S steps are ``t = S-1 .. 0``,
-  while its step uses ``t_prev = t - N // S < 0``, i.e. ``alpha_bar_prev = 1``: every step returns
-  the x0 estimate clipped to [-1, 1] (raw units there). Offered only as an ablation.
+1. Forward process (DDPM eq. 4): ``x_t = sqrt(alpha_bar_t) x_0 + sqrt(1 - alpha_bar_t) eps``.
+2. Timesteps (``set_timesteps(S)``, "leading" as diffusers): ``t_i = i * (N // S)``, from
+   ``(S - 1) * (N // S)`` down to 0.
+3. x0 estimate (DDPM eq. 15, DDIM eq. 9): ``x0_hat = (x_t - sqrt(1 - alpha_bar_t) eps) / sqrt(alpha_bar_t)``.
+4. Clip (diffusers' ``clip_sample``): ``x0_hat`` clamped to ``[-c, c]`` or per-channel ``[lo, hi]``
+   (in sigmas of the train split; :class:`training.config.ClipRange`); ``eps`` is not re-derived,
+   the last step returns the clipped ``x0_hat`` and :class:`ClipCount` counts how often it binds.
+5. DDPM step (eqs. 6-7, "fixed small" variance): ``mu = sqrt(alpha_bar_prev) beta'_t / (1 -
+   alpha_bar_t) x0_hat + sqrt(alpha'_t) (1 - alpha_bar_prev) / (1 - alpha_bar_t) x_t``,
+   ``sigma^2 = (1 - alpha_bar_prev) / (1 - alpha_bar_t) beta'_t``; no noise at t = 0.
+6. DDIM step (eq. 12 with eq. 16's sigma): ``sigma = eta sqrt((1 - alpha_bar_prev) / (1 -
+   alpha_bar_t)) sqrt(1 - alpha'_t)``, ``x_prev = sqrt(alpha_bar_prev) x0_hat + sqrt(1 -
+   alpha_bar_prev - sigma^2) eps + sigma z``; deterministic for eta = 0.
+7. RELEASED (ShenghaoZhou/ioo_diffusion ``scheduler/ddim.py``): steps ``t = S-1 .. 0`` with
+   ``alpha_bar_prev = 1``, so every step returns the x0 estimate clipped to [-1, 1]. Ablation only.
 
 Every formula is checked against diffusers' ``DDPMScheduler`` / ``DDIMScheduler`` in the tests.
+Why the clip matters for z-scored biases: ``docs/internals.md``.
 """
 
 from __future__ import annotations

@@ -1,48 +1,30 @@
 """Training windows: cut recovered sequences into fixed-length IMU windows with bias and states.
 
-Every sequence is cut exactly as the validation cuts it (:func:`validation.validate.plan_windows`),
-so a model is trained and judged on the same windows. A window holds the IMU samples
-``i .. i + n`` with ``n = round(window_s * rate)`` intervals (``T = n + 1`` samples, spanning
-exactly ``window_s``) and starts every ``round(n * (1 - overlap))`` samples. For each window:
+Every sequence is cut exactly as the validation cuts it (:func:`validation.metrics.plan_windows`),
+so a model is trained and judged on the same windows: ``T = n + 1`` IMU samples with
+``n = round(window_s * rate)`` intervals, starting every ``round(n * (1 - overlap))`` samples.
+Each window holds:
 
-* ``imu`` [T, 6]: gyro (rad/s) then accelerometer (m/s^2), as recorded (or resampled, below);
-* ``bias`` / ``bias_std`` [T, 6]: the recovery's keyframe bias (``RECOVERY_DIR/bias.csv``)
-  interpolated to the IMU stamps with its standard deviation (:func:`interpolation.bias.
-  interpolate_bias`, linear = Brownian-bridge mean, random walks from ``recovery.json``): the
-  same numbers ``biasgt interpolate`` writes;
+* ``imu`` [T, 6]: gyro (rad/s) then accelerometer (m/s^2), as recorded (or resampled);
+* ``bias`` / ``bias_std`` [T, 6]: the recovery's keyframe bias interpolated to the IMU stamps
+  with its sigma (:func:`interpolation.bias.interpolate_bias`), as ``biasgt interpolate`` writes;
 * ``start_*`` / ``end_*``: the reference orientation (world-from-imu, [3, 3]), velocity and
-  position at the first and last stamp: the sequence's ground-truth state when it has one,
-  else the pose stream the recovery used, moved onto the IMU clock and frame with the
-  recovery's ``pose_time_offset_s`` and ``T_imu_pose`` (:func:`validation.validate.
-  build_reference`, smoothing-spline velocity);
-* ``t_ns`` [T] (``t0_ns`` = its first stamp) and the sequence name;
-* ``temperature_degc`` [T]: the IMU's temperature, when the sequence's IMU carries one (the
-  dataset keeps it only when every sequence does, see :func:`training.dataset.write_dataset`).
+  position at the first and last stamp (the ground-truth state, else the recovery's pose stream
+  on the IMU clock and frame: :func:`validation.reference.build_reference`);
+* ``t_ns`` [T], the sequence name and, when every sequence's IMU has one, ``temperature_degc`` [T].
 
-The manifest entry of each sequence keeps its provenance (``info``): rates, reference kind,
-the recovery folder, the pose stream its labels were recovered from (``label_pose_stream``),
-the bias random walks the recovery used (``bias_random_walk``, [6]), the recovery's gravity
-estimate in the reference world frame (``gravity_mps2``, [3] or None) and
-the random walks of the sensor's own calibration (``sensor_random_walk``, [6]: e.g. EuRoC's
-``imu0/sensor.yaml``). A sequence with a ground-truth state also keeps that state's own bias at
-the window stamps (``state_bias``, for the evaluation's oracle and dataset-bias rows).
+The manifest keeps each sequence's provenance (``info``: rates, reference kind, recovery folder,
+``label_pose_stream``, ``bias_random_walk`` [6], ``gravity_mps2``, ``sensor_random_walk`` [6]) and,
+with a ground-truth state, that state's own bias at the window stamps (``state_bias``).
 
-Dropped windows (counted per reason in the manifest; a window counts under every reason that
-applies): ``imu_gap`` (an IMU interval > ``gap_factor`` x the nominal one inside the window),
-``imu_nonfinite``, ``outside_recovery`` (a sample outside the recovered bias span: the bias is
-never extrapolated) and ``no_reference`` (no reference state at the first or last stamp).
+Dropped windows are counted per reason: ``imu_gap``, ``imu_nonfinite``, ``outside_recovery`` (the
+bias is never extrapolated) and ``no_reference``.
 
-Rates. All windows of a dataset have the same number of samples, so all sequences must have
-one uniform IMU rate: the same window length in samples and a nominal rate within 1 % of the
-dataset's (the first sequence's), and at most 1 % of the (non-gap) intervals more than 10 %
-off the nominal one. Otherwise extraction stops with a one-line error naming the sequence, its
-rate and ``--resample-hz``. With ``resample_hz`` set, each sequence that does not already
-satisfy this at that rate is resampled: the grid is ``t_k = t_first + round(k / resample_hz)``
-(ns) over the recorded span, each IMU channel is interpolated linearly between the recorded
-samples (:func:`numpy.interp`), and grid points inside an IMU gap are left out, so that windows
-crossing the gap are still dropped rather than filled with invented readings. Linear
-interpolation attenuates content near the Nyquist frequency of the slower rate; downsampling
-does not low-pass filter first (choose a rate at or above the recorded one where possible).
+Rates: all sequences must share one uniform IMU rate (same window length in samples, nominal
+rate within 1 %, at most 1 % of intervals more than 10 % off); otherwise extraction stops with a
+one-line error naming ``--resample-hz``. With ``resample_hz``, a sequence is interpolated
+linearly onto ``t_k = t_first + round(k / resample_hz)`` (ns), leaving out grid points inside IMU
+gaps so windows across a gap are still dropped. Linear interpolation does not low-pass filter.
 """
 
 from __future__ import annotations

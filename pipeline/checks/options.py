@@ -7,10 +7,8 @@ STAMP_UNIT_GUESSED, CALIBRATION_DEFAULTED, BAG_HEADER_STAMP_ZERO):
 ==================  ==========  ==================================================
 code                severity    meaning (repair)
 ==================  ==========  ==================================================
-EMPTY_STREAM        fatal       a stream has fewer than 2 rows (warning for a pose
-                                stream when another usable pose stream exists)
-NONFINITE_ROWS      repairable  NaN/inf values or an all-zero quaternion (drop-nonfinite);
-                                fatal when every row is bad
+EMPTY_STREAM        fatal       fewer than 2 rows (warning if another pose stream is usable)
+NONFINITE_ROWS      repairable  NaN/inf or a zero quaternion (drop-nonfinite); fatal if all
 NON_MONOTONIC       repairable  stamps go backwards (sort)
 DUPLICATE_STAMPS    repairable  repeated stamps (drop-duplicates: keeps the first row)
 GAPS                warning     a step longer than ``gap_factor`` x the median step
@@ -18,13 +16,11 @@ POSE_RATE_LOW       warning     a pose stream slower than ``min_pose_rate_hz`` (
 RATE                info        nominal rate and step jitter
 GYRO_DEGPS          repairable  gyro looks like deg/s (gyro-deg-to-rad)
 ACC_IN_G            repairable  accelerometer looks like g (acc-g-to-mps2)
-ACC_SCALE_SUSPECT   warning     |acc| is neither ~1 g nor ~9.81 m/s^2 (raw counts,
-                                gravity removed); no automatic repair
+ACC_SCALE_SUSPECT   warning     |acc| neither ~1 g nor ~9.81 m/s^2; no automatic repair
 SATURATION          warning     an axis sits at its extreme value (clipping)
 QUAT_NOT_UNIT       repairable  quaternion norms deviate from 1 (normalise-quaternions)
 QUAT_SIGN_FLIPS     info        q and -q alternate (continuous-quaternions, optional)
-NO_TIME_OVERLAP     fatal       IMU and pose spans do not overlap (warning when
-                                another pose stream overlaps)
+NO_TIME_OVERLAP     fatal       IMU and pose spans do not overlap (warning if another does)
 CLOCK_MISMATCH      fatal/warn  stamps on different clocks (fatal), or overlap < 50 %
 TOO_SHORT           fatal       IMU shorter than ``min_duration_s``
 NO_IMU              fatal       no IMU stream (info with ``allow_pose_only``)

@@ -7,47 +7,23 @@ Model (strapdown kinematics, ``R`` = world-from-imu, gravity ``g`` in world, e.g
 
     dR/dt = R [w - b_g]x,    dv/dt = g + R (a - b_a),    dp/dt = v
 
-``w`` (gyro, rad/s) and ``a`` (specific force, m/s^2) are *instantaneous* samples of continuous
-signals taken at the stamps ``t_0 .. t_{T-1}``; ``h_k = t_{k+1} - t_k``. The world-frame
-acceleration at sample k is ``f_k = g + R_k (a_k - b_a,k)``. Two schemes
-(:class:`IntegrationScheme`):
+``w`` (rad/s) and ``a`` (m/s^2) are instantaneous samples at the stamps ``t_0 .. t_{T-1}``,
+``h_k = t_{k+1} - t_k`` and ``f_k = g + R_k (a_k - b_a,k)``. Two schemes (:class:`IntegrationScheme`):
 
-EULER (AirIMU / GTSAM preintegration style: sample k is held constant over [t_k, t_{k+1}])::
+EULER (AirIMU / GTSAM preintegration style, sample k held over [t_k, t_{k+1}]; first order)::
 
-    R_{k+1} = R_k Exp(w_k h_k)
-    v_{k+1} = v_k + f_k h_k
-    p_{k+1} = p_k + v_k h_k + 1/2 f_k h_k^2
+    R_{k+1} = R_k Exp(w_k h_k);  v_{k+1} = v_k + f_k h_k;  p_{k+1} = p_k + v_k h_k + 1/2 f_k h_k^2
 
-    First order: the global error over a window grows like O(h) (rotation and velocity lag the
-    signal by half a sample).
+MIDPOINT (default; signals linear between samples; second order)::
 
-MIDPOINT (default, second order; the signals are taken as linear between samples)::
+    R_{k+1} = R_k Exp(1/2 (w_k + w_{k+1}) h_k)              # mid-point rate
+    v_{k+1} = v_k + 1/2 (f_k + f_{k+1}) h_k                  # trapezoid
+    p_{k+1} = p_k + v_k h_k + 1/6 (2 f_k + f_{k+1}) h_k^2    # exact double integral of the linear f
 
-    R_{k+1} = R_k Exp(1/2 (w_k + w_{k+1}) h_k)                      # mid-point rate
-    v_{k+1} = v_k + 1/2 (f_k + f_{k+1}) h_k                          # trapezoid
-    p_{k+1} = p_k + v_k h_k + 1/6 (2 f_k + f_{k+1}) h_k^2            # exact double integral
-                                                                     # of the linear f
-    (f_{k+1} uses R_{k+1} from the first line.) The local error is O(h^3) and the global error
-    O(h^2): on the smooth 1-s, 200-Hz test windows (|w| ~ 1 rad/s) the end-pose error is
-    ~1e-5 m and 2e-5..2e-4 deg, against ~1e-2 m and 0.16..0.5 deg for EULER
-    (tests/test_integration.py).
-
-Implementation (speed matters: this runs on 10^4-10^5 windows per training step):
-    * a structure-of-arrays, time-major layout inside: vectors [T, 3, B], matrices
-      [T, 3, 3, B], batch last and contiguous, so every elementwise kernel runs over long
-      contiguous rows and a batched 3x3 product is three broadcast multiply-adds over [3, 3, B]
-      (~8x faster on CPU than ``torch.bmm`` on [B, 3, 3], whose per-matrix overhead dominates);
-    * time is processed in blocks of a few steps (on CPU ~64k step-windows per block) so the
-      working set stays in cache: per block, one batched :func:`pipeline.geometry.so3_torch.so3_exp_entries`
-      call gives every ``Exp(phi_k)``, a short loop of batched products extends the cumulative
-      orientation ``R_k = R_0 Exp(phi_0) ... Exp(phi_{k-1})`` (the only sequential part: T-1
-      small batched steps in all), and ``R_k a_k`` is formed while the block is hot;
-    * v and p are linear in ``f``: at the end of the window ``v = v0 + sum_k alpha_k f_k`` and
-      ``p = p0 + H v0 + sum_k beta_k f_k`` (``H = sum h``) with per-sample weights from dt, so the
-      end state is a weighted reduction accumulated block by block; trajectories use
-      ``torch.cumsum`` over the increments above instead.
+Inside, vectors are laid out time-major with the batch last ([T, 3, B], [T, 3, 3, B]) and time
+is processed in cache-sized blocks; v and p at the window end are weighted reductions of ``f``.
 Everything stays on the inputs' device and dtype and is differentiable with autograd (w.r.t.
-gyro, acc, biases, dt and the initial state).
+gyro, acc, biases, dt and the initial state). Design notes: ``docs/internals.md``.
 """
 
 from __future__ import annotations
