@@ -25,7 +25,7 @@ from training.evaluate import (
     load_test_windows,
     read_summary,
 )
-from training.stages import TrainingPlan, evaluate_step, table_step
+from pipeline.workflow.learning import TrainingPlan, evaluate_step, table_step
 from training.table import TABLE_MD
 from window_data import make_window_dataset, train_tiny
 
@@ -220,7 +220,7 @@ def test_job_parameters_change_only_with_the_run():
     """A train job's parameters are its resolved TrainConfig: adding seeds or methods leaves them alone;
     an evaluate job's exclude the list of references."""
     from training.config import TrainConfig
-    from training.stages import evaluation_settings
+    from pipeline.workflow.learning import evaluation_settings
 
     one = TrainingPlan.from_mapping({"methods": ["diffusion_rnn"], "seeds": [0]})
     more = TrainingPlan.from_mapping({"methods": ["diffusion_rnn", "regression_rnn"], "seeds": [0, 1]})

@@ -51,7 +51,7 @@ def test_two_gloo_processes_match_one_process(tmp_path):
 def test_workflow_train_step_launches_torchrun_for_several_processes(tmp_path, monkeypatch):
     """training.processes > 1: the train job runs 'biasgt train' under torchrun inside the job."""
     from training.config import TrainingPlan
-    from training.stages import train_step
+    from pipeline.workflow.learning import train_step
 
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))

@@ -10,7 +10,7 @@ import pytest
 
 from reports.training import SECTIONS, build_training_report
 from training.config import Baseline
-from training.stages import evaluate_step
+from pipeline.workflow.learning import evaluate_step
 from window_data import make_window_dataset, train_tiny
 
 METHODS = ("diffusion_rnn", "regression_rnn", "indirect_rnn")

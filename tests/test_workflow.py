@@ -577,9 +577,9 @@ def test_run_step_names_the_slurm_job(tmp_path, monkeypatch):
 
 
 def test_snakefile_imports_no_torch():
-    """The Snakefile's imports (pipeline.workflow, training.stages) leave PyTorch out: Snakemake
+    """The Snakefile's imports (pipeline.workflow and its learning module) leave PyTorch out: Snakemake
     parses the Snakefile twice in every cluster job, and importing torch cost 1.3 s each time."""
-    code = ("import sys; import pipeline.workflow.config, pipeline.workflow.params, training.stages; "
+    code = ("import sys; import pipeline.workflow.config, pipeline.workflow.params, pipeline.workflow.learning; "
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True,
                          env={"PYTHONPATH": str(REPO)})

@@ -7,6 +7,8 @@ importable and unit-tested Python, so that the ``.smk`` files only wire rules to
 * :mod:`~pipeline.workflow.params`: the rules' parameters and inputs (the ``get_*`` functions of
   ``workflow/rules/common.smk``).
 * :mod:`~pipeline.workflow.steps`: what the thin scripts under ``workflow/scripts/`` call.
+* :mod:`~pipeline.workflow.learning`: the learning stage's result paths and steps (train, evaluate,
+  Table I) over the :mod:`training` library.
 * :mod:`~pipeline.workflow.run`: ``biasgt run`` (Snakemake in a subprocess), with
   :mod:`~pipeline.workflow.process_group`, :mod:`~pipeline.workflow.job_progress` and
   :mod:`~pipeline.workflow.run_summary`.

@@ -7,15 +7,16 @@
 rule evaluate:
     input:
         dataset=windows_dataset_input,
-        run=ts.training_run_dir("{method}", "{seed}"),
+        run=learning.training_run_dir("{method}", "{seed}"),
     output:
-        directory(ts.evaluation_dir("{method}", "{seed}")),
+        directory(learning.evaluation_dir("{method}", "{seed}")),
     log:
         wf.log_file("evaluate", "{method}_seed{seed}"),
     params:
         # a regression model draws no samples: the sampling options rerun only the diffusion models'
-        settings=lambda wildcards: ts.evaluation_settings(WF_CONFIG.section("evaluation"),
-                                                          sampled=ts.Method(wildcards.method).is_diffusion),
+        settings=lambda wildcards: learning.evaluation_settings(
+            WF_CONFIG.section("evaluation"), sampled=learning.Method(wildcards.method).is_diffusion
+        ),
         dataset_checksum=windows_dataset_checksum,
     threads: TRAINING_PLAN.threads
     script:
@@ -26,11 +27,11 @@ rule evaluate_reference:
     input:
         dataset=windows_dataset_input,
     output:
-        directory(ts.evaluation_dir("{reference}")),
+        directory(learning.evaluation_dir("{reference}")),
     log:
         wf.log_file("evaluate", "{reference}"),
     params:
-        settings=ts.evaluation_settings(WF_CONFIG.section("evaluation"), sampled=False),
+        settings=learning.evaluation_settings(WF_CONFIG.section("evaluation"), sampled=False),
         dataset_checksum=windows_dataset_checksum,
     threads: 1
     script:

@@ -4,14 +4,14 @@
 
 rule table:
     input:
-        evaluations=ts.evaluation_summaries(TRAINING_PLAN, EVALUATION),
+        evaluations=learning.evaluation_summaries(TRAINING_PLAN, EVALUATION),
     output:
-        ts.table_outputs(),
+        learning.table_outputs(),
     log:
-        ts.TABLE_LOG,
+        learning.TABLE_LOG,
     threads: 1
     script:
         "../scripts/table.py"
 
 
-final_output("table", lambda cfg: ts.learning_outputs(cfg, wf))
+final_output("table", lambda cfg: learning.learning_outputs(cfg, wf))

@@ -1,26 +1,26 @@
-# Stage train: one job per learned method and seed of the 'training:' section (training.stages.
+# Stage train: one job per learned method and seed of the 'training:' section (training.config.
 # TrainingPlan): results/training/{method}/seed{seed}/ ('biasgt train': best.pt chosen on the
 # validation split, last.pt, metrics.csv, run.json), from the window dataset.
 # params: the run's resolved TrainConfig, so that a changed option retrains, and adding a method
 # or a seed trains only the new runs.
 
-from training import stages as ts
+from pipeline.workflow import learning
 
-TRAINING_PLAN = ts.TrainingPlan.from_mapping(WF_CONFIG.section("training"))
-EVALUATION = ts.EvaluationConfig.from_mapping(WF_CONFIG.section("evaluation"))
+TRAINING_PLAN = learning.TrainingPlan.from_mapping(WF_CONFIG.section("training"))
+EVALUATION = learning.EvaluationConfig.from_mapping(WF_CONFIG.section("evaluation"))
 
 
 wildcard_constraints:
-    method=wf.names_regex(m.value for m in ts.Method),
+    method=wf.names_regex(m.value for m in learning.Method),
     seed=r"\d+",
-    reference=wf.names_regex(b.value for b in ts.Baseline),
+    reference=wf.names_regex(b.value for b in learning.Baseline),
 
 
 rule train:
     input:
         dataset=windows_dataset_input,
     output:
-        directory(ts.training_run_dir("{method}", "{seed}")),
+        directory(learning.training_run_dir("{method}", "{seed}")),
     log:
         wf.log_file("train", "{method}_seed{seed}"),
     params:

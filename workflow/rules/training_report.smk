@@ -4,11 +4,11 @@
 
 rule training_report:
     input:
-        evaluations=ts.evaluation_summaries(TRAINING_PLAN, EVALUATION),
-        runs=[ts.training_run_dir(m, s) for m, s in TRAINING_PLAN.runs()],
+        evaluations=learning.evaluation_summaries(TRAINING_PLAN, EVALUATION),
+        runs=[learning.training_run_dir(m, s) for m, s in TRAINING_PLAN.runs()],
     output:
         report(
-            ts.TRAINING_REPORT,
+            learning.TRAINING_REPORT,
             caption="../report/training.rst",
             category="Training report",
         ),

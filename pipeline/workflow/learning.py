@@ -11,7 +11,9 @@ Layout (relative to the workflow's folder)::
     logs/training/{method}_seed{seed}.log, logs/evaluation/..., logs/table/table.log, logs/report/training.log
 
 The steps are called by the thin scripts under ``workflow/scripts/`` (train, evaluate, table,
-training_report); each is an ordinary function, importable and tested without Snakemake.
+training_report); each is an ordinary function, importable and tested without Snakemake. The
+learning itself (models, dataset, train, evaluate, Table I) is the :mod:`training` package; this
+module only wires it to the workflow.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ from training.table import TABLE_CSV, TABLE_MD, write_table
 # torch and the evaluation are imported by the steps that use them: the Snakefile imports this
 # module for its paths, and Snakemake parses the Snakefile twice in every cluster job.
 
-log = logging.getLogger(__name__)
+log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'pipeline.workflow'
 
 __all__ = [
     "TrainingPlan",
