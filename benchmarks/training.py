@@ -112,7 +112,7 @@ def _dynamic_int8(module: torch.nn.Module) -> torch.nn.Module:
 
 
 def print_table(results: Path) -> None:
-    from training.evaluate import SUMMARY_JSON, read_summary
+    from training.outputs import SUMMARY_JSON, read_summary
     from training.table import format_markdown, table_columns
 
     paths = sorted((results / "evaluation").glob(f"**/{SUMMARY_JSON}"))

@@ -15,13 +15,8 @@ from pipeline.errors import DataError, InputFormatError
 from pipeline.store import read_store
 from training.baselines import Baseline, random_walk_paths
 from training.dataset import MANIFEST, Split, WindowDataset
-from training.evaluate import (
-    Aggregation,
-    EvaluationConfig,
-    evaluate_reference,
-    load_test_windows,
-    read_summary,
-)
+from training.evaluate import EvaluationConfig, evaluate_reference, load_test_windows
+from training.outputs import Aggregation, read_summary
 from validation.validate import ValidationConfig, validate_inputs
 from window_data import make_window_dataset
 

@@ -9,9 +9,9 @@ import pytest
 import yaml
 
 from pipeline.cli.app import main
+from pipeline.workflow.learning import dataset_checksum
 from pipeline.workflow.run import run_workflow
 from pipeline.workflow.run_summary import dry_run_jobs, dry_run_summary
-from pipeline.workflow.learning import dataset_checksum
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("workflow_snakemake")]
 

@@ -11,7 +11,8 @@ import pytest
 
 from pipeline.errors import DataError
 from training.baselines import Baseline
-from training.evaluate import Metrics, evaluate_reference, read_summary
+from training.evaluate import evaluate_reference
+from training.outputs import Metrics, read_summary
 from training.table import AVERAGE, TABLE_CSV, TABLE_MD, table_columns, write_table
 from window_data import make_window_dataset
 

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import pytest
 
+from pipeline.workflow.learning import evaluate_step
 from reports.training import SECTIONS, build_training_report
 from training.config import Baseline
-from pipeline.workflow.learning import evaluate_step
 from window_data import make_window_dataset, train_tiny
 
 METHODS = ("diffusion_rnn", "regression_rnn", "indirect_rnn")

@@ -11,7 +11,7 @@ to the ground-truth state of every segment):
   summary's ``gravity_source`` names it per sequence).
 * Per sequence: ``PRMSE = sqrt(mean_w |p_end - p_gt|^2)`` (m) and ``ROE = mean_w |Log(R_gt^T
   R_end)|`` (deg); the **Average** row is the mean over test sequences, as in Table I.
-* A diffusion model draws ``K`` samples per window. Rows (:class:`Aggregation`): ``samples``
+* A diffusion model draws ``K`` samples per window. Rows (:class:`~training.outputs.Aggregation`): ``samples``
   (each metric per sample, averaged: the paper's figure), ``mean`` and ``median`` (the
   per-time-step mean / median of the K samples as one prediction). Deterministic predictors
   have one ``samples`` row.
@@ -23,12 +23,12 @@ Outputs (``OUT/``, written atomically): ``summary.json``,
 ``windows.parquet`` (one row per window, sampler, aggregation and sample), ``predictions.parquet``
 (per time step and channel: the samples' mean and, for K > 1, std, median and quantiles) and
 ``examples.parquet`` (a few test windows, the same for every method, for the report's figure).
+The records (:class:`~training.outputs.EvaluationSummary`, :class:`~training.outputs.EvaluationResult`
+and their parts), their writer and their reader live in :mod:`training.outputs`.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import enum
 import json
 import logging
 import time
@@ -41,39 +41,37 @@ import numpy as np
 import pandas as pd
 import torch
 
-from pipeline.atomic import atomic_dir
 from pipeline.errors import ConfigError, InputFormatError
-from pipeline.jsonio import to_plain
 from training.baselines import baseline_bias
 from training.checkpoint import CheckpointError, check_finite_output
 from training.clip import ClipUse, clip_use
 from training.config import Baseline, EvaluationConfig, Method, Sampler
 from training.dataset import FORMAT_VERSION, STATE_BIAS
 from training.eval_windows import TestWindows, load_test_windows
-from training.predictions import CHANNELS, PREDICTIONS_PARQUET, prediction_frame
+from training.outputs import (
+    Aggregation,
+    Calibration,
+    EvaluationResult,
+    EvaluationSummary,
+    Metrics,
+    RowResult,
+    write_evaluation,
+)
+from training.predictions import CHANNELS, prediction_frame
 from validation.validate import prmse_m, roe_deg, window_end_errors
 
 log = logging.getLogger(__name__)
 
 __all__ = [
-    "Aggregation",
     "CALIBRATION_LEVELS",
     "EvaluationConfig",
-    "EvaluationResult",
-    "EvaluationSummary",
     "TestWindows",
     "evaluate_predictor",
     "evaluate_reference",
     "evaluate_run",
     "load_test_windows",
-    "read_summary",
-    "write_evaluation",
 ]
 
-SCHEMA_VERSION = 1
-SUMMARY_JSON = "summary.json"
-WINDOWS_PARQUET = "windows.parquet"
-EXAMPLES_PARQUET = "examples.parquet"
 #: Nominal central-interval levels of the calibration curve.
 CALIBRATION_LEVELS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.68, 0.7, 0.8, 0.9, 0.95)
 #: Quantiles of the samples kept per time step for the report's example windows.
@@ -82,14 +80,6 @@ EXAMPLE_SAMPLES = 5  # individual prediction samples kept per example window (th
 PROTOCOL = ("non-overlapping windows of the test split (every other 50%-overlap window), each integrated "
             "from the reference start state; end-point PRMSE (m) and ROE (deg) per sequence; Average = "
             "mean over sequences")
-
-
-class Aggregation(str, enum.Enum):
-    """How the K samples of a window become figures (see the module docstring)."""
-
-    SAMPLES = "samples"  # metrics per sample, averaged over the K samples (the paper)
-    MEAN = "mean"  # the per-time-step mean of the K samples as the prediction
-    MEDIAN = "median"  # the per-time-step median of the K samples as the prediction
 
 
 # ----------------------------------------------------------------------------- predictors
@@ -180,108 +170,6 @@ class ModelPredictor:
         """How often ``sampler``'s clip bound over the predictions so far (None: not a diffusion model)."""
         count = None if sampler is None else self.clip_counts.get(Sampler(sampler))
         return None if count is None else clip_use(self.run.model, Sampler(sampler), count)
-
-
-# ----------------------------------------------------------------------------- records
-
-
-@dataclass(frozen=True)
-class Metrics:
-    """PRMSE (m) and ROE (deg); with K samples, their mean over samples and std over samples."""
-
-    prmse_m: float
-    roe_deg: float
-    prmse_std_m: float = 0.0
-    roe_std_deg: float = 0.0
-    windows: int = 0
-
-
-@dataclass(frozen=True)
-class RowResult:
-    """One row of figures: a sampler (None: not a diffusion model) and an aggregation."""
-
-    sampler: Sampler | None
-    aggregation: Aggregation
-    sequences: dict[str, Metrics]
-    average: Metrics
-
-    @property
-    def key(self) -> str:
-        """Column suffix: '' for the headline row, else 'released', 'mean', 'released mean', ..."""
-        parts = []
-        if self.sampler not in (None, Sampler.DDIM):
-            parts.append(self.sampler.value)
-        if self.aggregation is not Aggregation.SAMPLES:
-            parts.append(self.aggregation.value)
-        return " ".join(parts)
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """Coverage of the ground truth by the central intervals of the K samples, per channel."""
-
-    sampler: Sampler
-    levels: tuple[float, ...]
-    coverage: tuple[tuple[float, ...], ...]  # [level][channel]
-
-    def at(self, level: float) -> tuple[float, ...]:
-        return self.coverage[self.levels.index(level)]
-
-
-@dataclass(frozen=True)
-class EvaluationSummary:
-    """What ``summary.json`` holds (``schema_version`` 1)."""
-
-    method: str
-    label: str
-    kind: str  # "learned", "reference" or "oracle"
-    samples: int
-    seed: int
-    steps: int | None
-    windows: int
-    windows_per_sequence: dict[str, int]
-    protocol: str
-    gravity_source: dict[str, str]
-    rows: tuple[RowResult, ...]
-    calibration: tuple[Calibration, ...] = ()
-    clip: tuple[ClipUse, ...] = ()
-    checkpoint: dict[str, Any] = field(default_factory=dict)
-    dataset: dict[str, Any] = field(default_factory=dict)
-    seconds: float = 0.0
-    schema_version: int = SCHEMA_VERSION
-
-    def row(self, sampler: Sampler | None = None, aggregation: Aggregation = Aggregation.SAMPLES) -> RowResult:
-        """The row of ``sampler`` (default: the first) and ``aggregation``."""
-        for r in self.rows:
-            if (sampler is None or r.sampler in (None, sampler)) and r.aggregation is aggregation:
-                return r
-        raise KeyError((sampler, aggregation))
-
-    def to_dict(self) -> dict[str, Any]:
-        return to_plain(dataclasses.asdict(self))
-
-    @classmethod
-    def from_dict(cls, d: Mapping[str, Any]) -> EvaluationSummary:
-        d = dict(d)
-        d["rows"] = tuple(
-            RowResult(None if r["sampler"] is None else Sampler(r["sampler"]), Aggregation(r["aggregation"]),
-                      {k: Metrics(**v) for k, v in r["sequences"].items()}, Metrics(**r["average"]))
-            for r in d["rows"])
-        d["calibration"] = tuple(
-            Calibration(Sampler(c["sampler"]), tuple(c["levels"]), tuple(tuple(x) for x in c["coverage"]))
-            for c in d.get("calibration", ()))
-        d["clip"] = tuple(ClipUse.from_dict(c) for c in d.get("clip", ()))
-        return cls(**d)
-
-
-@dataclass
-class EvaluationResult:
-    """A summary and its per-window, example and prediction frames."""
-
-    summary: EvaluationSummary
-    windows: pd.DataFrame
-    examples: pd.DataFrame
-    predictions: pd.DataFrame = field(default_factory=pd.DataFrame)
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -490,40 +378,6 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
     )
     return EvaluationResult(summary, pd.concat(frames, ignore_index=True), pd.concat(examples, ignore_index=True),
                             pd.concat(predictions, ignore_index=True))
-
-
-def write_evaluation(result: EvaluationResult, out_dir: str | Path) -> Path:
-    """Write ``summary.json``, ``windows.parquet``, ``predictions.parquet`` and ``examples.parquet``
-    atomically into ``out_dir`` (all of them or none)."""
-    out_dir = Path(out_dir)
-    with atomic_dir(out_dir) as tmp:
-        result.windows.to_parquet(tmp / WINDOWS_PARQUET, index=False)
-        result.predictions.to_parquet(tmp / PREDICTIONS_PARQUET, index=False)
-        result.examples.to_parquet(tmp / EXAMPLES_PARQUET, index=False)
-        (tmp / SUMMARY_JSON).write_text(json.dumps(result.summary.to_dict(), indent=2) + "\n", encoding="utf-8")
-    return out_dir
-
-
-def read_summary(path: str | Path) -> EvaluationSummary:
-    """Load ``summary.json`` (a file or its folder).
-
-    Raises:
-        InputFormatError: Missing, unreadable or of another schema version.
-    """
-    path = Path(path)
-    if path.is_dir():
-        path = path / SUMMARY_JSON
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"))
-        if d.get("schema_version") != SCHEMA_VERSION:
-            raise InputFormatError(f"evaluation summary of schema {d.get('schema_version')}, expected "
-                                   f"{SCHEMA_VERSION}", path=path, hint="re-run 'biasgt evaluate'")
-        return EvaluationSummary.from_dict(d)
-    except FileNotFoundError:
-        raise InputFormatError("no evaluation summary", path=path, hint="run 'biasgt evaluate --out DIR' first") from None
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise InputFormatError(f"cannot read the evaluation summary ({exc})", path=path,
-                               hint="re-run 'biasgt evaluate'") from None
 
 
 # ----------------------------------------------------------------------------- entry points

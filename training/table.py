@@ -4,7 +4,7 @@ In ``table.csv`` rows are the test sequences and ``Average`` (the mean over sequ
 paper) and columns the evaluated methods and references; ``table.md`` (and the training report)
 shows it transposed, one row per method and variant, grouped by method, and one column per
 sequence, so that twenty rows still fit a page. A diffusion model gives one column per
-sampler and aggregation (:class:`training.evaluate.Aggregation`): ``diffusion_rnn`` is the
+sampler and aggregation (:class:`training.outputs.Aggregation`): ``diffusion_rnn`` is the
 paper's figure (correct DDIM, metrics averaged over the K samples), ``diffusion_rnn mean`` /
 ``median`` use the mean / median of the samples as the prediction, ``diffusion_rnn released``
 uses the released code's sampler. Summaries of one method from several training seeds are
@@ -47,7 +47,7 @@ from training.paper import COMMON_SEQUENCES, MISSING_SEQUENCES, PAPER_ROWS, PAPE
     paper_average, paper_sequence
 
 if TYPE_CHECKING:  # the evaluation (and torch) is imported when a table is written, not with the paths
-    from training.evaluate import EvaluationSummary
+    from training.outputs import EvaluationSummary
 
 log = logging.getLogger(__name__)
 
@@ -276,7 +276,7 @@ def write_table(summary_paths: Iterable[str | Path], out_dir: str | Path) -> pd.
     Returns:
         The numeric table (see :func:`build_table`).
     """
-    from training.evaluate import read_summary
+    from training.outputs import read_summary
 
     summaries = [read_summary(p) for p in summary_paths]
     columns = table_columns(summaries)

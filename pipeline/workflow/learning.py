@@ -190,7 +190,7 @@ def evaluate_step(dataset_dir: str | Path, out_dir: str | Path, settings: Mappin
 
 def table_step(evaluation_dirs: Sequence[str | Path], out_dir: str | Path) -> Path:
     """Write Table I from the evaluation folders and log it."""
-    from training.evaluate import SUMMARY_JSON
+    from training.outputs import SUMMARY_JSON
 
     write_table([Path(d) / SUMMARY_JSON for d in evaluation_dirs], out_dir)
     log.info("Table I:\n%s", (Path(out_dir) / TABLE_MD).read_text(encoding="utf-8"))

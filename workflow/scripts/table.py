@@ -2,8 +2,8 @@
 
 from pathlib import Path
 
-from pipeline.workflow.steps import run_step
 from pipeline.workflow.learning import table_step
+from pipeline.workflow.steps import run_step
 
 run_step(
     snakemake.log[0],  # noqa: F821
