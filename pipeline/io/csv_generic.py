@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from pipeline.configs import dataclass_to_mapping
 from pipeline.errors import ConfigError, InputFormatError
 from pipeline.io._stamps import TimeUnit
 from pipeline.io._text import Delimiter, Header, parse_table, read_text, split_header, table_findings
@@ -209,11 +210,8 @@ class CsvMapping:
             raise ConfigError(exc.problem, path=path, field=exc.field, hint=exc.hint) from None
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for f in fields(self):
-            v = getattr(self, f.name)
-            out[f.name] = v.value if isinstance(v, enum.Enum) else (list(v) if isinstance(v, tuple) else v)
-        return out
+        """Plain mapping (enums as values, tuples as lists): what :meth:`from_dict` reads back."""
+        return dataclass_to_mapping(self)
 
 
 def _resolve(col: Column, header: Header, key: str, path: Path, ncols: int) -> int:

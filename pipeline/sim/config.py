@@ -31,7 +31,7 @@ from typing import Any
 
 import yaml
 
-from pipeline.configs import unknown_keys_message
+from pipeline.configs import dataclass_to_mapping, unknown_keys_message
 from pipeline.errors import ConfigError
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 
@@ -341,7 +341,7 @@ class SimConfig:
     # -- dict / YAML round trip -------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """Plain, YAML-safe dict (enums as values, tuples as lists)."""
-        return _to_plain(self)
+        return dataclass_to_mapping(self)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], *, path: str | Path | None = None) -> "SimConfig":
@@ -361,16 +361,6 @@ class SimConfig:
         if data is None:
             data = {}
         return cls.from_dict(data, path=path)
-
-
-def _to_plain(obj: Any) -> Any:
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return {f.name: _to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, enum.Enum):
-        return obj.value
-    if isinstance(obj, (tuple, list)):
-        return [_to_plain(x) for x in obj]
-    return obj
 
 
 def _convert(tp: Any, value: Any, key: str, path: str | Path | None) -> Any:
