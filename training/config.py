@@ -448,8 +448,7 @@ class TrainingPlan:
         return [(m, s) for m in self.methods for s in self.seeds]
 
     def to_dict(self) -> dict[str, Any]:
-        return {"methods": [m.value for m in self.methods], "seeds": list(self.seeds), "preset": self.preset.value,
-                "options": dict(self.options), "processes": self.processes, "threads": self.threads}
+        return dataclass_to_mapping(self)
 
 
 @dataclass(frozen=True)
@@ -503,9 +502,4 @@ class EvaluationConfig:
         return dataclass_from_mapping(cls, d, what="evaluation option", field="evaluation")
 
     def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["samplers"] = [s.value for s in self.samplers]
-        d["references"] = [b.value for b in self.references]
-        d["gravity"] = self.gravity.value
-        d["oracle_random_walk"] = self.oracle_random_walk.value
-        return d
+        return dataclass_to_mapping(self)

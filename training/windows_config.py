@@ -2,14 +2,13 @@
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from pipeline.configs import dataclass_from_mapping
+from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping
 from pipeline.errors import ConfigError
 from validation.config import ValidationConfig
 
@@ -55,7 +54,7 @@ class WindowConfig:
                 raise ConfigError(f"invalid window setting {name} = {getattr(self, name)!r}", field=name, hint=hint)
 
     def to_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        return dataclass_to_mapping(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any] | None) -> WindowConfig:

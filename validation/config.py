@@ -4,9 +4,10 @@ and the windows stage (which cuts the same windows)."""
 from __future__ import annotations
 
 import enum
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
+from pipeline.configs import dataclass_to_mapping
 from pipeline.errors import ValidationError
 from pipeline.types import IntegrationScheme
 
@@ -109,7 +110,4 @@ class ValidationConfig:
                 raise ValidationError(f"invalid {name} = {getattr(self, name)!r}", field=name, hint=hint)
 
     def to_dict(self) -> dict[str, Any]:
-        d = asdict(self)
-        d["scheme"] = self.scheme.value
-        d["crossval"] = self.crossval.value
-        return d
+        return dataclass_to_mapping(self)
