@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from pipeline.configs import dataclass_from_mapping
+from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping
 from pipeline.errors import ConfigError
 from pipeline.types import GRAVITY_MPS2, PoseSourceKind
 
@@ -407,11 +407,7 @@ class RecoveryConfig:
         return [f.name for f in dataclasses.fields(cls)]
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {}
-        for f in dataclasses.fields(self):
-            value = getattr(self, f.name)
-            out[f.name] = value.value if isinstance(value, enum.Enum) else (list(value) if isinstance(value, list) else value)
-        return out
+        return dataclass_to_mapping(self)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any], *, path: str | Path | None = None) -> "RecoveryConfig":
