@@ -22,6 +22,7 @@ _spec = importlib.util.spec_from_file_location(
 _bench = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_bench)
 bias_rmse, truth_intrinsics, with_intrinsics = _bench.bias_rmse, _bench.truth_intrinsics, _bench.with_intrinsics
+full_intrinsics, nees = _bench.full_intrinsics, _bench.nees
 
 
 @pytest.fixture(scope="module")
@@ -251,3 +252,16 @@ def test_auto_estimates_only_where_the_gyro_shows_an_intrinsic_error(drone):
                                                                    PoseSourceKind.POSITION_TRACKER)
                                                      for k, v in bad.poses.items()})
     assert "not checked" in recover(pos).report["intrinsics_auto"]["reason"]
+
+
+def test_bias_sigmas_cover_the_error_with_every_intrinsic_term(drone_120s):
+    """120 s with every term at once (gyro scales, 0.5 deg on every off-diagonal, accelerometer scales,
+    a full 3x3 g-sensitivity), recovered with them estimated: per-axis NEES of the bias against the
+    simulator's truth within [0.5, 2], and the gyro bias within 1.5x of the clean recovery's RMSE."""
+    clean = recover(drone_120s.sequence, config=RecoveryConfig(intrinsics=IntrinsicsMode.OFF))
+    res = recover(with_intrinsics(drone_120s, *full_intrinsics()),
+                  config=RecoveryConfig(intrinsics=IntrinsicsMode.WITH_G_SENSITIVITY))
+    per_axis = nees(res, drone_120s.truth)
+    assert np.all((per_axis >= 0.5) & (per_axis <= 2.0)), per_axis
+    ratio = bias_rmse(res, drone_120s.truth) / bias_rmse(clean, drone_120s.truth)
+    assert np.all(ratio[:3] < 1.5), ratio
