@@ -2,8 +2,8 @@
 
 The pose stream's time-correlated error (recovery.pose_error) against the densities it stands for
 and numerical Jacobians; the evidence that chooses it on a simulation with such an error; then on
-EuRoC's raw Vicon stream (shared/data): the clock offset search against an offset found from the
-ground truth, the extrinsic estimated with sensor.yaml's as a prior against rpng/vicon2gt's
+EuRoC's raw Vicon stream (shared/data): the clock offset search (6-DoF, and from the positions alone)
+against an offset found from the ground truth, the extrinsic estimated with sensor.yaml's as a prior against rpng/vicon2gt's
 published estimate, validation rows that do not depend on the candidate's gravity, the held-out
 FAIL rule and a degenerate cross-validation fold.
 """
@@ -224,6 +224,25 @@ def test_offset_search_finds_v2_01s_clock_offset(shared_data):
     assert 0.19 < independent < 0.23
     found = estimate_time_offset(seq.imu, seq.poses["vicon0"], max_offset_s=0.5)
     assert abs(found.offset_s - independent) < 5e-3 and found.correlation > 0.9
+
+
+def test_position_only_offset_search_reads_the_ground_truth_offset_from_vicon_positions(shared_data):
+    """Position-only streams (Leica) rely on the cost parabola without orientations. V2_02's Vicon positions
+    alone, every fifth sample (20 Hz, as a Leica track), give the clock offset that the ground truth's
+    rotation angles give (the ground truth is on the IMU clock), within 5 ms."""
+    from pipeline.io import load_sequence
+    from pipeline.types import PoseSourceKind
+    from recovery.recover import recover
+
+    seq = load_sequence(shared_data / "euroc" / "V2_02_medium")
+    vicon = seq.poses["vicon0"]
+    independent = _angle_offset_s(vicon, seq.ground_truth.to_pose_series())
+    positions = dataclasses.replace(vicon.take(np.arange(0, len(vicon.t_ns), 5)), quat_wxyz=None,
+                                    source_kind=PoseSourceKind.POSITION_TRACKER, frame="prism")
+    alone = dataclasses.replace(seq, poses={"prism": positions}, ground_truth=None)
+    report = recover(alone, pose_stream="prism").report
+    assert report["pose_time_offset_method"].endswith("graph_cost_parabola")
+    assert abs(report["pose_time_offset_s"] - independent) < 5e-3, (report["pose_time_offset_s"], independent)
 
 
 def test_raw_vicon_extrinsic_is_estimated_with_the_file_as_prior_and_warned(v1_02_recovery):
