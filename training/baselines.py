@@ -30,7 +30,7 @@ import numpy as np
 
 from pipeline.errors import InputFormatError
 from training.config import Baseline
-from validation.validate import window_end_errors
+from validation.metrics import window_end_errors
 
 __all__ = ["Baseline", "ORACLE_CANDIDATES", "PAPER_POSITION_WEIGHT", "baseline_bias", "random_walk_paths"]
 

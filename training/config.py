@@ -357,7 +357,7 @@ class Baseline(str, enum.Enum):
 class EvalGravity(str, enum.Enum):
     """Gravity the evaluation integrates every window with."""
 
-    NOMINAL = "nominal"  # validation.validate.DEFAULT_GRAVITY_MPS2 in the reference world frame (the paper)
+    NOMINAL = "nominal"  # pipeline.types.DEFAULT_GRAVITY_MPS2 in the reference world frame (the paper)
     RECOVERED = "recovered"  # each sequence's recovered gravity (the nominal one when it has none)
 
 

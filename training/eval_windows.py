@@ -20,7 +20,7 @@ from torch.utils.data import default_collate
 from pipeline.errors import DataError
 from training.config import EvalGravity, EvaluationConfig, OracleWalk
 from training.dataset import STATE_BIAS, Split, WindowDataset
-from validation.validate import DEFAULT_GRAVITY_MPS2
+from pipeline.types import DEFAULT_GRAVITY_MPS2
 
 __all__ = ["TestWindows", "load_test_windows", "non_overlapping"]
 

@@ -58,7 +58,7 @@ from training.outputs import (
     write_evaluation,
 )
 from training.predictions import CHANNELS, prediction_frame
-from validation.validate import prmse_m, roe_deg, window_end_errors
+from validation.metrics import prmse_m, roe_deg, window_end_errors
 
 log = logging.getLogger(__name__)
 

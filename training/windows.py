@@ -46,14 +46,9 @@ from pipeline.ingest import load
 from pipeline.store import is_store, read_store
 from pipeline.types import NS_PER_S, ImuSeries, Sequence, Split
 from recovery.outputs import REPORT_JSON, RecoveryOutputs
-from validation.validate import (
-    ReferenceStates,
-    build_reference,
-    gap_free_mask,
-    plan_windows,
-    recovered_bias_at_imu,
-    windows_with_any,
-)
+from validation.metrics import plan_windows, windows_with_any
+from validation.reference import ReferenceStates, build_reference, gap_free_mask
+from validation.sources import recovered_bias_at_imu
 from training.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
 from training.windows_config import WindowConfig
 from validation.config import ValidationConfig

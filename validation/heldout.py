@@ -2,7 +2,7 @@
 
 The windows judged lie wholly inside one block (no window mixes two folds' recoveries) and have a
 reference at both ends; they are integrated with validation's one metric
-(:func:`validation.validate.window_errors`: PRMSE, ROE).
+(:func:`validation.metrics.window_errors`: PRMSE, ROE).
 """
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ import numpy as np
 from pipeline.types import ImuSeries
 from validation.config import ValidationConfig
 from validation.crossval import BlockFolds
-from validation.validate import ReferenceStates, WindowPlan, prmse_m, roe_deg, window_errors
+from validation.metrics import WindowPlan, prmse_m, roe_deg, window_errors
+from validation.reference import ReferenceStates
 
 __all__ = ["HeldOutErrors", "held_out_errors", "held_out_windows"]
 
@@ -52,7 +53,7 @@ def held_out_errors(imu: ImuSeries, bias: np.ndarray, reference: ReferenceStates
         imu: Readings, [N].
         bias: Bias at the IMU stamps, [N, 6].
         reference: Reference at the IMU stamps (its frame: world and IMU as the candidate assumes).
-        plan: The window plan (:func:`validation.validate.plan_windows`).
+        plan: The window plan (:func:`validation.metrics.plan_windows`).
         windows: Which of ``plan.starts`` to integrate, bool [W].
         gravity_mps2: Gravity in the reference's world frame, [3].
         config: Integration scheme and chunking.

@@ -17,7 +17,7 @@ recovered trajectory) to remove the lever arm ``p_imu_pose``.
 :func:`transform_from_json` reads ``T_imu_pose`` in the forms ``recovery.json`` uses.
 
 This module needs only NumPy and SciPy (no torch), so the report can use it without the
-validation's integration stack. Users: :func:`validation.validate.reference_from_poses`,
+validation's integration stack. Users: :func:`validation.reference.reference_from_poses`,
 :func:`recovery.outputs.RecoveryOutputs.read`, :func:`reports.quality.pose_residuals` and
 :func:`reports.quality.transform_from_report`.
 """
