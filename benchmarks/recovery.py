@@ -109,7 +109,7 @@ def case_sim(hard: bool, clean_rmse=None, seed: int = 0):
           + ("" if hard else f"  (target <= 4.5e-3: {_mark(bool((ra <= 4.5e-3).all()))})"))
     print(f"[{name}] optimal-smoother floor for this noise (recovery.bounds): gyro {floor_g:.3g} rad/s, acc "
           f"{floor_a:.3g} m/s^2; RMSE / floor: gyro {(rg / floor_g).max():.2f}, acc {(ra / floor_a).max():.2f} "
-          f"(the issue's 'about 1.3x the floor': {_mark(bool((rg <= 1.3 * floor_g).all() and (ra <= 1.3 * floor_a).all()))}"
+          f"(target about 1.3x the floor: {_mark(bool((rg <= 1.3 * floor_g).all() and (ra <= 1.3 * floor_a).all()))}"
           f"; the 4.5e-3 acc target is {(4.5e-3 / floor_a):.2f}x the floor)")
     print(f"[{name}] mean reported std gyro {res.bias_gyro_std_radps.mean():.3g} rad/s, acc "
           f"{res.bias_acc_std_mps2.mean():.3g} m/s^2 (the model's own accuracy bound for this noise)")

@@ -6,7 +6,7 @@
 3. the project's simulator is checked by an independent RK4 integrator (and GTSAM's scenario
    runner is checked against our closed-form generator's conventions);
 4. recovery on independent 60-s sequences (clean and hard) meets loose versions of the
-   issue's targets (the full 120-s figures: ``benchmarks/independent.py``).
+   benchmark's targets (the full 120-s figures: ``benchmarks/independent.py``).
 """
 
 from __future__ import annotations
