@@ -266,10 +266,16 @@ def evidence_step(
     return ev, replace(_init_from(values, len(kf), opts, init), values=values), built
 
 
+#: A window whose pose factors exceed the outlier threshold in more than this fraction of its keyframes
+#: keeps them all: so many outliers say that the noise model, not the poses, is wrong.
+MAX_OUTLIER_FRACTION = 0.2
+
+
 def _solve_rejecting(samples: MidpointSamples, kf: KeyframePoses, imu_noise: ImuNoise, T_imu_pose: np.ndarray,
                      opts: SolveOptions, init: WindowInit | None, basis: NoiseBasis | None, want_marginals: bool):
     """Solve once; with ``opts.reject_outliers``, drop the keyframes whose pose factor exceeds the
-    threshold and solve again from the first optimum.
+    threshold and solve again from the first optimum (unless more than :data:`MAX_OUTLIER_FRACTION`
+    of them do).
 
     Returns:
         ``(built, result, iterations, linearisation, outliers [n], pose_norms)``; ``pose_norms``
@@ -286,9 +292,12 @@ def _solve_rejecting(samples: MidpointSamples, kf: KeyframePoses, imu_noise: Imu
         return built, result, iters, lin, outliers, norms
     K = len(kf)
     outliers = np.unique([built.pose_factors[i][0] for i in np.nonzero(bad)[0]])
-    if len(outliers) > 0.2 * K:
-        log.warning("%d of %d pose factors exceed %.1f sigma: the pose noise may be underestimated",
-                    len(outliers), K, opts.outlier_threshold)
+    if len(outliers) > MAX_OUTLIER_FRACTION * K:
+        # most of the stream cannot be outliers: the noise model is off (e.g. readings with intrinsic
+        # errors under the calibration's noise), and dropping them would leave the window degenerate
+        log.warning("%d of %d pose factors exceed %.1f sigma: the pose noise is underestimated, none is "
+                    "rejected", len(outliers), K, opts.outlier_threshold)
+        return built, result, iters, lin, np.zeros(0, dtype=int), norms
     init2 = _init_from(result, K, opts, init)
     built = build_window(samples, kf, imu_noise, T_imu_pose, opts, init2, skip=outliers, basis=basis)
     built.values = result_subset(result, built.values)
