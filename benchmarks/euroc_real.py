@@ -16,7 +16,9 @@ recovery in a child process (runtime, peak RSS). Then, with non-overlapping 1-s 
   it has orientations (Vicon: the held-out blocks judge the verdict), else against the ground truth;
   EuRoC's bias, the constant and zero on the same held-out windows;
 * **clock offset** beside an independent estimate from the ground truth (which is on the IMU clock):
-  the lag that best correlates 0.1-s rotation angles (Vicon) or speeds (Leica) of the two streams;
+  the lag that best correlates 0.1-s rotation angles (Vicon) or best fits the prism track (Leica) of the
+  two streams; and beside a rotation-free one that needs no ground truth: the lag that best correlates
+  the specific-force magnitude of the positions with the accelerometer's;
 * **extrinsic**: the estimate's difference from ``sensor.yaml``'s T_BS with its sigma; noise scales,
   the correlated pose-error model and the outliers.
 * **the position-only offset search checked**: on EuRoC's ground-truth positions alone (Leica sequences;
@@ -47,6 +49,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation, Slerp
 
 REPO = Path(__file__).resolve().parents[1]
@@ -54,7 +57,7 @@ sys.path.insert(0, str(REPO))
 
 from pipeline.io import load_sequence  # noqa: E402
 from pipeline.io.tum import read_tum_poses  # noqa: E402
-from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence  # noqa: E402
+from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence  # noqa: E402
 
 DATA = Path(os.environ.get("BIASGT_SHARED_DATA", REPO.parent / "shared" / "data"))
 VICON = ("V1_01_easy", "V1_02_medium", "V1_03_difficult", "V2_01_easy", "V2_02_medium", "V2_03_difficult")
@@ -62,6 +65,7 @@ LEICA = ("MH_01_easy", "MH_03_medium", "MH_05_difficult")
 GT_POSES = "groundtruth_poses"
 WINDOW_OVERLAP = 0.0
 LAG_GRID_S = np.arange(-0.5, 0.5 + 1e-9, 0.0005)
+SPECIFIC_FORCE_FILTERS_S = (0.35, 0.55, 0.85)  # the middle one is the estimate, the others its spread
 
 
 def stream_of(name: str) -> str:
@@ -162,6 +166,36 @@ def independent_offset_position(stream: PoseSeries, reference: PoseSeries, p_imu
         shift = 0.5 * (f[m - 1] - f[m + 1]) / den if den > 0 else 0.0
         return float(fine[m] + shift * (fine[1] - fine[0])), float(f[m])
     return float(fine[m]), float(f[m])
+
+
+def specific_force_offset(imu: ImuSeries, positions: PoseSeries, filter_s: float, rate_hz: float = 20.0,
+                          gravity_mps2: float = 9.81) -> tuple[float, float]:
+    """Seconds to add to ``positions``' stamps to put them on the IMU clock, from no ground truth: the lag
+    that best correlates the specific-force magnitude ``|p'' - g|`` of the positions (resampled at
+    ``rate_hz``, Savitzky-Golay second derivative over ``filter_s``) with the accelerometer's ``|f|``
+    (0.05-s box mean against vibration, then the same Savitzky-Golay smoothing). A magnitude needs
+    neither the attitude nor the world frame's heading; a level world frame (z up) is assumed."""
+    t0 = int(positions.t_ns[0])
+    tp, ti = (positions.t_ns - t0) / NS_PER_S, (imu.t_ns - t0) / NS_PER_S
+    grid = np.arange(tp[0], tp[-1], 1.0 / rate_hz)
+    n = int(round(filter_s * rate_hz)) | 1
+    p = np.stack([np.interp(grid, tp, positions.p_m[:, c]) for c in range(3)], 1)
+    a = savgol_filter(p, n, 3, deriv=2, delta=1.0 / rate_hz, axis=0)
+    a[:, 2] += gravity_mps2
+    pose_f = np.linalg.norm(a, axis=1)
+    gap = np.interp(grid, tp[1:], np.diff(tp)) > 3.0 / rate_hz  # interpolated across a dropout
+    pose_f[gap | (np.arange(len(grid)) < n) | (np.arange(len(grid)) >= len(grid) - n)] = np.nan
+    k = max(1, int(round(0.05 / np.median(np.diff(ti))))) | 1  # odd: a centred mean
+    box = np.stack([np.convolve(imu.acc_mps2[:, c], np.ones(k) / k, mode="same") for c in range(3)], 1)
+    imu_f = np.linalg.norm(box, axis=1)
+
+    def b(lag: float) -> np.ndarray:
+        t = grid + lag
+        out = savgol_filter(np.interp(t, ti, imu_f), n, 3, axis=0)
+        out[(t < ti[0]) | (t > ti[-1])] = np.nan
+        return out
+
+    return _best_lag(pose_f, b, LAG_GRID_S)
 
 
 def graph_offset_of_positions(seq: Sequence, poses: PoseSeries, rate_hz: float = 20.0) -> tuple[float, float]:
@@ -292,6 +326,8 @@ def measure(data: Path, name: str, work: Path, overrides: dict | None = None) ->
     independent = (independent_offset_rotation(raw, gt_poses(seq)) if raw.quat_wxyz is not None
                    else independent_offset_position(raw, gt_poses(seq), prism_lever_m(data, name)))
     out.update(report=report, against_gt=against_gt.to_dict(), held=held.to_dict(), independent_offset=independent)
+    at_20_hz = raw if raw.quat_wxyz is None else raw.take(np.arange(0, len(raw.t_ns), 5))
+    out["specific_force_offsets"] = [specific_force_offset(seq.imu, at_20_hz, f)[0] for f in SPECIFIC_FORCE_FILTERS_S]
     if raw.quat_wxyz is None:
         out["ground_truth_positions_offset"] = graph_offset_of_positions(seq, gt_poses(seq))
     else:
@@ -348,6 +384,8 @@ def goals(m: dict) -> dict[str, bool | None]:
         h["prmse_m"] < others[k]["prmse_m"] and h["roe_deg"] < others[k]["roe_deg"] for k in ("constant", "zero")))
     offset_ms = 1e3 * m["report"]["pose_time_offset_s"]
     out["offset within 5 ms"] = abs(offset_ms - 1e3 * m["independent_offset"][0]) <= 5.0
+    middle = m["specific_force_offsets"][len(SPECIFIC_FORCE_FILTERS_S) // 2]
+    out["offset within 5 ms of the rotation-free estimate"] = abs(offset_ms - 1e3 * middle) <= 5.0
     return out
 
 
@@ -362,6 +400,9 @@ def print_sequence(m: dict) -> None:
           f"({r['pose_time_offset_method']}); independent {1e3 * m['independent_offset'][0]:+.2f} ms "
           + (f"(rotation-angle correlation {m['independent_offset'][1]:.3f})" if m["stream"] == "vicon0" else
              f"(prism track fit {1e3 * m['independent_offset'][1]:.1f} mm RMS)"))
+    print("  rotation-free estimate (|specific force| of the positions at 20 Hz vs the accelerometer, no ground "
+          "truth), Savitzky-Golay over " + "/".join(f"{f:g}" for f in SPECIFIC_FORCE_FILTERS_S) + " s: "
+          + "/".join(f"{1e3 * x:+.1f}" for x in m["specific_force_offsets"]) + " ms")
     if "ground_truth_positions_offset" in m:
         off, sd = m["ground_truth_positions_offset"]
         print(f"  the same offset search on EuRoC's ground-truth positions alone (20 Hz, on the IMU clock): "

@@ -289,9 +289,9 @@ class RecoveryConfig:
     gyro_random_walk: float | None = None
     acc_random_walk: float | None = None
     noise_estimation: NoiseEstimation = NoiseEstimation.EVIDENCE
-    random_walk_scales: list[float] = field(default_factory=lambda: [0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0])
+    random_walk_scales: list[float] = field(default_factory=lambda: [0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0])
     noise_density_scales: list[float] = field(default_factory=lambda: [0.3, 1.0, 3.0, 10.0, 30.0])
-    pose_sigma_scales: list[float] = field(default_factory=lambda: [0.03, 0.1, 0.3, 1.0, 3.0, 10.0])
+    pose_sigma_scales: list[float] = field(default_factory=lambda: [0.03, 0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0])
     noise_keyframe_rate_hz: float | None = None
     pose_error: PoseErrorMode = PoseErrorMode.AUTO
     pose_error_rotation_sigma_rad: float = 0.0

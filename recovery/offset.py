@@ -20,7 +20,8 @@ from recovery.config import (
 from recovery.graph import solve_window
 from recovery.window import SolveOptions, WindowInit
 from recovery.preintegration import ImuNoise
-from recovery.problem import COARSE_OFFSET_SPAN_S, _calibration_window, _Problem
+from recovery.problem import COARSE_OFFSET_SPAN_S, _calibration_window, _Problem, _shifted_stamps
+from recovery.records import Inputs
 
 log = logging.getLogger(__name__)
 
@@ -33,6 +34,10 @@ log = logging.getLogger(__name__)
 #: benchmark and the hard simulated cases, and the error grows with the step.
 OFFSET_NEWTON_MAX_SIGMAS = 2.0
 OFFSET_NEWTON_MAX_SOLVES = 5  # then the parabola
+#: The offset is estimated again on up to this many windows outside the refinement window (one
+#: before it, one after it, each the one with the most rotation there): their scatter bounds the
+#: reported sigma from below, since the cost's curvature sees only the white part of the pose error.
+OFFSET_SPREAD_WINDOWS = 2
 
 
 @dataclass(frozen=True)
@@ -114,6 +119,53 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
     curv = 2 * a * n_kf / 1000.0
     std = float(1.0 / math.sqrt(curv)) if curv > 0 else float(h)
     return _OffsetRefinement(vertex, std, table, init.get("x"), OffsetRefineMethod.PARABOLA)
+
+
+def offset_spread_windows(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: tuple[int, int],
+                          window: tuple[int, int], pose_t_ns: np.ndarray) -> list[tuple[int, int]]:
+    """Windows before and after ``window`` inside ``overlap`` (IMU clock), as long as it where there is room.
+
+    Each is the one with the most rotation on its side (:func:`recovery.problem._calibration_window`);
+    a side shorter than half of ``window`` gives none, a shorter one a window as long as the side
+    (less precise: its scatter errs on the safe side). ``pose_t_ns``: the pose stamps on the IMU clock.
+    """
+    length_ns = window[1] - window[0]
+    out = []
+    for side in ((overlap[0], window[0]), (window[1], overlap[1])):
+        if side[1] - side[0] < length_ns // 2:
+            continue
+        try:
+            out.append(_calibration_window(imu, pieces, side, min(length_ns, side[1] - side[0]) / NS_PER_S,
+                                           pose_t_ns))
+        except RecoveryError:
+            continue
+    return out[:OFFSET_SPREAD_WINDOWS]
+
+
+def spread_std_s(offsets_s: list[float], curvature_std_s: float) -> float:
+    """The reported offset sigma: the curvature's, or the sample std of the per-window offsets when larger.
+
+    Using one window's offset for the whole recording errs by what separates windows, so the
+    scatter is that of single estimates (``ddof=1``), not of their mean.
+    """
+    if len(offsets_s) < 2:
+        return float(curvature_std_s)
+    return float(max(curvature_std_s, np.std(offsets_s, ddof=1)))
+
+
+def offsets_elsewhere(problem: _Problem, inputs: Inputs, overlap: tuple[int, int], window: tuple[int, int],
+                      refined: _OffsetRefinement, T: np.ndarray, config: RecoveryConfig) -> tuple[float, ...]:
+    """The offset refined again on the :func:`offset_spread_windows` of ``window`` (one whose
+    refinement fails is left out: the curvature's sigma then stands with fewer of them)."""
+    out = []
+    for win in offset_spread_windows(inputs.imu, inputs.pieces, overlap, window,
+                                     _shifted_stamps(inputs.poses, refined.offset_s)):
+        try:
+            out.append(_refine_offset(problem, refined.offset_s, refined.std_s, win, inputs.calibration_noise, T,
+                                      inputs.opts, config).offset_s)
+        except (BiasgtError, ValueError, np.linalg.LinAlgError) as exc:
+            log.info("clock offset on another window failed (%s)", exc)
+    return tuple(out)
 
 
 def _newton_offset(problem: _Problem, coarse_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,

@@ -73,6 +73,9 @@ class ClockOffset:
         refine_method: How the graph cost refined it, None when it did not.
         search: The refinement's cost per offset (``recovery.json`` ``pose_time_offset_search``).
         warnings: Plain sentences.
+        curvature_std_s: The refinement's sigma from the cost's curvature (None: not refined).
+        window_offsets_s: The offset refined on the refinement window, then on the windows of
+            :func:`recovery.offset.offset_spread_windows`; ``std_s`` is at least their scatter.
     """
 
     mode: TimeOffsetMode
@@ -82,6 +85,8 @@ class ClockOffset:
     refine_method: OffsetRefineMethod | None = None
     search: tuple[dict[str, float], ...] = ()
     warnings: tuple[str, ...] = ()
+    curvature_std_s: float | None = None
+    window_offsets_s: tuple[float, ...] = ()
 
     @property
     def method(self) -> str:

@@ -67,7 +67,7 @@ from recovery.preintegration import ImuNoise
 from recovery.segments import plan_segments, stitch
 from recovery.records import CalibrationWindows, ClockOffset, ExtrinsicInit, FullSolve, GravityStage, Inputs, NoiseStage
 from recovery.gravity import _gravity, _level_test
-from recovery.offset import _coarse_offset_inputs, _refine_offset
+from recovery.offset import _coarse_offset_inputs, _refine_offset, offsets_elsewhere, spread_std_s
 from recovery.problem import (COARSE_OFFSET_SPAN_S, _bias_guess, _calibration_window, _chained_solution,
                               _clean_poses, _continue_from, _imu_pieces, _Problem, _select_stream, _shifted_stamps)
 from recovery.result import (RecoveryResult, _bias_function, _pose_sigmas_from_fusion, _result, agreement_z,
@@ -390,8 +390,11 @@ def _refined_offset(problem: _Problem, inputs: Inputs, coarse: ClockOffset, wind
             f"clock offset refinement failed ({exc}); using the coarse estimate",))
     if refined.last is not None and problem.bias is None:
         problem.set_linearisation(gravity_unit=refined.last.gravity_unit, bias=refined.last.bias)
-    return replace(coarse, offset_s=refined.offset_s, std_s=refined.std_s, refine_method=refined.method,
-                   search=tuple(refined.table))
+    others = offsets_elsewhere(problem, inputs, windows.overlap, off_win, refined, T, config)
+    return replace(coarse, offset_s=refined.offset_s, std_s=spread_std_s([refined.offset_s, *others], refined.std_s),
+                   refine_method=refined.method, search=tuple(refined.table),
+                   curvature_std_s=refined.std_s, window_offsets_s=(refined.offset_s, *others))
+
 
 
 def _extrinsic_info(init: ExtrinsicInit, sol: WindowSolution | None) -> dict[str, Any]:

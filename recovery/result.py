@@ -156,6 +156,8 @@ def _result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, offset: 
         "pose_time_offset_std_s": float(offset.std_s),
         "pose_time_offset_method": offset.method,
         "pose_time_offset_search": list(offset.search),
+        "pose_time_offset_curvature_std_s": offset.curvature_std_s,
+        "pose_time_offset_windows_s": [float(x) for x in offset.window_offsets_s],
         "T_imu_pose": _matrix_to_dict(gravity.T_imu_pose),
         "extrinsic": extrinsic_info,
         "calibration_uncertainty": _calibration_report(full),

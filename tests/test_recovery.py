@@ -369,7 +369,7 @@ def test_hard_offset_extrinsic_outliers_dropouts():
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_newton_clock_offset_equals_the_cost_parabola(seed, monkeypatch):
     """The Newton refinement (analytic slope and curvature of the cost in the offset) lands where
-    the parabola through three re-solved costs puts the vertex (within 0.1 sigma, same sigma to 3 %),
+    the parabola through three re-solved costs puts the vertex (within 0.1 sigma, same curvature sigma to 3 %),
     from a coarse value ~0.1 ms off, in one solve; both near the truth."""
     from recovery import offset as ro
 
@@ -381,9 +381,9 @@ def test_newton_clock_offset_equals_the_cost_parabola(seed, monkeypatch):
     assert newton["pose_time_offset_method"].endswith("+graph_cost_newton")
     assert parabola["pose_time_offset_method"].endswith("+graph_cost_parabola")
     assert len(newton["pose_time_offset_search"]) == 1 and len(parabola["pose_time_offset_search"]) >= 3
-    std = parabola["pose_time_offset_std_s"]
+    std = parabola["pose_time_offset_curvature_std_s"]
     assert abs(newton["pose_time_offset_s"] - parabola["pose_time_offset_s"]) < 0.1 * std
-    assert newton["pose_time_offset_std_s"] == pytest.approx(std, rel=0.03)
+    assert newton["pose_time_offset_curvature_std_s"] == pytest.approx(std, rel=0.03)
     assert abs(newton["pose_time_offset_s"] - 0.012) < 4 * std
 
 
