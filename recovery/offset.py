@@ -34,10 +34,6 @@ log = logging.getLogger(__name__)
 #: benchmark and the hard simulated cases, and the error grows with the step.
 OFFSET_NEWTON_MAX_SIGMAS = 2.0
 OFFSET_NEWTON_MAX_SOLVES = 5  # then the parabola
-#: The offset is estimated again on up to this many windows outside the refinement window (one
-#: before it, one after it, each the one with the most rotation there): their scatter bounds the
-#: reported sigma from below, since the cost's curvature sees only the white part of the pose error.
-OFFSET_SPREAD_WINDOWS = 2
 
 
 @dataclass(frozen=True)
@@ -123,11 +119,14 @@ def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, wind
 
 def offset_spread_windows(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: tuple[int, int],
                           window: tuple[int, int], pose_t_ns: np.ndarray) -> list[tuple[int, int]]:
-    """Windows before and after ``window`` inside ``overlap`` (IMU clock), as long as it where there is room.
+    """At most two windows, one before and one after ``window`` inside ``overlap`` (IMU clock), on which
+    the offset is estimated again: their scatter bounds the reported sigma from below, since the cost's
+    curvature sees only the white part of the pose error.
 
-    Each is the one with the most rotation on its side (:func:`recovery.problem._calibration_window`);
-    a side shorter than half of ``window`` gives none, a shorter one a window as long as the side
-    (less precise: its scatter errs on the safe side). ``pose_t_ns``: the pose stamps on the IMU clock.
+    Each is the one with the most rotation on its side (:func:`recovery.problem._calibration_window`),
+    as long as ``window``; a side shorter than that gives a window as long as the side (less precise:
+    its scatter errs on the safe side), and one shorter than half of it gives none.
+    ``pose_t_ns``: the pose stamps on the IMU clock.
     """
     length_ns = window[1] - window[0]
     out = []
@@ -139,7 +138,7 @@ def offset_spread_windows(imu: ImuSeries, pieces: list[tuple[int, int]], overlap
                                            pose_t_ns))
         except RecoveryError:
             continue
-    return out[:OFFSET_SPREAD_WINDOWS]
+    return out
 
 
 def spread_std_s(offsets_s: list[float], curvature_std_s: float) -> float:

@@ -396,7 +396,6 @@ def _refined_offset(problem: _Problem, inputs: Inputs, coarse: ClockOffset, wind
                    curvature_std_s=refined.std_s, window_offsets_s=(refined.offset_s, *others))
 
 
-
 def _extrinsic_info(init: ExtrinsicInit, sol: WindowSolution | None) -> dict[str, Any]:
     """``recovery.json`` ``extrinsic`` after the joint solve: its 1-sigma and where T came from."""
     info = dict(init.info)
