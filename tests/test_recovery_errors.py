@@ -1,0 +1,160 @@
+"""Bias recovery refusing what it cannot solve: bad input, degenerate problems, an unconverged optimiser."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from pipeline.errors import RecoveryError
+from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind, Sequence
+from recovery.config import RecoveryConfig
+from recovery.recover import recover
+from recovery_sim import FAST, _sim
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+def _tiny_sequence(imu_t_s, pose_t_s, quat=None) -> Sequence:
+    imu_t = (np.asarray(imu_t_s) * 1e9).astype(np.int64) + 10**18
+    pose_t = (np.asarray(pose_t_s) * 1e9).astype(np.int64) + 10**18
+    n = len(imu_t)
+    imu = ImuSeries(imu_t, np.zeros((n, 3)), np.tile([0, 0, 9.81], (n, 1)))
+    q = np.tile([1.0, 0, 0, 0], (len(pose_t), 1)) if quat is None else quat
+    poses = PoseSeries(pose_t, np.zeros((len(pose_t), 3)), q, "marker", PoseSourceKind.MOCAP)
+    return Sequence("tiny", imu=imu, poses={"mocap0": poses})
+
+
+def test_no_overlap_is_a_recovery_error():
+    seq = _tiny_sequence(np.arange(0, 10, 0.005), np.arange(100, 110, 0.01))
+    with pytest.raises(RecoveryError, match="overlap"):
+        recover(seq, config=RecoveryConfig(time_offset_mode="fixed"))
+
+
+def test_too_few_poses():
+    seq = _tiny_sequence(np.arange(0, 10, 0.005), np.arange(1, 1.1, 0.01))
+    with pytest.raises(RecoveryError, match="min_poses"):
+        recover(seq, config=RecoveryConfig(time_offset_mode="fixed"))
+
+
+def test_missing_stream_and_missing_imu():
+    seq = _tiny_sequence(np.arange(0, 10, 0.005), np.arange(1, 9, 0.01))
+    with pytest.raises(Exception, match="nope"):
+        recover(seq, pose_stream="nope")
+    seq.imu = None
+    with pytest.raises(RecoveryError, match="IMU"):
+        recover(seq)
+
+
+def test_imu_gap_refuse_and_split():
+    sim = _sim(30.0, seed=8)
+    seq = sim.sequence
+    t = seq.imu.t_ns
+    keep = (t < t[0] + int(12e9)) | (t > t[0] + int(13e9))
+    seq_gap = dataclasses.replace(seq, imu=seq.imu.take(keep))
+    with pytest.raises(RecoveryError, match="gap"):
+        recover(seq_gap, config=RecoveryConfig(**FAST, time_offset_mode="fixed", imu_gap_policy="refuse"))
+    res = recover(seq_gap, config=RecoveryConfig(**FAST, time_offset_mode="fixed", compute_marginals=False))
+    assert res.report["imu_pieces"] == 2
+    assert any("gap" in w for w in res.warnings)
+    inside = (res.t_ns > t[0] + int(12e9)) & (res.t_ns < t[0] + int(13e9))
+    assert not inside.any()
+
+
+def test_no_rotation_excitation_flags_extrinsic_unobservable():
+    """Translation-only motion: the extrinsic rotation cannot be estimated -> warn and fall back."""
+    sim = _sim(25.0, seed=9, extrinsic_known=False)
+    seq = sim.sequence
+    ps = seq.poses["mocap0"]
+    # the same positions with a constant orientation: IMU gyro = bias + noise only, f = a - g + bias
+    t_s = (ps.t_ns - ps.t_ns[0]) / 1e9
+    acc_w = np.stack([np.gradient(np.gradient(ps.p_m[:, c], t_s), t_s) for c in range(3)], 1)
+    imu_t = seq.imu.t_ns
+    tt = (imu_t - ps.t_ns[0]) / 1e9
+    acc_i = np.stack([np.interp(tt, t_s, acc_w[:, c]) for c in range(3)], 1) + [0, 0, 9.81]
+    rng = np.random.default_rng(0)
+    gyro = 0.01 + rng.normal(0, 2e-3, (len(imu_t), 3))
+    acc = acc_i + [0.1, -0.1, 0.05] + rng.normal(0, 2e-2, acc_i.shape)
+    flat = PoseSeries(ps.t_ns, ps.p_m, np.tile([1.0, 0, 0, 0], (len(ps), 1)), ps.frame, ps.source_kind)
+    seq2 = Sequence("flat", imu=ImuSeries(imu_t, gyro, acc), poses={"mocap0": flat})
+    res = recover(seq2, config=RecoveryConfig(**FAST, time_offset_mode="fixed", extrinsic_mode="estimate",
+                                               compute_marginals=False))
+    assert res.report["extrinsic_rotation_observable"] is False
+    assert any("unobservable" in w for w in res.warnings)
+    assert res.report["T_imu_pose"]["quat_wxyz"] == [1.0, 0.0, 0.0, 0.0]
+
+
+# ----------------------------------------------------------------------------- degenerate problems
+
+
+def test_degenerate_problem_is_a_recovery_error(monkeypatch):
+    """GTSAM's bare RuntimeError for an indeterminant system becomes a one-line RecoveryError."""
+    import recovery.recover as rr
+    from pipeline.errors import RecoveryError
+    from pipeline.types import Sequence
+
+    def boom(*a, **k):
+        raise RuntimeError("\nIndeterminant linear system detected while working near variable\n"
+                           "8070450532247928832 (Symbol: p0).\n")
+
+    monkeypatch.setattr(rr, "_recover", boom)
+    with pytest.raises(RecoveryError, match=r"degenerate \(Indeterminant linear system detected") as info:
+        rr.recover(Sequence(name="flat"))
+    assert "\n" not in str(info.value) and "--extrinsic known" in str(info.value)
+    assert "--keyframe-rate" not in str(info.value)  # no odometry stream to thin out
+    monkeypatch.setattr(rr, "_recover", lambda *a, **k: (_ for _ in ()).throw(RuntimeError("other bug")))
+    with pytest.raises(RuntimeError, match="other bug"):
+        rr.recover(Sequence(name="x"))
+
+
+@pytest.mark.parametrize(("rate_hz", "changes", "expected", "absent"), [
+    (50.0, {}, ["--keyframe-rate 10", "--extrinsic known", "--time-offset-s"], []),
+    (10.0, {}, ["--extrinsic known", "--time-offset-s"], ["--keyframe-rate"]),  # 10-Hz odometry: already 10 Hz
+    (10.0, {"extrinsic_mode": "known", "time_offset_mode": "fixed"}, ["varied motion", "motion capture"],
+     ["--keyframe-rate", "--extrinsic known", "--time-offset-s"]),
+])
+def test_degenerate_hint_suggests_only_fixes_that_apply(rate_hz, changes, expected, absent) -> None:
+    from pipeline.types import PoseSeries, PoseSourceKind, Sequence
+    from recovery.config import RecoveryConfig
+    from recovery.recover import degenerate_hint
+
+    n = 50
+    t_ns = 1_000_000_000 + np.arange(n, dtype=np.int64) * int(1e9 / rate_hz)
+    odom = PoseSeries(t_ns, np.zeros((n, 3)), np.tile([1.0, 0, 0, 0], (n, 1)), "base_link", PoseSourceKind.VIO)
+    hint = degenerate_hint(Sequence(name="odom", poses={"/odom": odom}), None, RecoveryConfig(**changes))
+    for text in expected:
+        assert text in hint, hint
+    for text in absent:
+        assert text not in hint, hint
+
+
+# ----------------------------------------------------------------------------- optimiser
+
+
+def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
+    """Levenberg-Marquardt stopped where a Gauss-Newton step still predicts a large decrease is no optimum:
+    refused with the cost and the decrease; at the optimum of the same graph (a prior's own value, whose
+    cost is 0 in closed form) nothing is raised."""
+    import gtsam
+
+    from gtsam.symbol_shorthand import X
+
+    from recovery.factors import BuiltWindow
+    from recovery.graph import _refuse_unconverged
+
+    graph = gtsam.NonlinearFactorGraph()
+    target = gtsam.Pose3(gtsam.Rot3.Rz(0.3), gtsam.Point3(1.0, 2.0, 3.0))
+    graph.add(gtsam.PriorFactorPose3(X(0), target, gtsam.noiseModel.Isotropic.Sigma(6, 1e-3)))
+    far = gtsam.Values()
+    far.insert(X(0), gtsam.Pose3())
+    built = BuiltWindow(graph, far, [], [], 0.0)
+    order = gtsam.Ordering()
+    order.push_back(X(0))
+    with pytest.raises(RecoveryError, match="did not converge"):
+        _refuse_unconverged(built, far, order, graph.error(far))
+    at = gtsam.Values()
+    at.insert(X(0), target)
+    assert graph.error(at) == pytest.approx(0.0, abs=1e-12)
+    _refuse_unconverged(built, at, order, graph.error(at))
