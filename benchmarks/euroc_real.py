@@ -26,7 +26,8 @@ recovery in a child process (runtime, peak RSS). Then, with non-overlapping 1-s 
   should read what the 6-DoF search reads), both at 20 Hz;
 * **which reference favours which bias** (sequences with EuRoC's state): both biases judged against the
   recovered trajectory instead of EuRoC's, and how far each trajectory's 1-s position second differences
-  lie from the raw stream's (Vicon).
+  lie from the raw stream's (Vicon); and the gravity each bias fits best against EuRoC's state (is the
+  state's frame level for the bias it was estimated with?).
 
 Goals (``ok`` columns): against the ground-truth state PRMSE <= 1.1x and ROE <= 1.5x EuRoC's bias and a
 verdict other than FAIL; held out against the raw stream PRMSE and ROE <= 1.1x EuRoC's; where only
@@ -55,6 +56,7 @@ from scipy.spatial.transform import Rotation, Slerp
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from pipeline.bias_table import BiasTrack  # noqa: E402
 from pipeline.io import load_sequence  # noqa: E402
 from pipeline.io.tum import read_tum_poses  # noqa: E402
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence  # noqa: E402
@@ -265,6 +267,45 @@ def trajectory_agreement_mm(seq: Sequence, raw: PoseSeries, report: dict, ours: 
             "ground_truth_vs_ours": rms(d_gt - d_ours)}
 
 
+def preferred_tilt(seq: Sequence, tracks: dict[str, BiasTrack], window_s: float = 1.0) -> dict[str, dict]:
+    """The gravity each bias fits best against EuRoC's ground-truth state, by row (``tracks``).
+
+    A window's end position is linear in gravity, ``p(g) = p(g0) + T^2 / 2 (g - g0)``, so one
+    integration with nominal gravity ``g0`` gives, in closed form, the horizontal gravity components
+    that minimise the row's PRMSE over the non-overlapping windows (z kept). Returns, per row, the
+    tilt of that gravity from -z (deg), the gravity, and the PRMSE (m) there and at nominal.
+    """
+    from interpolation.bias import interpolate_bias
+    from pipeline.geometry.integration import integrate_numpy
+    from validation.reference import reference_from_states
+
+    imu = seq.imu
+    ref = reference_from_states(seq.ground_truth, imu.t_ns)
+    n = int(round(window_s * imu.rate_hz))
+    s = np.arange(0, len(imu.t_ns) - n, n)
+    s = s[ref.valid[s] & ref.valid[s + n]]
+    idx = s[:, None] + np.arange(n + 1)[None, :]
+    dt = np.diff(imu.t_ns[idx], axis=1) / NS_PER_S
+    half_T2 = 0.5 * dt.sum(axis=1) ** 2
+    g0 = np.array([0.0, 0.0, -9.81])
+    out = {}
+    for name, track in tracks.items():
+        at = interpolate_bias(track, imu.t_ns, random_walk=np.zeros(6), clamp=True)
+        ok = ~np.any(at.clamped[idx], axis=1)
+        b = at.bias[idx[ok]]
+        res = integrate_numpy(imu.gyro_radps[idx[ok]], imu.acc_mps2[idx[ok]], dt[ok], ref.R[s[ok]], ref.v[s[ok]],
+                              ref.p[s[ok]], gravity_mps2=g0, bias_gyro_radps=b[..., :3], bias_acc_mps2=b[..., 3:])
+        e = ref.p[s[ok] + n] - res.p  # [W, 3]: what a gravity change must explain
+        w = half_T2[ok]
+        dg = np.zeros(3)
+        dg[:2] = (w[:, None] * e[:, :2]).sum(0) / np.sum(w**2)
+        g = g0 + dg
+        out[name] = {"tilt_deg": float(np.degrees(np.arctan2(np.hypot(*g[:2]), -g[2]))), "gravity_mps2": g.tolist(),
+                     "prmse_m": float(np.sqrt(np.mean(np.sum((e - w[:, None] * dg) ** 2, 1)))),
+                     "prmse_nominal_m": float(np.sqrt(np.mean(np.sum(e**2, 1)))), "windows": int(ok.sum())}
+    return out
+
+
 # ----------------------------------------------------------------------------- recovery (child process)
 
 
@@ -299,6 +340,7 @@ def measure(data: Path, name: str, work: Path, overrides: dict | None = None) ->
     """Every figure of one sequence (see the module docstring)."""
     from recovery.outputs import RecoveryOutputs
     from validation.config import ValidationConfig
+    from validation.sources import dataset_bias, read_bias_file
     from validation.validate import validate_inputs
 
     seq = load(data, name)
@@ -342,6 +384,8 @@ def measure(data: Path, name: str, work: Path, overrides: dict | None = None) ->
                                               config=ValidationConfig(overlap=WINDOW_OVERLAP, crossval="off")).to_dict()
         if raw.quat_wxyz is not None:
             out["trajectory_agreement_mm"] = trajectory_agreement_mm(seq, raw, report, ours)
+        out["preferred_tilt"] = preferred_tilt(seq, {"recovered": read_bias_file(rec_dir / "bias.csv"),
+                                                     "euroc": dataset_bias(seq)})
     return out
 
 
@@ -444,6 +488,13 @@ def print_sequence(m: dict) -> None:
               + ("" if agree is None else
                  f"; 1-s position second differences, RMS vs the raw stream: EuRoC's state {agree['ground_truth_vs_raw']:.2f} mm, "
                  f"recovered {agree['ours_vs_raw']:.2f} mm (between them {agree['ground_truth_vs_ours']:.2f} mm)"))
+    if "preferred_tilt" in m:
+        level = (r.get("gravity", {}).get("level_test") or {})
+        print("  gravity each bias fits best against EuRoC's state (horizontal part; tilt from -z, PRMSE there / at "
+              "nominal): " + "  ".join(f"{k} {v['tilt_deg']:.2f} deg {v['prmse_m']:.4f}/{v['prmse_nominal_m']:.4f}"
+                                       for k, v in m["preferred_tilt"].items())
+              + ("" if not level else f"; the recovery's tilt of the stream's frame {level['tilt_deg']:.2f} +- "
+                 f"{level['tilt_std_deg']:.2f} deg"))
     print("  goals: " + ", ".join(f"{k}: {'-' if v is None else ('ok' if v else 'MISSED')}" for k, v in goals(m).items()))
 
 
