@@ -128,6 +128,12 @@ def _estimate_rows(rec: dict) -> list[list[Any]]:
         rows.append(["Tilt of gravity from the world −z axis", f"{gravity_tilt_deg(g):.3f} deg",
                      "n/a" if tilt_std is None else f"{math.degrees(tilt_std):.3f} deg",
                      "0 means the pose world frame is z-up"])
+        lt = gi.get("level_test") if isinstance(gi.get("level_test"), dict) else {}
+        measured, measured_std = _num(lt, "tilt_deg"), _num(lt, "tilt_std_deg")
+        if lt.get("level") and measured is not None:
+            rows.append(["Tilt the data measured (frame kept level)", f"{measured:.3f} deg",
+                         "n/a" if measured_std is None else f"{measured_std:.3f} deg",
+                         f"{lt.get('reason', '')}; the bias is the one consistent with the nominal gravity"])
     return rows
 
 

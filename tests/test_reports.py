@@ -287,6 +287,9 @@ def test_report_shows_the_numbers(full_report, recovery_json, validation_json, r
     assert f"{fmt(rec['pose_time_offset_std_s'] * 1e3, 2)} ms" in text  # its std
     tilt = gravity_tilt_deg(rec["gravity_world_mps2"])
     assert tilt < 0.5 and f"{tilt:.3f} deg" in text  # the simulated world is z-up
+    level = rec["gravity"]["level_test"]  # z-up by construction: kept level, its measured tilt within 3 sigma of 0
+    assert level["level"] and level["tilt_deg"] < 3 * level["tilt_std_deg"]
+    assert "Tilt the data measured (frame kept level)" in text and f"{level['tilt_deg']:.3f} deg" in text
     assert "about axis" in text and "roll" in text
     src = validation_json["sources"]
     a, b = mm_pair(src["recovered"]["prmse_m"], src["constant"]["prmse_m"])  # one format for both
