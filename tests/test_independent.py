@@ -24,6 +24,7 @@ from pipeline.cli.app import main as cli_main
 from pipeline.geometry.integration import IntegrationScheme, integrate
 from pipeline.io import load_sequence
 from pipeline.types import PoseSourceKind
+from recovery_sim import FAST
 
 
 @pytest.fixture(scope="module")
@@ -331,11 +332,6 @@ def test_project_simulator_pose_stream_convention():
 
 
 # ----------------------------------------------------------------------------- 4. recovery
-
-
-FAST = dict(keyframe_rate_hz=20.0, noise_estimation="fixed", gyro_random_walk=10 * 1.9393e-5,
-            acc_random_walk=10 * 3.0e-3, position_sigma_m=0.5e-3, rotation_sigma_rad=0.5e-3,
-            offset_refine_keyframe_rate_hz=10.0, extrinsic_keyframe_rate_hz=10.0, gravity_keyframe_rate_hz=5.0)
 
 
 @pytest.fixture(scope="module")
