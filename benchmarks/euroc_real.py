@@ -227,11 +227,6 @@ def _offset(result: RecoveryResult) -> tuple[float, float]:
     return float(result.report["pose_time_offset_s"]), float(result.report["pose_time_offset_std_s"])
 
 
-def _bias_track(result: RecoveryResult) -> BiasTrack:
-    return BiasTrack(result.t_ns, np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]),
-                     np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]))
-
-
 # ----------------------------------------------------------------------------- which reference favours which bias
 
 
@@ -279,7 +274,7 @@ def trajectory_agreement_mm(seq: Sequence, raw: PoseSeries, report: dict, ours: 
             "ground_truth_vs_ours": rms(d_gt - d_ours)}
 
 
-def preferred_tilt(seq: Sequence, tracks: dict[str, BiasTrack], window_s: float = 1.0) -> dict[str, dict]:
+def preferred_tilt(seq: Sequence, tracks: dict[str, BiasTrack]) -> dict[str, dict]:
     """The gravity each bias fits best against EuRoC's ground-truth state, by row (``tracks``).
 
     A window's end position is linear in gravity, ``p(g) = p(g0) + T^2 / 2 (g - g0)``, so one
@@ -289,12 +284,14 @@ def preferred_tilt(seq: Sequence, tracks: dict[str, BiasTrack], window_s: float 
     """
     from interpolation.bias import interpolate_bias
     from pipeline.geometry.integration import integrate_numpy
+    from validation.config import ValidationConfig
+    from validation.metrics import plan_windows
     from validation.reference import reference_from_states
 
     imu = seq.imu
     ref = reference_from_states(seq.ground_truth, imu.t_ns)
-    n = int(round(window_s * imu.rate_hz))
-    s = np.arange(0, len(imu.t_ns) - n, n)
+    plan = plan_windows(imu, ValidationConfig(overlap=WINDOW_OVERLAP))
+    n, s = plan.n, plan.starts[plan.keep]
     s = s[ref.valid[s] & ref.valid[s + n]]
     idx = s[:, None] + np.arange(n + 1)[None, :]
     dt = np.diff(imu.t_ns[idx], axis=1) / NS_PER_S
@@ -400,7 +397,7 @@ def measure(data: Path, name: str, work: Path, overrides: dict | None = None) ->
             out["trajectory_agreement_mm"] = trajectory_agreement_mm(seq, raw, report, ours)
         tracks = {"recovered": read_bias_file(rec_dir / "bias.csv"), "euroc": dataset_bias(seq)}
         if positions_alone is not None:
-            tracks["positions_alone"] = _bias_track(positions_alone)
+            tracks["positions_alone"] = positions_alone.outputs().bias
         out["preferred_tilt"] = preferred_tilt(seq, tracks)
     return out
 
