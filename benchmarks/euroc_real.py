@@ -29,7 +29,9 @@ recovery in a child process (runtime, peak RSS). Then, with non-overlapping 1-s 
   lie from the raw stream's (Vicon); and the gravity each bias fits best against EuRoC's state (is the
   state's frame level for the bias it was estimated with?), with the PRMSE there and at nominal gravity,
   beside the bias of the Vicon positions alone (20 Hz; attitude from the IMU, not from the stream's
-  orientations or the extrinsic).
+  orientations or the extrinsic); and the constant IMU-frame rotation from EuRoC's state attitude to
+  each recovered trajectory's (its tilt and heading parts), with every bias judged against EuRoC's
+  positions and velocities under the state's attitude turned by it.
 
 Goals (``ok`` columns): against the ground-truth state PRMSE <= 1.1x and ROE <= 1.5x EuRoC's bias and a
 verdict other than FAIL; held out against the raw stream PRMSE and ROE <= 1.1x EuRoC's; where only
@@ -61,7 +63,7 @@ sys.path.insert(0, str(REPO))
 from pipeline.bias_table import BiasTrack  # noqa: E402
 from pipeline.io import load_sequence  # noqa: E402
 from pipeline.io.tum import read_tum_poses  # noqa: E402
-from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence  # noqa: E402
+from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence, StateSeries  # noqa: E402
 from recovery.result import RecoveryResult  # noqa: E402
 
 DATA = Path(os.environ.get("BIASGT_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -274,6 +276,41 @@ def trajectory_agreement_mm(seq: Sequence, raw: PoseSeries, report: dict, ours: 
             "ground_truth_vs_ours": rms(d_gt - d_ours)}
 
 
+def _state_end_errors(seq: Sequence, tracks: dict[str, BiasTrack],
+                      state: StateSeries | None = None) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Per row of ``tracks``, the end-position errors [W, 3] (m) of the non-overlapping 1-s windows
+    integrated from ``state`` (default: EuRoC's ground-truth state) with nominal gravity, and each
+    window's ``T^2 / 2`` [W] (s^2); windows where a bias is clamped (outside its track) are left out."""
+    from interpolation.bias import interpolate_bias
+    from pipeline.geometry.integration import integrate_numpy
+    from validation.config import ValidationConfig
+    from validation.metrics import plan_windows
+    from validation.reference import reference_from_states
+
+    imu = seq.imu
+    ref = reference_from_states(seq.ground_truth if state is None else state, imu.t_ns)
+    plan = plan_windows(imu, ValidationConfig(overlap=WINDOW_OVERLAP))
+    n, s = plan.n, plan.starts[plan.keep]
+    s = s[ref.valid[s] & ref.valid[s + n]]
+    idx = s[:, None] + np.arange(n + 1)[None, :]
+    dt = np.diff(imu.t_ns[idx], axis=1) / NS_PER_S
+    half_T2 = 0.5 * dt.sum(axis=1) ** 2
+    out = {}
+    for name, track in tracks.items():
+        at = interpolate_bias(track, imu.t_ns, random_walk=np.zeros(6), clamp=True)
+        ok = ~np.any(at.clamped[idx], axis=1)
+        b = at.bias[idx[ok]]
+        res = integrate_numpy(imu.gyro_radps[idx[ok]], imu.acc_mps2[idx[ok]], dt[ok], ref.R[s[ok]], ref.v[s[ok]],
+                              ref.p[s[ok]], gravity_mps2=np.array([0.0, 0.0, -9.81]),
+                              bias_gyro_radps=b[..., :3], bias_acc_mps2=b[..., 3:])
+        out[name] = (ref.p[s[ok] + n] - res.p, half_T2[ok])
+    return out
+
+
+def _rms_norm(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.sum(e**2, axis=1))))
+
+
 def preferred_tilt(seq: Sequence, tracks: dict[str, BiasTrack]) -> dict[str, dict]:
     """The gravity each bias fits best against EuRoC's ground-truth state, by row (``tracks``).
 
@@ -282,36 +319,48 @@ def preferred_tilt(seq: Sequence, tracks: dict[str, BiasTrack]) -> dict[str, dic
     that minimise the row's PRMSE over the non-overlapping windows (z kept). Returns, per row, the
     tilt of that gravity from -z (deg), the gravity, and the PRMSE (m) there and at nominal.
     """
-    from interpolation.bias import interpolate_bias
-    from pipeline.geometry.integration import integrate_numpy
-    from validation.config import ValidationConfig
-    from validation.metrics import plan_windows
-    from validation.reference import reference_from_states
-
-    imu = seq.imu
-    ref = reference_from_states(seq.ground_truth, imu.t_ns)
-    plan = plan_windows(imu, ValidationConfig(overlap=WINDOW_OVERLAP))
-    n, s = plan.n, plan.starts[plan.keep]
-    s = s[ref.valid[s] & ref.valid[s + n]]
-    idx = s[:, None] + np.arange(n + 1)[None, :]
-    dt = np.diff(imu.t_ns[idx], axis=1) / NS_PER_S
-    half_T2 = 0.5 * dt.sum(axis=1) ** 2
-    g0 = np.array([0.0, 0.0, -9.81])
     out = {}
-    for name, track in tracks.items():
-        at = interpolate_bias(track, imu.t_ns, random_walk=np.zeros(6), clamp=True)
-        ok = ~np.any(at.clamped[idx], axis=1)
-        b = at.bias[idx[ok]]
-        res = integrate_numpy(imu.gyro_radps[idx[ok]], imu.acc_mps2[idx[ok]], dt[ok], ref.R[s[ok]], ref.v[s[ok]],
-                              ref.p[s[ok]], gravity_mps2=g0, bias_gyro_radps=b[..., :3], bias_acc_mps2=b[..., 3:])
-        e = ref.p[s[ok] + n] - res.p  # [W, 3]: what a gravity change must explain
-        w = half_T2[ok]
+    for name, (e, w) in _state_end_errors(seq, tracks).items():  # e: what a gravity change must explain
         dg = np.zeros(3)
         dg[:2] = (w[:, None] * e[:, :2]).sum(0) / np.sum(w**2)
-        g = g0 + dg
+        g = np.array([0.0, 0.0, -9.81]) + dg
         out[name] = {"tilt_deg": float(np.degrees(np.arctan2(np.hypot(*g[:2]), -g[2]))), "gravity_mps2": g.tolist(),
-                     "prmse_m": float(np.sqrt(np.mean(np.sum((e - w[:, None] * dg) ** 2, 1)))),
-                     "prmse_nominal_m": float(np.sqrt(np.mean(np.sum(e**2, 1)))), "windows": int(ok.sum())}
+                     "prmse_m": _rms_norm(e - w[:, None] * dg), "prmse_nominal_m": _rms_norm(e), "windows": len(w)}
+    return out
+
+
+def attitude_offsets(seq: Sequence, trajectories: dict[str, PoseSeries],
+                     tracks: dict[str, BiasTrack]) -> dict[str, dict]:
+    """How EuRoC's ground-truth attitude sits on the IMU, against each trajectory of ``trajectories``.
+
+    Each trajectory's attitude is ``R_state dR`` for a constant body-frame rotation ``dR`` (the mean
+    of ``R_state^T R_trajectory`` over its stamps inside the state). Per trajectory: ``dR`` as a
+    rotation vector (deg, IMU frame), split into its tilt (perpendicular to the IMU's mean up axis,
+    what trades against a horizontal accelerometer bias, ``|tilt| g``) and heading parts, the spread of
+    the per-stamp rotation about ``dR`` (deg RMS), and the PRMSE (m, nominal gravity) of every row of
+    ``tracks`` against EuRoC's state with its attitude turned by ``dR``: each bias judged on the
+    attitude it would have been fitted to, from the same positions and velocities.
+    """
+    import dataclasses
+
+    gt = seq.ground_truth
+    t_gt = gt.t_ns / NS_PER_S
+    R_state = Rotation.from_quat(gt.quat_wxyz, scalar_first=True)
+    up_imu = R_state.inv().apply([0.0, 0.0, 1.0]).mean(axis=0)
+    up_imu /= np.linalg.norm(up_imu)
+    out = {}
+    for name, traj in trajectories.items():
+        t = traj.t_ns / NS_PER_S
+        inside = (t > t_gt[0]) & (t < t_gt[-1])
+        rel = Slerp(t_gt, R_state)(t[inside]).inv() * Rotation.from_quat(traj.quat_wxyz[inside], scalar_first=True)
+        dR = rel.mean()
+        rv = dR.as_rotvec()
+        turned = dataclasses.replace(gt, quat_wxyz=(R_state * dR).as_quat(scalar_first=True))
+        out[name] = {"rotvec_deg": np.degrees(rv).tolist(),
+                     "tilt_deg": float(np.degrees(np.linalg.norm(rv - (rv @ up_imu) * up_imu))),
+                     "heading_deg": float(np.degrees(abs(rv @ up_imu))),
+                     "spread_deg": float(np.degrees(np.sqrt(np.mean(np.sum((dR.inv() * rel).as_rotvec() ** 2, 1))))),
+                     "prmse_m": {k: _rms_norm(e) for k, (e, _) in _state_end_errors(seq, tracks, turned).items()}}
     return out
 
 
@@ -399,6 +448,10 @@ def measure(data: Path, name: str, work: Path, overrides: dict | None = None) ->
         if positions_alone is not None:
             tracks["positions_alone"] = positions_alone.outputs().bias
         out["preferred_tilt"] = preferred_tilt(seq, tracks)
+        trajectories = {"recovered": ours}
+        if positions_alone is not None:
+            trajectories["positions_alone"] = positions_alone.outputs().trajectory
+        out["attitude_offsets"] = attitude_offsets(seq, trajectories, tracks)
     return out
 
 
@@ -508,6 +561,10 @@ def print_sequence(m: dict) -> None:
                                        for k, v in m["preferred_tilt"].items())
               + ("" if not level else f"; the recovery's tilt of the stream's frame {level['tilt_deg']:.2f} +- "
                  f"{level['tilt_std_deg']:.2f} deg"))
+    for k, a in m.get("attitude_offsets", {}).items():
+        print(f"  EuRoC's attitude turned onto the {k} trajectory's (R_state^T R_{k}, constant in the IMU frame: "
+              f"tilt {a['tilt_deg']:.2f} deg, heading {a['heading_deg']:.2f} deg, spread {a['spread_deg']:.2f} deg RMS): "
+              "PRMSE against EuRoC's state so turned " + "  ".join(f"{r} {v:.4f}" for r, v in a["prmse_m"].items()))
     print("  goals: " + ", ".join(f"{k}: {'-' if v is None else ('ok' if v else 'MISSED')}" for k, v in goals(m).items()))
 
 
