@@ -31,7 +31,9 @@ recovery in a child process (runtime, peak RSS). Then, with non-overlapping 1-s 
   beside the bias of the Vicon positions alone (20 Hz; attitude from the IMU, not from the stream's
   orientations or the extrinsic); and the constant IMU-frame rotation from EuRoC's state attitude to
   each recovered trajectory's (its tilt and heading parts), with every bias judged against EuRoC's
-  positions and velocities under the state's attitude turned by it.
+  positions and velocities under the state's attitude turned by it; and where the recovery, a closed-form
+  fit of the Vicon and gyro rates, EuRoC's state attitude, sensor.yaml and (V1 room) rpng/vicon2gt's
+  published estimate put the IMU on the Vicon body.
 
 Goals (``ok`` columns): against the ground-truth state PRMSE <= 1.1x and ROE <= 1.5x EuRoC's bias and a
 verdict other than FAIL; held out against the raw stream PRMSE and ROE <= 1.1x EuRoC's; where only
@@ -364,6 +366,47 @@ def attitude_offsets(seq: Sequence, trajectories: dict[str, PoseSeries],
     return out
 
 
+#: rpng/vicon2gt's published R_BtoI for EuRoC's V1 room (``launch/eurocmav.launch``): the IMU's rotation
+#: from the Vicon body, R_imu_pose.
+VICON2GT_R_IMU_POSE_V1 = np.array([[0.337977, 0.000209931, 0.941155], [0.0261378, -0.999616, -0.00916333],
+                                   [0.940792, 0.0276967, -0.337852]])
+
+
+def mounting_angles_deg(seq: Sequence, raw: PoseSeries, report: dict) -> dict[str, float]:
+    """Where four sources put the IMU on the Vicon body (R_imu_pose), as angles (deg) from the recovered one:
+
+    * ``closed_form``: Kabsch on the Vicon and gyro rates, no graph
+      (:func:`recovery.calibration_init.extrinsic.estimate_extrinsic_rotation`, at the recovered offset);
+    * ``euroc_state``: the mean of ``R_state^T R_world_pose`` over the Vicon stamps (the mounting EuRoC's
+      state attitude implies), and ``euroc_state_spread`` its per-stamp RMS spread about that mean;
+    * ``sensor_yaml``: the calibration file's T_BS;
+    * ``vicon2gt`` (V1 room only): rpng/vicon2gt's published estimate; with ``vicon2gt_vs_euroc_state``.
+    """
+    from recovery.calibration_init.extrinsic import estimate_extrinsic_rotation
+
+    def angle(a: Rotation, b: Rotation) -> float:
+        return float(np.degrees((a.inv() * b).magnitude()))
+
+    offset_s = report["pose_time_offset_s"]
+    rec = Rotation.from_quat(report["T_imu_pose"]["quat_wxyz"], scalar_first=True)
+    closed = Rotation.from_matrix(estimate_extrinsic_rotation(seq.imu, raw, offset_s).R_imu_pose)
+    gt = seq.ground_truth.to_pose_series()
+    t_gt, t_raw = gt.t_ns / NS_PER_S, raw.t_ns / NS_PER_S + offset_s
+    inside = (t_raw > t_gt[0]) & (t_raw < t_gt[-1])
+    R_state = Slerp(t_gt, Rotation.from_quat(gt.quat_wxyz, scalar_first=True))(t_raw[inside])
+    per_stamp = R_state.inv() * Rotation.from_quat(raw.quat_wxyz[inside], scalar_first=True)
+    implied = per_stamp.mean()
+    calib = seq.calibration.T_imu_frames.get(raw.frame) if seq.calibration is not None else None
+    out = {"closed_form": angle(rec, closed), "euroc_state": angle(rec, implied),
+           "euroc_state_spread": float(np.degrees(np.sqrt(np.mean((implied.inv() * per_stamp).magnitude() ** 2))))}
+    if calib is not None:
+        out["sensor_yaml"] = angle(rec, Rotation.from_matrix(np.asarray(calib)[:3, :3]))
+    if seq.name.startswith("V1_"):
+        v2g = Rotation.from_matrix(VICON2GT_R_IMU_POSE_V1)
+        out["vicon2gt"], out["vicon2gt_vs_euroc_state"] = angle(rec, v2g), angle(v2g, implied)
+    return out
+
+
 # ----------------------------------------------------------------------------- recovery (child process)
 
 
@@ -444,6 +487,7 @@ def measure(data: Path, name: str, work: Path, overrides: dict | None = None) ->
                                               config=ValidationConfig(overlap=WINDOW_OVERLAP, crossval="off")).to_dict()
         if raw.quat_wxyz is not None:
             out["trajectory_agreement_mm"] = trajectory_agreement_mm(seq, raw, report, ours)
+            out["mounting_deg"] = mounting_angles_deg(seq, raw, report)
         tracks = {"recovered": read_bias_file(rec_dir / "bias.csv"), "euroc": dataset_bias(seq)}
         if positions_alone is not None:
             tracks["positions_alone"] = positions_alone.outputs().bias
@@ -561,6 +605,9 @@ def print_sequence(m: dict) -> None:
                                        for k, v in m["preferred_tilt"].items())
               + ("" if not level else f"; the recovery's tilt of the stream's frame {level['tilt_deg']:.2f} +- "
                  f"{level['tilt_std_deg']:.2f} deg"))
+    if "mounting_deg" in m:
+        print("  the IMU on the Vicon body (R_imu_pose), deg from the recovered one: "
+              + ", ".join(f"{k} {v:.2f}" for k, v in m["mounting_deg"].items()))
     for k, a in m.get("attitude_offsets", {}).items():
         print(f"  EuRoC's attitude turned onto the {k} trajectory's (R_state^T R_{k}, constant in the IMU frame: "
               f"tilt {a['tilt_deg']:.2f} deg, heading {a['heading_deg']:.2f} deg, spread {a['spread_deg']:.2f} deg RMS): "
