@@ -335,33 +335,27 @@ def attitude_offsets(seq: Sequence, trajectories: dict[str, PoseSeries],
                      tracks: dict[str, BiasTrack]) -> dict[str, dict]:
     """How EuRoC's ground-truth attitude sits on the IMU, against each trajectory of ``trajectories``.
 
-    Each trajectory's attitude is ``R_state dR`` for a constant body-frame rotation ``dR`` (the mean
-    of ``R_state^T R_trajectory`` over its stamps inside the state). Per trajectory: ``dR`` as a
-    rotation vector (deg, IMU frame), split into its tilt (perpendicular to the IMU's mean up axis,
-    what trades against a horizontal accelerometer bias, ``|tilt| g``) and heading parts, the spread of
-    the per-stamp rotation about ``dR`` (deg RMS), and the PRMSE (m, nominal gravity) of every row of
-    ``tracks`` against EuRoC's state with its attitude turned by ``dR``: each bias judged on the
-    attitude it would have been fitted to, from the same positions and velocities.
+    Per trajectory, what ``validate`` records as ``reference_attitude``
+    (:func:`validation.attitude.reference_attitude_offset`: the mean IMU-frame rotation ``dR`` from the
+    state's attitude to the trajectory's, its tilt and heading parts and spread), and the PRMSE (m,
+    nominal gravity) of every row of ``tracks`` against EuRoC's state with its attitude turned to
+    ``R_state dR``: each bias judged on the attitude it would have been fitted to, from the same
+    positions and velocities.
     """
     import dataclasses
 
+    from validation.attitude import reference_attitude_offset
+    from validation.reference import reference_from_states
+
     gt = seq.ground_truth
-    t_gt = gt.t_ns / NS_PER_S
+    ref = reference_from_states(gt, seq.imu.t_ns)
     R_state = Rotation.from_quat(gt.quat_wxyz, scalar_first=True)
-    up_imu = R_state.inv().apply([0.0, 0.0, 1.0]).mean(axis=0)
-    up_imu /= np.linalg.norm(up_imu)
     out = {}
     for name, traj in trajectories.items():
-        t = traj.t_ns / NS_PER_S
-        inside = (t > t_gt[0]) & (t < t_gt[-1])
-        rel = Slerp(t_gt, R_state)(t[inside]).inv() * Rotation.from_quat(traj.quat_wxyz[inside], scalar_first=True)
-        dR = rel.mean()
-        rv = dR.as_rotvec()
+        off = reference_attitude_offset(ref, traj, np.array([0.0, 0.0, -9.81]))
+        dR = Rotation.from_rotvec(np.radians(off.rotvec_deg))
         turned = dataclasses.replace(gt, quat_wxyz=(R_state * dR).as_quat(scalar_first=True))
-        out[name] = {"rotvec_deg": np.degrees(rv).tolist(),
-                     "tilt_deg": float(np.degrees(np.linalg.norm(rv - (rv @ up_imu) * up_imu))),
-                     "heading_deg": float(np.degrees(abs(rv @ up_imu))),
-                     "spread_deg": float(np.degrees(np.sqrt(np.mean(np.sum((dR.inv() * rel).as_rotvec() ** 2, 1))))),
+        out[name] = {**off.to_dict(),
                      "prmse_m": {k: _rms_norm(e) for k, (e, _) in _state_end_errors(seq, tracks, turned).items()}}
     return out
 

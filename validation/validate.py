@@ -43,6 +43,7 @@ from pipeline.checks.run import reader_warnings
 from pipeline.errors import ValidationError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.outputs import RecoveryOutputs
+from validation.attitude import reference_attitude_offset
 from validation.config import CrossvalMode, ValidationConfig
 from validation.metrics import (SourceMetrics, WindowPlan, _flags, plan_windows, prmse_m, roe_deg, window_end_errors,
                                 window_errors, windows_with_any)
@@ -56,6 +57,12 @@ from validation.plausibility import plausibility_findings
 from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, Verdict, write_folder
 
 log = logging.getLogger(__name__)
+
+#: An attitude offset is noted when its tilt stands for more accelerometer bias than this many times
+#: the recovered bias's median sigma (below, the two attitudes agree within what the bias can tell).
+ATTITUDE_NOTE_SIGMAS = 3.0
+#: ... and when the positions tie the two world frames this well (IMU positions of both, m RMS).
+ATTITUDE_WORLD_RMS_M = 0.05
 
 __all__ = [
     "BiasSource",
@@ -112,6 +119,10 @@ class ValidationResult:
         gravity_mps2: Gravity used, [3].
         notes: What could not be validated, and other remarks.
         next_steps: What to do about a WARN or FAIL (:func:`next_steps`).
+        heldout: The cross-validation's folds and figures, when it ran.
+        plausibility: Physical-plausibility findings on the recovery.
+        reference_attitude: Against an independent reference, how its attitude sits on the IMU beside
+            the recovery's (:class:`validation.attitude.AttitudeOffset`), when both have one.
     """
 
     sequence: str
@@ -127,6 +138,7 @@ class ValidationResult:
     next_steps: list[str] = field(default_factory=list)
     heldout: dict[str, Any] | None = None
     plausibility: list[dict[str, Any]] = field(default_factory=list)
+    reference_attitude: dict[str, Any] | None = None
 
     def windows_frame(self) -> pd.DataFrame:
         """Per-window errors: t0_ns, source, pos_err_m, rot_err_deg, flagged."""
@@ -153,6 +165,7 @@ class ValidationResult:
             "next_steps": list(self.next_steps),
             **({} if self.heldout is None else {"heldout": self.heldout}),
             "plausibility": list(self.plausibility),
+            **({} if self.reference_attitude is None else {"reference_attitude": self.reference_attitude}),
         }
 
 
@@ -511,10 +524,27 @@ def validate_inputs(
                             f"{np.round(gravity, 4).tolist()}")
     if judged:
         result.notes.append("the reference is the stream the bias was fitted to: the held-out blocks judge the verdict")
+    if recovery is not None and not fitted:
+        _compare_attitude(result, reference, recovery, gravity)
     if recovery is not None:
         result.notes.append(f"recovery: {recovery_dir}")
     result.notes += reader_warnings(sequence.findings)  # skipped input lines
     return result
+
+
+def _compare_attitude(result: ValidationResult, reference: ReferenceStates, recovery: RecoveryOutputs,
+                      gravity: np.ndarray) -> None:
+    """Record how the independent reference's attitude sits on the IMU beside the recovery's, with a
+    note when its tilt stands for more than :data:`ATTITUDE_NOTE_SIGMAS` times the recovered
+    accelerometer bias's median sigma and the world frames agree by the positions."""
+    offset = reference_attitude_offset(reference, recovery.trajectory, gravity)
+    if offset is None:
+        return
+    result.reference_attitude = offset.to_dict()
+    std = np.asarray(recovery.bias.std, dtype=float)[:, 3:] if recovery.bias.std is not None else None
+    sigma = float(np.nanmedian(std)) if std is not None and np.isfinite(std).any() else 0.0
+    if offset.world_rms_m <= ATTITUDE_WORLD_RMS_M and offset.acc_bias_equivalent_mps2 > ATTITUDE_NOTE_SIGMAS * sigma:
+        result.notes.append(offset.note())
 
 
 def _row_gravity(gravity_mps2: Any, recovery: RecoveryOutputs | None, fitted: bool, sources: dict[str, BiasSource]
