@@ -603,7 +603,7 @@ def print_sequence(m: dict) -> None:
         print("  the IMU on the Vicon body (R_imu_pose), deg from the recovered one: "
               + ", ".join(f"{k} {v:.2f}" for k, v in m["mounting_deg"].items()))
     for k, a in m.get("attitude_offsets", {}).items():
-        print(f"  EuRoC's attitude turned onto the {k} trajectory's (R_state^T R_{k}, constant in the IMU frame: "
+        print(f"  EuRoC's attitude turned onto the {k} trajectory's (mean IMU-frame rotation, world frames tied by the positions: "
               f"tilt {a['tilt_deg']:.2f} deg, heading {a['heading_deg']:.2f} deg, spread {a['spread_deg']:.2f} deg RMS): "
               "PRMSE against EuRoC's state so turned " + "  ".join(f"{r} {v:.4f}" for r, v in a["prmse_m"].items()))
     print("  goals: " + ", ".join(f"{k}: {'-' if v is None else ('ok' if v else 'MISSED')}" for k, v in goals(m).items()))

@@ -59,7 +59,7 @@ def test_slerp_between_reference_stamps_and_gaps():
     traj = PoseSeries(t_mid, p_mid, R_mid.as_quat(scalar_first=True), "imu", PoseSourceKind.GROUND_TRUTH)
     off = reference_attitude_offset(ref, traj, G)
     assert np.linalg.norm(off.rotvec_deg) < 1e-6 and off.stamps == len(k)
-    ref.valid[k[:10]] = False
+    ref.valid[k[3]:k[12] + 1] = False  # a gap over ten of the trajectory's stamps
     assert reference_attitude_offset(ref, traj, G).stamps == len(k) - 10
 
 

@@ -28,7 +28,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.types import PoseSeries
-from validation.reference import ReferenceStates
+from validation.reference import ReferenceStates, reference_from_states
 
 #: Fewest trajectory stamps inside the reference for an offset to be reported.
 MIN_STAMPS = 10
@@ -36,7 +36,7 @@ MIN_STAMPS = 10
 
 @dataclass(frozen=True)
 class AttitudeOffset:
-    """``R_rec ~ R_ref dR`` (see the module docstring).
+    """``R_rec ~ W R_ref dR`` (see the module docstring).
 
     Attributes:
         rotvec_deg: ``dR`` as a rotation vector in the IMU frame, [3] (deg).
@@ -71,20 +71,6 @@ class AttitudeOffset:
                 "about that much on the same positions: check the extrinsic the reference was built with")
 
 
-def _states_at(reference: ReferenceStates, t_ns: np.ndarray) -> tuple[Rotation, np.ndarray, np.ndarray]:
-    """The reference attitude (slerp) and position (linear) at ``t_ns`` between neighbouring valid
-    stamps, and where they exist, ``(R [M], p [M, 3], ok [len(t_ns)])``."""
-    i = np.clip(np.searchsorted(reference.t_ns, t_ns), 1, len(reference.t_ns) - 1)
-    ok = ((t_ns >= reference.t_ns[0]) & (t_ns <= reference.t_ns[-1])
-          & reference.valid[i - 1] & reference.valid[i])
-    i = i[ok]
-    frac = ((t_ns[ok] - reference.t_ns[i - 1]) / (reference.t_ns[i] - reference.t_ns[i - 1]))[:, None]
-    R0 = Rotation.from_matrix(reference.R[i - 1])
-    step = (R0.inv() * Rotation.from_matrix(reference.R[i])).as_rotvec()
-    p = (1 - frac) * reference.p[i - 1] + frac * reference.p[i]
-    return R0 * Rotation.from_rotvec(frac * step), p, ok
-
-
 def reference_attitude_offset(reference: ReferenceStates, trajectory: PoseSeries,
                               gravity_mps2: np.ndarray) -> AttitudeOffset | None:
     """The constant IMU-frame rotation from the reference's attitude to the trajectory's.
@@ -100,9 +86,11 @@ def reference_attitude_offset(reference: ReferenceStates, trajectory: PoseSeries
     """
     if trajectory.quat_wxyz is None:
         return None
-    R_ref, p_ref, ok = _states_at(reference, np.asarray(trajectory.t_ns, dtype=np.int64))
+    at = reference_from_states(reference, trajectory.t_ns)  # the reference at the trajectory's stamps
+    ok = at.valid
     if ok.sum() < MIN_STAMPS:
         return None
+    R_ref, p_ref = Rotation.from_matrix(at.R[ok]), at.p[ok]
     p_rec = trajectory.p_m[ok]
     W, _ = Rotation.align_vectors(p_rec - p_rec.mean(0), p_ref - p_ref.mean(0))
     resid = (p_rec - p_rec.mean(0)) - W.apply(p_ref - p_ref.mean(0))

@@ -541,8 +541,8 @@ def _compare_attitude(result: ValidationResult, reference: ReferenceStates, reco
     if offset is None:
         return
     result.reference_attitude = offset.to_dict()
-    std = np.asarray(recovery.bias.std, dtype=float)[:, 3:] if recovery.bias.std is not None else None
-    sigma = float(np.nanmedian(std)) if std is not None and np.isfinite(std).any() else 0.0
+    std = np.asarray(recovery.bias.std, dtype=float)[:, 3:]
+    sigma = float(np.nanmedian(std)) if np.isfinite(std).any() else 0.0
     if offset.world_rms_m <= ATTITUDE_WORLD_RMS_M and offset.acc_bias_equivalent_mps2 > ATTITUDE_NOTE_SIGMAS * sigma:
         result.notes.append(offset.note())
 
