@@ -1,7 +1,7 @@
-"""Build step of biasgt: ship the Snakemake workflow inside the ``pipeline`` package.
+"""Build step of biasgt: ship the Snakemake workflow inside the ``biasgt`` package.
 
 The workflow files stay where a source checkout uses them (``Snakefile``, ``workflow/``, the
-default ``config/config.yaml``); a built wheel also holds them under ``pipeline/workflow_files/``
+default ``config/config.yaml``); a built wheel also holds them under ``biasgt/workflow_files/``
 with the same layout, so that ``biasgt run`` finds them (``importlib.resources``) in an installed,
 non-editable package. Everything else is in ``pyproject.toml``.
 """
@@ -18,13 +18,13 @@ WORKFLOW_FILES = ("Snakefile", "workflow", "config/config.yaml")
 
 
 class BuildPyWithWorkflow(build_py):
-    """``build_py`` that also copies :data:`WORKFLOW_FILES` into ``pipeline/workflow_files``."""
+    """``build_py`` that also copies :data:`WORKFLOW_FILES` into ``biasgt/workflow_files``."""
 
     def run(self) -> None:
         super().run()
         if self.editable_mode:  # an editable install runs from the checkout, which has the files
             return
-        dest = Path(self.build_lib) / "pipeline" / "workflow_files"
+        dest = Path(self.build_lib) / "biasgt" / "workflow_files"
         ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
         for name in WORKFLOW_FILES:
             src, out = ROOT / name, dest / name

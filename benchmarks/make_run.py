@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def command(cores: int, config: Path, workdir: Path) -> list[str]:
     """The ``biasgt run`` command line of the benchmark."""
-    return [sys.executable, "-m", "pipeline.cli", "-q", "run", "--config", str(config), "--cores", str(cores),
+    return [sys.executable, "-m", "biasgt.cli", "-q", "run", "--config", str(config), "--cores", str(cores),
             "--directory", str(workdir)]
 
 

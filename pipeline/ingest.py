@@ -2,7 +2,7 @@
 
 This is the library behind ``biasgt inspect`` / ``biasgt convert`` and the
 Snakemake ``ingest`` rule. The reader/check command-line options those commands share
-are in :mod:`pipeline.cli.commands._args`.
+are in :mod:`biasgt.cli.commands._args`.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ from pipeline.types import NS_PER_S, Finding, Sequence, Severity
 log = logging.getLogger(__name__)
 
 #: Keyword arguments of :func:`pipeline.io.load_sequence` that
-#: :func:`pipeline.cli.commands._args.reader_kwargs_from_args` fills.
+#: :func:`biasgt.cli.commands._args.reader_kwargs_from_args` fills.
 READER_KWARGS = ("fmt", "name", "csv_mapping", "imu_topic", "pose_topic", "tf_parent", "tf_child", "extra_poses")
 
 

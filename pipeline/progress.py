@@ -4,7 +4,7 @@
 (a workflow job whose stderr goes to its log file) the same bar is written as plain log lines
 through ``logger``, at most one every :data:`LOG_INTERVAL_S` seconds (and one at the end), e.g.
 ``train diffusion_rnn:  40%|####      | 32/80 [00:41<01:02, 0.77step/s]``: the workflow's
-terminal shows them (:func:`pipeline.workflow.run.run_workflow`) and the log keeps them.
+terminal shows them (:func:`biasgt.workflow.run.run_workflow`) and the log keeps them.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""``biasgt inspect`` / ``biasgt convert`` and :func:`pipeline.ingest.ingest`, through ``pipeline.cli.app.main``."""
+"""``biasgt inspect`` / ``biasgt convert`` and :func:`pipeline.ingest.ingest`, through ``biasgt.cli.app.main``."""
 
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ import pipeline.io
 from pipeline.checks.options import CheckOptions, Repair
 from pipeline.checks.run import STREAM_SUMMARY_KEYS
 from pipeline.checks.stream_checks import detect_acc_in_g, detect_gyro_degps
-from pipeline.cli.app import main
-from pipeline.cli.commands.inspect import JSON_KEYS
+from biasgt.cli.app import main
+from biasgt.cli.commands.inspect import JSON_KEYS
 from pipeline.errors import FatalCheckError, InputFormatError
 from pipeline.ingest import ingest
 from pipeline.store import read_store
@@ -314,7 +314,7 @@ def test_inspect_and_convert_v101(shared_data, tmp_path, capsys):
 
 
 def test_commands_registered_are_the_modules_that_exist():
-    from pipeline.cli.app import COMMANDS, build_parser
+    from biasgt.cli.app import COMMANDS, build_parser
 
     commands_dir = Path(pipeline.ingest.__file__).parent / "cli" / "commands"
     modules = {p.stem for p in commands_dir.glob("*.py") if not p.stem.startswith("_")}  # _args: shared flags
@@ -328,7 +328,7 @@ def test_verbose_and_quiet_change_the_log_level(tmp_path, flag, debug, info):
     """-v shows debug messages, -q hides the progress (info) messages (a real process: real stderr)."""
     poses = tmp_path / "poses.txt"
     poses.write_text("".join(f"{i * 0.01:.2f} 0 0 0 0 0 0 1\n" for i in range(50)), encoding="utf-8")
-    cmd = [sys.executable, "-m", "pipeline.cli", *([flag] if flag else []), "inspect", str(poses)]
+    cmd = [sys.executable, "-m", "biasgt.cli", *([flag] if flag else []), "inspect", str(poses)]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120,
                           env={**os.environ, "PYTHONPATH": str(Path(pipeline.ingest.__file__).parents[1])})
     assert ("DEBUG pipeline.io: loading" in proc.stderr) is debug, proc.stderr

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from pipeline.cli.app import main
+from biasgt.cli.app import main
 from pipeline.errors import ConfigError
 from training.checkpoint import load_run
 from training.config import Sampler

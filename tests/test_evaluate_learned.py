@@ -12,9 +12,9 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from pipeline.cli.app import main
+from biasgt.cli.app import main
 from pipeline.errors import ConfigError, InputFormatError
-from pipeline.workflow.learning import TrainingPlan, evaluate_step, table_step
+from biasgt.workflow.learning import TrainingPlan, evaluate_step, table_step
 from training.baselines import Baseline
 from training.config import Method, Sampler
 from training.evaluate import CALIBRATION_LEVELS, CHANNELS, EvaluationConfig, evaluate_run, load_test_windows
@@ -212,7 +212,7 @@ def test_training_plan_rejects_bad_sections():
 def test_job_parameters_change_only_with_the_run():
     """A train job's parameters are its resolved TrainConfig: adding seeds or methods leaves them alone;
     an evaluate job's exclude the list of references."""
-    from pipeline.workflow.learning import evaluation_settings
+    from biasgt.workflow.learning import evaluation_settings
     from training.config import TrainConfig
 
     one = TrainingPlan.from_mapping({"methods": ["diffusion_rnn"], "seeds": [0]})

@@ -8,7 +8,7 @@ import pytest
 import torch
 
 from pipeline.bias_table import CSV_HEADER
-from pipeline.cli.app import main
+from biasgt.cli.app import main
 from pipeline.errors import DataError
 from pipeline.store import read_store
 from training.checkpoint import load_run

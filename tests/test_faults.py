@@ -27,7 +27,7 @@ import pytest
 import torch
 import yaml
 
-from pipeline.cli.app import main
+from biasgt.cli.app import main
 from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
 from pipeline.sim.writer import write_simulation
 from training.checkpoint import BEST, load_checkpoint, load_run, save_checkpoint
@@ -255,7 +255,7 @@ def _biasgt_run(workdir: Path, *extra: str) -> subprocess.Popen:
     cfg.write_text(yaml.safe_dump({"sequences": [{"name": "long", "source": "simulate", "duration_s": 300,
                                                   "seed": 3}]}))
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.Popen([sys.executable, "-m", "pipeline.cli", "run", "--config", str(cfg), "--directory",
+    return subprocess.Popen([sys.executable, "-m", "biasgt.cli", "run", "--config", str(cfg), "--directory",
                              str(workdir), "--cores", "1", "--target", "results/recovery/long", *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
                             preexec_fn=_foreground_sigint)
@@ -321,7 +321,7 @@ def _env() -> dict[str, str]:
 
 def test_inspect_into_a_closed_pipe_is_no_traceback(trained):
     """``biasgt inspect SEQ | true``: the reader went away; not an error of ours."""
-    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "inspect", str(trained / "rec")],
+    proc = subprocess.Popen([sys.executable, "-m", "biasgt.cli", "inspect", str(trained / "rec")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=_env())
     proc.stdout.close()  # as 'true' does, before the report is written
     err = proc.stderr.read().decode()
@@ -382,8 +382,8 @@ def test_skipped_lines_are_a_warning_of_every_reading_command_and_kept_in_the_st
 def test_config_without_a_test_split_says_so_once_at_config_check(tmp_path, caplog):
     import io
 
-    from pipeline.workflow.config import config_warnings, load_config
-    from pipeline.workflow.run import run_workflow
+    from biasgt.workflow.config import config_warnings, load_config
+    from biasgt.workflow.run import run_workflow
 
     cfg = tmp_path / "cfg.yaml"
     cfg.write_text(yaml.safe_dump({"sequences": [
@@ -446,7 +446,7 @@ def test_sampling_is_interruptible(trained, tmp_path, command, sig, code):
                 "--out", str(out), *slow]
     else:
         args = ["predict", str(trained / "rec"), "--checkpoint", str(trained / "run"), "--out", str(out), *slow]
-    proc = subprocess.Popen([sys.executable, "-m", "pipeline.cli", *args], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "biasgt.cli", *args], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=_env(), preexec_fn=_foreground_sigint)
     try:
         for line in proc.stderr:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from pipeline.cli.app import main
+from biasgt.cli.app import main
 
 REPO = Path(__file__).resolve().parents[1]
 #: The workflow's stages: one rule file each (common.smk holds shared helpers).
@@ -63,7 +63,7 @@ def test_help_imports_no_model_or_solver_library():
     import sys
 
     code = ("import contextlib, io, sys\n"
-            "from pipeline.cli.app import main\n"
+            "from biasgt.cli.app import main\n"
             "for argv in (['--help'], ['recover', '--help'], ['evaluate', '--help'], ['export', '--help']):\n"
             "    with contextlib.redirect_stdout(io.StringIO()):\n"
             "        try:\n"

@@ -20,7 +20,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 import independent as ind
-from pipeline.cli.app import main as cli_main
+from biasgt.cli.app import main as cli_main
 from pipeline.geometry.integration import IntegrationScheme, integrate
 from pipeline.io import load_sequence
 from pipeline.types import PoseSourceKind

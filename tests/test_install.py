@@ -43,12 +43,12 @@ def test_biasgt_run_from_a_non_editable_install_outside_the_source_tree(tmp_path
 
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
-    where = _run([python, "-c", "import pipeline.workflow.config as wf; print(wf.__file__); print(wf.SNAKEFILE)"],
+    where = _run([python, "-c", "import biasgt.workflow.config as wf; print(wf.__file__); print(wf.SNAKEFILE)"],
                  elsewhere, env).stdout.split()
     assert all(Path(p).is_relative_to(purelib) for p in where), where
     out = _run([venv / "bin" / "biasgt", "-v", "run", "--dry-run"], elsewhere, env)  # -v: the whole plan
     text = out.stdout + out.stderr
-    assert f"Snakefile: {purelib / 'pipeline' / 'workflow_files' / 'Snakefile'}" in text
+    assert f"Snakefile: {purelib / 'biasgt' / 'workflow_files' / 'Snakefile'}" in text
     for rule in ("simulate", "ingest", "recover", "interpolate", "validate", "windows", "report"):
         assert f"rule {rule}:" in text or f"checkpoint {rule}:" in text, rule
     assert not (elsewhere / "results").exists()  # a dry run writes no results

@@ -116,7 +116,7 @@ def _known_recovery(tmp_path, imu_t_ns, *, margin_ns=0):
 
 
 def test_interpolate_cli_writes_parquet_and_csv(tmp_path):
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
     from pipeline.sim import SimConfig, simulate
     from pipeline.store import write_store
 
@@ -136,7 +136,7 @@ def test_interpolate_cli_writes_parquet_and_csv(tmp_path):
 
 
 def test_interpolate_cli_refuses_uncovered_span(tmp_path, capsys):
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
     from pipeline.sim import SimConfig, simulate
     from pipeline.store import write_store
 

@@ -32,7 +32,7 @@ _CHILD = textwrap.dedent("""
     import signal, sys, time
     from pathlib import Path
     from pipeline.atomic import atomic_dir
-    from pipeline.cli.app import _raise_terminated
+    from biasgt.cli.app import _raise_terminated
     signal.signal(signal.SIGTERM, _raise_terminated)
     # Python's own SIGINT handler, as in a foreground process: started from a background job
     # (e.g. 'make test &' in a non-interactive shell) a child inherits SIGINT ignored
@@ -92,7 +92,7 @@ def test_failure_before_the_swap_keeps_every_file(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def sim_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     out = tmp_path_factory.mktemp("sim") / "sim20"
     assert main(["-q", "simulate", "--duration", "20", "--seed", "1", str(out)]) == 0
@@ -100,7 +100,7 @@ def sim_folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def _biasgt(*args: str) -> list[str]:
-    return [sys.executable, "-c", "import sys; from pipeline.cli.app import main; sys.exit(main())", *args]
+    return [sys.executable, "-c", "import sys; from biasgt.cli.app import main; sys.exit(main())", *args]
 
 
 def test_rerunning_recover_keeps_other_stages_outputs(tmp_path: Path, sim_folder: Path) -> None:
@@ -153,7 +153,7 @@ _WRITING_COMMANDS = [
 
 @pytest.mark.parametrize("command", _WRITING_COMMANDS, ids=lambda c: c[0])
 def test_output_under_a_file_is_refused_before_any_work(tmp_path: Path, command: list[str], capsys) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     blocker = tmp_path / "a_file"
     blocker.write_text("")
@@ -186,7 +186,7 @@ def test_read_only_output_folder_is_refused_before_any_work(tmp_path: Path) -> N
 def test_sigterm_inside_an_extension_import_is_a_termination_not_a_traceback(capsys, monkeypatch) -> None:
     """A signal while a C extension initialises comes back as that module's ImportError, caused by
     Terminated (seen with gtsam): the CLI still reports a termination, in one line."""
-    from pipeline.cli import app as cli
+    from biasgt.cli import app as cli
 
     def import_interrupted(args):
         try:

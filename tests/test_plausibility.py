@@ -22,7 +22,7 @@ ROTATED[:3, :3] = Rotation.from_euler("x", 90, degrees=True).as_matrix()  # y an
 @pytest.fixture(scope="module")
 def sim60(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A 60-s handheld simulation (mocap poses of the IMU itself: T_imu_pose is the identity)."""
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     out = tmp_path_factory.mktemp("plaus") / "sim"
     assert main(["-q", "simulate", "--duration", "60", "--seed", "1", str(out)]) == 0
@@ -81,7 +81,7 @@ def test_a_swapped_frame_shows_in_the_gyro_coherence_and_the_rotation_residual(s
 def test_wheel_odometry_with_the_identity_extrinsic_fails_with_a_plausibility_reason(shared_data: Path,
                                                                                       tmp_path: Path, capsys) -> None:
     """The Husky bag: IMU against wheel odometry, recovered with the error message's own fix."""
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     bag = shared_data / "ros_bags" / "robot_localization_test" / "test1.bag"
     assert main(["-q", "recover", str(bag), "--extrinsic", "known", "--out", str(tmp_path / "rec")]) == 0

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.workflow.job_progress import JobProgress, last_line, running_lines
+from biasgt.workflow.job_progress import JobProgress, last_line, running_lines
 from pipeline.progress import progress
 
 #: tqdm's "[elapsed<remaining, rate]" part of a progress line: the ETA and the rate.
@@ -61,7 +61,7 @@ def test_train_evaluate_and_predict_report_progress(data: Path, tmp_path: Path, 
 
 
 def test_recover_reports_its_rounds(tmp_path: Path, caplog) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     assert main(["-q", "simulate", "--duration", "10", "--seed", "4", str(tmp_path / "sim")]) == 0
     with caplog.at_level(logging.INFO, logger="recovery.recover"):
@@ -75,7 +75,7 @@ def test_workflow_terminal_gets_one_line_per_running_job(tmp_path: Path) -> None
     (logs / "train").mkdir(parents=True)
     (logs / "ingest").mkdir()
     done = logs / "ingest" / "a.log"
-    done.write_text("2026-12-02 14:36:26,395 INFO pipeline.workflow: wrote results/ingest/a\n")
+    done.write_text("2026-12-02 14:36:26,395 INFO biasgt.workflow: wrote results/ingest/a\n")
     old = time.time() - 100
     os.utime(done, (old, old))
     running = logs / "train" / "m_seed0.log"

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.cli.app import main
+from biasgt.cli.app import main
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 

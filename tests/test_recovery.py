@@ -258,7 +258,7 @@ def test_write_failure_leaves_nothing(clean_run, tmp_path):
 
 
 def test_cli_recover_on_store(tmp_path, clean_run, capsys):
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
     from pipeline.store import write_store
 
     sim, _ = clean_run

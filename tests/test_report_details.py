@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.cli.commands.recover import outlier_counts
+from biasgt.cli.commands.recover import outlier_counts
 from reports import plots
 from reports.quality import dataset_bias_label, mm_pair, verdict_summary
 from validation.validate import said_once
@@ -25,7 +25,7 @@ def test_distances_side_by_side_share_one_format() -> None:
 
 
 def test_a_simulated_recording_calls_its_bias_the_truth(tmp_path: Path, shared_data: Path) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
     from pipeline.io import load_sequence
 
     assert main(["-q", "simulate", "--duration", "3", str(tmp_path / "sim")]) == 0
@@ -70,7 +70,7 @@ def test_recover_says_which_outlier_count_is_which() -> None:
 
 
 def test_inspect_names_the_topics_it_cannot_use(shared_data: Path, capsys) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     bag = shared_data / "ros_bags" / "robot_localization_test" / "test1.bag"
     assert main(["inspect", str(bag)]) == 0

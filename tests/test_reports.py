@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pipeline.cli.app import main as cli_main
+from biasgt.cli.app import main as cli_main
 from pipeline.errors import DataError, InputFormatError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind
 from reports.html import fmt

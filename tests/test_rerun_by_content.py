@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 import yaml
 
-from pipeline.cli.app import main
-from pipeline.workflow.learning import dataset_checksum
-from pipeline.workflow.run import run_workflow
-from pipeline.workflow.run_summary import dry_run_jobs, dry_run_summary
+from biasgt.cli.app import main
+from biasgt.workflow.learning import dataset_checksum
+from biasgt.workflow.run import run_workflow
+from biasgt.workflow.run_summary import dry_run_jobs, dry_run_summary
 
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("workflow_snakemake")]
 

@@ -9,7 +9,7 @@ import pandas as pd
 import pytest
 from scipy.signal import resample_poly
 
-from pipeline.cli.app import main
+from biasgt.cli.app import main
 from pipeline.resample import resample_imu_filtered
 from pipeline.types import ImuSeries
 

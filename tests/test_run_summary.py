@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.workflow.run_summary import dry_run_summary, finished_summary
+from biasgt.workflow.run_summary import dry_run_summary, finished_summary
 
 
 def _write(path: Path, text: str) -> None:
@@ -59,7 +59,7 @@ def test_demo_position_only_cart_is_explained_by_its_own_sigma(tmp_path: Path) -
     within its own 2 sigma, well ahead of a constant bias: PASS, no FAIL in the demo."""
     import io
 
-    from pipeline.workflow.run import run_workflow
+    from biasgt.workflow.run import run_workflow
 
     run_workflow(workdir=tmp_path, echo=io.StringIO(), targets=["results/validation/sim_cart_leica_01"])
     data = json.loads((tmp_path / "results" / "validation" / "sim_cart_leica_01" / "validation.json").read_text())

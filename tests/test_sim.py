@@ -489,7 +489,7 @@ def test_ground_truth_file_errors(tmp_path: Path) -> None:
 
 
 def test_cli_simulate(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     out = tmp_path / "cli"
     rc = main(["simulate", str(out), "--duration", "4", "--seed", "3", "--preset", "slow_cart",

@@ -8,9 +8,9 @@ from pathlib import Path
 
 import yaml
 
-from pipeline.cli.app import main
-from pipeline.workflow.config import PROFILES_DIR
-from pipeline.workflow.run import describe_failure, resolve_profile
+from biasgt.cli.app import main
+from biasgt.workflow.config import PROFILES_DIR
+from biasgt.workflow.run import describe_failure, resolve_profile
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -41,7 +41,7 @@ def _env() -> dict[str, str]:
 
 
 def _cli(*args: str) -> list[str]:
-    return [sys.executable, "-m", "pipeline.cli", "-q", "train", *args]
+    return [sys.executable, "-m", "biasgt.cli", "-q", "train", *args]
 
 
 def test_resume_after_sigkill_gives_bit_identical_weights(toy_ds, tmp_path):

@@ -31,7 +31,7 @@ def test_two_gloo_processes_match_one_process(tmp_path):
     ds = write_toy_dataset(tmp_path / "ds", Toy(kind=Kind.LINEAR, samples=16), train=96, val=32, test=0)
     (tmp_path / "c.yaml").write_text("batch_size: 16\nval_every: 50\ncheckpoint_every: 50\nlr: 0.001\n"
                                      "warmup_steps: 10\ndevice: cpu\n")
-    args = ["-m", "pipeline.cli", "-q", "train", "--dataset", str(ds), "--method", "diffusion_rnn", "--preset", "tiny",
+    args = ["-m", "biasgt.cli", "-q", "train", "--dataset", str(ds), "--method", "diffusion_rnn", "--preset", "tiny",
             "--max-steps", "300", "--config", str(tmp_path / "c.yaml")]
     env = dict(os.environ, PYTHONPATH=str(REPO), OMP_NUM_THREADS="1")
     subprocess.run([sys.executable, *args, "--out", str(tmp_path / "one")], env=env, check=True)
@@ -51,7 +51,7 @@ def test_two_gloo_processes_match_one_process(tmp_path):
 def test_workflow_train_step_launches_torchrun_for_several_processes(tmp_path, monkeypatch):
     """training.processes > 1: the train job runs 'biasgt train' under torchrun inside the job."""
     from training.config import TrainingPlan
-    from pipeline.workflow.learning import train_step
+    from biasgt.workflow.learning import train_step
 
     monkeypatch.setenv("OMP_NUM_THREADS", "1")
     monkeypatch.setenv("PYTHONPATH", os.pathsep.join([str(REPO), os.environ.get("PYTHONPATH", "")]))

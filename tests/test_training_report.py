@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.workflow.learning import evaluate_step
+from biasgt.workflow.learning import evaluate_step
 from reports.training import SECTIONS, build_training_report
 from training.config import Baseline
 from window_data import make_window_dataset, train_tiny

@@ -53,7 +53,7 @@ def test_misspelt_pose_kind_names_the_allowed_kinds(tmp_path: Path) -> None:
 @pytest.fixture(scope="module")
 def wrong_datasheet(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     """A simulated recording whose sensor.yaml understates the gyro random walk 1000x, and its recovery."""
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     root = tmp_path_factory.mktemp("datasheet")
     sim = root / "sim"
@@ -68,7 +68,7 @@ def wrong_datasheet(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Pat
 
 
 def test_random_walk_at_the_search_bound_is_a_limitation_with_a_next_step(wrong_datasheet, tmp_path, capsys) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
     from recovery.outputs import RecoveryOutputs
     from validation.validate import recovery_limitations
 
@@ -83,7 +83,7 @@ def test_random_walk_at_the_search_bound_is_a_limitation_with_a_next_step(wrong_
 
 
 def test_poses_at_2_hz_get_a_finding_and_no_pass(tmp_path: Path, capsys) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     sim = tmp_path / "sim"
     assert main(["-q", "simulate", "--duration", "20", "--seed", "1", "--pose-rate", "2", str(sim)]) == 0
@@ -114,7 +114,7 @@ def test_calibration_values_say_where_they_came_from(tmp_path: Path, shared_data
 
 
 def test_validate_against_positions_only_names_the_stream_typed_and_what_to_use(tmp_path: Path, capsys) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     sim = tmp_path / "sim"
     assert main(["-q", "simulate", "--duration", "20", "--seed", "3", "--pose-format", "position", str(sim)]) == 0
@@ -141,7 +141,7 @@ def test_validate_against_positions_only_names_the_stream_typed_and_what_to_use(
 def test_inspect_lists_every_pose_stream_of_a_bag(shared_data: Path, capsys, bag: str, streams: set[str]) -> None:
     import json
 
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     rc = main(["inspect", "--json", str(shared_data / "ros_bags" / bag)])
     report = json.loads(capsys.readouterr().out)
@@ -156,7 +156,7 @@ def test_inspect_lists_every_pose_stream_of_a_bag(shared_data: Path, capsys, bag
 def test_inspect_json_prints_a_document_for_errors_too(tmp_path: Path, capsys) -> None:
     import json
 
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     rc = main(["inspect", "--json", str(tmp_path / "missing")])
     captured = capsys.readouterr()
@@ -166,14 +166,14 @@ def test_inspect_json_prints_a_document_for_errors_too(tmp_path: Path, capsys) -
 
 
 def test_recover_still_asks_for_a_choice_among_pose_topics(shared_data: Path, capsys) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     rc = main(["recover", str(shared_data / "ros_bags" / "evo_test_data" / "ROS_example.bag"), "--out", "unused"])
     assert rc == 2 and "--pose-topic" in capsys.readouterr().err
 
 
 def test_report_first_box_says_what_was_checked_and_what_to_do(wrong_datasheet, tmp_path) -> None:
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     sim, rec = wrong_datasheet
     main(["-q", "validate", str(sim), "--recovery", str(rec), "--out", str(tmp_path / "val")])
@@ -214,7 +214,7 @@ def test_docs_csv_mapping_example_reads_a_csv(tmp_path: Path) -> None:
 def test_degenerate_wheel_odometry_hint_works(shared_data: Path, tmp_path: Path, capsys) -> None:
     """test2.bag (a Jackal's wheel odometry at 50 Hz) is degenerate with a keyframe per sample; the hint's
     first option, fewer keyframes, recovers it (with its limitations reported)."""
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     bag = shared_data / "ros_bags" / "robot_localization_test" / "test2.bag"
     rc = main(["-q", "recover", str(bag), "--out", str(tmp_path / "rec"), "--keyframe-rate", "10"])

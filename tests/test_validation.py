@@ -592,7 +592,7 @@ def test_recovery_folder_round_trip(noisy_sim, tmp_path):
 
 
 def test_cli_recovery_poses_reference_pass_and_fail(noisy_sim, tmp_path, capsys):
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     store = write_store(dataclasses.replace(noisy_sim.sequence, ground_truth=None), tmp_path / "store")
     true = _true_track(noisy_sim)
@@ -634,14 +634,14 @@ def test_cli_recovery_poses_reference_pass_and_fail(noisy_sim, tmp_path, capsys)
 
 
 def test_cli_defaults_match_the_config():
-    from pipeline.cli.commands.validate import DEFAULTS
+    from biasgt.cli.commands.validate import DEFAULTS
 
     d = ValidationConfig()
     assert vars(DEFAULTS) == {k: getattr(d, k) for k in vars(DEFAULTS)}
 
 
 def test_cli_bad_input_exit_2_and_nothing_written(noisy_sim, tmp_path, capsys):
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     store = write_store(noisy_sim.sequence, tmp_path / "store")
     (tmp_path / "bad.csv").write_text("hello,world\n1,2\n")

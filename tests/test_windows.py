@@ -16,7 +16,7 @@ from interpolation.bias import interpolate_bias
 from pipeline.bias_table import BiasTrack, read_bias_csv
 from recovery.outputs import read_report
 from pipeline import __version__
-from pipeline.cli.app import main
+from biasgt.cli.app import main
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from pipeline.sim import ImuNoiseConfig, PoseStreamConfig, SimConfig, simulate
 from pipeline.store import read_store, write_store

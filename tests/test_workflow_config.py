@@ -10,8 +10,8 @@ import yaml
 
 from pipeline.errors import ConfigError
 from pipeline.types import Split
-from pipeline.workflow.config import check_config, load_config, load_schema, SCHEMA_FILE, validate_schema
-from pipeline.workflow.params import (
+from biasgt.workflow.config import check_config, load_config, load_schema, SCHEMA_FILE, validate_schema
+from biasgt.workflow.params import (
     STAGE_CONFIGS,
     ingest_settings,
     interpolation_settings,
@@ -23,7 +23,7 @@ from pipeline.workflow.params import (
     windowed_sequences,
     windows_settings,
 )
-from pipeline.workflow.table import SourceKind, data_root
+from biasgt.workflow.table import SourceKind, data_root
 from workflow_configs import sim_entry, write_config
 
 REPO = Path(__file__).resolve().parents[1]

@@ -16,8 +16,8 @@ from pipeline.layout import (
     windows_dataset_dir,
 )
 from pipeline.types import Split
-from pipeline.workflow.config import load_config
-from pipeline.workflow.params import (
+from biasgt.workflow.config import load_config
+from biasgt.workflow.params import (
     FinalOutput,
     final_outputs,
     ingest_extra_inputs,
@@ -36,7 +36,7 @@ from pipeline.workflow.params import (
     windows_inputs,
     windows_settings,
 )
-from pipeline.workflow.table import SourceKind, WorkflowConfig
+from biasgt.workflow.table import SourceKind, WorkflowConfig
 from workflow_configs import sim_entry, write_config
 
 

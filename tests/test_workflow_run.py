@@ -17,9 +17,9 @@ import pytest
 import yaml
 
 from pipeline.errors import ConfigError, DataError
-from pipeline.workflow.config import DEFAULT_CONFIG, load_config
-from pipeline.workflow.params import stage_config, validation_settings
-from pipeline.workflow.run import (
+from biasgt.workflow.config import DEFAULT_CONFIG, load_config
+from biasgt.workflow.params import stage_config, validation_settings
+from biasgt.workflow.run import (
     WorkflowRunError,
     describe_failure,
     parse_dry_run_jobs,
@@ -27,7 +27,7 @@ from pipeline.workflow.run import (
     run_workflow,
     snakemake_command,
 )
-from pipeline.workflow.steps import interpolate_step, recover_step, report_step, run_step, validate_step, windows_step
+from biasgt.workflow.steps import interpolate_step, recover_step, report_step, run_step, validate_step, windows_step
 from workflow_configs import sim_entry, write_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -55,7 +55,7 @@ def test_run_step_logs_and_maps_errors(tmp_path):
     with pytest.raises(SystemExit) as info:
         run_step(log_path, bad)
     assert info.value.code == 2
-    assert "ERROR pipeline.workflow: in.csv: the data is wrong; fix it" in log_path.read_text()
+    assert "ERROR biasgt.workflow: in.csv: the data is wrong; fix it" in log_path.read_text()
 
     def bug():
         raise KeyError("k")
@@ -77,9 +77,9 @@ def test_run_step_names_the_slurm_job(tmp_path, monkeypatch):
 
 
 def test_snakefile_imports_no_torch():
-    """The Snakefile's imports (pipeline.workflow and its learning module) leave PyTorch out: Snakemake
+    """The Snakefile's imports (biasgt.workflow and its learning module) leave PyTorch out: Snakemake
     parses the Snakefile twice in every cluster job, and importing torch cost 1.3 s each time."""
-    code = ("import sys; import pipeline.workflow.config, pipeline.workflow.params, pipeline.workflow.learning; "
+    code = ("import sys; import biasgt.workflow.config, biasgt.workflow.params, biasgt.workflow.learning; "
             "print('torch' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, check=True,
                          env={"PYTHONPATH": str(REPO)})
@@ -98,7 +98,7 @@ def test_resolve_profile(tmp_path):
 @SPINE_GROUP
 def test_slurm_profile_sets_each_rules_resources(tmp_path, capsys):
     """A dry run with --profile slurm gives every job the profile's memory and time (attempt 1)."""
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     profile = yaml.safe_load((REPO / "workflow" / "profiles" / "slurm" / "config.yaml").read_text())
     assert profile["executor"] == "slurm" and profile["set-resources"]["train"]["gpu"] == 1
@@ -135,8 +135,8 @@ def test_snakemake_command(tmp_path):
 def test_describe_failure(tmp_path):
     (tmp_path / "logs" / "ingest").mkdir(parents=True)
     (tmp_path / "logs" / "ingest" / "a.log").write_text(
-        "2026-01-01 INFO pipeline.workflow: ingesting\n"
-        "2026-01-01 00:00:00,000 ERROR pipeline.workflow: in.csv: refusing to convert; rerun with --repair sort\n")
+        "2026-01-01 INFO biasgt.workflow: ingesting\n"
+        "2026-01-01 00:00:00,000 ERROR biasgt.workflow: in.csv: refusing to convert; rerun with --repair sort\n")
     lines = [  # what Snakemake 9 prints (trimmed)
         "localrule ingest:",
         "    input: results/simulate/b",
@@ -169,9 +169,9 @@ def test_describe_failure(tmp_path):
 def test_describe_failure_of_a_group_job(tmp_path):
     """A failed group job (the SLURM profile's 'sequence' group) lists all its rules as failed: the
     one named is the rule whose log holds the error, not the first in Snakemake's (alphabetical) list."""
-    for stage, text in (("ingest", "INFO pipeline.workflow: wrote results/ingest/b\n"),
-                        ("recovery", "INFO pipeline.workflow: recovering\n"
-                                     "2026-01-01 00:00:00,000 ERROR pipeline.workflow: no pose stream in b\n")):
+    for stage, text in (("ingest", "INFO biasgt.workflow: wrote results/ingest/b\n"),
+                        ("recovery", "INFO biasgt.workflow: recovering\n"
+                                     "2026-01-01 00:00:00,000 ERROR biasgt.workflow: no pose stream in b\n")):
         (tmp_path / "logs" / stage).mkdir(parents=True)
         (tmp_path / "logs" / stage / "b.log").write_text(text)
 
@@ -210,7 +210,7 @@ def test_parse_dry_run_jobs():
 
 
 def test_cli_reports_bad_config_on_one_line(tmp_path, capsys):
-    from pipeline.cli.app import main
+    from biasgt.cli.app import main
 
     cfg = write_config(tmp_path / "bad.yaml", {"sequences": [sim_entry("a"), sim_entry("a")]})
     assert main(["run", "--config", str(cfg), "--directory", str(tmp_path)]) == 2
@@ -254,7 +254,7 @@ def test_validate_step_fail_is_a_result_and_bad_input_stops(e2e_run, tmp_path):
     other, judged = data["sources"]["unshifted"], data["sources"]["recovered"]
     assert other["kind"] == "file" and data["candidate"] == "recovered"
     assert other["windows"] == judged["windows"] and other["prmse_m"] < 0.2 * judged["prmse_m"]
-    assert "WARNING pipeline.workflow: verdict FAIL for 'tiny_b'" in log_path.read_text()
+    assert "WARNING biasgt.workflow: verdict FAIL for 'tiny_b'" in log_path.read_text()
     # a missing recovery is an input error: exit 2, one logged line, nothing written
     with pytest.raises(SystemExit) as info:
         run_step(log_path, validate_step, store, tmp_path / "nowhere", tmp_path / "val2", settings)
@@ -362,7 +362,7 @@ def e2e_run(tmp_path_factory) -> E2E:
     })
     import argparse
 
-    from pipeline.cli.commands import run
+    from biasgt.cli.commands import run
 
     parser = argparse.ArgumentParser()
     run.register(parser.add_subparsers())

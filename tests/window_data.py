@@ -60,7 +60,7 @@ TINY_PLAN = {"preset": "tiny", "options": {"max_steps": 4, "batch_size": 8, "val
 
 def train_tiny(dataset: Path, out_dir: Path, method: str, steps: int = 4) -> Path:
     """Train ``method`` for ``steps`` steps at the tiny preset through the workflow's step."""
-    from pipeline.workflow.learning import TrainingPlan, train_step
+    from biasgt.workflow.learning import TrainingPlan, train_step
 
     plan = {**TINY_PLAN, "methods": [method], "options": {**TINY_PLAN["options"], "max_steps": steps}}
     return train_step(dataset, out_dir, TrainingPlan.from_mapping(plan).run_settings(method, 0), threads=1)

@@ -296,7 +296,7 @@ def start_run(config: Path, workdir: Path, *args: str, niceness: int = 0) -> Run
     """Start ``biasgt run`` under ``timeout -k`` (Snakemake ignores SIGTERM while jobs run), at
     ``niceness`` (nice(1)) relative to this script."""
     cmd = ["nice", "-n", str(niceness), "timeout", "-k", "15", str(RUN_TIMEOUT_S), sys.executable, "-m",
-           "pipeline.cli", "run", "--config", str(config), "--directory", str(workdir), *args]
+           "biasgt.cli", "run", "--config", str(config), "--directory", str(workdir), *args]
     proc = subprocess.Popen(cmd, env={**os.environ, "PYTHONPATH": str(REPO)}, cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     return Run(proc, workdir, time.monotonic())
@@ -447,7 +447,7 @@ def compare_results(local: Path, remote: Path) -> int:
 def corrupt_recording(folder: Path) -> tuple[Path, Path]:
     """Simulate a recording into ``folder`` with ``biasgt simulate`` and cut its IMU file to the
     header (a recording that lost its samples); returns (the IMU file, a copy of the good one)."""
-    subprocess.run([sys.executable, "-m", "pipeline.cli", "simulate", "--duration", "10", "--seed", "4",
+    subprocess.run([sys.executable, "-m", "biasgt.cli", "simulate", "--duration", "10", "--seed", "4",
                     "--preset", "handheld", "--pose-format", "mocap", str(folder)],
                    env={**os.environ, "PYTHONPATH": str(REPO)}, cwd=REPO, check=True, capture_output=True)
     imu = folder / "mav0" / "imu0" / "data.csv"

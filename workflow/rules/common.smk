@@ -1,10 +1,10 @@
 # Config validation, the sequence table and every input function (get_*) of the workflow.
-# The logic lives in pipeline/workflow/ (unit-tested); these are one-line adapters.
+# The logic lives in biasgt/workflow/ (unit-tested); these are one-line adapters.
 
 import os
 
-from pipeline.workflow import config as wf_config  # not 'config': that is Snakemake's config dict
-from pipeline.workflow import params as wf
+from biasgt.workflow import config as wf_config  # not 'config': that is Snakemake's config dict
+from biasgt.workflow import params as wf
 
 
 def _config_file():

@@ -4,7 +4,7 @@
 # params: the run's resolved TrainConfig, so that a changed option retrains, and adding a method
 # or a seed trains only the new runs.
 
-from pipeline.workflow import learning
+from biasgt.workflow import learning
 
 TRAINING_PLAN = learning.TrainingPlan.from_mapping(WF_CONFIG.section("training"))
 EVALUATION = learning.EvaluationConfig.from_mapping(WF_CONFIG.section("evaluation"))

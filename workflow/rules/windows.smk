@@ -36,7 +36,7 @@ def windows_dataset_input(wildcards):
 
 
 def windows_dataset_checksum(wildcards):
-    """The dataset's content checksum (pipeline.workflow.learning.dataset_checksum): a learning job's parameter."""
-    from pipeline.workflow.learning import dataset_checksum
+    """The dataset's content checksum (biasgt.workflow.learning.dataset_checksum): a learning job's parameter."""
+    from biasgt.workflow.learning import dataset_checksum
 
     return dataset_checksum(wf.windows_dataset_dir())

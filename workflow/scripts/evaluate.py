@@ -1,7 +1,7 @@
-"""Adapter of rules evaluate and evaluate_reference: all work is pipeline.workflow.learning.evaluate_step (unit-tested)."""
+"""Adapter of rules evaluate and evaluate_reference: all work is biasgt.workflow.learning.evaluate_step (unit-tested)."""
 
-from pipeline.workflow.learning import evaluate_step
-from pipeline.workflow.steps import run_step
+from biasgt.workflow.learning import evaluate_step
+from biasgt.workflow.steps import run_step
 
 wildcards = snakemake.wildcards  # noqa: F821
 run_step(

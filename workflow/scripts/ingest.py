@@ -1,6 +1,6 @@
-"""Adapter of rule ingest: all work is pipeline.workflow.steps.ingest_step (unit-tested)."""
+"""Adapter of rule ingest: all work is biasgt.workflow.steps.ingest_step (unit-tested)."""
 
-from pipeline.workflow.steps import ingest_step, run_step
+from biasgt.workflow.steps import ingest_step, run_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

@@ -1,6 +1,6 @@
-"""Adapter of rule interpolate: all work is pipeline.workflow.steps.interpolate_step (unit-tested)."""
+"""Adapter of rule interpolate: all work is biasgt.workflow.steps.interpolate_step (unit-tested)."""
 
-from pipeline.workflow.steps import interpolate_step, run_step
+from biasgt.workflow.steps import interpolate_step, run_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

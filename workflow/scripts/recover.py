@@ -1,6 +1,6 @@
-"""Adapter of rule recover: all work is pipeline.workflow.steps.recover_step (unit-tested)."""
+"""Adapter of rule recover: all work is biasgt.workflow.steps.recover_step (unit-tested)."""
 
-from pipeline.workflow.steps import recover_step, run_step
+from biasgt.workflow.steps import recover_step, run_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

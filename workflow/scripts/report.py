@@ -1,6 +1,6 @@
-"""Adapter of rule report: all work is pipeline.workflow.steps.report_step (unit-tested)."""
+"""Adapter of rule report: all work is biasgt.workflow.steps.report_step (unit-tested)."""
 
-from pipeline.workflow.steps import report_step, run_step
+from biasgt.workflow.steps import report_step, run_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

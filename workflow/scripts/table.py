@@ -1,9 +1,9 @@
-"""Adapter of rule table: all work is pipeline.workflow.learning.table_step (unit-tested)."""
+"""Adapter of rule table: all work is biasgt.workflow.learning.table_step (unit-tested)."""
 
 from pathlib import Path
 
-from pipeline.workflow.learning import table_step
-from pipeline.workflow.steps import run_step
+from biasgt.workflow.learning import table_step
+from biasgt.workflow.steps import run_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

@@ -1,7 +1,7 @@
-"""Adapter of rule train: all work is pipeline.workflow.learning.train_step (unit-tested)."""
+"""Adapter of rule train: all work is biasgt.workflow.learning.train_step (unit-tested)."""
 
-from pipeline.workflow.learning import train_step
-from pipeline.workflow.steps import run_step
+from biasgt.workflow.learning import train_step
+from biasgt.workflow.steps import run_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

@@ -1,6 +1,6 @@
 """Adapter of rule training_report: all work is reports.training.build_training_report (unit-tested)."""
 
-from pipeline.workflow.steps import run_step
+from biasgt.workflow.steps import run_step
 from reports.training import build_training_report
 
 run_step(

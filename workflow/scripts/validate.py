@@ -1,9 +1,9 @@
-"""Adapter of rule validate: all work is pipeline.workflow.steps.validate_step (unit-tested).
+"""Adapter of rule validate: all work is biasgt.workflow.steps.validate_step (unit-tested).
 
 A FAIL verdict is written and the job succeeds; only bad inputs fail the job.
 """
 
-from pipeline.workflow.steps import run_step, validate_step
+from biasgt.workflow.steps import run_step, validate_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

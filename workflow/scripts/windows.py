@@ -1,6 +1,6 @@
-"""Adapter of rule windows: all work is pipeline.workflow.steps.windows_step (unit-tested)."""
+"""Adapter of rule windows: all work is biasgt.workflow.steps.windows_step (unit-tested)."""
 
-from pipeline.workflow.steps import run_step, windows_step
+from biasgt.workflow.steps import run_step, windows_step
 
 run_step(
     snakemake.log[0],  # noqa: F821

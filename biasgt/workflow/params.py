@@ -33,7 +33,7 @@ from pipeline.layout import (  # noqa: F401  (the .smk files read these as wf.<n
     windows_dataset_dir,
 )
 from pipeline.types import Split
-from pipeline.workflow.table import (  # noqa: F401  (SourceKind: the .smk files read it as wf.SourceKind)
+from biasgt.workflow.table import (  # noqa: F401  (SourceKind: the .smk files read it as wf.SourceKind)
     READER_FORMAT,
     SequenceEntry,
     SourceKind,
@@ -48,7 +48,7 @@ from training.config import EvaluationConfig, TrainingPlan
 from training.windows_config import WindowConfig
 from validation.config import ValidationConfig
 
-log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'pipeline.workflow'
+log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'biasgt.workflow'
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,6 +1,6 @@
 """The ``biasgt`` command line: a thin layer over the importable stages.
 
-Each subcommand lives in ``pipeline/cli/commands/<name>.py`` and exposes
+Each subcommand lives in ``biasgt/cli/commands/<name>.py`` and exposes
 ``register(subparsers)`` which adds its parser and sets ``func(args) -> int``.
 Known errors (:class:`pipeline.errors.BiasgtError`) print one line and exit 2.
 """
@@ -16,7 +16,7 @@ from collections.abc import Sequence
 
 from pipeline import __version__
 from pipeline.atomic import check_output_location
-from pipeline.cli.commands import (
+from biasgt.cli.commands import (
     convert,
     evaluate,
     export,
@@ -36,7 +36,7 @@ from pipeline.errors import BiasgtError
 log = logging.getLogger("biasgt")
 
 #: Every command, in the order of the help text (the workflow's order). A command is a module of
-#: pipeline/cli/commands with ``register(subparsers)``; add one by importing it above and listing it here.
+#: biasgt/cli/commands with ``register(subparsers)``; add one by importing it above and listing it here.
 COMMANDS = (inspect, convert, simulate, recover, interpolate, validate, windows, train, evaluate, predict, export,
             report, run)
 

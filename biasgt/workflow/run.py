@@ -19,10 +19,10 @@ from typing import IO
 
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.layout import RESULTS_DIR
-from pipeline.workflow.config import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE, config_warnings, load_config
-from pipeline.workflow.process_group import exclusive_lock, start_group, stop_group
+from biasgt.workflow.config import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE, config_warnings, load_config
+from biasgt.workflow.process_group import exclusive_lock, start_group, stop_group
 
-log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'pipeline.workflow'
+log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'biasgt.workflow'
 
 
 class WorkflowRunError(BiasgtError):
@@ -222,17 +222,17 @@ RUN_LOCK = Path(".snakemake") / "biasgt-run.lock"
 def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool, workdir: Path,
                    progress_interval_s: float) -> tuple[int, list[str]]:
     """Run Snakemake in its own process group, copying its output to ``echo`` with one line per running
-    job every ``progress_interval_s`` (:mod:`pipeline.workflow.job_progress`).
+    job every ``progress_interval_s`` (:mod:`biasgt.workflow.job_progress`).
 
     On Ctrl-C (KeyboardInterrupt), SIGTERM (the CLI's ``Terminated``) or any other exception,
     Snakemake gets SIGINT and its jobs SIGTERM; Snakemake cancels its jobs and removes their
     incomplete outputs, and only then does the exception go on
-    (:func:`pipeline.workflow.process_group.stop_group`).
+    (:func:`biasgt.workflow.process_group.stop_group`).
 
     Returns:
         Snakemake's exit status and the tail of its output (all of it with ``keep_all``).
     """
-    from pipeline.workflow.job_progress import JobProgress
+    from biasgt.workflow.job_progress import JobProgress
 
     log.info("running %s", " ".join(cmd))
     tail: list[str] = []
@@ -275,7 +275,7 @@ def run_workflow(
 
     Snakemake's own output (stdout and stderr) is copied to ``echo`` (default ``sys.stderr``) as it
     comes, so that the caller's stdout holds only its result; every ``progress_interval_s`` one line
-    per running job (its log's last line: :mod:`pipeline.workflow.job_progress`) goes there too.
+    per running job (its log's last line: :mod:`biasgt.workflow.job_progress`) goes there too.
 
     Args:
         config_file: Workflow config (default: the repository's ``config/config.yaml``).

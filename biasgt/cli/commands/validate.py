@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.atomic import OutputKind
-from pipeline.cli.commands._args import (
+from biasgt.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
     add_window_arguments,

@@ -15,7 +15,7 @@ from collections import Counter
 from pathlib import Path
 
 from pipeline.layout import Stage
-from pipeline.workflow.run import _JOB_HEADER
+from biasgt.workflow.run import _JOB_HEADER
 
 #: Rules that depend on the window dataset through its checksum (directly or through evaluations).
 DATASET_CONTENT_RULES = ("train", "evaluate", "evaluate_reference", "table", "training_report")

@@ -25,15 +25,15 @@ from pipeline.configs import unknown_keys_message
 from pipeline.errors import ConfigError
 from pipeline.sim.config import SimConfig
 from pipeline.types import Split
-from pipeline.workflow.params import STAGE_CONFIGS, _check_ingest_settings, _check_stage_settings, resolved_section
-from pipeline.workflow.table import SequenceEntry, SourceKind, WorkflowConfig, _sim_dict, data_root, resolve_input_path
+from biasgt.workflow.params import STAGE_CONFIGS, _check_ingest_settings, _check_stage_settings, resolved_section
+from biasgt.workflow.table import SequenceEntry, SourceKind, WorkflowConfig, _sim_dict, data_root, resolve_input_path
 
 
 def _workflow_root() -> Path:
     """The folder holding the Snakefile, ``workflow/`` and ``config/config.yaml``: the copy an
-    installed package ships (``pipeline/workflow_files``, see setup.py), else the source checkout
+    installed package ships (``biasgt/workflow_files``, see setup.py), else the source checkout
     the package runs from (an editable install or ``PYTHONPATH``)."""
-    shipped = importlib.resources.files("pipeline") / "workflow_files"
+    shipped = importlib.resources.files("biasgt") / "workflow_files"
     if shipped.joinpath("Snakefile").is_file():
         return Path(str(shipped))
     return Path(__file__).resolve().parents[2]

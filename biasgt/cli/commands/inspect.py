@@ -13,7 +13,7 @@ from typing import Any
 
 from pipeline.checks.options import Verdict
 from pipeline.checks.run import run_checks, stream_summaries, verdict
-from pipeline.cli.commands._args import (
+from biasgt.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
     check_options_from_args,

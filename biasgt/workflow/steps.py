@@ -20,9 +20,9 @@ from pipeline.errors import BiasgtError, ConfigError
 from pipeline.ingest import ingest
 from pipeline.sim.config import SimConfig
 from pipeline.store import read_store
-from pipeline.workflow.params import make_check_options, stage_config
+from biasgt.workflow.params import make_check_options, stage_config
 
-log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'pipeline.workflow'
+log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'biasgt.workflow'
 
 
 def run_step(log_path: str | Path, func: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:

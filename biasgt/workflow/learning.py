@@ -31,7 +31,7 @@ from training.table import TABLE_CSV, TABLE_MD, write_table
 # torch and the evaluation are imported by the steps that use them: the Snakefile imports this
 # module for its paths, and Snakemake parses the Snakefile twice in every cluster job.
 
-log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'pipeline.workflow'
+log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'biasgt.workflow'
 
 __all__ = [
     "TrainingPlan",
@@ -138,12 +138,12 @@ def dataset_checksum(root: str | Path) -> str | None:
 
 def torchrun_command(config: TrainConfig, dataset_dir: Path, out_dir: Path, processes: int,
                      config_file: Path) -> list[str]:
-    """``torchrun --standalone --nproc-per-node N -m pipeline.cli train ...`` for one run.
+    """``torchrun --standalone --nproc-per-node N -m biasgt.cli train ...`` for one run.
 
     ``config_file`` must hold ``config``'s options (YAML); the command line adds nothing else.
     """
     return [sys.executable, "-m", "torch.distributed.run", "--standalone", f"--nproc-per-node={processes}",
-            "-m", "pipeline.cli", "-q", "train", "--dataset", str(dataset_dir), "--out", str(out_dir),
+            "-m", "biasgt.cli", "-q", "train", "--dataset", str(dataset_dir), "--out", str(out_dir),
             "--config", str(config_file)]
 
 

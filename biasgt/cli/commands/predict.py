@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.cli.commands._args import (
+from biasgt.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
     check_options_from_args,

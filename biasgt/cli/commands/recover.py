@@ -11,7 +11,7 @@ import logging
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
-from pipeline.cli.commands._args import (
+from biasgt.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,
     check_options_from_args,

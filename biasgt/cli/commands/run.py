@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from pipeline.workflow.config import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE
-from pipeline.workflow.run import resolve_profile, run_workflow
+from biasgt.workflow.config import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE
+from biasgt.workflow.run import resolve_profile, run_workflow
 
 DESCRIPTION = f"""\
 Run the biasgt workflow ({SNAKEFILE}) with Snakemake, stage by stage: simulate / ingest every
@@ -82,7 +82,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def main(args: argparse.Namespace) -> int:
     import io
 
-    from pipeline.workflow.run_summary import dry_run_summary, finished_summary
+    from biasgt.workflow.run_summary import dry_run_summary, finished_summary
 
     profile = [] if args.profile is None else ["--profile", str(resolve_profile(args.profile))]
     # a dry run prints Snakemake's whole plan only with -v; else one line says what would run and why

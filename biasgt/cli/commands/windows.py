@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from pipeline.atomic import OutputKind
-from pipeline.cli.commands._args import add_window_arguments
+from biasgt.cli.commands._args import add_window_arguments
 from pipeline.errors import ConfigError
 from pipeline.types import Split
 from training.windows_config import WindowConfig

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from interpolation.config import InterpolationConfig, InterpolationMethod
 from pipeline.atomic import OutputKind
-from pipeline.cli.commands._args import add_reader_arguments, reader_kwargs_from_args
+from biasgt.cli.commands._args import add_reader_arguments, reader_kwargs_from_args
 
 log = logging.getLogger(__name__)
 _DEFAULTS = InterpolationConfig()

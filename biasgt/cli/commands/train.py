@@ -36,7 +36,7 @@ examples:
   biasgt train --dataset results/windows --method diffusion_rnn --out runs/diffusion_rnn
   biasgt train --dataset ds --method regression_rnn --preset tiny --max-steps 200 --out runs/reg
   biasgt train --dataset ds --method diffusion_rnn --out runs/d --resume
-  torchrun --nproc-per-node 2 -m pipeline.cli train --dataset ds --method diffusion_rnn --out runs/ddp
+  torchrun --nproc-per-node 2 -m biasgt.cli train --dataset ds --method diffusion_rnn --out runs/ddp
 """
 
 

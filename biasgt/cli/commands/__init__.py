@@ -1,0 +1,1 @@
+"""Subcommands of the ``biasgt`` CLI, one module each (see :mod:`biasgt.cli`)."""

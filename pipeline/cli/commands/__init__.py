@@ -1,1 +1,0 @@
-"""Subcommands of the ``biasgt`` CLI, one module each (see :mod:`pipeline.cli`)."""
