@@ -14,7 +14,7 @@ from pathlib import Path
 import grimp
 
 REPO = Path(__file__).resolve().parents[1]
-PACKAGES = ("pipeline", "recovery", "interpolation", "validation", "training", "reports")
+PACKAGES = ("biasgt", "pipeline", "recovery", "interpolation", "validation", "training", "reports")
 
 
 def test_import_linter_contracts_hold() -> None:
