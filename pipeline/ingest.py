@@ -47,19 +47,6 @@ def load(input_path: str | Path, reader_kwargs: Mapping[str, Any] | None = None)
     return seq
 
 
-def input_format(seq: Sequence) -> str | None:
-    """The input format a reader recorded in ``seq.metadata`` (``"asl"``, ``"rosbag1"``, ...), if any."""
-    md = seq.metadata
-    for key in ("format", "source_format"):
-        if isinstance(md.get(key), str):
-            return md[key]
-    bag = md.get("bag")
-    if isinstance(bag, dict) and isinstance(bag.get("format"), str):
-        return bag["format"]
-    kind = md.get("source_kind")
-    return kind if isinstance(kind, str) else None
-
-
 @dataclass
 class CheckedSequence:
     """A sequence after checks (and possibly repairs).
@@ -142,17 +129,14 @@ def load_checked(
 ) -> Sequence:
     """Load an input for a stage that uses it directly (recover, validate, interpolate), checked as ``convert`` would.
 
-    A canonical store was checked (and repaired as its writer allowed) when it was written and
-    is used as it is; any other input runs the same checks and repairs as ``biasgt convert``, so
-    wrong units, NaN rows or unsorted stamps never reach a result silently.
+    Every input, a canonical store included, runs the same checks and repairs as ``biasgt convert``,
+    so wrong units, NaN rows or unsorted stamps never reach a result silently.
 
     Raises:
         FatalCheckError: A fatal or an unrepaired repairable problem; the hint names the
             ``--repair`` flags (or ``--ignore`` for a false positive).
     """
     seq = load(input_path, reader_kwargs)
-    if input_format(seq) == "store":
-        return seq
     checked = check_and_repair(seq, repairs, check_options)
     refusal = refusal_message(checked.findings, action)
     if refusal is not None:

@@ -136,8 +136,8 @@ def write_store(sequence: Sequence, out_dir: str | Path) -> Path:
 
 
 
-def read_store(path: str | Path) -> Sequence:
-    """Read a canonical store folder written by :func:`write_store`."""
+def read_store(path: str | Path, *, name: str | None = None) -> Sequence:
+    """Read a canonical store folder written by :func:`write_store` (named ``name`` if given, else as stored)."""
     path = Path(path)
     meta_path = path / META_FILE
     if not meta_path.is_file():
@@ -176,7 +176,7 @@ def read_store(path: str | Path) -> Sequence:
             _stack(cols, ["ba_x", "ba_y", "ba_z"], p),
         )
     return Sequence(
-        name=meta["name"],
+        name=name or meta["name"],
         imu=imu,
         poses=poses,
         ground_truth=gt,

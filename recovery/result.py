@@ -16,6 +16,7 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 
 from pipeline.bias_table import BiasTrack
+from pipeline.io.registry import recorded_format
 from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import (
     PoseFactorMode,
@@ -144,13 +145,12 @@ def _result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, offset: 
                              "extrinsic_rotation_observable": ext_init.rotation_observable}
     if noise.window_s is not None:
         flags["noise_window_s"] = noise.window_s
-    source_kind = sequence.metadata.get("source_format") or sequence.metadata.get("source_kind")
     report: dict[str, Any] = {
         "sequence": sequence.name,
         "pose_stream": inputs.stream,
         "pose_source_kind": inputs.kind.value,
         "pose_frame": inputs.poses.frame,
-        "input_format": source_kind if isinstance(source_kind, str) else None,
+        "input_format": recorded_format(sequence.metadata),
         "pose_factor_mode": inputs.pose_mode.value,
         "pose_time_offset_s": float(offset.offset_s),
         "pose_time_offset_std_s": float(offset.std_s),

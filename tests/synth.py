@@ -47,7 +47,7 @@ def make_sequence(duration_s: float = 10.0, imu_rate_hz: float = 200.0, pose_rat
     """A clean sequence with an IMU and one pose stream ``vicon0`` on the same clock."""
     return Sequence(name=name, imu=make_imu(duration_s, imu_rate_hz, **kw),
                     poses={"vicon0": make_poses(duration_s, pose_rate_hz, **kw)},
-                    metadata={"source_kind": "synthetic"})
+                    metadata={"source_format": "synthetic"})
 
 
 def write_recovery_folder(folder, bias, report: dict, trajectory: PoseSeries | None = None):

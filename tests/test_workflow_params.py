@@ -36,7 +36,7 @@ from biasgt.workflow.params import (
     windows_inputs,
     windows_settings,
 )
-from biasgt.workflow.table import SourceKind, WorkflowConfig
+from biasgt.workflow.table import SIMULATE, WorkflowConfig
 from workflow_configs import sim_entry, write_config
 
 
@@ -186,7 +186,7 @@ def test_final_outputs_registry(mixed_cfg):
         FinalOutput("evaluate", "results/evaluate/{sequence}/metrics.json", splits=(Split.TEST,)),
         FinalOutput("train", "results/train/model.pt"),
         FinalOutput("report", lambda cfg: [f"results/report/{len(cfg.names)}.html"]),
-        FinalOutput("simulate", "results/simulate/{sequence}", sources=(SourceKind.SIMULATE,)),
+        FinalOutput("simulate", "results/simulate/{sequence}", sources=(SIMULATE,)),
     ]
     assert final_outputs(registry, mixed_cfg) == [
         "results/ingest/sim1", "results/ingest/seqA", "results/ingest/tum1", "results/ingest/semi",

@@ -1,8 +1,9 @@
 """Reading a workflow config: :func:`load_config` / :func:`validate_schema` / :func:`check_config`.
 
 Apply the JSON schema (``workflow/schemas/config.schema.yaml``, with its defaults, exactly as
-``snakemake.utils.validate`` does) and check what a schema cannot say (unique names, existing
-input paths, simulator settings, the stage sections). Errors are
+``snakemake.utils.validate`` does) and check what a schema cannot say (each entry's source and
+pose format among the registered readers, unique names, existing input paths, simulator
+settings, the stage sections). Errors are
 :class:`~pipeline.errors.ConfigError` naming the config file and the sequence entry. Also where
 the workflow's files are (:data:`SNAKEFILE`, :data:`SCHEMA_FILE`, :data:`DEFAULT_CONFIG`,
 :data:`PROFILES_DIR`).
@@ -26,7 +27,17 @@ from pipeline.errors import ConfigError
 from pipeline.sim.config import SimConfig
 from pipeline.types import Split
 from biasgt.workflow.params import STAGE_CONFIGS, _check_ingest_settings, _check_stage_settings, resolved_section
-from biasgt.workflow.table import SequenceEntry, SourceKind, WorkflowConfig, _sim_dict, data_root, resolve_input_path
+from biasgt.workflow.table import (
+    SIMULATE,
+    SequenceEntry,
+    WorkflowConfig,
+    _sim_dict,
+    data_root,
+    resolve_input_path,
+    source_kind,
+    source_kinds,
+)
+from pipeline.io.registry import names as reader_names
 
 
 def _workflow_root() -> Path:
@@ -100,13 +111,40 @@ def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
     return where, message
 
 
+def _check_reader_names(data: dict[str, Any], config_file: str | Path | None) -> None:
+    """What the schema leaves to the reader registry: each entry's ``source`` is one of
+    :func:`~biasgt.workflow.table.source_kinds` and each ``poses[j].fmt`` a reader's name
+    (:func:`pipeline.io.registry.names`); other types are left to the schema.
+
+    Raises:
+        ConfigError: ``sequences[i].source (sequence 'name'): 'x' is not one of ...``.
+    """
+    sequences = data.get("sequences")
+    for i, entry in enumerate(sequences if isinstance(sequences, list) else []):
+        if not isinstance(entry, dict):
+            continue
+        label = f" (sequence '{entry['name']}')" if "name" in entry else ""
+        fields = [(f"sequences[{i}].source", entry.get("source"), source_kinds(), "source",
+                   "'simulate' or an input format (biasgt inspect --help lists them under --format)")]
+        poses = entry.get("poses")
+        for j, pose in enumerate(poses if isinstance(poses, list) else []):
+            if isinstance(pose, dict):
+                fields.append((f"sequences[{i}].poses[{j}].fmt", pose.get("fmt"), reader_names(), "fmt",
+                               "an input format (biasgt inspect --help lists them under --format), or leave it out"))
+        for where, value, allowed, field, hint in fields:
+            if isinstance(value, str) and value not in allowed:
+                raise ConfigError(f"{where}{label}: {value!r} is not one of {', '.join(allowed)}",
+                                  path=config_file, field=field, hint=hint)
+
+
 def validate_schema(
     data: Any, *, config_file: str | Path | None = None, schema_file: str | Path = SCHEMA_FILE
 ) -> dict[str, Any]:
     """Validate ``data`` against the workflow schema and fill in its defaults, in place.
 
     Same semantics as ``snakemake.utils.validate(config, schema)`` (draft 2020-12, defaults of
-    ``properties`` set before validating), usable without Snakemake.
+    ``properties`` set before validating), usable without Snakemake; first the names the schema
+    leaves to the reader registry (each entry's ``source`` and ``poses[].fmt``).
 
     Args:
         data: The parsed config.
@@ -122,6 +160,7 @@ def validate_schema(
     if not isinstance(data, dict):
         raise ConfigError(f"the config must be a mapping, got {type(data).__name__}", path=config_file,
                           hint="see config/config.yaml for an example")
+    _check_reader_names(data, config_file)
     schema = load_schema(schema_file)
     validate_properties = Draft202012Validator.VALIDATORS["properties"]
 
@@ -183,9 +222,9 @@ def check_config(
                 path=config_file, field="name", hint="give every sequence a unique name",
             )
         seen[name] = i
-        source = SourceKind(raw["source"])
+        source = source_kind(raw["source"])  # checked by _check_reader_names
         path = None
-        if source is SourceKind.SIMULATE:
+        if source == SIMULATE:
             sim = _sim_dict(raw, root, config_file, where)
             _check_sim_config(sim, config_file, where, check_paths)
         else:

@@ -33,15 +33,15 @@ from pipeline.layout import (  # noqa: F401  (the .smk files read these as wf.<n
     windows_dataset_dir,
 )
 from pipeline.types import Split
-from biasgt.workflow.table import (  # noqa: F401  (SourceKind: the .smk files read it as wf.SourceKind)
-    READER_FORMAT,
+from biasgt.workflow.table import (  # noqa: F401  (source_kind: the .smk files read it as wf.source_kind)
     SequenceEntry,
-    SourceKind,
     WorkflowConfig,
     _deep_merge,
     _sim_dict,
     data_root,
+    reader_format,
     resolve_input_path,
+    source_kind,
 )
 from recovery.config import RecoveryConfig
 from training.config import EvaluationConfig, TrainingPlan
@@ -82,7 +82,7 @@ def simulate_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     """
     entry = cfg.sequence(sequence)
     if not entry.is_simulated:
-        raise ConfigError(f"{entry.where} is not simulated (source '{entry.source.value}')",
+        raise ConfigError(f"{entry.where} is not simulated (source '{entry.source}')",
                           path=cfg.config_file, field="source")
     return _sim_dict(entry.raw, data_root(cfg.data, cfg.config_file), cfg.config_file, entry.where)
 
@@ -114,7 +114,7 @@ def ingest_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
 
     Returns:
         ``{"reader_kwargs", "repairs", "check_options"}``: keyword arguments of
-        :func:`pipeline.io.load_sequence` (``fmt`` from the source, ``asl`` for simulated
+        :func:`pipeline.io.load_sequence` (``fmt`` from the source, the simulator's reader for simulated
         sequences; ``name``; the entry's ``reader`` options), the allowed repairs (the entry's
         list, else ``ingest.repairs``) and the check options (``ingest.check_options`` updated by
         the entry's), all plain JSON-like values.
@@ -126,7 +126,7 @@ def ingest_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
         repairs = section.get("repairs") or []
     check_options = _deep_merge(section.get("check_options") or {}, entry.raw.get("check_options") or {})
     reader_kwargs: dict[str, Any] = dict(entry.raw.get("reader") or {})
-    reader_kwargs.update(fmt=READER_FORMAT[entry.source], name=entry.name)
+    reader_kwargs.update(fmt=reader_format(entry.source), name=entry.name)
     root = data_root(cfg.data, cfg.config_file)
     extra = [dict(p, path=str(resolve_input_path(p["path"], root))) for p in entry.raw.get("poses") or []]
     if extra:
@@ -348,13 +348,13 @@ class FinalOutput:
         pattern: A path pattern, expanded over sequences if it holds ``{sequence}``; or a
             function ``(WorkflowConfig) -> list[str]`` for anything else.
         splits: Only sequences with these splits (``None``: all).
-        sources: Only sequences from these sources (``None``: all).
+        sources: Only sequences from these sources (:func:`~biasgt.workflow.table.source_kinds`; ``None``: all).
     """
 
     stage: str
     pattern: str | Callable[[WorkflowConfig], list[str]]
     splits: tuple[Split, ...] | None = None
-    sources: tuple[SourceKind, ...] | None = None
+    sources: tuple[str, ...] | None = None
 
     def paths(self, cfg: WorkflowConfig) -> list[str]:
         if callable(self.pattern):

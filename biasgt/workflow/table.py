@@ -6,7 +6,6 @@ where each source's data comes from, and how an entry's paths resolve (:func:`da
 from __future__ import annotations
 
 import copy
-import enum
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -14,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import ConfigError
+from pipeline.io.asl import ASL_FORMAT
+from pipeline.io.registry import workflow_formats
 from pipeline.types import Split
 
 # SimConfig fields set by an entry's shorthand keys; ``overrides`` must not set them again.
@@ -26,24 +27,34 @@ _SIM_SHORTHANDS = {
 }
 
 
-class SourceKind(str, enum.Enum):
-    """Where a sequence's data comes from."""
-
-    SIMULATE = "simulate"  # the built-in simulator writes an ASL folder
-    ASL = "asl"  # EuRoC / ASL ``mav0`` folder
-    TUM = "tum"  # TUM pose text ("t tx ty tz qx qy qz qw")
-    CSV = "csv"  # generic CSV with a column mapping
-    BAG = "bag"  # ROS1 .bag, ROS2 bag folder, .db3 or .mcap
+#: The one source kind that is not a reader: the built-in simulator, which writes an ASL folder.
+SIMULATE = "simulate"
+#: The reader of what the simulator writes (the ``fmt`` its sequences are ingested with).
+SIMULATED_FORMAT = ASL_FORMAT
 
 
-#: The ``fmt`` given to :func:`pipeline.io.load_sequence` for each source.
-READER_FORMAT: dict[SourceKind, str] = {
-    SourceKind.SIMULATE: "asl",  # the simulator writes an ASL folder
-    SourceKind.ASL: "asl",
-    SourceKind.TUM: "tum",
-    SourceKind.CSV: "csv",
-    SourceKind.BAG: "rosbag",
-}
+def source_kinds() -> list[str]:
+    """Where a sequence's data may come from: :data:`SIMULATE`, then every reader of
+    :func:`pipeline.io.registry.workflow_formats` (a workflow entry's ``source:``)."""
+    return [SIMULATE, *workflow_formats()]
+
+
+def source_kind(value: str) -> str:
+    """``value`` if it is one of :func:`source_kinds`.
+
+    Raises:
+        ConfigError: It is not (the message lists them).
+    """
+    kinds = source_kinds()
+    if value not in kinds:
+        raise ConfigError(f"{value!r} is not one of {', '.join(kinds)}", field="source",
+                          hint="'simulate' or an input format (biasgt inspect --help lists them under --format)")
+    return value
+
+
+def reader_format(source: str) -> str:
+    """The ``fmt`` given to :func:`pipeline.io.load_sequence` for a sequence from ``source``."""
+    return SIMULATED_FORMAT if source == SIMULATE else source
 
 
 @dataclass(frozen=True)
@@ -52,7 +63,7 @@ class SequenceEntry:
 
     Attributes:
         name: Sequence name (safe for paths).
-        source: Where the data comes from.
+        source: Where the data comes from: one of :func:`source_kinds`.
         split: Train / test / none.
         index: Position in the ``sequences:`` list (0-based), for error messages.
         path: Resolved input file or folder (real sources), ``None`` for simulated ones.
@@ -60,7 +71,7 @@ class SequenceEntry:
     """
 
     name: str
-    source: SourceKind
+    source: str
     split: Split
     index: int
     path: Path | None
@@ -68,7 +79,7 @@ class SequenceEntry:
 
     @property
     def is_simulated(self) -> bool:
-        return self.source is SourceKind.SIMULATE
+        return self.source == SIMULATE
 
     @property
     def where(self) -> str:
@@ -96,11 +107,11 @@ class WorkflowConfig:
         return [s.name for s in self.sequences]
 
     def select(
-        self, *, splits: Iterable[Split | str] | None = None, sources: Iterable[SourceKind | str] | None = None
+        self, *, splits: Iterable[Split | str] | None = None, sources: Iterable[str] | None = None
     ) -> list[SequenceEntry]:
         """Entries whose split and source are among the given ones (``None``: any)."""
         split_set = None if splits is None else {Split(s) for s in splits}
-        source_set = None if sources is None else {SourceKind(s) for s in sources}
+        source_set = None if sources is None else {source_kind(s) for s in sources}
         return [
             s for s in self.sequences
             if (split_set is None or s.split in split_set) and (source_set is None or s.source in source_set)

@@ -1,13 +1,8 @@
 """Input readers and the dispatcher that picks one.
 
-Supported inputs (:class:`SourceFormat`):
-
-* ``STORE``: a canonical biasgt store folder (``sequence.yaml`` + Parquet), :mod:`pipeline.store`;
-* ``ASL``:   an ASL dataset folder (EuRoC MAV, TUM-VI: ``ROOT/mav0/imu0/data.csv``, ...) or one
-  ASL-format CSV (``#timestamp [ns], p_RS_R_x [m], ...``), :mod:`pipeline.io.asl`;
-* ``TUM``:   a TUM trajectory text file (``t[s] x y z qx qy qz qw``), :mod:`pipeline.io.tum`;
-* ``CSV``:   any CSV with a column mapping, :mod:`pipeline.io.csv_generic`;
-* ``BAG``:   a ROS 1 ``.bag``, ROS 2 ``.db3``/``.mcap`` file or bag folder, :mod:`pipeline.io.rosbag`.
+Supported inputs: the readers registered in :mod:`pipeline.io.registry` (each with its name,
+aliases, detection and loader; ``biasgt inspect --help`` lists them under ``--format``).
+:func:`load_sequence` reads any of them, :func:`detect_format` names the one that recognises a path.
 
 Pose-stream selection (:func:`select_pose_stream`), default priority:
 ``vicon0`` > ``mocap0`` > ``leica0`` > other MOCAP streams > other POSITION_TRACKER streams >
@@ -16,27 +11,34 @@ VIO streams > GROUND_TRUTH-kind pose streams > the ground-truth state as poses (
 
 from __future__ import annotations
 
-import enum
 import logging
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from pipeline.errors import AmbiguousInputError, ConfigError, DataError, InputFormatError, UnsupportedInputError
+from pipeline.errors import AmbiguousInputError, ConfigError, DataError, InputFormatError
 from pipeline.io._stamps import TimeUnit
 from pipeline.io.asl import (
     CODE_CALIBRATION_DEFAULTED,
     AslTable,
-    find_mav0,
     read_asl,
     read_asl_csv,
     read_asl_pose_csv,
-    sniff_asl_csv,
 )
 from pipeline.io.csv_generic import AccUnit, CsvMapping, GyroUnit, QuatOrder, read_csv_generic
+from pipeline.io.registry import (
+    SOURCE_FORMAT_KEY,
+    Reader,
+    detect_format,
+    parse_format,
+    recorded_format,
+    register,
+    select_reader,
+    supported_hint,
+    unregister,
+)
 from pipeline.io.tum import read_tum, write_tum
-from pipeline.store import is_store, read_store
 from pipeline.types import Finding, PoseSeries, PoseSourceKind, Sequence, Severity
 
 log = logging.getLogger(__name__)
@@ -53,130 +55,12 @@ _KIND_RANK = {
     PoseSourceKind.VIO: 2,
     PoseSourceKind.GROUND_TRUTH: 3,
 }
-BAG_SUFFIXES = (".bag", ".mcap", ".db3")
-TUM_SUFFIXES = (".txt", ".tum")
-
-SUPPORTED_HINT = (
-    "supported inputs: a biasgt store folder (sequence.yaml), an ASL/EuRoC/TUM-VI folder (mav0/imu0/data.csv) "
-    "or ASL CSV, a TUM trajectory (.txt/.tum: t x y z qx qy qz qw), a ROS bag (.bag, .mcap, .db3 or a folder "
-    "with metadata.yaml), or any CSV with a column mapping (--csv-mapping)"
-)
-
-
-class SourceFormat(str, enum.Enum):
-    """Kinds of input :func:`load_sequence` reads."""
-
-    STORE = "store"
-    ASL = "asl"
-    TUM = "tum"
-    CSV = "csv"
-    BAG = "bag"
-
-
-def _first_data_fields(path: Path, limit: int = 65536) -> list[str] | None:
-    """Whitespace fields of the first non-comment, non-blank line of a text file, or ``None``."""
-    try:
-        with path.open("r", encoding="utf-8-sig", errors="replace") as f:
-            head = f.read(limit)
-    except OSError:
-        return None
-    if "\x00" in head:
-        return None
-    for line in head.splitlines():
-        s = line.strip()
-        if s and not s.startswith("#"):
-            return s.split()
-    return None
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
-
-
-def _looks_tum(path: Path) -> bool:
-    fields = _first_data_fields(path)
-    return fields is not None and len(fields) == 8 and all(_is_number(x) for x in fields)
-
-
-def detect_format(path: str | Path) -> SourceFormat:
-    """Guess the kind of input at ``path``.
-
-    Rules: a folder with ``sequence.yaml`` is a STORE; a folder with ``mav0/`` or ``imu0/`` (or
-    ASL stream folders) is ASL; ``.bag``/``.mcap``/``.db3`` files and folders with ``metadata.yaml``
-    are BAG; a ``.txt``/``.tum`` file whose first data line has 8 numbers is TUM; a CSV whose header
-    is an ASL layout is ASL; any other CSV/text file is CSV (and needs a column mapping).
-
-    Raises:
-        InputFormatError: ``path`` does not exist.
-        UnsupportedInputError: Nothing fits.
-    """
-    path = Path(path)
-    if not path.exists():
-        raise InputFormatError("does not exist", path=path, hint="check the path")
-    if path.is_dir():
-        if is_store(path):
-            return SourceFormat.STORE
-        if find_mav0(path) is not None:
-            return SourceFormat.ASL
-        if (path / "metadata.yaml").is_file():
-            return SourceFormat.BAG
-        raise UnsupportedInputError("folder is not a recognised input", path=path, hint=SUPPORTED_HINT)
-    suffix = path.suffix.lower()
-    if suffix in BAG_SUFFIXES:
-        return SourceFormat.BAG
-    if suffix in TUM_SUFFIXES and _looks_tum(path):
-        return SourceFormat.TUM
-    if sniff_asl_csv(path) is not None:
-        return SourceFormat.ASL
-    if suffix in (".csv", ".txt", ".tsv", ".tum", ".dat"):
-        return SourceFormat.CSV
-    raise UnsupportedInputError(f"unrecognised file type '{suffix or path.name}'", path=path, hint=SUPPORTED_HINT)
-
-
-#: Other names accepted for a format (``--format rosbag``).
-FORMAT_ALIASES = {
-    "rosbag": SourceFormat.BAG, "ros": SourceFormat.BAG, "ros1": SourceFormat.BAG, "ros2": SourceFormat.BAG,
-    "rosbag1": SourceFormat.BAG, "rosbag2": SourceFormat.BAG, "mcap": SourceFormat.BAG, "db3": SourceFormat.BAG,
-    "euroc": SourceFormat.ASL, "tumvi": SourceFormat.ASL, "tum-vi": SourceFormat.ASL,
-    "parquet": SourceFormat.STORE, "biasgt": SourceFormat.STORE,
-}
-
-
-def parse_format(fmt: SourceFormat | str) -> SourceFormat:
-    """A :class:`SourceFormat` from its value or an alias (``"rosbag"``, ``"euroc"``), case-insensitive.
-
-    Raises:
-        ConfigError: Unknown format name.
-    """
-    if isinstance(fmt, SourceFormat):
-        return fmt
-    key = str(fmt).strip().lower()
-    if key in FORMAT_ALIASES:
-        return FORMAT_ALIASES[key]
-    try:
-        return SourceFormat(key)
-    except ValueError:
-        names = sorted({f.value for f in SourceFormat} | set(FORMAT_ALIASES))
-        raise ConfigError(f"unknown input format {fmt!r}", field="format",
-                          hint=f"use one of {', '.join(names)}") from None
-
-
-def _coerce_mapping(csv_mapping: CsvMapping | dict[str, Any] | str | Path | None) -> CsvMapping | None:
-    if csv_mapping is None or isinstance(csv_mapping, CsvMapping):
-        return csv_mapping
-    if isinstance(csv_mapping, dict):
-        return CsvMapping.from_dict(csv_mapping)
-    return CsvMapping.from_file(csv_mapping)
 
 
 def load_sequence(
     path: str | Path,
     *,
-    fmt: SourceFormat | str | None = None,
+    fmt: str | None = None,
     name: str | None = None,
     csv_mapping: CsvMapping | dict[str, Any] | str | Path | None = None,
     imu_topic: str | None = None,
@@ -190,7 +74,8 @@ def load_sequence(
 
     Args:
         path: File or folder.
-        fmt: Force a format; default :func:`detect_format` (a given ``csv_mapping`` implies CSV for files).
+        fmt: Force a format (a reader's name or alias, :func:`parse_format`); default
+            :func:`detect_format` (a given ``csv_mapping`` implies CSV for files).
         name: Sequence name; default from the path.
         csv_mapping: Column mapping for generic CSV: a :class:`CsvMapping`, a dict, or a YAML file path.
         imu_topic: ROS bags: IMU topic (default: the only sensor_msgs/Imu topic).
@@ -201,22 +86,23 @@ def load_sequence(
             and ground-truth or VIO poses from a TUM file): :class:`PoseInput`, ``"PATH"``,
             ``"PATH:KIND"`` or a dict with ``path`` and optional ``fmt``, ``stream``, ``kind``.
         all_pose_topics: ROS bags: read every pose topic (or tf pair) instead of refusing the
-            choice (for describing a bag, :func:`pipeline.io.rosbag.reader.read_bag`).
+            choice (for describing a bag, :func:`pipeline.io.rosbag.reader.read_bag`); ignored
+            by readers that do not take it.
 
     Returns:
-        The sequence, with the reader's findings and ``metadata["source_format"]``.
+        The sequence, with the reader's findings and ``metadata[SOURCE_FORMAT_KEY]``.
 
     Raises:
         InputFormatError: Missing or malformed input.
         UnsupportedInputError: Not a supported input; the message lists what is.
         ConfigError: An option that does not apply to this format, or a bad mapping.
     """
-    seq = _load_one(Path(path), fmt=fmt, name=name, csv_mapping=csv_mapping, imu_topic=imu_topic,
-                    pose_topic=pose_topic, tf_parent=tf_parent, tf_child=tf_child, all_pose_topics=all_pose_topics)
+    options = {"csv_mapping": csv_mapping, "imu_topic": imu_topic, "pose_topic": pose_topic,
+               "tf_parent": tf_parent, "tf_child": tf_child}
+    seq, reader = _load_one(Path(path), fmt=fmt, name=name, options=options, all_pose_topics=all_pose_topics)
     extras = [PoseInput.coerce(p) for p in extra_poses]
     seq = add_pose_inputs(seq, extras) if extras else seq
-    from_store = (parse_format(fmt) if fmt is not None else detect_format(Path(path))) is SourceFormat.STORE
-    return seq if from_store else _with_calibration_finding(seq)
+    return seq if reader.is_store else _with_calibration_finding(seq)
 
 
 def _with_calibration_finding(seq: Sequence) -> Sequence:
@@ -240,55 +126,18 @@ def _with_calibration_finding(seq: Sequence) -> Sequence:
     return replace(seq, findings=[*seq.findings, finding])
 
 
-def _load_one(
-    path: Path,
-    *,
-    fmt: SourceFormat | str | None,
-    name: str | None,
-    csv_mapping: CsvMapping | dict[str, Any] | str | Path | None,
-    imu_topic: str | None,
-    pose_topic: str | None,
-    tf_parent: str | None,
-    tf_child: str | None,
-    all_pose_topics: bool = False,
-) -> Sequence:
+def _load_one(path: Path, *, fmt: str | None, name: str | None, options: dict[str, Any],
+              all_pose_topics: bool = False) -> tuple[Sequence, Reader]:
+    """Read ``path`` with the reader :func:`~pipeline.io.registry.select_reader` picks, passing it
+    the given ``options`` (checked: each applies to this reader) and ``all_pose_topics`` where it takes it."""
     if not path.exists():
         raise InputFormatError("does not exist", path=path, hint="check the path")
-    mapping = _coerce_mapping(csv_mapping)
-    if fmt is None:
-        fmt = SourceFormat.CSV if (mapping is not None and path.is_file()) else detect_format(path)
-    else:
-        fmt = parse_format(fmt)
-    bag_opts = {"imu_topic": imu_topic, "pose_topic": pose_topic, "tf_parent": tf_parent, "tf_child": tf_child}
-    if fmt is not SourceFormat.BAG:
-        given = [k for k, v in bag_opts.items() if v is not None]
-        if given:
-            raise ConfigError(f"option {given[0]} applies to ROS bags only, but {path.name} is {fmt.value}",
-                              field=given[0], hint="drop the option, or pass a bag")
-    if mapping is not None and fmt is not SourceFormat.CSV:
-        raise ConfigError(f"a CSV mapping applies to CSV input only, but {path.name} is {fmt.value}",
-                          field="csv_mapping", hint="drop the mapping or force --format csv")
-    log.debug("loading %s as %s", path, fmt.value)
-    if fmt is SourceFormat.STORE:
-        seq = read_store(path)
-        if name:
-            seq.name = name
-        return seq
-    if fmt is SourceFormat.ASL:
-        return read_asl(path, name=name) if path.is_dir() else read_asl_csv(path, name=name)
-    if fmt is SourceFormat.TUM:
-        return read_tum(path, name=name)
-    if fmt is SourceFormat.CSV:
-        if mapping is None:
-            raise UnsupportedInputError(
-                "CSV file needs a column mapping (its header is not an ASL layout)", path=path,
-                hint="pass --csv-mapping FILE.yaml naming time_column, gyro/acc and/or position/quat columns; "
-                     + SUPPORTED_HINT,
-            )
-        return read_csv_generic(path, mapping, name=name)
-    from pipeline.io.rosbag.reader import read_bag  # rosbags takes ~0.3 s to import: load it for bags only
-
-    return read_bag(path, name=name, all_pose_topics=all_pose_topics, **bag_opts)
+    reader = select_reader(path, fmt, options)
+    kwargs = {k: v for k, v in options.items() if v is not None}
+    if "all_pose_topics" in reader.options:
+        kwargs["all_pose_topics"] = all_pose_topics
+    log.debug("loading %s as %s", path, reader.name)
+    return reader.loader()(path, name=name, **kwargs), reader
 
 
 @dataclass(frozen=True)
@@ -305,7 +154,7 @@ class PoseInput:
     """
 
     path: str
-    fmt: SourceFormat | None = None
+    fmt: str | None = None
     stream: str | None = None
     kind: PoseSourceKind | None = None
     pose_topic: str | None = None
@@ -354,8 +203,7 @@ def add_pose_inputs(sequence: Sequence, inputs: Iterable[PoseInput]) -> Sequence
         DataError: An input holds no poses, or a stream name would collide.
     """
     for item in inputs:
-        other = _load_one(Path(item.path), fmt=item.fmt, name=None, csv_mapping=None, imu_topic=None,
-                          pose_topic=item.pose_topic, tf_parent=None, tf_child=None)
+        other, _ = _load_one(Path(item.path), fmt=item.fmt, name=None, options={"pose_topic": item.pose_topic})
         streams = dict(other.poses)
         if not streams and other.ground_truth is not None:
             if sequence.ground_truth is None and item.stream is None and item.kind is None:
@@ -452,7 +300,8 @@ __all__ = [
     "GROUND_TRUTH_STREAM",
     "GyroUnit",
     "QuatOrder",
-    "SourceFormat",
+    "Reader",
+    "SOURCE_FORMAT_KEY",
     "TimeUnit",
     "detect_format",
     "list_pose_streams",
@@ -463,6 +312,10 @@ __all__ = [
     "read_asl_pose_csv",
     "read_csv_generic",
     "read_tum",
+    "recorded_format",
+    "register",
     "select_pose_stream",
+    "supported_hint",
+    "unregister",
     "write_tum",
 ]

@@ -36,6 +36,7 @@ from pipeline.errors import InputFormatError
 from pipeline.io._stamps import TimeUnit
 from pipeline.io._text import Delimiter, Header, ParsedTable, parse_table, read_text, split_header, table_findings
 from pipeline.io.sensor_yaml import IMU_NOISE_KEYS, load_sensor_yaml, read_imu_calibration, read_T_BS
+from pipeline.io.registry import SOURCE_FORMAT_KEY
 from pipeline.types import (
     Finding,
     ImuCalibration,
@@ -52,6 +53,8 @@ log = logging.getLogger(__name__)
 IMU_STREAM = "imu0"
 #: Ground-truth state folders, in order of preference.
 GROUND_TRUTH_STREAMS = ("state_groundtruth_estimate0", "gt0")
+#: The ASL reader's format name (pipeline.io.registry), recorded in ``metadata[SOURCE_FORMAT_KEY]``.
+ASL_FORMAT = "asl"
 #: Known pose-stream folders: (source kind, tracked-frame name).
 KNOWN_POSE_STREAMS: dict[str, tuple[PoseSourceKind, str]] = {
     "vicon0": (PoseSourceKind.MOCAP, "vicon_marker"),
@@ -268,7 +271,7 @@ def read_asl_pose_csv(
         name=name or default,
         poses={stream: poses},
         findings=findings,
-        metadata={"source_path": str(path), "source_format": "asl", "files": {f"poses/{stream}": str(path)}},
+        metadata={"source_path": str(path), SOURCE_FORMAT_KEY: ASL_FORMAT, "files": {f"poses/{stream}": str(path)}},
     )
 
 
@@ -293,6 +296,18 @@ def sniff_asl_csv(path: str | Path) -> AslTable | None:
     return classify_header(header.names)
 
 
+def detect_asl(path: str | Path) -> bool:
+    """Whether ``path`` is ASL input: a folder with ``mav0/`` (or its streams), or a CSV whose header is an ASL layout."""
+    path = Path(path)
+    return find_mav0(path) is not None if path.is_dir() else sniff_asl_csv(path) is not None
+
+
+def load_asl(path: str | Path, *, name: str | None = None) -> Sequence:
+    """An ASL folder (:func:`read_asl`) or one ASL CSV (:func:`read_asl_csv`) as a Sequence."""
+    path = Path(path)
+    return read_asl(path, name=name) if path.is_dir() else read_asl_csv(path, name=name)
+
+
 def read_asl_csv(path: str | Path, *, name: str | None = None,
                  source_kind: PoseSourceKind | None = None) -> Sequence:
     """Read one standalone ASL-format CSV of any kind (IMU, pose, position, EuRoC ground truth).
@@ -313,7 +328,7 @@ def read_asl_csv(path: str | Path, *, name: str | None = None,
     if kind in (AslTable.POSE, AslTable.POSITION):
         return read_asl_pose_csv(path, source_kind=source_kind, name=name)
     default = _standalone_stream_name(path)
-    meta = {"source_path": str(path), "source_format": "asl"}
+    meta = {"source_path": str(path), SOURCE_FORMAT_KEY: ASL_FORMAT}
     if kind in IMU_TABLES:
         imu, findings = read_asl_imu_csv(path)
         return Sequence(name=name or default, imu=imu, findings=findings,
@@ -455,5 +470,5 @@ def read_asl(path: str | Path, *, name: str | None = None) -> Sequence:
         ground_truth=ground_truth,
         calibration=calib,
         findings=findings,
-        metadata={"source_path": str(root), "source_format": "asl", "files": files},
+        metadata={"source_path": str(root), SOURCE_FORMAT_KEY: ASL_FORMAT, "files": files},
     )

@@ -30,12 +30,16 @@ import numpy as np
 import yaml
 
 from pipeline.configs import dataclass_to_mapping
-from pipeline.errors import ConfigError, InputFormatError
+from pipeline.errors import ConfigError, InputFormatError, UnsupportedInputError
 from pipeline.io._stamps import TimeUnit
 from pipeline.io._text import Delimiter, Header, parse_table, read_text, split_header, table_findings
+from pipeline.io.registry import SOURCE_FORMAT_KEY, supported_hint
 from pipeline.types import STANDARD_GRAVITY_MPS2, Finding, ImuSeries, PoseSeries, PoseSourceKind, Sequence
 
 log = logging.getLogger(__name__)
+
+#: Suffixes of a file read as generic CSV when no other reader recognises it.
+CSV_SUFFIXES = (".csv", ".txt", ".tsv", ".tum", ".dat")
 
 
 Column = str | int
@@ -269,6 +273,32 @@ def _mapped_columns(mapping: CsvMapping, header: Header, path: Path, ncols: int
     return t_col, gyro, acc, pos, quat, value_cols
 
 
+def detect_csv(path: str | Path) -> bool:
+    """Whether ``path`` may be read as generic CSV: a file with a :data:`CSV_SUFFIXES` suffix."""
+    path = Path(path)
+    return path.is_file() and path.suffix.lower() in CSV_SUFFIXES
+
+
+def load_csv(path: str | Path, *, name: str | None = None,
+             csv_mapping: CsvMapping | dict[str, Any] | str | Path | None = None) -> Sequence:
+    """Read a CSV through ``csv_mapping`` (a :class:`CsvMapping`, a dict or a YAML file path).
+
+    Raises:
+        UnsupportedInputError: No mapping given.
+        ConfigError: Invalid mapping.
+        InputFormatError: As :func:`read_csv_generic`.
+    """
+    if csv_mapping is None:
+        raise UnsupportedInputError(
+            "CSV file needs a column mapping (its header is not an ASL layout)", path=path,
+            hint="pass --csv-mapping FILE.yaml naming time_column, gyro/acc and/or position/quat columns; "
+                 + supported_hint(),
+        )
+    if not isinstance(csv_mapping, (CsvMapping, dict)):
+        csv_mapping = CsvMapping.from_file(csv_mapping)
+    return read_csv_generic(path, csv_mapping, name=name)
+
+
 def read_csv_generic(
     path: str | Path,
     mapping: CsvMapping | dict[str, Any],
@@ -339,6 +369,6 @@ def read_csv_generic(
         imu=imu,
         poses=poses,
         findings=findings,
-        metadata={"source_path": str(path), "source_format": "csv", "files": files,
+        metadata={"source_path": str(path), SOURCE_FORMAT_KEY: "csv", "files": files,
                   "csv_mapping": mapping.to_dict()},
     )

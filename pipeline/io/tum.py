@@ -18,12 +18,48 @@ from pipeline.atomic import atomic_path
 from pipeline.errors import DataError
 from pipeline.io._stamps import TimeUnit
 from pipeline.io._text import Delimiter, parse_table, read_text, split_header, table_findings
+from pipeline.io.registry import SOURCE_FORMAT_KEY
 from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
 
 log = logging.getLogger(__name__)
 
 TUM_COLUMNS = ("timestamp", "tx", "ty", "tz", "qx", "qy", "qz", "qw")
 _WHAT = "TUM trajectory (t[s] x y z qx qy qz qw, whitespace-separated)"
+#: File suffixes of a TUM trajectory.
+TUM_SUFFIXES = (".txt", ".tum")
+
+
+def _first_data_fields(path: Path, limit: int = 65536) -> list[str] | None:
+    """Whitespace fields of the first non-comment, non-blank line of a text file, or ``None``."""
+    try:
+        with path.open("r", encoding="utf-8-sig", errors="replace") as f:
+            head = f.read(limit)
+    except OSError:
+        return None
+    if "\x00" in head:
+        return None
+    for line in head.splitlines():
+        s = line.strip()
+        if s and not s.startswith("#"):
+            return s.split()
+    return None
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def detect_tum(path: str | Path) -> bool:
+    """Whether ``path`` is a TUM trajectory: a ``.txt``/``.tum`` file whose first data line has 8 numbers."""
+    path = Path(path)
+    if not path.is_file() or path.suffix.lower() not in TUM_SUFFIXES:
+        return False
+    fields = _first_data_fields(path)
+    return fields is not None and len(fields) == 8 and all(_is_number(x) for x in fields)
 
 
 def read_tum_poses(path: str | Path, *, source_kind: PoseSourceKind = PoseSourceKind.VIO, frame: str = "imu",
@@ -80,7 +116,7 @@ def read_tum(
         name=name or stream,
         poses={stream: poses},
         findings=findings,
-        metadata={"source_path": str(path), "source_format": "tum", "files": {f"poses/{stream}": str(path)}},
+        metadata={"source_path": str(path), SOURCE_FORMAT_KEY: "tum", "files": {f"poses/{stream}": str(path)}},
     )
 
 

@@ -25,9 +25,8 @@ from scipy.interpolate import CubicSpline, make_lsq_spline
 from scipy.spatial.transform import Rotation, RotationSpline
 
 from pipeline.errors import ConfigError, DataError, InputFormatError
-from pipeline.io import SourceFormat, detect_format
 from pipeline.io.asl import read_asl_state_csv
-from pipeline.io.tum import read_tum_poses
+from pipeline.io.tum import detect_tum, read_tum_poses
 from pipeline.sim.config import PresetParams
 from pipeline.types import PoseSeries, PoseSourceKind, StateSeries
 
@@ -167,7 +166,7 @@ def read_ground_truth_file(path: str | Path) -> StateSeries | PoseSeries:
     if not path.is_file():
         raise ConfigError("ground-truth file not found", path=path, field="motion.ground_truth_path")
     motion: StateSeries | PoseSeries
-    if detect_format(path) is SourceFormat.TUM:
+    if detect_tum(path):
         motion, findings = read_tum_poses(path, source_kind=PoseSourceKind.GROUND_TRUTH)
     else:
         motion, findings = read_asl_state_csv(path)

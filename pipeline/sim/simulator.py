@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from pipeline.errors import ConfigError
+from pipeline.io.registry import SOURCE_FORMAT_KEY
 from pipeline.sim.config import SimConfig
 from pipeline.sim.imu_model import BiasTruth, SensorMatrices, measure, sensor_matrices, simulate_bias
 from pipeline.sim.motion import (
@@ -173,7 +174,7 @@ def simulate(config: SimConfig) -> Simulation:
         ground_truth=ground_truth,
         calibration=_calibration(config, pose_truth),
         metadata={
-            "source_kind": "simulation",
+            SOURCE_FORMAT_KEY: "simulation",
             "seed": int(config.seed),
             "ground_truth_path": None
             if config.motion.ground_truth_path is None

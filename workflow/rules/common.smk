@@ -36,7 +36,7 @@ def final_output(stage, pattern, *, splits=None, sources=None):
             stage,
             pattern,
             None if splits is None else tuple(wf.Split(s) for s in splits),
-            None if sources is None else tuple(wf.SourceKind(s) for s in sources),
+            None if sources is None else tuple(wf.source_kind(s) for s in sources),
         )
     )
 

@@ -10,6 +10,7 @@ import yaml
 
 from pipeline.checks.options import CheckOptions, Repair
 from pipeline.errors import ConfigError
+from pipeline.io.registry import format_help
 
 
 def add_window_arguments(parser: argparse.ArgumentParser, window_s: float, overlap: float) -> None:
@@ -23,8 +24,7 @@ def add_window_arguments(parser: argparse.ArgumentParser, window_s: float, overl
 def add_reader_arguments(parser: argparse.ArgumentParser) -> None:
     """Options that choose how an input is read (passed to :func:`pipeline.io.load_sequence`)."""
     g = parser.add_argument_group("reader options")
-    g.add_argument("--format", dest="fmt", metavar="FMT", default=None,
-                   help="input format when auto-detection is not enough: store, asl, tum, csv or bag")
+    g.add_argument("--format", dest="fmt", metavar="FMT", default=None, help=format_help())
     g.add_argument("--imu-topic", metavar="TOPIC", help="bag topic with sensor_msgs/Imu (when there are several)")
     g.add_argument("--pose-topic", metavar="TOPIC", help="bag topic with the poses (PoseStamped, Odometry, ...)")
     g.add_argument("--tf-parent", metavar="FRAME", help="take poses from /tf: parent (world) frame")

@@ -20,7 +20,8 @@ from biasgt.cli.commands._args import (
     reader_kwargs_from_args,
 )
 from pipeline.errors import BiasgtError
-from pipeline.ingest import input_format, load, severity_rank
+from pipeline.ingest import load, severity_rank
+from pipeline.io.registry import readers_in_words, recorded_format
 from pipeline.jsonio import dumps, to_plain
 from pipeline.types import Finding, Sequence, Severity
 
@@ -36,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "inspect",
         help="check an input (streams, time stamps, units, overlap) without writing anything",
         description=(
-            "Read INPUT (EuRoC/ASL folder, TUM or CSV file, ROS1/ROS2 bag, canonical store), list its streams, "
+            f"Read INPUT ({readers_in_words()}; see --format), list its streams, "
             "and report every problem the input checks find, each with a stable code, a severity and how to fix it. "
             "Verdict: ok, repairable (biasgt convert --repair can fix it) or fatal. "
             "Exit code 0 = no fatal problem, 1 = fatal problem found, 2 = error."
@@ -55,7 +56,7 @@ def inspect_report(input_path: str, seq: Sequence, findings: list[Finding]) -> d
     return to_plain({
         "schema_version": SCHEMA_VERSION,
         "input": str(input_path),
-        "format": input_format(seq),
+        "format": recorded_format(seq.metadata, variant=True),
         "streams": stream_summaries(seq),
         "findings": [f.to_dict() for f in findings],
         "verdict": verdict(findings).value,

@@ -14,8 +14,8 @@ from biasgt.cli.commands._args import (
 
 DESCRIPTION = """\
 Predict the IMU bias of a recording from its readings alone (no poses needed), with a model trained
-by 'biasgt train' and rebuilt from its checkpoint. INPUT is anything 'biasgt inspect' reads (EuRoC/ASL
-folder, ROS bag, TUM/CSV with IMU) or a canonical store, checked as 'biasgt recover' checks it (an
+by 'biasgt train' and rebuilt from its checkpoint. INPUT is anything 'biasgt inspect' reads (with an
+IMU; the formats: --format below), checked as 'biasgt recover' checks it (an
 accelerometer in g or a gyro in deg/s is refused unless repaired with --repair). The IMU is cut into
 consecutive windows of
 the model's length; a diffusion model draws K samples per window (--samples).

@@ -18,6 +18,7 @@ from biasgt.cli.commands._args import (
     reader_kwargs_from_args,
 )
 from pipeline.ingest import load_checked
+from pipeline.io.registry import readers_in_words
 from pipeline.types import Sequence, Severity
 from recovery.config import (
     ExtrinsicMode,
@@ -53,7 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
     )
     p.add_argument("input", metavar="INPUT",
-                   help="ASL folder, ROS bag, TUM file or canonical store (more pose files: --add-poses)")
+                   help=f"{readers_in_words()} (see --format; more pose files: --add-poses)")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (replaced atomically)")
     p.add_argument("--poses", metavar="STREAM", default=None,
                    help="pose stream to use (default: vicon0 > mocap0 > leica0 > other mocap > ... > ground truth)")

@@ -26,6 +26,7 @@ from pipeline.io.rosbag.formats import (
     TF_MESSAGE,
     TRANSFORM_STAMPED,
 )
+from pipeline.io.registry import SOURCE_FORMAT_KEY
 from pipeline.types import NS_PER_S, Finding, ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence, Severity
 
 logger = logging.getLogger(__package__)  # reader and writer log as one: 'pipeline.io.rosbag'
@@ -608,7 +609,7 @@ def _read_open_bag(
     bag_meta = _bag_metadata(reader, path, open_path, topics, imu_name, poses, read_tf_pairs)
     return Sequence(
         name=seq_name, imu=imu, poses=poses, calibration=calibration, findings=findings,
-        metadata={"source_path": str(path), "source_kind": "rosbag", "bag": bag_meta},
+        metadata={"source_path": str(path), SOURCE_FORMAT_KEY: "rosbag", "bag": bag_meta},
     )
 
 
