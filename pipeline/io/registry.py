@@ -86,7 +86,7 @@ def _resolve(ref: Callable[..., Any] | str) -> Callable[..., Any]:
 def _builtin_readers() -> list[Reader]:
     """The readers biasgt ships, in detection order (a store folder first, generic CSV last)."""
     return [
-        Reader("store", "a biasgt store", "a biasgt store folder (sequence.yaml + Parquet, written by convert)",
+        Reader("store", "a biasgt store", "a biasgt store folder (sequence.yaml)",
                load="pipeline.store:read_store", detect="pipeline.store:is_store",
                aliases=("parquet", "biasgt"), is_store=True),
         Reader("asl", "an ASL/EuRoC/TUM-VI folder or ASL CSV",
@@ -94,10 +94,10 @@ def _builtin_readers() -> list[Reader]:
                load="pipeline.io.asl:load_asl", detect="pipeline.io.asl:detect_asl",
                aliases=("euroc", "tumvi", "tum-vi")),
         Reader("bag", "a ROS bag", "a ROS bag (.bag, .mcap, .db3 or a folder with metadata.yaml)",
-               load="pipeline.io.rosbag:load_bag", detect="pipeline.io.rosbag:detect_bag",
+               load="pipeline.io.rosbag.reader:read_bag", detect="pipeline.io.rosbag:detect_bag",
                aliases=("rosbag", "ros", "ros1", "ros2", "rosbag1", "rosbag2", "mcap", "db3"),
                options=("imu_topic", "pose_topic", "tf_parent", "tf_child", "all_pose_topics"),
-               variant="pipeline.io.rosbag:storage_format"),
+               variant="pipeline.io.rosbag.reader:storage_format"),
         Reader("tum", "a TUM trajectory", "a TUM trajectory (.txt/.tum: t x y z qx qy qz qw)",
                load="pipeline.io.tum:read_tum", detect="pipeline.io.tum:detect_tum"),
         Reader("csv", "a CSV with a column mapping", "any CSV with a column mapping (--csv-mapping)",

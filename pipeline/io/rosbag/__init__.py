@@ -24,28 +24,16 @@ and :mod:`~pipeline.io.rosbag.writer`.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 #: File suffixes of a bag (ROS 1 ``.bag``; ROS 2 storage files).
 BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 
 
 def detect_bag(path: str | Path) -> bool:
-    """Whether ``path`` is a bag: a :data:`BAG_SUFFIXES` file or a folder with ``metadata.yaml``."""
+    """Whether ``path`` is a bag: a :data:`BAG_SUFFIXES` file or a folder with ``metadata.yaml``.
+
+    Light on purpose (no ``rosbags`` import, ~0.3 s): it runs for every input that is detected.
+    """
     path = Path(path)
     return (path / "metadata.yaml").is_file() if path.is_dir() else path.suffix.lower() in BAG_SUFFIXES
-
-
-def load_bag(path: str | Path, **options: Any) -> Any:
-    """:func:`~pipeline.io.rosbag.reader.read_bag` (rosbags takes ~0.3 s to import: loaded here, for bags only)."""
-    from pipeline.io.rosbag.reader import read_bag
-
-    return read_bag(path, **options)
-
-
-def storage_format(metadata: Mapping[str, Any]) -> str | None:
-    """The bag's storage that the reader recorded (``"rosbag1"``, ``"rosbag2-mcap"``, ...), if any."""
-    bag = metadata.get("bag")
-    return bag["format"] if isinstance(bag, dict) and isinstance(bag.get("format"), str) else None

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import enum
 import logging
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -611,6 +612,12 @@ def _read_open_bag(
         name=seq_name, imu=imu, poses=poses, calibration=calibration, findings=findings,
         metadata={"source_path": str(path), SOURCE_FORMAT_KEY: "rosbag", "bag": bag_meta},
     )
+
+
+def storage_format(metadata: Mapping[str, Any]) -> str | None:
+    """The bag storage :func:`read_bag` recorded in ``metadata`` (``"rosbag1"``, ``"rosbag2-mcap"``, ...), if any."""
+    bag = metadata.get("bag")
+    return bag["format"] if isinstance(bag, dict) and isinstance(bag.get("format"), str) else None
 
 
 def _bag_metadata(reader: AnyReader, path: Path, open_path: Path, topics: dict[str, tuple[str, int]],
