@@ -90,7 +90,8 @@ def load_sequence(
             by readers that do not take it.
 
     Returns:
-        The sequence, with the reader's findings and ``metadata[SOURCE_FORMAT_KEY]``.
+        The sequence, with the reader's findings and ``metadata[SOURCE_FORMAT_KEY]`` (what the
+        reader recorded, else its name).
 
     Raises:
         InputFormatError: Missing or malformed input.
@@ -129,7 +130,8 @@ def _with_calibration_finding(seq: Sequence) -> Sequence:
 def _load_one(path: Path, *, fmt: str | None, name: str | None, options: dict[str, Any],
               all_pose_topics: bool = False) -> tuple[Sequence, Reader]:
     """Read ``path`` with the reader :func:`~pipeline.io.registry.select_reader` picks, passing it
-    the given ``options`` (checked: each applies to this reader) and ``all_pose_topics`` where it takes it."""
+    the given ``options`` (checked: each applies to this reader) and ``all_pose_topics`` where it
+    takes it; the reader's name is recorded as ``metadata[SOURCE_FORMAT_KEY]`` unless it recorded one."""
     if not path.exists():
         raise InputFormatError("does not exist", path=path, hint="check the path")
     reader = select_reader(path, fmt, options)
@@ -137,7 +139,10 @@ def _load_one(path: Path, *, fmt: str | None, name: str | None, options: dict[st
     if "all_pose_topics" in reader.options:
         kwargs["all_pose_topics"] = all_pose_topics
     log.debug("loading %s as %s", path, reader.name)
-    return reader.loader()(path, name=name, **kwargs), reader
+    seq = reader.loader()(path, name=name, **kwargs)
+    if not reader.is_store and recorded_format(seq.metadata) is None:  # a store keeps what its reader recorded
+        seq.metadata[SOURCE_FORMAT_KEY] = reader.name
+    return seq, reader
 
 
 @dataclass(frozen=True)
