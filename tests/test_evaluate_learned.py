@@ -15,8 +15,7 @@ from scipy.spatial.transform import Rotation
 from biasgt.cli.app import main
 from pipeline.errors import ConfigError, InputFormatError
 from biasgt.workflow.learning import TrainingPlan, evaluate_step, table_step
-from training.baselines import Baseline
-from training.config import Method, Sampler
+from training.config import Sampler
 from training.evaluate import CALIBRATION_LEVELS, CHANNELS, EvaluationConfig, evaluate_run, load_test_windows
 from training.outputs import Aggregation, read_summary
 from training.table import TABLE_MD
@@ -33,7 +32,7 @@ def trained(tmp_path_factory) -> Path:
     for method in METHODS:
         train_tiny(data, root / "training" / method, method, steps=6)
         evaluate_step(data, root / "evaluation" / method, EVAL, run_dir=root / "training" / method, method=method)
-    for ref in (Baseline.ZERO, Baseline.GROUND_TRUTH):
+    for ref in ("zero", "ground_truth"):
         evaluate_step(data, root / "evaluation" / ref.value, EVAL, reference=ref.value)
     return root
 
@@ -175,7 +174,7 @@ def test_cli_evaluate_and_bad_inputs(trained, tmp_path, capsys):
     assert "x0 clip (ddim): samples on the bound per channel:" in out
     # checkpoint of another method
     with pytest.raises(ConfigError, match="holds a regression_rnn model, not diffusion_rnn"):
-        evaluate_run(run, data, tmp_path / "x", method=Method.DIFFUSION_RNN)
+        evaluate_run(run, data, tmp_path / "x", method="diffusion_rnn")
     assert main(["evaluate", "--checkpoint", str(run), "--dataset", str(data), "--method", "diffusion_rnn",
                  "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err

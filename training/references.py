@@ -25,7 +25,8 @@ items of one test sequence: ``imu`` [B, T, 6], ``bias`` [B, T, 6], ``dt_s`` [B, 
 ``rng``
     A ``numpy.random.Generator`` seeded from the evaluation seed and the batch.
 ``info.<key>``
-    The sequence's value ``<key>`` in the dataset manifest's ``info`` (``None`` when it has none).
+    The sequence's value ``<key>`` in the dataset manifest's ``info`` (``None`` when it has none),
+    given as the keyword ``<key>``.
 any other name
     The per-window dataset array ``<name>`` (``sequences/<seq>/<name>.npy``, [B, ...] float64;
     NaN for a sequence without the file).
@@ -79,7 +80,7 @@ class ReferenceRow:
 
     def predict(self, items: dict[str, Any], inputs: dict[str, Any]) -> Any:
         """The row's bias [B, 1, T, 6] for ``items``, given the ``inputs`` it declared."""
-        return _resolve(self.bias)(items, **{n: inputs[n] for n in self.needs})
+        return _resolve(self.bias)(items, **{n.removeprefix("info."): inputs[n] for n in self.needs})
 
     def footnote(self, summaries: list[Any]) -> str | None:
         return None if self.note is None else _resolve(self.note)(summaries)
