@@ -33,7 +33,7 @@ def trained(tmp_path_factory) -> Path:
         train_tiny(data, root / "training" / method, method, steps=6)
         evaluate_step(data, root / "evaluation" / method, EVAL, run_dir=root / "training" / method, method=method)
     for ref in ("zero", "ground_truth"):
-        evaluate_step(data, root / "evaluation" / ref.value, EVAL, reference=ref.value)
+        evaluate_step(data, root / "evaluation" / ref, EVAL, reference=ref)
     return root
 
 

@@ -130,6 +130,25 @@ def test_checkpoint_with_the_flat_options_of_earlier_versions_still_loads(tmp_pa
     torch.testing.assert_close(b.model.net(x), a.model.net(x), rtol=0, atol=0)
 
 
+class _Stop(Exception):
+    pass
+
+
+def test_evaluate_cli_defaults_are_the_evaluation_configs(monkeypatch, tmp_path):
+    seen = {}
+
+    def evaluate_reference(name, dataset, out, config):
+        seen["config"] = config
+        raise _Stop
+
+    monkeypatch.setattr("training.evaluate.evaluate_reference", evaluate_reference)
+    args = build_parser().parse_args(["evaluate", "--reference", "zero", "--dataset", str(tmp_path), "--out",
+                                      str(tmp_path / "o")])
+    with pytest.raises(_Stop):
+        args.func(args)
+    assert seen["config"] == EvaluationConfig()  # every sampler of the dataclass, not ddim alone
+
+
 def test_unknown_network_option_names_the_allowed_ones():
     with pytest.raises(ConfigError, match="unknown diffusion_rnn option.*unet_dims") as info:
         ModelConfig.for_preset("diffusion_rnn", "tiny", unet_dims=(8, 16))
