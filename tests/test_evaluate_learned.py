@@ -16,6 +16,7 @@ from biasgt.cli.app import main
 from pipeline.errors import ConfigError, InputFormatError
 from biasgt.workflow.learning import TrainingPlan, evaluate_step, table_step
 from training.config import Sampler
+from training.dataset import STATE_BIAS
 from training.evaluate import CALIBRATION_LEVELS, CHANNELS, EvaluationConfig, evaluate_run, load_test_windows
 from training.outputs import Aggregation, read_summary
 from training.table import TABLE_MD
@@ -75,7 +76,7 @@ def test_diffusion_summary_rows_and_calibration(trained):
     assert kept == [f"sample{j}" for j in range(min(EXAMPLE_SAMPLES, EVAL["samples"]))]
     tw = load_test_windows(trained / "dataset")
     for (window, ch), part in ex[ex["sampler"] == "ddim"].groupby(["window", "channel"]):
-        np.testing.assert_allclose(part["dataset"].to_numpy(), tw.state_bias[window][:, CHANNELS.index(ch)], atol=1e-12)
+        np.testing.assert_allclose(part["dataset"].to_numpy(), tw.arrays[STATE_BIAS][window][:, CHANNELS.index(ch)], atol=1e-12)
 
 
 def _midpoint_end_states(imu: np.ndarray, bias: np.ndarray, dt_s: np.ndarray, R0: np.ndarray, v0: np.ndarray,
