@@ -140,7 +140,7 @@ BUILTIN = (
     ReferenceRow("ground_truth", "Recovered GT bias", "the recovered ground-truth bias itself (what the labels "
                  "allow)", f"{_B}:ground_truth_bias", oracle=True),
     ReferenceRow("random_walk_oracle", "Random walk (oracle)", "ground-truth bias at each window start plus 50 "
-                 "random walks, the best chosen with the ground-truth end pose: an oracle upper bound",
+                 "random walks, the best chosen with the ground-truth end pose",
                  f"{_B}:random_walk_oracle", oracle=True, needs=("random_walk", "gravity_mps2", "rng", "state_bias"),
                  note=f"{_B}:oracle_note"),
     ReferenceRow("random_walk_paper", "Random walk (oracle, paper's walks)", "the same oracle with the walks the "
