@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from pipeline.checks.options import FATAL_HINTS, REPAIR_FOR_CODE, CheckOptions, Repair, Verdict
+from pipeline.checks.options import FATAL_HINTS, REPAIR_FOR_CODE, CheckOptions, Repair
 from pipeline.checks.repairs import apply_repairs, parse_repairs
 from pipeline.checks.run import fatal_findings, reader_warnings, repairable_findings, run_checks, verdict
 from pipeline.errors import FatalCheckError
 from pipeline.io import load_sequence
 from pipeline.store import write_store
-from pipeline.types import NS_PER_S, Finding, Sequence, Severity
+from pipeline.types import NS_PER_S, Finding, Sequence, Severity, Verdict
 
 log = logging.getLogger(__name__)
 

@@ -59,6 +59,20 @@ class PoseSourceKind(str, enum.Enum):
     GROUND_TRUTH = "ground_truth"  # a dataset's own fused ground-truth state
 
 
+class Verdict(str, enum.Enum):
+    """The project's one three-level judgement of whether something is usable.
+
+    The validation's verdict on a bias (``validation.json``: PASS, WARN, FAIL; the rules are
+    :mod:`validation.rules`) and the input checks' on a recording (PASS: nothing wrong, WARN:
+    repairable, FAIL: fatal; ``biasgt inspect`` words them as
+    :data:`pipeline.checks.options.CHECK_VERDICT_WORDS`).
+    """
+
+    PASS = "PASS"
+    WARN = "WARN"
+    FAIL = "FAIL"
+
+
 class Severity(str, enum.Enum):
     """Severity of an input-check finding."""
 

@@ -21,6 +21,9 @@ from reports.quality_inputs import (_TITLE, ReportInputs, _better_worse, _candid
 
 log = logging.getLogger(__name__)
 
+#: The rule code of a reference that is the stream the bias was fitted to (validation.rules).
+NOT_INDEPENDENT = "NOT_INDEPENDENT"
+
 
 # ----------------------------------------------------------------------------- section 1: verdict
 
@@ -106,8 +109,7 @@ def checked_and_not(validation: dict[str, Any]) -> list[str]:
         against = "the sequence's ground-truth state (position, velocity, orientation)"
     else:
         against = f"the pose stream '{ref.get('stream', '?')}' (velocity from a smoothing spline of its positions)"
-    reasons = validation.get("reasons") if isinstance(validation.get("reasons"), list) else []
-    independent = not any("not an independent test" in str(r) for r in reasons)
+    independent = NOT_INDEPENDENT not in reason_codes(validation)
     baselines = sorted({str(s.get("kind")) for s in _sources(validation).values()}
                        & {"constant_first_window", "dataset"})
     return [
@@ -121,6 +123,13 @@ def checked_and_not(validation: dict[str, Any]) -> list[str]:
         "Not checked: drift over spans longer than one window; errors the reference and the IMU share (e.g. a "
         "wrong extrinsic used by both); IMU scale and misalignment (not modelled: the bias absorbs them).",
     ]
+
+
+def reason_codes(validation: Mapping[str, Any]) -> list[str]:
+    """The rule code of each reason (``validation.json`` ``reason_codes``; "" where a file lacks one)."""
+    codes = validation.get("reason_codes") if isinstance(validation.get("reason_codes"), list) else []
+    reasons = validation.get("reasons") if isinstance(validation.get("reasons"), list) else []
+    return [str(c) for c in codes] + [""] * (len(reasons) - len(codes))
 
 
 def plausibility_checked(validation: dict[str, Any]) -> list[str]:
@@ -152,8 +161,9 @@ def _verdict_section(inp: ReportInputs) -> Html:
     if inp.validation is not None:
         reasons = [str(r) for r in inp.validation.get("reasons") or []]
         if reasons:
-            body.append(p("Reasons:"))
-            body.append(ul(reasons))
+            body.append(p("Reasons (with the rule's code):"))
+            body.append(ul([Html(esc(r) + (" " + tag("code", esc(c), class_="rule") if c else ""))
+                            for r, c in zip(reasons, reason_codes(inp.validation))]))
         elif word == "PASS":
             body.append(p("No reason for concern was found in what was checked: the candidate is at least as good "
                           "as every baseline, few windows are flagged and few were dropped."))

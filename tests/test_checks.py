@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from synth import T0_NS, make_imu, make_poses, make_sequence
 
-from pipeline.checks.options import CHECK_CODES, CheckOptions, Repair, Verdict
+from pipeline.checks.options import CHECK_CODES, CheckOptions, Repair
 from pipeline.checks.repairs import apply_repairs, parse_repairs
 from pipeline.checks.run import STREAM_SUMMARY_KEYS, fatal_findings, run_checks, stream_summaries, verdict
 from pipeline.errors import ConfigError
-from pipeline.types import NS_PER_S, Finding, ImuSeries, Sequence, Severity, StateSeries
+from pipeline.types import NS_PER_S, Finding, ImuSeries, Sequence, Severity, StateSeries, Verdict
 
 
 def by_code(findings: list[Finding], code: str, stream: str | None = None) -> list[Finding]:
@@ -49,7 +49,7 @@ def test_clean_sequence_has_only_rate_info():
     assert rate["rate_hz"] == pytest.approx(200.0)
     assert rate["nominal_period_ms"] == pytest.approx(5.0)
     assert rate["dt_max_ms"] == pytest.approx(5.0)
-    assert verdict(findings) is Verdict.OK
+    assert verdict(findings) is Verdict.PASS
     json.dumps([f.to_dict() for f in findings], allow_nan=False)  # details are plain JSON
 
 
@@ -84,7 +84,7 @@ def test_non_monotonic_reported_and_sorted():
     assert f.details["max_backward_s"] == pytest.approx(0.005)
     assert f.details["first_t_s"][0] == pytest.approx(0.5)  # row 101 holds the stamp of row 100: 0.5 s
     assert "--repair sort" in f.message
-    assert verdict(run_checks(bad)) is Verdict.REPAIRABLE
+    assert verdict(run_checks(bad)) is Verdict.WARN
     fixed, changes = apply_repairs(bad, {Repair.SORT})
     np.testing.assert_array_equal(fixed.imu.t_ns, seq.imu.t_ns)
     np.testing.assert_array_equal(fixed.imu.gyro_radps, seq.imu.gyro_radps)
@@ -335,7 +335,7 @@ def test_quat_sign_flips_info_and_made_continuous():
     f = one(run_checks(bad), "QUAT_SIGN_FLIPS", "poses/vicon0")
     assert f.severity is Severity.INFO
     assert f.details["count"] == 3
-    assert verdict(run_checks(bad)) is Verdict.OK
+    assert verdict(run_checks(bad)) is Verdict.PASS
     fixed, changes = apply_repairs(bad, {Repair.CONTINUOUS_QUATERNIONS})
     np.testing.assert_allclose(fixed.poses["vicon0"].quat_wxyz, seq.poses["vicon0"].quat_wxyz)
     assert changes == ["poses/vicon0: made quaternions continuous (3 sign flips)"]
@@ -369,7 +369,7 @@ def test_no_time_overlap_fatal_and_warning_when_another_stream_overlaps():
     assert f.severity is Severity.FATAL
     assert f.details["offset_s"] == pytest.approx(100.0)
     assert f.details["overlap_s"] == 0
-    assert verdict(run_checks(seq)) is Verdict.FATAL
+    assert verdict(run_checks(seq)) is Verdict.FAIL
     seq.poses["vicon0"] = make_poses()
     f2 = one(run_checks(seq), "NO_TIME_OVERLAP", "poses/late")
     assert f2.severity is Severity.WARNING
@@ -406,7 +406,7 @@ def test_no_imu_fatal_unless_pose_only_allowed():
     assert "--allow-pose-only" in f.message
     g = one(run_checks(seq, CheckOptions(allow_pose_only=True)), "NO_IMU")
     assert g.severity is Severity.INFO
-    assert verdict(run_checks(seq, CheckOptions(allow_pose_only=True))) is Verdict.OK
+    assert verdict(run_checks(seq, CheckOptions(allow_pose_only=True))) is Verdict.PASS
 
 
 def test_no_poses_warning():
@@ -492,7 +492,7 @@ def test_all_repairs_together_give_a_clean_sequence():
     codes = {f.code for f in run_checks(bad)}
     assert {"NON_MONOTONIC", "DUPLICATE_STAMPS", "NONFINITE_ROWS", "GYRO_DEGPS", "ACC_IN_G"} <= codes
     fixed, changes = apply_repairs(bad, {"all"})
-    assert verdict(run_checks(fixed)) is Verdict.OK
+    assert verdict(run_checks(fixed)) is Verdict.PASS
     expected = np.delete(np.arange(len(imu)), 50)
     np.testing.assert_array_equal(fixed.imu.t_ns, imu.t_ns[expected])
     np.testing.assert_allclose(fixed.imu.gyro_radps, imu.gyro_radps[expected], rtol=1e-12)
@@ -511,5 +511,5 @@ def test_checks_on_one_hour_at_200_hz():
     poses = make_poses(duration_s=3600.0, rate_hz=100.0)
     seq = Sequence("hour", imu=ImuSeries(t, gyro, acc), poses={"vicon0": poses})
     findings = run_checks(seq)
-    assert verdict(findings) is Verdict.OK
+    assert verdict(findings) is Verdict.PASS
     assert math.isfinite(one(findings, "RATE", "imu").details["rate_hz"])

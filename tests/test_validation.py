@@ -487,7 +487,7 @@ def test_constructed_fail_with_a_biased_candidate(clean_sim):
 # ----------------------------------------------------------------------------- output files
 
 
-EXPECTED_KEYS = {"schema_version", "sequence", "verdict", "reasons", "candidate", "config", "reference",
+EXPECTED_KEYS = {"schema_version", "sequence", "verdict", "reasons", "reason_codes", "candidate", "config", "reference",
                  "gravity_mps2", "sources", "windows_dropped", "notes", "next_steps", "plausibility"}
 EXPECTED_SOURCE_KEYS = {"kind", "prmse_m", "roe_deg", "windows", "flagged", "flag_threshold_pos_m",
                         "flag_threshold_rot_deg", "sigma_prmse_m", "sigma_roe_deg", "mean_bias", "gravity_mps2"}

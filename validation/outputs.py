@@ -1,7 +1,7 @@
 """The validation stage's output folder, written and read in one place.
 
 Files (names defined here only): ``validation.json`` (:class:`ValidationSummary`: verdict,
-reasons, per-source metrics, reference, dropped windows, notes) and ``windows.parquet`` (one
+reasons and their rule codes, per-source metrics, reference, dropped windows, notes) and ``windows.parquet`` (one
 row per window and source: ``t0_ns, source, pos_err_m, rot_err_deg, flagged``).
 
 Non-finite numbers are written as ``null`` (:func:`pipeline.jsonio.dumps`).
@@ -9,7 +9,6 @@ Non-finite numbers are written as ``null`` (:func:`pipeline.jsonio.dumps`).
 
 from __future__ import annotations
 
-import enum
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,6 +21,7 @@ import pyarrow.parquet as pq
 from pipeline.atomic import atomic_dir, atomic_path
 from pipeline.errors import InputFormatError, ValidationError
 from pipeline.jsonio import JsonRecord, dumps, read_json_object
+from pipeline.types import Verdict  # the project's one verdict (the rules: validation.rules)
 
 SCHEMA_VERSION = 1
 VALIDATION_JSON = "validation.json"
@@ -31,14 +31,6 @@ HELDOUT_SOURCE = "recovered_heldout"
 WINDOWS_COLUMNS = ("t0_ns", "source", "pos_err_m", "rot_err_deg", "flagged")
 
 _RERUN = "re-run 'biasgt validate' (or the workflow's validate stage)"
-
-
-class Verdict(str, enum.Enum):
-    """Outcome of a validation (see :mod:`validation.validate` for the rules)."""
-
-    PASS = "PASS"
-    WARN = "WARN"
-    FAIL = "FAIL"
 
 
 @dataclass(frozen=True)
@@ -51,6 +43,7 @@ class ValidationSummary(JsonRecord):
         sequence: Sequence name.
         verdict: PASS, WARN or FAIL.
         reasons: Why (plain sentences).
+        reason_codes: The rule code of each reason (:data:`validation.rules.RULES`), same order.
         candidate: Name of the judged bias source.
         notes: What could not be validated, and other remarks.
         next_steps: What to do about a WARN or FAIL.
@@ -63,6 +56,7 @@ class ValidationSummary(JsonRecord):
     candidate: str
     notes: tuple[str, ...]
     next_steps: tuple[str, ...] = ()
+    reason_codes: tuple[str, ...] = ()
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], path: str | Path | None = None) -> ValidationSummary:
@@ -79,7 +73,8 @@ class ValidationSummary(JsonRecord):
         return cls(data=dict(data), sequence=str(data.get("sequence", "")), verdict=verdict,
                    reasons=tuple(str(r) for r in data.get("reasons") or ()),
                    candidate=str(data.get("candidate", "")), notes=tuple(str(n) for n in data.get("notes") or ()),
-                   next_steps=tuple(str(n) for n in data.get("next_steps") or ()))
+                   next_steps=tuple(str(n) for n in data.get("next_steps") or ()),
+                   reason_codes=tuple(str(c) for c in data.get("reason_codes") or ()))
 
 
 def read_summary(folder: str | Path) -> ValidationSummary:

@@ -76,7 +76,11 @@ class PlausibilityLimits:
 #: Pose sources whose world frame is level (z up), so gravity must point along -z.
 LEVEL_SOURCES = (PoseSourceKind.MOCAP, PoseSourceKind.GROUND_TRUTH, PoseSourceKind.POSITION_TRACKER)
 
-_FRAME_STEP = ("check the pose-to-IMU rotation: give the IMU's mounting (T_imu_<frame> in the calibration, e.g. "
+#: The next step of a bias beyond the sensor's range (:mod:`validation.rules`).
+BIAS_RANGE_STEP = ("if the sensor's bias range is larger, give it in sensor.yaml (gyroscope_bias_max [rad/s], "
+                   "accelerometer_bias_max [m/s^2]); else check the pose-to-IMU frame")
+#: The next step of a frame mismatch (:mod:`validation.rules`).
+FRAME_STEP = ("check the pose-to-IMU rotation: give the IMU's mounting (T_imu_<frame> in the calibration, e.g. "
                "from the URDF or a Kalibr run) and recover again, or recover with --extrinsic estimate so that the "
                "rotation is estimated; a pose stream that lacks rotation about some axis (planar wheel odometry) "
                "cannot give a bias ground truth")
@@ -89,14 +93,12 @@ class Implausible:
     Attributes:
         check: Which check found it.
         text: What was found, with the figure and its limit (a reason of the verdict).
-        next_step: What to do about it.
         value: The figure that triggered it (unit in ``text``).
         limit: Its limit.
     """
 
     check: PlausibilityCheck
     text: str
-    next_step: str
     value: float
     limit: float
 
@@ -117,9 +119,7 @@ def bias_range_findings(bias: np.ndarray, gyro_max_radps: float, acc_max_mps2: f
                 PlausibilityCheck.BIAS_RANGE,
                 f"impossible bias: the {name} bias reaches {value:.3g} {unit} on axis {'xyz'[axis]}, beyond the "
                 f"sensor's bias range of {limit:g} {unit} ({limit_source}): the bias absorbed something else, most "
-                "often gravity or rotation through a wrong pose-to-IMU frame",
-                "if the sensor's bias range is larger, give it in sensor.yaml (gyroscope_bias_max [rad/s], "
-                "accelerometer_bias_max [m/s^2]); else check the pose-to-IMU frame", value, limit))
+                "often gravity or rotation through a wrong pose-to-IMU frame", value, limit))
     return out
 
 
@@ -135,7 +135,7 @@ def gravity_findings(report: dict[str, Any], source_kind: str | None,
             out.append(Implausible(
                 PlausibilityCheck.GRAVITY_TILT,
                 f"frame mismatch: gravity is tilted {tilt:.1f} deg from the -z axis of the {source_kind} pose "
-                f"frame, which is level (more than {limits.max_gravity_tilt_deg:g} deg)", _FRAME_STEP, tilt,
+                f"frame, which is level (more than {limits.max_gravity_tilt_deg:g} deg)", tilt,
                 limits.max_gravity_tilt_deg))
     change = info.get("segment_max_tilt_change_rad")
     if isinstance(change, (int, float)) and math.degrees(change) > limits.max_gravity_tilt_change_deg:
@@ -144,7 +144,7 @@ def gravity_findings(report: dict[str, Any], source_kind: str | None,
             PlausibilityCheck.GRAVITY_TILT,
             f"frame mismatch: gravity changes direction by {deg:.1f} deg between parts of the recording (more than "
             f"{limits.max_gravity_tilt_change_deg:g} deg); the pose frame does not tilt, so the IMU's rotation and "
-            "the pose stream's disagree", _FRAME_STEP, deg, limits.max_gravity_tilt_change_deg))
+            "the pose stream's disagree", deg, limits.max_gravity_tilt_change_deg))
     return out
 
 
@@ -235,7 +235,7 @@ def rotation_findings(trajectory: PoseSeries, poses: PoseSeries, T_imu_pose: np.
     return [Implausible(
         PlausibilityCheck.ROTATION_RESIDUAL,
         f"frame mismatch: the recovered trajectory's {what} is {rms:.2f} deg RMS off the pose stream's (more than "
-        f"{limit:g} deg): the IMU's rotation and the pose stream's do not agree", _FRAME_STEP, rms, limit)]
+        f"{limit:g} deg): the IMU's rotation and the pose stream's do not agree", rms, limit)]
 
 
 def frame_swap_findings(sequence: Sequence, poses: PoseSeries, T_imu_pose: np.ndarray, time_offset_s: float,
@@ -266,7 +266,7 @@ def frame_swap_findings(sequence: Sequence, poses: PoseSeries, T_imu_pose: np.nd
         PlausibilityCheck.FRAME_SWAP,
         f"frame mismatch: at {lo:g}-{hi:g} Hz {what}, coherence {c.coherence[b, r]:.2f}, in "
         f"{int(counts[:, r, col].sum())} bands: no IMU error does that (scale and misalignment are percents), a "
-        "swapped or rotated frame does", _FRAME_STEP, abs(gain), limits.frame_swap_gain)]
+        "swapped or rotated frame does", abs(gain), limits.frame_swap_gain)]
 
 
 def plausibility_findings(sequence: Sequence, recovery: RecoveryOutputs,

@@ -15,12 +15,9 @@ Contracts:
       counted per reason, when it crosses an IMU gap, holds a non-finite sample, lacks a
       reference end or a bias.
     * Each row is integrated with its own gravity (stated per source in validation.json).
-    * The verdict (:func:`decide_verdict`): equal to a baseline up to the candidate's own sigma,
-      WARN within the margin, FAIL beyond it only when a paired one-sided t-test over
-      non-overlapping windows says so; worse than zero bias is always FAIL; limitations
-      (:func:`recovery_limitations`) make a PASS a WARN; every WARN/FAIL has next steps.
-    * Where the reference is the stream the bias was fitted to, the held-out blocks of the
-      cross-validation judge (FAIL when significantly worse than zero or constant bias).
+    * The verdict: every rule, its reason code, level and next step, in :mod:`validation.rules`
+      (``validation.json`` holds the codes beside the reasons). Where the reference is the stream
+      the bias was fitted to, the held-out blocks of the cross-validation judge.
 
 The derivations and measured figures behind these choices: docs/validation.md.
 """
@@ -51,10 +48,11 @@ from validation.reference import (ReferenceKind, ReferenceStates, build_referenc
                                   reference_from_states)
 from validation.sources import (BiasSource, BiasSourceKind, _bias_at, _infer_kind, _std_at, bias_sources, dataset_bias,
                                 read_bias_file, recovered_bias_at_imu)
-from validation.verdict import (Limitation, _paired_p_value, decide_verdict, input_limitations, recovery_limitations,
-                                sigma_window_errors)
+from validation.rules import Evidence, HeldOut, VerdictInputs, judge, next_steps_for, said_once
+from validation.verdict import Limitation, decide_verdict, input_limitations, recovery_limitations, sigma_window_errors
 from validation.plausibility import plausibility_findings
-from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, Verdict, write_folder
+from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, write_folder
+from pipeline.types import Verdict
 
 log = logging.getLogger(__name__)
 
@@ -73,6 +71,7 @@ __all__ = [
     "ValidationConfig",
     "ValidationResult",
     "Verdict",
+    "VerdictInputs",
     "WindowPlan",
     "build_reference",
     "bias_sources",
@@ -91,6 +90,7 @@ __all__ = [
     "reference_from_poses",
     "reference_from_states",
     "roe_deg",
+    "said_once",
     "validate_inputs",
     "validate_sequence",
     "window_end_errors",
@@ -110,7 +110,7 @@ class ValidationResult:
 
     Attributes:
         sequence: Sequence name.
-        verdict / reasons: See :func:`decide_verdict`.
+        verdict / reasons: See :mod:`validation.rules`.
         candidate: Name of the judged source.
         config: The config used.
         sources: Metrics per source name (in evaluation order).
@@ -119,6 +119,7 @@ class ValidationResult:
         gravity_mps2: Gravity used, [3].
         notes: What could not be validated, and other remarks.
         next_steps: What to do about a WARN or FAIL (:func:`next_steps`).
+        reason_codes: The rule code of each reason (:data:`validation.rules.RULES`), same order.
         heldout: The cross-validation's folds and figures, when it ran.
         plausibility: Physical-plausibility findings on the recovery.
         reference_attitude: Against an independent reference, how its attitude sits on the IMU beside
@@ -139,6 +140,7 @@ class ValidationResult:
     heldout: dict[str, Any] | None = None
     plausibility: list[dict[str, Any]] = field(default_factory=list)
     reference_attitude: dict[str, Any] | None = None
+    reason_codes: list[str] = field(default_factory=list)
 
     def windows_frame(self) -> pd.DataFrame:
         """Per-window errors: t0_ns, source, pos_err_m, rot_err_deg, flagged."""
@@ -155,6 +157,7 @@ class ValidationResult:
             "sequence": self.sequence,
             "verdict": self.verdict.value,
             "reasons": list(self.reasons),
+            "reason_codes": list(self.reason_codes),
             "candidate": self.candidate,
             "config": self.config.to_dict(),
             "reference": self.reference,
@@ -220,6 +223,7 @@ def validate_sequence(
     judge_heldout: bool = False,
     heldout_info: Mapping[str, Any] | None = None,
     fails: Sequence_[str] = (),
+    inputs: VerdictInputs = VerdictInputs(),
 ) -> ValidationResult:
     """Validate bias trajectories by 1-s integration error against a reference (AirIMU metrics).
 
@@ -235,15 +239,16 @@ def validate_sequence(
             with it, but a :class:`BiasSource` that names its own (the gravity it was estimated
             against, in the same frame), so that no source's gravity changes another's errors.
         config: Windows, flags and verdict thresholds.
-        limitations: What limits the candidate though its numbers pass (:func:`decide_verdict`).
+        limitations: What limits the candidate though its numbers pass (rule GIVEN_LIMITATION).
         heldout: The candidate cross-validated by time blocks (:mod:`validation.crossval`; NaN where a
             fold was dropped): measured on the kept windows it covers, beside every other source on
             the same windows (``result.heldout``).
         judge_heldout: The held-out errors judge the verdict (the reference is the stream the bias
             was fitted to): worse than the zero or the constant bias on those windows is a FAIL.
         heldout_info: What the cross-validation did (blocks, folds, dropped folds), for the output.
-        fails: Reasons for a FAIL found before the integration (e.g. :mod:`validation.plausibility`),
-            listed first.
+        fails: Reasons for a FAIL found before the integration, listed first (rule GIVEN_FAIL).
+        inputs: What the verdict knows beyond the integration errors (the input's findings, the
+            recovery, the plausibility findings, whether the test is independent).
 
     Returns:
         The result, with per-source metrics, the verdict and its reasons.
@@ -267,17 +272,15 @@ def validate_sequence(
     starts = plan.starts[keep]
     evaluated = _evaluated_sources(imu, plan, starts, given, at_imu, candidate, config, notes)
     metrics = _source_metrics(imu, plan, starts, evaluated, at_imu, reference, gravity, config)
-    heldout_part, heldout_fails = None, []
-    limitations = list(limitations)
+    heldout_part, judged = None, None
     if heldout is not None:
-        heldout_part, heldout_fails, heldout_warns = _heldout_metrics(
-            imu, heldout, reference, plan, starts, gravity, metrics, config, judge_heldout, dict(heldout_info or {}))
-        limitations = [*heldout_warns, *limitations]
-    verdict, reasons = decide_verdict(metrics, candidate, dropped_fraction=dropped["fraction"], config=config,
-                                      limitations=limitations, fails=[*fails, *heldout_fails])
+        heldout_part, judged = _heldout_metrics(imu, heldout, reference, plan, starts, gravity, metrics, config,
+                                                judge_heldout, dict(heldout_info or {}))
+    verdict, reasons = judge(Evidence(metrics, candidate, config, dropped["fraction"], judged, inputs, tuple(fails),
+                                      tuple(limitations)))
     ref_info = {"kind": reference.kind.value, **reference.info}
-    return ValidationResult(sequence.name, verdict, reasons, candidate, config, metrics, dropped, ref_info,
-                            gravity, notes, heldout=heldout_part)
+    return ValidationResult(sequence.name, verdict, [r.text for r in reasons], candidate, config, metrics, dropped,
+                            ref_info, gravity, notes, heldout=heldout_part, reason_codes=[r.code for r in reasons])
 
 
 def _reference_at_imu(sequence: Sequence, reference: ReferenceStates | None, imu: ImuSeries,
@@ -411,47 +414,30 @@ def _source_metrics(imu: ImuSeries, plan: WindowPlan, starts: np.ndarray, evalua
 def _heldout_metrics(imu: ImuSeries, heldout: BiasSource, reference: ReferenceStates, plan: WindowPlan,
                      starts: np.ndarray, gravity: np.ndarray, metrics: dict[str, SourceMetrics],
                      config: ValidationConfig, judge: bool, info: dict[str, Any]
-                     ) -> tuple[dict[str, Any], list[str], list[str]]:
+                     ) -> tuple[dict[str, Any], HeldOut | None]:
     """The held-out source's metrics on the kept windows it covers (added to ``metrics``), every other
-    source's on the same windows, and, when it judges the verdict, the FAIL reasons (worse than the
-    zero or the constant bias beyond the ties, significantly by the paired test over non-overlapping
-    windows) and the WARN reasons (worse, but not significantly: a tie at the reference's noise floor)."""
+    source's on the same windows, and, when it judges the verdict, those windows' errors for the held-out
+    rules (:mod:`validation.rules`)."""
     bias, covered = _bias_at(heldout.track, imu.t_ns)
     covered &= np.isfinite(bias).all(axis=1)
     ok = ~windows_with_any(~covered, starts, plan.n + 1)
     part: dict[str, Any] = {**info, "source": heldout.name, "judged": bool(judge), "windows": int(ok.sum())}
     if not ok.any():
         part["note"] = "no kept window lies in a held-out block with a recovered bias"
-        return part, [], []
+        return part, None
     g = gravity if heldout.gravity_mps2 is None else np.asarray(heldout.gravity_mps2, dtype=np.float64)
     pos, rot = window_errors(imu, bias, reference, starts[ok], plan.n, g, config)
     flagged, thr_p, thr_r = _flags(pos, rot, config)
     metrics[heldout.name] = SourceMetrics(heldout.name, heldout.kind, imu.t_ns[starts[ok]], pos, rot, prmse_m(pos),
                                           roe_deg(rot), flagged, thr_p, thr_r, mean_bias=bias[starts[ok]].mean(axis=0),
                                           gravity_mps2=g)
-    same = {name: {"prmse_m": prmse_m(m.pos_err_m[ok]), "roe_deg": roe_deg(m.rot_err_deg[ok])}
-            for name, m in metrics.items() if name != heldout.name and len(m.pos_err_m) == len(ok)}
-    part["others_on_these_windows"] = same
-    fails, warns = [], []
-    stride = max(1, int(round(1.0 / (1.0 - config.overlap))))
-    for name, m in same.items():
-        base = metrics[name]
-        if not judge or base.kind not in (BiasSourceKind.ZERO, BiasSourceKind.CONSTANT_FIRST_WINDOW):
-            continue
-        for label, unit, h, b, tie, errs in (
-                ("PRMSE", "m", prmse_m(pos), m["prmse_m"], config.tie_prmse_m, (pos**2, base.pos_err_m[ok] ** 2)),
-                ("ROE", "deg", roe_deg(rot), m["roe_deg"], config.tie_roe_deg, (rot, base.rot_err_deg[ok]))):
-            if h <= b + tie:
-                continue
-            p_value = _paired_p_value(*errs, stride)
-            text = (f"held out: '{heldout.name}' {label} {h:.4g} {unit} is worse than the '{name}' bias's {b:.4g} {unit} "
-                    f"on the same {int(ok.sum())} windows")
-            if p_value < config.significance:
-                fails.append(f"{text} (p = {p_value:.2g}): on poses it was not fitted to the recovered bias does "
-                             "worse than no estimate (it absorbed errors of the poses it saw)")
-            else:
-                warns.append(f"{text}, not significantly (p = {p_value:.2g}): held out it is no better than that bias")
-    return part, fails, warns
+    same = {name: m for name, m in metrics.items() if name != heldout.name and len(m.pos_err_m) == len(ok)}
+    part["others_on_these_windows"] = {name: {"prmse_m": prmse_m(m.pos_err_m[ok]), "roe_deg": roe_deg(m.rot_err_deg[ok])}
+                                       for name, m in same.items()}
+    if not judge:
+        return part, None
+    return part, HeldOut(heldout.name, pos, rot, {name: (m.kind, m.pos_err_m[ok], m.rot_err_deg[ok])
+                                                  for name, m in same.items()})
 
 
 # ----------------------------------------------------------------------------- output
@@ -512,12 +498,12 @@ def validate_inputs(
             heldout = replace(heldout, gravity_mps2=own_gravity)
     judged = fitted and heldout is not None and len(heldout_info["dropped_folds"]) < config.crossval_folds
     implausible = plausibility_findings(sequence, recovery) if recovery is not None else []
-    limitations = _limitations(sequence, recovery, config, fitted and not judged, heldout is not None)
+    inputs = VerdictInputs(tuple(sequence.findings), recovery.report if recovery is not None else None,
+                           tuple(implausible), fitted and not judged, heldout is not None)
     result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config,
-                               limitations=[lim.text for lim in limitations], heldout=heldout, judge_heldout=judged,
-                               heldout_info=heldout_info, fails=[x.text for x in implausible])
+                               heldout=heldout, judge_heldout=judged, heldout_info=heldout_info, inputs=inputs)
     result.plausibility = [x.to_dict() for x in implausible]
-    result.next_steps = next_steps(result, [Limitation(x.text, x.next_step) for x in implausible] + limitations)
+    result.next_steps = next_steps(result)
     if own_gravity is not None:
         result.notes.append(f"'recovered' is integrated with the recovery's gravity {np.round(own_gravity, 4).tolist()} "
                             f"m/s^2 (the reference is the stream it was fitted to); the other rows with "
@@ -564,22 +550,6 @@ def _row_gravity(gravity_mps2: Any, recovery: RecoveryOutputs | None, fitted: bo
     return gravity, own_gravity, sources
 
 
-def _limitations(sequence: Sequence, recovery: RecoveryOutputs | None, config: ValidationConfig,
-                 not_independent: bool, has_heldout: bool) -> list[Limitation]:
-    """What limits the candidate: the input's, the recovery's, and, when the reference is the stream
-    the bias was fitted to and no held-out blocks judge it, that the test is not independent."""
-    limitations = input_limitations(sequence)
-    limitations += recovery_limitations(recovery, config) if recovery is not None else []
-    if not_independent:
-        limitations.append(Limitation(
-            "not an independent test: the reference poses are those the recovery fitted, so pose errors that "
-            "the bias absorbed are not seen" + (" (and no cross-validation fold could be recovered)"
-                                                if has_heldout else ""),
-            "validate against another pose stream or a ground truth (--poses STREAM, --add-poses FILE:KIND), or "
-            "cross-validate (--crossval on)"))
-    return limitations
-
-
 def nominal_gravity(recovery: RecoveryOutputs | None = None) -> np.ndarray:
     """``(0, 0, -|g|)``, [3]: gravity in a level world frame (``|g|`` of the recovery's options, else 9.81)."""
     magnitude = (recovery.report.get("config") or {}).get("gravity_mps2") if recovery is not None else None
@@ -615,31 +585,6 @@ def _heldout_source(sequence: Sequence, recovery: RecoveryOutputs | None, config
     return BiasSource(HELDOUT_SOURCE, BiasSourceKind.FILE, track), info
 
 
-def next_steps(result: ValidationResult, limitations: Sequence_[Limitation] = ()) -> list[str]:
-    """What to do about a WARN or FAIL, one sentence per cause (empty for a PASS)."""
-    if result.verdict is Verdict.PASS:
-        return []
-    cand = result.sources[result.candidate]
-    baselines = [m for name, m in result.sources.items() if name != result.candidate
-                 and m.kind in (BiasSourceKind.CONSTANT_FIRST_WINDOW, BiasSourceKind.DATASET)]
-    steps = [lim.next_step for lim in limitations]
-    if any(cand.prmse_m > b.prmse_m + result.config.tie_prmse_m for b in baselines):
-        steps.append("position error: record more varied motion (accelerate along and rotate about every axis) so "
-                     "the accelerometer bias separates from attitude and gravity; prefer a 6-DoF pose source "
-                     "(motion capture) to position-only; check the accelerometer units ('biasgt inspect')")
-    if any(cand.roe_deg > b.roe_deg + result.config.tie_roe_deg for b in baselines):
-        steps.append("rotation error: check the gyro units and the pose-to-IMU rotation (recovery.json "
-                     "T_imu_pose), and rotate more about every axis")
-    if cand.windows and float(np.mean(cand.flagged)) > result.config.warn_flagged_fraction:
-        steps.append("many flagged windows: look at them in the quality report (pose outliers, IMU glitches); "
-                     "recover with a robust loss ('--robust cauchy') if the poses have outliers")
-    if result.windows_dropped.get("fraction", 0.0) > result.config.warn_dropped_fraction:
-        steps.append("many dropped windows: close the IMU gaps or cover the whole IMU span with poses "
-                     "(windows_dropped.by_reason in validation.json says which)")
-    return said_once(steps)
-
-
-def said_once(steps: Sequence_[str]) -> list[str]:
-    """``steps`` without repeats: a step that another repeats with more words is kept the longer way."""
-    steps = list(dict.fromkeys(steps))
-    return [s for s in steps if not any(o != s and o.startswith(s) for o in steps)]
+def next_steps(result: ValidationResult) -> list[str]:
+    """What to do about a WARN or FAIL: the next steps of the rules that fired (empty for a PASS)."""
+    return next_steps_for(result.reason_codes)

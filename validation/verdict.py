@@ -1,23 +1,22 @@
-"""The verdict of a candidate bias against its baselines, and the limitations that make a PASS a WARN.
+"""The verdict's helpers: the end-point errors a bias sigma explains, the verdict on the integration
+errors alone (:func:`decide_verdict`), and the limitations of a recovery or an input with their next
+steps. Every rule itself lives in :mod:`validation.rules`.
 """
 
 from __future__ import annotations
 
 import logging
-import math
 from collections.abc import Mapping
 from collections.abc import Sequence as Sequence_
 from dataclasses import dataclass
 
 import numpy as np
 
-from pipeline.types import (Sequence,
-                            Severity)
+from pipeline.types import Sequence, Verdict
 from recovery.outputs import RecoveryOutputs
 from validation.config import ValidationConfig
 from validation.metrics import SourceMetrics
-from validation.sources import BiasSourceKind
-from validation.outputs import Verdict
+from validation.rules import RULES, Evidence, VerdictInputs, judge
 
 log = logging.getLogger(__name__)
 
@@ -59,70 +58,6 @@ def sigma_window_errors(std: np.ndarray, R_world_imu: np.ndarray, window_s: floa
     return sigma_pos, sigma_rot
 
 
-def _paired_p_value(cand: np.ndarray, base: np.ndarray, stride: int) -> float:
-    """One-sided p-value of "the candidate's window errors are larger" (paired t-test).
-
-    Windows that share samples are correlated: only every ``stride``-th window enters (with 50 %
-    overlap, the non-overlapping ones).
-    """
-    from scipy.stats import ttest_rel
-
-    d = cand[::stride] - base[::stride]
-    if len(d) < 3 or not np.any(d):
-        return 1.0
-    if np.ptp(d) <= 1e-12 * np.max(np.abs(d)):  # the same difference in every window: no spread to test
-        return 0.0 if d[0] > 0 else 1.0
-    return float(ttest_rel(cand[::stride], base[::stride], alternative="greater").pvalue)
-
-
-def _compare(label: str, unit: str, cand: float, base: float, allowed: tuple[float, float], p_value: float,
-             config: ValidationConfig) -> tuple[str | None, str | None]:
-    """(fail reason, warn reason) of one metric; ``allowed``: (equal up to, within the margin up to)."""
-    if cand <= allowed[0]:
-        return None, None
-    rel = (cand / base - 1.0) * 100.0 if base > 0 else float("inf")
-    text = f"{label} {cand:.4g} {unit} is {rel:+.1f} % against {base:.4g} {unit}"
-    margin = f"the {config.margin:.0%} margin"
-    if cand <= allowed[1]:
-        return None, f"{text}: worse beyond its own sigma, within {margin}"
-    if p_value < config.significance:
-        return f"{text}: worse by more than {margin} and its own sigma (paired test p = {p_value:.2g})", None
-    return None, (f"{text}: worse by more than {margin}, but not significantly over these windows "
-                  f"(paired test p = {p_value:.2g} >= {config.significance:g})")
-
-
-def _worse_than_zero(metrics: Mapping[str, SourceMetrics], candidate: str, config: ValidationConfig) -> list[str]:
-    """FAIL reasons of a candidate that integrates worse than the zero bias (beyond the ties), whatever its sigma."""
-    cand, fails = metrics[candidate], []
-    for zero in (m for name, m in metrics.items() if name != candidate and m.kind is BiasSourceKind.ZERO):
-        for label, unit, c, z, tie in (("PRMSE", "m", cand.prmse_m, zero.prmse_m, config.tie_prmse_m),
-                                       ("ROE", "deg", cand.roe_deg, zero.roe_deg, config.tie_roe_deg)):
-            if c > z + tie:
-                fails.append(f"'{candidate}' {label} {c:.4g} {unit} is worse than the zero bias's {z:.4g} {unit}: "
-                             "subtracting it makes the integration worse than no bias estimate at all")
-    return fails
-
-
-def _too_uncertain(cand: SourceMetrics, base: SourceMetrics, zero: SourceMetrics | None,
-                   config: ValidationConfig) -> list[str]:
-    """WARN reasons where the candidate's own sigma exceeds ``base``'s error: it excuses the candidate's
-    error but leaves it too uncertain to be useful beside that baseline (an unobservable position-only
-    recovery, say), when the candidate is also materially worse: by more than ``margin`` of what the
-    baseline gains over the ``zero`` bias (a near-perfect baseline, a simulator's truth, makes any
-    relative margin moot; without a zero row any excess counts)."""
-    k, out = config.sigma_k, []
-    for label, unit, s, c, b, tie, z in (
-            ("PRMSE", "m", k * cand.sigma_prmse_m, cand.prmse_m, base.prmse_m, config.tie_prmse_m,
-             None if zero is None else zero.prmse_m),
-            ("ROE", "deg", k * cand.sigma_roe_deg, cand.roe_deg, base.roe_deg, config.tie_roe_deg,
-             None if zero is None else zero.roe_deg)):
-        material = z is None or c - b > config.margin * max(z - b, 0.0)
-        if s > b + tie and c > b + tie and material:
-            out.append(f"its own {k:g} sigma ({s:.4g} {unit} of {label}) exceed that baseline's error "
-                       f"({b:.4g} {unit}): too uncertain to tell it from the baseline")
-    return out
-
-
 def decide_verdict(
     metrics: Mapping[str, SourceMetrics],
     candidate: str,
@@ -132,66 +67,24 @@ def decide_verdict(
     limitations: Sequence_[str] = (),
     fails: Sequence_[str] = (),
 ) -> tuple[Verdict, list[str]]:
-    """PASS / WARN / FAIL of ``candidate`` against the baselines (rules in the module docstring).
-
-    Baselines: every CONSTANT_FIRST_WINDOW and DATASET source other than the candidate. Per
-    metric, the candidate counts as equal up to what its own sigma explains
-    (``sqrt(base^2 + (k sigma_prmse)^2)`` for PRMSE, ``base + k sigma_roe`` for ROE, plus the
-    tie); as worse within the margin up to ``(1 + margin)`` times the baseline's part; beyond
-    that it FAILs only when a paired one-sided t-test over independent windows says so at
-    ``significance``.
+    """PASS / WARN / FAIL of ``candidate`` against the baselines by the rules of :mod:`validation.rules`
+    (the integration rules only; :func:`judge` with a :class:`~validation.rules.Evidence` for all of them).
 
     Args:
         metrics: Per source.
         candidate: The source judged.
         dropped_fraction: Fraction of candidate windows dropped.
         config: Thresholds.
-        limitations: What limits the candidate's use though the numbers pass (e.g. a noise
-            estimate at its search bound); each one makes a PASS a WARN, listed first.
-        fails: Reasons already found for a FAIL (e.g. the held-out rule), listed first.
+        limitations: What limits the candidate's use though the numbers pass; each one makes a PASS a
+            WARN (rule GIVEN_LIMITATION).
+        fails: Reasons already found for a FAIL, listed first (rule GIVEN_FAIL).
 
     Returns:
         ``(verdict, reasons)``; reasons are plain sentences (empty for a clean PASS).
     """
-    cand = metrics[candidate]
-    fails = list(fails)
-    warns: list[str] = list(limitations)
-    stride = max(1, int(round(1.0 / (1.0 - config.overlap))))
-    k = config.sigma_k
-    baselines = [m for name, m in metrics.items() if name != candidate
-                 and m.kind in (BiasSourceKind.CONSTANT_FIRST_WINDOW, BiasSourceKind.DATASET)]
-    zero = next((m for name, m in metrics.items() if name != candidate and m.kind is BiasSourceKind.ZERO), None)
-    for base in baselines:
-        where = f"'{candidate}' against '{base.name}' ({base.kind.value})"
-        sigma_pos, sigma_rot = k * cand.sigma_prmse_m, k * cand.sigma_roe_deg
-        warns += [f"{where}: {w}" for w in _too_uncertain(cand, base, zero, config)]
-        prmse_allowed = tuple(float(np.hypot(base.prmse_m * f, sigma_pos)) + config.tie_prmse_m
-                              for f in (1.0, 1.0 + config.margin))
-        roe_allowed = tuple(base.roe_deg * f + sigma_rot + config.tie_roe_deg for f in (1.0, 1.0 + config.margin))
-        for fail, warn in (
-            _compare("PRMSE", "m", cand.prmse_m, base.prmse_m, prmse_allowed,
-                     _paired_p_value(cand.pos_err_m**2, base.pos_err_m**2, stride), config),
-            _compare("ROE", "deg", cand.roe_deg, base.roe_deg, roe_allowed,
-                     _paired_p_value(cand.rot_err_deg, base.rot_err_deg, stride), config),
-        ):
-            fails += [f"{where}: {fail}"] if fail else []
-            warns += [f"{where}: {warn}"] if warn else []
-    fails += _worse_than_zero(metrics, candidate, config)
-    if cand.windows:
-        frac = float(np.mean(cand.flagged))
-        if frac > config.warn_flagged_fraction:
-            warns.append(f"{int(cand.flagged.sum())} of {cand.windows} windows ({frac:.1%}) of '{candidate}' are "
-                         f"flagged as outliers (more than {config.warn_flagged_fraction:.0%})")
-    if dropped_fraction > config.warn_dropped_fraction:
-        warns.append(f"{dropped_fraction:.1%} of the windows were dropped (more than "
-                     f"{config.warn_dropped_fraction:.0%}): the validation covers only part of the sequence")
-    if not baselines:
-        warns.append(f"no baseline (constant or dataset bias) to compare '{candidate}' with")
-    if fails:
-        return Verdict.FAIL, fails + warns
-    if warns:
-        return Verdict.WARN, warns
-    return Verdict.PASS, []
+    verdict, reasons = judge(Evidence(metrics, candidate, config, dropped_fraction, given_fails=tuple(fails),
+                                      given_limitations=tuple(limitations)))
+    return verdict, [r.text for r in reasons]
 
 
 @dataclass(frozen=True)
@@ -215,59 +108,20 @@ def recovery_limitations(recovery: RecoveryOutputs, config: ValidationConfig = V
     (``max_random_walk_scale``: unmodelled errors such as scale or misalignment that the bias
     absorbs, or a wrong datasheet), and an extrinsic rotation that could not be estimated.
     """
-    report = recovery.report
-    noise = report.get("noise") if isinstance(report.get("noise"), Mapping) else {}
-    grid = (report.get("config") or {}).get("random_walk_scales") or []
-    out: list[Limitation] = []
-    noise_step = ("check the IMU noise values of the calibration (sensor.yaml: random walks) against the "
-                  "datasheet, and the pose stream for artefacts (biasgt report's residual plot)")
-    for axis in ("gyro", "acc"):
-        scale = noise.get(f"{axis}_random_walk_scale")
-        if not isinstance(scale, (int, float)) or not math.isfinite(scale):
-            continue
-        # Only the upper edge limits the bias: a walk that wants to be looser than the search allows
-        # means the bias absorbs other errors. At the lower edge (a nearly constant bias, e.g. the
-        # semi-real sequences' EuRoC bias) the recovered bias is only a little less smooth than it
-        # could be, and its sigma errs on the safe side.
-        if noise.get("method") == "evidence" and grid and scale >= max(grid):
-            out.append(Limitation(
-                f"the {axis} bias random walk was chosen at the upper edge of its search ({scale:g}x the "
-                f"calibration; searched {min(grid):g}x-{max(grid):g}x): the bias may absorb other errors",
-                noise_step + "; widen recovery.random_walk_scales only if the calibration is known to be wrong"))
-        elif not 1.0 / config.max_random_walk_scale <= scale <= config.max_random_walk_scale:
-            out.append(Limitation(
-                f"the {axis} bias random walk is {scale:.3g}x the calibration's: the bias likely absorbs "
-                "unmodelled errors (scale, misalignment, pose artefacts) or the datasheet is off", noise_step))
-    diff = (report.get("extrinsic") or {}).get("difference_from_calibration") or {}
-    if diff.get("exceeds"):
-        out.append(Limitation(
-            f"the extrinsic T_imu_pose estimated from the data differs from the calibration's by "
-            f"{diff['rotation_deg']:.2f} deg and {100 * diff['translation_m']:.1f} cm, beyond "
-            f"{diff['max_sigmas']:g} of its sigmas: the calibration file is off (or the tracked body moved); the "
-            "bias is the one consistent with the estimate",
-            "if the tracked body was not moved, put the estimate (recovery.json T_imu_pose) into the calibration "
-            "file; else check the mount and recover again"))
-    if report.get("extrinsic_rotation_observable") is False:
-        out.append(Limitation(
-            "the rotation between the pose frame and the IMU was not observable (too little rotation): the "
-            "calibration's or the identity was used, and the bias absorbs any error in it",
-            "record a stretch rotating about every axis, or give T_imu_pose in the calibration and recover "
-            "with --extrinsic known"))
-    return out
+    return _limitations(VerdictInputs(recovery=recovery.report), config, _RECOVERY_CODES)
 
 
-#: Input findings that limit what a bias recovered from that input is good for, and what to do.
-_LIMITING_FINDINGS = {
-    "POSE_RATE_LOW": "use a faster pose stream (motion capture at 100 Hz or more) if the recording has one",
-    "CALIBRATION_DEFAULTED": "give the IMU's own noise values (sensor.yaml or the recovery config) and recover again",
-    "SATURATION": "record with a larger sensor range, or drop the saturated stretches",
-    "STAMP_UNIT_GUESSED": "write the stamps as integer nanoseconds so that their unit is not guessed",
-    "IMU_RATE_MISMATCH": "resample the IMU to the calibration's rate (biasgt convert --resample-hz) or correct "
-                         "rate_hz in sensor.yaml, and recover again",
-}
+#: The rules of :func:`recovery_limitations` and :func:`input_limitations`.
+_RECOVERY_CODES = ("RANDOM_WALK_AT_EDGE", "RANDOM_WALK_FAR", "EXTRINSIC_DIFFERS", "EXTRINSIC_UNOBSERVABLE")
+_INPUT_CODES = tuple(code for code in RULES if code.startswith("INPUT_"))
 
 
 def input_limitations(sequence: Sequence) -> list[Limitation]:
-    """The sequence's WARNING findings that limit a bias recovered from it (:data:`_LIMITING_FINDINGS`)."""
-    return [Limitation(f"input: {f.message}", _LIMITING_FINDINGS[f.code]) for f in sequence.findings
-            if f.code in _LIMITING_FINDINGS and f.severity is Severity.WARNING]
+    """The sequence's WARNING findings that limit a bias recovered from it (the rules ``INPUT_*``)."""
+    return _limitations(VerdictInputs(findings=tuple(sequence.findings)), ValidationConfig(), _INPUT_CODES)
+
+
+def _limitations(inputs: VerdictInputs, config: ValidationConfig, codes: Sequence_[str]) -> list[Limitation]:
+    """What the rules ``codes`` find in ``inputs``, each with its rule's next step."""
+    evidence = Evidence({}, "", config, inputs=inputs)
+    return [Limitation(text, RULES[code].next_step or "") for code in codes for text in RULES[code].check(evidence)]

@@ -1,5 +1,5 @@
 """What the input checks take and give: :class:`CheckOptions`, the finding codes, :class:`Repair`
-and :class:`Verdict`.
+and how a verdict reads (:data:`CHECK_VERDICT_WORDS`).
 
 Finding codes produced here (readers add PARSE_SKIPPED_LINES, STAMP_PRECISION_LOSS,
 STAMP_UNIT_GUESSED, CALIBRATION_DEFAULTED, BAG_HEADER_STAMP_ZERO):
@@ -35,7 +35,7 @@ import math
 from dataclasses import dataclass, field
 
 from pipeline.errors import ConfigError
-from pipeline.types import STANDARD_GRAVITY_MPS2
+from pipeline.types import STANDARD_GRAVITY_MPS2, Verdict
 
 G_MPS2 = STANDARD_GRAVITY_MPS2
 DEG_TO_RAD = math.pi / 180.0
@@ -90,12 +90,8 @@ CHECK_CODES = frozenset({
 IMU_RATE_TOLERANCE = 0.05
 
 
-class Verdict(str, enum.Enum):
-    """Overall outcome of the checks."""
-
-    OK = "ok"
-    REPAIRABLE = "repairable"
-    FATAL = "fatal"
+#: How the input checks' :class:`pipeline.types.Verdict` reads (``biasgt inspect``, its ``--json``).
+CHECK_VERDICT_WORDS = {Verdict.PASS: "ok", Verdict.WARN: "repairable", Verdict.FAIL: "fatal"}
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,6 @@ from pipeline.checks.options import (
     IMU_RATE_TOLERANCE,
     IMU_STREAM,
     CheckOptions,
-    Verdict,
 )
 from pipeline.checks.stream_checks import (
     _check_imu_units,
@@ -30,7 +29,7 @@ from pipeline.checks.stream_checks import (
     _check_stamps,
 )
 from pipeline.checks.streams import _round, _Stream, _streams, _time_stats, _TimeStats, _valid_rows
-from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity, StateSeries
+from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity, StateSeries, Verdict
 
 log = logging.getLogger(__package__)  # findings and repairs log as one: 'pipeline.checks'
 
@@ -189,13 +188,14 @@ def repairable_findings(findings: Iterable[Finding]) -> list[Finding]:
 
 
 def verdict(findings: Iterable[Finding]) -> Verdict:
-    """``fatal`` if any finding is fatal, else ``repairable`` if any is repairable, else ``ok``."""
+    """FAIL if any finding is fatal, else WARN if any is repairable, else PASS (worded ``fatal``,
+    ``repairable``, ``ok``: :data:`pipeline.checks.options.CHECK_VERDICT_WORDS`)."""
     sev = {f.severity for f in findings}
     if Severity.FATAL in sev:
-        return Verdict.FATAL
+        return Verdict.FAIL
     if Severity.REPAIRABLE in sev:
-        return Verdict.REPAIRABLE
-    return Verdict.OK
+        return Verdict.WARN
+    return Verdict.PASS
 
 
 

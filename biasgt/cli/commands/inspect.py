@@ -11,7 +11,7 @@ import argparse
 import math
 from typing import Any
 
-from pipeline.checks.options import Verdict
+from pipeline.checks.options import CHECK_VERDICT_WORDS
 from pipeline.checks.run import run_checks, stream_summaries, verdict
 from biasgt.cli.commands._args import (
     add_check_arguments,
@@ -23,7 +23,7 @@ from pipeline.errors import BiasgtError
 from pipeline.ingest import load, severity_rank
 from pipeline.io.registry import readers_in_words, recorded_format
 from pipeline.jsonio import dumps, to_plain
-from pipeline.types import Finding, Sequence, Severity
+from pipeline.types import Finding, Sequence, Severity, Verdict
 
 #: Version of the ``--json`` output; bump when a key changes meaning or disappears.
 SCHEMA_VERSION = 1
@@ -59,7 +59,7 @@ def inspect_report(input_path: str, seq: Sequence, findings: list[Finding]) -> d
         "format": recorded_format(seq.metadata, variant=True),
         "streams": stream_summaries(seq),
         "findings": [f.to_dict() for f in findings],
-        "verdict": verdict(findings).value,
+        "verdict": CHECK_VERDICT_WORDS[verdict(findings)],
     }, finite_only=True)
 
 
@@ -123,4 +123,4 @@ def run(args: argparse.Namespace) -> int:
         print(dumps(report), end="")
     else:
         print(format_report(report))
-    return 1 if report["verdict"] == Verdict.FATAL.value else 0
+    return 1 if report["verdict"] == CHECK_VERDICT_WORDS[Verdict.FAIL] else 0

@@ -17,6 +17,7 @@ from biasgt.cli.commands._args import (
 )
 from pipeline.errors import ValidationError
 from pipeline.ingest import load_checked
+from pipeline.types import Verdict
 from validation.config import CrossvalMode, ValidationConfig
 
 log = logging.getLogger(__name__)
@@ -35,9 +36,6 @@ Reference: the input's ground-truth state when it has one, else (or with --poses
 moved to the IMU frame and clock with the recovery's T_imu_pose and pose_time_offset_s (identity and 0
 without --recovery, which is right only for poses of the IMU on its clock).
 
-Verdict: FAIL when the bias under test integrates worse (PRMSE or ROE) than the constant or the dataset
-bias by more than --margin; WARN when worse within the margin, > 5 % of its windows are flagged
-outliers (error > --flag-k x median), or > 20 % of the windows were dropped; PASS otherwise.
 Writes OUT/validation.json and OUT/windows.parquet atomically.
 """
 
@@ -56,12 +54,21 @@ examples:
 DEFAULTS = ValidationConfig()
 
 
+def description() -> str:
+    """The help text: :data:`DESCRIPTION` and the verdict's rules, from their registry (validation.rules)."""
+    from validation.rules import rules_text
+
+    return (DESCRIPTION + "\nVerdict: FAIL when a FAIL rule fires, WARN when only WARN rules do, PASS otherwise. "
+            "validation.json\nlists each reason with its rule's code (reason_codes). The rules, in reason order "
+            "(CODE (LEVEL): what):\n" + rules_text())
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     d = DEFAULTS
     p = subparsers.add_parser(
         "validate",
         help="judge a bias trajectory by 1-s integration error (PRMSE, ROE) with a PASS/WARN/FAIL verdict",
-        description=DESCRIPTION,
+        description=description(),
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
@@ -119,7 +126,7 @@ def _format_table(result: Any) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    from validation.validate import Verdict, validate_inputs, write_validation  # torch: off the CLI start-up path
+    from validation.validate import validate_inputs, write_validation  # torch: off the CLI start-up path
 
     if not args.bias and args.recovery is None:
         raise ValidationError("nothing to validate", field="--bias",
@@ -141,8 +148,8 @@ def run(args: argparse.Namespace) -> int:
           f"{config.window_s:g}-s windows ({result.reference['kind']} reference)")
     print(_format_table(result))
     print(f"verdict: {result.verdict.value} (* = bias under test)")
-    for reason in result.reasons:
-        print(f"  - {reason}")
+    for reason, code in zip(result.reasons, result.reason_codes):
+        print(f"  - {reason} [{code}]")
     for step in result.next_steps:
         print(f"  next: {step}")
     for note in result.notes:
