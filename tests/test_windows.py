@@ -425,6 +425,12 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
     assert m["splits"] == {"train": ["sim_a"], "test": ["sim_b"]}
     assert len(WindowDataset(tmp_path / "ds", "test")) == 9
 
+    # --seq without --validation: refused the same way
+    rc = main(["windows", "--seq", "sim_a", "train", str(results / "ingest/sim_a"), str(results / "recovery/sim_a"),
+               "--out", str(tmp_path / "ds2")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "1 sequence(s) not validated: 'sim_a' (no --validation NAME=DIR)" in err
+
     # the same through --seq, with another window length
     rc = main(["windows", "--seq", "sim_a", "train", str(results / "ingest/sim_a"), str(results / "recovery/sim_a"),
                "--seq", "sim_b", "val", str(results / "ingest/sim_b"), str(results / "recovery/sim_b"),
