@@ -1,13 +1,15 @@
 """Atomic output: write to a temporary sibling, then rename into place.
 
 A stage that fails leaves either the previous complete output or nothing, never
-a half-written file or folder.
+a half-written file or folder. A full disk (or an exceeded quota) while writing is a known error:
+:class:`~pipeline.errors.OutputLocationError` naming the folder (:func:`no_space_error`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import enum
+import errno
 import os
 import shutil
 import signal
@@ -17,6 +19,28 @@ from collections.abc import Collection, Iterator
 from pathlib import Path
 
 from pipeline.errors import OutputLocationError
+
+
+#: errno values of a full disk and of an exceeded quota.
+NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
+
+
+def no_space_error(exc: BaseException, path: str | Path) -> OutputLocationError | None:
+    """The one-line error for ``exc`` when it says the disk (or quota) holding ``path`` is full, else None.
+
+    Matches ``OSError.errno`` ENOSPC / EDQUOT (also pyarrow's OSError, which carries it) and, for
+    libraries that only put it in the text, "No space left on device" / "Disk quota exceeded".
+    """
+    if not isinstance(exc, OSError):
+        return None
+    text = str(exc)
+    quota = exc.errno == errno.EDQUOT or "quota exceeded" in text.lower()
+    if exc.errno not in NO_SPACE_ERRNOS and not quota and "no space left on device" not in text.lower():
+        return None
+    folder = Path(path).parent
+    what = "disk quota exceeded" if quota else "no space left on device"
+    return OutputLocationError(f"cannot write the output: {what} in folder {folder} (nothing was written)",
+                               path=path, hint="free some space there (or raise the quota), or choose another --out")
 
 
 def _umask() -> int:
@@ -39,8 +63,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         ...     frame.to_csv(tmp)
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp_name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    except OSError as exc:
+        raise no_space_error(exc, path) or exc from None
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -49,9 +76,11 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
             _default_mode(tmp, is_dir=False)
         with _stop_signals_deferred():
             os.replace(tmp, path)
-    except BaseException:
+    except BaseException as exc:
         with contextlib.suppress(FileNotFoundError):
             tmp.unlink()
+        if (full := no_space_error(exc, path)) is not None:
+            raise full from None
         raise
 
 
@@ -110,15 +139,20 @@ def atomic_dir(path: str | Path, *, owned: Collection[str] | None = None) -> Ite
     into an exception by the CLI) the temporary folder is removed and ``path`` is untouched.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    except OSError as exc:
+        raise no_space_error(exc, path) or exc from None
     try:
         yield tmp
         _default_mode(tmp, is_dir=True)
         with _stop_signals_deferred():
             _swap_in(tmp, path, owned)
-    except BaseException:
+    except BaseException as exc:
         shutil.rmtree(tmp, ignore_errors=True)
+        if (full := no_space_error(exc, path)) is not None:
+            raise full from None
         raise
 
 

@@ -102,7 +102,10 @@ def dataclass_from_mapping(
     try:
         return cls(**options)
     except BiasgtError as exc:
-        raise ConfigError(exc.problem, field=f"{field}.{exc.field}" if exc.field else field, hint=exc.hint) from None
+        # a field the dataclass already names from the section down ('training.methods') keeps its path
+        inner = exc.field or ""
+        path = field if not inner else inner if inner == field or inner.startswith(f"{field}.") else f"{field}.{inner}"
+        raise ConfigError(exc.problem, field=path, hint=exc.hint) from None
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"invalid {what}s: {exc}", field=field) from None
 

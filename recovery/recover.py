@@ -57,6 +57,7 @@ from recovery.config import (
 )
 from recovery import calibration_init as ci
 from recovery.extrinsic import CalibrationDifference, calibration_difference
+from recovery.frame_check import check_frames
 from recovery.calibration_uncertainty import CalibrationCovariance
 from recovery.graph import solve_window
 from recovery.window import SolveOptions, WindowInit, WindowSolution
@@ -121,11 +122,18 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         The bias per keyframe with marginal std, the optimised trajectory and the report.
 
     Raises:
-        RecoveryError: The input cannot give a trustworthy result (one line saying why).
+        RecoveryError: The input cannot give a trustworthy result (one line saying why), e.g. the IMU and
+            the pose stream disagree about the body frame (:mod:`recovery.frame_check`).
         AmbiguousInputError: The named pose stream does not exist (lists the streams).
         DataError: The sequence has no pose stream and no ground truth.
     """
     config = config or RecoveryConfig()
+    result = _recover_with_intrinsics(sequence, pose_stream, config)
+    check_frames(result, sequence.name)  # axes swapped, quaternions out of order: refused, not a bias
+    return result
+
+
+def _recover_with_intrinsics(sequence: Sequence, pose_stream: str | None, config: RecoveryConfig) -> RecoveryResult:
     try:
         if config.intrinsics is IntrinsicsMode.OFF or sequence.imu is None:
             return _recover(sequence, pose_stream=pose_stream, config=replace(config, intrinsics=IntrinsicsMode.OFF))

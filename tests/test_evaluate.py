@@ -123,3 +123,33 @@ def test_bad_inputs_one_line(data, tmp_path):
     with pytest.raises(DataError, match="no test window"):
         evaluate_reference("zero", no_test, tmp_path / "out")
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("edit", ["empty_test_split", "listed_under_another_split"])
+def test_a_manifest_whose_splits_disagree_with_its_sequences_is_refused(data, tmp_path, capsys, edit):
+    """``splits.test`` emptied while ``sequences[].split`` still says test (or the other way round): an error
+    naming both fields, exit 2, nothing evaluated."""
+    import shutil
+
+    from biasgt.cli.app import main
+
+    bad = tmp_path / "ds"
+    shutil.copytree(data, bad)
+    manifest = json.loads((bad / MANIFEST).read_text())
+    test_names = manifest["splits"]["test"]
+    assert test_names and all(manifest["sequences"][n]["split"] == "test" for n in test_names)
+    if edit == "empty_test_split":
+        manifest["splits"]["test"] = []
+    else:
+        manifest["splits"]["train"] = manifest["splits"]["train"] + manifest["splits"].pop("test")
+    (bad / MANIFEST).write_text(json.dumps(manifest))
+    name = test_names[0]
+    with pytest.raises(InputFormatError) as exc:
+        evaluate_reference("zero", bad, tmp_path / "out")
+    text = str(exc.value)
+    assert f"sequences.{name}.split" in text and "splits.test" in text and "\n" not in text
+    assert not (tmp_path / "out").exists()
+    assert main(["evaluate", "--dataset", str(bad), "--reference", "zero", "--out", str(tmp_path / "out")]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ": error: " in ln]
+    assert len(err) == 1 and f"sequences.{name}.split" in err[0], err
+    assert not (tmp_path / "out").exists()

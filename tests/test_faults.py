@@ -249,8 +249,9 @@ def test_non_finite_dataset_array_is_named_when_opened(trained, tmp_path, capsys
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _biasgt_run(workdir: Path, *extra: str) -> subprocess.Popen:
-    """``biasgt run`` (a 300-s simulated sequence, up to its recovery) as a separate process."""
+def _biasgt_run(workdir: Path, *extra: str, new_session: bool = False) -> subprocess.Popen:
+    """``biasgt run`` (a 300-s simulated sequence, up to its recovery) as a separate process (the leader of
+    its own process group with ``new_session``, as a shell's job is)."""
     cfg = workdir / "cfg.yaml"
     cfg.write_text(yaml.safe_dump({"sequences": [{"name": "long", "source": "simulate", "duration_s": 300,
                                                   "seed": 3}]}))
@@ -258,7 +259,7 @@ def _biasgt_run(workdir: Path, *extra: str) -> subprocess.Popen:
     return subprocess.Popen([sys.executable, "-m", "biasgt.cli", "run", "--config", str(cfg), "--directory",
                              str(workdir), "--cores", "1", "--target", "results/recovery/long", *extra],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
-                            preexec_fn=_foreground_sigint)
+                            preexec_fn=_foreground_sigint, start_new_session=new_session)
 
 
 def _foreground_sigint() -> None:
@@ -310,6 +311,59 @@ def test_second_biasgt_run_in_the_same_folder_names_the_first(tmp_path, capsys):
     finally:
         first.send_signal(signal.SIGINT)
         first.communicate(timeout=120)
+
+
+def test_kill_9_of_the_biasgt_run_group_stops_snakemake_and_its_job(tmp_path, capsys):
+    """``kill -9`` of the ``biasgt run`` process group: Snakemake (in its own session) and its job stop by
+    themselves, remove the incomplete output and their lock; ``-- --unlock`` then says it ran nothing."""
+    proc = _biasgt_run(tmp_path, new_session=True)
+    try:
+        family = _wait_for_job(proc, ".simulate.py")
+        assert any("guarded_snakemake" in " ".join(p.cmdline()) for p in family)
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate(timeout=30)
+        gone, alive = psutil.wait_procs(family, timeout=60)
+        assert alive == [], [p.cmdline() for p in alive]  # nothing left running without its parent
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert not (tmp_path / "results" / "simulate" / "long").exists()  # incomplete output removed
+    locks = tmp_path / ".snakemake" / "locks"
+    assert not locks.exists() or list(locks.iterdir()) == []
+    rc = main(["run", "--config", str(tmp_path / "cfg.yaml"), "--directory", str(tmp_path), "--", "--unlock"])
+    out = capsys.readouterr().out
+    assert rc == 0 and out.startswith(f"unlocked {tmp_path}") and "nothing was run" in out
+    assert "results:" not in out and "Table I" not in out  # never reads as a finished run
+
+
+def test_a_live_snakemake_of_an_earlier_run_is_named_and_a_stale_lock_cleared(tmp_path, capsys, caplog,
+                                                                               monkeypatch):
+    """A job of an earlier run still running in the folder: the rerun and --unlock name it (pid, script);
+    once it is gone, a Snakemake lock left behind (Snakemake itself killed) is cleared by the rerun."""
+    import biasgt.workflow.run as workflow_run
+
+    monkeypatch.setattr(workflow_run, "ORPHAN_WAIT_S", 0.5)
+    script = tmp_path / ".snakemake" / "scripts" / "tmpab12.recover.py"
+    job = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)", str(script)])
+    cfg = tmp_path / "tiny.yaml"
+    cfg.write_text(yaml.safe_dump({"sequences": [{"name": "s", "source": "simulate", "duration_s": 3, "seed": 1}]}))
+    run = ["run", "--config", str(cfg), "--directory", str(tmp_path), "--until", "simulate"]
+    try:
+        for argv in (run, ["run", "--config", str(cfg), "--directory", str(tmp_path), "--unlock"]):
+            rc, err = _run_cli(argv, capsys)
+            assert rc == 2
+            _one_line_error(err, "still works in", f"pid {job.pid} (recover.py)", f"kill -INT {job.pid}")
+    finally:
+        job.kill()
+        job.wait()
+    locks = tmp_path / ".snakemake" / "locks"
+    locks.mkdir(parents=True)
+    (locks / "0.output.lock").write_text(str(tmp_path / "results" / "simulate" / "s") + "\n")
+    caplog.set_level("WARNING")
+    rc, err = _run_cli([*run, "--", "--list-rules"], capsys)  # a rerun that runs no job: quick
+    assert rc == 0, err
+    assert any("clearing the Snakemake lock a killed run left" in r.getMessage() for r in caplog.records)
+    assert not locks.exists() or list(locks.iterdir()) == []
 
 
 # ----------------------------------------------------------------------------- other tracebacks

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import signal
@@ -202,3 +203,60 @@ def test_sigterm_inside_an_extension_import_is_a_termination_not_a_traceback(cap
     assert cli.main([]) == 128 + signal.SIGTERM
     err = capsys.readouterr().err
     assert err.strip() == "biasgt inspect: terminated (SIGTERM); nothing half-written was left"
+
+
+# ----------------------------------------------------------------------------- a full disk
+
+
+def _disk_full(*args, **kwargs):
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+
+def _pyarrow_disk_full(*args, **kwargs):
+    """What pyarrow raises on a full disk (its text carries the errno too)."""
+    raise OSError(errno.ENOSPC, "Error writing bytes to file. Detail: [errno 28] No space left on device")
+
+
+def _no_space_line(err: str, folder: Path) -> None:
+    errors = [ln for ln in err.splitlines() if ": error: " in ln]
+    assert len(errors) == 1, err
+    assert "no space left on device" in errors[0] and f"folder {folder}" in errors[0], errors[0]
+    assert "Traceback" not in err and "Errno" not in err
+
+
+def test_a_full_disk_during_recover_is_one_line_and_writes_nothing(tmp_path: Path, sim_folder: Path, capsys,
+                                                                   monkeypatch) -> None:
+    import recovery.outputs
+    from biasgt.cli.app import main
+
+    monkeypatch.setattr(recovery.outputs, "write_tum", _disk_full)
+    out = tmp_path / "out" / "rec"
+    assert main(["-q", "recover", str(sim_folder), "--out", str(out), "--noise", "fixed"]) == 2
+    _no_space_line(capsys.readouterr().err, out.parent)
+    assert not out.exists() and _leftovers(tmp_path) == []
+
+
+def test_a_full_disk_during_validate_is_one_line_and_keeps_the_old_output(tmp_path: Path, sim_folder: Path,
+                                                                         capsys, monkeypatch) -> None:
+    import validation.outputs
+    from biasgt.cli.app import main
+
+    rec = tmp_path / "rec"
+    assert main(["-q", "recover", str(sim_folder), "--out", str(rec), "--noise", "fixed"]) == 0
+    out = tmp_path / "val"
+    out.mkdir()
+    (out / "validation.json").write_text("old")
+    monkeypatch.setattr(validation.outputs.pq, "write_table", _pyarrow_disk_full)
+    capsys.readouterr()
+    assert main(["-q", "validate", str(sim_folder), "--recovery", str(rec), "--out", str(out)]) == 2
+    _no_space_line(capsys.readouterr().err, tmp_path)
+    assert (out / "validation.json").read_text() == "old" and _leftovers(tmp_path) == []
+
+
+def test_a_full_disk_outside_the_atomic_writers_is_the_same_one_line(tmp_path: Path, capsys, monkeypatch) -> None:
+    from biasgt.cli.app import main
+    from biasgt.cli.commands import simulate
+
+    monkeypatch.setattr(simulate, "run", _disk_full)  # registered as the command's func when main builds the parser
+    assert main(["simulate", str(tmp_path / "sim")]) == 2
+    _no_space_line(capsys.readouterr().err, tmp_path)

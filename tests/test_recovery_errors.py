@@ -11,7 +11,7 @@ from pipeline.errors import RecoveryError
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import RecoveryConfig
 from recovery.recover import recover
-from recovery_sim import FAST, _sim
+from recovery_sim import FAST, _errors, _sim
 
 
 # ----------------------------------------------------------------------------- bad input
@@ -158,3 +158,70 @@ def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
     at.insert(X(0), target)
     assert graph.error(at) == pytest.approx(0.0, abs=1e-12)
     _refuse_unconverged(built, at, order, graph.error(at))
+
+
+# ----------------------------------------------------------------------------- frames that disagree
+
+
+def _frame_cases() -> dict[str, Sequence]:
+    """A correct 20-s simulation with pose outliers and dropouts, and two frame mistakes built from it."""
+    seq = _sim(20.0, seed=5, outliers=10, outlier_offset_m=0.1, dropouts=2, dropout_max_s=0.5).sequence
+    swapped = dataclasses.replace(seq.imu, acc_mps2=seq.imu.acc_mps2[:, [2, 1, 0]])  # accelerometer x <-> z
+    name, poses = next(iter(seq.poses.items()))
+    w_last = dataclasses.replace(poses, quat_wxyz=poses.quat_wxyz[:, [1, 2, 3, 0]])  # xyzw read as wxyz
+    return {"correct": seq, "acc_x_z_swapped": dataclasses.replace(seq, imu=swapped),
+            "quaternion_w_last": dataclasses.replace(seq, poses={**seq.poses, name: w_last})}
+
+
+@pytest.fixture(scope="module")
+def frame_cases() -> dict[str, Sequence]:
+    return _frame_cases()
+
+
+@pytest.mark.parametrize(("case", "first_cause"), [("acc_x_z_swapped", "axis order"),
+                                                   ("quaternion_w_last", "quaternion order")])
+def test_frames_that_disagree_are_refused_naming_axis_and_quaternion_order(frame_cases, case, first_cause):
+    """The true accelerometer bias of the simulation stays far below 0.3 g; a frame mistake makes the
+    recovered one reach a sizeable fraction of gravity, and the recovery is refused."""
+    seq = frame_cases[case]
+    assert np.abs(seq.ground_truth.bias_acc_mps2).max() < 0.1 * 9.81  # the truth: a plausible bias
+    with pytest.raises(RecoveryError) as info:
+        recover(seq, config=RecoveryConfig(**FAST))
+    text = str(info.value)
+    assert "disagree about the body frame" in text and "accelerometer bias reaches" in text
+    likely = text.split("likely cause: ")[1]
+    assert "axis order" in likely and "quaternion order" in likely
+    assert likely.index(first_cause) < likely.index("or the")  # the one the evidence points at comes first
+    assert "\n" not in text
+
+
+def test_a_correct_recording_with_outliers_and_dropouts_passes_the_frame_check(frame_cases):
+    res = recover(frame_cases["correct"], config=RecoveryConfig(**FAST))
+    truth = frame_cases["correct"].ground_truth
+    _, acc_err = _errors(res, truth)
+    assert np.abs(acc_err).max() < 0.5  # recovered near the truth, and not refused
+
+
+def test_the_frame_check_through_the_cli_writes_nothing(frame_cases, tmp_path, capsys):
+    """``biasgt recover`` on an ASL folder whose accelerometer x and z columns are swapped: exit 2, one
+    line, no output folder."""
+    import pandas as pd
+
+    from biasgt.cli.app import main
+    from pipeline.sim.writer import write_simulation
+
+    sim = _sim(20.0, seed=5)
+    write_simulation(sim, tmp_path / "rec")
+    csv = tmp_path / "rec" / "mav0" / "imu0" / "data.csv"
+    table = pd.read_csv(csv)
+    ax, az = table.columns[4], table.columns[6]
+    assert "a_RS_S_x" in ax and "a_RS_S_z" in az
+    table[[ax, az]] = table[[az, ax]].to_numpy()
+    table.to_csv(csv, index=False, float_format="%.17g")
+    rc = main(["recover", str(tmp_path / "rec"), "--out", str(tmp_path / "out"), "--noise", "fixed"])
+    err = capsys.readouterr().err
+    assert rc == 2
+    errors = [ln for ln in err.splitlines() if ": error: " in ln]
+    assert len(errors) == 1 and "axis order" in errors[0] and "quaternion order" in errors[0], err
+    assert "Traceback" not in err
+    assert not (tmp_path / "out").exists()

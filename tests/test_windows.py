@@ -407,7 +407,15 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
         _write_recovery(results / "recovery" / name, sim, span_s=(0.0, 10.0) if name == "sim_a" else (0.0, 5.0))
     splits = tmp_path / "splits.yaml"
     splits.write_text("train: [sim_a]\ntest: [sim_b]\n")
+    # no results/validation/NAME: refused unless said explicitly (it could be a recording validate FAILs)
     rc = main(["windows", "--splits", str(splits), "--results", str(results), "--out", str(tmp_path / "ds")])
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert rc == 2 and len(err) == 1, err
+    assert "2 sequence(s) not validated: 'sim_a', 'sim_b'" in err[0] and "--allow-unvalidated" in err[0]
+    assert str(results / "validation" / "sim_a") in err[0]
+    assert not (tmp_path / "ds").exists()
+    rc = main(["windows", "--splits", str(splits), "--results", str(results), "--out", str(tmp_path / "ds"),
+               "--allow-unvalidated"])
     out = capsys.readouterr().out.splitlines()
     assert rc == 0
     assert out[0].startswith("2 sequences, 201 samples per window (1 s at 200 Hz, overlap 0.5)")
@@ -417,10 +425,16 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
     assert m["splits"] == {"train": ["sim_a"], "test": ["sim_b"]}
     assert len(WindowDataset(tmp_path / "ds", "test")) == 9
 
+    # --seq without --validation: refused the same way
+    rc = main(["windows", "--seq", "sim_a", "train", str(results / "ingest/sim_a"), str(results / "recovery/sim_a"),
+               "--out", str(tmp_path / "ds2")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "1 sequence(s) not validated: 'sim_a' (no --validation NAME=DIR)" in err
+
     # the same through --seq, with another window length
     rc = main(["windows", "--seq", "sim_a", "train", str(results / "ingest/sim_a"), str(results / "recovery/sim_a"),
                "--seq", "sim_b", "val", str(results / "ingest/sim_b"), str(results / "recovery/sim_b"),
-               "--window-s", "2", "--overlap", "0", "--out", str(tmp_path / "ds2")])
+               "--window-s", "2", "--overlap", "0", "--out", str(tmp_path / "ds2"), "--allow-unvalidated"])
     assert rc == 0
     m2 = read_manifest(tmp_path / "ds2")
     assert m2["window_samples"] == 401 and m2["sequences"]["sim_a"]["windows"] == 5
@@ -429,7 +443,7 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
 
     # one name in two splits: one-line error, exit 2, nothing written
     rc = main(["windows", "--splits", str(splits), "--results", str(results), "--out", str(tmp_path / "ds3"),
-               "--seq", "sim_a", "test", str(results / "ingest/sim_a"), str(results / "recovery/sim_a")])
+               "--allow-unvalidated", "--seq", "sim_a", "test", str(results / "ingest/sim_a"), str(results / "recovery/sim_a")])
     err = capsys.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "'sim_a' is listed in splits test and train" in err[0]
     assert not (tmp_path / "ds3").exists()
@@ -473,9 +487,30 @@ def test_windows_take_only_sequences_whose_verdict_allows_it(sim10, tmp_path):
     assert m["excluded"]["bad"].startswith("validation FAIL: ")
     assert m["not_validated"] == ["unchecked"]
     assert "left out: bad: validation FAIL" in format_summary(m)
-    with pytest.raises(ConfigError, match="every train sequence was left out"):
+    with pytest.raises(ConfigError, match=r"none of the 1 train sequence\(s\) is usable") as info:
         build_window_dataset([bad, test], tmp_path / "ds2", WindowConfig())
+    assert "accept_warn" not in str(info.value)  # FAIL is never taken: no option to suggest
     assert not (tmp_path / "ds2").exists()
+
+
+def test_windows_where_every_verdict_is_fail_is_one_short_line(sim10, tmp_path, capsys):
+    """Every sequence FAILs: one line saying none of N is usable, the reasons, and where the reports are."""
+    from biasgt.cli.app import main
+
+    srcs = [_validated(tmp_path, _source(tmp_path, _sim(seed=7 + i), f"bad{i}", split), acc_offset_mps2=0.5 + 0.1 * i)
+            for i, split in enumerate(["train", "val", "test", "train"])]
+    args = ["windows", "--out", str(tmp_path / "ds")]
+    for s in srcs:
+        args += ["--seq", s.name, s.split.value, str(s.store_dir), str(s.recovery_dir),
+                 "--validation", f"{s.name}={s.validation_dir}"]
+    assert main(args) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1, err
+    line = err[0]
+    assert "none of the 4 sequences is usable" in line and "bad0: validation FAIL" in line
+    assert "1 more" in line and str(tmp_path / "val") in line
+    assert "accept_warn" not in line and len(line) < 700, line
+    assert not (tmp_path / "ds").exists()
 
 
 def test_windows_take_the_validations_reference_stream(sim10, tmp_path):
@@ -514,7 +549,7 @@ def test_cli_reference_option_and_its_hint(sim10, tmp_path, capsys):
                                 np.full((len(gt.t_ns[::10]), 6), 1e-3)),
                                 {"noise": {"gyro_random_walk": RW[0], "acc_random_walk": RW[1]},
                                  "pose_stream": "leica0", "T_imu_pose": {"p_m": [0, 0, 0], "quat_wxyz": [1, 0, 0, 0]}})
-    args = ["windows", "--seq", "m", "train", str(store), str(rec), "--out", str(tmp_path / "ds")]
+    args = ["windows", "--seq", "m", "train", str(store), str(rec), "--out", str(tmp_path / "ds"), "--allow-unvalidated"]
     assert main(args) == 2
     err = capsys.readouterr().err
     assert "has positions only" in err and "--reference m=gt_poses" in err

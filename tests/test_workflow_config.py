@@ -293,15 +293,15 @@ def test_rejects_unknown_and_invalid_stage_options(tmp_path):
     msg = _error(tmp_path, {"sequences": seqs, "validation": {"window": 2, "margn": 0.2}})
     assert "validation: unknown keys 'window' (did you mean 'window_s'?), 'margn' (did you mean 'margin'?)" in msg
     msg = _error(tmp_path, {"sequences": seqs, "interpolation": {"method": "spline"}})
-    assert "interpolation: method 'spline' is not one of linear, cubic" in msg
+    assert "method 'spline' is not one of linear, cubic (field 'interpolation.method')" in msg  # the field once
     msg = _error(tmp_path, {"sequences": seqs, "windows": {"window_len": 2}})
     assert "windows: unknown key 'window_len' (did you mean 'window_s'?)" in msg
     msg = _error(tmp_path, {"sequences": seqs, "report": {"theme": "dark"}})
     assert "report: unknown key 'theme': this section has no options" in msg
     msg = _error(tmp_path, {"sequences": seqs, "recovery": {"keyframe_rate_hz": -1}})
-    assert "recovery: must be > 0 or null, got -1 (field 'recovery.keyframe_rate_hz')" in msg
+    assert ": must be > 0 or null, got -1 (field 'recovery.keyframe_rate_hz')" in msg
     msg = _error(tmp_path, {"sequences": seqs, "recovery": {"robust_loss": "tukey"}})
-    assert "recovery: robust_loss 'tukey' is not one of huber, cauchy, none" in msg
+    assert "robust_loss 'tukey' is not one of huber, cauchy, none (field 'recovery.robust_loss')" in msg
     # per-sequence overrides: same keys, checked at start-up, naming the entry
     msg = _error(tmp_path, {"sequences": [sim_entry("a", recovery={"pose_strem": "mocap0"})]})
     assert "sequences[0] ('a'): unknown key 'pose_strem' (did you mean 'pose_stream'?) (field 'recovery')" in msg
@@ -324,3 +324,25 @@ def test_rejects_unreadable_config(tmp_path):
     bad.write_text("- 1\n- 2\n")
     with pytest.raises(ConfigError, match="the config must be a mapping, got list"):
         load_config(bad)
+
+
+def test_every_config_error_is_reported_at_once_each_field_once(tmp_path):
+    """Two misspelled split names and an unknown training method: three problems on one line, each
+    field named once with its dotted path (never 'training.training.methods')."""
+    msg = _error(tmp_path, {"sequences": [sim_entry("a", split="trian"), sim_entry("b", split="tset"),
+                                          sim_entry("c", split="val")],
+                            "training": {"methods": ["diffusion_rnn", "nope_method"]}})
+    assert msg.startswith(f"{tmp_path / 'bad.yaml'}: 3 problems: [1] ")
+    assert "sequences[0].split (sequence 'a'): 'trian' is not one of train, val, test, none (did you mean 'train'?)" in msg
+    assert "sequences[1].split (sequence 'b'): 'tset'" in msg and "(did you mean 'test'?)" in msg
+    assert "'nope_method'" in msg and msg.count("(field 'training.methods')") == 1
+    assert "training.training" not in msg
+    assert msg.count("config.schema.yaml") == 1  # a shared hint is said once
+
+
+def test_errors_after_the_schema_are_collected_too(tmp_path):
+    """A schema-valid config with a duplicate name and a bad stage section: both said."""
+    msg = _error(tmp_path, {"sequences": [sim_entry("a"), sim_entry("a", seed=2)],
+                            "training": {"methods": ["nope_method"]}})
+    assert "2 problems" in msg and "duplicate sequence name 'a'" in msg and "(field 'training.methods')" in msg
+    assert "training.training" not in msg

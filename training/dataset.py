@@ -379,6 +379,7 @@ class WindowManifest(JsonRecord):
         try:
             sequences = {str(name): ManifestEntry(Split(e["split"]), int(e["windows"]), int(e["candidates"]),
                                                   str(e["path"])) for name, e in data["sequences"].items()}
+            _check_splits(data.get("splits"), sequences, path)
             norm = {str(k): np.asarray(v, dtype=np.float64) for k, v in (data.get("normalization") or {}).items()}
             rate = data.get("rate_hz")
             return cls(dict(data), str(data["config_hash"]), int(data["window_samples"]),
@@ -386,6 +387,31 @@ class WindowManifest(JsonRecord):
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise InputFormatError(f"malformed manifest ({type(exc).__name__}: {exc})", path=path,
                                    hint="re-create the dataset with 'biasgt windows'") from None
+
+
+def _check_splits(splits: Any, sequences: Mapping[str, ManifestEntry], path: str | Path | None) -> None:
+    """``splits`` (split -> names) must list every sequence under the split its entry names, and nothing else.
+
+    Raises:
+        InputFormatError: Naming both fields (``sequences.NAME.split`` and ``splits.SPLIT``).
+    """
+    if splits is None:
+        return
+    hint = "the manifest was edited by hand: re-create the dataset with 'biasgt windows' (or restore manifest.json)"
+    listed: dict[str, str] = {}
+    for split, names in dict(splits).items():
+        for name in names or []:
+            listed[str(name)] = str(split)
+            if str(name) not in sequences:
+                raise InputFormatError(f"splits.{split} lists sequence '{name}', which sequences does not hold",
+                                       path=path, field=f"splits.{split}", hint=hint)
+    for name, entry in sequences.items():
+        if listed.get(name) != entry.split.value:
+            other = (f"splits.{entry.split.value} does not list it" if name not in listed
+                     else f"splits.{listed[name]} lists it")
+            raise InputFormatError(f"the manifest disagrees with itself: sequences.{name}.split is "
+                                   f"'{entry.split.value}' but {other}", path=path,
+                                   field=f"sequences.{name}.split / splits.{entry.split.value}", hint=hint)
 
 
 def read_manifest(root: str | Path) -> WindowManifest:

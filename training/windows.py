@@ -32,6 +32,7 @@ from __future__ import annotations
 import dataclasses
 import enum
 import logging
+import os
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -420,12 +421,10 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
     excluded = {src.name: reason for src in sources if (reason := verdict_exclusion(src, config)) is not None}
     for name, reason in excluded.items():
         log.warning("sequence '%s' left out of the window dataset: %s", name, reason)
-    sources = [s for s in sources if s.name not in excluded]
-    if not any(s.split is Split.TRAIN for s in sources):
-        raise ConfigError("every train sequence was left out by its validation verdict: "
-                          + "; ".join(f"{k}: {v}" for k, v in excluded.items()),
-                          hint="fix those recordings (their quality reports say how), or set windows.accept_warn "
-                               "to take WARN sequences")
+    usable = [s for s in sources if s.name not in excluded]
+    if not any(s.split is Split.TRAIN for s in usable):
+        raise unusable_error(sources, excluded)
+    sources = usable
     not_validated = [s.name for s in sources if s.validation_dir is None]
 
     def windows() -> Iterator[SequenceWindows]:
@@ -442,6 +441,29 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
 
     return write_dataset(windows(), out_dir, config=config.to_dict(),
                          extra={"excluded": excluded, "not_validated": not_validated})
+
+
+#: Sequences whose reasons the "none is usable" error lists (the worst first); the rest are counted.
+_REASONS_SHOWN = 3
+
+
+def unusable_error(sources: list[WindowSource], excluded: Mapping[str, str]) -> ConfigError:
+    """One line for a dataset left without a train sequence by the verdicts: how many sequences are usable,
+    the worst reasons (FAIL before WARN, each cut to its first clause) and where the reports are."""
+    everyone = len(excluded) == len(sources)
+    train = [s.name for s in sources if s.split is Split.TRAIN]
+    head = (f"none of the {len(sources)} sequences is usable" if everyone
+            else f"none of the {len(train)} train sequence(s) is usable")
+    order = sorted((n for n in excluded if everyone or n in train), key=lambda n: "FAIL" not in excluded[n])
+    shown = [f"{n}: {excluded[n].split(';')[0][:100]}" for n in order[:_REASONS_SHOWN]]
+    more = f"; {len(order) - _REASONS_SHOWN} more" if len(order) > _REASONS_SHOWN else ""
+    folders = [s.validation_dir for s in sources if s.name in excluded and s.validation_dir is not None]
+    where = folders[0] if len(folders) == 1 else Path(os.path.commonpath([str(f) for f in folders]))
+    warn = any(excluded[n].startswith("validation WARN") for n in order)
+    return ConfigError(f"{head} (left out by their validation verdict): {'; '.join(shown)}{more}",
+                       path=where, hint=("the reports (validation.json, and report.html per sequence) say why; "
+                                         "fix those recordings" + (", or set windows.accept_warn (--accept-warn) "
+                                                                   "to take WARN sequences" if warn else "")))
 
 
 def verdict_exclusion(source: WindowSource, config: WindowConfig) -> str | None:

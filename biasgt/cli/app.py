@@ -13,9 +13,10 @@ import os
 import signal
 import sys
 from collections.abc import Sequence
+from pathlib import Path
 
 from pipeline import __version__
-from pipeline.atomic import check_output_location
+from pipeline.atomic import check_output_location, no_space_error
 from biasgt.cli.commands import (
     convert,
     evaluate,
@@ -119,6 +120,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         # Output piped into e.g. `head`, which closed early: not an error of ours.
         os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
+    except OSError as exc:
+        # a full disk outside the atomic writers (which say so themselves): the same one line
+        full = no_space_error(exc, getattr(args, "out", None) or Path.cwd() / "-")
+        if full is None:
+            if _caused_by_termination(exc):
+                return _terminated(args.command)
+            raise
+        print(f"biasgt {args.command}: error: {full}", file=sys.stderr)
+        return full.exit_code
     except Exception as exc:
         # SIGTERM inside an extension module's code (e.g. while gtsam initialises) surfaces as
         # that module's error, caused by Terminated: still a termination, not a crash.

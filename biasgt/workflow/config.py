@@ -12,6 +12,7 @@ the workflow's files are (:data:`SNAKEFILE`, :data:`SCHEMA_FILE`, :data:`DEFAULT
 from __future__ import annotations
 
 import copy
+import difflib
 import importlib.resources
 import re
 from collections.abc import Iterable, Mapping
@@ -105,20 +106,24 @@ def _schema_error_message(error: Any, data: dict[str, Any]) -> tuple[str, str]:
             message = f"{unknown}: allowed here: {', '.join(sorted(allowed))}"
     if error.validator == "enum":
         message = f"{error.instance!r} is not one of {', '.join(map(str, error.validator_value))}"
+        close = difflib.get_close_matches(str(error.instance), [str(v) for v in error.validator_value], n=1)
+        if close:
+            message += f" (did you mean '{close[0]}'?)"
     elif error.validator == "pattern":
         message = (f"{error.instance!r} is not a valid name: use letters, digits, '_', '.', '-' "
                    "and do not start with '.' or '-'")
     return where, message
 
 
-def _check_reader_names(data: dict[str, Any], config_file: str | Path | None) -> None:
+def reader_name_errors(data: dict[str, Any], config_file: str | Path | None) -> list[ConfigError]:
     """What the schema leaves to the reader registry: each entry's ``source`` is one of
     :func:`~biasgt.workflow.table.source_kinds` and each ``poses[j].fmt`` a reader's name
     (:func:`pipeline.io.registry.names`); other types are left to the schema.
 
-    Raises:
-        ConfigError: ``sequences[i].source (sequence 'name'): 'x' is not one of ...``.
+    Returns:
+        One error per wrong field: ``sequences[i].source (sequence 'name'): 'x' is not one of ...``.
     """
+    errors: list[ConfigError] = []
     sequences = data.get("sequences")
     for i, entry in enumerate(sequences if isinstance(sequences, list) else []):
         if not isinstance(entry, dict):
@@ -133,8 +138,9 @@ def _check_reader_names(data: dict[str, Any], config_file: str | Path | None) ->
                                "an input format (biasgt inspect --help lists them under --format), or leave it out"))
         for where, value, allowed, field, hint in fields:
             if isinstance(value, str) and value not in allowed:
-                raise ConfigError(f"{where}{label}: {value!r} is not one of {', '.join(allowed)}",
-                                  path=config_file, field=field, hint=hint)
+                errors.append(ConfigError(f"{where}{label}: {value!r} is not one of {', '.join(allowed)}",
+                                          path=config_file, field=field, hint=hint))
+    return errors
 
 
 def validate_schema(
@@ -155,12 +161,20 @@ def validate_schema(
         ``data`` with defaults filled in.
 
     Raises:
-        ConfigError: The first (most relevant) schema violation, with its location.
+        ConfigError: Every schema violation, each field once with its location (:func:`combine_errors`).
     """
     if not isinstance(data, dict):
         raise ConfigError(f"the config must be a mapping, got {type(data).__name__}", path=config_file,
                           hint="see config/config.yaml for an example")
-    _check_reader_names(data, config_file)
+    errors = reader_name_errors(data, config_file) + schema_errors(data, schema_file)
+    if errors:
+        raise combine_errors(errors, config_file)
+    return data
+
+
+def schema_errors(data: dict[str, Any], schema_file: str | Path = SCHEMA_FILE) -> list[ConfigError]:
+    """Every schema violation of ``data``, one per field (its most relevant one), in field order;
+    fills in the schema's defaults in place (as :func:`validate_schema`)."""
     schema = load_schema(schema_file)
     validate_properties = Draft202012Validator.VALIDATORS["properties"]
 
@@ -173,15 +187,31 @@ def validate_schema(
 
     validator_cls = validators.extend(Draft202012Validator, {"properties": set_defaults})
     errors = list(validator_cls(schema).iter_errors(data))
-    if errors:
-        # An unknown key is reported only when nothing else is wrong: with an invalid 'source',
-        # for example, the source's own keys also look "unevaluated".
-        primary = [e for e in errors if e.validator != "unevaluatedProperties"] or errors
-        best = jsonschema.exceptions.best_match(primary)
-        where, message = _schema_error_message(best, data)
-        raise ConfigError(f"{where}: {message}", path=config_file,
-                          hint="see workflow/schemas/config.schema.yaml for the allowed keys and values")
-    return data
+    # An unknown key is reported only when nothing else is wrong: with an invalid 'source',
+    # for example, the source's own keys also look "unevaluated".
+    primary = [e for e in errors if e.validator != "unevaluatedProperties"] or errors
+    found: dict[str, str] = {}  # every field once: the most relevant error of each
+    for error in sorted(primary, key=lambda e: [str(p) for p in e.absolute_path]):
+        where, message = _schema_error_message(jsonschema.exceptions.best_match([error]), data)
+        found.setdefault(where, message)
+    hint = "see workflow/schemas/config.schema.yaml for the allowed keys and values"
+    return [ConfigError(f"{where}: {message}", field=None, hint=hint) for where, message in found.items()]
+
+
+def combine_errors(errors: list[ConfigError], config_file: str | Path | None) -> ConfigError:
+    """One :class:`ConfigError` for every problem found, on one line: ``N problems: [1] ...; [2] ...``
+    (each with its field and hint); a single problem is itself, naming ``config_file``."""
+    if len(errors) == 1:
+        e = errors[0]
+        return ConfigError(e.problem, path=e.path or config_file, line=e.line, field=e.field, hint=e.hint)
+    items, hints = [], set()
+    for i, e in enumerate(errors, 1):
+        text = e.problem + (f" (field '{e.field}')" if e.field else "")
+        if e.hint and e.hint not in hints:  # a hint shared by several problems is said once
+            text += f": {e.hint}"
+            hints.add(e.hint)
+        items.append(f"[{i}] {text}")
+    return ConfigError(f"{len(errors)} problems: " + "; ".join(items), path=config_file)
 
 
 def check_config(
@@ -210,43 +240,80 @@ def check_config(
     root = data_root(data, config_file)
     seen: dict[str, int] = {}
     entries: list[SequenceEntry] = []
+    problems: list[ConfigError] = []
     for i, raw in enumerate(data.get("sequences") or []):
-        name = raw["name"]
-        where = f"sequences[{i}] ('{name}')"
-        if not NAME_PATTERN.match(name):  # also enforced by the schema
-            raise ConfigError(f"{where}: invalid sequence name", path=config_file, field="name",
-                              hint="use letters, digits, '_', '.', '-'")
-        if name in seen:
-            raise ConfigError(
-                f"{where}: duplicate sequence name '{name}' (also sequences[{seen[name]}])",
-                path=config_file, field="name", hint="give every sequence a unique name",
-            )
-        seen[name] = i
-        source = source_kind(raw["source"])  # checked by _check_reader_names
-        path = None
-        if source == SIMULATE:
-            sim = _sim_dict(raw, root, config_file, where)
-            _check_sim_config(sim, config_file, where, check_paths)
-        else:
-            path = resolve_input_path(raw["path"], root)
-            extra = [resolve_input_path(p["path"], root) for p in raw.get("poses") or []]
-            for field_name, p in [("path", path)] + [(f"poses[{j}].path", e) for j, e in enumerate(extra)]:
-                if check_paths and not p.exists():
-                    raise ConfigError(
-                        f"{where}: input path {p} does not exist", path=config_file, field=field_name,
-                        hint=f"fix '{field_name}' (relative paths are resolved against data_root = {root})",
-                    )
-        entries.append(SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw))
-    for section in STAGE_CONFIGS:  # the top-level sections first, so that their errors name them
         try:
-            data[section] = resolved_section(section, data.get(section) or {})
+            entries.append(_checked_entry(i, raw, seen, root, config_file, check_paths))
         except ConfigError as exc:
-            raise ConfigError(f"{section}: {exc.problem}", path=config_file, field=exc.field, hint=exc.hint) from None
+            problems.append(exc)
+    problems += section_errors(data, config_file, resolve=True)
+    if problems:
+        raise combine_errors(problems, config_file)
     cfg = WorkflowConfig(data, config_file, tuple(entries))
     for entry in cfg.sequences:
-        _check_ingest_settings(cfg, entry)
-        _check_stage_settings(cfg, entry, check_paths)
+        for check in (_check_ingest_settings, lambda c, e: _check_stage_settings(c, e, check_paths)):
+            try:
+                check(cfg, entry)
+            except ConfigError as exc:
+                problems.append(exc)
+    if problems:
+        raise combine_errors(problems, config_file)
     return cfg
+
+
+def _checked_entry(i: int, raw: dict[str, Any], seen: dict[str, int], root: Path, config_file: Path | None,
+                   check_paths: bool) -> SequenceEntry:
+    """The table row of ``sequences[i]`` (its name recorded in ``seen``), checked."""
+    name = raw["name"]
+    where = f"sequences[{i}] ('{name}')"
+    if not NAME_PATTERN.match(name):  # also enforced by the schema
+        raise ConfigError(f"{where}: invalid sequence name", path=config_file, field="name",
+                          hint="use letters, digits, '_', '.', '-'")
+    if name in seen:
+        raise ConfigError(
+            f"{where}: duplicate sequence name '{name}' (also sequences[{seen[name]}])",
+            path=config_file, field="name", hint="give every sequence a unique name",
+        )
+    seen[name] = i
+    source = source_kind(raw["source"])  # checked by reader_name_errors
+    path = None
+    if source == SIMULATE:
+        sim = _sim_dict(raw, root, config_file, where)
+        _check_sim_config(sim, config_file, where, check_paths)
+    else:
+        path = resolve_input_path(raw["path"], root)
+        extra = [resolve_input_path(p["path"], root) for p in raw.get("poses") or []]
+        for field_name, p in [("path", path)] + [(f"poses[{j}].path", e) for j, e in enumerate(extra)]:
+            if check_paths and not p.exists():
+                raise ConfigError(
+                    f"{where}: input path {p} does not exist", path=config_file, field=field_name,
+                    hint=f"fix '{field_name}' (relative paths are resolved against data_root = {root})",
+                )
+    return SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw)
+
+
+def section_errors(data: dict[str, Any], config_file: str | Path | None, *, resolve: bool = False,
+                   skip: Iterable[str] = ()) -> list[ConfigError]:
+    """The errors of the top-level stage sections (:data:`STAGE_CONFIGS`), each naming its field once.
+
+    With ``resolve`` each valid section is replaced in ``data`` by its resolved form (defaults filled
+    in); sections in ``skip`` (already reported) are left out.
+    """
+    out = []
+    for section in STAGE_CONFIGS:
+        options = data.get(section) or {}
+        if section in skip or not isinstance(options, Mapping):
+            continue
+        try:
+            resolved = resolved_section(section, options)
+        except ConfigError as exc:
+            # the field names the section ('training.methods'): no second 'training:' in front
+            prefix = "" if (exc.field or "").startswith(f"{section}.") else f"{section}: "
+            out.append(ConfigError(f"{prefix}{exc.problem}", path=config_file, field=exc.field, hint=exc.hint))
+            continue
+        if resolve:
+            data[section] = resolved
+    return out
 
 
 def config_warnings(cfg: WorkflowConfig) -> list[str]:
@@ -303,5 +370,9 @@ def load_config(path: str | Path, *, check_paths: bool = True) -> WorkflowConfig
     """Read, schema-validate (with defaults) and check a workflow config file."""
     path = Path(path)
     data = read_config_file(path)
+    if isinstance(data, dict) and (errors := schema_errors(data)):
+        # the stage sections' own errors too, all at once (a section the schema already faulted is left out)
+        faulted = {e.problem.split(":")[0].split(".")[0].split("[")[0] for e in errors}
+        raise combine_errors([*errors, *section_errors(copy.deepcopy(data), path, skip=faulted)], path)
     validate_schema(data, config_file=path)
     return check_config(data, path, check_paths=check_paths)

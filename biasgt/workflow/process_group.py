@@ -20,7 +20,7 @@ from typing import IO
 
 import psutil
 
-__all__ = ["STOP_GRACE_S", "start_group", "stop_group", "exclusive_lock"]
+__all__ = ["STOP_GRACE_S", "start_group", "stop_group", "exclusive_lock", "workflow_processes"]
 
 #: Seconds the group gets to clean up after the forwarded signal before it is killed (SLURM's
 #: ``scancel`` of many jobs takes a while).
@@ -141,3 +141,30 @@ def exclusive_lock(path: str | Path) -> Iterator[int | None]:
         yield None
     finally:
         os.close(fd)
+
+
+def _is_snakemake(cmdline: Sequence[str]) -> bool:
+    """Snakemake (``snakemake``, ``-m snakemake``, the guarded launcher) or one of its script jobs."""
+    return any(part == "snakemake" or part.endswith(("/snakemake", "guarded_snakemake"))
+               or f"{os.sep}.snakemake{os.sep}" in part for part in cmdline)
+
+
+def workflow_processes(workdir: str | Path) -> list[psutil.Process]:
+    """The Snakemake processes and jobs of this machine (other than this process) that work in
+    ``workdir``: the command line names ``workdir`` (Snakemake's ``--directory``, a job's script
+    under ``workdir/.snakemake``) or the process runs there.
+
+    Sorted by start time (Snakemake before its jobs).
+    """
+    workdir = str(Path(workdir).resolve())
+    found = []
+    for p in psutil.process_iter(["pid", "cmdline", "create_time"]):
+        if p.pid == os.getpid():
+            continue
+        with contextlib.suppress(psutil.Error):
+            cmdline = p.info["cmdline"] or []
+            if not _is_snakemake(cmdline):
+                continue
+            if any(part == workdir or part.startswith(workdir + os.sep) for part in cmdline) or p.cwd() == workdir:
+                found.append(p)
+    return sorted(found, key=lambda p: p.info.get("create_time") or 0.0)

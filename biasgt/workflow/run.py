@@ -8,6 +8,7 @@ the failed rule and its log.
 from __future__ import annotations
 
 import logging
+import os
 import re
 import signal
 import subprocess
@@ -20,7 +21,7 @@ from typing import IO
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.layout import RESULTS_DIR
 from biasgt.workflow.config import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE, config_warnings, load_config
-from biasgt.workflow.process_group import exclusive_lock, start_group, stop_group
+from biasgt.workflow.process_group import exclusive_lock, start_group, stop_group, workflow_processes
 
 log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'biasgt.workflow'
 
@@ -215,8 +216,75 @@ def output_locations(workdir: str | Path) -> list[Path]:
     return out
 
 
-#: Held (flock) by a running ``biasgt run`` in its working directory: a second one says so.
+#: Held (flock) by a running ``biasgt run`` in its working directory: a second one says so. The
+#: kernel releases it when the holder dies (even by ``kill -9``); the pid written in it is then stale.
 RUN_LOCK = Path(".snakemake") / "biasgt-run.lock"
+#: Snakemake's own lock files of a working directory (left behind when Snakemake was killed).
+SNAKEMAKE_LOCKS = Path(".snakemake") / "locks"
+#: Seconds a rerun waits for the Snakemake of a killed ``biasgt run`` to finish stopping.
+ORPHAN_WAIT_S = 30.0
+
+
+def guarded(cmd: Sequence[str]) -> list[str]:
+    """``python -m snakemake ARGS`` as ``python -m biasgt.workflow.guarded_snakemake PID ARGS``: Snakemake
+    that stops itself and its jobs when this process dies (:mod:`biasgt.workflow.guarded_snakemake`)."""
+    cmd = list(cmd)
+    if cmd[1:3] != ["-m", "snakemake"]:
+        return cmd
+    return [cmd[0], "-m", "biasgt.workflow.guarded_snakemake", str(os.getpid()), *cmd[3:]]
+
+
+def _describe(procs: Sequence[object]) -> str:
+    """``pid 12 (snakemake), pid 14 (recover.py)``: each process with the word that says what it runs."""
+    out = []
+    for p in procs:
+        try:
+            cmdline = p.cmdline()  # type: ignore[attr-defined]
+        except Exception:  # noqa: BLE001 - psutil.Error: it ended meanwhile
+            cmdline = []
+        script = next((Path(c).name.split(".", 1)[-1] for c in cmdline if f"{os.sep}.snakemake{os.sep}" in c), None)
+        out.append(f"pid {p.pid} ({script or 'snakemake'})")  # type: ignore[attr-defined]
+    return ", ".join(out)
+
+
+def check_no_earlier_run(workdir: Path, wait_s: float = ORPHAN_WAIT_S) -> None:
+    """Refuse to start while Snakemake processes or jobs of an earlier run still work in ``workdir``
+    (waiting ``wait_s`` for those of a killed ``biasgt run``, which stop by themselves).
+
+    Raises:
+        WorkflowRunError: Naming their pids and how to stop them.
+    """
+    import psutil
+
+    live = workflow_processes(workdir)
+    if live:
+        log.warning("waiting up to %.0f s for an earlier run's Snakemake to stop in %s: %s", wait_s, workdir,
+                    _describe(live))
+        _, live = psutil.wait_procs(live, timeout=wait_s)
+    if live:
+        leader = live[0].pid
+        raise WorkflowRunError(
+            f"an earlier run's Snakemake still works in {workdir} without a 'biasgt run' in charge: {_describe(live)}",
+            hint=f"let it finish, or stop it (kill -INT {leader}: it cancels its jobs and removes their incomplete "
+                 "outputs) and rerun")
+
+
+def _stale_snakemake_lock(workdir: Path) -> bool:
+    locks = workdir / SNAKEMAKE_LOCKS
+    return locks.is_dir() and any(locks.iterdir())
+
+
+def unlock_workdir(config_file: Path, workdir: Path) -> None:
+    """``snakemake --unlock`` in ``workdir`` (its lock files go; nothing runs).
+
+    Raises:
+        WorkflowRunError: Snakemake failed (its last line).
+    """
+    cmd = snakemake_command(config_file=config_file, workdir=workdir, extra=["--unlock"])
+    done = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
+    if done.returncode != 0:
+        raise WorkflowRunError(f"snakemake --unlock failed in {workdir}: "
+                               f"{describe_failure((done.stdout + done.stderr).splitlines(), workdir)}")
 
 
 def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool, workdir: Path,
@@ -236,7 +304,7 @@ def _run_snakemake(cmd: list[str], echo: IO[str], *, keep_all: bool, workdir: Pa
 
     log.info("running %s", " ".join(cmd))
     tail: list[str] = []
-    proc = start_group(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
+    proc = start_group(guarded(cmd), stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, bufsize=1,
                        errors="replace")
     try:
         assert proc.stdout is not None
@@ -308,10 +376,42 @@ def run_workflow(
                 f"another 'biasgt run' (pid {holder or 'unknown'}) is running in {workdir}",
                 hint=f"wait for it to finish, or stop it (kill -INT {holder or 'PID'}) and rerun; its outputs are "
                      "locked while it runs")
+        if not dry_run:
+            check_no_earlier_run(workdir)
+            if _stale_snakemake_lock(workdir):  # no biasgt run and no Snakemake works here: a killed run's lock
+                log.warning("clearing the Snakemake lock a killed run left in %s (no Snakemake works there)", workdir)
+                unlock_workdir(config_file, workdir)
         rc, tail = _run_snakemake(cmd, echo, keep_all=dry_run, workdir=workdir, progress_interval_s=progress_interval_s)
+    if rc != 0 and any("cannot be locked" in line for line in tail):  # a Snakemake this machine does not see
+        raise WorkflowRunError(
+            f"the working directory {workdir} is locked by another Snakemake (another machine's run, or one "
+            "started by hand)",
+            hint=f"if no run works there any more, clear the lock with: biasgt run --unlock --directory {workdir}")
     if rc != 0:
         raise WorkflowRunError(
             f"workflow failed (snakemake exit {rc}): {describe_failure(tail, workdir)}",
             hint="fix the cause and rerun 'biasgt run' (finished jobs are kept)",
         )
     return RunResult(workdir, cmd, [] if dry_run else output_locations(workdir))
+
+
+def unlock_workflow(*, config_file: str | Path | None = None, workdir: str | Path | None = None) -> Path:
+    """Clear Snakemake's lock on ``workdir`` (``biasgt run --unlock``) once nothing works there.
+
+    Returns:
+        The working directory.
+
+    Raises:
+        WorkflowRunError: A ``biasgt run`` or Snakemake processes still work there (named), or
+            ``snakemake --unlock`` failed.
+    """
+    config_file = Path(config_file or DEFAULT_CONFIG)
+    workdir = Path(workdir or Path.cwd()).resolve()
+    with exclusive_lock(workdir / RUN_LOCK) as holder:
+        if holder is not None:
+            raise WorkflowRunError(f"a 'biasgt run' (pid {holder or 'unknown'}) is running in {workdir}: its lock "
+                                   "is not stale", hint=f"wait for it to finish, or stop it (kill -INT "
+                                                        f"{holder or 'PID'}); nothing to unlock")
+        check_no_earlier_run(workdir, wait_s=0.0)
+        unlock_workdir(config_file, workdir)
+    return workdir

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from biasgt.workflow.config import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE
-from biasgt.workflow.run import resolve_profile, run_workflow
+from biasgt.workflow.run import resolve_profile, run_workflow, unlock_workflow
 
 DESCRIPTION = f"""\
 Run the biasgt workflow ({SNAKEFILE}) with Snakemake, stage by stage: simulate / ingest every
@@ -74,9 +74,19 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="run only the jobs up to these rules (e.g. ingest)")
     p.add_argument("--target", nargs="+", default=[], metavar="TARGET",
                    help="build these files or rules instead of the whole workflow")
+    p.add_argument("--unlock", action="store_true",
+                   help="only clear the working directory's Snakemake lock (left by a run that was killed), once no "
+                        "run works there; runs nothing")
     p.add_argument("snakemake_args", nargs="*", metavar="-- SNAKEMAKE_ARGS",
                    help="further Snakemake arguments, after '--'")
     p.set_defaults(func=main)
+
+
+#: Snakemake options that only report or change bookkeeping: with one of them no job runs, so the run's
+#: results and Table I are not printed as if it had finished.
+NO_RUN_OPTIONS = ("--list", "-l", "--list-rules", "--list-target-rules", "--summary", "-S", "--detailed-summary",
+                  "-D", "--dag", "--rulegraph", "--filegraph", "--lint", "--cleanup-metadata", "--cm", "--touch", "-t",
+                  "--list-changes", "--lc", "--list-untracked", "--lu", "--delete-all-output", "--delete-temp-output")
 
 
 def main(args: argparse.Namespace) -> int:
@@ -84,6 +94,10 @@ def main(args: argparse.Namespace) -> int:
 
     from biasgt.workflow.run_summary import dry_run_summary, finished_summary
 
+    if args.unlock or "--unlock" in args.snakemake_args:  # '-- --unlock' too: never read as a finished run
+        workdir = unlock_workflow(config_file=args.config, workdir=args.directory)
+        print(f"unlocked {workdir}: no run works there; nothing was run (biasgt run runs the workflow)")
+        return 0
     profile = [] if args.profile is None else ["--profile", str(resolve_profile(args.profile))]
     # a dry run prints Snakemake's whole plan only with -v; else one line says what would run and why
     plan = io.StringIO() if args.dry_run and not getattr(args, "verbose", 0) else None
@@ -97,6 +111,10 @@ def main(args: argparse.Namespace) -> int:
         extra=[*profile, *args.snakemake_args],
         echo=plan,
     )
+    no_run = [a for a in args.snakemake_args if a.split("=")[0] in NO_RUN_OPTIONS]
+    if no_run and not args.dry_run:
+        print(f"snakemake {' '.join(no_run)}: nothing was run (its output is above)")
+        return 0
     if args.dry_run:
         if plan is not None:
             print(dry_run_summary(plan.getvalue()) + " (biasgt -v run --dry-run shows the whole plan)")

@@ -70,13 +70,17 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--validation", action="append", default=[], metavar="NAME=DIR",
                    help="the 'biasgt validate' folder of a --seq sequence: its verdict decides whether the "
                         "sequence enters the dataset (PASS; WARN with --accept-warn; never FAIL); repeatable. "
-                        "With --results, results/validation/NAME is used when it exists")
+                        "With --results, results/validation/NAME is used; a sequence without a validation is refused "
+                        "unless --allow-unvalidated")
     p.add_argument("--reference", action="append", default=[], metavar="NAME=STREAM",
                    help="the pose stream a --seq sequence's windows take their start and end states from, as "
                         "'biasgt validate --poses' (default: the ground-truth state, else the recovery's stream; "
                         "needed when the recovery fitted positions only, e.g. Leica); repeatable")
     p.add_argument("--accept-warn", action="store_true", default=d.accept_warn,
                    help="take sequences whose verdict is WARN too")
+    p.add_argument("--allow-unvalidated", action="store_true",
+                   help="take sequences without a validation (no --validation, no results/validation/NAME) as "
+                        "they are; without it they are refused")
     p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
 
@@ -113,6 +117,8 @@ def run(args: argparse.Namespace) -> int:
     if not sources:
         raise ConfigError("no sequence given", field="--seq",
                           hint="give --seq NAME SPLIT STORE RECOVERY_DIR or --splits FILE --results DIR")
+    if not args.allow_unvalidated:
+        _refuse_unvalidated(sources, args.results)
     manifest = build_window_dataset(sources, args.out, config)
     print(f"{len(manifest.sequences)} sequences, {manifest.window_samples} samples per window "
           f"({config.window_s:g} s at {manifest.rate_hz:g} Hz, overlap {config.overlap:g}), "
@@ -129,3 +135,22 @@ def _name_value(value: str, option: str) -> tuple[str, str]:
                           hint=f"e.g. {option} rec01=" + ("out/rec01/validation" if option == "--validation"
                                                            else "groundtruth_poses"))
     return name, rest
+
+
+def _refuse_unvalidated(sources: list, results: Path | None) -> None:
+    """Refuse the windowed sequences without a validation folder (their verdict cannot gate them)."""
+    missing = [src for src in sources if src.validation_dir is None and src.split.windowed]
+    if not missing:
+        return
+    names = ", ".join(f"'{src.name}'" for src in missing)
+    where = (f"no folder {results / 'validation' / missing[0].name}" if results is not None
+             and _from_results(missing[0], results) else "no --validation NAME=DIR")
+    raise ConfigError(f"{len(missing)} sequence(s) not validated: {names} ({where}); an unvalidated sequence "
+                      "may be a recording that 'biasgt validate' FAILs", field="--allow-unvalidated",
+                      hint="run 'biasgt validate' for it (the workflow's validate stage) and give its folder, or "
+                           "pass --allow-unvalidated to take it unchecked")
+
+
+def _from_results(src, results: Path) -> bool:
+    """Whether ``src`` was taken from the --results layout (its store is results/ingest/NAME)."""
+    return Path(src.store_dir) == Path(results) / "ingest" / src.name
