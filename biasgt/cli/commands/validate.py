@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from functools import partial
 import logging
 from pathlib import Path
 from typing import Any
@@ -63,15 +64,22 @@ def description() -> str:
             "(CODE (LEVEL): what):\n" + rules_text())
 
 
+def _format_help_with_rules(parser: argparse.ArgumentParser) -> str:
+    """``validate --help``: the parser's help with :func:`description` (the rules) as its description."""
+    parser.description = description()
+    return argparse.ArgumentParser.format_help(parser)
+
+
 def register(subparsers: argparse._SubParsersAction) -> None:
     d = DEFAULTS
     p = subparsers.add_parser(
         "validate",
         help="judge a bias trajectory by 1-s integration error (PRMSE, ROE) with a PASS/WARN/FAIL verdict",
-        description=description(),
+        description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    p.format_help = partial(_format_help_with_rules, p)  # the rules' registry loads only when help is asked
     p.add_argument("sequence", metavar="SEQUENCE", help="input with IMU (store folder, ASL/EuRoC folder, bag, ...)")
     p.add_argument("--bias", action="append", default=[], metavar="[NAME=]FILE",
                    help="bias file: bias.csv / interpolated .csv/.parquet, or a EuRoC/OpenVINS state CSV; the "
