@@ -334,6 +334,8 @@ class Baseline(str, enum.Enum):
     GROUND_TRUTH = "ground_truth"
     RANDOM_WALK_ORACLE = "random_walk_oracle"
     RANDOM_WALK_PAPER = "random_walk_paper"
+    START_REST = "start_rest"  # training/ref_start_rest.py: the IMU's own rest, held constant
+    SEQUENCE_MEAN = "sequence_mean"  # training/ref_sequence_mean.py: each test sequence's mean bias (oracle)
 
     @property
     def label(self) -> str:
@@ -345,13 +347,15 @@ class Baseline(str, enum.Enum):
             Baseline.RANDOM_WALK_ORACLE: "Random walk (oracle)",
             Baseline.RANDOM_WALK_PAPER: "Random walk (oracle, paper's walks)",
             Baseline.STATE_BIAS: "Dataset GT-state bias",
+            Baseline.START_REST: "Start-rest bias",
+            Baseline.SEQUENCE_MEAN: "Sequence-mean bias (oracle)",
         }[self]
 
     @property
     def is_oracle(self) -> bool:
         """Uses ground truth at test time (a bound, not a method)."""
         return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE, Baseline.RANDOM_WALK_PAPER,
-                        Baseline.STATE_BIAS)
+                        Baseline.STATE_BIAS, Baseline.SEQUENCE_MEAN)
 
 
 class EvalGravity(str, enum.Enum):
@@ -475,7 +479,8 @@ class EvaluationConfig:
     batch_windows: int = 32
     examples: int = 4
     references: tuple[Baseline, ...] = tuple(b for b in Baseline
-                                             if b not in (Baseline.STATE_BIAS, Baseline.RANDOM_WALK_PAPER))
+                                             if b not in (Baseline.STATE_BIAS, Baseline.RANDOM_WALK_PAPER,
+                                                          Baseline.START_REST, Baseline.SEQUENCE_MEAN))
     gravity: EvalGravity = EvalGravity.RECOVERED
     oracle_random_walk: OracleWalk = OracleWalk.RECOVERY
 

@@ -115,6 +115,10 @@ class ReferencePredictor:
 
     def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
                 seed: int) -> np.ndarray:
+        if self.baseline in (Baseline.START_REST, Baseline.SEQUENCE_MEAN):
+            from training.ref_rows import sequence_reference_bias
+
+            return sequence_reference_bias(self.baseline, items, sequence, self.windows)
         rng = np.random.default_rng([seed, int(items["t0_ns"][0]) % (2**62)])
         B = len(items["imu"])
         return baseline_bias(self.baseline, items, bias_mean=self.windows.bias_mean,
