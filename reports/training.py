@@ -27,6 +27,7 @@ from matplotlib.figure import Figure
 from pipeline.atomic import write_text_atomic
 from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
 from training.outputs import EXAMPLES_PARQUET, EvaluationSummary, read_summary
+from training.networks import get_network, network_names
 from training.predictions import CHANNELS
 from training.table import AVERAGE, TableColumn, build_table, cell_marks, method_label, table_columns
 
@@ -41,11 +42,14 @@ SECTIONS = (
     ("calibration", "Calibration of the diffusion models' spread"),
     ("cost", "Parameters, training time and latency"),
 )
-METHOD_COLORS = {"diffusion_rnn": "#1f77b4", "diffusion_unet": "#9467bd", "regression_rnn": "#ff7f0e",
-                 "regression_unet": "#8c564b", "indirect_rnn": "#2ca02c"}
 CHANNEL_UNITS = ("rad/s",) * 3 + ("m/s²",) * 3
 #: How far below the nominal level a coverage may be before the spread is called overconfident.
 COVERAGE_TOLERANCE = 0.10
+
+
+def _method_color(name: str, default: str | None) -> str | None:
+    """A registered method's report colour (:attr:`training.networks.Network.color`), else ``default``."""
+    return get_network(name).color if name in network_names() else default
 
 
 # ----------------------------------------------------------------------------- sections
@@ -83,7 +87,7 @@ def _curves_figure(runs: Sequence[Path]) -> Figure | None:
     ax_t, ax_v = fig.subplots(1, 2)
     for run, f in frames:
         name = f"{run.parent.name}/{run.name}"
-        color = METHOD_COLORS.get(run.parent.name)
+        color = _method_color(run.parent.name, None)
         ax_t.plot(f["step"], f["train_loss"], color=color, linewidth=1.0, label=name)
         val = f.dropna(subset=["val_loss"])
         ax_v.plot(val["step"], val["val_loss"], color=color, marker="o", markersize=3, linewidth=1.0, label=name)
@@ -104,7 +108,7 @@ def _example_figure(examples: dict[str, pd.DataFrame], window: int) -> Figure:
     truth_drawn = False
     for name, ex in examples.items():
         w = ex[ex["window"] == window]
-        color = METHOD_COLORS.get(name, "#7f7f7f")
+        color = _method_color(name, "#7f7f7f")
         samples = sorted(col for col in w.columns if col.startswith("sample") and col[6:].isdigit())
         for i, ch in enumerate(CHANNELS):
             c = w[w["channel"] == ch]

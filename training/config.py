@@ -1,7 +1,8 @@
 """Typed configuration of the learning stage: methods, size presets, samplers, training options.
 
-Every option and its default is defined once, here. ``ModelConfig`` holds the network sizes
-(:meth:`ModelConfig.for_preset` gives a preset's values); ``TrainConfig`` holds every training
+Every option and its default is defined once, here. ``ModelConfig`` holds a model's method, its
+network's options (:mod:`training.networks`: each network's own dataclass and preset values;
+:meth:`ModelConfig.for_preset` gives a preset's) and the diffusion schedule; ``TrainConfig`` holds every training
 option (a YAML ``training:`` section or a ``--config`` file maps onto it with
 :meth:`TrainConfig.from_mapping`).
 
@@ -25,29 +26,13 @@ from typing import Any
 
 from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping
 from pipeline.errors import ConfigError
+from training.networks import Network, get_network, network_names
+from training.references import get_reference, reference_names
 
-__all__ = ["Method", "Preset", "Sampler", "ClipRange", "ModelConfig", "TrainConfig", "IMU_CHANNELS"]
+__all__ = ["Preset", "Sampler", "ClipRange", "ModelConfig", "TrainConfig", "IMU_CHANNELS"]
 
 #: Channels of one IMU sample and of one bias sample: gyro x, y, z (rad/s), acc x, y, z (m/s^2).
 IMU_CHANNELS = 6
-
-
-class Method(str, enum.Enum):
-    """A learned bias model (section 1 of the design)."""
-
-    DIFFUSION_RNN = "diffusion_rnn"  # the paper's model: TCN condition + GRU noise predictor
-    REGRESSION_RNN = "regression_rnn"  # same encoder and GRU, regresses the bias (MSE)
-    DIFFUSION_UNET = "diffusion_unet"  # TCN condition + diffusion_policy's ConditionalUnet1D
-    REGRESSION_UNET = "regression_unet"  # same U-Net, regresses the bias (MSE)
-    INDIRECT_RNN = "indirect_rnn"  # AirIMU-style: trained through the integrator, no bias labels
-
-    @property
-    def is_diffusion(self) -> bool:
-        return self in (Method.DIFFUSION_RNN, Method.DIFFUSION_UNET)
-
-    @property
-    def is_unet(self) -> bool:
-        return self in (Method.DIFFUSION_UNET, Method.REGRESSION_UNET)
 
 
 class Preset(str, enum.Enum):
@@ -76,23 +61,16 @@ class ClipRange(str, enum.Enum):
 
 @dataclass(frozen=True)
 class ModelConfig:
-    """Network sizes and the diffusion schedule of one model.
+    """The method, its network's sizes and the diffusion schedule of one model.
 
     Attributes:
-        method: Which model.
+        method: Which model: a registered network name (:mod:`training.networks`).
         preset: Which size preset the values came from (informative).
         condition_channels: Input channels of the condition encoder: 6 (gyro, acc) or 7 (plus
             the IMU temperature).
-        tcn_channels: Output channels of the TCN's temporal blocks (dilation 2^i in block i).
-        tcn_kernel: TCN kernel size.
-        tcn_dropout: Dropout inside the TCN blocks (the released code uses 0.2).
-        cond_dim: Size of the condition code (last TCN timestep, projected).
-        step_embed_dim: Size of the sinusoidal diffusion-step embedding (its MLP is 4x wider).
-        hidden: GRU hidden size (also the fused input size).
-        gru_layers: GRU layers.
-        unet_dims: ConditionalUnet1D down dims.
-        unet_kernel: ConditionalUnet1D kernel size.
-        unet_groups: GroupNorm groups in the U-Net.
+        network: The network's own options (its :attr:`training.networks.Network.options`
+            dataclass; a mapping is read into it; ``None``: the preset's). Its fields read as
+            attributes of the config too (``config.hidden``).
         train_timesteps: Diffusion steps of the forward process.
         beta_start: First beta of the linear schedule.
         beta_end: Last beta of the linear schedule.
@@ -116,19 +94,10 @@ class ModelConfig:
             training; ``None``: the ``train`` range, as models built outside training use).
     """
 
-    method: Method
+    method: str
     preset: Preset = Preset.SMALL
     condition_channels: int = IMU_CHANNELS
-    tcn_channels: tuple[int, ...] = (64, 64, 64, 64, 128, 128, 128)
-    tcn_kernel: int = 2
-    tcn_dropout: float = 0.2
-    cond_dim: int = 256
-    step_embed_dim: int = 256
-    hidden: int = 256
-    gru_layers: int = 3
-    unet_dims: tuple[int, ...] = (256, 512, 1024)
-    unet_kernel: int = 3
-    unet_groups: int = 8
+    network: Any = None
     train_timesteps: int = 1000
     beta_start: float = 1e-4
     beta_end: float = 0.02
@@ -139,21 +108,29 @@ class ModelConfig:
     clip_x0_bounds: tuple[tuple[float, ...], tuple[float, ...]] | None = None
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "method", Method(self.method))
+        net = get_network(self.method)
+        object.__setattr__(self, "method", net.name)
         if self.clip_x0_sigmas is not None and not float(self.clip_x0_sigmas) > 0:
             raise ConfigError(f"clip_x0_sigmas must be positive or null, got {self.clip_x0_sigmas!r}",
                               field="clip_x0_sigmas", hint="e.g. 3 (sigmas of the train split's bias), or null for none")
         self._check_clip()
         object.__setattr__(self, "preset", Preset(self.preset))
-        object.__setattr__(self, "tcn_channels", tuple(int(c) for c in self.tcn_channels))
-        object.__setattr__(self, "unet_dims", tuple(int(c) for c in self.unet_dims))
+        object.__setattr__(self, "network", _network_options(net, self.network, self.preset))
         if self.condition_channels not in (IMU_CHANNELS, IMU_CHANNELS + 1):
             raise ConfigError(f"condition_channels is {self.condition_channels}", field="condition_channels",
                               hint="use 6 (gyro, acc) or 7 (plus temperature)")
-        bad = [d for d in self.unet_dims if d % self.unet_groups]
-        if bad:
-            raise ConfigError(f"U-Net dims {bad} are not multiples of unet_groups {self.unet_groups}",
-                              field="unet_dims", hint="choose dims divisible by the GroupNorm groups")
+
+    def __getattr__(self, name: str) -> Any:
+        """A field of the network's options (``config.hidden``); only called for names not on the config."""
+        network = self.__dict__.get("network")
+        if not name.startswith("_") and network is not None and hasattr(network, name):
+            return getattr(network, name)
+        raise AttributeError(f"{type(self).__name__} of {self.__dict__.get('method')!r} has no option {name!r}")
+
+    @property
+    def spec(self) -> Network:
+        """The method's registry entry (:class:`training.networks.Network`)."""
+        return get_network(self.method)
 
     def _check_clip(self) -> None:
         try:
@@ -179,28 +156,58 @@ class ModelConfig:
             object.__setattr__(self, "clip_x0_bounds", (lo, hi))
 
     @classmethod
-    def for_preset(cls, method: Method | str, preset: Preset | str, **overrides: Any) -> ModelConfig:
-        """The sizes of ``preset`` for ``method`` (``overrides`` replace single values)."""
-        preset = Preset(preset)
-        values = dict(_PRESETS[preset])
-        values.update(overrides)
-        return cls(method=Method(method), preset=preset, **values)
+    def shared_options(cls) -> set[str]:
+        """Options of every method (the schedule and the clip), as opposed to the network's own."""
+        return {f.name for f in dataclasses.fields(cls)} - {"method", "preset", "condition_channels", "network"}
+
+    @classmethod
+    def for_preset(cls, method: str, preset: Preset | str, **overrides: Any) -> ModelConfig:
+        """The sizes of ``preset`` for ``method``; ``overrides`` replace single values (the network's
+        options or the shared ones).
+
+        Raises:
+            ConfigError: Unknown method, or an override that is neither a shared nor a network option.
+        """
+        net, preset = get_network(method), Preset(preset)
+        own = cls.shared_options() | {"condition_channels"}
+        unknown = sorted(set(overrides) - own - net.option_names())
+        if unknown:
+            raise ConfigError(f"unknown {net.name} option(s) {', '.join(unknown)}", field="model_overrides",
+                              hint=f"allowed: {', '.join(sorted(cls.shared_options() | net.option_names()))}")
+        network = net.make_options(preset.value, **{k: v for k, v in overrides.items() if k not in own})
+        return cls(method=net.name, preset=preset, network=network, **{k: v for k, v in overrides.items() if k in own})
 
     def to_dict(self) -> dict[str, Any]:
+        """Plain mapping; the network's options nested under ``network``."""
         return dataclass_to_mapping(self)
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> ModelConfig:
-        return cls(**dict(d))
+        """From :meth:`to_dict`, or from the flat mapping of a checkpoint written before the options were
+        per network (every architecture's sizes side by side: this network's are kept, the rest dropped)."""
+        d = dict(d)
+        if "network" not in d:
+            names = get_network(d.get("method")).option_names()
+            d["network"] = {k: d[k] for k in names if k in d}
+            own = {f.name for f in dataclasses.fields(cls)}
+            d = {k: v for k, v in d.items() if k in own}
+        return cls(**d)
 
 
-_PRESETS: dict[Preset, dict[str, Any]] = {
-    Preset.PAPER: {},  # the dataclass defaults are the released code's sizes
-    Preset.SMALL: dict(tcn_channels=(32, 32, 32, 32, 64, 64, 64), cond_dim=64, step_embed_dim=64, hidden=64,
-                       gru_layers=2, unet_dims=(32, 64, 128)),
-    Preset.TINY: dict(tcn_channels=(16, 16, 16, 16), tcn_dropout=0.0, cond_dim=32, step_embed_dim=32, hidden=64,
-                      gru_layers=2, unet_dims=(16, 32, 64)),
-}
+def _network_options(net: Network, options: Any, preset: Preset) -> Any:
+    """``options`` as ``net``'s options dataclass (a mapping read into it; None: the preset's)."""
+    if options is None:
+        return net.make_options(preset.value)
+    if isinstance(options, Mapping):
+        unknown = sorted(set(options) - net.option_names())
+        if unknown:
+            raise ConfigError(f"unknown {net.name} option(s) {', '.join(unknown)}", field="network",
+                              hint=f"allowed: {', '.join(sorted(net.option_names()))}")
+        return net.options_class()(**options)
+    if not isinstance(options, net.options_class()):
+        raise ConfigError(f"network options of type {type(options).__name__} for {net.name}", field="network",
+                          hint=f"give a {net.options_class().__name__}")
+    return options
 
 
 @dataclass(frozen=True)
@@ -238,7 +245,7 @@ class TrainConfig:
         model_overrides: Single :class:`ModelConfig` values replacing the preset's.
     """
 
-    method: Method = Method.DIFFUSION_RNN
+    method: str = field(default_factory=lambda: network_names()[0])
     preset: Preset = Preset.SMALL
     seed: int = 0
     max_steps: int = 300
@@ -260,11 +267,7 @@ class TrainConfig:
     model_overrides: Mapping[str, Any] = dataclasses.field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        try:
-            object.__setattr__(self, "method", Method(self.method))
-        except ValueError:
-            raise ConfigError(f"unknown method '{self.method}'", field="method",
-                              hint=f"choose one of {', '.join(m.value for m in Method)}") from None
+        object.__setattr__(self, "method", get_network(self.method).name)
         try:
             object.__setattr__(self, "preset", Preset(self.preset))
         except ValueError:
@@ -288,15 +291,20 @@ class TrainConfig:
         self.model_config()  # unknown or invalid overrides fail here, at load time
 
     def model_config(self) -> ModelConfig:
-        """The network sizes this training uses (preset, temperature channel, overrides)."""
-        known = {f.name for f in dataclasses.fields(ModelConfig)} - {"method", "preset", "condition_channels"}
+        """The network sizes this training uses (preset, temperature channel, overrides).
+
+        ``model_overrides`` may name the options of any registered network (a workflow's options
+        apply to every method); those of this method's network and the shared ones are applied.
+        """
+        own = ModelConfig.shared_options() | get_network(self.method).option_names()
+        known = ModelConfig.shared_options().union(*(get_network(m).option_names() for m in network_names()))
         unknown = sorted(set(self.model_overrides) - known)
         if unknown:
             raise ConfigError(f"unknown model option(s) {', '.join(unknown)}", field="model_overrides",
                               hint=f"allowed: {', '.join(sorted(known))}")
         channels = IMU_CHANNELS + (1 if self.use_temperature else 0)
         return ModelConfig.for_preset(self.method, self.preset, condition_channels=channels,
-                                      **self.model_overrides)
+                                      **{k: v for k, v in self.model_overrides.items() if k in own})
 
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any] | None, *, path: str | Path | None = None) -> TrainConfig:
@@ -323,39 +331,6 @@ class ExportFormat(str, enum.Enum):
 
     TORCHSCRIPT = "torchscript"
     ONNX = "onnx"
-
-
-class Baseline(str, enum.Enum):
-    """Evaluation rows without training (see the module docstring)."""
-
-    ZERO = "zero"
-    TRAIN_MEAN = "train_mean"
-    STATE_BIAS = "state_bias"
-    GROUND_TRUTH = "ground_truth"
-    RANDOM_WALK_ORACLE = "random_walk_oracle"
-    RANDOM_WALK_PAPER = "random_walk_paper"
-    START_REST = "start_rest"  # training/ref_start_rest.py: the IMU's own rest, held constant
-    SEQUENCE_MEAN = "sequence_mean"  # training/ref_sequence_mean.py: each test sequence's mean bias (oracle)
-
-    @property
-    def label(self) -> str:
-        """Name in tables and reports."""
-        return {
-            Baseline.ZERO: "Zero bias",
-            Baseline.TRAIN_MEAN: "Train-mean bias",
-            Baseline.GROUND_TRUTH: "Recovered GT bias",
-            Baseline.RANDOM_WALK_ORACLE: "Random walk (oracle)",
-            Baseline.RANDOM_WALK_PAPER: "Random walk (oracle, paper's walks)",
-            Baseline.STATE_BIAS: "Dataset GT-state bias",
-            Baseline.START_REST: "Start-rest bias",
-            Baseline.SEQUENCE_MEAN: "Sequence-mean bias (oracle)",
-        }[self]
-
-    @property
-    def is_oracle(self) -> bool:
-        """Uses ground truth at test time (a bound, not a method)."""
-        return self in (Baseline.GROUND_TRUTH, Baseline.RANDOM_WALK_ORACLE, Baseline.RANDOM_WALK_PAPER,
-                        Baseline.STATE_BIAS, Baseline.SEQUENCE_MEAN)
 
 
 class EvalGravity(str, enum.Enum):
@@ -391,7 +366,7 @@ class TrainingPlan:
             throughput of one 2-thread job.
     """
 
-    methods: tuple[Method, ...] = tuple(Method)
+    methods: tuple[str, ...] = field(default_factory=network_names)
     seeds: tuple[int, ...] = (0,)
     preset: Preset = Preset.SMALL
     options: Mapping[str, Any] = field(default_factory=dict)
@@ -399,11 +374,7 @@ class TrainingPlan:
     threads: int = 2
 
     def __post_init__(self) -> None:
-        try:
-            object.__setattr__(self, "methods", tuple(Method(m) for m in self.methods))
-        except ValueError as exc:
-            raise ConfigError(f"unknown training method ({exc})", field="training.methods",
-                              hint=f"choose from {', '.join(m.value for m in Method)}") from None
+        object.__setattr__(self, "methods", tuple(get_network(m, field="training.methods").name for m in self.methods))
         object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
         object.__setattr__(self, "preset", Preset(self.preset))
         object.__setattr__(self, "options", dict(self.options))
@@ -430,25 +401,25 @@ class TrainingPlan:
         """From the (partial) ``training:`` section; one-line :class:`ConfigError` on bad keys or values."""
         return dataclass_from_mapping(cls, d, what="training option", field="training")
 
-    def train_config(self, method: Method | str, seed: int) -> TrainConfig:
+    def train_config(self, method: str, seed: int) -> TrainConfig:
         """The :class:`TrainConfig` of one run.
 
         Raises:
             ConfigError: A bad option, its field named within the section (``options.<key>``).
         """
         try:
-            return TrainConfig.from_mapping({**self.options, "method": Method(method), "seed": int(seed),
+            return TrainConfig.from_mapping({**self.options, "method": get_network(method).name, "seed": int(seed),
                                              "preset": self.preset})
         except ConfigError as exc:  # TrainConfig names its fields as the top of a 'training:' file does
             key = (exc.field or "").removeprefix("training").lstrip(".")
             raise ConfigError(exc.problem, field=f"options.{key}" if key else "options", hint=exc.hint) from None
 
-    def run_settings(self, method: Method | str, seed: int | str) -> dict[str, Any]:
+    def run_settings(self, method: str, seed: int | str) -> dict[str, Any]:
         """Parameters of one train job: its resolved :class:`TrainConfig` as a plain mapping (so that
         adding a method or a seed retrains nothing else)."""
         return self.train_config(method, int(seed)).to_dict()
 
-    def runs(self) -> list[tuple[Method, int]]:
+    def runs(self) -> list[tuple[str, int]]:
         return [(m, s) for m in self.methods for s in self.seeds]
 
     def to_dict(self) -> dict[str, Any]:
@@ -467,7 +438,8 @@ class EvaluationConfig:
         seed: Seed of the sampling noise and of the oracle's random walks.
         batch_windows: Windows per model call (times K samples).
         examples: Test windows kept for the report's figure.
-        references: Reference rows evaluated by the workflow.
+        references: Reference rows evaluated by the workflow (:mod:`training.references`; default:
+            the rows registered as default).
         gravity: Gravity of the integration (:class:`EvalGravity`).
         oracle_random_walk: Random-walk strengths of the oracle (:class:`OracleWalk`).
     """
@@ -478,9 +450,7 @@ class EvaluationConfig:
     seed: int = 0
     batch_windows: int = 32
     examples: int = 4
-    references: tuple[Baseline, ...] = tuple(b for b in Baseline
-                                             if b not in (Baseline.STATE_BIAS, Baseline.RANDOM_WALK_PAPER,
-                                                          Baseline.START_REST, Baseline.SEQUENCE_MEAN))
+    references: tuple[str, ...] = field(default_factory=lambda: reference_names(default_only=True))
     gravity: EvalGravity = EvalGravity.RECOVERED
     oracle_random_walk: OracleWalk = OracleWalk.RECOVERY
 
@@ -493,7 +463,8 @@ class EvaluationConfig:
                                   f"{[k.value for k in kind]}", field=name,
                                   hint=f"give one of {', '.join(k.value for k in kind)}") from None
         object.__setattr__(self, "samplers", tuple(Sampler(s) for s in self.samplers))
-        object.__setattr__(self, "references", tuple(Baseline(b) for b in self.references))
+        object.__setattr__(self, "references", tuple(get_reference(b, field="references").name
+                                                     for b in self.references))
         for name in ("samples", "steps", "batch_windows"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"evaluation {name} must be >= 1, got {getattr(self, name)!r}", field=name,

@@ -28,6 +28,7 @@ below ``acc_std_max``, and its mean differs from the previous rest block's by le
 from __future__ import annotations
 
 import dataclasses
+import functools
 import logging
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,7 +44,8 @@ from training.windows import resample_imu
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CONTEXT_DIR", "RestConfig", "SequenceContext", "detect_rests", "write_context", "has_context"]
+__all__ = ["CONTEXT_DIR", "RestConfig", "SequenceContext", "detect_rests", "has_context", "open_context",
+           "write_context"]
 
 #: Folder of the sequence records inside a window dataset.
 CONTEXT_DIR = "context"
@@ -184,6 +186,16 @@ class SequenceContext:
             tc = np.concatenate([[0.0], np.cumsum(np.asarray(self.temperature_degc, dtype=np.float64))])
             temp = np.where(found, (tc[end] - tc[first]) / np.maximum(end - first, 1), np.nan)
         return np.where(found[:, None], mean, 0.0), found, temp
+
+
+def open_context(root: str | Path, name: str) -> SequenceContext:
+    """The record of ``name`` in the dataset at ``root``, opened once per process (cached)."""
+    return _open_cached(str(Path(root).resolve()), name)
+
+
+@functools.lru_cache(maxsize=64)
+def _open_cached(root: str, name: str) -> SequenceContext:
+    return SequenceContext.open(root, name)
 
 
 def has_context(dataset_dir: str | Path) -> bool:

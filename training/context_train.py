@@ -37,7 +37,7 @@ from training.context_model import (
 from training.dataset import TEMPERATURE, WindowDataset
 from training.evaluate import evaluate_predictor, load_test_windows
 from training.outputs import EvaluationResult, write_evaluation
-from training.ref_rows import open_context
+from training.context import open_context
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +99,7 @@ def load_split(root: str | Path, split: Split, stats: Stats, mc: ContextModelCon
         info = ds.manifest["sequences"][name].get("info") or {}
         g = _gravity(info, gravity)
         t_ns = np.asarray(a["t_ns"])
-        feats, rest = context_features(open_context(str(Path(root).resolve()), name), t_ns[:, 0], t_ns.shape[1],
+        feats, rest = context_features(open_context(root, name), t_ns[:, 0], t_ns.shape[1],
                                        stats, mc, float(np.linalg.norm(g)))
         cols = {k: np.asarray(a[k], dtype=np.float64) for k in _KEYS}
         cols["dt_s"] = np.diff(t_ns, axis=1) * 1e-9
@@ -200,7 +200,7 @@ class ContextPredictor:
     def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Any, seed: int) -> np.ndarray:
         imu = items["imu"]
         B, T, _ = imu.shape
-        ctx = open_context(str(self.root.resolve()), sequence)
+        ctx = open_context(self.root, sequence)
         feats, rest = context_features(ctx, np.asarray(items["t0_ns"], dtype=np.int64), T, self.stats,
                                        self.model.config, float(np.linalg.norm(self.gravity[sequence])))
         base = rest if self.model.config.base is Base.START_REST else np.tile(self.stats.bias_mean, (B, 1))

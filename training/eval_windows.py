@@ -3,13 +3,14 @@
 See :mod:`training.evaluate` for the protocol. :func:`load_test_windows` applies the evaluation's
 stated choices (:class:`training.config.EvaluationConfig`): the gravity of the integration
 (:class:`training.config.EvalGravity`) and the oracle's random walks
-(:class:`training.config.OracleWalk`), and carries each kept window's ground-truth-state bias
-(``state_bias``, NaN where the sequence has none) into the items.
+(:class:`training.config.OracleWalk`), and carries optional per-window dataset arrays (the
+ground-truth-state bias :data:`training.dataset.STATE_BIAS`, and those a reference row needs; NaN
+where a sequence has none) into the items.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -38,8 +39,8 @@ class TestWindows:
         gravity_source: Sequence -> "nominal", "recovery" or "default" (recovered asked, none kept).
         random_walk: Sequence -> bias random-walk strengths of the oracle, [6] (NaN when unknown).
         bias_mean: The train split's mean bias, [6].
-        state_bias: The dataset's ground-truth-state bias of each kept window, [W, T, 6] (NaN where
-            the sequence has none).
+        arrays: Optional per-window dataset arrays of the kept windows, name -> [W, ...] (NaN where
+            the sequence has none), e.g. the ground-truth-state bias.
     """
 
     dataset: WindowDataset
@@ -50,7 +51,7 @@ class TestWindows:
     gravity_source: dict[str, str]
     random_walk: dict[str, np.ndarray]
     bias_mean: np.ndarray
-    state_bias: np.ndarray | None = None
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
     @property
     def root(self) -> Path:
@@ -68,10 +69,10 @@ class TestWindows:
         return [s for s in self.dataset.sequences if np.any(self.sequence == s)]
 
     def items(self, rows: np.ndarray) -> dict[str, Any]:
-        """Collated float64 items of the kept windows ``rows`` (positions in ``index``), with ``state_bias``."""
+        """Collated float64 items of the kept windows ``rows`` (positions in ``index``), with the ``arrays``."""
         items = default_collate([self.dataset[int(i)] for i in self.index[rows]])
-        if self.state_bias is not None:
-            items[STATE_BIAS] = torch.from_numpy(np.ascontiguousarray(self.state_bias[rows]))
+        for name, values in self.arrays.items():
+            items[name] = torch.from_numpy(np.ascontiguousarray(values[rows]))
         return items
 
 
@@ -85,8 +86,10 @@ def non_overlapping(t_ns: np.ndarray) -> np.ndarray:
     return np.asarray(keep, dtype=np.int64)
 
 
-def load_test_windows(root: str | Path, config: EvaluationConfig = EvaluationConfig()) -> TestWindows:
-    """The non-overlapping test windows of the dataset at ``root``, with ``config``'s gravity and oracle walks.
+def load_test_windows(root: str | Path, config: EvaluationConfig = EvaluationConfig(),
+                      arrays: tuple[str, ...] = ()) -> TestWindows:
+    """The non-overlapping test windows of the dataset at ``root``, with ``config``'s gravity and oracle walks,
+    the ground-truth-state bias and the optional per-window ``arrays`` (``<name>.npy`` of the sequence folders).
 
     Raises:
         InputFormatError: Not a dataset, another format version.
@@ -96,7 +99,8 @@ def load_test_windows(root: str | Path, config: EvaluationConfig = EvaluationCon
     if len(ds) == 0:
         raise DataError("the dataset has no test window", hint="assign sequences to split 'test' in 'biasgt windows' "
                         f"(--splits) and re-create {Path(root)}")
-    index, names, t0, state = [], [], [], []
+    names_of_arrays = tuple(dict.fromkeys((STATE_BIAS, *arrays)))
+    index, names, t0, extra = [], [], [], {a: [] for a in names_of_arrays}
     gravity, gsource, walk = {}, {}, {}
     offset = 0
     for name in ds.sequences:
@@ -113,15 +117,17 @@ def load_test_windows(root: str | Path, config: EvaluationConfig = EvaluationCon
         gsource[name] = "nominal" if config.gravity is EvalGravity.NOMINAL else "default" if g is None else "recovery"
         rw = info.get("sensor_random_walk" if config.oracle_random_walk is OracleWalk.SENSOR else "bias_random_walk")
         walk[name] = np.full(6, np.nan) if rw is None else np.asarray(rw, dtype=np.float64)
-        state.append(_state_bias(Path(root) / entry["path"], keep, t_ns.shape[1]))
+        for a in names_of_arrays:
+            extra[a].append(_array(Path(root) / entry["path"], a, keep, t_ns.shape[1]))
     return TestWindows(ds, np.concatenate(index), np.concatenate(names), np.concatenate(t0), gravity, gsource, walk,
                        np.asarray(ds.manifest["normalization"]["bias_mean"], dtype=np.float64),
-                       np.concatenate(state))
+                       {a: np.concatenate(v) for a, v in extra.items()})
 
 
-def _state_bias(folder: Path, keep: np.ndarray, samples: int) -> np.ndarray:
-    """The ground-truth-state bias of the kept windows of one sequence folder, [K, T, 6] (NaN when absent)."""
-    path = folder / f"{STATE_BIAS}.npy"
+def _array(folder: Path, name: str, keep: np.ndarray, samples: int) -> np.ndarray:
+    """The per-window array ``name`` of the kept windows of one sequence folder, [K, ...] (NaN [K, T, 6] when
+    the sequence has none)."""
+    path = folder / f"{name}.npy"
     if not path.is_file():
         return np.full((len(keep), samples, 6), np.nan)
     return np.asarray(np.load(path, mmap_mode="r")[keep], dtype=np.float64)

@@ -42,12 +42,12 @@ import pandas as pd
 import torch
 
 from pipeline.errors import ConfigError, InputFormatError
-from training.baselines import baseline_bias
 from training.checkpoint import CheckpointError, check_finite_output
 from training.clip import ClipUse, clip_use
-from training.config import Baseline, EvaluationConfig, Method, Sampler
+from training.config import EvaluationConfig, Sampler
 from training.dataset import FORMAT_VERSION, STATE_BIAS
 from training.eval_windows import TestWindows, load_test_windows
+from training.networks import Network, get_network
 from training.outputs import (
     Aggregation,
     Calibration,
@@ -58,6 +58,7 @@ from training.outputs import (
     write_evaluation,
 )
 from training.predictions import CHANNELS, prediction_frame
+from training.references import ReferenceRow, get_reference
 from validation.metrics import prmse_m, roe_deg, window_end_errors
 
 log = logging.getLogger(__name__)
@@ -88,7 +89,7 @@ PROTOCOL = ("non-overlapping windows of the test split (every other 50%-overlap 
 class Predictor(Protocol):
     """What the evaluation asks of a bias predictor."""
 
-    name: str  # folder / column name (a Method or Baseline value)
+    name: str  # folder / column name (a registered method or reference row)
     label: str
     stochastic: bool  # draws different samples (a diffusion model)
 
@@ -99,31 +100,46 @@ class Predictor(Protocol):
 
 @dataclass
 class ReferencePredictor:
-    """A :class:`Baseline` row as a predictor."""
+    """A reference row (:class:`training.references.ReferenceRow`) as a predictor: it is given the
+    inputs it declares (see :mod:`training.references`)."""
 
-    baseline: Baseline
+    row: ReferenceRow
     windows: TestWindows
     stochastic: bool = False
 
     @property
     def name(self) -> str:
-        return self.baseline.value
+        return self.row.name
 
     @property
     def label(self) -> str:
-        return self.baseline.label
+        return self.row.label
+
+    def _input(self, need: str, items: dict[str, Any], sequence: str, seed: int) -> Any:
+        w = self.windows
+        if need == "bias_mean":
+            return w.bias_mean
+        if need == "random_walk":
+            return np.tile(w.random_walk[sequence], (len(items["imu"]), 1))
+        if need == "gravity_mps2":
+            return w.gravity_mps2[sequence]
+        if need == "rng":
+            return np.random.default_rng([seed, int(items["t0_ns"][0]) % (2**62)])
+        if need == "context":
+            from training.context import open_context
+
+            return open_context(w.root, sequence)
+        if need == "sequence_dir":
+            return Path(w.root) / w.manifest["sequences"][sequence]["path"]
+        if need.startswith("info."):
+            value = w.manifest["sequences"][sequence].get("info", {}).get(need.removeprefix("info."))
+            return None if value is None else np.asarray(value)
+        return np.asarray(items[need], dtype=np.float64)
 
     def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
                 seed: int) -> np.ndarray:
-        if self.baseline in (Baseline.START_REST, Baseline.SEQUENCE_MEAN):
-            from training.ref_rows import sequence_reference_bias
-
-            return sequence_reference_bias(self.baseline, items, sequence, self.windows)
-        rng = np.random.default_rng([seed, int(items["t0_ns"][0]) % (2**62)])
-        B = len(items["imu"])
-        return baseline_bias(self.baseline, items, bias_mean=self.windows.bias_mean,
-                             random_walk=np.tile(self.windows.random_walk[sequence], (B, 1)),
-                             gravity_mps2=self.windows.gravity_mps2[sequence], rng=rng)
+        inputs = {n: self._input(n, items, sequence, seed) for n in self.row.needs}
+        return self.row.predict({key: (v.numpy() if torch.is_tensor(v) else v) for key, v in items.items()}, inputs)
 
 
 @dataclass
@@ -135,16 +151,16 @@ class ModelPredictor:
     clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.scheduler.ClipCount
 
     @property
-    def method(self) -> Method:
-        return Method(self.run.config.method)
+    def method(self) -> Network:
+        return get_network(self.run.config.method)
 
     @property
     def name(self) -> str:
-        return self.method.value
+        return self.method.name
 
     @property
     def label(self) -> str:
-        return self.method.value
+        return self.method.label
 
     @property
     def stochastic(self) -> bool:
@@ -387,19 +403,23 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
 # ----------------------------------------------------------------------------- entry points
 
 
-def evaluate_reference(baseline: Baseline | str, dataset_dir: str | Path, out_dir: str | Path | None = None,
+def evaluate_reference(reference: str, dataset_dir: str | Path, out_dir: str | Path | None = None,
                        config: EvaluationConfig = EvaluationConfig()) -> EvaluationResult:
-    """Evaluate a reference row (:class:`training.baselines.Baseline`); write it when ``out_dir`` is given."""
-    baseline = Baseline(baseline)
-    windows = load_test_windows(dataset_dir, config)
-    kind = "oracle" if baseline.is_oracle else "reference"
-    result = evaluate_predictor(ReferencePredictor(baseline, windows), windows, config, kind=kind)
+    """Evaluate a registered reference row (:mod:`training.references`); write it when ``out_dir`` is given.
+
+    Raises:
+        ConfigError: No row of that name.
+    """
+    row = get_reference(reference)
+    windows = load_test_windows(dataset_dir, config, arrays=row.arrays)
+    kind = "oracle" if row.oracle else "reference"
+    result = evaluate_predictor(ReferencePredictor(row, windows), windows, config, kind=kind)
     if out_dir is not None:
         write_evaluation(result, out_dir)
     return result
 
 
-def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method: Method | None = None) -> None:
+def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method: str | None = None) -> None:
     """Refuse a checkpoint that does not fit the evaluation dataset (one line naming file and fix).
 
     Raises:
@@ -407,10 +427,10 @@ def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method
         InputFormatError: Another dataset format version, window length or IMU rate.
     """
     checkpoint = Path(getattr(run, "path", checkpoint))  # the .pt file itself
-    got = Method(run.config.method)
-    if method is not None and got is not Method(method):
-        raise ConfigError(f"the checkpoint holds a {got.value} model, not {Method(method).value}", path=checkpoint,
-                          field="method", hint=f"give the run trained with --method {Method(method).value}")
+    got = str(run.config.method)
+    if method is not None and got != get_network(method).name:
+        raise ConfigError(f"the checkpoint holds a {got} model, not {method}", path=checkpoint,
+                          field="method", hint=f"give the run trained with --method {method}")
     trained = dict(run.dataset or {})
     m = windows.manifest
     if trained.get("format_version", FORMAT_VERSION) != FORMAT_VERSION:
@@ -431,7 +451,7 @@ def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method
 def _run_provenance(run: Any, checkpoint: Path) -> dict[str, Any]:
     from training.models import count_parameters
 
-    info = {"path": str(checkpoint), "method": Method(run.config.method).value,
+    info = {"path": str(checkpoint), "method": str(run.config.method),
             "preset": getattr(run.config.preset, "value", run.config.preset), "seed": run.config.seed,
             "parameters": int(count_parameters(run.model))}
     meta = _read_json(Path(run.path).parent / "run.json")
@@ -449,7 +469,7 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 
 def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str | Path | None = None,
-                 config: EvaluationConfig = EvaluationConfig(), *, method: Method | None = None,
+                 config: EvaluationConfig = EvaluationConfig(), *, method: str | None = None,
                  device: str = "cpu") -> EvaluationResult:
     """Evaluate a trained run, rebuilt from its checkpoint alone (:func:`training.checkpoint.load_run`).
 

@@ -54,7 +54,7 @@ class ExportedSampler(nn.Module):
         if self.sampler is Sampler.DDPM:
             raise ConfigError("the DDPM sampler draws fresh noise every step and is not exported",
                               field="sampler", hint="export with --sampler ddim or released")
-        self.diffusion = bool(model.method.is_diffusion)
+        self.diffusion = bool(model.spec.is_diffusion)
         self.timesteps = [int(t) for t in model.scheduler.set_timesteps(steps, self.sampler).tolist()]
 
     def forward(self, imu: torch.Tensor, noise: torch.Tensor | None = None) -> torch.Tensor:
@@ -130,7 +130,7 @@ def export_run(checkpoint: str | Path, out_path: str | Path, fmt: ExportFormat |
     out.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(out) as tmp:
         write_export(module, example_inputs(module, int(run.dataset["window_samples"])), tmp, fmt)
-    log.info("exported %s (%s, %s sampler, %d steps) to %s", run.config.method.value, fmt.value,
+    log.info("exported %s (%s, %s sampler, %d steps) to %s", run.config.method, fmt.value,
              Sampler(sampler).value if module.diffusion else "no", steps, out)
     return out
 

@@ -29,7 +29,8 @@ from pipeline.atomic import OutputKind, atomic_path, check_output_location
 from pipeline.errors import DataError
 from pipeline.types import NS_PER_S, Sequence
 from training.checkpoint import check_finite_output
-from training.config import Method, Sampler
+from training.config import Sampler
+from training.networks import get_network
 
 log = logging.getLogger(__name__)
 
@@ -99,7 +100,7 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
         raise DataError(f"'{sequence.name}' has IMU rate {rate:.4g} Hz, the model was trained at {float(model_rate):g} Hz",
                         hint=f"resample it to the model's rate: biasgt predict ... --resample-hz {float(model_rate):g}, "
                              f"or use a model trained on windows at {rate:.4g} Hz")
-    method = Method(run.config.method)
+    method = get_network(run.config.method)
     k = samples if method.is_diffusion else 1
     starts = window_starts(len(imu), T)
     idx = starts[:, None] + np.arange(T)[None, :]

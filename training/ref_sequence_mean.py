@@ -15,7 +15,7 @@ import numpy as np
 
 from training.dataset import STATE_BIAS
 
-__all__ = ["sequence_mean_bias"]
+__all__ = ["sequence_mean_bias", "sequence_mean_row"]
 
 
 def sequence_mean_bias(sequence_folder: str | Path) -> np.ndarray:
@@ -28,3 +28,10 @@ def sequence_mean_bias(sequence_folder: str | Path) -> np.ndarray:
         if ok.any():
             return np.asarray(b[ok], dtype=np.float64).mean(axis=0)
     return np.asarray(np.load(folder / "bias.npy", mmap_mode="r"), dtype=np.float64).reshape(-1, 6).mean(axis=0)
+
+
+def sequence_mean_row(items: dict, *, sequence_dir: Path) -> np.ndarray:
+    """The row's bias [B, 1, T, 6] for windows ``items`` of the sequence in ``sequence_dir``
+    (:mod:`training.references` gives the inputs)."""
+    B, T, _ = np.shape(items["imu"])
+    return np.broadcast_to(sequence_mean_bias(sequence_dir), (B, 1, T, 6)).copy()

@@ -22,7 +22,7 @@ import numpy as np
 
 from training.context import SequenceContext
 
-__all__ = ["start_rest_bias"]
+__all__ = ["start_rest_bias", "start_rest_row"]
 
 
 def start_rest_bias(context: SequenceContext, stop: np.ndarray, bias_mean: np.ndarray,
@@ -40,3 +40,13 @@ def start_rest_bias(context: SequenceContext, stop: np.ndarray, bias_mean: np.nd
     out[found, :3] = mean[found, :3]
     out[found, 3:] = acc_bias[found]
     return out, found
+
+
+def start_rest_row(items: dict, *, context: SequenceContext, bias_mean: np.ndarray,
+                   gravity_mps2: np.ndarray) -> np.ndarray:
+    """The row's bias [B, 1, T, 6] for windows ``items`` (``imu`` [B, T, 6], ``t0_ns`` [B]) of the
+    sequence whose record is ``context`` (:mod:`training.references` gives the inputs)."""
+    B, T, _ = np.shape(items["imu"])
+    stop = context.index(np.asarray(items["t0_ns"], dtype=np.int64)) + T
+    b, _ = start_rest_bias(context, stop, bias_mean, float(np.linalg.norm(gravity_mps2)))
+    return np.broadcast_to(b[:, None, None, :], (B, 1, T, 6)).copy()

@@ -11,7 +11,7 @@ import torch
 
 from pipeline.types import GRAVITY_MPS2
 from training.batch import WindowBatch
-from training.config import IMU_CHANNELS, Method, ModelConfig, Preset, Sampler
+from training.config import IMU_CHANNELS, ModelConfig, Preset, Sampler
 from training.models import BiasModel, build_model
 from training.normalizer import Normalizer
 
@@ -31,14 +31,14 @@ def synthetic_batch(batch_size: int, window_samples: int, rate_hz: float = 200.0
                        end_v=torch.zeros(B, 3), end_p=torch.zeros(B, 3))
 
 
-def probe_model(method: Method, preset: Preset, seed: int = 0) -> BiasModel:
+def probe_model(method: str, preset: Preset, seed: int = 0) -> BiasModel:
     """A freshly initialised model with unit normaliser statistics."""
     torch.manual_seed(seed)
     stats = {"imu_mean": [0.0] * 6, "imu_std": [1.0] * 6, "bias_mean": [0.0] * 6, "bias_std": [0.01] * 6}
     return build_model(ModelConfig.for_preset(method, preset), Normalizer(stats))
 
 
-def training_throughput(method: Method, preset: Preset = Preset.SMALL, *, window_samples: int = 201,
+def training_throughput(method: str, preset: Preset = Preset.SMALL, *, window_samples: int = 201,
                         batch_size: int = 64, steps: int = 10, warmup: int = 2, device: str = "cpu") -> float:
     """Windows per second of optimiser steps (loss, backward, clip, AdamW), data loading excluded."""
     model = probe_model(method, preset).to(device).train()
@@ -63,7 +63,7 @@ def training_throughput(method: Method, preset: Preset = Preset.SMALL, *, window
     return steps * batch_size / (time.perf_counter() - t0)
 
 
-def sampling_latency(method: Method, preset: Preset = Preset.PAPER, *, num_samples: int = 1,
+def sampling_latency(method: str, preset: Preset = Preset.PAPER, *, num_samples: int = 1,
                      window_samples: int = 200, sampler: Sampler = Sampler.DDIM, steps: int = 25, repeats: int = 5,
                      device: str = "cpu") -> float:
     """Median seconds to draw ``num_samples`` samples for one window (one batched call)."""

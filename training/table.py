@@ -4,10 +4,11 @@ In ``table.csv`` rows are the test sequences and ``Average`` (the mean over sequ
 paper) and columns the evaluated methods and references; ``table.md`` (and the training report)
 shows it transposed, one row per method and variant, grouped by method, and one column per
 sequence, so that twenty rows still fit a page. A diffusion model gives one column per
-sampler and aggregation (:class:`training.outputs.Aggregation`): ``diffusion_rnn`` is the
-paper's figure (correct DDIM, metrics averaged over the K samples), ``diffusion_rnn mean`` /
-``median`` use the mean / median of the samples as the prediction, ``diffusion_rnn released``
-uses the released code's sampler. Summaries of one method from several training seeds are
+sampler and aggregation (:class:`training.outputs.Aggregation`): ``<method>`` is the
+paper's figure (correct DDIM, metrics averaged over the K samples), ``<method> mean`` /
+``median`` use the mean / median of the samples as the prediction, ``<method> released``
+uses the released code's sampler. Columns follow the registries' order: the learned methods
+(:mod:`training.networks`), then the reference rows (:mod:`training.references`). Summaries of one method from several training seeds are
 combined: the cell is the mean over seeds, with the standard deviation over seeds.
 
 Marks, as in the paper (bold best, underlined second): in ``table.md`` the best value of a
@@ -41,8 +42,8 @@ import pandas as pd
 
 from pipeline.atomic import write_text_atomic
 from pipeline.errors import DataError
-from training.config import Baseline
-from training.config import Method
+from training.networks import network_names
+from training.references import get_reference, reference_names
 from training.paper import COMMON_SEQUENCES, MISSING_SEQUENCES, PAPER_ROWS, PAPER_SEQUENCES, SOURCE, TABLE_I, \
     paper_average, paper_sequence
 
@@ -84,12 +85,12 @@ class TableColumn:
 
 
 def _order(summary: EvaluationSummary) -> tuple[int, int]:
-    names = [m.value for m in Method] + [b.value for b in Baseline]
+    names = [*network_names(), *reference_names()]
     return (names.index(summary.method) if summary.method in names else len(names), 0)
 
 
 def table_columns(summaries: Iterable[EvaluationSummary]) -> list[TableColumn]:
-    """Columns from evaluation summaries (same method = seeds of one column), in Method then Baseline order."""
+    """Columns from evaluation summaries (same method = seeds of one column), in registry order (methods, then references)."""
     columns: dict[str, TableColumn] = {}
     for s in sorted(summaries, key=_order):
         for row in s.rows:
@@ -185,19 +186,11 @@ def protocol_notes(summaries: Iterable[EvaluationSummary]) -> list[str]:
     """Footnote lines stating the protocol of the evaluations (see the module docstring)."""
     summaries = list(summaries)
     notes = [_gravity_note({g for s in summaries for g in s.gravity_source.values()})]
-    walks = {p.split("oracle random walk:")[1].strip() for s in summaries if s.method == Baseline.RANDOM_WALK_ORACLE
-             for p in [s.protocol] if "oracle random walk:" in p}
-    if walks:
-        what = {"sensor": "the sensor's calibrated random walks (sensor.yaml), as the paper",
-                "recovery": "the random walks each recovery used (not the paper's)"}
-        notes.append("Random-walk oracle: the ground-truth state's bias at each window start (the label where "
-                     "there is none), continued by " + "; ".join(what.get(w, w) for w in sorted(walks))
-                     + ", best of the candidates per window by end-position error.")
-    if any(s.method == Baseline.RANDOM_WALK_PAPER for s in summaries):
-        notes.append("Random walk (oracle, paper's walks): the same oracle with the walks the paper's random-walk "
-                     "column implies (its released code has none): increments sigma/sqrt(dt) per sample, 200x the "
-                     "stated walk over 1 s at 200 Hz, and the best of the candidates by 3 x position error [m] + "
-                     "rotation error [deg]; it reproduces that column (MH_04, V1_03, V2_02) within a few per cent.")
+    present = {s.method for s in summaries}
+    for name in reference_names():
+        note = get_reference(name).footnote(summaries) if name in present else None
+        if note:
+            notes.append(note)
     refs = {k: v for s in summaries for k, v in s.dataset.get("reference", {}).items() if v}
     if refs:
         notes.append("Evaluation reference (window start and end states): "

@@ -168,7 +168,7 @@ def _model_config(config: TrainConfig, data: _Data) -> ModelConfig:
     """The model's config with a diffusion model's x0 clip resolved from the train and validation
     splits (:func:`training.clip.clip_bounds`)."""
     mc = config.model_config()
-    if not mc.method.is_diffusion or mc.clip_x0_bounds is not None:
+    if not mc.spec.is_diffusion or mc.clip_x0_bounds is not None:
         return mc
     stats = data.manifest["normalization"]
     biases = (ds.arrays(name)["bias"] for ds in (data.train, data.val) for name in ds.sequences)
@@ -287,7 +287,7 @@ class _Trainer:
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
         self.lr_schedule = torch.optim.lr_scheduler.LambdaLR(self.optimizer,
                                                              _lr_lambda(config.warmup_steps, config.max_steps))
-        self.ema = EMA(self.model, config.ema_decay, config.ema_power) if self.model.method.is_diffusion else None
+        self.ema = EMA(self.model, config.ema_decay, config.ema_power) if self.model.spec.is_diffusion else None
         self.noise = torch.Generator().manual_seed(config.seed + 1)
         self.run = _Run()
 
@@ -351,7 +351,7 @@ class _Trainer:
         if self.ddp is None:
             return self.model.loss(batch, self.noise)
         noise = t = None
-        if self.model.method.is_diffusion:  # every rank draws the global batch's noise and takes its share
+        if self.model.spec.is_diffusion:  # every rank draws the global batch's noise and takes its share
             shape = (min(self.config.batch_size, len(self.data.train)), *batch.bias.shape[1:])
             noise, t = self.model.draw_noise(shape, self.noise, self.device)
             noise, t = noise[self.rank::self.world], t[self.rank::self.world]
@@ -461,9 +461,9 @@ def _fit(tr: _Trainer) -> None:
                         generator=_loader_generator(config.seed))
     writer = tr.rank == 0
     log.info("training %s (%s preset, %d parameters) on %d windows, %d validation windows, %s",
-             config.method.value, config.preset.value, count_parameters(tr.model), len(tr.data.train),
+             config.method, config.preset.value, count_parameters(tr.model), len(tr.data.train),
              len(tr.data.val), tr.device)
-    bar = _progress(config.method.value, config.max_steps, run.step) if writer else None
+    bar = _progress(config.method, config.max_steps, run.step) if writer else None
     on_terminal = sys.stderr.isatty()
     tick = time.perf_counter()
     for batch in loader:
@@ -497,7 +497,7 @@ def _fit(tr: _Trainer) -> None:
 def _write_summary(tr: _Trainer) -> None:
     r = tr.run
     summary = {
-        "method": tr.config.method.value, "preset": tr.config.preset.value,
+        "method": tr.config.method, "preset": tr.config.preset.value,
         "parameters": count_parameters(tr.model), "steps": r.step, "best_step": r.best_step,
         "effective_batch_size": min(tr.config.batch_size, len(tr.data.train)),
         "best_val_loss": r.best_val_loss, "train_seconds": round(r.seconds, 3),
@@ -505,5 +505,5 @@ def _write_summary(tr: _Trainer) -> None:
         "device": str(tr.device), "processes": tr.world, "dataset": tr.data.info, "config": tr.config.to_dict(),
     }
     write_text_atomic(tr.out_dir / RUN_JSON, json.dumps(summary, indent=2) + "\n")
-    log.info("trained %s for %d steps; best validation loss %.5g at step %d", tr.config.method.value, r.step,
+    log.info("trained %s for %d steps; best validation loss %.5g at step %d", tr.config.method, r.step,
              r.best_val_loss, r.best_step)

@@ -5,7 +5,7 @@ Layout (relative to the workflow's folder)::
     results/training/{method}/seed{seed}/       a run of 'biasgt train' (best.pt, last.pt, metrics.csv, run.json)
     results/evaluation/{method}/seed{seed}/     its evaluation (summary.json, windows.parquet, predictions.parquet,
                                                 examples.parquet)
-    results/evaluation/{reference}/             a reference row (training.baselines.Baseline)
+    results/evaluation/{reference}/             a reference row (training.references)
     results/evaluation/table.csv, table.md      Table I
     results/report/training.html                the training report
     logs/training/{method}_seed{seed}.log, logs/evaluation/..., logs/table/table.log, logs/report/training.log
@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.errors import DataError
-from training.config import Baseline, EvaluationConfig, Method, TrainConfig, TrainingPlan
+from training.config import EvaluationConfig, TrainConfig, TrainingPlan
 from training.table import TABLE_CSV, TABLE_MD, write_table
 
 # torch and the evaluation are imported by the steps that use them: the Snakefile imports this
@@ -48,12 +48,12 @@ TRAINING_REPORT = f"{RESULTS}/report/training.html"
 TABLE_LOG = "logs/table/table.log"
 
 
-def training_run_dir(method: Method | str, seed: int | str) -> str:
+def training_run_dir(method: str, seed: int | str) -> str:
     """``results/training/{method}/seed{seed}`` (also with Snakemake wildcards as arguments)."""
     return f"{RESULTS}/training/{getattr(method, 'value', method)}/seed{seed}"
 
 
-def evaluation_dir(name: Method | Baseline | str, seed: int | str | None = None) -> str:
+def evaluation_dir(name: str, seed: int | str | None = None) -> str:
     """``results/evaluation/{method}/seed{seed}`` for a learned run, ``results/evaluation/{reference}`` else."""
     value = getattr(name, "value", name)
     return f"{RESULTS}/evaluation/{value}" + ("" if seed is None else f"/seed{seed}")
@@ -84,7 +84,7 @@ def train_step(dataset_dir: str | Path, out_dir: str | Path, config: Mapping[str
 
     _set_threads(threads)
     cfg = TrainConfig.from_mapping(config)
-    log.info("training %s (preset %s, seed %d) on %s", cfg.method.value, cfg.preset.value, cfg.seed, dataset_dir)
+    log.info("training %s (preset %s, seed %d) on %s", cfg.method, cfg.preset.value, cfg.seed, dataset_dir)
     if processes > 1:
         return _train_under_torchrun(cfg, Path(dataset_dir), Path(out_dir), processes)
     return train(cfg, Path(dataset_dir), Path(out_dir))
@@ -167,7 +167,7 @@ def _train_under_torchrun(config: TrainConfig, dataset_dir: Path, out_dir: Path,
     for line in (run.stdout + run.stderr).splitlines():
         log.info("torchrun: %s", line)
     if run.returncode != 0:
-        raise DataError(f"data-parallel training of {config.method.value} failed (torchrun exit {run.returncode})",
+        raise DataError(f"data-parallel training of {config.method} failed (torchrun exit {run.returncode})",
                         path=out_dir, hint="see the torchrun lines in this job's log")
     return out_dir
 
@@ -181,9 +181,9 @@ def evaluate_step(dataset_dir: str | Path, out_dir: str | Path, settings: Mappin
     _set_threads(threads)
     config = EvaluationConfig.from_mapping(settings)
     if reference is not None:
-        evaluate_reference(Baseline(reference), dataset_dir, out_dir, config)
+        evaluate_reference(reference, dataset_dir, out_dir, config)
     else:
-        evaluate_run(run_dir, dataset_dir, out_dir, config, method=Method(method))
+        evaluate_run(run_dir, dataset_dir, out_dir, config, method=method)
     log.info("wrote %s", out_dir)
     return Path(out_dir)
 

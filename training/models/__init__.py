@@ -1,15 +1,15 @@
-"""Bias models: one ``BiasModel`` wrapper per :class:`training.config.Method`.
+"""Bias models: one ``BiasModel`` wrapper around the network of a registered method (:mod:`training.networks`).
 
 Every model reads the IMU window (and optionally the IMU temperature), normalised with the
 train-split statistics held by its :class:`training.normalizer.Normalizer` submodule, and predicts
 the bias at IMU rate in raw units (rad/s, m/s^2).
 
-* Diffusion (``diffusion_rnn``, ``diffusion_unet``): DDPM with epsilon prediction and an MSE
+* Diffusion (objective ``diffusion``): DDPM with epsilon prediction and an MSE
   loss. biasgt diffuses the **normalised** bias (zero mean, unit std per channel over the train
   split), so one noise schedule suits gyro and accelerometer alike; the released code diffuses
   the bias in raw units. Its RELEASED sampler's [-1, 1] clip is applied in raw units, as there.
-* Regression (``regression_rnn``, ``regression_unet``): MSE on the normalised bias.
-* Indirect (``indirect_rnn``): AirIMU-style. The regressor's output is a bias correction; it is
+* Regression (objective ``regression``): MSE on the normalised bias.
+* Indirect (objective ``indirect``): AirIMU-style. The regressor's output is a bias correction; it is
   subtracted from the readings, which :func:`pipeline.geometry.integration.integrate` integrates from the
   reference start state; the loss compares the end state with the reference end state
   (rotation error ``||Log(R_gt^T R)||^2`` in rad^2, velocity and position errors squared), so no
@@ -25,12 +25,10 @@ from torch import nn
 from pipeline.geometry.integration import integrate
 from pipeline.geometry.so3_torch import so3_log
 from training.batch import WindowBatch
-from training.config import IMU_CHANNELS, Method, ModelConfig, Sampler
+from training.config import IMU_CHANNELS, ModelConfig, Sampler
 from training.normalizer import Normalizer
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 from training.scheduler import ClipCount, NoiseScheduler, randn
-from training.models.rnn import GruDenoiser, GruRegressor
-from training.models.unet import UnetDenoiser, UnetRegressor
 
 __all__ = ["BiasModel", "build_model", "count_parameters", "DEFAULT_GRAVITY_MPS2"]
 
@@ -43,7 +41,7 @@ class BiasModel(nn.Module):
     Args:
         config: Sizes and method.
         normalizer: Train-split statistics (a submodule: saved in the ``state_dict``).
-        indirect_weights: Weights of the rotation, velocity and position terms (``indirect_rnn``).
+        indirect_weights: Weights of the rotation, velocity and position terms (an indirect method).
     """
 
     def __init__(self, config: ModelConfig, normalizer: Normalizer,
@@ -51,13 +49,11 @@ class BiasModel(nn.Module):
         super().__init__()
         self.config = config
         self.method = config.method
+        self.spec = config.spec
         self.normalizer = normalizer
         self.indirect_weights = tuple(float(w) for w in indirect_weights)
         self.use_temperature = config.condition_channels > IMU_CHANNELS
-        nets = {Method.DIFFUSION_RNN: GruDenoiser, Method.DIFFUSION_UNET: UnetDenoiser,
-                Method.REGRESSION_RNN: GruRegressor, Method.INDIRECT_RNN: GruRegressor,
-                Method.REGRESSION_UNET: UnetRegressor}
-        self.net = nets[config.method](config)
+        self.net = self.spec.build(config)
         self.scheduler = NoiseScheduler(config.train_timesteps, config.beta_start, config.beta_end)
 
     def _condition(self, batch: WindowBatch) -> torch.Tensor:
@@ -83,7 +79,7 @@ class BiasModel(nn.Module):
             t: Diffusion steps [B].
         """
         cond = self._condition(batch)
-        if self.method.is_diffusion:
+        if self.spec.is_diffusion:
             x0 = self.normalizer.bias(batch.bias)
             if noise is None or t is None:
                 noise, t = self.draw_noise(tuple(x0.shape), generator, x0.device)
@@ -91,7 +87,7 @@ class BiasModel(nn.Module):
             eps = self.net.denoise(self.scheduler.add_noise(x0, noise, t), t, self.net.encode(cond))
             return F.mse_loss(eps, noise)
         pred = self.net(cond)
-        if self.method is Method.INDIRECT_RNN:
+        if self.spec.is_indirect:
             return self._integration_loss(batch, self.normalizer.unbias(pred))
         return F.mse_loss(pred, self.normalizer.bias(batch.bias))
 
@@ -157,7 +153,7 @@ class BiasModel(nn.Module):
         cond = self._condition(batch)
         B, T, _ = cond.shape
         K = int(num_samples)
-        if not self.method.is_diffusion:
+        if not self.spec.is_diffusion:
             return self.normalizer.unbias(self.net(cond))[:, None].expand(B, K, T, IMU_CHANNELS).clone()
         code = self.net.encode(cond).repeat_interleave(K, dim=0)  # [B*K, C], window b's samples adjacent
         z = self.scheduler.sample(lambda x, t: self.net.denoise(x, t, code), (B * K, T, IMU_CHANNELS),

@@ -20,11 +20,9 @@ averaged over the samples (the paper), and the sample mean and median are evalua
 too. The spread is checked for calibration: per channel, the fraction of ground-truth bias inside the
 central 68% / 95% (and other levels) of the K samples.
 
---reference NAME evaluates a row that needs no training: zero, train_mean (the train split's mean
-bias), ground_truth (the recovered bias itself), state_bias (the dataset's own ground-truth-state
-bias), random_walk_oracle (ground-truth bias at each window start plus 50 random walks with the
-evaluation's random-walk strengths, the best chosen with the ground-truth end pose: an oracle upper
-bound, not a usable method) or random_walk_paper (the same with the walks the paper's column implies).
+--reference NAME evaluates a row that needs no training (the registered rows, training.references;
+an oracle reads the ground truth at test time: an upper bound, not a usable method):
+{references}
 
 Writes OUT atomically: summary.json, windows.parquet (errors per window and sample),
 predictions.parquet (every window's predicted bias: per time step the samples' mean, std, median
@@ -34,36 +32,46 @@ few samples).
 
 EPILOG = """\
 examples:
-  biasgt evaluate --checkpoint results/training/diffusion_rnn --dataset results/windows --out ev/diffusion_rnn
+  biasgt evaluate --checkpoint results/training/{m}/seed0 --dataset results/windows --out ev/{m}
   biasgt evaluate --checkpoint run --dataset ds --samples 50 --sampler ddim --sampler released --out ev
-  biasgt evaluate --reference random_walk_oracle --dataset ds --out ev/random_walk_oracle
+  biasgt evaluate --reference {r} --dataset ds --out ev/{r}
 """
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from training.config import Baseline, EvalGravity, Method, OracleWalk, Sampler
+    from training.config import EvalGravity, EvaluationConfig, OracleWalk, Sampler
+    from training.networks import network_names
+    from training.references import get_reference, reference_names
 
+    d = EvaluationConfig()
+    rows = reference_names()
+    listing = "\n".join(f"  {r}: {get_reference(r).help}{' (oracle)' if get_reference(r).oracle else ''}"
+                         for r in rows)
     p = subparsers.add_parser("evaluate", help="PRMSE / ROE of a trained model or a reference on the test split",
-                              description=DESCRIPTION, epilog=EPILOG,
+                              description=DESCRIPTION.format(references=listing),
+                              epilog=EPILOG.format(m=network_names()[0], r=rows[-1] if rows else "NAME"),
                               formatter_class=argparse.RawDescriptionHelpFormatter)
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--checkpoint", type=Path, metavar="RUN", help="run folder (best.pt) or checkpoint file")
-    src.add_argument("--reference", choices=[b.value for b in Baseline], help="a reference row (no training)")
+    src.add_argument("--reference", choices=rows, metavar="NAME",
+                     help=f"a reference row (no training): {', '.join(rows)}")
     p.add_argument("--dataset", required=True, type=Path, metavar="DIR", help="window dataset ('biasgt windows')")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output folder (written atomically)")
-    p.add_argument("--samples", type=int, default=50, metavar="K", help="samples per window (default 50)")
+    p.add_argument("--samples", type=int, default=d.samples, metavar="K",
+                   help=f"samples per window (default {d.samples})")
     p.add_argument("--sampler", action="append", choices=[Sampler.DDIM.value, Sampler.RELEASED.value],
-                   help="sampler of a diffusion model (repeatable; default ddim)")
-    p.add_argument("--steps", type=int, default=25, metavar="N", help="denoising steps (default 25)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the sampling noise (default 0)")
-    p.add_argument("--gravity", choices=[g.value for g in EvalGravity], default=EvalGravity.RECOVERED.value,
+                   help="sampler of a diffusion model (repeatable; default "
+                        f"{' and '.join(s.value for s in d.samplers)})")
+    p.add_argument("--steps", type=int, default=d.steps, metavar="N", help=f"denoising steps (default {d.steps})")
+    p.add_argument("--seed", type=int, default=d.seed, help=f"seed of the sampling noise (default {d.seed})")
+    p.add_argument("--gravity", choices=[g.value for g in EvalGravity], default=d.gravity.value,
                    help="gravity of the integration: nominal (0, 0, -9.81), as the paper, or each sequence's "
-                        "recovered one (default recovered)")
-    p.add_argument("--oracle-random-walk", choices=[w.value for w in OracleWalk], default=OracleWalk.RECOVERY.value,
+                        f"recovered one (default {d.gravity.value})")
+    p.add_argument("--oracle-random-walk", choices=[w.value for w in OracleWalk], default=d.oracle_random_walk.value,
                    help="random walks of the random-walk oracle: the sensor's calibration (sensor.yaml), as the "
-                        "paper, or the recovery's (default recovery)")
-    p.add_argument("--method", choices=[m.value for m in Method],
-                   help="refuse a checkpoint of another method")
+                        f"paper, or the recovery's (default {d.oracle_random_walk.value})")
+    p.add_argument("--method", choices=network_names(), metavar="METHOD",
+                   help=f"refuse a checkpoint of another method ({', '.join(network_names())})")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
@@ -71,8 +79,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from training.evaluate import EvaluationConfig, evaluate_reference, evaluate_run
 
-    config = EvaluationConfig(samples=args.samples, samplers=tuple(args.sampler or ("ddim",)), steps=args.steps,
-                              seed=args.seed, gravity=args.gravity, oracle_random_walk=args.oracle_random_walk)
+    defaults = EvaluationConfig()
+    config = EvaluationConfig(samples=args.samples, samplers=tuple(args.sampler or defaults.samplers),
+                              steps=args.steps, seed=args.seed, gravity=args.gravity,
+                              oracle_random_walk=args.oracle_random_walk)
     if args.reference:
         result = evaluate_reference(args.reference, args.dataset, args.out, config)
     else:

@@ -11,18 +11,14 @@ from pipeline.atomic import OutputKind
 
 log = logging.getLogger(__name__)
 
-METHODS = ("diffusion_rnn", "regression_rnn", "diffusion_unet", "regression_unet", "indirect_rnn")
-PRESETS = ("paper", "small", "tiny")
 
 DESCRIPTION = """\
 Train a model that predicts IMU bias from IMU readings, on a window dataset from 'biasgt windows'.
 Reads the train split (training) and the validation split (best checkpoint); never the test split.
 
-Methods: diffusion_rnn (the paper's conditional diffusion model: TCN condition, GRU noise predictor),
-regression_rnn (same network, direct regression), diffusion_unet / regression_unet (1-D conditional
-U-Net), indirect_rnn (AirIMU-style: trained through the IMU integrator against the reference start/end
-states, no bias labels). Presets: paper (the released sizes, 2.2M / 42.8M parameters; for a GPU), small
-(CPU), tiny (tests).
+Methods (the registered networks, training.networks):
+{methods}
+Presets: paper (the released sizes, 2.2M / 42.8M parameters; for a GPU), small (CPU), tiny (tests).
 
 Writes RUN/last.pt (every checkpoint_every steps and at the end), RUN/best.pt (lowest validation loss),
 RUN/metrics.csv (step, train_loss, val_loss, lr, seconds) and RUN/run.json, each atomically.
@@ -33,26 +29,34 @@ of training options, or a file with a 'training:' section); command-line flags o
 
 EPILOG = """\
 examples:
-  biasgt train --dataset results/windows --method diffusion_rnn --out runs/diffusion_rnn
-  biasgt train --dataset ds --method regression_rnn --preset tiny --max-steps 200 --out runs/reg
-  biasgt train --dataset ds --method diffusion_rnn --out runs/d --resume
-  torchrun --nproc-per-node 2 -m biasgt.cli train --dataset ds --method diffusion_rnn --out runs/ddp
+  biasgt train --dataset results/windows --method {m} --out runs/{m}
+  biasgt train --dataset ds --method {m} --preset tiny --max-steps 200 --out runs/tiny
+  biasgt train --dataset ds --method {m} --out runs/d --resume
+  torchrun --nproc-per-node 2 -m biasgt.cli train --dataset ds --method {m} --out runs/ddp
 """
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
+    from training.config import Preset, TrainConfig
+    from training.networks import get_network, network_names
+
+    methods = network_names()
+    presets = [p.value for p in Preset]
+    listing = "\n".join(f"  {m}: {get_network(m).help}" for m in methods)
     p = subparsers.add_parser(
         "train",
         help="train a bias model (diffusion, regression, indirect) on a window dataset",
-        description=DESCRIPTION,
-        epilog=EPILOG,
+        description=DESCRIPTION.format(methods=listing),
+        epilog=EPILOG.format(m=TrainConfig().method),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--dataset", required=True, type=Path, metavar="DIR", help="window dataset ('biasgt windows')")
-    p.add_argument("--method", choices=METHODS, metavar="METHOD", help=f"one of {', '.join(METHODS)}")
+    p.add_argument("--method", choices=methods, metavar="METHOD",
+                   help=f"one of {', '.join(methods)} (default {TrainConfig().method})")
     p.add_argument("--out", required=True, type=Path, metavar="RUN", help="run folder")
     p.add_argument("--config", type=Path, metavar="FILE", help="YAML with training options")
-    p.add_argument("--preset", choices=PRESETS, metavar="P", help=f"network size: {', '.join(PRESETS)}")
+    p.add_argument("--preset", choices=presets, metavar="P",
+                   help=f"network size: {', '.join(presets)} (default {TrainConfig().preset.value})")
     p.add_argument("--resume", action="store_true", help="continue from RUN/last.pt")
     p.add_argument("--max-steps", type=int, metavar="N", help="optimiser steps")
     p.add_argument("--seed", type=int, metavar="S", help="random seed")

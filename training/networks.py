@@ -1,0 +1,225 @@
+"""The network registry: every learned method of the evaluation, one :class:`Network` entry each.
+
+An entry owns everything that names a method: its name, Table I / report label, objective
+(diffusion, regression, indirect), a help line (``biasgt train --help``), its colour and its
+place (registration order) in Table I and the reports, its options dataclass (the architecture's
+sizes, with values per size preset) and its factory. The CLI choices, the workflow's start-up
+checks, Table I's order and the report colours read the registry; nothing else names a method.
+
+Adding a network: a module holding its ``nn.Module`` (and, if it needs sizes other than an
+existing options class, a frozen dataclass of them), then one :func:`register_network` line in
+:data:`BUILTIN` below. The factory is given as ``"module:attr"`` and imported only when a model is
+built, so that this module (read by the workflow at start-up) does not import torch.
+
+Factory contract: ``factory(config)`` with ``config`` a :class:`training.config.ModelConfig`
+(shared fields plus this network's options, readable as ``config.network.<field>`` or
+``config.<field>``) returns an ``nn.Module`` with
+
+* diffusion: ``encode(condition [B, T, C_in]) -> code [B, C]`` and
+  ``denoise(x_t [B, T, 6], t [B], code [B, C]) -> noise estimate [B, T, 6]``;
+* regression / indirect: ``forward(condition [B, T, C_in]) -> normalised bias [B, T, 6]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import enum
+import importlib
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+from pipeline.errors import ConfigError
+
+__all__ = ["Network", "Objective", "RnnOptions", "UnetOptions", "get_network", "network_names", "register_network",
+           "unregister_network"]
+
+
+class Objective(str, enum.Enum):
+    """How a network is trained and sampled (see :mod:`training.models`)."""
+
+    DIFFUSION = "diffusion"  # DDPM, epsilon prediction; K samples per window
+    REGRESSION = "regression"  # MSE on the normalised bias
+    INDIRECT = "indirect"  # trained through the integrator against the reference end state, no bias labels
+
+
+# ----------------------------------------------------------------------------- options of the built-in networks
+
+
+@dataclass(frozen=True)
+class TcnOptions:
+    """Sizes of the TCN condition encoder and the diffusion-step embedding.
+
+    Attributes:
+        tcn_channels: Output channels of the TCN's temporal blocks (dilation 2^i in block i).
+        tcn_kernel: TCN kernel size.
+        tcn_dropout: Dropout inside the TCN blocks (the released code uses 0.2).
+        cond_dim: Size of the condition code (last TCN timestep, projected).
+        step_embed_dim: Size of the sinusoidal diffusion-step embedding (its MLP is 4x wider).
+    """
+
+    tcn_channels: tuple[int, ...] = (64, 64, 64, 64, 128, 128, 128)
+    tcn_kernel: int = 2
+    tcn_dropout: float = 0.2
+    cond_dim: int = 256
+    step_embed_dim: int = 256
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "tcn_channels", tuple(int(c) for c in self.tcn_channels))
+
+
+@dataclass(frozen=True)
+class RnnOptions(TcnOptions):
+    """TCN encoder + GRU trunk (the released code's RNN; defaults are its sizes).
+
+    Attributes:
+        hidden: GRU hidden size (also the fused input size).
+        gru_layers: GRU layers.
+    """
+
+    hidden: int = 256
+    gru_layers: int = 3
+
+
+@dataclass(frozen=True)
+class UnetOptions(TcnOptions):
+    """TCN encoder + diffusion_policy's ConditionalUnet1D (defaults are the released code's sizes).
+
+    Attributes:
+        unet_dims: ConditionalUnet1D down dims.
+        unet_kernel: ConditionalUnet1D kernel size.
+        unet_groups: GroupNorm groups in the U-Net.
+    """
+
+    unet_dims: tuple[int, ...] = (256, 512, 1024)
+    unet_kernel: int = 3
+    unet_groups: int = 8
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        object.__setattr__(self, "unet_dims", tuple(int(c) for c in self.unet_dims))
+        bad = [d for d in self.unet_dims if d % self.unet_groups]
+        if bad:
+            raise ConfigError(f"U-Net dims {bad} are not multiples of unet_groups {self.unet_groups}",
+                              field="unet_dims", hint="choose dims divisible by the GroupNorm groups")
+
+
+#: Preset values of the TCN encoder (``paper`` = the dataclass defaults).
+_TCN_PRESETS = {"small": dict(tcn_channels=(32, 32, 32, 32, 64, 64, 64), cond_dim=64, step_embed_dim=64),
+                "tiny": dict(tcn_channels=(16, 16, 16, 16), tcn_dropout=0.0, cond_dim=32, step_embed_dim=32)}
+RNN_PRESETS = {"small": {**_TCN_PRESETS["small"], "hidden": 64, "gru_layers": 2},
+               "tiny": {**_TCN_PRESETS["tiny"], "hidden": 64, "gru_layers": 2}}
+UNET_PRESETS = {"small": {**_TCN_PRESETS["small"], "unet_dims": (32, 64, 128)},
+                "tiny": {**_TCN_PRESETS["tiny"], "unet_dims": (16, 32, 64)}}
+
+
+# ----------------------------------------------------------------------------- the registry
+
+
+@dataclass(frozen=True)
+class Network:
+    """One learned method.
+
+    Attributes:
+        name: Method name (``--method``, the workflow's ``training.methods``, folder names).
+        label: Name in Table I and the reports.
+        objective: Diffusion, regression or indirect (:class:`Objective`).
+        help: One line for ``biasgt train --help``.
+        color: Matplotlib colour of the method in the reports.
+        options: Frozen dataclass of the architecture's sizes (its defaults: the ``paper`` preset),
+            or ``"module:attr"`` naming one.
+        factory: ``"module:attr"`` of the network's constructor (see the module docstring), or a callable.
+        presets: Preset name -> option values replacing the defaults (a preset not listed: the defaults).
+    """
+
+    name: str
+    label: str
+    objective: Objective
+    help: str
+    color: str
+    options: type | str
+    factory: str | Callable[[Any], Any]
+    presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "objective", Objective(self.objective))
+
+    @property
+    def is_diffusion(self) -> bool:
+        return self.objective is Objective.DIFFUSION
+
+    @property
+    def is_indirect(self) -> bool:
+        return self.objective is Objective.INDIRECT
+
+    def options_class(self) -> type:
+        return _resolve(self.options) if isinstance(self.options, str) else self.options
+
+    def option_names(self) -> set[str]:
+        return {f.name for f in dataclasses.fields(self.options_class())}
+
+    def make_options(self, preset: str, **overrides: Any) -> Any:
+        """The options of ``preset`` with ``overrides`` (keys of the options class) replacing single values."""
+        return self.options_class()(**{**dict(self.presets.get(preset, {})), **overrides})
+
+    def build(self, config: Any) -> Any:
+        """The network's ``nn.Module`` for ``config`` (:class:`training.config.ModelConfig`)."""
+        factory = _resolve(self.factory) if isinstance(self.factory, str) else self.factory
+        return factory(config)
+
+
+def _resolve(ref: str) -> Any:
+    module, _, attr = ref.partition(":")
+    return getattr(importlib.import_module(module), attr)
+
+
+_NETWORKS: dict[str, Network] = {}
+
+
+def register_network(network: Network) -> Network:
+    """Add ``network`` (after the registered ones: its place in Table I). Refuses a name in use."""
+    if network.name in _NETWORKS:
+        raise ValueError(f"a network named '{network.name}' is already registered")
+    _NETWORKS[network.name] = network
+    return network
+
+
+def unregister_network(name: str) -> None:
+    """Remove a registered network (tests)."""
+    _NETWORKS.pop(name, None)
+
+
+def network_names() -> tuple[str, ...]:
+    """Registered method names in registration (Table I) order."""
+    return tuple(_NETWORKS)
+
+
+def get_network(name: Any, *, field: str = "method") -> Network:
+    """The registered network ``name``.
+
+    Raises:
+        ConfigError: No network of that name (the hint lists the registered ones).
+    """
+    key = str(getattr(name, "value", name))
+    if key not in _NETWORKS:
+        raise ConfigError(f"unknown method '{key}'", field=field, hint=f"choose one of {', '.join(_NETWORKS)}")
+    return _NETWORKS[key]
+
+
+# ----------------------------------------------------------------------------- built-in networks (Table I order)
+
+BUILTIN = (
+    Network("diffusion_rnn", "diffusion_rnn", Objective.DIFFUSION, "the paper's conditional diffusion model: TCN "
+            "condition, GRU noise predictor", "#1f77b4", RnnOptions, "training.models.rnn:GruDenoiser", RNN_PRESETS),
+    Network("regression_rnn", "regression_rnn", Objective.REGRESSION, "the same network, direct regression (MSE)",
+            "#ff7f0e", RnnOptions, "training.models.rnn:GruRegressor", RNN_PRESETS),
+    Network("diffusion_unet", "diffusion_unet", Objective.DIFFUSION, "TCN condition, 1-D conditional U-Net noise "
+            "predictor", "#9467bd", UnetOptions, "training.models.unet:UnetDenoiser", UNET_PRESETS),
+    Network("regression_unet", "regression_unet", Objective.REGRESSION, "the same U-Net, direct regression (MSE)",
+            "#8c564b", UnetOptions, "training.models.unet:UnetRegressor", UNET_PRESETS),
+    Network("indirect_rnn", "indirect_rnn", Objective.INDIRECT, "AirIMU-style: the RNN regressor trained through the "
+            "IMU integrator against the reference start/end states, no bias labels", "#2ca02c", RnnOptions,
+            "training.models.rnn:GruRegressor", RNN_PRESETS),
+)
+for _network in BUILTIN:
+    register_network(_network)
