@@ -56,11 +56,11 @@ class RestConfig:
     """Thresholds of :func:`detect_rests` (see the module docstring)."""
 
     block_s: float = 0.25
-    gyro_std_max: float = 0.01  # rad/s
-    acc_std_max: float = 0.12  # m/s^2
-    gyro_step_max: float = 0.005  # rad/s
-    acc_step_max: float = 0.1  # m/s^2
-    min_rest_s: float = 1.0
+    gyro_std_max: float = 0.02  # rad/s (the vibration of idling rotors passes; hand-held motion does not)
+    acc_std_max: float = 0.35  # m/s^2
+    gyro_step_max: float = 0.01  # rad/s
+    acc_step_max: float = 0.15  # m/s^2
+    min_rest_s: float = 0.5
 
 
 def detect_rests(imu: np.ndarray, rate_hz: float, config: RestConfig = RestConfig()) -> list[tuple[int, int]]:
