@@ -11,7 +11,7 @@ ends, every other one kept as :func:`training.eval_windows.non_overlapping` keep
 from the ground-truth state at its first stamp, PRMSE / ROE per sequence, Average over the three.
 
 Rows: zero bias; EuRoC's own bias; EuRoC's bias at the window start held constant; the random-walk
-oracle as the paper (:func:`training.baselines.baseline_bias`: EuRoC's bias at the window start, the
+oracle as the paper (:func:`training.baselines.random_walk_oracle`: EuRoC's bias at the window start, the
 walks of ``imu0/sensor.yaml``, the best of ``--candidates`` walks per window by end-position error).
 Each with nominal gravity (0, 0, -9.81) and both integration schemes (midpoint, the project's; Euler,
 AirIMU's pypose preintegrator), so that the protocol choices show their effect.
@@ -33,7 +33,7 @@ integration scheme (ROE excepted: Euler is nearer the paper). It is the size of 
 per-sample increments ``sigma / sqrt(dt)`` (200x the stated walk over 1 s at 200 Hz) and the
 path chosen by ``3 * position error [m] + rotation error [deg]`` (the weighting the released code
 ranks checkpoints by; it has no random-walk baseline), the row "random-walk oracle, paper's walks"
-(:data:`training.config.Baseline.RANDOM_WALK_PAPER`) reproduces the paper's column: Euler
+(:func:`training.baselines.random_walk_paper`) reproduces the paper's column: Euler
 0.0714 / 0.1735, midpoint 0.0704 / 0.1509, against 0.0718 / 0.1684. The stated model's walks
 barely move the bias in a second; no selection, window cut or integration brings them above
 0.046 m.
@@ -53,7 +53,7 @@ sys.path.insert(0, str(REPO))
 
 from pipeline.io import load_sequence  # noqa: E402
 from pipeline.types import IntegrationScheme  # noqa: E402
-from training.baselines import Baseline, baseline_bias  # noqa: E402
+from training.baselines import random_walk_oracle, random_walk_paper  # noqa: E402
 from training.eval_windows import non_overlapping  # noqa: E402
 from training.paper import TABLE_I, paper_average, paper_sequence  # noqa: E402
 from training.windows import state_bias_at  # noqa: E402
@@ -103,11 +103,11 @@ def main() -> None:
         items, walk = test_windows(args.data / "euroc" / name)
         B = len(items["imu"])
         start = np.repeat(items["state_bias"][:, :1], items["imu"].shape[1], axis=1)
-        oracles = {label: baseline_bias(which, items, bias_mean=np.zeros(6), random_walk=np.tile(walk, (B, 1)),
-                                        gravity_mps2=np.asarray(DEFAULT_GRAVITY_MPS2),
-                                        rng=np.random.default_rng(args.seed), candidates=args.candidates)[:, 0]
-                   for label, which in (("random-walk oracle", Baseline.RANDOM_WALK_ORACLE),
-                                        ("random-walk oracle, paper's walks", Baseline.RANDOM_WALK_PAPER))}
+        oracles = {label: which(items, random_walk=np.tile(walk, (B, 1)), state_bias=items["state_bias"],
+                                gravity_mps2=np.asarray(DEFAULT_GRAVITY_MPS2),
+                                rng=np.random.default_rng(args.seed), candidates=args.candidates)[:, 0]
+                   for label, which in (("random-walk oracle", random_walk_oracle),
+                                        ("random-walk oracle, paper's walks", random_walk_paper))}
         rows = {"zero": np.zeros_like(items["imu"]), "EuRoC bias": items["state_bias"],
                 "EuRoC start bias, constant": start, **oracles}
         for scheme in IntegrationScheme:

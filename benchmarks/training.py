@@ -40,7 +40,8 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
-from training.config import Method, Preset, Sampler  # noqa: E402
+from training.config import Preset, Sampler  # noqa: E402
+from training.networks import network_names  # noqa: E402
 from training.export import ExportedSampler, ExportFormat, example_inputs, onnx_session, write_export  # noqa: E402,E501
 from training.models import count_parameters  # noqa: E402
 from training.speed import probe_model, training_throughput  # noqa: E402
@@ -51,7 +52,7 @@ STEPS = 25
 LONG_S = 20.0
 
 
-def train_throughput(methods: list[Method], preset: Preset, steps: int, batch: int, threads: int) -> None:
+def train_throughput(methods: list[str], preset: Preset, steps: int, batch: int, threads: int) -> None:
     torch.set_num_threads(threads)
     print(f"training throughput ({preset.value} preset, batch {batch}, {steps} steps after 2 warm-up steps, "
           f"{threads} threads; loss, backward, clipping, AdamW on synthetic windows):")
@@ -76,7 +77,7 @@ def _time(fn, repeats: int) -> tuple[float, str]:
 
 
 def latency(threads: int, repeats: int, samples: tuple[int, ...] = (1, 50),
-            methods: tuple[Method, ...] = (Method.DIFFUSION_RNN, Method.DIFFUSION_UNET)) -> None:
+            methods: tuple[str, ...] = ("diffusion_rnn", "diffusion_unet")) -> None:
     torch.set_num_threads(threads)
     print(f"DDIM-{STEPS} latency, one window of {T} samples, paper-size models, {threads} threads:")
     for method in methods:
@@ -129,7 +130,7 @@ def main() -> int:
     parser.add_argument("--preset", default="small", choices=[p.value for p in Preset])
     parser.add_argument("--train-steps", type=int, default=20)
     parser.add_argument("--batch", type=int, default=32)
-    parser.add_argument("--methods", nargs="*", default=[m.value for m in Method], choices=[m.value for m in Method])
+    parser.add_argument("--methods", nargs="*", default=list(network_names()), choices=network_names())
     parser.add_argument("--skip-train", action="store_true")
     parser.add_argument("--skip-latency", action="store_true")
     parser.add_argument("--latency-samples", type=int, nargs="+", default=[1, 50])
@@ -138,10 +139,10 @@ def main() -> int:
     parser.add_argument("--results", type=Path, help="a workflow results folder: print its Table I")
     args = parser.parse_args()
     if not args.skip_train:
-        train_throughput([Method(m) for m in args.methods], Preset(args.preset), args.train_steps, args.batch,
+        train_throughput(list(args.methods), Preset(args.preset), args.train_steps, args.batch,
                          args.threads)
     if not args.skip_latency:
-        latency(args.threads, args.repeats, tuple(args.latency_samples), tuple(Method(m) for m in args.latency_methods))
+        latency(args.threads, args.repeats, tuple(args.latency_samples), tuple(args.latency_methods))
     if args.results is not None:
         print_table(args.results)
     return 0

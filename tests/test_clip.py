@@ -15,7 +15,7 @@ from pipeline.errors import ConfigError, DataError
 from training.batch import WindowBatch
 from training.checkpoint import load_run
 from training.clip import clip_bounds
-from training.config import ClipRange, Method, ModelConfig, Preset, Sampler, TrainConfig
+from training.config import ClipRange, ModelConfig, Preset, Sampler, TrainConfig
 from training.dataset import Split, WindowDataset, write_dataset
 from training.scheduler import ClipCount
 from training.train import train
@@ -46,26 +46,26 @@ def _biases(root: Path, split: Split) -> np.ndarray:
 def test_bounds_of_each_range(far_val):
     train_b, val_b = _biases(far_val, Split.TRAIN), _biases(far_val, Split.VAL)
     mean, std = train_b.mean(axis=0), train_b.std(axis=0)
-    cfg = ModelConfig.for_preset(Method.DIFFUSION_RNN, Preset.TINY)
+    cfg = ModelConfig.for_preset("diffusion_rnn", Preset.TINY)
     assert cfg.clip_x0_range is ClipRange.EVIDENCE  # the default
     half = np.abs(np.concatenate([train_b, val_b]) - mean).max(axis=0) + 3.0 * std
     lo, hi = clip_bounds(cfg, mean, std, [train_b, val_b])
     np.testing.assert_allclose(lo, mean - half, rtol=1e-12)
     np.testing.assert_allclose(hi, mean + half, rtol=1e-12)
     assert np.all(np.asarray(hi) > val_b.max(axis=0))  # the validation biases are inside
-    lo, hi = clip_bounds(ModelConfig.for_preset(Method.DIFFUSION_RNN, Preset.TINY, clip_x0_range="train"),
+    lo, hi = clip_bounds(ModelConfig.for_preset("diffusion_rnn", Preset.TINY, clip_x0_range="train"),
                          mean, std, [train_b, val_b])
     np.testing.assert_allclose(hi, mean + 3.0 * std, rtol=1e-12)
-    sensor = ModelConfig.for_preset(Method.DIFFUSION_RNN, Preset.TINY, clip_x0_range="sensor",
+    sensor = ModelConfig.for_preset("diffusion_rnn", Preset.TINY, clip_x0_range="sensor",
                                     clip_x0_bias_range=[0.1] * 3 + [5.0] * 3)
     assert clip_bounds(sensor, np.zeros(6), std, []) == ((-0.1,) * 3 + (-5.0,) * 3, (0.1,) * 3 + (5.0,) * 3)
     with pytest.raises(DataError, match="outside clip_x0_bias_range"):
         clip_bounds(sensor, np.full(6, 0.2), std, [])
     with pytest.raises(ConfigError, match="needs clip_x0_bias_range"):
-        ModelConfig.for_preset(Method.DIFFUSION_RNN, Preset.TINY, clip_x0_range="sensor")
+        ModelConfig.for_preset("diffusion_rnn", Preset.TINY, clip_x0_range="sensor")
     with pytest.raises(ConfigError, match="unknown clip_x0_range 'wide'"):
-        ModelConfig.for_preset(Method.DIFFUSION_RNN, Preset.TINY, clip_x0_range="wide")
-    assert clip_bounds(ModelConfig.for_preset(Method.DIFFUSION_RNN, Preset.TINY, clip_x0_sigmas=None),
+        ModelConfig.for_preset("diffusion_rnn", Preset.TINY, clip_x0_range="wide")
+    assert clip_bounds(ModelConfig.for_preset("diffusion_rnn", Preset.TINY, clip_x0_sigmas=None),
                        mean, std, []) is None
 
 
@@ -92,7 +92,7 @@ def test_a_bias_far_outside_the_training_range_is_reached_when_the_validation_sp
     tiny = dict(preset=Preset.TINY, batch_size=16, max_steps=2, warmup_steps=1, val_every=2, checkpoint_every=2)
     runs = {}
     for name, clip in (("evidence", {}), ("train", {"clip_x0_range": "train"})):
-        train(TrainConfig(method=Method.DIFFUSION_RNN, model_overrides=clip, **tiny), far_val, tmp_path / name)
+        train(TrainConfig(method="diffusion_rnn", model_overrides=clip, **tiny), far_val, tmp_path / name)
         runs[name] = load_run(tmp_path / name)
     std = float(runs["train"].model.normalizer.bias_std[0])
     assert (target - float(runs["train"].model.normalizer.bias_mean[0])) / std > 10

@@ -13,7 +13,7 @@ from scipy.spatial.transform import Rotation
 from independent import rk4_integrate
 from pipeline.errors import DataError, InputFormatError
 from pipeline.store import read_store
-from training.baselines import Baseline, random_walk_paths
+from training.baselines import random_walk_paths
 from training.dataset import MANIFEST, Split, WindowDataset
 from training.evaluate import EvaluationConfig, evaluate_reference, load_test_windows
 from training.outputs import Aggregation, read_summary
@@ -42,8 +42,8 @@ def test_test_windows_do_not_overlap(data):
 
 def test_ground_truth_and_zero_rows_equal_validation(data, tmp_path):
     """The recovered-bias and zero rows are validation's figures on the same (non-overlapping) windows."""
-    gt = evaluate_reference(Baseline.GROUND_TRUTH, data, tmp_path / "gt")
-    zero = evaluate_reference(Baseline.ZERO, data)
+    gt = evaluate_reference("ground_truth", data, tmp_path / "gt")
+    zero = evaluate_reference("zero", data)
     root = data.parent
     for name in ("test0", "test1"):
         v = validate_inputs(read_store(root / "stores" / name), recovery_dir=root / "rec" / name,
@@ -62,7 +62,7 @@ def test_ground_truth_and_zero_rows_equal_validation(data, tmp_path):
 
 
 def test_zero_row_equals_independent_rk4_of_raw_readings(data):
-    zero = evaluate_reference(Baseline.ZERO, data)
+    zero = evaluate_reference("zero", data)
     w = load_test_windows(data)
     for name in w.sequences():
         items = w.items(np.flatnonzero(w.sequence == name))
@@ -81,7 +81,7 @@ def test_zero_row_equals_independent_rk4_of_raw_readings(data):
 def test_train_mean_row_is_the_train_windows_mean_bias(data):
     ds = WindowDataset(data, Split.TRAIN)
     mean = np.concatenate([np.asarray(ds.arrays(n)["bias"]).reshape(-1, 6) for n in ds.sequences]).mean(axis=0)
-    res = evaluate_reference(Baseline.TRAIN_MEAN, data, config=EvaluationConfig(examples=2))
+    res = evaluate_reference("train_mean", data, config=EvaluationConfig(examples=2))
     ex = res.examples
     got = ex.groupby("channel", sort=False)["mean"].agg(["min", "max"])
     np.testing.assert_allclose(got["min"].to_numpy(), mean, rtol=1e-12)
@@ -100,13 +100,13 @@ def test_random_walk_paths_have_the_random_walk_statistics():
 
 
 def test_random_walk_oracle_is_best_of_candidates_and_between_gt_and_zero(data):
-    orc = evaluate_reference(Baseline.RANDOM_WALK_ORACLE, data)
-    gt = evaluate_reference(Baseline.GROUND_TRUTH, data)
-    zero = evaluate_reference(Baseline.ZERO, data)
+    orc = evaluate_reference("random_walk_oracle", data)
+    gt = evaluate_reference("ground_truth", data)
+    zero = evaluate_reference("zero", data)
     assert orc.summary.kind == "oracle" and "oracle" in orc.summary.label.lower()
     a = orc.summary.row().average.prmse_m
     assert gt.summary.row().average.prmse_m < a < zero.summary.row().average.prmse_m
-    again = evaluate_reference(Baseline.RANDOM_WALK_ORACLE, data)
+    again = evaluate_reference("random_walk_oracle", data)
     assert again.summary.row().average == orc.summary.row().average  # seeded
 
 
@@ -116,10 +116,10 @@ def test_bad_inputs_one_line(data, tmp_path):
     manifest = json.loads((data / MANIFEST).read_text())
     (bad / MANIFEST).write_text(json.dumps({**manifest, "format_version": 99}))
     with pytest.raises(InputFormatError, match="format 99") as exc:
-        evaluate_reference(Baseline.ZERO, bad, tmp_path / "out")
+        evaluate_reference("zero", bad, tmp_path / "out")
     assert "\n" not in str(exc.value) and "manifest.json" in str(exc.value)
     assert not (tmp_path / "out").exists()
     no_test = make_window_dataset(tmp_path / "nt", splits={"train": 1}, duration_s=3.0)
     with pytest.raises(DataError, match="no test window"):
-        evaluate_reference(Baseline.ZERO, no_test, tmp_path / "out")
+        evaluate_reference("zero", no_test, tmp_path / "out")
     assert not (tmp_path / "out").exists()

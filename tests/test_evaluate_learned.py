@@ -15,8 +15,8 @@ from scipy.spatial.transform import Rotation
 from biasgt.cli.app import main
 from pipeline.errors import ConfigError, InputFormatError
 from biasgt.workflow.learning import TrainingPlan, evaluate_step, table_step
-from training.baselines import Baseline
-from training.config import Method, Sampler
+from training.config import Sampler
+from training.dataset import STATE_BIAS
 from training.evaluate import CALIBRATION_LEVELS, CHANNELS, EvaluationConfig, evaluate_run, load_test_windows
 from training.outputs import Aggregation, read_summary
 from training.table import TABLE_MD
@@ -33,8 +33,8 @@ def trained(tmp_path_factory) -> Path:
     for method in METHODS:
         train_tiny(data, root / "training" / method, method, steps=6)
         evaluate_step(data, root / "evaluation" / method, EVAL, run_dir=root / "training" / method, method=method)
-    for ref in (Baseline.ZERO, Baseline.GROUND_TRUTH):
-        evaluate_step(data, root / "evaluation" / ref.value, EVAL, reference=ref.value)
+    for ref in ("zero", "ground_truth"):
+        evaluate_step(data, root / "evaluation" / ref, EVAL, reference=ref)
     return root
 
 
@@ -76,7 +76,7 @@ def test_diffusion_summary_rows_and_calibration(trained):
     assert kept == [f"sample{j}" for j in range(min(EXAMPLE_SAMPLES, EVAL["samples"]))]
     tw = load_test_windows(trained / "dataset")
     for (window, ch), part in ex[ex["sampler"] == "ddim"].groupby(["window", "channel"]):
-        np.testing.assert_allclose(part["dataset"].to_numpy(), tw.state_bias[window][:, CHANNELS.index(ch)], atol=1e-12)
+        np.testing.assert_allclose(part["dataset"].to_numpy(), tw.arrays[STATE_BIAS][window][:, CHANNELS.index(ch)], atol=1e-12)
 
 
 def _midpoint_end_states(imu: np.ndarray, bias: np.ndarray, dt_s: np.ndarray, R0: np.ndarray, v0: np.ndarray,
@@ -175,7 +175,7 @@ def test_cli_evaluate_and_bad_inputs(trained, tmp_path, capsys):
     assert "x0 clip (ddim): samples on the bound per channel:" in out
     # checkpoint of another method
     with pytest.raises(ConfigError, match="holds a regression_rnn model, not diffusion_rnn"):
-        evaluate_run(run, data, tmp_path / "x", method=Method.DIFFUSION_RNN)
+        evaluate_run(run, data, tmp_path / "x", method="diffusion_rnn")
     assert main(["evaluate", "--checkpoint", str(run), "--dataset", str(data), "--method", "diffusion_rnn",
                  "--out", str(tmp_path / "x")]) == 2
     err = capsys.readouterr().err

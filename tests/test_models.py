@@ -7,7 +7,8 @@ import torch
 
 from pipeline.errors import DataError, InputFormatError
 from training.batch import WindowBatch
-from training.config import Method, ModelConfig, Preset, Sampler, TrainConfig
+from training.networks import get_network, network_names
+from training.config import ModelConfig, Preset, Sampler, TrainConfig
 from training.models import build_model, count_parameters
 from training.models.layers import TcnEncoder
 from training.normalizer import Normalizer
@@ -30,13 +31,13 @@ def _batch(B: int = 3, T: int = 21, seed: int = 0, temperature: bool = False) ->
 def test_paper_sizes_match_the_released_models():
     """The released code's parameter counts (the paper's 2.2M and 42.8M)."""
     counts = {m: count_parameters(build_model(ModelConfig.for_preset(m, Preset.PAPER), Normalizer(STATS)))
-              for m in (Method.DIFFUSION_RNN, Method.DIFFUSION_UNET)}
-    assert counts[Method.DIFFUSION_RNN] == 2_192_710
-    assert counts[Method.DIFFUSION_UNET] == 42_814_022
+              for m in ("diffusion_rnn", "diffusion_unet")}
+    assert counts["diffusion_rnn"] == 2_192_710
+    assert counts["diffusion_unet"] == 42_814_022
 
 
 def test_tcn_receptive_field_is_255_and_causal():
-    config = ModelConfig.for_preset(Method.DIFFUSION_RNN, Preset.PAPER)
+    config = ModelConfig.for_preset("diffusion_rnn", Preset.PAPER)
     enc = TcnEncoder(6, config.tcn_channels, config.tcn_kernel, 0.0, config.cond_dim).eval()
     assert enc.receptive_field == 255
     x = torch.randn(1, 300, 6)
@@ -48,7 +49,7 @@ def test_tcn_receptive_field_is_255_and_causal():
     assert not torch.equal(enc(y), base)
 
 
-@pytest.mark.parametrize("method", list(Method))
+@pytest.mark.parametrize("method", network_names())
 def test_every_method_samples_raw_units_and_rebuilds_from_state_dict(method):
     torch.manual_seed(0)
     model = build_model(ModelConfig.for_preset(method, Preset.TINY), Normalizer(STATS)).eval()
@@ -57,7 +58,7 @@ def test_every_method_samples_raw_units_and_rebuilds_from_state_dict(method):
     assert loss.dim() == 0 and torch.isfinite(loss)
     s = model.sample(batch, 4, steps=5, generator=torch.Generator().manual_seed(1))
     assert s.shape == (3, 4, 21, 6)
-    if not method.is_diffusion:
+    if not get_network(method).is_diffusion:
         assert torch.equal(s[:, 0], s[:, 3])
     state = model.state_dict()
     assert torch.equal(state["normalizer.bias_std"], torch.tensor(STATS["bias_std"]))
@@ -70,7 +71,7 @@ def test_every_method_samples_raw_units_and_rebuilds_from_state_dict(method):
 def test_released_sampler_clips_in_raw_units():
     torch.manual_seed(0)
     wide = dict(STATS, bias_mean=[0.0] * 6, bias_std=[5.0] * 6)  # normalised +-1 would be +-5 raw
-    model = build_model(ModelConfig.for_preset(Method.DIFFUSION_RNN, Preset.TINY), Normalizer(wide)).eval()
+    model = build_model(ModelConfig.for_preset("diffusion_rnn", Preset.TINY), Normalizer(wide)).eval()
     s = model.sample(_batch(), 8, sampler=Sampler.RELEASED, steps=25, generator=torch.Generator().manual_seed(0))
     assert s.abs().max() <= 1.0 + 1e-6
     assert (s.abs() > 0.999).any()  # an untrained model's x0 estimate hits the clip
@@ -87,13 +88,13 @@ def test_indirect_loss_is_zero_at_the_true_bias():
                     batch.start_R, batch.start_v, batch.start_p, gravity_mps2=(0.0, 0.0, -9.81),
                     bias_gyro_radps=batch.bias[..., :3].double(), bias_acc_mps2=batch.bias[..., 3:].double())
     batch.end_R, batch.end_v, batch.end_p = res.R.float(), res.v.float(), res.p.float()
-    model = build_model(ModelConfig.for_preset(Method.INDIRECT_RNN, Preset.TINY), Normalizer(STATS))
+    model = build_model(ModelConfig.for_preset("indirect_rnn", Preset.TINY), Normalizer(STATS))
     assert float(model._integration_loss(batch, batch.bias)) < 1e-10
     assert float(model._integration_loss(batch, torch.zeros_like(batch.bias))) > 1e-6
 
 
 def test_temperature_is_a_seventh_condition_channel():
-    config = TrainConfig(method=Method.DIFFUSION_RNN, preset=Preset.TINY, use_temperature=True).model_config()
+    config = TrainConfig(method="diffusion_rnn", preset=Preset.TINY, use_temperature=True).model_config()
     assert config.condition_channels == 7
     torch.manual_seed(0)
     model = build_model(config, Normalizer(STATS, temperature_degc=(20.0, 1.0))).eval()

@@ -44,7 +44,6 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_train_evaluate_and_predict_report_progress(data: Path, tmp_path: Path, caplog) -> None:
-    from training.baselines import Baseline
     from training.evaluate import evaluate_reference
     from training.checkpoint import load_run
     from training.predict import predict_sequence
@@ -53,7 +52,7 @@ def test_train_evaluate_and_predict_report_progress(data: Path, tmp_path: Path, 
 
     with caplog.at_level(logging.INFO):
         train_tiny(data, tmp_path / "run", "diffusion_rnn")
-        evaluate_reference(Baseline.ZERO, data)
+        evaluate_reference("zero", data)
         predict_sequence(load_run(tmp_path / "run"), read_store(data.parent / "stores" / "test0"), samples=2, steps=2)
     for prefix, unit in (("train diffusion_rnn:", "step"), ("evaluate:", "window"), ("predict test0", "window")):
         lines = _progress_lines(caplog, prefix)

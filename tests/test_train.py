@@ -18,7 +18,7 @@ import torch
 
 from pipeline.errors import BiasgtError, DataError, InputFormatError
 from training.checkpoint import BEST, LAST, CheckpointError, load_checkpoint, load_run, weights_hash
-from training.config import Method, Preset, TrainConfig
+from training.config import Preset, TrainConfig
 from training.dataset import Split, WindowDataset
 from training.train import TrainingError, train
 
@@ -103,7 +103,7 @@ def test_resume_with_dropout_is_bit_identical(toy_ds, tmp_path, monkeypatch):
     first resumed step (a DataLoader iterator without its own generator does)."""
     import training.train as train_module
 
-    config = TrainConfig(method=Method.DIFFUSION_RNN, max_steps=20, model_overrides={"tcn_dropout": 0.3},
+    config = TrainConfig(method="diffusion_rnn", max_steps=20, model_overrides={"tcn_dropout": 0.3},
                          **{**TINY, "checkpoint_every": 5})
     train(config, toy_ds, tmp_path / "whole")
 
@@ -133,7 +133,7 @@ def test_resume_with_dropout_is_bit_identical(toy_ds, tmp_path, monkeypatch):
 def test_same_seed_same_hashes_other_seed_differs(toy_ds, tmp_path):
     hashes = []
     for name, seed in (("a", 3), ("b", 3), ("c", 4)):
-        train(TrainConfig(method=Method.REGRESSION_RNN, seed=seed, max_steps=20, **TINY), toy_ds, tmp_path / name)
+        train(TrainConfig(method="regression_rnn", seed=seed, max_steps=20, **TINY), toy_ds, tmp_path / name)
         hashes.append(weights_hash(load_checkpoint(tmp_path / name / LAST)["model"]))
     assert hashes[0] == hashes[1] != hashes[2]
 
@@ -147,7 +147,7 @@ def test_checkpoint_holds_everything_to_rebuild_and_best_is_the_lowest_validatio
         real_init(self, root, split, dtype)
 
     monkeypatch.setattr(WindowDataset, "__init__", spy)
-    out = train(TrainConfig(method=Method.DIFFUSION_RNN, max_steps=40, **TINY), toy_ds, tmp_path / "run")
+    out = train(TrainConfig(method="diffusion_rnn", max_steps=40, **TINY), toy_ds, tmp_path / "run")
     assert Split.TEST not in opened  # the test split is read only by evaluation
 
     state = load_checkpoint(out / LAST)
@@ -186,7 +186,7 @@ def test_non_finite_loss_names_the_step_and_keeps_the_last_good_checkpoint(toy_d
 
     monkeypatch.setattr(BiasModel, "loss", flaky)
     with pytest.raises(TrainingError, match="at step 17"):
-        train(TrainConfig(method=Method.REGRESSION_RNN, max_steps=40, **TINY), toy_ds, tmp_path / "run")
+        train(TrainConfig(method="regression_rnn", max_steps=40, **TINY), toy_ds, tmp_path / "run")
     assert load_checkpoint(tmp_path / "run" / LAST)["step"] == 10
     assert not (tmp_path / "run" / "run.json").exists()
 
@@ -202,7 +202,7 @@ def _edit_manifest(src: Path, dst: Path, edit) -> Path:
 
 
 def test_bad_datasets_fail_with_one_line_and_write_nothing(toy_ds, tmp_path):
-    config = TrainConfig(method=Method.REGRESSION_RNN, max_steps=5, **TINY)
+    config = TrainConfig(method="regression_rnn", max_steps=5, **TINY)
     no_val = write_toy_dataset(tmp_path / "noval", Toy(), train=32, val=0, test=8)
     other = _edit_manifest(toy_ds, tmp_path / "v99", lambda m: m.update(format_version=99))
     no_norm = _edit_manifest(toy_ds, tmp_path / "nonorm", lambda m: m.pop("normalization"))
@@ -225,7 +225,7 @@ def test_bad_datasets_fail_with_one_line_and_write_nothing(toy_ds, tmp_path):
 
 
 def test_an_existing_run_is_not_overwritten_and_resume_checks_options(toy_ds, tmp_path):
-    config = TrainConfig(method=Method.REGRESSION_RNN, max_steps=10, **TINY)
+    config = TrainConfig(method="regression_rnn", max_steps=10, **TINY)
     train(config, toy_ds, tmp_path / "run")
     with pytest.raises(TrainingError, match="--resume"):
         train(config, toy_ds, tmp_path / "run")
@@ -261,7 +261,7 @@ def test_temperature_conditioning_trains_from_a_dataset_with_temperature(tmp_pat
             seq = toy_sequence(Toy(), f"toy_{split.value}", split, n, i, temperature=True)
             np.save(ds / "sequences" / seq.name / "temperature_degc.npy", seq.arrays["temperature_degc"])
         monkeypatch.setattr(dataset_module, "ARRAYS", (*dataset_module.ARRAYS, "temperature_degc"))
-    out = train(TrainConfig(method=Method.DIFFUSION_RNN, max_steps=10, use_temperature=True, **TINY), ds,
+    out = train(TrainConfig(method="diffusion_rnn", max_steps=10, use_temperature=True, **TINY), ds,
                 tmp_path / "run")
     run = load_run(out)
     assert run.model.config.condition_channels == 7

@@ -10,7 +10,7 @@ import pytest
 
 from biasgt.workflow.learning import evaluate_step
 from reports.training import SECTIONS, build_training_report
-from training.config import Baseline
+from training.references import reference_names
 from window_data import make_window_dataset, train_tiny
 
 METHODS = ("diffusion_rnn", "regression_rnn", "indirect_rnn")
@@ -28,9 +28,9 @@ def report(tmp_path_factory) -> Path:
         evaluate_step(data, root / "evaluation" / method / "seed0", EVAL, run_dir=run, method=method)
         runs.append(run)
         evals.append(root / "evaluation" / method / "seed0")
-    for ref in Baseline:
-        evaluate_step(data, root / "evaluation" / ref.value, EVAL, reference=ref.value)
-        evals.append(root / "evaluation" / ref.value)
+    for ref in reference_names():
+        evaluate_step(data, root / "evaluation" / ref, EVAL, reference=ref)
+        evals.append(root / "evaluation" / ref)
     return build_training_report(evals, runs, root / "report" / "training.html")
 
 

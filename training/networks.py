@@ -218,7 +218,7 @@ BUILTIN = (
     Network("regression_unet", "regression_unet", Objective.REGRESSION, "the same U-Net, direct regression (MSE)",
             "#8c564b", UnetOptions, "training.models.unet:UnetRegressor", UNET_PRESETS),
     Network("indirect_rnn", "indirect_rnn", Objective.INDIRECT, "AirIMU-style: the RNN regressor trained through the "
-            "IMU integrator against the reference start/end states, no bias labels", "#2ca02c", RnnOptions,
+            "IMU integrator, no bias labels", "#2ca02c", RnnOptions,
             "training.models.rnn:GruRegressor", RNN_PRESETS),
 )
 for _network in BUILTIN:

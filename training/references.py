@@ -30,7 +30,8 @@ items of one test sequence: ``imu`` [B, T, 6], ``bias`` [B, T, 6], ``dt_s`` [B, 
 ``sequence_dir``
     The sequence's windows folder (``DATASET/sequences/<seq>``, a ``pathlib.Path``).
 ``info.<key>``
-    The sequence's value ``<key>`` in the dataset manifest's ``info`` (``None`` when it has none).
+    The sequence's value ``<key>`` in the dataset manifest's ``info`` (``None`` when it has none),
+    given as the keyword ``<key>``.
 any other name
     The per-window dataset array ``<name>`` (``sequences/<seq>/<name>.npy``, [B, ...] float64;
     NaN for a sequence without the file).
@@ -84,7 +85,7 @@ class ReferenceRow:
 
     def predict(self, items: dict[str, Any], inputs: dict[str, Any]) -> Any:
         """The row's bias [B, 1, T, 6] for ``items``, given the ``inputs`` it declared."""
-        return _resolve(self.bias)(items, **{n: inputs[n] for n in self.needs})
+        return _resolve(self.bias)(items, **{n.removeprefix("info."): inputs[n] for n in self.needs})
 
     def footnote(self, summaries: list[Any]) -> str | None:
         return None if self.note is None else _resolve(self.note)(summaries)
@@ -144,7 +145,7 @@ BUILTIN = (
     ReferenceRow("ground_truth", "Recovered GT bias", "the recovered ground-truth bias itself (what the labels "
                  "allow)", f"{_B}:ground_truth_bias", oracle=True),
     ReferenceRow("random_walk_oracle", "Random walk (oracle)", "ground-truth bias at each window start plus 50 "
-                 "random walks, the best chosen with the ground-truth end pose: an oracle upper bound",
+                 "random walks, the best chosen with the ground-truth end pose",
                  f"{_B}:random_walk_oracle", oracle=True, needs=("random_walk", "gravity_mps2", "rng", "state_bias"),
                  note=f"{_B}:oracle_note"),
     ReferenceRow("random_walk_paper", "Random walk (oracle, paper's walks)", "the same oracle with the walks the "

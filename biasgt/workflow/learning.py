@@ -26,6 +26,8 @@ from typing import Any
 
 from pipeline.errors import DataError
 from training.config import EvaluationConfig, TrainConfig, TrainingPlan
+from training.networks import get_network, network_names
+from training.references import reference_names
 from training.table import TABLE_CSV, TABLE_MD, write_table
 
 # torch and the evaluation are imported by the steps that use them: the Snakefile imports this
@@ -38,6 +40,9 @@ __all__ = [
     "evaluate_step",
     "evaluation_dir",
     "evaluation_summaries",
+    "is_sampled",
+    "network_names",
+    "reference_names",
     "table_step",
     "training_run_dir",
 ]
@@ -57,6 +62,11 @@ def evaluation_dir(name: str, seed: int | str | None = None) -> str:
     """``results/evaluation/{method}/seed{seed}`` for a learned run, ``results/evaluation/{reference}`` else."""
     value = getattr(name, "value", name)
     return f"{RESULTS}/evaluation/{value}" + ("" if seed is None else f"/seed{seed}")
+
+
+def is_sampled(method: str) -> bool:
+    """Whether ``method`` draws samples (a diffusion network): its evaluation reads the sampling options."""
+    return get_network(method).is_diffusion
 
 
 def evaluation_summaries(plan: TrainingPlan, evaluation: EvaluationConfig) -> list[str]:

@@ -1,6 +1,6 @@
 # Stage evaluate: PRMSE / ROE on the test split's non-overlapping 1-s windows (training.evaluate):
 # results/evaluation/{method}/seed{seed}/ for each trained run and results/evaluation/{reference}/
-# for the rows that need no training (zero, train mean, recovered GT bias, random-walk oracle).
+# for the rows that need no training (training/references.py).
 # params: the 'evaluation:' section without 'references' (samples, samplers, steps, seed, ...).
 
 
@@ -15,7 +15,7 @@ rule evaluate:
     params:
         # a regression model draws no samples: the sampling options rerun only the diffusion models'
         settings=lambda wildcards: learning.evaluation_settings(
-            WF_CONFIG.section("evaluation"), sampled=learning.Method(wildcards.method).is_diffusion
+            WF_CONFIG.section("evaluation"), sampled=learning.is_sampled(wildcards.method)
         ),
         dataset_checksum=windows_dataset_checksum,
     threads: TRAINING_PLAN.threads

@@ -11,9 +11,9 @@ EVALUATION = learning.EvaluationConfig.from_mapping(WF_CONFIG.section("evaluatio
 
 
 wildcard_constraints:
-    method=wf.names_regex(m.value for m in learning.Method),
+    method=wf.names_regex(learning.network_names()),
     seed=r"\d+",
-    reference=wf.names_regex(b.value for b in learning.Baseline),
+    reference=wf.names_regex(learning.reference_names()),
 
 
 rule train:

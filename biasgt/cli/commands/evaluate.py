@@ -14,7 +14,7 @@ from the reference start state with the predicted bias subtracted from the readi
 (m) and ROE (deg) per test sequence and their mean over sequences (Average).
 
 A trained run (--checkpoint RUN: a 'biasgt train' folder or a .pt file) is rebuilt from its checkpoint
-alone. A diffusion model draws K samples per window (--samples, default 50) with each --sampler
+alone. A diffusion model draws K samples per window (--samples) with each --sampler
 (correct DDIM, and 'released': the released code's sampler, for the ablation); the figures are
 averaged over the samples (the paper), and the sample mean and median are evaluated as predictions
 too. The spread is checked for calibration: per channel, the fraction of ground-truth bias inside the
