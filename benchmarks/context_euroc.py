@@ -37,12 +37,12 @@ from training.evaluate import evaluate_reference  # noqa: E402
 
 REFERENCES = ("train_mean", "start_rest", "sequence_mean", "state_bias")
 VARIANTS = {
-    "rest_label": dict(model=dict(base="start_rest", history_s=()), loss="label"),
-    "rest_integration": dict(model=dict(base="start_rest", history_s=()), loss="integration"),
-    "rest_both": dict(model=dict(base="start_rest", history_s=()), loss="both"),
-    "rest_history_label": dict(model=dict(base="start_rest"), loss="label"),
-    "rest_history_integration": dict(model=dict(base="start_rest"), loss="integration"),
-    "mean_history_label": dict(model=dict(base="train_mean"), loss="label"),
+    "rest_label": dict(model=dict(base="rest", history_s=()), loss="label"),
+    "rest_integration": dict(model=dict(base="rest", history_s=()), loss="integration"),
+    "rest_both": dict(model=dict(base="rest", history_s=()), loss="both"),
+    "rest_history_label": dict(model=dict(base="rest"), loss="label"),
+    "rest_history_integration": dict(model=dict(base="rest"), loss="integration"),
+    "mean_history_label": dict(model=dict(base="mean"), loss="label"),
 }
 
 

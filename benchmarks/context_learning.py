@@ -35,15 +35,15 @@ from training.evaluate import evaluate_reference  # noqa: E402
 from training.sim_context import RestSim, write_rest_sim_dataset  # noqa: E402
 
 VARIANTS = {
-    "start_rest + residual (temperature, label loss)": dict(model=dict(base="start_rest", use_temperature=True,
+    "start_rest + residual (temperature, label loss)": dict(model=dict(base="rest", use_temperature=True,
                                                                         history_s=()), loss="label"),
-    "train_mean + residual (temperature, label loss)": dict(model=dict(base="train_mean", use_temperature=True,
+    "train_mean + residual (temperature, label loss)": dict(model=dict(base="mean", use_temperature=True,
                                                                         history_s=()), loss="label"),
-    "start_rest + residual (temperature, integration loss)": dict(model=dict(base="start_rest", use_temperature=True,
+    "start_rest + residual (temperature, integration loss)": dict(model=dict(base="rest", use_temperature=True,
                                                                               history_s=()), loss="integration"),
-    "start_rest + residual (temperature, 5/30 s history, label)": dict(model=dict(base="start_rest",
+    "start_rest + residual (temperature, 5/30 s history, label)": dict(model=dict(base="rest",
                                                                                    use_temperature=True), loss="label"),
-    "1-s model, no context, no temperature (label loss)": dict(model=dict(base="train_mean", use_temperature=False,
+    "1-s model, no context, no temperature (label loss)": dict(model=dict(base="mean", use_temperature=False,
                                                                            use_context=False, history_s=()),
                                                                loss="label"),
 }

@@ -117,8 +117,8 @@ def test_context_model_learns_the_bias_and_needs_its_input(sim_dataset):
                                  gravity="recovered")
         return _closure(sim_dataset, evaluate_context(train_context(sim_dataset, cfg), sim_dataset, EVAL))
 
-    learned = run(base="start_rest", use_temperature=True)
-    blind = run(base="train_mean", use_temperature=False, use_context=False)  # a model ignoring its input
+    learned = run(base="rest", use_temperature=True)
+    blind = run(base="mean", use_temperature=False, use_context=False)  # a model ignoring its input
     rest_only = _closure(sim_dataset, evaluate_reference("start_rest", sim_dataset, None, EVAL))
     assert min(learned) >= 0.8, learned
     assert learned[0] > rest_only[0] + 0.1, (learned, rest_only)  # the temperature term is learned

@@ -40,8 +40,8 @@ __all__ = ["Base", "ContextLoss", "ContextModelConfig", "ContextResidual", "cont
 class Base(str, enum.Enum):
     """The constant the residual is added to."""
 
-    TRAIN_MEAN = "train_mean"
-    START_REST = "start_rest"
+    MEAN = "mean"  # the train split's mean bias (the train_mean row)
+    REST = "rest"  # the start-rest estimate (the start_rest row, training/ref_start_rest.py)
 
 
 class ContextLoss(str, enum.Enum):
@@ -66,7 +66,7 @@ class ContextModelConfig:
         hidden: Head width.
     """
 
-    base: Base = Base.START_REST
+    base: Base = Base.REST
     history_s: tuple[float, ...] = (5.0, 30.0)
     use_temperature: bool = False
     use_context: bool = True

@@ -104,7 +104,7 @@ def load_split(root: str | Path, split: Split, stats: Stats, mc: ContextModelCon
         cols = {k: np.asarray(a[k], dtype=np.float64) for k in _KEYS}
         cols["dt_s"] = np.diff(t_ns, axis=1) * 1e-9
         cols["features"] = feats
-        cols["base"] = rest if mc.base is Base.START_REST else np.tile(stats.bias_mean, (len(t_ns), 1))
+        cols["base"] = rest if mc.base is Base.REST else np.tile(stats.bias_mean, (len(t_ns), 1))
         cols["gravity"] = np.tile(g, (len(t_ns), 1))
         if TEMPERATURE in a:
             cols[TEMPERATURE] = np.asarray(a[TEMPERATURE], dtype=np.float64)
@@ -203,7 +203,7 @@ class ContextPredictor:
         ctx = open_context(self.root, sequence)
         feats, rest = context_features(ctx, np.asarray(items["t0_ns"], dtype=np.int64), T, self.stats,
                                        self.model.config, float(np.linalg.norm(self.gravity[sequence])))
-        base = rest if self.model.config.base is Base.START_REST else np.tile(self.stats.bias_mean, (B, 1))
+        base = rest if self.model.config.base is Base.REST else np.tile(self.stats.bias_mean, (B, 1))
         temp = items.get(TEMPERATURE)
         out = self.model(imu.float(), torch.from_numpy(feats).float(), torch.from_numpy(base).float(),
                          None if temp is None else temp.float())

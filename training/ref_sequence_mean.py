@@ -2,8 +2,8 @@
 
 The mean over every sample of the sequence's windows (overlapping windows count each shared
 sample twice, which weighs the record almost uniformly) of its **dataset bias**: the ground-truth
-state's own bias (``state_bias``, EuRoC's ``state_groundtruth_estimate0``) where the sequence has
-one, else the labels (``bias``). An oracle: it reads the test sequence's ground truth, so it bounds
+state's own bias (the dataset's ``STATE_BIAS`` array, EuRoC's ``state_groundtruth_estimate0``)
+where the sequence has one, else the labels (``bias``). An oracle: it reads the test sequence's ground truth, so it bounds
 what any constant per sequence can do; it is not a method.
 """
 
