@@ -43,6 +43,8 @@ VARIANTS = {
     "rest_history_label": dict(model=dict(base="rest"), loss="label"),
     "rest_history_integration": dict(model=dict(base="rest"), loss="integration"),
     "mean_history_label": dict(model=dict(base="mean"), loss="label"),
+    "mean_history_integration": dict(model=dict(base="mean"), loss="integration"),
+    "mean_history_both": dict(model=dict(base="mean"), loss="both"),
 }
 
 
