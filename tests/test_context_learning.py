@@ -74,6 +74,24 @@ def test_start_rest_is_causal_and_falls_back_to_the_train_mean(sim_dataset):
     np.testing.assert_array_equal(before, after)
 
 
+def test_write_context_from_stores_matches_the_windows(tmp_path):
+    from window_data import make_window_dataset
+
+    from training.context import write_context
+
+    ds = make_window_dataset(tmp_path, splits={"train": 1, "val": 1, "test": 1}, duration_s=6.0)
+    write_context(ds)
+    data = WindowDataset(ds, "test", dtype=torch.float64)
+    name = data.sequences[0]
+    a = data.arrays(name)
+    ctx = SequenceContext.open(ds, name)
+    i = ctx.index(np.asarray(a["t_ns"])[:, 0])
+    T = a["imu"].shape[1]
+    for w, start in enumerate(i):  # every window is its slice of the record, stamps and readings
+        np.testing.assert_array_equal(ctx.t_ns[start:start + T], a["t_ns"][w])
+        np.testing.assert_array_equal(np.asarray(ctx.imu[start:start + T]), a["imu"][w])
+
+
 def test_sequence_mean_is_the_mean_label(sim_dataset):
     folder = sim_dataset / "sequences" / "rest_test_01"
     bias = np.load(folder / "bias.npy")

@@ -12,8 +12,8 @@ A window finds its place by its first stamp (``searchsorted``), so nothing is co
 windows. **Memory**: 56 bytes per IMU sample per sequence (64 with temperature), whatever the
 window count or overlap: at 200 Hz, 0.67 MB per minute of recording (EuRoC's ten sequences:
 about 15 MB), against ``T * 6 * 8 * 3`` bytes of IMU, bias and sigma per 1-s window in the
-windows themselves. :class:`SequenceContext` memory-maps the arrays and keeps two prefix sums
-in RAM (another ``2 * 56`` bytes per sample) for O(1) history means.
+windows themselves. :class:`SequenceContext` memory-maps the arrays and keeps prefix sums of the
+IMU and the temperature in RAM (another 56 bytes per sample) for O(1) history and rest means.
 
 **Causality**: every summary here of the window starting at sample ``i`` with ``T`` samples reads
 samples ``< i + T`` only (its own window and what came before it), never later ones.
@@ -111,6 +111,7 @@ class SequenceContext:
     rate_hz: float
     rests: list[tuple[int, int]] = dataclasses.field(default_factory=list)
     _cum: np.ndarray | None = None
+    _tcum: np.ndarray | None = None
 
     @classmethod
     def open(cls, dataset_dir: str | Path, name: str, rest: RestConfig = RestConfig()) -> SequenceContext:
@@ -183,7 +184,9 @@ class SequenceContext:
         mean = (cum[end] - cum[first]) / np.maximum(end - first, 1)[:, None]
         temp = None
         if self.temperature_degc is not None:
-            tc = np.concatenate([[0.0], np.cumsum(np.asarray(self.temperature_degc, dtype=np.float64))])
+            if self._tcum is None:
+                self._tcum = np.concatenate([[0.0], np.cumsum(np.asarray(self.temperature_degc, dtype=np.float64))])
+            tc = self._tcum
             temp = np.where(found, (tc[end] - tc[first]) / np.maximum(end - first, 1), np.nan)
         return np.where(found[:, None], mean, 0.0), found, temp
 
