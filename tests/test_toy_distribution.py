@@ -36,7 +36,7 @@ def _residuals(tmp: Path, toy: Toy, method: str, steps: int) -> np.ndarray:
         write_toy_dataset(ds, toy, train=2048, val=128, test=100, seed=11)
     config = TrainConfig(method=method, preset=Preset.TINY, seed=0, max_steps=steps, batch_size=128, lr=5e-3,
                          warmup_steps=20, ema_decay=0.99, val_every=steps, checkpoint_every=steps)
-    run = load_run(train(config, ds, tmp / f"{toy.kind.value}_{method.value}"))
+    run = load_run(train(config, ds, tmp / f"{toy.kind.value}_{method}"))
     test = WindowDataset(ds, Split.TEST)
     batch = WindowBatch.from_items(torch.utils.data.default_collate(test.__getitems__(list(range(len(test))))))
     s = run.model.sample(batch, SAMPLES, generator=torch.Generator().manual_seed(0)).numpy()
