@@ -125,6 +125,12 @@ class ReferencePredictor:
             return w.gravity_mps2[sequence]
         if need == "rng":
             return np.random.default_rng([seed, int(items["t0_ns"][0]) % (2**62)])
+        if need == "context":
+            from training.context import open_context
+
+            return open_context(w.root, sequence)
+        if need == "sequence_dir":
+            return Path(w.root) / w.manifest["sequences"][sequence]["path"]
         if need.startswith("info."):
             value = w.manifest["sequences"][sequence].get("info", {}).get(need.removeprefix("info."))
             return None if value is None else np.asarray(value)

@@ -24,6 +24,11 @@ items of one test sequence: ``imu`` [B, T, 6], ``bias`` [B, T, 6], ``dt_s`` [B, 
     Gravity in the world frame of the windows' sequence, [3] (the evaluation's ``gravity`` choice).
 ``rng``
     A ``numpy.random.Generator`` seeded from the evaluation seed and the batch.
+``context``
+    The sequence's whole IMU record (:class:`training.context.SequenceContext`; the dataset needs
+    ``context/``, :func:`training.context.write_context`).
+``sequence_dir``
+    The sequence's windows folder (``DATASET/sequences/<seq>``, a ``pathlib.Path``).
 ``info.<key>``
     The sequence's value ``<key>`` in the dataset manifest's ``info`` (``None`` when it has none),
     given as the keyword ``<key>``.
@@ -45,7 +50,7 @@ __all__ = ["EVALUATION_INPUTS", "ReferenceRow", "get_reference", "reference_name
            "unregister_reference"]
 
 #: Inputs the evaluation computes itself (see the module docstring); ``info.<key>`` and array names aside.
-EVALUATION_INPUTS = ("bias_mean", "random_walk", "gravity_mps2", "rng")
+EVALUATION_INPUTS = ("bias_mean", "random_walk", "gravity_mps2", "rng", "context", "sequence_dir")
 
 
 @dataclass(frozen=True)
@@ -147,6 +152,13 @@ BUILTIN = (
                  "paper's random-walk column implies", f"{_B}:random_walk_paper", oracle=True,
                  needs=("random_walk", "gravity_mps2", "rng", "state_bias"), default=False,
                  note=f"{_B}:paper_walk_note"),
+    ReferenceRow("start_rest", "Start-rest bias", "from the IMU alone: the gyro mean over the record's first rest, "
+                 "the accelerometer's bias along gravity there (the train mean across it), held constant",
+                 "training.ref_start_rest:start_rest_row", needs=("context", "bias_mean", "gravity_mps2"),
+                 default=False),
+    ReferenceRow("sequence_mean", "Sequence-mean bias (oracle)", "each test sequence's own mean dataset bias, held "
+                 "constant: the best one constant per sequence", "training.ref_sequence_mean:sequence_mean_row",
+                 oracle=True, needs=("sequence_dir",), default=False),
 )
 for _row in BUILTIN:
     register_reference(_row)

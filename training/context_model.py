@@ -1,0 +1,185 @@
+"""A bias model that sees what came before its window: a learned residual on a constant baseline.
+
+Input of one window (causal: nothing after the window's last sample, :mod:`training.context`):
+
+* the window itself, ``imu`` [T, 6] (and the temperature [T] with ``use_temperature``), normalised
+  with the train split's statistics;
+* a context vector [F] (:func:`context_features`): the start-rest bias estimate
+  (:mod:`training.ref_start_rest`, normalised) and whether a rest was seen, the rest's temperature,
+  the mean IMU over the ``history_s`` seconds before the window and since the record's start
+  (with the fraction of each span that exists), and the time since the record's start.
+
+Output: one bias [6] per window, held over the window (rad/s, m/s^2)::
+
+    bias = base + bias_std * (mlp(encoder(window), window mean, context) + linear(window mean, context))
+
+``base`` is the train mean or the start-rest estimate; the head's last layer starts at zero, so an
+untrained model *is* its base and training learns a correction (as AirIMU and Brossard's denoiser
+scale small corrections). Losses (:class:`ContextLoss`): the label MSE in normalised units, the
+1-s integrated rotation and position error from the reference start state through the project's
+torch integrator (:func:`integration_errors`, no label read), or their sum.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import nn
+
+from pipeline.geometry.integration import integrate
+from pipeline.geometry.so3_torch import so3_log
+from training.context import SequenceContext
+from training.ref_start_rest import start_rest_bias
+
+__all__ = ["Base", "ContextLoss", "ContextModelConfig", "ContextResidual", "context_features", "integration_errors"]
+
+
+class Base(str, enum.Enum):
+    """The constant the residual is added to."""
+
+    MEAN = "mean"  # the train split's mean bias (the train_mean row)
+    REST = "rest"  # the start-rest estimate (the start_rest row, training/ref_start_rest.py)
+
+
+class ContextLoss(str, enum.Enum):
+    """Training loss (module docstring)."""
+
+    LABEL = "label"
+    INTEGRATION = "integration"
+    BOTH = "both"
+
+
+@dataclass(frozen=True)
+class ContextModelConfig:
+    """Sizes and inputs of :class:`ContextResidual`.
+
+    Attributes:
+        base: The constant the residual is added to.
+        history_s: Spans (s) of the history means before the window (plus one since the start, and
+            the time since the start); empty: no history features (the start rest only).
+        use_temperature: The window's temperature as a 7th channel and the rest's in the context.
+        use_context: Give the context vector (False: zeros, the 1-s model's information).
+        channels: Encoder channels.
+        hidden: Head width.
+    """
+
+    base: Base = Base.REST
+    history_s: tuple[float, ...] = (5.0, 30.0)
+    use_temperature: bool = False
+    use_context: bool = True
+    channels: int = 32
+    hidden: int = 64
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "base", Base(self.base))
+        object.__setattr__(self, "history_s", tuple(float(s) for s in self.history_s))
+
+    def features(self) -> int:
+        """Size F of the context vector."""
+        return 6 + 1 + 1 + (6 * (len(self.history_s) + 1) + len(self.history_s) + 1 if self.history_s else 0)
+
+
+@dataclass(frozen=True)
+class Stats:
+    """Train-split statistics (the manifest's normalisation): [6] each, temperature mean/std scalars."""
+
+    imu_mean: np.ndarray
+    imu_std: np.ndarray
+    bias_mean: np.ndarray
+    bias_std: np.ndarray
+    temperature_mean: float = 0.0
+    temperature_std: float = 1.0
+
+    @classmethod
+    def from_manifest(cls, norm: dict) -> Stats:
+        a = lambda k: np.asarray(norm[k], dtype=np.float64)  # noqa: E731
+        tm = float(np.ravel(norm.get("temperature_mean", [0.0]))[0])
+        ts = float(np.ravel(norm.get("temperature_std", [1.0]))[0])
+        return cls(a("imu_mean"), a("imu_std"), a("bias_mean"), a("bias_std"), tm, max(ts, 1e-6))
+
+
+def context_features(ctx: SequenceContext, t0_ns: np.ndarray, T: int, stats: Stats, config: ContextModelConfig,
+                     gravity_norm_mps2: float) -> tuple[np.ndarray, np.ndarray]:
+    """Context vectors [B, F] of windows starting at ``t0_ns`` [B] with ``T`` samples, and the
+    start-rest bias [B, 6] (raw units; the train mean where no rest is seen). Causal: reads samples
+    before each window's end only."""
+    start = ctx.index(t0_ns)
+    stop = start + T
+    rest_b, found = start_rest_bias(ctx, stop, stats.bias_mean, gravity_norm_mps2)
+    parts = [(rest_b - stats.bias_mean) / stats.bias_std, found[:, None].astype(np.float64)]
+    _, _, rest_t = ctx.rest_mean(stop)
+    rt = np.zeros(len(start)) if rest_t is None or not config.use_temperature else np.nan_to_num(
+        (rest_t - stats.temperature_mean) / stats.temperature_std)
+    parts.append(rt[:, None])
+    fills = []
+    for span in ((*config.history_s, None) if config.history_s else ()):
+        mean, fill = ctx.history_mean(start, None if span is None else int(round(span * ctx.rate_hz)))
+        parts.append(np.where(fill[:, None] > 0, (mean - stats.imu_mean) / stats.imu_std, 0.0))
+        if span is not None:
+            fills.append(fill[:, None])
+    parts.extend(fills)
+    if config.history_s:
+        parts.append((start / ctx.rate_hz / 300.0)[:, None])
+    feats = np.concatenate(parts, axis=1)
+    if not config.use_context:
+        feats = np.zeros_like(feats)
+    return feats, rest_b
+
+
+class ContextResidual(nn.Module):
+    """``bias = base + bias_std * (mlp(...) + linear(...))`` (module docstring).
+
+    Args:
+        config: Sizes and inputs.
+        stats: Train-split statistics (stored as buffers).
+    """
+
+    def __init__(self, config: ContextModelConfig, stats: Stats) -> None:
+        super().__init__()
+        self.config = config
+        c_in = 6 + (1 if config.use_temperature else 0)
+        for name in ("imu_mean", "imu_std", "bias_mean", "bias_std"):
+            self.register_buffer(name, torch.tensor(getattr(stats, name), dtype=torch.float32))
+        self.register_buffer("temperature", torch.tensor([stats.temperature_mean, stats.temperature_std]))
+        c = config.channels
+        self.encoder = nn.Sequential(nn.Conv1d(c_in, c, 8, stride=4), nn.GELU(), nn.Conv1d(c, c, 8, stride=4), nn.GELU())
+        self.head = nn.Sequential(nn.Linear(c + c_in + config.features(), config.hidden), nn.GELU(),
+                                  nn.Linear(config.hidden, config.hidden), nn.GELU(), nn.Linear(config.hidden, 6))
+        self.linear = nn.Linear(c_in + config.features(), 6)  # a linear path beside the MLP
+        for last in (self.head[-1], self.linear):
+            nn.init.zeros_(last.weight)
+            nn.init.zeros_(last.bias)
+
+    def forward(self, imu: torch.Tensor, features: torch.Tensor, base: torch.Tensor,
+                temperature_degc: torch.Tensor | None = None) -> torch.Tensor:
+        """Bias [B, 6] (raw units) from ``imu`` [B, T, 6], ``features`` [B, F], ``base`` [B, 6] and the
+        temperature [B, T] (with ``use_temperature``)."""
+        x = (imu - self.imu_mean) / self.imu_std
+        if self.config.use_temperature:
+            t = (temperature_degc - self.temperature[0]) / self.temperature[1]
+            x = torch.cat([x, t.unsqueeze(-1).to(x)], dim=-1)
+        code = self.encoder(x.transpose(1, 2)).mean(-1)
+        summary = torch.cat([x.mean(1), features.to(x)], dim=-1)
+        z = self.head(torch.cat([code, summary], dim=-1)) + self.linear(summary)
+        return base.to(x) + z * self.bias_std
+
+
+def integration_errors(imu: torch.Tensor, bias: torch.Tensor, dt_s: torch.Tensor, start_R: torch.Tensor,
+                       start_v: torch.Tensor, start_p: torch.Tensor, end_R: torch.Tensor, end_p: torch.Tensor,
+                       gravity_mps2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Squared end rotation error [B] (rad^2, ``|Log(R_gt^T R)|^2``) and squared end position error [B]
+    (m^2) of windows integrated (float64, :func:`pipeline.geometry.integration.integrate`, differentiable)
+    from their reference start with ``imu - bias`` (``bias`` [B, 6] held, or [B, T, 6]); one gravity [3]."""
+    f64 = torch.float64
+    imu = imu.to(f64)
+    b = bias.to(f64)
+    if b.dim() == 2:
+        b = b[:, None].expand_as(imu)
+    res = integrate(imu[..., :3], imu[..., 3:], dt_s.to(f64), start_R.to(f64), start_v.to(f64), start_p.to(f64),
+                    gravity_mps2=gravity_mps2.to(f64), bias_gyro_radps=b[..., :3], bias_acc_mps2=b[..., 3:])
+    rot = so3_log(end_R.to(f64).transpose(-1, -2) @ res.R).square().sum(-1)
+    pos = (res.p - end_p.to(f64)).square().sum(-1)
+    return rot, pos

@@ -1,0 +1,223 @@
+"""Train and evaluate :class:`training.context_model.ContextResidual` on a window dataset with records.
+
+The dataset needs its sequence records (``context/``, :func:`training.context.write_context`).
+Each split is loaded into memory once (windows, context features, base bias, gravity): the
+train split of EuRoC is about 1,300 windows, 12 MB of IMU. Training: AdamW, cosine learning
+rate, a batch order drawn from ``seed``; the validation split's loss every ``val_every`` steps
+picks the kept weights. Evaluation: :func:`training.evaluate.evaluate_predictor` on the test
+split, the protocol of every row of Table I.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from pipeline.atomic import write_text_atomic
+from pipeline.types import DEFAULT_GRAVITY_MPS2, Split
+from training.config import EvalGravity, EvaluationConfig
+from training.context_model import (
+    Base,
+    ContextLoss,
+    ContextModelConfig,
+    ContextResidual,
+    Stats,
+    context_features,
+    integration_errors,
+)
+from training.dataset import TEMPERATURE, WindowDataset
+from training.evaluate import evaluate_predictor, load_test_windows
+from training.outputs import EvaluationResult, write_evaluation
+from training.context import open_context
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ContextPredictor", "ContextTrainConfig", "evaluate_context", "load_split", "train_context"]
+
+_KEYS = ("imu", "bias", "start_R", "start_v", "start_p", "end_R", "end_p")
+
+
+@dataclass(frozen=True)
+class ContextTrainConfig:
+    """Options of :func:`train_context`.
+
+    Attributes:
+        model: The model's inputs and sizes.
+        loss: Label MSE, integration error, or both (:class:`ContextLoss`).
+        steps / batch_size / lr / weight_decay / seed / val_every: The optimisation.
+        gravity: Gravity of the integration loss (``nominal`` or each sequence's ``recovered``).
+        rot_scale_deg / pos_scale_m: The integration loss is ``mean(rot^2) / rot_scale^2 +
+            mean(pos^2) / pos_scale^2`` (end errors of the 1-s windows).
+        label_weight: Weight of the label term in ``both``.
+    """
+
+    model: ContextModelConfig = field(default_factory=ContextModelConfig)
+    loss: ContextLoss = ContextLoss.LABEL
+    steps: int = 600
+    batch_size: int = 64
+    lr: float = 1e-3
+    weight_decay: float = 1e-4
+    seed: int = 0
+    val_every: int = 50
+    gravity: EvalGravity = EvalGravity.NOMINAL
+    rot_scale_deg: float = 0.1
+    pos_scale_m: float = 0.05
+    label_weight: float = 1.0
+
+    def __post_init__(self) -> None:
+        model = self.model if isinstance(self.model, ContextModelConfig) else ContextModelConfig(**dict(self.model))
+        object.__setattr__(self, "model", model)
+        object.__setattr__(self, "loss", ContextLoss(self.loss))
+        object.__setattr__(self, "gravity", EvalGravity(self.gravity))
+
+    def to_dict(self) -> dict[str, Any]:
+        return json.loads(json.dumps(dataclasses.asdict(self), default=lambda o: getattr(o, "value", str(o))))
+
+
+def _gravity(info: dict, mode: EvalGravity) -> np.ndarray:
+    g = None if mode is EvalGravity.NOMINAL else info.get("gravity_mps2")
+    return np.asarray(DEFAULT_GRAVITY_MPS2 if g is None else g, dtype=np.float64)
+
+
+def load_split(root: str | Path, split: Split, stats: Stats, mc: ContextModelConfig,
+               gravity: EvalGravity) -> dict[str, torch.Tensor]:
+    """Every window of ``split`` in memory: ``_KEYS`` arrays, ``dt_s`` [W, T-1], ``features`` [W, F],
+    ``base`` [W, 6], ``gravity`` [W, 3] and ``temperature_degc`` [W, T] when the dataset has it."""
+    ds = WindowDataset(root, split, dtype=torch.float64)
+    out: dict[str, list[np.ndarray]] = {}
+    for name in ds.sequences:
+        a = ds.arrays(name)
+        info = ds.manifest["sequences"][name].get("info") or {}
+        g = _gravity(info, gravity)
+        t_ns = np.asarray(a["t_ns"])
+        feats, rest = context_features(open_context(root, name), t_ns[:, 0], t_ns.shape[1],
+                                       stats, mc, float(np.linalg.norm(g)))
+        cols = {k: np.asarray(a[k], dtype=np.float64) for k in _KEYS}
+        cols["dt_s"] = np.diff(t_ns, axis=1) * 1e-9
+        cols["features"] = feats
+        cols["base"] = rest if mc.base is Base.REST else np.tile(stats.bias_mean, (len(t_ns), 1))
+        cols["gravity"] = np.tile(g, (len(t_ns), 1))
+        if TEMPERATURE in a:
+            cols[TEMPERATURE] = np.asarray(a[TEMPERATURE], dtype=np.float64)
+        for k, v in cols.items():
+            out.setdefault(k, []).append(v)
+    return {k: torch.from_numpy(np.concatenate(v)) for k, v in out.items()}
+
+
+def _loss(model: ContextResidual, d: dict[str, torch.Tensor], rows: torch.Tensor, config: ContextTrainConfig) -> torch.Tensor:
+    x = {k: v[rows] for k, v in d.items()}
+    pred = model(x["imu"].float(), x["features"].float(), x["base"].float(), x.get(TEMPERATURE))
+    total = torch.zeros((), dtype=torch.float64)
+    if config.loss in (ContextLoss.LABEL, ContextLoss.BOTH):
+        z = (pred.double()[:, None] - x["bias"]) / model.bias_std.double()
+        total = total + config.label_weight * z.square().mean()
+    if config.loss in (ContextLoss.INTEGRATION, ContextLoss.BOTH):
+        values, group = torch.unique(x["gravity"], dim=0, return_inverse=True)
+        rot_s, pos_s = math.radians(config.rot_scale_deg) ** 2, config.pos_scale_m ** 2
+        for gi in range(len(values)):
+            i = (group == gi).nonzero().squeeze(1)
+            rot, pos = integration_errors(x["imu"][i], pred[i], x["dt_s"][i], x["start_R"][i], x["start_v"][i],
+                                          x["start_p"][i], x["end_R"][i], x["end_p"][i], values[gi])
+            total = total + (rot.sum() / rot_s + pos.sum() / pos_s) / len(rows)
+    return total
+
+
+def train_context(root: str | Path, config: ContextTrainConfig, out_dir: str | Path | None = None) -> ContextResidual:
+    """Train on the train split, keep the weights of the best validation loss; write ``model.pt`` and
+    ``run.json`` to ``out_dir`` when given. Returns the model (eval mode)."""
+    t_start, cpu_start = time.perf_counter(), time.process_time()
+    torch.manual_seed(config.seed)
+    ds = WindowDataset(root, Split.TRAIN)
+    stats = Stats.from_manifest(dict(ds.manifest.normalization))
+    train = load_split(root, Split.TRAIN, stats, config.model, config.gravity)
+    val = load_split(root, Split.VAL, stats, config.model, config.gravity)
+    model = ContextResidual(config.model, stats)
+    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
+    sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, config.steps) / config.steps)))
+    gen = torch.Generator().manual_seed(config.seed)
+    n = len(train["imu"])
+    all_val = torch.arange(len(val["imu"]))
+
+    def val_loss() -> float:
+        model.eval()
+        with torch.no_grad():
+            v = float(_loss(model, val, all_val, config))
+        model.train()
+        return v
+
+    best, best_state, history = val_loss(), {k: v.clone() for k, v in model.state_dict().items()}, []
+    best_step = 0
+    for step in range(1, config.steps + 1):
+        rows = torch.randint(0, n, (min(config.batch_size, n),), generator=gen)
+        loss = _loss(model, train, rows, config)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        sched.step()
+        if step % config.val_every == 0 or step == config.steps:
+            v = val_loss()
+            history.append({"step": step, "train_loss": float(loss.detach()), "val_loss": v})
+            if v < best:
+                best, best_step, best_state = v, step, {k: t.clone() for k, t in model.state_dict().items()}
+    model.load_state_dict(best_state)
+    model.eval()
+    info = {"config": config.to_dict(), "best_step": best_step, "best_val_loss": best, "metrics": history,
+            "train_windows": n, "val_windows": len(val["imu"]), "wall_s": round(time.perf_counter() - t_start, 2),
+            "cpu_s": round(time.process_time() - cpu_start, 2)}
+    log.info("context model: best validation loss %.5g at step %d of %d", best, best_step, config.steps)
+    if out_dir is not None:
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        torch.save({"config": config.to_dict(), "state": model.state_dict()}, out / "model.pt")
+        write_text_atomic(out / "run.json", json.dumps(info, indent=2) + "\n")
+    model.info = info  # type: ignore[attr-defined]
+    return model
+
+
+@dataclass
+class ContextPredictor:
+    """A trained :class:`ContextResidual` as a :class:`training.evaluate.Predictor`."""
+
+    model: ContextResidual
+    root: Path
+    gravity: dict[str, np.ndarray]
+    stats: Stats
+    name: str = "context_residual"
+    label: str = "Context residual"
+    stochastic: bool = False
+
+    @torch.no_grad()
+    def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Any, seed: int) -> np.ndarray:
+        imu = items["imu"]
+        B, T, _ = imu.shape
+        ctx = open_context(self.root, sequence)
+        feats, rest = context_features(ctx, np.asarray(items["t0_ns"], dtype=np.int64), T, self.stats,
+                                       self.model.config, float(np.linalg.norm(self.gravity[sequence])))
+        base = rest if self.model.config.base is Base.REST else np.tile(self.stats.bias_mean, (B, 1))
+        temp = items.get(TEMPERATURE)
+        out = self.model(imu.float(), torch.from_numpy(feats).float(), torch.from_numpy(base).float(),
+                         None if temp is None else temp.float())
+        return np.broadcast_to(out.double().numpy()[:, None, None, :], (B, 1, T, 6)).copy()
+
+
+def evaluate_context(model: ContextResidual, root: str | Path, config: EvaluationConfig = EvaluationConfig(),
+                     out_dir: str | Path | None = None, *, name: str = "context_residual") -> EvaluationResult:
+    """Table I's protocol on the test split (:func:`training.evaluate.evaluate_predictor`); written to
+    ``out_dir`` when given."""
+    windows = load_test_windows(root, config)
+    stats = Stats.from_manifest(dict(windows.dataset.manifest.normalization))
+    predictor = ContextPredictor(model, Path(root), dict(windows.gravity_mps2), stats, name=name)
+    result = evaluate_predictor(predictor, windows, config, kind="learned", checkpoint=getattr(model, "info", {}))
+    if out_dir is not None:
+        write_evaluation(result, out_dir)
+    return result
