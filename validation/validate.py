@@ -42,7 +42,8 @@ from pipeline.bias_table import BiasTrack
 from pipeline.checks.run import reader_warnings
 from pipeline.errors import ValidationError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
-from recovery.outputs import RecoveryOutputs
+from pipeline.io.asl import CODE_CALIBRATION_DEFAULTED
+from recovery.outputs import SENSOR_YAML, RecoveryOutputs
 from validation.attitude import reference_attitude_offset
 from validation.config import CrossvalMode, ValidationConfig
 from validation.metrics import (SourceMetrics, WindowPlan, _flags, plan_windows, prmse_m, roe_deg, window_end_errors,
@@ -513,6 +514,7 @@ def validate_inputs(
     judged = fitted and heldout is not None and len(heldout_info["dropped_folds"]) < config.crossval_folds
     implausible = plausibility_findings(sequence, recovery) if recovery is not None else []
     limitations = _limitations(sequence, recovery, config, fitted and not judged, heldout is not None)
+    limitations = _name_suggested_noise(limitations, sequence, recovery_dir)
     result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config,
                                limitations=[lim.text for lim in limitations], heldout=heldout, judge_heldout=judged,
                                heldout_info=heldout_info, fails=[x.text for x in implausible])
@@ -578,6 +580,20 @@ def _limitations(sequence: Sequence, recovery: RecoveryOutputs | None, config: V
             "validate against another pose stream or a ground truth (--poses STREAM, --add-poses FILE:KIND), or "
             "cross-validate (--crossval on)"))
     return limitations
+
+
+def _name_suggested_noise(limitations: list[Limitation], sequence: Sequence,
+                          recovery_dir: str | Path | None) -> list[Limitation]:
+    """``limitations`` with the borrowed-noise one's next step naming the ``sensor.yaml`` the recovery
+    wrote from the recording's rest (:mod:`recovery.noise_from_data`), where it wrote one."""
+    suggested = None if recovery_dir is None else Path(recovery_dir) / SENSOR_YAML
+    if suggested is None or not suggested.is_file():
+        return limitations
+    borrowed = {f"input: {f.message}" for f in sequence.findings if f.code == CODE_CALIBRATION_DEFAULTED}
+    step = (f"use {suggested}, which the recovery wrote with the noise densities of this recording's rest and the "
+            "random walks its evidence search chose: put it where the reader looks (imu0/sensor.yaml of an ASL "
+            "folder) and recover again")
+    return [Limitation(lim.text, step) if lim.text in borrowed else lim for lim in limitations]
 
 
 def nominal_gravity(recovery: RecoveryOutputs | None = None) -> np.ndarray:
