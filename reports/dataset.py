@@ -65,7 +65,9 @@ document.querySelectorAll("table.sortable th").forEach(function (th, col) {
 EXTRA_CSS = ("table.sortable th{cursor:pointer;white-space:nowrap}table.sortable th[data-dir=asc]::after{content:' ▲'}"
              "table.sortable th[data-dir=desc]::after{content:' ▼'}td.PASS{background:#e9f7ee;color:#1e7a43;"
              "font-weight:700}td.WARN{background:#fff6e0;color:#9a6b00;font-weight:700}td.FAIL{background:#fdecec;"
-             "color:#a4231f;font-weight:700}.flag{color:#a4231f;font-weight:700}")
+             "color:#a4231f;font-weight:700}.flag{color:#a4231f;font-weight:700}.scroll{overflow-x:auto}"
+             ".counts{font-size:1.15em}.count-PASS{color:#1e7a43;font-weight:700}.count-WARN{color:#9a6b00;"
+             "font-weight:700}.count-FAIL{color:#a4231f;font-weight:700}")
 
 
 # ----------------------------------------------------------------------------- sections
@@ -161,7 +163,7 @@ def _sequences(inp: DatasetInputs, out_dir: Path) -> Html:
              "larger of the rotation and translation differences from the calibration file in their sigmas; "
              "'(bound)' marks a random walk chosen at a bound of the evidence search. Click a header to sort.",
              class_="small")
-    return section("sequences", SECTIONS[1][1], Html(grid + note))
+    return section("sequences", SECTIONS[1][1], Html(tag("div", grid, class_="scroll") + note))
 
 
 def _table_i(inp: DatasetInputs, out_dir: Path) -> Html:
