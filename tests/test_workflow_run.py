@@ -447,20 +447,21 @@ def test_rerun_only_what_a_config_change_affects(e2e_run):
         return sorted((rule, w.get("sequence", "")) for rule, w in jobs)
 
     both = ("tiny_a", "tiny_b")
+    whole_run = [("dataset_report", ""), ("windows", "")]  # the dataset page follows every change below
     assert jobs_after(lambda d: None) == []
     # a recovery option: recover and everything after it, for every sequence; not simulate / ingest
     assert jobs_after(lambda d: d.update(recovery={"keyframe_rate_hz": 50})) == sorted(
-        [(r, s) for r in ("recover", "interpolate", "validate", "report") for s in both] + [("windows", "")])
+        [(r, s) for r in ("recover", "interpolate", "validate", "report") for s in both] + whole_run)
     # one sequence's own recovery override: that sequence's chain (and the dataset) only
     assert jobs_after(lambda d: d["sequences"][1].update(recovery={"keyframe_rate_hz": 50})) == sorted(
-        [(r, "tiny_b") for r in ("recover", "interpolate", "validate", "report")] + [("windows", "")])
+        [(r, "tiny_b") for r in ("recover", "interpolate", "validate", "report")] + whole_run)
     # a validation option: validate, report and windows (the verdicts decide which sequences are windowed)
     assert jobs_after(lambda d: d.update(validation={"window_s": 2.0})) == sorted(
-        [(r, s) for r in ("validate", "report") for s in both] + [("windows", "")])
+        [(r, s) for r in ("validate", "report") for s in both] + whole_run)
     # interpolation and windows options: their own jobs only
     assert jobs_after(lambda d: d.update(interpolation={"method": "cubic"})) == [
         ("interpolate", "tiny_a"), ("interpolate", "tiny_b")]
-    assert jobs_after(lambda d: d.update(windows={"overlap": 0.0})) == [("windows", "")]
+    assert jobs_after(lambda d: d.update(windows={"overlap": 0.0})) == whole_run
     # a simulator parameter of one sequence: its whole chain; an ingest option: from ingest on
     def sim_and_ingest(d):
         d["sequences"][0]["seed"] = 7
@@ -468,7 +469,7 @@ def test_rerun_only_what_a_config_change_affects(e2e_run):
 
     assert jobs_after(sim_and_ingest) == sorted(
         [("simulate", "tiny_a")] + [(r, s) for r in ("ingest", "recover", "interpolate", "validate", "report")
-                                    for s in both] + [("windows", "")])
+                                    for s in both] + whole_run)
 
 
 @SPINE_GROUP
