@@ -71,8 +71,10 @@ def densities_from_rest(imu: ImuSeries, *, min_rest_s: float = MIN_REST_S) -> Da
     gyro, acc = np.asarray(allan.gyro_white, float), np.asarray(allan.acc_white, float)
     if not allan.static or not (np.all(np.isfinite(gyro)) and np.all(np.isfinite(acc))):
         return None
-    return DataNoise(float(np.sqrt(np.mean(gyro**2))), float(np.sqrt(np.mean(acc**2))),
-                     tuple(float(x) for x in gyro), tuple(float(x) for x in acc),  # type: ignore[arg-type]
+    g_rms, a_rms = float(np.sqrt(np.mean(gyro**2))), float(np.sqrt(np.mean(acc**2)))
+    log.info("IMU noise densities from %.1f s at rest: gyro %.3g rad/s/sqrt(Hz), acc %.3g m/s^2/sqrt(Hz) (RMS of "
+             "the axes)", allan.used_s, g_rms, a_rms)
+    return DataNoise(g_rms, a_rms, tuple(float(x) for x in gyro), tuple(float(x) for x in acc),  # type: ignore[arg-type]
                      float(allan.used_s), len(allan.segments_s), float(allan.rate_hz))
 
 

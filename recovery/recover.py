@@ -257,8 +257,6 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
     )
     data_noise = data_noise_for(sequence, {f: getattr(config, f) for f in DENSITY_FIELDS})
     if data_noise is not None:  # no calibration gave the densities: the recording's rest does
-        log.info("IMU noise densities from %.1f s at rest: gyro %.3g rad/s/sqrt(Hz), acc %.3g m/s^2/sqrt(Hz)",
-                 data_noise.rest_s, data_noise.gyro_noise_density, data_noise.acc_noise_density)
         imu_noise = replace(imu_noise, gyro_noise_density=data_noise.gyro_noise_density,
                             acc_noise_density=data_noise.acc_noise_density)
     opts = SolveOptions(
