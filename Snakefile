@@ -6,7 +6,8 @@
 #
 # Outputs: results/<stage>/<sequence>/..., logs: logs/<stage>/<sequence>.log (<stage>: simulate,
 # ingest, recovery, interpolation, validation, windows (one 'dataset'), training and evaluation
-# (results/{training,evaluation}/{method}/...; Table I in results/evaluation/table.md), report).
+# (results/{training,evaluation}/{method}/...; Table I in results/evaluation/table.md), report (one page per
+# sequence and results/report/index.html over all of them).
 # A stage is one .smk file under workflow/rules/: add it with one 'include:' line below; it
 # registers its final outputs with final_output(...) (see workflow/rules/common.smk).
 
@@ -54,3 +55,4 @@ include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/table.smk"
 include: "workflow/rules/training_report.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/dataset_report.smk"

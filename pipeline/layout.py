@@ -16,6 +16,8 @@ WINDOWS_DATASET = "dataset"
 #: File names inside the interpolation and report folders.
 INTERPOLATED_BIAS = "bias_imu.parquet"
 REPORT_HTML = "report.html"
+#: The dataset page over every sequence, in ``results/report/``.
+DATASET_REPORT_HTML = "index.html"
 
 
 class Stage(str, enum.Enum):
@@ -65,6 +67,11 @@ def interpolated_bias_path(sequence: str) -> str:
 def report_path(sequence: str) -> str:
     """``results/report/<sequence>/report.html`` (where ``biasgt report results --sequence NAME`` writes)."""
     return f"{stage_dir(Stage.REPORT, sequence)}/{REPORT_HTML}"
+
+
+def dataset_report_path() -> str:
+    """``results/report/index.html``: the dataset page (where ``biasgt report results`` writes)."""
+    return f"{RESULTS_DIR}/{Stage.REPORT.folder}/{DATASET_REPORT_HTML}"
 
 
 def windows_dataset_dir() -> str:

@@ -2,7 +2,9 @@
 
 Files (names defined here only): ``bias.csv`` (keyframe bias + sigma, :mod:`pipeline.bias_table`
 columns), ``recovery.json`` (:class:`RecoveryReport`), ``trajectory_tum.txt`` (the optimised IMU
-trajectory) and ``residuals.csv`` (per keyframe: whitened residuals and the outlier flag).
+trajectory), ``residuals.csv`` (per keyframe: whitened residuals and the outlier flag) and, when no
+calibration gave the IMU's noise densities, ``sensor.yaml`` (a Kalibr-style file with the noise the
+recording suggests: :func:`suggested_sensor_yaml`).
 
 :meth:`RecoveryOutputs.write` writes the folder through :func:`pipeline.atomic.atomic_dir` (it
 appears complete or not at all, and replaces only these files in an existing folder); :meth:`RecoveryOutputs.read` reads it back. Every consumer
@@ -11,6 +13,7 @@ appears complete or not at all, and replaces only these files in an existing fol
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,8 +34,10 @@ BIAS_CSV = "bias.csv"
 REPORT_JSON = "recovery.json"
 TRAJECTORY_TUM = "trajectory_tum.txt"
 RESIDUALS_CSV = "residuals.csv"
+#: The noise the recording suggests, written when no calibration gave the densities (:func:`suggested_sensor_yaml`).
+SENSOR_YAML = "sensor.yaml"
 #: Every file of the folder, in the order they are described above.
-FILES = (BIAS_CSV, REPORT_JSON, TRAJECTORY_TUM, RESIDUALS_CSV)
+FILES = (BIAS_CSV, REPORT_JSON, TRAJECTORY_TUM, RESIDUALS_CSV, SENSOR_YAML)
 
 _RERUN = "re-run 'biasgt recover' (or the workflow's recover stage) to write the folder again"
 
@@ -167,6 +172,9 @@ class RecoveryOutputs:
             write_tum(tmp / TRAJECTORY_TUM, self.trajectory)
             if self.residuals is not None:
                 self.residuals.to_csv(tmp / RESIDUALS_CSV, index=False, float_format="%.6g", na_rep="nan")
+            suggested = suggested_sensor_yaml(self.report.data)
+            if suggested is not None:
+                (tmp / SENSOR_YAML).write_text(suggested, encoding="utf-8")
         return out_dir
 
     @classmethod
@@ -193,3 +201,36 @@ def _write_bias_csv(path: Path, bias: BiasTrack) -> None:
     with open(path, "w", encoding="utf-8", newline="") as fh:
         fh.write(",".join(CSV_HEADER) + "\n")
         fh.writelines(fmt % (ti, *row) for ti, row in zip(np.asarray(bias.t_ns, np.int64).tolist(), data.tolist()))
+
+
+def _line(key: str, value: float, comment: str) -> str:
+    return f"{key}: {value:.6g}  # {comment}\n"
+
+
+def suggested_sensor_yaml(report: Mapping[str, Any]) -> str | None:
+    """A Kalibr-style ``sensor.yaml`` from ``recovery.json`` (its ``noise_from_data`` and the chosen
+    ``noise``), or None when the recovery did not read the densities from the data."""
+    data = report.get("noise_from_data")
+    noise = report.get("noise") or {}
+    if not isinstance(data, Mapping):
+        return None
+    rest = (f"white-noise line (tau = 1 s) of the Allan deviation over {float(data['rest_s']):.1f} s at rest in "
+            f"{int(data['rest_stretches'])} stretch(es), RMS of the three axes")
+    parts = ["%YAML:1.0\n",
+             f"# IMU noise of '{report.get('sequence', '')}' suggested by 'biasgt recover' (no calibration file gave "
+             "it). Put it where the reader looks (imu0/sensor.yaml of an ASL folder) and recover again.\n",
+             "sensor_type: imu\n",
+             _line("gyroscope_noise_density", float(data["gyro_noise_density"]), f"rad/s/sqrt(Hz): {rest}"),
+             _line("accelerometer_noise_density", float(data["acc_noise_density"]), f"m/s^2/sqrt(Hz): {rest}")]
+    for key, field, unit in (("gyroscope_random_walk", "gyro", "rad/s^2/sqrt(Hz)"),
+                             ("accelerometer_random_walk", "acc", "m/s^3/sqrt(Hz)")):
+        walk, scale = noise.get(f"{field}_random_walk"), noise.get(f"{field}_random_walk_scale")
+        start = (report.get("calibration_sources") or {}).get(f"{field}_random_walk", "the calibration")
+        if isinstance(walk, (int, float)) and math.isfinite(walk):
+            how = f"{scale:.3g}x the value of {start}" if isinstance(scale, (int, float)) else f"from {start}"
+            parts.append(_line(key, float(walk), f"{unit}: the recovery's evidence search chose it ({how})"))
+    rate = float(data.get("rate_hz") or 0.0)
+    if rate > 0:
+        parts.append(_line("update_rate", rate, "Hz: the IMU's rate in the recording (Kalibr's key)"))
+        parts.append(_line("rate_hz", rate, "Hz: the same, under EuRoC's key"))
+    return "".join(parts)

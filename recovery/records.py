@@ -18,6 +18,7 @@ from recovery.config import (
 from recovery.calibration_uncertainty import CalibrationCovariance
 from recovery.window import SolveOptions, WindowSolution
 from recovery.noise import NoiseChoice
+from recovery.noise_from_data import DataNoise
 from recovery.preintegration import ImuNoise
 
 
@@ -41,6 +42,8 @@ class Inputs:
         opts: Solve options common to every solve.
         fuse: Fuse the pose samples between keyframes into them.
         warnings: Plain sentences.
+        data_noise: The white-noise densities read off the recording's rest when no calibration gave
+            them (``imu_noise`` holds them), else None.
     """
 
     imu: ImuSeries
@@ -59,6 +62,7 @@ class Inputs:
     opts: SolveOptions
     fuse: bool
     warnings: tuple[str, ...]
+    data_noise: DataNoise | None = None
 
 
 @dataclass(frozen=True)

@@ -62,6 +62,7 @@ from recovery.calibration_uncertainty import CalibrationCovariance
 from recovery.graph import solve_window
 from recovery.window import SolveOptions, WindowInit, WindowSolution
 from recovery.noise import NoiseChoice, PoseErrorGrid, estimate_noise
+from recovery.noise_from_data import DENSITY_FIELDS, data_noise_for
 from recovery.pose_error import PoseErrorModel
 from recovery.outputs import RecoveryReport
 from recovery.preintegration import ImuNoise
@@ -262,6 +263,10 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
         acc_random_walk=config.acc_random_walk or imu_calibration.acc_random_walk,
         integration_sigma=config.integration_sigma,
     )
+    data_noise = data_noise_for(sequence, {f: getattr(config, f) for f in DENSITY_FIELDS})
+    if data_noise is not None:  # no calibration gave the densities: the recording's rest does
+        imu_noise = replace(imu_noise, gyro_noise_density=data_noise.gyro_noise_density,
+                            acc_noise_density=data_noise.acc_noise_density)
     opts = SolveOptions(
         pose_mode=pose_mode, relative_horizon=config.relative_horizon, position_sigma_m=base_sp,
         rotation_sigma_rad=base_sr, robust_loss=config.robust_loss, robust_k=config.robust_k,
@@ -275,7 +280,7 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
                                 acc_random_walk=imu_noise.acc_random_walk * start_scale)
     fuse = bool(config.pose_fusion and has_rot and pose_mode == PoseFactorMode.ABSOLUTE)
     return Inputs(imu, name, poses, kind, has_rot, pieces, pose_mode, bool(estimate_g), level_test, base_sp, base_sr,
-                   imu_noise, calibration_noise, opts, fuse, tuple(warnings))
+                   imu_noise, calibration_noise, opts, fuse, tuple(warnings), data_noise)
 
 
 def _coarse_offset(inputs: Inputs, config: RecoveryConfig) -> ClockOffset:

@@ -27,6 +27,7 @@ from recovery.bounds import bias_rmse_floor
 from recovery.calibration_uncertainty import OFFSET_INDEX
 from recovery.window import KeyframePoses, WindowSolution
 from recovery.noise import NoiseChoice
+from recovery.noise_from_data import DENSITY_FIELDS, DataNoise
 from recovery.outputs import RecoveryOutputs, RecoveryReport
 from recovery.problem import FUSED_KEYFRAME_RATE_HZ, _Problem
 from recovery.records import ClockOffset, ExtrinsicInit, FullSolve, GravityStage, Inputs, NoiseStage
@@ -109,10 +110,18 @@ def agreement_z(a: RecoveryResult, b: RecoveryResult) -> np.ndarray:
 
 
 
-def calibration_sources(sequence: Sequence, config: RecoveryConfig) -> dict[str, str]:
+#: ``calibration_sources`` of a density read off the recording's rest.
+DATA_NOISE_SOURCE = "data (Allan deviation of the recording at rest)"
+
+
+def calibration_sources(sequence: Sequence, config: RecoveryConfig,
+                        data_noise: DataNoise | None = None) -> dict[str, str]:
     """Where each IMU noise value the recovery started from came from: the recovery config, the
-    input's calibration file, the simulator, or the EuRoC default nobody gave."""
+    input's calibration file, the simulator, the recording's rest (``data_noise``: the densities),
+    or the EuRoC default nobody gave."""
     sources = sequence.calibration.value_sources()
+    if data_noise is not None:
+        sources.update(dict.fromkeys(DENSITY_FIELDS, DATA_NOISE_SOURCE))
     return {k: ("recovery config" if getattr(config, k) is not None else v) for k, v in sources.items()}
 
 
@@ -164,7 +173,8 @@ def _result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, offset: 
         "gravity_world_mps2": [float(x) for x in full.gravity_unit * config.gravity_mps2],
         "gravity": {**gravity.info, **full.info},
         "noise": choice.to_dict(),
-        "calibration_sources": calibration_sources(sequence, config),
+        "calibration_sources": calibration_sources(sequence, config, inputs.data_noise),
+        "noise_from_data": None if inputs.data_noise is None else inputs.data_noise.to_dict(),
         "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
         "outliers_rejected": int(len(outlier_t) + len(rejected)),
         "outlier_t_ns": [int(t) for t in np.union1d(outlier_t, rejected)],  # IMU clock

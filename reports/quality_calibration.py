@@ -15,7 +15,7 @@ from pipeline.errors import BiasgtError
 from recovery.gyro_consistency import rate_coupling
 from reports import plots
 from validation.plausibility import gravity_tilt_deg
-from reports.allan import ImuAllan
+from recovery.allan import ImuAllan
 from reports.html import Html, esc, figure_img, fmt, join, p, section, table, tag
 from reports.quality_inputs import _TITLE, ReportInputs, _missing_box, _num, _rel_s
 from reports.quality_residuals import _allan_cell, _calibration_origin

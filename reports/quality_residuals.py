@@ -15,7 +15,7 @@ from pipeline.errors import BiasgtError
 from pipeline.types import NS_PER_S
 from reports import plots
 from validation.plausibility import pose_residuals
-from reports.allan import ImuAllan
+from recovery.allan import ImuAllan
 from reports.html import Html, figure_img, fmt, join, p, section, table, tag, ul
 from reports.quality_inputs import (_TITLE, MAX_FLAGGED_ROWS, ReportInputs, _candidate, _first_of_kind,
                                     _missing_box, _num, _rel_s, _sources, other_estimates_sentence)

@@ -110,6 +110,29 @@ class LissajousMotion:
         return MotionState(p, v, a, rot, omega)
 
 
+@dataclass(frozen=True)
+class RestThenMotion:
+    """``motion`` held at its t = 0 pose for ``rest_s``, then started smoothly over ``ramp_s``.
+
+    Time is warped: ``s(t) = 0`` at rest, ``s'(t)`` rises as ``3x^2 - 2x^3`` (``x`` the fraction of
+    the ramp) and is 1 after it. By the chain rule the velocity is ``v(s) s'``, the acceleration
+    ``a(s) s'^2 + v(s) s''`` and the body rate ``omega(s) s'`` (the attitude is ``R(s(t))``).
+    """
+
+    motion: LissajousMotion
+    rest_s: float
+    ramp_s: float = 2.0
+
+    def state(self, t_s: np.ndarray) -> MotionState:
+        t = np.asarray(t_s, dtype=float)
+        x = np.clip((t - self.rest_s) / self.ramp_s, 0.0, 1.0)
+        s = np.where(x < 1.0, self.ramp_s * (x**3 - x**4 / 2), t - self.rest_s - self.ramp_s / 2)
+        ds, dds = 3 * x**2 - 2 * x**3, 6 * x * (1 - x) / self.ramp_s
+        st = self.motion.state(s)
+        return MotionState(st.p_m, st.v_mps * ds[:, None], st.a_mps2 * ds[:, None] ** 2 + st.v_mps * dds[:, None],
+                           st.rotation, st.omega_body_radps * ds[:, None])
+
+
 class GtsamScenarioMotion:
     """A GTSAM scenario as a motion (truth from ``Scenario``/``ScenarioRunner``).
 
@@ -248,6 +271,8 @@ def make_sequence(
     gtsam_noise: bool = False,
     gyro_random_walk: float = 10 * REPORTED["gyro_random_walk"],
     acc_random_walk: float = 10 * REPORTED["acc_random_walk"],
+    gyro_noise_density: float = REPORTED["gyro_noise_density"],
+    acc_noise_density: float = REPORTED["acc_noise_density"],
     gyro_turn_on_sigma: float = 0.02,
     acc_turn_on_sigma: float = 0.1,
     position_noise_m: float = 0.5e-3,
@@ -263,6 +288,7 @@ def make_sequence(
         seed: Seeds bias, noise and the mocap phase.
         motion: :class:`LissajousMotion` (default) or :class:`GtsamScenarioMotion`.
         noise: Add white IMU noise and mocap noise (``False``: both noise-free; bias kept).
+        gyro_noise_density / acc_noise_density: The white noise's densities (default: the datasheet's).
         gtsam_noise: Draw the IMU white noise with GTSAM's ScenarioRunner (GtsamScenarioMotion only).
         clock_offset_s: Mocap stamps are ``t_imu - clock_offset_s`` (rounded to ns).
         T_imu_marker: Marker extrinsic (default identity: the mocap tracks the IMU).
@@ -282,8 +308,8 @@ def make_sequence(
         ng, na = motion.white_noise(t_s)
     elif noise:
         sq = np.sqrt(rate_hz)
-        ng = rng.standard_normal((n, 3)) * REPORTED["gyro_noise_density"] * sq
-        na = rng.standard_normal((n, 3)) * REPORTED["acc_noise_density"] * sq
+        ng = rng.standard_normal((n, 3)) * gyro_noise_density * sq
+        na = rng.standard_normal((n, 3)) * acc_noise_density * sq
     else:
         ng = na = np.zeros((n, 3))
 

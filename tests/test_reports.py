@@ -15,7 +15,7 @@ from biasgt.cli.app import main as cli_main
 from pipeline.errors import DataError, InputFormatError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind
 from reports.html import fmt
-from reports.allan import allan_deviation, fit_noise_parameters, imu_allan, white_noise_upper_bound
+from recovery.allan import allan_deviation, fit_noise_parameters, imu_allan, white_noise_upper_bound
 from reports.quality import SECTIONS, build_quality_report, mm_pair, flagged_stretches, gravity_tilt_deg, pose_residuals, \
     other_estimates_sentence, stage_dirs, verdict_summary
 
@@ -444,4 +444,6 @@ def test_cli_report(results_dir, recovery_json, tmp_path, capsys):
     assert cli_main(["report", str(results_dir), "--sequence", "nosuch", "--out", str(tmp_path / "x.html")]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "no ingest store" in err
-    assert cli_main(["report", str(results_dir)]) == 2  # no --sequence
+    # no --sequence: the dataset page over every sequence of the results folder
+    assert cli_main(["report", str(results_dir), "--out", str(tmp_path / "index.html")]) == 0
+    assert f'<tr data-sequence="{SEQ}">' in (tmp_path / "index.html").read_text(encoding="utf-8")

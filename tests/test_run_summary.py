@@ -28,6 +28,7 @@ def test_finished_run_ends_with_a_per_sequence_summary(tmp_path: Path) -> None:
            "t,1,2,0.5,1.5,0.1,0.1\nAverage,1,2,0.5,1.5,0.1,0.1\n")
     _write(results / "report" / "a" / "report.html", "")
     _write(results / "report" / "training.html", "")
+    _write(results / "report" / "index.html", "")
     assert finished_summary(tmp_path) == [
         "summary:",
         "  a: PASS",
@@ -36,6 +37,7 @@ def test_finished_run_ends_with_a_per_sequence_summary(tmp_path: Path) -> None:
         "  Table I: best average regression_rnn: PRMSE 0.5000 m, ROE 1.5000 deg (2 usable rows; "
         "results/evaluation/table.md)",
         "  quality reports: results/report/<sequence>/report.html (1)",
+        "  dataset page: results/report/index.html",
         "  training report: results/report/training.html",
     ]
     assert finished_summary(tmp_path / "nothing") == []

@@ -28,6 +28,7 @@ from biasgt.workflow.run import (
     snakemake_command,
 )
 from biasgt.workflow.steps import interpolate_step, recover_step, report_step, run_step, validate_step, windows_step
+from test_report_chromium import chromium  # noqa: F401  (the fixture: finds or installs Chromium)
 from workflow_configs import sim_entry, write_config
 
 REPO = Path(__file__).resolve().parents[1]
@@ -307,7 +308,9 @@ def _dry_run_jobs(cfg: Path, workdir: Path) -> list[tuple[str, dict[str, str]]]:
     return [(rule, w) for rule, w in parse_dry_run_jobs(echo.getvalue()) if rule != "all"]
 
 
-STAGE_RULES = ("simulate", "ingest", "recover", "interpolate", "validate", "windows", "report")
+STAGE_RULES = ("simulate", "ingest", "recover", "interpolate", "validate", "windows", "report", "dataset_report")
+#: The rules with one job for the whole config (no {sequence} wildcard).
+WHOLE_RUN_RULES = ("windows", "dataset_report")
 
 
 @SPINE_GROUP
@@ -317,9 +320,10 @@ def test_dry_run_of_default_workflow(tmp_path):
     jobs = parse_dry_run_jobs(echo.getvalue())
     names = load_config(DEFAULT_CONFIG).names
     for rule in STAGE_RULES:
-        if rule != "windows":
+        if rule not in WHOLE_RUN_RULES:
             assert sorted(w["sequence"] for r, w in jobs if r == rule) == sorted(names), rule
-    assert [r for r, _ in jobs].count("windows") == 1
+    for rule in WHOLE_RUN_RULES:
+        assert [r for r, _ in jobs].count(rule) == 1, rule
     assert [r for r, _ in jobs].count("all") == 1
     assert result.outputs == [] and not (tmp_path / "results").exists()
 
@@ -388,7 +392,8 @@ def test_real_run_writes_every_stage(e2e_run):
         f"results: {results}",
         *(f"  stage: {results / d}" for d in sorted(
             ["simulate", "ingest", "recovery", "interpolation", "validation", "windows", "report"])),
-        f"reports ({2}):",
+        f"reports ({3}):",
+        f"  {results / 'report' / 'index.html'}",
         f"  {results / 'report' / 'tiny_a' / 'report.html'}",
         f"  {results / 'report' / 'tiny_b' / 'report.html'}",
     ]
@@ -442,20 +447,21 @@ def test_rerun_only_what_a_config_change_affects(e2e_run):
         return sorted((rule, w.get("sequence", "")) for rule, w in jobs)
 
     both = ("tiny_a", "tiny_b")
+    whole_run = [("dataset_report", ""), ("windows", "")]  # the dataset page follows every change below
     assert jobs_after(lambda d: None) == []
     # a recovery option: recover and everything after it, for every sequence; not simulate / ingest
     assert jobs_after(lambda d: d.update(recovery={"keyframe_rate_hz": 50})) == sorted(
-        [(r, s) for r in ("recover", "interpolate", "validate", "report") for s in both] + [("windows", "")])
+        [(r, s) for r in ("recover", "interpolate", "validate", "report") for s in both] + whole_run)
     # one sequence's own recovery override: that sequence's chain (and the dataset) only
     assert jobs_after(lambda d: d["sequences"][1].update(recovery={"keyframe_rate_hz": 50})) == sorted(
-        [(r, "tiny_b") for r in ("recover", "interpolate", "validate", "report")] + [("windows", "")])
+        [(r, "tiny_b") for r in ("recover", "interpolate", "validate", "report")] + whole_run)
     # a validation option: validate, report and windows (the verdicts decide which sequences are windowed)
     assert jobs_after(lambda d: d.update(validation={"window_s": 2.0})) == sorted(
-        [(r, s) for r in ("validate", "report") for s in both] + [("windows", "")])
+        [(r, s) for r in ("validate", "report") for s in both] + whole_run)
     # interpolation and windows options: their own jobs only
     assert jobs_after(lambda d: d.update(interpolation={"method": "cubic"})) == [
         ("interpolate", "tiny_a"), ("interpolate", "tiny_b")]
-    assert jobs_after(lambda d: d.update(windows={"overlap": 0.0})) == [("windows", "")]
+    assert jobs_after(lambda d: d.update(windows={"overlap": 0.0})) == whole_run
     # a simulator parameter of one sequence: its whole chain; an ingest option: from ingest on
     def sim_and_ingest(d):
         d["sequences"][0]["seed"] = 7
@@ -463,7 +469,7 @@ def test_rerun_only_what_a_config_change_affects(e2e_run):
 
     assert jobs_after(sim_and_ingest) == sorted(
         [("simulate", "tiny_a")] + [(r, s) for r in ("ingest", "recover", "interpolate", "validate", "report")
-                                    for s in both] + [("windows", "")])
+                                    for s in both] + whole_run)
 
 
 @SPINE_GROUP
@@ -481,3 +487,60 @@ def test_failed_job_is_one_line_error(tmp_path):
     assert "not an ASL dataset folder" in msg
     assert f"(log: {tmp_path / 'logs' / 'ingest' / 'broken.log'})" in msg
     assert not (tmp_path / "results" / "ingest" / "broken").exists()
+
+
+#: Run after the page has loaded: the row order after sorting by the recovered PRMSE, then by name twice.
+SORT_PROBE = """<script>
+window.addEventListener("load", function () {
+  var ths = Array.prototype.slice.call(document.querySelectorAll("#sequences-table th"));
+  function order() {
+    return Array.prototype.map.call(document.querySelectorAll("#sequences-table tbody tr"),
+                                    function (r) { return r.dataset.sequence; }).join(",");
+  }
+  ths.filter(function (h) { return h.textContent.indexOf("recovered PRMSE") === 0; })[0].click();
+  document.body.dataset.byPrmse = order();
+  ths[0].click(); ths[0].click();
+  document.body.dataset.byNameDesc = order();
+});
+</script>"""
+
+
+@SPINE_GROUP
+@pytest.mark.slow
+@pytest.mark.chromium
+def test_dataset_page_in_chromium(e2e_run, chromium, tmp_path):  # noqa: F811  (the imported fixture)
+    """results/report/index.html of the run, in headless Chromium: the headline counts against
+    validation.json and the manifest, one row per sequence, links that resolve, the figure, sorting."""
+    from test_report_chromium import FLAGS
+
+    results = e2e_run.workdir / "results"
+    page = results / "report" / "index.html"
+    probe = page.with_name("index_sort_probe.html")  # beside the page: its relative links still resolve
+    probe.write_text(page.read_text().replace("</body>", SORT_PROBE + "</body>"))
+    try:
+        dom = subprocess.run([chromium, *FLAGS, f"--user-data-dir={tmp_path / 'profile'}",
+                              "--virtual-time-budget=10000", "--dump-dom", probe.as_uri()],
+                             capture_output=True, text=True, timeout=120, check=False)
+    finally:
+        probe.unlink()
+    assert dom.returncode == 0, dom.stderr[-2000:]
+    html = dom.stdout
+    body = re.search(r"<body\b[^>]*>", html).group(0)
+    assert 'data-broken-images="0"' in body and 'data-images="1"' in body, body  # the bias figure decoded
+    verdicts = {n: json.loads((results / "validation" / n / "validation.json").read_text())["verdict"]
+                for n in ("tiny_a", "tiny_b")}
+    for verdict in ("PASS", "WARN", "FAIL"):
+        n = sum(v == verdict for v in verdicts.values())
+        assert f'class="count-{verdict}" data-count="{n}"' in html, verdict
+    manifest = json.loads((results / "windows" / "dataset" / "manifest.json").read_text())
+    for split, total in manifest["totals"].items():
+        cells = re.search(rf"<tr><td>{split}</td>\s*<td[^>]*>(\d+)</td>\s*<td[^>]*>(\d+)</td>", html)
+        assert cells and (int(cells.group(1)), int(cells.group(2))) == (total["sequences"], total["windows"]), split
+    assert re.findall(r'<tr data-sequence="(\w+)">', html) == ["tiny_b", "tiny_a"]  # after the last sort
+    for href in re.findall(r'href="([^"#][^"]*)"', html):
+        assert (page.parent / href).is_file(), href
+    assert len(re.findall(r'href="[^"]*/report.html"', html)) == 2
+    prmse = {n: json.loads((results / "validation" / n / "validation.json").read_text())["sources"]["recovered"]
+             ["prmse_m"] for n in verdicts}
+    assert re.search(r'data-by-prmse="([^"]*)"', body).group(1) == ",".join(sorted(prmse, key=prmse.get))
+    assert re.search(r'data-by-name-desc="([^"]*)"', body).group(1) == "tiny_b,tiny_a"

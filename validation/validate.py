@@ -39,7 +39,9 @@ from pipeline.bias_table import BiasTrack
 from pipeline.checks.run import reader_warnings
 from pipeline.errors import ValidationError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
-from recovery.outputs import RecoveryOutputs
+from pipeline.io.asl import CODE_CALIBRATION_DEFAULTED
+
+from recovery.outputs import SENSOR_YAML, RecoveryOutputs
 from validation.attitude import reference_attitude_offset
 from validation.config import CrossvalMode, ValidationConfig
 from validation.metrics import (SourceMetrics, WindowPlan, _flags, plan_windows, prmse_m, roe_deg, window_end_errors,
@@ -48,13 +50,16 @@ from validation.reference import (ReferenceKind, ReferenceStates, build_referenc
                                   reference_from_states)
 from validation.sources import (BiasSource, BiasSourceKind, _bias_at, _infer_kind, _std_at, bias_sources, dataset_bias,
                                 read_bias_file, recovered_bias_at_imu)
-from validation.rules import Evidence, HeldOut, VerdictInputs, judge, next_steps_for, said_once
+from validation.rules import RULES, Evidence, HeldOut, VerdictInputs, judge, next_steps_for, said_once
 from validation.verdict import Limitation, decide_verdict, input_limitations, recovery_limitations, sigma_window_errors
 from validation.plausibility import plausibility_findings
 from validation.outputs import HELDOUT_SOURCE, SCHEMA_VERSION, write_folder
 from pipeline.types import Verdict
 
 log = logging.getLogger(__name__)
+
+#: The rule whose next step names the sensor.yaml a recovery wrote from the recording's rest.
+BORROWED_NOISE_RULE = f"INPUT_{CODE_CALIBRATION_DEFAULTED}"
 
 #: An attitude offset is noted when its tilt stands for more accelerometer bias than this many times
 #: the recovered bias's median sigma (below, the two attitudes agree within what the bias can tell).
@@ -503,7 +508,7 @@ def validate_inputs(
     result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config,
                                heldout=heldout, judge_heldout=judged, heldout_info=heldout_info, inputs=inputs)
     result.plausibility = [x.to_dict() for x in implausible]
-    result.next_steps = next_steps(result)
+    result.next_steps = name_suggested_noise(next_steps(result), result.reason_codes, recovery_dir)
     if own_gravity is not None:
         result.notes.append(f"'recovered' is integrated with the recovery's gravity {np.round(own_gravity, 4).tolist()} "
                             f"m/s^2 (the reference is the stream it was fitted to); the other rows with "
@@ -548,6 +553,19 @@ def _row_gravity(gravity_mps2: Any, recovery: RecoveryOutputs | None, fitted: bo
             sources = {k: (replace(s, gravity_mps2=own_gravity) if s.kind is BiasSourceKind.RECOVERED else s)
                        for k, s in sources.items()}
     return gravity, own_gravity, sources
+
+
+def name_suggested_noise(steps: list[str], reason_codes: Sequence_[str], recovery_dir: str | Path | None) -> list[str]:
+    """``steps`` with the borrowed-noise rule's next step naming the ``sensor.yaml`` the recovery wrote
+    from the recording's rest (:mod:`recovery.noise_from_data`), where it wrote one."""
+    suggested = None if recovery_dir is None else Path(recovery_dir) / SENSOR_YAML
+    generic = RULES[BORROWED_NOISE_RULE].next_step
+    if suggested is None or not suggested.is_file() or BORROWED_NOISE_RULE not in reason_codes:
+        return steps
+    step = (f"use {suggested}, which the recovery wrote with the noise densities of this recording's rest and the "
+            "random walks its evidence search chose: put it where the reader looks (imu0/sensor.yaml of an ASL "
+            "folder) and recover again")
+    return [step if s == generic else s for s in steps]
 
 
 def nominal_gravity(recovery: RecoveryOutputs | None = None) -> np.ndarray:

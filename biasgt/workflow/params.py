@@ -26,6 +26,7 @@ from pipeline.layout import (  # noqa: F401  (the .smk files read these as wf.<n
     RESULTS_DIR,
     WINDOWS_DATASET,
     Stage,
+    dataset_report_path,
     interpolated_bias_path,
     log_file,
     report_path,
@@ -374,3 +375,17 @@ def final_outputs(registry: Iterable[FinalOutput], cfg: WorkflowConfig) -> list[
                 seen.add(p)
                 out.append(p)
     return out
+
+
+def dataset_report_inputs(cfg: WorkflowConfig) -> dict[str, list[str]]:
+    """Inputs of rule ``dataset_report``: every sequence's ``recoveries``, ``validations`` and
+    ``reports`` (the page links them), and the window dataset when one is built (``windows``)."""
+    return {"recoveries": [stage_dir(Stage.RECOVER, n) for n in cfg.names],
+            "validations": [stage_dir(Stage.VALIDATE, n) for n in cfg.names],
+            "reports": [report_path(n) for n in cfg.names],
+            "windows": window_outputs(cfg)}
+
+
+def dataset_report_settings(cfg: WorkflowConfig) -> dict[str, Any]:
+    """Parameters of rule ``dataset_report``: ``{"sequences": [[name, split], ...]}`` in config order."""
+    return {"sequences": [[s.name, Split(s.split).value] for s in cfg.sequences]}

@@ -14,7 +14,7 @@ import re
 from collections import Counter
 from pathlib import Path
 
-from pipeline.layout import Stage
+from pipeline.layout import Stage, dataset_report_path
 from biasgt.workflow.run import _JOB_HEADER
 
 #: Rules that depend on the window dataset through its checksum (directly or through evaluations).
@@ -136,6 +136,8 @@ def finished_summary(workdir: str | Path) -> list[str]:
     reports = sorted((results / "report").glob("*/report.html"))
     if reports:
         lines.append(f"  quality reports: results/report/<sequence>/report.html ({len(reports)})")
+    if (results.parent / dataset_report_path()).is_file():
+        lines.append(f"  dataset page: {dataset_report_path()}")
     if (results / "report" / "training.html").is_file():
         lines.append("  training report: results/report/training.html")
     return ["summary:", *lines] if lines else []

@@ -2,7 +2,7 @@
 
 :func:`run_step` runs one job with its log file; :func:`simulate_step` / :func:`ingest_step` /
 :func:`recover_step` / :func:`interpolate_step` / :func:`validate_step` / :func:`windows_step` /
-:func:`report_step` each run one stage (the stage's heavy libraries load inside the step, in the
+:func:`report_step` / :func:`dataset_report_step` each run one stage (the stage's heavy libraries load inside the step, in the
 job that runs it).
 """
 
@@ -179,3 +179,12 @@ def report_step(ingest_dir: str | Path, recovery_dir: str | Path | None, validat
 
     return build_quality_report(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir,
                                 out_path=out_path)
+
+
+def dataset_report_step(results_dir: str | Path, out_path: str | Path, settings: dict[str, Any]) -> Path:
+    """Write the dataset page (``results/report/index.html``) over the config's sequences
+    (settings: :func:`biasgt.workflow.params.dataset_report_settings`)."""
+    from reports.dataset import build_dataset_report  # matplotlib: only in the job that runs the step
+
+    named = [(str(name), str(split)) for name, split in settings.get("sequences") or []]
+    return build_dataset_report(results_dir, out_path, sequences=[n for n, _ in named], splits=dict(named))

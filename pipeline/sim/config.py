@@ -201,6 +201,8 @@ class MotionConfig:
             to the file (larger = smoother derived accelerometer).
         gt_orientation_key_interval_s: Spacing of the file's orientations used as spline keys.
         gt_margin_s: Seconds dropped at both ends of the file (spline end effects).
+        rest_s: Seconds at rest at the start of a random motion (the IMU still at the motion's first
+            pose), followed by a smooth 2-s start (:class:`pipeline.sim.motion.RestThenMove`); 0: none.
     """
 
     preset: MotionPreset = MotionPreset.HANDHELD
@@ -213,6 +215,7 @@ class MotionConfig:
     gt_position_knot_interval_s: float = 0.1
     gt_orientation_key_interval_s: float = 0.05
     gt_margin_s: float = 0.5
+    rest_s: float = 0.0
 
     def params(self) -> PresetParams:
         """The preset's numbers with this config's overrides applied."""
@@ -319,6 +322,8 @@ class SimConfig:
         for name in ("dropouts", "outliers"):
             if getattr(self.poses, name) < 0:
                 raise ConfigError(f"poses.{name} must be >= 0", field=f"poses.{name}")
+        if not self.motion.rest_s >= 0 or (self.motion.rest_s and self.motion.ground_truth_path is not None):
+            raise ConfigError("motion.rest_s must be >= 0 and applies to a random motion only", field="motion.rest_s")
         if self.motion.params().key_interval_s <= 0:
             raise ConfigError("motion.key_interval_s must be > 0", field="motion.key_interval_s")
         for name in ("position_noise_m", "rotation_noise_rad", "dropout_max_s", "outlier_offset_m",

@@ -115,6 +115,41 @@ class Trajectory:
         )
 
 
+class RestThenMove(Trajectory):
+    """A trajectory at rest (at ``inner``'s pose at t = 0) until ``rest_s``, then ``inner`` started
+    smoothly: time is warped as ``u(t)`` with ``u' = 0`` at rest, rising as a smoothstep to 1 over
+    ``ramp_s`` (``u''`` continuous), so the motion's rates and accelerations are continuous. Same
+    interface as :class:`Trajectory`; valid for ``t <= inner.t_max_s + rest_s``."""
+
+    def __init__(self, inner: Trajectory, rest_s: float, ramp_s: float = 2.0) -> None:
+        super().__init__(inner._pos, inner._rot, inner.t_min_s, inner.t_max_s + float(rest_s))
+        self._inner, self.rest_s, self.ramp_s = inner, float(rest_s), float(ramp_s)
+
+    def _warp(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(u, du/dt, d2u/dt2)`` at ``t_s``."""
+        t = self._check(t_s)
+        x = np.clip((t - self.rest_s) / self.ramp_s, 0.0, 1.0)
+        u = np.where(x < 1.0, self.ramp_s * (x**3 - 0.5 * x**4), t - self.rest_s - 0.5 * self.ramp_s)
+        return u, 3 * x**2 - 2 * x**3, 6 * x * (1 - x) / self.ramp_s
+
+    def position(self, t_s: np.ndarray) -> np.ndarray:
+        return self._inner.position(self._warp(t_s)[0])
+
+    def rotation(self, t_s: np.ndarray) -> Rotation:
+        return self._inner.rotation(self._warp(t_s)[0])
+
+    def angular_rate_body(self, t_s: np.ndarray) -> np.ndarray:
+        u, du, _ = self._warp(t_s)
+        return self._inner.angular_rate_body(u) * du[:, None]
+
+    def sample(self, t_s: np.ndarray) -> MotionSample:
+        u, du, ddu = self._warp(t_s)
+        s = self._inner.sample(u)
+        return MotionSample(p_m=s.p_m, v_mps=s.v_mps * du[:, None],
+                            a_mps2=s.a_mps2 * du[:, None] ** 2 + s.v_mps * ddu[:, None],
+                            rotation=s.rotation, omega_body_radps=s.omega_body_radps * du[:, None])
+
+
 def random_trajectory(params: PresetParams, t_end_s: float, rng: np.random.Generator, *, pad_s: float) -> Trajectory:
     """Random smooth motion through waypoints and key orientations.
 

@@ -20,6 +20,7 @@ from pipeline.io.registry import SOURCE_FORMAT_KEY
 from pipeline.sim.config import SimConfig
 from pipeline.sim.imu_model import BiasTruth, SensorMatrices, measure, sensor_matrices, simulate_bias
 from pipeline.sim.motion import (
+    RestThenMove,
     Trajectory,
     ground_truth_trajectory,
     quat_wxyz_continuous,
@@ -234,6 +235,8 @@ def _motion(config: SimConfig) -> tuple[SimConfig, StateSeries | PoseSeries | No
         trajectory = random_trajectory(
             params, duration_s, _rng(config.seed, _Stream.MOTION), pad_s=2 * params.key_interval_s
         )
+        if config.motion.rest_s > 0:
+            trajectory = RestThenMove(trajectory, config.motion.rest_s)
     return config, gt_file, trajectory, t0_ns, duration_s
 
 

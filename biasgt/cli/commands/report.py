@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "report",
-        help="write the dataset quality report of one sequence (self-contained HTML)",
+        help="write the quality report of one sequence, or the dataset page over all (self-contained HTML)",
         description=textwrap.fill(
             "Write one self-contained HTML page (figures embedded, no network needed) that says whether a "
             "sequence's recovered bias is usable and why: the validation verdict in plain words, the streams and "
@@ -36,9 +36,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "input and the stage folders with --ingest/--recovery/--validation; the input may be a canonical store "
             "or any input that recover and validate read (an ASL folder, a bag, ...), with the same reader options "
             "(--add-poses, --format, ...). Missing recovery or validation outputs are "
-            "reported in the page; a missing ingest store is an error. Prints the path of the written file."
+            "reported in the page; a missing ingest store is an error. Prints the path of the written file. "
+            "A results folder without --sequence gives the dataset page over every sequence instead "
+            "(RESULTS_DIR/report/index.html: verdicts, windows per split and what was left out, one sortable row "
+            "per sequence linking its report, Table I's averages, every recovered bias in one figure)."
         ),
         epilog=("examples:\n  biasgt report results --sequence MH_01_easy --out MH_01_easy.html\n"
+                "  biasgt report results                   the dataset page: results/report/index.html\n"
                 "  biasgt report --ingest data/V1_01_easy --add-poses data/V1_01_easy/ov_data/V1_01_easy_original.txt"
                 ":ground_truth \\\n      --recovery out/V1_01 --validation out/V1_01/validation --out out/V1_01/quality.html"),
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -72,8 +76,8 @@ def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | 
     ingest, recovery, validation, out = args.ingest, args.recovery, args.validation, args.out
     if args.results is not None:
         if not args.sequence:
-            raise ConfigError("RESULTS_DIR needs --sequence NAME", field="--sequence",
-                              hint="name the sequence, e.g. --sequence MH_01_easy")
+            raise ConfigError("RESULTS_DIR with --ingest needs --sequence NAME", field="--sequence",
+                              hint="name the sequence, e.g. --sequence MH_01_easy (RESULTS_DIR alone: the dataset page)")
         found = stage_dirs(args.results, args.sequence)
         ingest = ingest or found["ingest"]
         recovery = recovery or found["recovery"]
@@ -91,6 +95,12 @@ def resolve_inputs(args: argparse.Namespace) -> tuple[Path, Path | None, Path | 
 
 def run(args: argparse.Namespace) -> int:
     from pipeline.store import is_store
+
+    if args.results is not None and not args.sequence and args.ingest is None:
+        from reports.dataset import build_dataset_report  # matplotlib: off the CLI start-up path
+
+        print(build_dataset_report(args.results, args.out))
+        return 0
     from reports.quality import build_quality_report  # matplotlib: off the CLI start-up path
 
     ingest, recovery, validation, out = resolve_inputs(args)

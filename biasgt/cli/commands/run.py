@@ -15,7 +15,8 @@ sequence of the config, recover the bias, interpolate it to the IMU rate, valida
 quality report per sequence), cut the window dataset of the train/val/test sequences (windows),
 then the learning stages: train every method and seed of the config's training section, evaluate
 each model and the references on the test split, table (Table I) and training_report (the
-training report, results/report/training.html). The learning stages are most of a run's time.
+training report, results/report/training.html), and dataset_report (one page over every sequence,
+results/report/index.html). The learning stages are most of a run's time.
 Outputs go to results/<stage>/<sequence>/ (results/windows/dataset/, results/training/,
 results/evaluation/) and logs to logs/<stage>/<sequence>.log under the working directory
 (--directory, default: the current folder); the reports' paths are printed at the end. Finished
@@ -55,7 +56,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
         "run",
         help="run the whole workflow with Snakemake (simulate, ingest, recover, interpolate, validate, "
-             "report, windows, train, evaluate, table, training report)",
+             "report, windows, train, evaluate, table, training report, dataset report)",
         description=DESCRIPTION,
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,

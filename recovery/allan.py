@@ -1,4 +1,5 @@
-"""Overlapping Allan deviation of IMU readings, and the noise strengths read off it.
+"""Overlapping Allan deviation of IMU readings, and the noise strengths read off it (the quality
+report draws it; the recovery reads the white-noise densities of a recording at rest from it).
 
 For a rate signal ``x`` sampled at ``rate_hz`` (gyro in rad/s, accelerometer in m/s^2) the
 integral ``theta_j = sum_{i<j} x_i / rate_hz`` (``theta_0 = 0``) turns the overlapping Allan
