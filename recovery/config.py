@@ -185,6 +185,9 @@ class RecoveryConfig:
         offset_refine_window_s: Length of the (most rotating) data the clock-offset refinement
             solves; ``None``: :data:`OFFSET_WINDOW_FUSED_S` with fused keyframes, else ``calib_window_s``.
         extrinsic_mode: See :class:`ExtrinsicMode`.
+        keep_frame_disagreement: Write a result whose IMU and pose stream disagree about the body frame
+            (:mod:`recovery.frame_check`) with a warning, for the verdict to judge (it FAILs on plausibility),
+            instead of refusing it.
         extrinsic_keyframe_rate_hz: Keyframe rate of the joint extrinsic solve.
         extrinsic_prior_rotation_deg / extrinsic_prior_translation_m: 1-sigma per axis of the prior a
             calibration's ``T_imu_pose`` puts on its estimate (PRIOR): a calibration file's extrinsic
@@ -316,6 +319,7 @@ class RecoveryConfig:
     relative_error_tol: float = 1e-6
     min_rotation_excitation_deg: float = 10.0
     compute_marginals: bool = True
+    keep_frame_disagreement: bool = False
     marginal_rate_hz: float | None = 5.0
 
     _ENUMS = {

@@ -21,6 +21,7 @@ Rule (both parts must hold, so a correct recording with a merely poor fit passes
 
 from __future__ import annotations
 
+import logging
 from typing import Any
 
 import numpy as np
@@ -29,6 +30,8 @@ from pipeline.errors import RecoveryError
 
 __all__ = ["ACC_BIAS_IMPLAUSIBLE_MPS2", "GYRO_BIAS_IMPLAUSIBLE_RADPS", "MIN_SIGMAS", "MAX_BEYOND_FRACTION",
            "frame_disagreement", "check_frames"]
+
+log = logging.getLogger(__name__)
 
 STANDARD_GRAVITY_MPS2 = 9.80665
 #: An accelerometer bias above 0.3 g is not a bias (consumer MEMS parts stay below ~0.15 g).
@@ -113,16 +116,19 @@ def frame_disagreement(result: Any) -> str | None:
             f"{'; '.join(evidence)}; likely cause: {_likely_cause(result.report)}")
 
 
-def check_frames(result: Any, sequence_name: str) -> None:
-    """Raise when :func:`frame_disagreement` refuses ``result``.
+def check_frames(result: Any, sequence_name: str, *, refuse: bool = True) -> None:
+    """Raise when :func:`frame_disagreement` refuses ``result`` (with ``refuse=False``: log a warning
+    and keep it, for the verdict to judge).
 
     Raises:
         RecoveryError: Naming the evidence and the likely causes (axis order, quaternion order).
     """
     why = frame_disagreement(result)
-    if why is not None:
+    if why is not None and not refuse:
+        log.warning("sequence '%s': %s (kept: --keep-frame-disagreement)", sequence_name, why)
+    elif why is not None:
         raise RecoveryError(
             f"sequence '{sequence_name}': {why}",
             hint="check the IMU file's column order and the pose file's quaternion order against their headers "
                  "('biasgt inspect' shows the first rows; a generic CSV's mapping: --csv-mapping), fix them, and "
-                 "recover again")
+                 "recover again (or, to keep the result for its verdict, which FAILs, --keep-frame-disagreement)")

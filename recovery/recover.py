@@ -130,7 +130,7 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
     """
     config = config or RecoveryConfig()
     result = _recover_with_intrinsics(sequence, pose_stream, config)
-    check_frames(result, sequence.name)  # axes swapped, quaternions out of order: refused, not a bias
+    check_frames(result, sequence.name, refuse=not config.keep_frame_disagreement)  # refused, not a bias
     return result
 
 

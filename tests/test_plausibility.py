@@ -84,7 +84,11 @@ def test_wheel_odometry_with_the_identity_extrinsic_fails_with_a_plausibility_re
     from biasgt.cli.app import main
 
     bag = shared_data / "ros_bags" / "robot_localization_test" / "test1.bag"
-    assert main(["-q", "recover", str(bag), "--extrinsic", "known", "--out", str(tmp_path / "rec")]) == 0
+    # refused by default (the frames disagree), nothing written; kept on request, for the verdict to FAIL it
+    assert main(["-q", "recover", str(bag), "--extrinsic", "known", "--out", str(tmp_path / "rec")]) == 2
+    assert "disagree about the body frame" in capsys.readouterr().err and not (tmp_path / "rec").exists()
+    assert main(["-q", "recover", str(bag), "--extrinsic", "known", "--keep-frame-disagreement",
+                 "--out", str(tmp_path / "rec")]) == 0
     capsys.readouterr()
     rc = main(["validate", str(bag), "--recovery", str(tmp_path / "rec"), "--crossval", "off",
                "--out", str(tmp_path / "val")])

@@ -80,6 +80,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--no-pose-fusion", action="store_true",
                    help="keyframes are single pose samples (with --keyframe-rate, the samples between them are "
                         "dropped; without, every sample is a keyframe: ~5-10x slower on 100-Hz mocap)")
+    p.add_argument("--keep-frame-disagreement", action="store_true",
+                   help="write a result whose IMU and pose stream disagree about the body frame (an implausible "
+                        "bias), with a warning, instead of refusing it: 'biasgt validate' then FAILs it")
     add_reader_arguments(p)
     add_check_arguments(p)
     p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
@@ -109,6 +112,8 @@ def config_from_args(args: argparse.Namespace):
         changes["pose_fusion"] = False
     if args.no_marginals:
         changes["compute_marginals"] = False
+    if args.keep_frame_disagreement:
+        changes["keep_frame_disagreement"] = True
     if changes:
         merged = cfg.to_dict()
         merged.update(changes)
