@@ -28,12 +28,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pipeline.types import Finding, Severity, Verdict
-from validation.config import ValidationConfig
-from validation.plausibility import BIAS_RANGE_STEP, FRAME_STEP, Implausible, PlausibilityCheck
-from validation.sources import BiasSourceKind
+from validation.config import BiasSourceKind, ValidationConfig
 
-if TYPE_CHECKING:  # validation.metrics imports torch: off the CLI's start-up path
+if TYPE_CHECKING:  # validation.metrics imports torch, validation.plausibility scipy: off the CLI's start-up path
     from validation.metrics import SourceMetrics
+    from validation.plausibility import Implausible
 
 __all__ = ["RULES", "Evidence", "HeldOut", "Reason", "Rule", "VerdictInputs", "judge", "next_steps_for", "register",
            "rules_text", "said_once", "unregister"]
@@ -350,8 +349,8 @@ def _given_limitations(ev: Evidence) -> list[str]:
     return list(ev.given_limitations)
 
 
-def _implausible(check: PlausibilityCheck, ev: Evidence) -> list[str]:
-    return [x.text for x in ev.inputs.implausible if x.check is check]
+def _implausible(check: str, ev: Evidence) -> list[str]:
+    return [x.text for x in ev.inputs.implausible if x.check == check]
 
 
 def _against_zero_or_constant(ev: Evidence) -> list[tuple[str, Comparison, str, bool]]:
@@ -548,16 +547,27 @@ _LIMITING_FINDINGS = {
                           "resample the IMU to the calibration's rate (biasgt convert --resample-hz) or correct "
                           "rate_hz in sensor.yaml, and recover again"),
 }
+#: The next step of a bias beyond the sensor's range.
+BIAS_RANGE_STEP = ("if the sensor's bias range is larger, give it in sensor.yaml (gyroscope_bias_max [rad/s], "
+                   "accelerometer_bias_max [m/s^2]); else check the pose-to-IMU frame")
+#: The next step of a frame mismatch.
+FRAME_STEP = ("check the pose-to-IMU rotation: give the IMU's mounting (T_imu_<frame> in the calibration, e.g. "
+               "from the URDF or a Kalibr run) and recover again, or recover with --extrinsic estimate so that the "
+               "rotation is estimated; a pose stream that lacks rotation about some axis (planar wheel odometry) "
+               "cannot give a bias ground truth")
+
+
+#: The plausibility checks (validation.plausibility.PlausibilityCheck values): (what, next step).
 _IMPLAUSIBLE_WORDS = {
-    PlausibilityCheck.BIAS_RANGE: ("a bias beyond the sensor's bias range", BIAS_RANGE_STEP),
-    PlausibilityCheck.GRAVITY_TILT: ("gravity tilted in a level pose frame, or changing direction", FRAME_STEP),
-    PlausibilityCheck.ROTATION_RESIDUAL: ("the recovered attitude far off the poses'", FRAME_STEP),
-    PlausibilityCheck.FRAME_SWAP: ("a gyro axis reading another axis's rate (a swapped frame)", FRAME_STEP),
+    "bias_range": ("a bias beyond the sensor's bias range", BIAS_RANGE_STEP),
+    "gravity_tilt": ("gravity tilted in a level pose frame, or changing direction", FRAME_STEP),
+    "rotation_residual": ("the recovered attitude far off the poses'", FRAME_STEP),
+    "frame_swap": ("a gyro axis reading another axis's rate (a swapped frame)", FRAME_STEP),
 }
 
 register(Rule("GIVEN_FAIL", Verdict.FAIL, "a reason for a FAIL found by the caller", _given_fails))
 for _check, (_what, _step) in _IMPLAUSIBLE_WORDS.items():
-    register(Rule(f"IMPLAUSIBLE_{_check.name}", Verdict.FAIL, f"physically impossible: {_what}, whatever the "
+    register(Rule(f"IMPLAUSIBLE_{_check.upper()}", Verdict.FAIL, f"physically impossible: {_what}, whatever the "
                   "integration errors", partial(_implausible, _check), _step))
 register(Rule("HELDOUT_WORSE", Verdict.FAIL, "held out (the reference is the stream the bias was fitted to): worse "
               "than the zero or the constant bias on the held-out windows by more than the margin and significantly "
