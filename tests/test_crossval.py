@@ -80,10 +80,12 @@ def test_each_sample_gets_the_bias_of_the_fold_that_left_it_out(handheld):
         missing = set(folds.fold(np.setdiff1d(all_t, s.poses[stream].t_ns)).tolist())
         assert len(missing) == 1
         k = missing.pop()
-        return SimpleNamespace(bias_at=lambda t: np.full((len(t), 6), float(k)), report={})
+        return SimpleNamespace(bias_at=lambda t: np.full((len(t), 6), float(k)),
+                               std_at=lambda t: np.full((len(t), 6), 0.5 + k), report={})
 
     cv = crossvalidate_recovery(seq, name, folds, fake_recover)
     np.testing.assert_array_equal(cv.bias[:, 0], folds.fold(seq.imu.t_ns))
+    np.testing.assert_array_equal(cv.raw_std[:, 5], 0.5 + folds.fold(seq.imu.t_ns))  # and that fold's sigma
     assert len(cv.recoveries) == 3
 
 
@@ -114,7 +116,8 @@ def test_held_constant_is_the_fold_mean_over_its_training_samples(handheld):
     ramp = (seq.imu.t_ns - seq.imu.t_ns[0]) / S  # a bias that grows 1 per second, the same in every fold
 
     def fake_recover(s, stream):
-        return SimpleNamespace(bias_at=lambda t: np.repeat(((t - seq.imu.t_ns[0]) / S)[:, None], 6, 1), report={})
+        return SimpleNamespace(bias_at=lambda t: np.repeat(((t - seq.imu.t_ns[0]) / S)[:, None], 6, 1),
+                               std_at=lambda t: np.ones((len(t), 6)), report={})
 
     cv = held_constant(crossvalidate_recovery(seq, "mocap0", folds, fake_recover), seq.imu, folds)
     f = folds.fold(seq.imu.t_ns)

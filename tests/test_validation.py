@@ -656,14 +656,19 @@ def test_cli_bad_input_exit_2_and_nothing_written(noisy_sim, tmp_path, capsys):
 
 def test_verdict_worse_than_zero_bias_is_a_fail_whatever_the_sigma():
     """A wholly wrong bias (accelerometer read in g) makes the constant baseline just as wrong: only
-    the zero bias shows it, and beside it such a candidate is a FAIL, never a WARN."""
+    the zero bias shows it, and beside it such a candidate is a FAIL, never a WARN. Worse within the
+    margin is a tie (WARN: no better than zero); beyond it and significantly, a FAIL."""
     m = {"zero": _metrics("zero", BiasSourceKind.ZERO, 0.34, 0.5),
          "constant": _metrics("constant", BiasSourceKind.CONSTANT_FIRST_WINDOW, 4.3, 0.5),
          "recovered": _metrics("recovered", BiasSourceKind.RECOVERED, 4.39, 0.5, sigma=(5.0, 0.0))}
     v, reasons = decide_verdict(m, "recovered", dropped_fraction=0.0)
     assert v is Verdict.FAIL, reasons
-    assert any("worse than the zero bias" in r and "PRMSE" in r for r in reasons)
+    assert any("for the 'zero' bias" in r and "PRMSE" in r and "significantly" in r for r in reasons)
     m["zero"] = _metrics("zero", BiasSourceKind.ZERO, 0.271, 0.5)
-    m["recovered"] = _metrics("recovered", BiasSourceKind.RECOVERED, 0.292, 0.5)  # slightly worse, still FAIL
+    m["recovered"] = _metrics("recovered", BiasSourceKind.RECOVERED, 0.292, 0.5)  # 7.7 % worse: within the margin
     m["constant"] = _metrics("constant", BiasSourceKind.CONSTANT_FIRST_WINDOW, 0.292, 0.5)
+    v, reasons = decide_verdict(m, "recovered", dropped_fraction=0.0)
+    assert v is Verdict.WARN and any("no better than that bias" in r for r in reasons), reasons
+    m["recovered"] = _metrics("recovered", BiasSourceKind.RECOVERED, 0.312, 0.5)  # 15 % worse in every window
+    m["constant"] = _metrics("constant", BiasSourceKind.CONSTANT_FIRST_WINDOW, 0.312, 0.5)
     assert decide_verdict(m, "recovered", dropped_fraction=0.0)[0] is Verdict.FAIL

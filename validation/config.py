@@ -26,6 +26,16 @@ class CrossvalMode(str, enum.Enum):
     OFF = "off"
 
 
+class BiasSourceKind(str, enum.Enum):
+    """What a bias source is (decides its role in the verdict; :mod:`validation.sources`)."""
+
+    ZERO = "zero"
+    CONSTANT_FIRST_WINDOW = "constant_first_window"
+    DATASET = "dataset"
+    RECOVERED = "recovered"
+    FILE = "file"
+
+
 @dataclass(frozen=True)
 class ValidationConfig:
     """Knobs of the validation (every default is documented in the module docstring).

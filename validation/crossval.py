@@ -93,6 +93,8 @@ class CrossValidatedBias:
         raw_bias: The bias as the recoveries report it (raw readings' convention), [N, 6]; None when
             not spliced from recoveries. NaN in a dropped fold's blocks.
         dropped: ``{fold: reason}`` of the folds whose recovery failed.
+        raw_std: The bias sigma of the fold that left each sample out, [N, 6] (raw readings' convention;
+            NaN in a dropped fold's blocks), or None.
     """
 
     imu: ImuSeries
@@ -100,6 +102,7 @@ class CrossValidatedBias:
     recoveries: tuple
     raw_bias: np.ndarray | None = None
     dropped: dict[int, str] = dataclasses.field(default_factory=dict)
+    raw_std: np.ndarray | None = None
 
 
 def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
@@ -119,7 +122,7 @@ def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
     imu = sequence.imu
     fold_of_imu = folds.fold(imu.t_ns)
     gyro, acc = imu.gyro_radps.copy(), imu.acc_mps2.copy()
-    bias, raw = np.full((len(imu), 6), np.nan), np.full((len(imu), 6), np.nan)
+    bias, raw, raw_std = (np.full((len(imu), 6), np.nan) for _ in range(3))
     results: list = []
     dropped: dict[int, str] = {}
     for k in range(folds.n_folds):
@@ -136,8 +139,9 @@ def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
         m = fold_of_imu == k
         gyro[m], acc[m], bias[m] = imu_k.gyro_radps[m], imu_k.acc_mps2[m], bias_k[m]
         raw[m] = res.bias_at(imu.t_ns[m])
+        raw_std[m] = res.std_at(imu.t_ns[m])
     return CrossValidatedBias(dataclasses.replace(imu, gyro_radps=gyro, acc_mps2=acc), bias, tuple(results), raw,
-                              dropped)
+                              dropped, raw_std)
 
 
 def held_constant(cv: CrossValidatedBias, imu: ImuSeries, folds: BlockFolds) -> CrossValidatedBias:
@@ -155,8 +159,9 @@ def held_constant(cv: CrossValidatedBias, imu: ImuSeries, folds: BlockFolds) -> 
 
 def heldout_track(sequence: Sequence, stream: str, recovery_options: dict, folds: BlockFolds
                   ) -> tuple[BiasTrack, dict[int, str]]:
-    """The recovered bias cross-validated by blocks, at the IMU stamps (raw readings' convention, std 0;
-    NaN in a dropped fold's blocks), and the dropped folds ``{fold: reason}``.
+    """The recovered bias cross-validated by blocks, at the IMU stamps (raw readings' convention, with the
+    sigma of the fold that left each sample out; NaN in a dropped fold's blocks), and the dropped folds
+    ``{fold: reason}``.
 
     Args:
         sequence: IMU + pose streams.
@@ -169,4 +174,4 @@ def heldout_track(sequence: Sequence, stream: str, recovery_options: dict, folds
 
     config = RecoveryConfig.from_dict(recovery_options)
     cv = crossvalidate_recovery(sequence, stream, folds, lambda s, st: recover(s, pose_stream=st, config=config))
-    return BiasTrack(sequence.imu.t_ns, cv.raw_bias, np.zeros_like(cv.raw_bias)), dict(cv.dropped)
+    return BiasTrack(sequence.imu.t_ns, cv.raw_bias, cv.raw_std), dict(cv.dropped)

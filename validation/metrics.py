@@ -114,6 +114,8 @@ class SourceMetrics:
         mean_bias: The source's bias averaged over the windows' first samples, [6] (gyro rad/s, acc
             m/s^2), or None: what two sources' errors differ by (a tilt and an acc bias trade off).
         gravity_mps2: The gravity the source was integrated with, [3] (None: not recorded).
+        mean_std: The source's bias sigma averaged over the windows' first samples, [6], or None (with
+            ``mean_bias``: whether the bias is within its own sigma of zero).
     """
 
     name: str
@@ -130,6 +132,7 @@ class SourceMetrics:
     sigma_rot_deg: np.ndarray | None = None
     mean_bias: np.ndarray | None = None
     gravity_mps2: np.ndarray | None = None
+    mean_std: np.ndarray | None = None
 
     @property
     def sigma_prmse_m(self) -> float:

@@ -76,16 +76,6 @@ class PlausibilityLimits:
 #: Pose sources whose world frame is level (z up), so gravity must point along -z.
 LEVEL_SOURCES = (PoseSourceKind.MOCAP, PoseSourceKind.GROUND_TRUTH, PoseSourceKind.POSITION_TRACKER)
 
-#: The next step of a bias beyond the sensor's range (:mod:`validation.rules`).
-BIAS_RANGE_STEP = ("if the sensor's bias range is larger, give it in sensor.yaml (gyroscope_bias_max [rad/s], "
-                   "accelerometer_bias_max [m/s^2]); else check the pose-to-IMU frame")
-#: The next step of a frame mismatch (:mod:`validation.rules`).
-FRAME_STEP = ("check the pose-to-IMU rotation: give the IMU's mounting (T_imu_<frame> in the calibration, e.g. "
-               "from the URDF or a Kalibr run) and recover again, or recover with --extrinsic estimate so that the "
-               "rotation is estimated; a pose stream that lacks rotation about some axis (planar wheel odometry) "
-               "cannot give a bias ground truth")
-
-
 @dataclass(frozen=True)
 class Implausible:
     """One result that physics rules out.

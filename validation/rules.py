@@ -28,12 +28,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from pipeline.types import Finding, Severity, Verdict
-from validation.config import ValidationConfig
-from validation.plausibility import BIAS_RANGE_STEP, FRAME_STEP, Implausible, PlausibilityCheck
-from validation.sources import BiasSourceKind
+from validation.config import BiasSourceKind, ValidationConfig
 
-if TYPE_CHECKING:  # validation.metrics imports torch: off the CLI's start-up path
+if TYPE_CHECKING:  # validation.metrics imports torch, validation.plausibility scipy: off the CLI's start-up path
     from validation.metrics import SourceMetrics
+    from validation.plausibility import Implausible
 
 __all__ = ["RULES", "Evidence", "HeldOut", "Reason", "Rule", "VerdictInputs", "judge", "next_steps_for", "register",
            "rules_text", "said_once", "unregister"]
@@ -57,14 +56,11 @@ class HeldOut:
     the same windows, when it judges the verdict.
 
     Attributes:
-        name: Its source name.
-        pos_err_m / rot_err_deg: Its window errors, [W].
+        metrics: Its metrics on those windows (``mean_bias`` and ``mean_std``: the folds' bias and sigma).
         others: ``{name: (kind, pos_err_m [W], rot_err_deg [W])}`` of every other source on these windows.
     """
 
-    name: str
-    pos_err_m: np.ndarray
-    rot_err_deg: np.ndarray
+    metrics: SourceMetrics
     others: Mapping[str, tuple[BiasSourceKind, np.ndarray, np.ndarray]]
 
 
@@ -251,37 +247,95 @@ def paired_p_value(cand: np.ndarray, base: np.ndarray, stride: int) -> float:
     return float(ttest_rel(cand[::stride], base[::stride], alternative="greater").pvalue)
 
 
-#: (label, unit, SourceMetrics value, per-window errors, tie attribute of the config) of each metric.
-_METRICS = {"PRMSE": ("m", "prmse_m", lambda m: m.pos_err_m ** 2, "tie_prmse_m"),
-            "ROE": ("deg", "roe_deg", lambda m: m.rot_err_deg, "tie_roe_deg")}
+@dataclass(frozen=True)
+class Comparison:
+    """A candidate's errors against a baseline's on the same windows, on one metric (:func:`compare`).
+
+    Attributes:
+        label / unit: ``PRMSE`` (m) or ``ROE`` (deg).
+        cand / base: The two metric values.
+        outcome: None (equal up to the tie and the candidate's own sigma), ``within`` (worse, within
+            the margin), ``not_significant`` (beyond the margin, but the paired test does not say
+            worse) or ``worse`` (beyond the margin and significantly: the only one that counts as worse).
+        p_value: The paired test's, where it ran.
+    """
+
+    label: str
+    unit: str
+    cand: float
+    base: float
+    outcome: str | None
+    p_value: float | None = None
+
+    @property
+    def text(self) -> str:
+        rel = (self.cand / self.base - 1.0) * 100.0 if self.base > 0 else float("inf")
+        return f"{self.label} {self.cand:.4g} {self.unit} is {rel:+.1f} % against {self.base:.4g} {self.unit}"
+
+
+def compare(label: str, cand_err: np.ndarray, base_err: np.ndarray, config: ValidationConfig, stride: int,
+            sigma: float = 0.0) -> Comparison:
+    """The one test of "worse than a baseline", for every rule that asks it (a constant or dataset bias in
+    sample; the zero bias in sample; the zero or constant bias held out).
+
+    ``cand_err`` / ``base_err``: per-window end errors on the same windows, [W] (m for PRMSE, deg for
+    ROE). The candidate is equal up to ``sqrt(base^2 + sigma^2) + tie`` (PRMSE) or ``base + sigma + tie``
+    (ROE), ``sigma`` being what its own sigma explains (0: no allowance); worse within the margin up to
+    ``(1 + margin)`` times the baseline's part; beyond that it is worse only when a paired one-sided
+    t-test over non-overlapping windows (every ``stride``-th) says so at ``significance``.
+    """
+    if label == "PRMSE":
+        unit, c, b, tie = "m", _rms(cand_err), _rms(base_err), config.tie_prmse_m
+        allowed = [float(np.hypot(b * f, sigma)) + tie for f in (1.0, 1.0 + config.margin)]
+        tested = (np.square(cand_err), np.square(base_err))
+    else:
+        unit, c, b, tie = "deg", float(np.mean(cand_err)), float(np.mean(base_err)), config.tie_roe_deg
+        allowed = [b * f + sigma + tie for f in (1.0, 1.0 + config.margin)]
+        tested = (cand_err, base_err)
+    if c <= allowed[0]:
+        return Comparison(label, unit, c, b, None)
+    if c <= allowed[1]:
+        return Comparison(label, unit, c, b, "within")
+    p_value = paired_p_value(*tested, stride)
+    return Comparison(label, unit, c, b, "worse" if p_value < config.significance else "not_significant", p_value)
+
+
+def _errors(m: SourceMetrics | tuple, label: str) -> np.ndarray:
+    """A source's per-window errors of ``label``: m for PRMSE, deg for ROE."""
+    if isinstance(m, tuple):  # (kind, pos_err_m, rot_err_deg) of HeldOut.others
+        return m[1] if label == "PRMSE" else m[2]
+    return m.pos_err_m if label == "PRMSE" else m.rot_err_deg
+
+
+def _rms(x: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def within_sigma_of_zero(m: SourceMetrics, label: str, k: float) -> bool:
+    """Whether ``m``'s mean bias is within ``k`` of its own sigmas of zero on every axis that ``label``
+    depends on (ROE: the gyro; PRMSE: gyro and accelerometer); False for a source without sigma."""
+    if m.mean_bias is None or m.mean_std is None:
+        return False
+    axes = slice(0, 3) if label == "ROE" else slice(0, 6)
+    bias, std = np.asarray(m.mean_bias, float)[axes], np.asarray(m.mean_std, float)[axes]
+    return bool(np.all(np.isfinite(std)) and np.all(std > 0) and np.all(np.abs(bias) <= k * std))
 
 
 def _outcome(ev: Evidence, base: SourceMetrics, label: str) -> tuple[str | None, str]:
-    """``(outcome, text)`` of the candidate against ``base`` on one metric: outcome None (equal up to its
-    own sigma), ``within`` (worse within the margin), ``worse`` (beyond the margin, significantly) or
-    ``not_significant`` (beyond the margin, not significantly)."""
+    """``(outcome, text)`` of the candidate against the baseline ``base`` (:func:`compare`, with the
+    allowance of its own sigma)."""
     cand, config = ev.cand, ev.config
-    unit, attr, errors, tie = _METRICS[label]
-    c, b = getattr(cand, attr), getattr(base, attr)
-    tie = getattr(config, tie)
-    if label == "PRMSE":
-        sigma = config.sigma_k * cand.sigma_prmse_m
-        allowed = [float(np.hypot(b * f, sigma)) + tie for f in (1.0, 1.0 + config.margin)]
-    else:
-        sigma = config.sigma_k * cand.sigma_roe_deg
-        allowed = [b * f + sigma + tie for f in (1.0, 1.0 + config.margin)]
-    if c <= allowed[0]:
-        return None, ""
-    rel = (c / b - 1.0) * 100.0 if b > 0 else float("inf")
-    text = f"{label} {c:.4g} {unit} is {rel:+.1f} % against {b:.4g} {unit}"
+    sigma = config.sigma_k * (cand.sigma_prmse_m if label == "PRMSE" else cand.sigma_roe_deg)
+    cmp = compare(label, _errors(cand, label), _errors(base, label), config, ev.stride, sigma)
     margin = f"the {config.margin:.0%} margin"
-    if c <= allowed[1]:
-        return "within", f"{text}: worse beyond its own sigma, within {margin}"
-    p_value = paired_p_value(errors(cand), errors(base), ev.stride)
-    if p_value < config.significance:
-        return "worse", f"{text}: worse by more than {margin} and its own sigma (paired test p = {p_value:.2g})"
-    return "not_significant", (f"{text}: worse by more than {margin}, but not significantly over these windows "
-                               f"(paired test p = {p_value:.2g} >= {config.significance:g})")
+    if cmp.outcome == "within":
+        return "within", f"{cmp.text}: worse beyond its own sigma, within {margin}"
+    if cmp.outcome == "worse":
+        return "worse", f"{cmp.text}: worse by more than {margin} and its own sigma (paired test p = {cmp.p_value:.2g})"
+    if cmp.outcome == "not_significant":
+        return "not_significant", (f"{cmp.text}: worse by more than {margin}, but not significantly over these "
+                                   f"windows (paired test p = {cmp.p_value:.2g} >= {config.significance:g})")
+    return None, ""
 
 
 # ----------------------------------------------------------------------------- rule checks
@@ -295,48 +349,72 @@ def _given_limitations(ev: Evidence) -> list[str]:
     return list(ev.given_limitations)
 
 
-def _implausible(check: PlausibilityCheck, ev: Evidence) -> list[str]:
-    return [x.text for x in ev.inputs.implausible if x.check is check]
+def _implausible(check: str, ev: Evidence) -> list[str]:
+    return [x.text for x in ev.inputs.implausible if x.check == check]
 
 
-def _heldout_comparisons(ev: Evidence) -> list[tuple[bool, str]]:
-    """``(significant, text)`` of each metric on which the held-out candidate is worse than the zero or the
-    constant bias on its windows beyond the ties (paired test over non-overlapping windows)."""
-    h, out = ev.heldout, []
-    if h is None:
-        return out
-    n = len(h.pos_err_m)
-    for name, (kind, pos, rot) in h.others.items():
-        if kind not in (BiasSourceKind.ZERO, BiasSourceKind.CONSTANT_FIRST_WINDOW):
-            continue
-        for label, unit, hv, bv, tie, errs in (
-                ("PRMSE", "m", _rms(h.pos_err_m), _rms(pos), ev.config.tie_prmse_m, (h.pos_err_m ** 2, pos ** 2)),
-                ("ROE", "deg", float(np.mean(h.rot_err_deg)), float(np.mean(rot)), ev.config.tie_roe_deg,
-                 (h.rot_err_deg, rot))):
-            if hv <= bv + tie:
-                continue
-            p_value = paired_p_value(*errs, ev.stride)
-            text = (f"held out: '{h.name}' {label} {hv:.4g} {unit} is worse than the '{name}' bias's {bv:.4g} {unit} "
-                    f"on the same {n} windows")
-            if p_value < ev.config.significance:
-                out.append((True, f"{text} (p = {p_value:.2g}): on poses it was not fitted to the recovered bias does "
-                                  "worse than no estimate (it absorbed errors of the poses it saw)"))
-            else:
-                out.append((False, f"{text}, not significantly (p = {p_value:.2g}): held out it is no better than "
-                                   "that bias"))
+def _against_zero_or_constant(ev: Evidence) -> list[tuple[str, Comparison, str, bool]]:
+    """``(where, comparison, baseline, within_sigma_of_zero)`` of every comparison with the zero bias (in
+    sample and held out) and with the constant bias (held out; in sample it is a baseline), by the one
+    :func:`compare` without sigma allowance, where the candidate is worse than the baseline beyond the
+    tie; ``within_sigma_of_zero`` for a zero baseline the candidate's bias is within its sigma of."""
+    k, out = ev.config.sigma_k, []
+    pairs = [("", ev.cand, zero.name, zero) for zero in ev.others(BiasSourceKind.ZERO)]
+    if ev.heldout is not None:
+        h = ev.heldout.metrics
+        pairs += [("held out: ", h, name, other) for name, other in ev.heldout.others.items()
+                  if other[0] in (BiasSourceKind.ZERO, BiasSourceKind.CONSTANT_FIRST_WINDOW)]
+    for where, cand, name, base in pairs:
+        is_zero = (base[0] if isinstance(base, tuple) else base.kind) is BiasSourceKind.ZERO
+        for label in ("PRMSE", "ROE"):
+            cmp = compare(label, _errors(cand, label), _errors(base, label), ev.config, ev.stride)
+            if cmp.outcome is not None:
+                out.append((where, cmp, name, is_zero and within_sigma_of_zero(cand, label, k)))
     return out
 
 
-def _rms(x: np.ndarray) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
+def _worse_than(ev: Evidence, held_out: bool) -> list[str]:
+    """Worse than the zero (or, held out, the constant) bias: beyond the margin and significantly."""
+    out = []
+    for where, cmp, name, _ in _against_zero_or_constant(ev):
+        if cmp.outcome != "worse" or bool(where) != held_out:
+            continue
+        who = ev.heldout.metrics.name if held_out else ev.candidate
+        n = len(ev.heldout.metrics.pos_err_m) if held_out else ev.cand.windows
+        text = (f"{where}'{who}' {cmp.text} for the '{name}' bias on the same {n} windows: worse by more than the "
+                f"{ev.config.margin:.0%} margin, significantly (paired test p = {cmp.p_value:.2g})")
+        out.append(text + (": on poses it was not fitted to the recovered bias does worse than that bias (it absorbed "
+                           "errors of the poses it saw)" if held_out else
+                           ": subtracting it makes the integration worse than no bias estimate at all"))
+    return out
 
 
-def _heldout_worse(ev: Evidence) -> list[str]:
-    return [t for significant, t in _heldout_comparisons(ev) if significant]
+def _tie_words(cmp: Comparison, config: ValidationConfig) -> str:
+    if cmp.outcome == "within":
+        return f"within the {config.margin:.0%} margin"
+    return f"not significantly (paired test p = {cmp.p_value:.2g} >= {config.significance:g})"
 
 
-def _heldout_not_significant(ev: Evidence) -> list[str]:
-    return [t for significant, t in _heldout_comparisons(ev) if not significant]
+def _no_better(ev: Evidence, held_out: bool) -> list[str]:
+    """Worse than the zero (or, held out, the constant) bias, but tied: within the margin or not
+    significantly; a candidate within its own sigma of zero is :func:`_indistinguishable` instead."""
+    out = []
+    for where, cmp, name, near_zero in _against_zero_or_constant(ev):
+        if cmp.outcome == "worse" or near_zero or bool(where) != held_out:
+            continue
+        who = ev.heldout.metrics.name if held_out else ev.candidate
+        out.append(f"{where}'{who}' {cmp.text} for the '{name}' bias, {_tie_words(cmp, ev.config)}: no better than "
+                   "that bias")
+    return out
+
+
+def _indistinguishable(ev: Evidence) -> list[str]:
+    """A candidate (or its held-out version) within its own sigma of zero that ties the zero bias."""
+    k = ev.config.sigma_k
+    return [f"{where}'{ev.heldout.metrics.name if where else ev.candidate}' is indistinguishable from zero at its "
+            f"sigma: its mean bias is within {k:g} of its sigmas of zero and its {cmp.text} for the zero bias, "
+            f"{_tie_words(cmp, ev.config)}" for where, cmp, _, near_zero in _against_zero_or_constant(ev)
+            if near_zero and cmp.outcome != "worse"]
 
 
 def _input_finding(code: str, ev: Evidence) -> list[str]:
@@ -405,8 +483,8 @@ def _too_uncertain(label: str, ev: Evidence, base: SourceMetrics) -> list[str]:
     zero bias (a near-perfect baseline, a simulator's truth, makes any relative margin moot; without a
     zero row any excess counts)."""
     cand, config, zero = ev.cand, ev.config, ev.zero
-    unit, attr, _, tie = _METRICS[label]
-    k, tie = config.sigma_k, getattr(config, tie)
+    unit, attr, tie = ("m", "prmse_m", config.tie_prmse_m) if label == "PRMSE" else ("deg", "roe_deg", config.tie_roe_deg)
+    k = config.sigma_k
     s = k * (cand.sigma_prmse_m if label == "PRMSE" else cand.sigma_roe_deg)
     c, b = getattr(cand, attr), getattr(base, attr)
     z = None if zero is None else getattr(zero, attr)
@@ -420,18 +498,6 @@ def _too_uncertain(label: str, ev: Evidence, base: SourceMetrics) -> list[str]:
 def _against_baseline(label: str, outcome: str, ev: Evidence, base: SourceMetrics) -> list[str]:
     got, text = _outcome(ev, base, label)
     return [text] if got == outcome else []
-
-
-def _worse_than_zero(ev: Evidence) -> list[str]:
-    """The candidate integrates worse than the zero bias (beyond the ties), whatever its sigma."""
-    cand, out = ev.cand, []
-    for zero in ev.others(BiasSourceKind.ZERO):
-        for label, unit, c, z, tie in (("PRMSE", "m", cand.prmse_m, zero.prmse_m, ev.config.tie_prmse_m),
-                                       ("ROE", "deg", cand.roe_deg, zero.roe_deg, ev.config.tie_roe_deg)):
-            if c > z + tie:
-                out.append(f"'{ev.candidate}' {label} {c:.4g} {unit} is worse than the zero bias's {z:.4g} {unit}: "
-                           "subtracting it makes the integration worse than no bias estimate at all")
-    return out
 
 
 def _flagged(ev: Evidence) -> list[str]:
@@ -464,6 +530,10 @@ _POSITION_STEP = ("position error: record more varied motion (accelerate along a
                   "capture) to position-only; check the accelerometer units ('biasgt inspect')")
 _ROTATION_STEP = ("rotation error: check the gyro units and the pose-to-IMU rotation (recovery.json T_imu_pose), and "
                   "rotate more about every axis")
+_HELDOUT_STEP = ("held out the bias does no better than a simpler one: look for pose artefacts the bias absorbed "
+                 "(biasgt report's residual plot), and validate against an independent reference if there is one")
+_ZERO_STEP = ("the bias does no better than none: check the IMU units and the pose-to-IMU frame ('biasgt inspect', "
+              "recovery.json T_imu_pose), and whether the IMU's bias is measurable at all in this recording")
 #: Input findings that limit what a bias recovered from that input is good for: (what, next step).
 _LIMITING_FINDINGS = {
     "POSE_RATE_LOW": ("the pose stream is slow",
@@ -477,22 +547,34 @@ _LIMITING_FINDINGS = {
                           "resample the IMU to the calibration's rate (biasgt convert --resample-hz) or correct "
                           "rate_hz in sensor.yaml, and recover again"),
 }
+#: The next step of a bias beyond the sensor's range.
+BIAS_RANGE_STEP = ("if the sensor's bias range is larger, give it in sensor.yaml (gyroscope_bias_max [rad/s], "
+                   "accelerometer_bias_max [m/s^2]); else check the pose-to-IMU frame")
+#: The next step of a frame mismatch.
+FRAME_STEP = ("check the pose-to-IMU rotation: give the IMU's mounting (T_imu_<frame> in the calibration, e.g. "
+               "from the URDF or a Kalibr run) and recover again, or recover with --extrinsic estimate so that the "
+               "rotation is estimated; a pose stream that lacks rotation about some axis (planar wheel odometry) "
+               "cannot give a bias ground truth")
+
+
+#: The plausibility checks (validation.plausibility.PlausibilityCheck values): (what, next step).
 _IMPLAUSIBLE_WORDS = {
-    PlausibilityCheck.BIAS_RANGE: ("a bias beyond the sensor's bias range", BIAS_RANGE_STEP),
-    PlausibilityCheck.GRAVITY_TILT: ("gravity tilted in a level pose frame, or changing direction", FRAME_STEP),
-    PlausibilityCheck.ROTATION_RESIDUAL: ("the recovered attitude far off the poses'", FRAME_STEP),
-    PlausibilityCheck.FRAME_SWAP: ("a gyro axis reading another axis's rate (a swapped frame)", FRAME_STEP),
+    "bias_range": ("a bias beyond the sensor's bias range", BIAS_RANGE_STEP),
+    "gravity_tilt": ("gravity tilted in a level pose frame, or changing direction", FRAME_STEP),
+    "rotation_residual": ("the recovered attitude far off the poses'", FRAME_STEP),
+    "frame_swap": ("a gyro axis reading another axis's rate (a swapped frame)", FRAME_STEP),
 }
 
 register(Rule("GIVEN_FAIL", Verdict.FAIL, "a reason for a FAIL found by the caller", _given_fails))
 for _check, (_what, _step) in _IMPLAUSIBLE_WORDS.items():
-    register(Rule(f"IMPLAUSIBLE_{_check.name}", Verdict.FAIL, f"physically impossible: {_what}, whatever the "
+    register(Rule(f"IMPLAUSIBLE_{_check.upper()}", Verdict.FAIL, f"physically impossible: {_what}, whatever the "
                   "integration errors", partial(_implausible, _check), _step))
 register(Rule("HELDOUT_WORSE", Verdict.FAIL, "held out (the reference is the stream the bias was fitted to): worse "
-              "than the zero or the constant bias on the held-out windows, significantly (paired test)",
-              _heldout_worse))
-register(Rule("HELDOUT_NOT_SIGNIFICANT", Verdict.WARN, "held out: worse than the zero or the constant bias on the "
-              "held-out windows, not significantly", _heldout_not_significant))
+              "than the zero or the constant bias on the held-out windows by more than the margin and significantly "
+              "(paired t-test)", partial(_worse_than, held_out=True), _HELDOUT_STEP))
+register(Rule("HELDOUT_NO_BETTER", Verdict.WARN, "held out: worse than the zero or the constant bias on the "
+              "held-out windows, but within the margin or not significantly: no better than that bias",
+              partial(_no_better, held_out=True), _HELDOUT_STEP))
 for _code, (_what, _step) in _LIMITING_FINDINGS.items():
     register(Rule(f"INPUT_{_code}", Verdict.WARN, f"limitation: {_what} (input finding {_code})",
                   partial(_input_finding, _code), _step))
@@ -528,8 +610,15 @@ for _label, _step in (("PRMSE", _POSITION_STEP), ("ROE", _ROTATION_STEP)):
     register(Rule(f"{_label}_NOT_SIGNIFICANT", Verdict.WARN, f"{_label} worse than a baseline by more than the "
                   "margin, not significantly", partial(_against_baseline, _label, "not_significant"), _step,
                   per_baseline=True))
-register(Rule("WORSE_THAN_ZERO", Verdict.FAIL, "PRMSE or ROE worse than the zero bias beyond the ties, whatever "
-              "its sigma", _worse_than_zero))
+register(Rule("WORSE_THAN_ZERO", Verdict.FAIL, "PRMSE or ROE worse than the zero bias by more than the margin "
+              "and significantly (paired t-test), whatever its sigma", partial(_worse_than, held_out=False),
+              _ZERO_STEP))
+register(Rule("NO_BETTER_THAN_ZERO", Verdict.WARN, "PRMSE or ROE worse than the zero bias, but within the margin or "
+              "not significantly: no better than no bias estimate", partial(_no_better, held_out=False), _ZERO_STEP))
+register(Rule("INDISTINGUISHABLE_FROM_ZERO", Verdict.WARN, "the candidate (or its held-out version) is within its "
+              "own sigma of zero and ties the zero bias: indistinguishable from zero at its sigma (never a FAIL)",
+              _indistinguishable, "nothing to fix if the IMU's bias is near zero: the recording cannot tell it from "
+              "zero; for a bias to learn from, record longer or with more motion so its sigma shrinks"))
 register(Rule("MANY_FLAGGED", Verdict.WARN, "more than warn_flagged_fraction of the candidate's windows flagged "
               "as outliers (error > flag_k x its median)", _flagged,
               "many flagged windows: look at them in the quality report (pose outliers, IMU glitches); recover with "

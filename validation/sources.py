@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import enum
 import logging
 from collections.abc import Sequence as Sequence_
 from dataclasses import dataclass
@@ -18,20 +17,10 @@ from pipeline.io.asl import read_asl_state_csv
 from pipeline.types import (Sequence,
                             StateSeries)
 from recovery.outputs import RecoveryOutputs
+from validation.config import BiasSourceKind  # defined with the options: light for the CLI's help
 from validation.reference import check_increasing
 
 log = logging.getLogger(__name__)
-
-
-class BiasSourceKind(str, enum.Enum):
-    """What a bias source is (decides its role in the verdict)."""
-
-    ZERO = "zero"
-    CONSTANT_FIRST_WINDOW = "constant_first_window"
-    DATASET = "dataset"
-    RECOVERED = "recovered"
-    FILE = "file"
-
 
 
 # ----------------------------------------------------------------------------- recovery output and bias files

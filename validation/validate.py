@@ -406,10 +406,12 @@ def _source_metrics(imu: ImuSeries, plan: WindowPlan, starts: np.ndarray, evalua
         g_src = gravity if src.gravity_mps2 is None else _checked_gravity(src.gravity_mps2, f"{src.name}.gravity_mps2")
         pos, rot = window_errors(imu, at_imu[src.name], reference, starts, plan.n, g_src, config)
         flagged, thr_p, thr_r = _flags(pos, rot, config)
-        sigma_pos, sigma_rot = sigma_window_errors(_std_at(src.track, t0), reference.R[starts], window_s, g_src)
+        std = _std_at(src.track, t0)
+        sigma_pos, sigma_rot = sigma_window_errors(std, reference.R[starts], window_s, g_src)
         metrics[src.name] = SourceMetrics(
             src.name, src.kind, t0, pos, rot, prmse_m(pos), roe_deg(rot),
             flagged, thr_p, thr_r, sigma_pos, sigma_rot, at_imu[src.name][starts].mean(axis=0), g_src,
+            std.mean(axis=0),
         )
         log.info("%-12s PRMSE %.4f m  ROE %.4f deg  (%d windows, %d flagged)", src.name,
                  metrics[src.name].prmse_m, metrics[src.name].roe_deg, len(pos), int(flagged.sum()))
@@ -433,16 +435,17 @@ def _heldout_metrics(imu: ImuSeries, heldout: BiasSource, reference: ReferenceSt
     g = gravity if heldout.gravity_mps2 is None else np.asarray(heldout.gravity_mps2, dtype=np.float64)
     pos, rot = window_errors(imu, bias, reference, starts[ok], plan.n, g, config)
     flagged, thr_p, thr_r = _flags(pos, rot, config)
-    metrics[heldout.name] = SourceMetrics(heldout.name, heldout.kind, imu.t_ns[starts[ok]], pos, rot, prmse_m(pos),
-                                          roe_deg(rot), flagged, thr_p, thr_r, mean_bias=bias[starts[ok]].mean(axis=0),
-                                          gravity_mps2=g)
+    t0 = imu.t_ns[starts[ok]]
+    metrics[heldout.name] = SourceMetrics(heldout.name, heldout.kind, t0, pos, rot, prmse_m(pos), roe_deg(rot), flagged,
+                                          thr_p, thr_r, mean_bias=bias[starts[ok]].mean(axis=0), gravity_mps2=g,
+                                          mean_std=_std_at(heldout.track, t0).mean(axis=0))
     same = {name: m for name, m in metrics.items() if name != heldout.name and len(m.pos_err_m) == len(ok)}
     part["others_on_these_windows"] = {name: {"prmse_m": prmse_m(m.pos_err_m[ok]), "roe_deg": roe_deg(m.rot_err_deg[ok])}
                                        for name, m in same.items()}
     if not judge:
         return part, None
-    return part, HeldOut(heldout.name, pos, rot, {name: (m.kind, m.pos_err_m[ok], m.rot_err_deg[ok])
-                                                  for name, m in same.items()})
+    return part, HeldOut(metrics[heldout.name], {name: (m.kind, m.pos_err_m[ok], m.rot_err_deg[ok])
+                                                 for name, m in same.items()})
 
 
 # ----------------------------------------------------------------------------- output
