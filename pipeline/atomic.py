@@ -43,7 +43,7 @@ def no_space_error(exc: BaseException, path: str | Path) -> OutputLocationError 
                                path=path, hint="free some space there (or raise the quota), or choose another --out")
 
 
-def _umask() -> int:
+def umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
     return mask
@@ -51,7 +51,7 @@ def _umask() -> int:
 
 def _default_mode(tmp: Path, *, is_dir: bool) -> None:
     """Give a temp file/folder the mode a plain open()/mkdir() would (mkstemp/mkdtemp use 0600/0700)."""
-    os.chmod(tmp, (0o777 if is_dir else 0o666) & ~_umask())
+    os.chmod(tmp, (0o777 if is_dir else 0o666) & ~umask())
 
 
 @contextlib.contextmanager

@@ -61,7 +61,7 @@ def robust_norm_threshold(k: float, dim: int) -> float:
     return float(math.sqrt(chdtri(dim, math.erfc(k / math.sqrt(2.0)))))  # P(|z| > k) = erfc(k / sqrt 2)
 
 
-def _robust(base: gtsam.noiseModel.Base, loss: RobustLoss, k: float) -> gtsam.noiseModel.Base:
+def robust_noise(base: gtsam.noiseModel.Base, loss: RobustLoss, k: float) -> gtsam.noiseModel.Base:
     """``base`` wrapped in the M-estimator ``loss`` at ``k`` sigmas (:func:`robust_norm_threshold`)."""
     if loss == RobustLoss.NONE:
         return base
@@ -113,13 +113,13 @@ class BuiltWindow:
     imu_factors: list[Any]
     neg_log_const: float  # sum of the Gaussian normalisers (for the evidence)
     pose_index: list[int] = field(default_factory=list)  # graph index of each pose_factors entry
-    imu_part: tuple[int, float] = (0, 0.0)  # the leading factors from _add_imu_factors: count, normalisers
+    imu_part: tuple[int, float] = (0, 0.0)  # the leading factors from add_imu_factors: count, normalisers
 
 
 _BIAS_POOL: list[gtsam.Values] = []  # one Values of zero biases B(0..n-1), grown on demand
 
 
-def _bias_values(bias: np.ndarray, K: int) -> gtsam.Values:
+def bias_values(bias: np.ndarray, K: int) -> gtsam.Values:
     """A Values holding ``B(k) = bias[k]`` for k < K (``bias`` [6] or [K, 6], gyro then acc).
 
     ``Values.insert(key, ConstantBias)`` costs ~0.1 ms in the Python binding (pybind tries
@@ -174,14 +174,14 @@ def build_window(
         pims = basis.pims
         models = [gtsam.noiseModel.Gaussian.Covariance(c) for c in basis.covariances(imu_noise)]
     Xs, Z = _initial_poses(samples, kf, T_imu_pose, opts, init)
-    built = BuiltWindow(gtsam.NonlinearFactorGraph(), _bias_values(bias0, len(kf)), [], [], 0.0)
+    built = BuiltWindow(gtsam.NonlinearFactorGraph(), bias_values(bias0, len(kf)), [], [], 0.0)
     vel = _initial_velocities(kf, Xs, init)
     if kf.measured is not None and init.values is None:
         Xs, vel = bridge_gaps(pims, Xs, vel, kf.t_ns, kf.measured)
     for k in range(len(kf)):
         built.values.insert(X(k), Xs[k])
         built.values.insert(V(k), vel[k])
-    _add_imu_factors(built, pims, opts, init, bias0, models)
+    add_imu_factors(built, pims, opts, init, bias0, models)
     built.imu_part = (int(built.graph.size()), built.neg_log_const)
     skip_set = set() if skip is None else set(int(i) for i in skip)
     skip_set.update(int(i) for i in kf.unmeasured)
@@ -244,7 +244,7 @@ def noise_basis(samples: MidpointSamples, imu_noise: ImuNoise, opts: SolveOption
                                  bias0 if bias0.ndim == 1 else bias0[:-1])
 
 
-def _add_imu_factors(built: BuiltWindow, pims: list[Any], opts: SolveOptions, init: WindowInit, bias0: np.ndarray,
+def add_imu_factors(built: BuiltWindow, pims: list[Any], opts: SolveOptions, init: WindowInit, bias0: np.ndarray,
                      models: list[Any] | None = None) -> None:
     """The IMU factors between consecutive keyframes (gravity direction as a variable when estimated,
     with its prior) and the prior on the first bias. ``models``: noise models replacing the
@@ -295,7 +295,7 @@ class _FusedModels:
         n = 1 if self.kf.count is None else int(self.kf.count[k])
         if (kind, n) not in self.cache:
             base = make(n)
-            self.cache[(kind, n)] = (base, _robust(base, self.opts.robust_loss, self.opts.robust_k))
+            self.cache[(kind, n)] = (base, robust_noise(base, self.opts.robust_loss, self.opts.robust_k))
         return self.cache[(kind, n)]
 
 
@@ -317,7 +317,7 @@ def _add_position_factors(built: BuiltWindow, kf: KeyframePoses, T_imu_pose: np.
                           skip: set[int]) -> None:
     """Position-only streams: the tracked point at the lever arm (a variable with ``estimate_extrinsic``)."""
     base = gtsam.noiseModel.Isotropic.Sigma(3, opts.position_sigma_m)
-    model = _robust(base, opts.robust_loss, opts.robust_k)
+    model = robust_noise(base, opts.robust_loss, opts.robust_k)
     lever = np.asarray(T_imu_pose, dtype=float)[:3, 3]
     if opts.estimate_extrinsic:
         built.values.insert(L(0), lever.copy())
@@ -377,7 +377,7 @@ def _add_relative_factors(built: BuiltWindow, Xs: list[Any], T_imu_pose: np.ndar
     h = opts.relative_horizon
     # Each pose enters up to 2h factors; inflate so the information is not counted 2h times.
     base = gtsam.noiseModel.Gaussian.Covariance(cov * 2.0 * h)
-    model = _robust(base, opts.robust_loss, opts.robust_k)
+    model = robust_noise(base, opts.robust_loss, opts.robust_k)
     for k in range(K):
         if k in skip:
             continue
@@ -436,7 +436,7 @@ def _add_velocity_priors(built: BuiltWindow, kf: KeyframePoses, opts: SolveOptio
             span = math.sqrt(12.0 * float(kf.dt2_s2[k]) * (n - 1) / (n * (n + 1))) if n > 1 else 0.0
             var += velocity_fit_variance(gm, span, n)
         base = gtsam.noiseModel.Isotropic.Sigma(3, math.sqrt(var))
-        f = gtsam.PriorFactorVector(V(k), kf.v_mps[k], _robust(base, opts.robust_loss, opts.robust_k))
+        f = gtsam.PriorFactorVector(V(k), kf.v_mps[k], robust_noise(base, opts.robust_loss, opts.robust_k))
         _add_pose(built, k, f, base)
 
 

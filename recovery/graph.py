@@ -22,7 +22,7 @@ from recovery.config import PoseFactorMode
 from recovery.pose_error import error_key
 from recovery.preintegration import ImuNoise, MidpointSamples, NoiseBasis
 from recovery.rotations import matrix_to_quat_wxyz
-from recovery.factors import _add_imu_factors, BuiltWindow, build_window, result_subset
+from recovery.factors import add_imu_factors, BuiltWindow, build_window, result_subset
 from recovery.initial import initial_orientations
 from recovery.window import KeyframePoses, SolveOptions, WindowInit, WindowSolution
 
@@ -158,7 +158,7 @@ def _optimize(built: BuiltWindow, opts: SolveOptions, keep_linearisation: bool =
             optimizer.iterate()
             errors.append(float(optimizer.error()))
             if optimizer.lambda_() >= _LAMBDA_UPPER_BOUND:
-                _refuse_unconverged(built, optimizer.values(), order, errors[-1])
+                refuse_unconverged(built, optimizer.values(), order, errors[-1])
                 break
         if _converged(errors, opts):
             break
@@ -175,7 +175,7 @@ def _optimize(built: BuiltWindow, opts: SolveOptions, keep_linearisation: bool =
 UNCONVERGED_PREDICTED_SHARE = 1e-3
 
 
-def _refuse_unconverged(built: BuiltWindow, values: gtsam.Values, order: gtsam.Ordering, cost: float) -> None:
+def refuse_unconverged(built: BuiltWindow, values: gtsam.Values, order: gtsam.Ordering, cost: float) -> None:
     """Raise where LM stopped at its damping bound though a Gauss-Newton step from there predicts a
     decrease beyond ``UNCONVERGED_PREDICTED_SHARE`` of the cost: its result is no optimum.
 
@@ -219,7 +219,7 @@ def _reweighted(prev: BuiltWindow, basis: NoiseBasis, imu_noise: ImuNoise, opts:
     building the pose factors and initial values again."""
     bias0 = np.zeros(6) if init.bias is None else np.asarray(init.bias, dtype=float)
     built = BuiltWindow(gtsam.NonlinearFactorGraph(), gtsam.Values(), prev.pose_factors, [], 0.0)
-    _add_imu_factors(built, basis.pims, opts, init,
+    add_imu_factors(built, basis.pims, opts, init,
                      bias0, [gtsam.noiseModel.Gaussian.Covariance(c) for c in basis.covariances(imu_noise)])
     size, nlc = int(built.graph.size()), built.neg_log_const
     for i in range(prev.imu_part[0], int(prev.graph.size())):

@@ -20,19 +20,19 @@ from recovery.graph import solve_window
 from recovery.window import WindowInit, WindowSolution
 from recovery.noise import NoiseChoice
 from recovery.segments import plan_segments
-from recovery.problem import _Problem, _shifted_stamps
-from recovery.result import _bias_function, _solve_rate_hz
+from recovery.problem import Problem, shifted_stamps
+from recovery.result import bias_function, solve_rate_hz
 from recovery.records import GravityStage, Inputs
 
 
 log = logging.getLogger(__name__)
 
 
-def _gravity(problem: _Problem, inputs: Inputs, offset_s: float, T: np.ndarray, ext_sol: WindowSolution | None,
+def solve_gravity(problem: Problem, inputs: Inputs, offset_s: float, T: np.ndarray, ext_sol: WindowSolution | None,
              estimate_lever: bool, choice: NoiseChoice, config: RecoveryConfig,
              extrinsic_prior: tuple[np.ndarray, np.ndarray] | None = None) -> GravityStage:
     """Stage 7: one decimated solve over a long window for the gravity direction (and the lever arm)."""
-    t_pose = _shifted_stamps(inputs.poses, offset_s)
+    t_pose = shifted_stamps(inputs.poses, offset_s)
     info: dict[str, Any] = {}
     ext_info: dict[str, Any] = {}
     unit = np.array([0.0, 0.0, -1.0])
@@ -40,7 +40,7 @@ def _gravity(problem: _Problem, inputs: Inputs, offset_s: float, T: np.ndarray, 
     gopts = replace(inputs.opts, position_sigma_m=choice.position_sigma_m, rotation_sigma_rad=choice.rotation_sigma_rad,
                     marginal_extras=True, pose_error=choice.pose_error)
     refine_lever = ext_sol is not None and inputs.has_rot and estimate_lever
-    seg_s, seg_overlap_s = config.segment_plan(_solve_rate_hz(config, problem))
+    seg_s, seg_overlap_s = config.segment_plan(solve_rate_hz(config, problem))
     if not inputs.has_rot and config.position_only_window_s > seg_s:  # see position_only_window_s
         seg_s, seg_overlap_s = config.position_only_window_s, config.position_only_window_s / 6
     spans = [(max(a, int(t_pose[0])), min(b, int(t_pose[-1]))) for a, b in inputs.pieces]
@@ -68,11 +68,11 @@ def _gravity(problem: _Problem, inputs: Inputs, offset_s: float, T: np.ndarray, 
             if "gravity_cov_tangent" in gsol.extras:
                 info["tilt_std_rad"] = float(np.sqrt(np.trace(gsol.extras["gravity_cov_tangent"]) / 2))
                 if inputs.level_test and inputs.estimate_gravity:
-                    info["level_test"] = _level_test(unit, info["tilt_std_rad"], config.gravity_tilt_sigmas,
+                    info["level_test"] = level_gravity_test(unit, info["tilt_std_rad"], config.gravity_tilt_sigmas,
                                                      config.gravity_level_tolerance_deg)
                     if info["level_test"]["level"]:
                         unit, estimated = np.array([0.0, 0.0, -1.0]), False
-            problem.set_linearisation(T_imu_pose=T, gravity_unit=unit, bias=_bias_function(gsol))
+            problem.set_linearisation(T_imu_pose=T, gravity_unit=unit, bias=bias_function(gsol))
             info["window_s"] = float((gb - ga) / NS_PER_S)
     elif inputs.estimate_gravity:
         unit = problem.gravity_world / np.linalg.norm(problem.gravity_world)
@@ -81,7 +81,7 @@ def _gravity(problem: _Problem, inputs: Inputs, offset_s: float, T: np.ndarray, 
     return GravityStage(unit, bool(estimated), gsol, gwin, T, info, ext_info, seg_s, seg_overlap_s)
 
 
-def _level_test(unit: np.ndarray, tilt_std_rad: float, max_sigmas: float, tolerance_deg: float) -> dict[str, Any]:
+def level_gravity_test(unit: np.ndarray, tilt_std_rad: float, max_sigmas: float, tolerance_deg: float) -> dict[str, Any]:
     """Whether a level frame keeps its nominal gravity (``recovery.json`` ``gravity.level_test``).
 
     The tilt of gravity from the frame's -z and an accelerometer bias explain the same specific

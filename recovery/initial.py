@@ -11,7 +11,7 @@ from recovery.preintegration import MidpointSamples
 from recovery.window import KeyframePoses
 
 
-def _savgol(y: np.ndarray, win: int, dt: float, deriv: int) -> np.ndarray:
+def savgol(y: np.ndarray, win: int, dt: float, deriv: int) -> np.ndarray:
     """First or second derivative of a local quadratic least-squares fit (Savitzky-Golay), [K, C].
 
     Same values as ``scipy.signal.savgol_filter(y, win, 2, deriv=deriv, delta=dt, axis=0,
@@ -62,7 +62,7 @@ def initial_velocity(t_s: np.ndarray, p_m: np.ndarray, window_s: float = 0.3) ->
     dt = float(np.median(np.diff(t_s)))
     win = int(round(window_s / max(dt, 1e-4))) | 1
     win = max(5, min(win, K if K % 2 else K - 1))
-    vel = _savgol(np.asarray(p_m, dtype=float), win, dt, deriv=1)
+    vel = savgol(np.asarray(p_m, dtype=float), win, dt, deriv=1)
     # irregular stamps (dropouts): fall back to differences where the grid assumption breaks
     irregular = np.abs(np.diff(t_s) - dt) > 0.5 * dt
     if irregular.any():
@@ -155,7 +155,7 @@ def initial_orientations(
         dt = float(np.median(np.diff(t))) if K > 1 else 0.05
         win = max(5, int(round(0.5 / max(dt, 1e-3))) | 1)
         win = min(win, K - (1 - K % 2))
-        acc_w = _savgol(kf.p_m, win, dt, deriv=2)
+        acc_w = savgol(kf.p_m, win, dt, deriv=2)
     else:
         acc_w = np.zeros((K, 3))
     g = np.array([0.0, 0.0, -gravity_mps2])

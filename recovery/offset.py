@@ -20,7 +20,7 @@ from recovery.config import (
 from recovery.graph import solve_window
 from recovery.window import SolveOptions, WindowInit
 from recovery.preintegration import ImuNoise
-from recovery.problem import COARSE_OFFSET_SPAN_S, _calibration_window, _Problem, _shifted_stamps
+from recovery.problem import COARSE_OFFSET_SPAN_S, calibration_window, Problem, shifted_stamps
 from recovery.records import Inputs
 
 log = logging.getLogger(__name__)
@@ -49,7 +49,7 @@ class _OffsetRefinement:
     method: OffsetRefineMethod
 
 
-def _refine_offset(problem: _Problem, coarse_s: float, coarse_std_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,
+def refine_offset(problem: Problem, coarse_s: float, coarse_std_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,
                    opts: SolveOptions, config: RecoveryConfig) -> _OffsetRefinement:
     """The offset at the minimum of the optimised graph cost, its std from the cost's curvature.
 
@@ -134,7 +134,7 @@ def offset_spread_windows(imu: ImuSeries, pieces: list[tuple[int, int]], overlap
         if side[1] - side[0] < length_ns // 2:
             continue
         try:
-            out.append(_calibration_window(imu, pieces, side, min(length_ns, side[1] - side[0]) / NS_PER_S,
+            out.append(calibration_window(imu, pieces, side, min(length_ns, side[1] - side[0]) / NS_PER_S,
                                            pose_t_ns))
         except RecoveryError:
             continue
@@ -152,24 +152,24 @@ def spread_std_s(offsets_s: list[float], curvature_std_s: float) -> float:
     return float(max(curvature_std_s, np.std(offsets_s, ddof=1)))
 
 
-def offsets_elsewhere(problem: _Problem, inputs: Inputs, overlap: tuple[int, int], window: tuple[int, int],
+def offsets_elsewhere(problem: Problem, inputs: Inputs, overlap: tuple[int, int], window: tuple[int, int],
                       refined: _OffsetRefinement, T: np.ndarray, config: RecoveryConfig) -> tuple[float, ...]:
     """The offset refined again on the :func:`offset_spread_windows` of ``window`` (one whose
     refinement fails is left out: the curvature's sigma then stands with fewer of them)."""
     out = []
     for win in offset_spread_windows(inputs.imu, inputs.pieces, overlap, window,
-                                     _shifted_stamps(inputs.poses, refined.offset_s)):
+                                     shifted_stamps(inputs.poses, refined.offset_s)):
         try:
-            out.append(_refine_offset(problem, refined.offset_s, refined.std_s, win, inputs.calibration_noise, T,
+            out.append(refine_offset(problem, refined.offset_s, refined.std_s, win, inputs.calibration_noise, T,
                                       inputs.opts, config).offset_s)
         except (BiasgtError, ValueError, np.linalg.LinAlgError) as exc:
             log.info("clock offset on another window failed (%s)", exc)
     return tuple(out)
 
 
-def _newton_offset(problem: _Problem, coarse_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,
+def _newton_offset(problem: Problem, coarse_s: float, window: tuple[int, int], noise: ImuNoise, T: np.ndarray,
                    opts: SolveOptions, rate: float, max_offset_s: float) -> _OffsetRefinement | None:
-    """Newton steps on the clock offset from ``coarse_s`` (see :func:`_refine_offset`); None when
+    """Newton steps on the clock offset from ``coarse_s`` (see :func:`refine_offset`); None when
     the factors give no slope (not 6-DoF absolute), a solve fails, or the steps do not settle."""
     o = replace(opts, offset_sensitivity=True)
     offset, init, table = coarse_s, None, []
@@ -197,7 +197,7 @@ def _newton_offset(problem: _Problem, coarse_s: float, window: tuple[int, int], 
 
 
 
-def _coarse_offset_inputs(imu: ImuSeries, poses: PoseSeries, pieces: list[tuple[int, int]],
+def coarse_offset_inputs(imu: ImuSeries, poses: PoseSeries, pieces: list[tuple[int, int]],
                           max_offset_s: float) -> tuple[ImuSeries, PoseSeries]:
     """The IMU and poses of the ``COARSE_OFFSET_SPAN_S`` with the most rotation (long recordings).
 
@@ -208,7 +208,7 @@ def _coarse_offset_inputs(imu: ImuSeries, poses: PoseSeries, pieces: list[tuple[
         return imu, poses
     overlap = (max(int(imu.t_ns[0]), int(poses.t_ns[0])), min(int(imu.t_ns[-1]), int(poses.t_ns[-1])))
     try:
-        a, b = _calibration_window(imu, pieces, overlap, COARSE_OFFSET_SPAN_S)
+        a, b = calibration_window(imu, pieces, overlap, COARSE_OFFSET_SPAN_S)
     except RecoveryError:
         return imu, poses
     sel = (poses.t_ns >= a) & (poses.t_ns <= b)

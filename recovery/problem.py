@@ -32,12 +32,12 @@ log = logging.getLogger(__name__)
 # ----------------------------------------------------------------------------- input handling
 
 
-def _select_stream(sequence: Sequence, pose_stream: str | None) -> tuple[str, PoseSeries]:
+def select_stream(sequence: Sequence, pose_stream: str | None) -> tuple[str, PoseSeries]:
     """The pose stream to fit: ``pose_stream``, else the io package's default priority."""
     return select_pose_stream(sequence, pose_stream)
 
 
-def _clean_poses(poses: PoseSeries, name: str, warnings: list[str]) -> PoseSeries:
+def clean_poses(poses: PoseSeries, name: str, warnings: list[str]) -> PoseSeries:
     ok = np.isfinite(poses.p_m).all(axis=1)
     if poses.quat_wxyz is not None:
         ok &= np.isfinite(poses.quat_wxyz).all(axis=1)
@@ -55,7 +55,7 @@ def _clean_poses(poses: PoseSeries, name: str, warnings: list[str]) -> PoseSerie
     return poses
 
 
-def _imu_pieces(imu: ImuSeries, config: RecoveryConfig, warnings: list[str]) -> list[tuple[int, int]]:
+def imu_pieces(imu: ImuSeries, config: RecoveryConfig, warnings: list[str]) -> list[tuple[int, int]]:
     """Gap-free spans of the IMU ``[(t0_ns, t1_ns)]``."""
     dt = np.diff(imu.t_ns)
     if not (dt > 0).all():
@@ -78,7 +78,7 @@ def _imu_pieces(imu: ImuSeries, config: RecoveryConfig, warnings: list[str]) -> 
     return pieces
 
 
-def _shifted_stamps(poses: PoseSeries, offset_s: float) -> np.ndarray:
+def shifted_stamps(poses: PoseSeries, offset_s: float) -> np.ndarray:
     return poses.t_ns + int(round(offset_s * NS_PER_S))
 
 
@@ -96,7 +96,7 @@ FUSED_KEYFRAME_RATE_HZ = 10.0  # keyframe_rate_hz null + pose_fusion: bins of th
 # 20 Hz or every sample on the clean/hard benchmarks, half the keyframes of 20 Hz)
 
 
-class _Problem:
+class Problem:
     """Pose stream + IMU; builds windows (IMU samples + keyframes) at a given clock offset.
 
     With ``fuse`` (6-DoF absolute streams), the pose samples of each keyframe bin are fused
@@ -130,7 +130,7 @@ class _Problem:
 
     def window(self, offset_s: float, t0_ns: int, t1_ns: int, rate_hz: float | None
                ) -> tuple[MidpointSamples, KeyframePoses] | None:
-        t = _shifted_stamps(self.poses, offset_s)
+        t = shifted_stamps(self.poses, offset_s)
         piece = next(((a, b) for a, b in self.pieces if a <= t0_ns <= b or a <= t1_ns <= b), None)
         if piece is None:
             return None
@@ -168,7 +168,7 @@ class _Problem:
 CALIBRATION_MAX_POSE_GAP_S = 1.0
 
 
-def _calibration_window(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: tuple[int, int],
+def calibration_window(imu: ImuSeries, pieces: list[tuple[int, int]], overlap: tuple[int, int],
                         length_s: float, pose_t_ns: np.ndarray | None = None) -> tuple[int, int]:
     """The ``length_s`` window (inside one IMU piece and the pose overlap) with the most rotation,
     among those where the poses (``pose_t_ns``, IMU clock) never pause longer than
@@ -206,7 +206,7 @@ def _longest_pause_s(t_ns: np.ndarray, start_ns: int, end_ns: int) -> float:
 
 
 
-def _continue_from(prev: WindowSolution, w: tuple[MidpointSamples, KeyframePoses],
+def continue_from(prev: WindowSolution, w: tuple[MidpointSamples, KeyframePoses],
                    gravity_unit: np.ndarray, imu: tuple[np.ndarray, np.ndarray] | None = None) -> WindowInit:
     """Initial values of a position-only segment from another segment's solution ``prev``.
 
@@ -241,14 +241,14 @@ def _continue_from(prev: WindowSolution, w: tuple[MidpointSamples, KeyframePoses
     return WindowInit(gravity_unit=gravity_unit, bias=bias, rot_wxyz=q)
 
 
-def _chained_solution(problem: "_Problem", offset_s: float, win: tuple[int, int], rate_hz: float | None,
+def chained_solution(problem: "Problem", offset_s: float, win: tuple[int, int], rate_hz: float | None,
                       imu_noise: ImuNoise, T: np.ndarray, opts: SolveOptions, gravity_unit: np.ndarray,
                       piece_s: float, overlap_s: float, seed: WindowSolution | None = None) -> Any:
     """Position-only streams: an initial guess over a long window, by consecutive shorter solves.
 
     One graph over minutes of positions, started from the closed-form attitude guess, can settle
     in a wrong attitude minimum (its pose residuals stay at a few sigma);
-    solves of ``piece_s`` chained by :func:`_continue_from` (as the segments are) do not. The
+    solves of ``piece_s`` chained by :func:`continue_from` (as the segments are) do not. The
     first solve starts from ``seed`` (a solution inside ``win``, e.g. the calibration window's)
     where given: the closed-form guess fails more easily where the positions pause.
 
@@ -262,7 +262,7 @@ def _chained_solution(problem: "_Problem", offset_s: float, win: tuple[int, int]
         if w is None or len(w[1]) < 3:
             continue
         prev = sols[-1] if sols else seed
-        init = (_continue_from(prev, w, gravity_unit, (problem.imu.t_ns, problem.imu_6)) if prev is not None
+        init = (continue_from(prev, w, gravity_unit, (problem.imu.t_ns, problem.imu_6)) if prev is not None
                 else WindowInit(gravity_unit=gravity_unit))
         sols.append(solve_window(w[0], w[1], imu_noise, T, o, init))
     return stitch(sols) if sols else None
@@ -272,7 +272,7 @@ COARSE_OFFSET_SPAN_S = 600.0  # the coarse clock offset looks at most this much 
 
 
 
-def _bias_guess(t_ns: np.ndarray, coarse: WindowSolution | None, prev: WindowSolution | None) -> np.ndarray | None:
+def bias_guess(t_ns: np.ndarray, coarse: WindowSolution | None, prev: WindowSolution | None) -> np.ndarray | None:
     """Initial bias of a full-rate segment, [K, 6]: the previous segment's solution where it
     reaches, else the decimated gravity solve (interpolated; held constant past either's end).
 

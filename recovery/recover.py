@@ -68,11 +68,11 @@ from recovery.outputs import RecoveryReport
 from recovery.preintegration import ImuNoise
 from recovery.segments import plan_segments, stitch
 from recovery.records import CalibrationWindows, ClockOffset, ExtrinsicInit, FullSolve, GravityStage, Inputs, NoiseStage
-from recovery.gravity import _gravity, _level_test
-from recovery.offset import _coarse_offset_inputs, _refine_offset, offsets_elsewhere, spread_std_s
-from recovery.problem import (COARSE_OFFSET_SPAN_S, _bias_guess, _calibration_window, _chained_solution,
-                              _clean_poses, _continue_from, _imu_pieces, _Problem, _select_stream, _shifted_stamps)
-from recovery.result import (RecoveryResult, _bias_function, _pose_sigmas_from_fusion, _result, agreement_z,
+from recovery.gravity import solve_gravity, level_gravity_test
+from recovery.offset import coarse_offset_inputs, refine_offset, offsets_elsewhere, spread_std_s
+from recovery.problem import (COARSE_OFFSET_SPAN_S, bias_guess, calibration_window, chained_solution,
+                              clean_poses, continue_from, imu_pieces, Problem, select_stream, shifted_stamps)
+from recovery.result import (RecoveryResult, bias_function, pose_sigmas_from_fusion, build_result, agreement_z,
                              calibration_sources, write_recovery)
 
 log = logging.getLogger(__name__)
@@ -230,12 +230,12 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
     imu = sequence.imu
     if imu is None or len(imu) < 10:
         raise RecoveryError(f"sequence '{sequence.name}' has no IMU data (or fewer than 10 samples)")
-    name, poses = _select_stream(sequence, pose_stream)
-    poses = _clean_poses(poses, name, warnings)
+    name, poses = select_stream(sequence, pose_stream)
+    poses = clean_poses(poses, name, warnings)
     kind = poses.source_kind
     if len(poses) < config.min_poses:
         raise RecoveryError(f"pose stream '{name}' has {len(poses)} samples, fewer than min_poses={config.min_poses}")
-    pieces = _imu_pieces(imu, config, warnings)
+    pieces = imu_pieces(imu, config, warnings)
     imu_calibration = sequence.calibration
     has_rot = poses.quat_wxyz is not None and kind != PoseSourceKind.POSITION_TRACKER
     if kind == PoseSourceKind.POSITION_TRACKER and poses.quat_wxyz is not None:
@@ -292,7 +292,7 @@ def _coarse_offset(inputs: Inputs, config: RecoveryConfig) -> ClockOffset:
     if mode != TimeOffsetMode.ESTIMATE:
         return fixed
     try:
-        imu_c, poses_c = _coarse_offset_inputs(inputs.imu, inputs.poses, inputs.pieces, config.max_time_offset_s)
+        imu_c, poses_c = coarse_offset_inputs(inputs.imu, inputs.poses, inputs.pieces, config.max_time_offset_s)
         coarse = ci.estimate_time_offset(imu_c, poses_c, max_offset_s=config.max_time_offset_s)
     except BiasgtError as exc:
         # search with the widest grid step
@@ -308,14 +308,14 @@ def _calibration_windows(inputs: Inputs, offset_s: float, config: RecoveryConfig
         RecoveryError: The IMU and the pose stream do not overlap by ``min_poses`` samples.
     """
     imu = inputs.imu
-    t_pose = _shifted_stamps(inputs.poses, offset_s)
+    t_pose = shifted_stamps(inputs.poses, offset_s)
     overlap = (max(int(imu.t_ns[0]), int(t_pose[0])), min(int(imu.t_ns[-1]), int(t_pose[-1])))
     n_overlap = int(((t_pose > imu.t_ns[0]) & (t_pose < imu.t_ns[-1])).sum())
     if overlap[1] <= overlap[0] or n_overlap < config.min_poses:
         raise RecoveryError(
             f"no usable time overlap between the IMU and pose stream '{inputs.stream}' ({n_overlap} poses inside "
             "the IMU span)", hint="check that both come from the same recording and that the stamps use the same epoch")
-    return CalibrationWindows(overlap, _calibration_window(imu, inputs.pieces, overlap, config.calib_window_s,
+    return CalibrationWindows(overlap, calibration_window(imu, inputs.pieces, overlap, config.calib_window_s,
                                                             t_pose))
 
 
@@ -372,7 +372,7 @@ def _extrinsic_init(sequence: Sequence, inputs: Inputs, offset_s: float, config:
                           opts, estimate_lever, tuple(warnings))
 
 
-def _solve_extrinsic(problem: _Problem, inputs: Inputs, calib_window: tuple[int, int], T: np.ndarray,
+def _solve_extrinsic(problem: Problem, inputs: Inputs, calib_window: tuple[int, int], T: np.ndarray,
                      opts: SolveOptions, offset_s: float, config: RecoveryConfig) -> WindowSolution | None:
     """The joint extrinsic solve on the calibration window; fusion is then linearised at its
     extrinsic, gravity and median bias. None when the window holds too few poses."""
@@ -386,7 +386,7 @@ def _solve_extrinsic(problem: _Problem, inputs: Inputs, calib_window: tuple[int,
     return sol
 
 
-def _refined_offset(problem: _Problem, inputs: Inputs, coarse: ClockOffset, windows: CalibrationWindows,
+def _refined_offset(problem: Problem, inputs: Inputs, coarse: ClockOffset, windows: CalibrationWindows,
                     T: np.ndarray, config: RecoveryConfig) -> ClockOffset:
     """Stage 5: the offset at the vertex of the graph cost (ESTIMATE), else ``coarse``."""
     if coarse.mode != TimeOffsetMode.ESTIMATE:
@@ -394,9 +394,9 @@ def _refined_offset(problem: _Problem, inputs: Inputs, coarse: ClockOffset, wind
     try:
         off_win = windows.calib_window
         if config.offset_window_s(problem.fuse) < config.calib_window_s:
-            off_win = _calibration_window(inputs.imu, inputs.pieces, off_win, config.offset_window_s(problem.fuse),
-                                          _shifted_stamps(inputs.poses, coarse.offset_s))
-        refined = _refine_offset(problem, coarse.offset_s, coarse.std_s, off_win,
+            off_win = calibration_window(inputs.imu, inputs.pieces, off_win, config.offset_window_s(problem.fuse),
+                                          shifted_stamps(inputs.poses, coarse.offset_s))
+        refined = refine_offset(problem, coarse.offset_s, coarse.std_s, off_win,
                                  inputs.calibration_noise, T, inputs.opts, config)
     except (BiasgtError, ValueError, np.linalg.LinAlgError) as exc:
         return replace(coarse, warnings=coarse.warnings + (
@@ -436,7 +436,7 @@ def _difference_from_calibration(init: ExtrinsicInit, ext_sol: WindowSolution | 
                                   config.extrinsic_max_sigmas)
 
 
-def _noise(problem: _Problem, inputs: Inputs, windows: CalibrationWindows, offset_s: float, T: np.ndarray,
+def _noise(problem: Problem, inputs: Inputs, windows: CalibrationWindows, offset_s: float, T: np.ndarray,
            config: RecoveryConfig) -> NoiseStage:
     """Stage 6: bias random walks and pose sigmas by maximum evidence (EVIDENCE), else as given."""
     calib = windows.calib_window
@@ -448,7 +448,7 @@ def _noise(problem: _Problem, inputs: Inputs, windows: CalibrationWindows, offse
         if w is not None:
             sol0 = solve_window(w[0], w[1], inputs.calibration_noise, T,
                                 replace(inputs.opts, reject_outliers=False, residuals=False))
-            problem.set_linearisation(gravity_unit=sol0.gravity_unit, bias=_bias_function(sol0))
+            problem.set_linearisation(gravity_unit=sol0.gravity_unit, bias=bias_function(sol0))
     if config.noise_estimation != NoiseEstimation.EVIDENCE:
         choice = NoiseChoice(inputs.imu_noise, inputs.position_sigma_m, inputs.rotation_sigma_rad,
                              pose_error=_fixed_pose_error(inputs, config))
@@ -458,8 +458,8 @@ def _noise(problem: _Problem, inputs: Inputs, windows: CalibrationWindows, offse
     down = np.array([0.0, 0.0, -1.0])
     if not inputs.has_rot and config.position_only_window_s > config.calib_window_s:
         # position-only: the gyro random walk needs minutes to show (see position_only_window_s)
-        noise_win = _calibration_window(inputs.imu, inputs.pieces, windows.overlap, config.position_only_window_s,
-                                        _shifted_stamps(inputs.poses, offset_s))
+        noise_win = calibration_window(inputs.imu, inputs.pieces, windows.overlap, config.position_only_window_s,
+                                        shifted_stamps(inputs.poses, offset_s))
         if noise_win != calib:
             # seeded by the calibration window's solve (it sees the same data as the offset search did)
             wc = problem.window(offset_s, calib[0], calib[1], rate)
@@ -467,19 +467,19 @@ def _noise(problem: _Problem, inputs: Inputs, windows: CalibrationWindows, offse
                 wc[0], wc[1], inputs.calibration_noise, T,
                 replace(inputs.opts, compute_marginals=False, marginal_extras=False, reject_outliers=False),
                 WindowInit(gravity_unit=down))
-            chain = _chained_solution(problem, offset_s, noise_win, rate, inputs.calibration_noise, T, inputs.opts,
+            chain = chained_solution(problem, offset_s, noise_win, rate, inputs.calibration_noise, T, inputs.opts,
                                       down, config.calib_window_s, config.calib_window_s / 6, seed)
     w = problem.window(offset_s, noise_win[0], noise_win[1], rate)
     if w is None:
         raise RecoveryError("too few poses in the calibration window to estimate the noise",
                             hint="set noise_estimation: fixed and give the random walks")
     if chain is not None:
-        init = _continue_from(chain, w, down, (problem.imu.t_ns, problem.imu_6))
+        init = continue_from(chain, w, down, (problem.imu.t_ns, problem.imu_6))
     elif problem.bias is not None:
         # start (and preintegrate) at the calibration solves' gravity and bias: fewer LM iterations
         bias = problem.bias(w[1].t_ns) if callable(problem.bias) else problem.bias
         init = WindowInit(gravity_unit=problem.gravity_world / np.linalg.norm(problem.gravity_world), bias=bias)
-    sp, sr, pose_method = _pose_sigmas_from_fusion(w[1], inputs.position_sigma_m, inputs.rotation_sigma_rad, config)
+    sp, sr, pose_method = pose_sigmas_from_fusion(w[1], inputs.position_sigma_m, inputs.rotation_sigma_rad, config)
     searched_error = (PoseErrorGrid(tuple(config.pose_error_sigma_scales), tuple(config.pose_error_taus_s))
                       if config.pose_error is PoseErrorMode.AUTO and _correlated_error_applies(inputs) else None)
     choice = estimate_noise(w[0], w[1], inputs.imu_noise, sp, sr, T,
@@ -493,7 +493,7 @@ def _noise(problem: _Problem, inputs: Inputs, windows: CalibrationWindows, offse
     if searched_error is None:
         choice.pose_error = _fixed_pose_error(inputs, config)
     window_s = float((noise_win[1] - noise_win[0]) / NS_PER_S)
-    return NoiseStage(choice, chain, window_s, _grid_edge_warnings(choice, inputs.kind, config))
+    return NoiseStage(choice, chain, window_s, grid_edge_warnings(choice, inputs.kind, config))
 
 
 def _correlated_error_applies(inputs: Inputs) -> bool:
@@ -510,7 +510,7 @@ def _fixed_pose_error(inputs: Inputs, config: RecoveryConfig) -> PoseErrorModel 
     return model if model.active else None
 
 
-def _grid_edge_warnings(choice: NoiseChoice, kind: PoseSourceKind, config: RecoveryConfig) -> tuple[str, ...]:
+def grid_edge_warnings(choice: NoiseChoice, kind: PoseSourceKind, config: RecoveryConfig) -> tuple[str, ...]:
     """Warnings for evidence searches that ended on an edge of their candidate grid."""
     out = []
     grid = config.random_walk_scales
@@ -543,7 +543,7 @@ def _calibration_covariance(offset: ClockOffset, ext_sol: WindowSolution | None,
         offset_std_s=offset.std_s if offset.mode == TimeOffsetMode.ESTIMATE and offset.refine_method is not None else None)
 
 
-def _full_solve(problem: _Problem, inputs: Inputs, offset_s: float, gravity: GravityStage, noise: NoiseStage,
+def _full_solve(problem: Problem, inputs: Inputs, offset_s: float, gravity: GravityStage, noise: NoiseStage,
                 config: RecoveryConfig, calibration: CalibrationCovariance | None = None) -> FullSolve:
     """Stage 8: every keyframe, segment by segment (gravity: a variable per segment with the gravity
     solve as prior; the uncertainty of ``calibration`` propagated into the bias marginals). A single
@@ -571,7 +571,7 @@ def _full_solve(problem: _Problem, inputs: Inputs, offset_s: float, gravity: Gra
         if "gravity_cov_tangent" in flat[0].extras:
             info["tilt_std_rad"] = float(np.sqrt(np.trace(flat[0].extras["gravity_cov_tangent"]) / 2))
             if inputs.level_test:
-                info["level_test"] = _level_test(flat[0].gravity_unit, info["tilt_std_rad"], config.gravity_tilt_sigmas,
+                info["level_test"] = level_gravity_test(flat[0].gravity_unit, info["tilt_std_rad"], config.gravity_tilt_sigmas,
                                                  config.gravity_level_tolerance_deg)
                 if info["level_test"]["level"]:  # solved again in the level frame
                     level = replace(gravity, unit=np.array([0.0, 0.0, -1.0]), estimated=False)
@@ -585,10 +585,10 @@ def _full_solve(problem: _Problem, inputs: Inputs, offset_s: float, gravity: Gra
     return out
 
 
-def _segments(problem: _Problem, inputs: Inputs, offset_s: float, gravity: GravityStage, noise: NoiseStage,
+def _segments(problem: Problem, inputs: Inputs, offset_s: float, gravity: GravityStage, noise: NoiseStage,
               config: RecoveryConfig, full_opts: SolveOptions, out: FullSolve) -> FullSolve:
     """The full solve's segments, piece by piece, into ``out`` (see :func:`_full_solve`)."""
-    t_pose = _shifted_stamps(inputs.poses, offset_s)
+    t_pose = shifted_stamps(inputs.poses, offset_s)
     choice, gsol, gwin, T = noise.choice, gravity.solution, gravity.window, gravity.T_imu_pose
     for a, b in inputs.pieces:
         a2, b2 = max(a, int(t_pose[0])), min(b, int(t_pose[-1]))
@@ -600,13 +600,13 @@ def _segments(problem: _Problem, inputs: Inputs, offset_s: float, gravity: Gravi
             if w is None or len(w[1]) < 3:
                 continue
             prev = piece_solutions[-1] if piece_solutions else None
-            guess = _bias_guess(w[1].t_ns, gsol, prev)
+            guess = bias_guess(w[1].t_ns, gsol, prev)
             if guess is None and problem.bias is not None:  # the calibration solves' bias, not zero
                 guess = (problem.bias(w[1].t_ns) if callable(problem.bias)
                          else np.tile(np.asarray(problem.bias, dtype=float), (len(w[1]), 1)))
             init = WindowInit(gravity_unit=gravity.unit, bias=guess)
             if not inputs.has_rot and (prev is not None or noise.chain is not None):
-                init = _continue_from(prev if prev is not None else noise.chain, w, gravity.unit,
+                init = continue_from(prev if prev is not None else noise.chain, w, gravity.unit,
                                       (problem.imu.t_ns, problem.imu_6))
             seg_opts = full_opts
             if full_opts.gravity_prior_cov is not None:
@@ -656,7 +656,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     t_start = time.perf_counter()
     timings: dict[str, float] = {}
     inputs = _checked_inputs(sequence, pose_stream, config)
-    problem = _Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse, gravity_mps2=config.gravity_mps2)
+    problem = Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse, gravity_mps2=config.gravity_mps2)
     bar = _rounds_bar(sequence.name)
 
     t0 = time.perf_counter()
@@ -688,7 +688,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     _next_round(bar, "gravity")
 
     t0 = time.perf_counter()
-    gravity = _gravity(problem, inputs, offset.offset_s, T, ext_sol, ext_init.estimate_lever, noise.choice, config,
+    gravity = solve_gravity(problem, inputs, offset.offset_s, T, ext_sol, ext_init.estimate_lever, noise.choice, config,
                        ext_init.opts.extrinsic_prior)
     timings["gravity_s"] = time.perf_counter() - t0
     _next_round(bar, "full solve")
@@ -708,5 +708,5 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
         extrinsic_info["difference_from_calibration"] = difference.to_dict()
         if difference.exceeds:
             warnings.append(difference.sentence())
-    return _result(sequence, config, inputs, offset, windows.calib_window, ext_init, extrinsic_info, noise, gravity,
+    return build_result(sequence, config, inputs, offset, windows.calib_window, ext_init, extrinsic_info, noise, gravity,
                    full, warnings, timings, t_start)

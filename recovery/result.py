@@ -29,7 +29,7 @@ from recovery.window import KeyframePoses, WindowSolution
 from recovery.noise import NoiseChoice
 from recovery.noise_from_data import DENSITY_FIELDS, DataNoise
 from recovery.outputs import RecoveryOutputs, RecoveryReport
-from recovery.problem import FUSED_KEYFRAME_RATE_HZ, _Problem
+from recovery.problem import FUSED_KEYFRAME_RATE_HZ, Problem
 from recovery.records import ClockOffset, ExtrinsicInit, FullSolve, GravityStage, Inputs, NoiseStage
 
 
@@ -125,7 +125,7 @@ def calibration_sources(sequence: Sequence, config: RecoveryConfig,
     return {k: ("recovery config" if getattr(config, k) is not None else v) for k, v in sources.items()}
 
 
-def _result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, offset: ClockOffset,
+def build_result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, offset: ClockOffset,
             calib_window: tuple[int, int], ext_init: ExtrinsicInit, extrinsic_info: dict[str, Any], noise: NoiseStage,
             gravity: GravityStage, full: FullSolve, warnings: list[str], timings: dict[str, float],
             t_start: float) -> RecoveryResult:
@@ -207,7 +207,7 @@ def _result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, offset: 
     )
 
 
-def _solve_rate_hz(config: RecoveryConfig, problem: "_Problem") -> float:
+def solve_rate_hz(config: RecoveryConfig, problem: "Problem") -> float:
     """Keyframes per second of the full solve (for sizing segments)."""
     if config.keyframe_rate_hz is not None:
         return float(config.keyframe_rate_hz)
@@ -226,7 +226,7 @@ def _pose_rate_hz(poses: PoseSeries) -> float | None:
 MIN_WITHIN_BIN_DOF = 300  # residual degrees of freedom for the closed-form pose sigma (1/sqrt(2 dof) = 4 %)
 
 
-def _pose_sigmas_from_fusion(kf: KeyframePoses, base_sp: float, base_sr: float, config: RecoveryConfig
+def pose_sigmas_from_fusion(kf: KeyframePoses, base_sp: float, base_sr: float, config: RecoveryConfig
                              ) -> tuple[float, float, PoseSigmaMethod]:
     """Pose sigmas from the scatter of fused samples about their keyframes, when there is enough.
 
@@ -258,7 +258,7 @@ def _accuracy_floor(choice: NoiseChoice, poses: PoseSeries, pose_mode: PoseFacto
     return {"gyro_radps": gyro, "acc_mps2": acc}
 
 
-def _bias_function(sol: WindowSolution) -> Any:
+def bias_function(sol: WindowSolution) -> Any:
     """Bias of ``sol`` as a function of time (t_ns [M] -> [M, 6]; held constant past its ends)."""
     x = (sol.t_ns - sol.t_ns[0]).astype(float)
     b = sol.bias.copy()

@@ -32,10 +32,10 @@ from pipeline.errors import BiasgtError, ConfigError
 from pipeline.types import Sequence
 from recovery.allan import imu_allan
 from reports.html import Html, esc, join, p, page, tag
-from reports.quality_calibration import _bias_section, _calibration_section
+from reports.quality_calibration import bias_section, calibration_section
 from reports.quality_inputs import SECTIONS, ReportInputs, gather_inputs
-from reports.quality_residuals import _allan_section, _integration_section, _residuals_section
-from reports.quality_verdict import _streams_section, _verdict_section
+from reports.quality_residuals import allan_section, integration_section, residuals_section
+from reports.quality_verdict import streams_section, verdict_section
 from reports import plots  # noqa: F401  (the page's figures: tests replace one through quality.plots)
 from reports.quality_calibration import gyro_consistency_note
 from reports.quality_inputs import STAGE_FOLDERS, other_estimates_sentence, stage_dirs
@@ -75,14 +75,14 @@ def render_report(inp: ReportInputs) -> str:
         class_="toc")
     body = join([
         header,
-        _verdict_section(inp),
+        verdict_section(inp),
         toc,
-        _streams_section(inp),
-        _calibration_section(inp, allan),
-        _bias_section(inp),
-        _residuals_section(inp),
-        _integration_section(inp),
-        _allan_section(inp, allan, allan_error),
+        streams_section(inp),
+        calibration_section(inp, allan),
+        bias_section(inp),
+        residuals_section(inp),
+        integration_section(inp),
+        allan_section(inp, allan, allan_error),
     ])
     return page(f"biasgt quality report: {seq.name}", body)
 

@@ -17,8 +17,8 @@ from reports import plots
 from validation.plausibility import gravity_tilt_deg
 from recovery.allan import ImuAllan
 from reports.html import Html, esc, figure_img, fmt, join, p, section, table, tag
-from reports.quality_inputs import _TITLE, ReportInputs, _missing_box, _num, _rel_s
-from reports.quality_residuals import _allan_cell, _calibration_origin
+from reports.quality_inputs import TITLE, ReportInputs, missing_box, num, rel_s
+from reports.quality_residuals import allan_cell, calibration_origin
 from reports.quality_verdict import implausible_frame
 
 log = logging.getLogger(__name__)
@@ -45,12 +45,12 @@ def _vec(v: Any, digits: int = 4, scale: float = 1.0) -> str:
     return "[" + ", ".join(fmt(x, digits) for x in arr) + "]"
 
 
-def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
+def calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
     rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     cal = inp.sequence.calibration
     if rec is None:
-        return section("calibration", _TITLE["calibration"],
-                       _missing_box("Not available: the recovery output (recovery.json) is missing. The sensor's "
+        return section("calibration", TITLE["calibration"],
+                       missing_box("Not available: the recovery output (recovery.json) is missing. The sensor's "
                                     "datasheet noise values are shown in section 7."))
     rows = _estimate_rows(rec)
     parts = [
@@ -77,29 +77,29 @@ def _calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
     if extra:
         parts.append(p("; ".join(extra) + ".", class_="small"))
     fusion = rec.get("pose_fusion") if isinstance(rec.get("pose_fusion"), dict) else {}
-    if fusion.get("enabled") and _num(fusion, "samples_per_keyframe_mean") is not None:
+    if fusion.get("enabled") and num(fusion, "samples_per_keyframe_mean") is not None:
         parts.append(p(
-            f"Pose fusion: {fmt(_num(fusion, 'samples_per_keyframe_mean'), 3)} pose samples per "
-            f"{fmt(_num(fusion, 'keyframe_rate_hz'), 3)}-Hz keyframe, moved to it through the IMU and fused; "
-            f"{int(_num(fusion, 'samples_rejected') or 0)} samples rejected as outliers; scatter about the "
-            f"keyframes {fmt(_num(fusion, 'within_bin_position_rms_m'), 3)} m / "
-            f"{fmt(_num(fusion, 'within_bin_rotation_rms_rad'), 3)} rad RMS.", class_="small"))
+            f"Pose fusion: {fmt(num(fusion, 'samples_per_keyframe_mean'), 3)} pose samples per "
+            f"{fmt(num(fusion, 'keyframe_rate_hz'), 3)}-Hz keyframe, moved to it through the IMU and fused; "
+            f"{int(num(fusion, 'samples_rejected') or 0)} samples rejected as outliers; scatter about the "
+            f"keyframes {fmt(num(fusion, 'within_bin_position_rms_m'), 3)} m / "
+            f"{fmt(num(fusion, 'within_bin_rotation_rms_rad'), 3)} rad RMS.", class_="small"))
     floor = rec.get("accuracy_floor") if isinstance(rec.get("accuracy_floor"), dict) else {}
-    if _num(floor, "acc_mps2") is not None:
-        gyro_txt = (f"gyro {fmt(_num(floor, 'gyro_radps'), 3)} rad/s, " if _num(floor, "gyro_radps") is not None
+    if num(floor, "acc_mps2") is not None:
+        gyro_txt = (f"gyro {fmt(num(floor, 'gyro_radps'), 3)} rad/s, " if num(floor, "gyro_radps") is not None
                     else "")
         parts.append(p(
             f"Accuracy floor for this noise (optimal smoother, per axis): {gyro_txt}accelerometer "
-            f"{fmt(_num(floor, 'acc_mps2'), 3)} m/s²: no recovery of this recording is more accurate; the bias "
+            f"{fmt(num(floor, 'acc_mps2'), 3)} m/s²: no recovery of this recording is more accurate; the bias "
             "sigmas of section 4 sit somewhat above it.", class_="small"))
-    return section("calibration", _TITLE["calibration"], join(parts))
+    return section("calibration", TITLE["calibration"], join(parts))
 
 
 def _estimate_rows(rec: dict) -> list[list[Any]]:
     """Table rows of the recovery's estimates: clock offset, extrinsic translation and rotation, gravity."""
     rows = []
-    off = _num(rec, "pose_time_offset_s")
-    off_std = _num(rec, "pose_time_offset_std_s")
+    off = num(rec, "pose_time_offset_s")
+    off_std = num(rec, "pose_time_offset_std_s")
     rows.append(["Clock offset of the pose stream",
                  "n/a" if off is None else f"{off * 1e3:.3f} ms",
                  "n/a" if off_std is None else f"{off_std * 1e3:.3f} ms",
@@ -122,14 +122,14 @@ def _estimate_rows(rec: dict) -> list[list[Any]]:
     g = rec.get("gravity_world_mps2")
     if g is not None:
         gi = rec.get("gravity") if isinstance(rec.get("gravity"), dict) else {}
-        tilt_std = _num(gi, "tilt_std_rad")
+        tilt_std = num(gi, "tilt_std_rad")
         rows.append(["Gravity in the world frame", _vec(g, 5) + f" m/s² (|g| = {fmt(np.linalg.norm(g), 5)})",
                      "n/a", "estimated" if gi.get("estimated") else "as configured"])
         rows.append(["Tilt of gravity from the world −z axis", f"{gravity_tilt_deg(g):.3f} deg",
                      "n/a" if tilt_std is None else f"{math.degrees(tilt_std):.3f} deg",
                      "0 means the pose world frame is z-up"])
         lt = gi.get("level_test") if isinstance(gi.get("level_test"), dict) else {}
-        measured, measured_std = _num(lt, "tilt_deg"), _num(lt, "tilt_std_deg")
+        measured, measured_std = num(lt, "tilt_deg"), num(lt, "tilt_std_deg")
         if lt.get("level") and measured is not None:
             rows.append(["Tilt the data measured (frame kept level)", f"{measured:.3f} deg",
                          "n/a" if measured_std is None else f"{measured_std:.3f} deg",
@@ -146,9 +146,9 @@ def _noise_rows(rec: dict, noise: dict, cal: Any, allan: ImuAllan | None) -> lis
         ("acc_noise_density", "accelerometer white noise", "m/s²/√Hz", None if allan is None else allan.acc_white),
         ("acc_random_walk", "accelerometer bias random walk", "m/s³/√Hz", None if allan is None else allan.acc_rw),
     ):
-        used = _num(noise, key)
+        used = num(noise, key)
         if used is None:
-            used = _num(rec, key)
+            used = num(rec, key)
         yaml_v = float(getattr(cal, key))
         ratio = "n/a" if used is None or yaml_v == 0 else f"{used / yaml_v:.3g}×"
         if al is None:
@@ -156,8 +156,8 @@ def _noise_rows(rec: dict, noise: dict, cal: Any, allan: ImuAllan | None) -> lis
         elif not np.isfinite(al).any():
             al_v = "not visible" if allan is not None and allan.static else "n/a"
         else:
-            al_v = _allan_cell(float(np.nanmean(al)), allan is not None and allan.static, "random_walk" in key)
-        nrows.append([label, fmt(used, 4), fmt(yaml_v, 4), ratio, al_v, unit, _calibration_origin(cal, key)])
+            al_v = allan_cell(float(np.nanmean(al)), allan is not None and allan.static, "random_walk" in key)
+        nrows.append([label, fmt(used, 4), fmt(yaml_v, 4), ratio, al_v, unit, calibration_origin(cal, key)])
     return nrows
 
 
@@ -168,13 +168,13 @@ def _noise_notes(noise: dict) -> list[str]:
                        "sigma [rad]"), ("gyro_random_walk_scale", "gyro random-walk scale"),
                        ("acc_random_walk_scale", "acc random-walk scale"),
                        ("gyro_density_scale", "gyro white-noise scale"), ("acc_density_scale", "acc white-noise scale")):
-        if _num(noise, key) is not None:
-            extra.append(f"{label}: {fmt(_num(noise, key), 4)}")
+        if num(noise, key) is not None:
+            extra.append(f"{label}: {fmt(num(noise, key), 4)}")
     pose_error = noise.get("pose_error")
     if isinstance(pose_error, dict):
         extra.append("correlated pose error (Gauss-Markov): "
-                     f"{fmt(_num(pose_error, 'rotation_sigma_rad'), 3)} rad over {fmt(_num(pose_error, 'rotation_tau_s'), 3)} s, "
-                     f"{fmt(_num(pose_error, 'position_sigma_m'), 3)} m over {fmt(_num(pose_error, 'position_tau_s'), 3)} s")
+                     f"{fmt(num(pose_error, 'rotation_sigma_rad'), 3)} rad over {fmt(num(pose_error, 'rotation_tau_s'), 3)} s, "
+                     f"{fmt(num(pose_error, 'position_sigma_m'), 3)} m over {fmt(num(pose_error, 'position_tau_s'), 3)} s")
     if noise.get("method"):
         extra.append(f"chosen by: {noise['method']}")
     if noise.get("pose_sigma_method"):
@@ -190,9 +190,9 @@ def _difference_text(diff: dict) -> str:
         z = f" ({sigmas:.1f} σ)" if sigmas is not None and math.isfinite(sigmas) else ""
         return f"{value * scale:.2f} {unit}{z}"
 
-    rot = part(_num(diff, "rotation_deg"), _num(diff, "rotation_sigmas"), "deg", 1.0)
-    trans = part(_num(diff, "translation_m"), _num(diff, "translation_sigmas"), "cm", 100.0)
-    verdict = (f"beyond {fmt(_num(diff, 'max_sigmas'), 2)} σ: the calibration file is off (or the tracked body "
+    rot = part(num(diff, "rotation_deg"), num(diff, "rotation_sigmas"), "deg", 1.0)
+    trans = part(num(diff, "translation_m"), num(diff, "translation_sigmas"), "cm", 100.0)
+    verdict = (f"beyond {fmt(num(diff, 'max_sigmas'), 2)} σ: the calibration file is off (or the tracked body "
                "was moved); the estimate was used" if diff.get("exceeds") else "within the calibration's prior")
     return f"Estimated extrinsic against the calibration file's: {rot} in rotation, {trans} in translation; {verdict}."
 
@@ -200,14 +200,14 @@ def _difference_text(diff: dict) -> str:
 # ----------------------------------------------------------------------------- section 4: bias
 
 
-def _bias_section(inp: ReportInputs) -> Html:
+def bias_section(inp: ReportInputs) -> Html:
     if inp.bias is None:
-        return section("bias", _TITLE["bias"], _missing_box(
+        return section("bias", TITLE["bias"], missing_box(
             "Not available: the recovery's bias.csv is missing or could not be read (see the notes in section 1)."))
     b = inp.bias
-    t_s = _rel_s(b.t_ns, inp.t0_ns)
+    t_s = rel_s(b.t_ns, inp.t0_ns)
     gt = inp.sequence.ground_truth
-    gt_t = None if gt is None else _rel_s(gt.t_ns, inp.t0_ns)
+    gt_t = None if gt is None else rel_s(gt.t_ns, inp.t0_ns)
     std = np.asarray(b.std, dtype=float)
     parts = [p(f"{len(b.t_ns):,} keyframes over {fmt(t_s[-1] - t_s[0], 5)} s. The shaded band is ± 3 marginal "
                "standard deviations of the recovery" + (
@@ -244,7 +244,7 @@ def _bias_section(inp: ReportInputs) -> Html:
     note = implausible_frame(inp, "frame_swap", gyro_consistency_note(inp))
     if note is not None:
         parts.append(note)
-    return section("bias", _TITLE["bias"], join(parts))
+    return section("bias", TITLE["bias"], join(parts))
 
 
 def gyro_consistency_note(inp: ReportInputs) -> Html | None:

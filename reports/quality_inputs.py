@@ -62,7 +62,7 @@ SECTIONS = (
     ("integration", "6. Integration error per bias source"),
     ("allan", "7. Allan deviation of the IMU"),
 )
-_TITLE = dict(SECTIONS)
+TITLE = dict(SECTIONS)
 
 
 # ----------------------------------------------------------------------------- inputs
@@ -220,7 +220,7 @@ def _gather_recovery(inputs: ReportInputs, rdir: Path) -> None:
 # ----------------------------------------------------------------------------- small helpers
 
 
-def _num(d: Any, *keys: str) -> float | None:
+def num(d: Any, *keys: str) -> float | None:
     """``d[k0][k1]...`` as a float, None when absent or not a finite number."""
     cur = d
     for k in keys:
@@ -234,22 +234,22 @@ def _num(d: Any, *keys: str) -> float | None:
     return v if math.isfinite(v) else None
 
 
-def _missing_box(text: str) -> Html:
+def missing_box(text: str) -> Html:
     return tag("div", text, class_="missing")
 
 
-def _rel_s(t_ns: np.ndarray, t0_ns: int) -> np.ndarray:
+def rel_s(t_ns: np.ndarray, t0_ns: int) -> np.ndarray:
     return (np.asarray(t_ns, dtype=np.int64) - t0_ns) / NS_PER_S
 
 
-def _sources(validation: dict[str, Any]) -> dict[str, dict[str, Any]]:
+def validation_sources(validation: dict[str, Any]) -> dict[str, dict[str, Any]]:
     src = validation.get("sources")
     return {str(k): v for k, v in src.items() if isinstance(v, dict)} if isinstance(src, dict) else {}
 
 
-def _candidate(validation: dict[str, Any]) -> str | None:
+def candidate_name(validation: dict[str, Any]) -> str | None:
     """The judged source: ``candidate`` when given, else the first recovered / file / dataset source."""
-    sources = _sources(validation)
+    sources = validation_sources(validation)
     cand = validation.get("candidate")
     if isinstance(cand, str) and cand in sources:
         return cand
@@ -260,11 +260,11 @@ def _candidate(validation: dict[str, Any]) -> str | None:
     return next(iter(sources), None)
 
 
-def _first_of_kind(validation: dict[str, Any], kind: str, exclude: str | None) -> str | None:
-    return next((n for n, s in _sources(validation).items() if s.get("kind") == kind and n != exclude), None)
+def first_of_kind(validation: dict[str, Any], kind: str, exclude: str | None) -> str | None:
+    return next((n for n, s in validation_sources(validation).items() if s.get("kind") == kind and n != exclude), None)
 
 
-def _source_label(name: str, kind: str | None) -> str:
+def source_label(name: str, kind: str | None) -> str:
     return {
         "recovered": "The recovered bias",
         "dataset": "The dataset's own bias",
@@ -273,7 +273,7 @@ def _source_label(name: str, kind: str | None) -> str:
     }.get(kind or "", f"The bias '{name}'")
 
 
-def _better_worse(cand: float | None, base: float | None) -> str | None:
+def better_worse(cand: float | None, base: float | None) -> str | None:
     if cand is None or base is None or base <= 0:
         return None
     rel = 1.0 - cand / base
@@ -290,16 +290,16 @@ def other_estimates_sentence(validation: dict[str, Any]) -> str | None:
     a bias is only meaningful together with the attitude and gravity it was estimated against. None when
     there is no such source.
     """
-    sources, cand = _sources(validation), _candidate(validation)
+    sources, cand = validation_sources(validation), candidate_name(validation)
     others = [n for n, s in sources.items() if s.get("kind") == "file" and n != cand]
     if cand is None or not others:
         return None
-    base = _num(sources[cand], "prmse_m")
+    base = num(sources[cand], "prmse_m")
     g = float(np.linalg.norm(validation.get("gravity_mps2") or DEFAULT_GRAVITY_MPS2))
     parts = []
     for name in others:
         s = sources[name]
-        prmse = _num(s, "prmse_m")
+        prmse = num(s, "prmse_m")
         if name == HELDOUT_SOURCE:
             parts.append(f"'{name}', the recovery cross-validated by time blocks (recovered again without the "
                          f"poses of each block, used on that block only), integrates to "

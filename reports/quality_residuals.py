@@ -17,8 +17,8 @@ from reports import plots
 from validation.plausibility import pose_residuals
 from recovery.allan import ImuAllan
 from reports.html import Html, figure_img, fmt, join, p, section, table, tag, ul
-from reports.quality_inputs import (_TITLE, MAX_FLAGGED_ROWS, ReportInputs, _candidate, _first_of_kind,
-                                    _missing_box, _num, _rel_s, _sources, other_estimates_sentence)
+from reports.quality_inputs import (TITLE, MAX_FLAGGED_ROWS, ReportInputs, candidate_name, first_of_kind,
+                                    missing_box, num, rel_s, validation_sources, other_estimates_sentence)
 from reports.quality_verdict import implausible_frame
 
 log = logging.getLogger(__name__)
@@ -27,18 +27,18 @@ log = logging.getLogger(__name__)
 # ----------------------------------------------------------------------------- section 5: residuals
 
 
-def _residuals_section(inp: ReportInputs) -> Html:
+def residuals_section(inp: ReportInputs) -> Html:
     rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     if rec is None and inp.residuals is None and inp.trajectory is None:
-        return section("residuals", _TITLE["residuals"],
-                       _missing_box("Not available: the recovery output is missing."))
+        return section("residuals", TITLE["residuals"],
+                       missing_box("Not available: the recovery output is missing."))
     parts = []
     if rec is not None:
         res = rec.get("residuals") if isinstance(rec.get("residuals"), dict) else {}
-        kf = _num(rec, "keyframes")
-        out = _num(rec, "outliers_rejected")
-        rows = [[f"{k.replace('_', ' ')}", fmt(_num(res, k), 4)] for k in res if _num(res, k) is not None]
-        samples = int(_num(rec.get("pose_fusion") or {}, "samples_rejected") or 0)
+        kf = num(rec, "keyframes")
+        out = num(rec, "outliers_rejected")
+        rows = [[f"{k.replace('_', ' ')}", fmt(num(res, k), 4)] for k in res if num(res, k) is not None]
+        samples = int(num(rec.get("pose_fusion") or {}, "samples_rejected") or 0)
         out = None if out is None else out - samples  # outliers_rejected counts both kinds
         rows.append(["keyframe poses rejected as outliers",
                      "n/a" if out is None else (f"{int(out)} of {int(kf)} keyframes ({out / kf:.2%})" if kf else
@@ -47,8 +47,8 @@ def _residuals_section(inp: ReportInputs) -> Html:
             rows.append(["pose samples rejected before fusion into keyframes", f"{samples}"])
         for key, label in (("segments", "solver segments"), ("imu_pieces", "gap-free IMU pieces"),
                            ("duration_s", "duration [s]"), ("runtime_s", "recovery runtime [s]")):
-            if _num(rec, key) is not None:
-                rows.append([label, fmt(_num(rec, key), 5)])
+            if num(rec, key) is not None:
+                rows.append([label, fmt(num(rec, key), 5)])
         seams = rec.get("segment_seams")
         if isinstance(seams, list) and seams:
             rows.append(["segment seams", f"{len(seams)}"])
@@ -64,14 +64,14 @@ def _residuals_section(inp: ReportInputs) -> Html:
         cols = [c for c in frame.columns if c != "t_ns" and c not in flags
                 and pd.api.types.is_numeric_dtype(frame[c])][:6]
         if cols:
-            t_s = _rel_s(frame["t_ns"].to_numpy(), inp.t0_ns)
+            t_s = rel_s(frame["t_ns"].to_numpy(), inp.t0_ns)
             outliers = frame[flags[0]].to_numpy(bool) if flags else None
             parts.append(figure_img(plots.residual_series_figure(t_s, {c: frame[c].to_numpy(float) for c in cols},
                                                                  outliers),
                                     "residuals per keyframe", "Residuals per keyframe, as written by the recovery"
                                     + ("; red lines: keyframes rejected as outliers." if flags else ".")))
     else:
-        parts.append(_missing_box("Per-keyframe residuals are not available: the recovery writes only the "
+        parts.append(missing_box("Per-keyframe residuals are not available: the recovery writes only the "
                                   "statistics above. The figure below compares the recovered trajectory with the "
                                   "pose stream instead."))
     fig = implausible_frame(inp, "rotation_residual", _pose_residual_figure(inp))
@@ -80,7 +80,7 @@ def _residuals_section(inp: ReportInputs) -> Html:
     warnings = [str(w) for w in ((rec or {}).get("warnings") or [])]
     parts.append(tag("h3", "Warnings of the recovery"))
     parts.append(ul(warnings) if warnings else p("None."))
-    return section("residuals", _TITLE["residuals"], join(parts))
+    return section("residuals", TITLE["residuals"], join(parts))
 
 
 def _pose_residual_figure(inp: ReportInputs) -> Html | None:
@@ -92,40 +92,40 @@ def _pose_residual_figure(inp: ReportInputs) -> Html | None:
     if poses is None and name == "ground_truth" and seq.ground_truth is not None:
         poses = seq.ground_truth.to_pose_series()
     if poses is None or len(poses) < 2:
-        return _missing_box(f"The pose stream '{name}' used by the recovery is not in the store: the trajectory "
+        return missing_box(f"The pose stream '{name}' used by the recovery is not in the store: the trajectory "
                             "cannot be compared with it.")
     try:
         t_ns, pos_err, rot_err = pose_residuals(traj, poses, rec.T_imu_pose, rec.time_offset_s)
     except (BiasgtError, ValueError, TypeError) as exc:
-        return _missing_box(f"The trajectory could not be compared with the pose stream ({exc}).")
+        return missing_box(f"The trajectory could not be compared with the pose stream ({exc}).")
     if len(t_ns) == 0:
-        return _missing_box("The recovered trajectory and the pose stream do not overlap in time.")
+        return missing_box("The recovered trajectory and the pose stream do not overlap in time.")
     rot_txt = "" if rot_err is None else f", rotation RMS {fmt(np.sqrt(np.mean(rot_err ** 2)), 3)} deg"
     caption = (f"Distance between the recovered IMU trajectory and the pose stream '{name}' moved into the IMU frame "
                f"and clock: position RMS {fmt(1e3 * np.sqrt(np.mean(pos_err ** 2)), 3)} mm, max "
                f"{fmt(1e3 * pos_err.max(), 3)} mm{rot_txt} ({len(t_ns):,} keyframes).")
     outlier_t_s = None
     if len(rec.outlier_t_ns):
-        outlier_t_s = _rel_s(rec.outlier_t_ns, inp.t0_ns)
+        outlier_t_s = rel_s(rec.outlier_t_ns, inp.t0_ns)
         caption += " Red lines: poses rejected as outliers."
-    return figure_img(plots.pose_residual_figure(_rel_s(t_ns, inp.t0_ns), pos_err, rot_err, outlier_t_s),
+    return figure_img(plots.pose_residual_figure(rel_s(t_ns, inp.t0_ns), pos_err, rot_err, outlier_t_s),
                       "pose residuals over time", caption)
 
 
 # ----------------------------------------------------------------------------- section 6: integration
 
 
-def _integration_section(inp: ReportInputs) -> Html:
+def integration_section(inp: ReportInputs) -> Html:
     v = inp.validation
     if v is None:
-        return section("integration", _TITLE["integration"],
-                       _missing_box("Not available: the validation output (validation.json) is missing."))
-    sources = _sources(v)
-    cand = _candidate(v)
-    const = _first_of_kind(v, "constant_first_window", None)
+        return section("integration", TITLE["integration"],
+                       missing_box("Not available: the validation output (validation.json) is missing."))
+    sources = validation_sources(v)
+    cand = candidate_name(v)
+    const = first_of_kind(v, "constant_first_window", None)
     rows = _source_rows(sources, cand, const)
     cfg = v.get("config") if isinstance(v.get("config"), dict) else {}
-    win = _num(cfg, "window_s") or 1.0
+    win = num(cfg, "window_s") or 1.0
     parts = [
         p(f"Each source's bias is removed from the IMU readings, which are then integrated over {fmt(win, 3)}-s "
           "windows from the reference state; the end of each window is compared with the reference. PRMSE is the RMS "
@@ -162,11 +162,11 @@ def _integration_section(inp: ReportInputs) -> Html:
             wc = w[w["source"] == cand]
             flagged = wc["flagged"].to_numpy(bool) if "flagged" in wc.columns else None
             parts.append(figure_img(plots.window_errors_over_time_figure(
-                _rel_s(wc["t0_ns"].to_numpy(), inp.t0_ns), wc["pos_err_m"].to_numpy(float),
+                rel_s(wc["t0_ns"].to_numpy(), inp.t0_ns), wc["pos_err_m"].to_numpy(float),
                 wc["rot_err_deg"].to_numpy(float), flagged, cand),
                 "integration error over time", f"Per-window errors of '{cand}' over time; flagged windows circled."))
     elif w is None:
-        parts.append(_missing_box("The per-window errors (windows.parquet) are missing: no distributions drawn."))
+        parts.append(missing_box("The per-window errors (windows.parquet) are missing: no distributions drawn."))
     parts.append(tag("h3", "Flagged windows" + (f" of '{cand}'" if cand else "")))
     flagged_list = (sources.get(cand) or {}).get("flagged") or [] if cand else []
     if flagged_list:
@@ -177,22 +177,22 @@ def _integration_section(inp: ReportInputs) -> Html:
     if notes:
         parts.append(p("Notes of the validation:"))
         parts.append(ul(notes))
-    return section("integration", _TITLE["integration"], join(parts))
+    return section("integration", TITLE["integration"], join(parts))
 
 
 def _source_rows(sources: dict[str, Any], cand: str | None, const: str | None) -> list[list[Any]]:
     """One table row per bias source: windows, PRMSE, ROE, PRMSE relative to the constant bias, flags."""
     rows = []
     for name, s in sources.items():
-        prmse, roe = _num(s, "prmse_m"), _num(s, "roe_deg")
+        prmse, roe = num(s, "prmse_m"), num(s, "roe_deg")
         rel = "—"
         if const is not None and name != const:
-            bp = _num(sources[const], "prmse_m")
+            bp = num(sources[const], "prmse_m")
             if prmse is not None and bp:
                 rel = f"{(prmse / bp - 1.0) * 100:+.1f} %"
         nflag = len(s.get("flagged") or [])
         label = name + (" (judged)" if name == cand else "")
-        rows.append([label, s.get("kind", "n/a"), fmt(_num(s, "windows"), 6),
+        rows.append([label, s.get("kind", "n/a"), fmt(num(s, "windows"), 6),
                      fmt(None if prmse is None else 1e3 * prmse, 4), fmt(roe, 4), rel, str(nflag)])
     return rows
 
@@ -200,7 +200,7 @@ def _source_rows(sources: dict[str, Any], cand: str | None, const: str | None) -
 def _flagged_parts(inp: ReportInputs, flagged_list: list[dict[str, Any]], cfg: dict, win: float) -> list[Any]:
     """The flagged windows of the judged source: merged into stretches, then every one (folded)."""
     out: list[Any] = []
-    overlap = _num(cfg, "overlap")
+    overlap = num(cfg, "overlap")
     stride_s = win * (1.0 - (0.5 if overlap is None else overlap))
     out.append(p("Windows whose error is far above the source's median (an outlier in the pose stream, a "
                "bias jump, or a stretch the IMU model does not fit), merged into stretches of consecutive "
@@ -214,7 +214,7 @@ def _flagged_parts(inp: ReportInputs, flagged_list: list[dict[str, Any]], cfg: d
     for f in flagged_list[:MAX_FLAGGED_ROWS]:
         t0 = int(f.get("t0_ns", 0))
         frows.append([f"{(t0 - inp.t0_ns) / NS_PER_S:.3f}", str(t0),
-                      fmt(1e3 * (_num(f, "pos_err_m") or math.nan), 4), fmt(_num(f, "rot_err_deg"), 4)])
+                      fmt(1e3 * (num(f, "pos_err_m") or math.nan), 4), fmt(num(f, "rot_err_deg"), 4)])
     more = len(flagged_list) - MAX_FLAGGED_ROWS
     detail = join([
         table(["start [s]", "start t_ns", "position error [mm]", "rotation error [deg]"], frows, numeric_from=0),
@@ -229,7 +229,7 @@ def flagged_stretches(flagged: list[dict[str, Any]], stride_s: float) -> list[tu
 
     Two flagged windows belong to the same stretch when their starts are at most 1.5 strides apart.
     """
-    rows = sorted(((int(f.get("t0_ns", 0)), _num(f, "pos_err_m") or 0.0, _num(f, "rot_err_deg") or 0.0)
+    rows = sorted(((int(f.get("t0_ns", 0)), num(f, "pos_err_m") or 0.0, num(f, "rot_err_deg") or 0.0)
                    for f in flagged), key=lambda r: r[0])
     out: list[list[Any]] = []
     limit = 1.5 * stride_s * NS_PER_S
@@ -245,14 +245,14 @@ def flagged_stretches(flagged: list[dict[str, Any]], stride_s: float) -> list[tu
 # ----------------------------------------------------------------------------- section 7: Allan
 
 
-def _calibration_origin(cal: Any, key: str) -> str:
+def calibration_origin(cal: Any, key: str) -> str:
     """Where a calibration value came from: the file (folder/name), the config, or the default."""
     origin = cal.value_sources()[key]
     path = Path(origin)
     return f"{path.parent.name}/{path.name}" if path.suffix in (".yaml", ".yml") else origin
 
 
-def _allan_cell(x: float, static: bool, is_rw: bool) -> str:
+def allan_cell(x: float, static: bool, is_rw: bool) -> str:
     """One fitted value as shown: a value, an upper bound (motion), or why there is none."""
     if not static:
         return "— (motion)" if is_rw else (f"≤ {fmt(x, 3)}" if np.isfinite(x) else "n/a")
@@ -266,10 +266,10 @@ def _allan_ratio(fits: np.ndarray, yaml_v: float, static: bool, is_rw: bool) -> 
     return ratio if static else f"≤ {ratio}"
 
 
-def _allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None) -> Html:
+def allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None) -> Html:
     cal = inp.sequence.calibration
     if allan is None:
-        return section("allan", _TITLE["allan"], _missing_box(f"Not available: {error or 'no IMU data'}."))
+        return section("allan", TITLE["allan"], missing_box(f"Not available: {error or 'no IMU data'}."))
     if allan.static:
         where = (f"Computed on the {len(allan.segments_s)} stretch(es) where the IMU is at rest "
                  f"({allan.used_s:.1f} s in total; longest {max(b - a for a, b in allan.segments_s):.1f} s), "
@@ -306,7 +306,7 @@ def _allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None)
         ("accelerometer white noise", allan.acc_white, cal.acc_noise_density, "m/s²/√Hz", False),
         ("accelerometer bias random walk", allan.acc_rw, cal.acc_random_walk, "m/s³/√Hz", True),
     ):
-        rows.append([label, *[_allan_cell(x, allan.static, is_rw) for x in fits], fmt(yaml_v, 4),
+        rows.append([label, *[allan_cell(x, allan.static, is_rw) for x in fits], fmt(yaml_v, 4),
                      _allan_ratio(fits, yaml_v, allan.static, is_rw), unit])
     parts.append(table(["parameter", "x", "y", "z", "calibration", "fit / calibration", "unit"], rows, numeric_from=1,
                        text_cols=[6]))
@@ -318,4 +318,4 @@ def _allan_section(inp: ReportInputs, allan: ImuAllan | None, error: str | None)
         parts.append(p("“≤”: with motion in the data only an upper bound of the white noise can be read (motion adds "
                        "to the curve everywhere); the bias random walk cannot be separated from the motion.",
                        class_="small"))
-    return section("allan", _TITLE["allan"], join(parts))
+    return section("allan", TITLE["allan"], join(parts))

@@ -16,8 +16,8 @@ from pipeline.checks.run import run_checks, stream_summaries
 from pipeline.errors import BiasgtError
 from pipeline.types import NS_PER_S, Finding, Sequence, Severity
 from reports.html import Html, esc, fmt, join, p, section, table, tag, ul
-from reports.quality_inputs import (_TITLE, ReportInputs, _better_worse, _candidate, _first_of_kind, _num,
-                                    _source_label, _sources)
+from reports.quality_inputs import (TITLE, ReportInputs, better_worse, candidate_name, first_of_kind, num,
+                                    source_label, validation_sources)
 
 log = logging.getLogger(__name__)
 
@@ -60,35 +60,35 @@ def verdict_summary(validation: dict[str, Any] | None,
     if validation is None:
         return "NO VERDICT", "The validation stage's output is missing, so the recovered bias has not been judged."
     word = str(validation.get("verdict", "")).upper() or "NO VERDICT"
-    cand = _candidate(validation)
-    sources = _sources(validation)
+    cand = candidate_name(validation)
+    sources = validation_sources(validation)
     usable = _USABILITY.get(word, "")
     if cand is None:
         return word, f"The validation holds no bias source. {usable}".strip()
     cs = sources[cand]
-    who = _source_label(cand, cs.get("kind"))
-    const = _first_of_kind(validation, "constant_first_window", cand)
+    who = source_label(cand, cs.get("kind"))
+    const = first_of_kind(validation, "constant_first_window", cand)
     parts = []
     if const is not None:
         bs = sources[const]
-        rel = _better_worse(_num(cs, "prmse_m"), _num(bs, "prmse_m"))
+        rel = better_worse(num(cs, "prmse_m"), num(bs, "prmse_m"))
         if rel is not None:
-            a, b = mm_pair(_num(cs, "prmse_m"), _num(bs, "prmse_m"))
+            a, b = mm_pair(num(cs, "prmse_m"), num(bs, "prmse_m"))
             parts.append(
                 f"{who} integrates {rel} a constant bias (position error after 1-s windows, PRMSE "
                 f"{a} mm vs {b} mm; rotation error "
-                f"ROE {fmt(_num(cs, 'roe_deg'), 3)} deg vs {fmt(_num(bs, 'roe_deg'), 3)} deg)")
-    ds = _first_of_kind(validation, "dataset", cand)
+                f"ROE {fmt(num(cs, 'roe_deg'), 3)} deg vs {fmt(num(bs, 'roe_deg'), 3)} deg)")
+    ds = first_of_kind(validation, "dataset", cand)
     if ds is not None:
-        rel = _better_worse(_num(cs, "prmse_m"), _num(sources[ds], "prmse_m"))
+        rel = better_worse(num(cs, "prmse_m"), num(sources[ds], "prmse_m"))
         if rel is not None and parts:
             parts[-1] += f" and {rel} {dataset_label}"
         elif rel is not None:
-            a, b = mm_pair(_num(cs, "prmse_m"), _num(sources[ds], "prmse_m"))
+            a, b = mm_pair(num(cs, "prmse_m"), num(sources[ds], "prmse_m"))
             parts.append(f"{who} integrates {rel} {dataset_label} (PRMSE {a} mm vs {b} mm)")
     if not parts:
-        parts.append(f"{who} has PRMSE {fmt(1e3 * (_num(cs, 'prmse_m') or float('nan')), 3)} mm and ROE "
-                     f"{fmt(_num(cs, 'roe_deg'), 3)} deg over 1-s windows")
+        parts.append(f"{who} has PRMSE {fmt(1e3 * (num(cs, 'prmse_m') or float('nan')), 3)} mm and ROE "
+                     f"{fmt(num(cs, 'roe_deg'), 3)} deg over 1-s windows")
     found = [x for x in validation.get("plausibility") or [] if isinstance(x, Mapping)]
     if found:  # what physics rules out comes before any comparison of errors
         checks = ", ".join(dict.fromkeys(str(x.get("check", "?")).replace("_", " ") for x in found))
@@ -110,10 +110,10 @@ def checked_and_not(validation: dict[str, Any]) -> list[str]:
     else:
         against = f"the pose stream '{ref.get('stream', '?')}' (velocity from a smoothing spline of its positions)"
     independent = NOT_INDEPENDENT not in reason_codes(validation)
-    baselines = sorted({str(s.get("kind")) for s in _sources(validation).values()}
+    baselines = sorted({str(s.get("kind")) for s in validation_sources(validation).values()}
                        & {"constant_first_window", "dataset"})
     return [
-        f"Checked: {kept} integrations of {fmt(_num(cfg, 'window_s') or 1.0, 3)} s of the IMU minus the bias, each "
+        f"Checked: {kept} integrations of {fmt(num(cfg, 'window_s') or 1.0, 3)} s of the IMU minus the bias, each "
         f"from and against {against}; end-point position and rotation errors (PRMSE, ROE) compared with "
         + " and ".join({"constant_first_window": "a constant bias", "dataset": "the dataset's own bias"}[k]
                        for k in baselines) + ".",
@@ -154,7 +154,7 @@ def implausible_frame(inp: ReportInputs, check: str, body: Html | None) -> Html 
     return tag("div", join([why, body]), class_="implausible", data_check=check)
 
 
-def _verdict_section(inp: ReportInputs) -> Html:
+def verdict_section(inp: ReportInputs) -> Html:
     word, sentence = verdict_summary(inp.validation, dataset_bias_label(inp.sequence))
     cls = {"PASS": "v-pass", "WARN": "v-warn", "FAIL": "v-fail"}.get(word, "v-none")
     body = [Html(tag("span", word, class_="word") + esc(sentence))]
@@ -188,7 +188,7 @@ def _verdict_section(inp: ReportInputs) -> Html:
     if notes:
         body.append(p("Also note:"))
         body.append(ul(notes))
-    return section("verdict", _TITLE["verdict"], tag("div", join(body), class_=f"verdict {cls}"))
+    return section("verdict", TITLE["verdict"], tag("div", join(body), class_=f"verdict {cls}"))
 
 
 # ----------------------------------------------------------------------------- section 2: streams
@@ -202,15 +202,15 @@ def _current_findings(seq: Sequence) -> list[Finding]:
 
 
 #: How each pose source kind reads in the streams table (the enum's value says "vio" for any odometry).
-_SOURCE_KIND_WORDS = {"mocap": "motion capture, 6-DoF", "position_tracker": "position tracker",
+SOURCE_KIND_WORDS = {"mocap": "motion capture, 6-DoF", "position_tracker": "position tracker",
                       "vio": "odometry (visual or wheel): drifts", "ground_truth": "ground truth"}
 
 
-def _streams_section(inp: ReportInputs) -> Html:
+def streams_section(inp: ReportInputs) -> Html:
     seq = inp.sequence
     rows = []
     for s in stream_summaries(seq):
-        words = _SOURCE_KIND_WORDS.get(s.get("source_kind"), s.get("source_kind"))
+        words = SOURCE_KIND_WORDS.get(s.get("source_kind"), s.get("source_kind"))
         kind = s["kind"] if s.get("source_kind") in (None, s["kind"]) else f"{s['kind']} ({words})"
         t0 = None if s.get("t0_ns") is None else (s["t0_ns"] - inp.t0_ns) / NS_PER_S
         t1 = None if s.get("t1_ns") is None else (s["t1_ns"] - inp.t0_ns) / NS_PER_S
@@ -246,4 +246,4 @@ def _streams_section(inp: ReportInputs) -> Html:
     prov = {k: v for k, v in seq.metadata.items() if k != "repairs" and isinstance(v, (str, int, float))}
     if prov:
         parts.append(p(Html("Provenance: " + join((f"{k} = {v}" for k, v in prov.items()), "; ")), class_="small"))
-    return section("streams", _TITLE["streams"], join(parts))
+    return section("streams", TITLE["streams"], join(parts))

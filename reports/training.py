@@ -79,7 +79,7 @@ def _table_section(columns: list[TableColumn]) -> Html:
     return Html(table(headers, rows) + note)
 
 
-def _curves_figure(runs: Sequence[Path]) -> Figure | None:
+def curves_figure(runs: Sequence[Path]) -> Figure | None:
     frames = [(r, pd.read_csv(r / "metrics.csv")) for r in runs if (r / "metrics.csv").is_file()]
     if not frames:
         return None
@@ -102,7 +102,7 @@ def _curves_figure(runs: Sequence[Path]) -> Figure | None:
     return fig
 
 
-def _example_figure(examples: dict[str, pd.DataFrame], window: int) -> Figure:
+def example_figure(examples: dict[str, pd.DataFrame], window: int) -> Figure:
     fig = Figure(figsize=(11, 6.5))
     axes = fig.subplots(2, 3, sharex=True).reshape(-1)
     truth_drawn = False
@@ -153,7 +153,7 @@ def _examples_section(summaries: list[tuple[Path, EvaluationSummary]]) -> Html:
     for w in windows[:2]:
         seq = next(iter(examples.values()))
         seq = seq[seq["window"] == w]["sequence"].iloc[0]
-        parts.append(figure_img(_example_figure(examples, w), f"bias of test window {w}",
+        parts.append(figure_img(example_figure(examples, w), f"bias of test window {w}",
                                 f"Test window {w} of {seq}: recovered ground-truth bias (black), the dataset's own "
                                 "bias where it has one (dashed), each method's prediction (the sample mean for "
                                 "diffusion models, with a few of its samples as thin lines and the band holding the "
@@ -279,7 +279,7 @@ def build_training_report(evaluation_dirs: Sequence[str | Path], run_dirs: Seque
     """
     summaries = [(Path(d), read_summary(d)) for d in evaluation_dirs]
     columns = table_columns(s for _, s in summaries)
-    curves = _curves_figure([Path(r) for r in run_dirs])
+    curves = curves_figure([Path(r) for r in run_dirs])
     bodies = {
         "table": _table_section(columns),
         "curves": (figure_img(curves, "training curves", "Train loss per step and validation loss (validation "

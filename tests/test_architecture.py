@@ -6,6 +6,7 @@ import, those inside functions included.
 
 from __future__ import annotations
 
+import ast
 import os
 import subprocess
 import sys
@@ -43,3 +44,30 @@ def test_no_import_cycles() -> None:
             if back is not None:
                 cycles.append(" -> ".join((importer, *back)))
     assert not cycles, "import cycles:\n" + "\n".join(cycles)
+
+
+def test_no_private_name_is_imported_across_modules() -> None:
+    """A ``_private`` name stays in its module: what another module needs is public where it is defined.
+
+    Reads every ``from X import _name`` in the packages (imports inside functions included); a private
+    submodule imported inside its own package (``pipeline.io._text`` from ``pipeline.io``) is allowed.
+    """
+    offences = []
+    for package in PACKAGES:
+        for path in sorted((REPO / package).rglob("*.py")):
+            parts = list(path.relative_to(REPO).with_suffix("").parts)
+            module = ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+            here = module if path.name == "__init__.py" else module.rpartition(".")[0]
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if not isinstance(node, ast.ImportFrom):
+                    continue
+                base = here.split(".")[: len(here.split(".")) - node.level + 1] if node.level else []
+                target = ".".join(base + ([node.module] if node.module else [])) if node.level else node.module
+                for alias in node.names:
+                    name = alias.name
+                    if not name.startswith("_") or name.startswith("__") or target == module:
+                        continue
+                    if (REPO / Path(*target.split("."), name)).with_suffix(".py").exists() and module.startswith(target):
+                        continue  # a private submodule, used inside its own package
+                    offences.append(f"{path.relative_to(REPO)}:{node.lineno} imports {target}.{name}")
+    assert not offences, "private names imported across modules:\n" + "\n".join(offences)

@@ -11,7 +11,7 @@ from pipeline.errors import ConfigError
 from training.checkpoint import load_run
 from training.config import Sampler
 from training.export import export_run, onnx_session
-from training.predict import _batch
+from training.predict import predict_batch
 from window_data import make_window_dataset, train_tiny
 
 
@@ -28,7 +28,7 @@ def runs(tmp_path_factory):
 def _reference(run, imu: torch.Tensor, k: int, sampler: Sampler, seed: int) -> tuple[np.ndarray, torch.Tensor]:
     """PyTorch's samples and the initial noise they start from (the generator's first draw)."""
     with torch.no_grad():
-        ref = run.model.sample(_batch(imu.numpy(), None, torch.float32), k, sampler=sampler, steps=4,
+        ref = run.model.sample(predict_batch(imu.numpy(), None, torch.float32), k, sampler=sampler, steps=4,
                                generator=torch.Generator().manual_seed(seed)).numpy()
     noise = torch.randn((imu.shape[0] * k, imu.shape[1], 6), generator=torch.Generator().manual_seed(seed))
     return ref, noise

@@ -12,7 +12,7 @@ from biasgt.cli.app import main
 from pipeline.errors import DataError
 from pipeline.store import read_store
 from training.checkpoint import load_run
-from training.predict import _batch, predict_sequence, window_starts
+from training.predict import predict_batch, predict_sequence, window_starts
 from validation.validate import read_bias_file, validate_inputs
 from window_data import make_window_dataset, train_tiny
 
@@ -43,7 +43,7 @@ def test_regression_prediction_is_the_models_output(runs):
     last = starts[-1]
     with torch.no_grad():
         windows = np.stack([seq.imu.imu_6[:T], seq.imu.imu_6[last:last + T]])
-        direct = run.model.sample(_batch(windows, None, torch.float32), num_samples=1).double().numpy()[:, 0]
+        direct = run.model.sample(predict_batch(windows, None, torch.float32), num_samples=1).double().numpy()[:, 0]
     cols = ["bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z"]
     np.testing.assert_allclose(frame[cols].to_numpy()[:T], direct[0], rtol=1e-6, atol=1e-9)
     tail = frame[frame["window"] == len(starts) - 1]  # only the samples no earlier window covers

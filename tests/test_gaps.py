@@ -120,7 +120,7 @@ def test_a_position_only_segment_starts_from_another_solution_inside_it_or_acros
     keyframe in common (carried across the gap with the IMU): within 0.2 deg of the simulator's truth at every
     keyframe, where the closed-form guess would be used otherwise."""
     from recovery.window import KeyframePoses
-    from recovery.problem import _continue_from
+    from recovery.problem import continue_from
     from pipeline.types import PoseSourceKind
 
     sim = simulate(SimConfig(duration_s=30.0, seed=2, poses=PoseStreamConfig(extrinsic_known=True)))
@@ -133,7 +133,7 @@ def test_a_position_only_segment_starts_from_another_solution_inside_it_or_acros
     middle = _true_solution(gt, np.nonzero((t_rel >= 17.0) & (t_rel <= 22.0))[0][::7])
     before = _true_solution(gt, np.nonzero((t_rel >= 2.0) & (t_rel <= 8.0))[0][::7])
     for prev in (middle, before):
-        init = _continue_from(prev, w, np.array([0.0, 0.0, -1.0]), (imu.t_ns, imu.imu_6))
+        init = continue_from(prev, w, np.array([0.0, 0.0, -1.0]), (imu.t_ns, imu.imu_6))
         got = Rotation.from_quat(init.rot_wxyz, scalar_first=True)
         assert np.degrees((got.inv() * truth).magnitude()).max() < 0.2
-    assert _continue_from(before, w, np.array([0.0, 0.0, -1.0])).rot_wxyz is None  # no IMU: the closed-form guess
+    assert continue_from(before, w, np.array([0.0, 0.0, -1.0])).rot_wxyz is None  # no IMU: the closed-form guess

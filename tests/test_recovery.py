@@ -17,7 +17,7 @@ from pipeline.errors import ConfigError
 from pipeline.sim.config import PoseFormat
 from recovery.config import ExtrinsicMode, PoseFactorMode, RecoveryConfig, RobustLoss
 from pipeline.bias_table import read_bias_csv
-from pipeline.atomic import _umask
+from pipeline.atomic import umask
 from pipeline.bias_table import CSV_HEADER
 from recovery.recover import write_recovery
 from recovery.recover import recover
@@ -154,11 +154,11 @@ def test_a_walk_at_either_bound_says_what_that_bound_means():
     from pipeline.types import PoseSourceKind
     from recovery.noise import NoiseChoice
     from recovery.preintegration import ImuNoise
-    from recovery.recover import _grid_edge_warnings
+    from recovery.recover import grid_edge_warnings
 
     cfg = RecoveryConfig(random_walk_scales=[0.3, 1.0, 300.0])
     choice = NoiseChoice(ImuNoise(1e-4, 1e-3, 1e-5, 1e-4), 1e-3, 1e-3, gyro_rw_scale=0.3, acc_rw_scale=300.0)
-    gyro, acc = _grid_edge_warnings(choice, PoseSourceKind.MOCAP, cfg)
+    gyro, acc = grid_edge_warnings(choice, PoseSourceKind.MOCAP, cfg)
     assert gyro.startswith("gyro random walk: the evidence search hit its bound (0.3x") and "steadier" in gyro
     assert acc.startswith("acc random walk: the evidence search hit its bound (300x") and "artefacts" in acc
     assert "artefacts" not in gyro and "steadier" not in acc
@@ -227,7 +227,7 @@ def test_write_recovery_files(clean_run, tmp_path):
     assert track.t_ns.dtype == np.int64 and len(track) == len(res.t_ns)
     np.testing.assert_allclose(track.bias[:, 0], res.bias_gyro_radps[:, 0], rtol=1e-8)
     mode = (out / "bias.csv").stat().st_mode & 0o777
-    assert mode == 0o666 & ~_umask() and (out.stat().st_mode & 0o777) == 0o777 & ~_umask()
+    assert mode == 0o666 & ~umask() and (out.stat().st_mode & 0o777) == 0o777 & ~umask()
     rep = json.loads((out / "recovery.json").read_text())
     for key in ("pose_time_offset_s", "T_imu_pose", "gravity_world_mps2", "noise", "residuals",
                 "outliers_rejected", "keyframes", "duration_s", "runtime_s", "warnings",

@@ -142,7 +142,7 @@ def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
     from gtsam.symbol_shorthand import X
 
     from recovery.factors import BuiltWindow
-    from recovery.graph import _refuse_unconverged
+    from recovery.graph import refuse_unconverged
 
     graph = gtsam.NonlinearFactorGraph()
     target = gtsam.Pose3(gtsam.Rot3.Rz(0.3), gtsam.Point3(1.0, 2.0, 3.0))
@@ -153,11 +153,11 @@ def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
     order = gtsam.Ordering()
     order.push_back(X(0))
     with pytest.raises(RecoveryError, match="did not converge"):
-        _refuse_unconverged(built, far, order, graph.error(far))
+        refuse_unconverged(built, far, order, graph.error(far))
     at = gtsam.Values()
     at.insert(X(0), target)
     assert graph.error(at) == pytest.approx(0.0, abs=1e-12)
-    _refuse_unconverged(built, at, order, graph.error(at))
+    refuse_unconverged(built, at, order, graph.error(at))
 
 
 # ----------------------------------------------------------------------------- frames that disagree

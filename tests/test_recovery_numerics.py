@@ -62,19 +62,19 @@ def test_numpy_replacements_match_scipy():
     from scipy import signal
     from scipy.integrate import cumulative_trapezoid
 
-    from recovery.calibration_init.common import _correlate_valid, _cumtrapz
-    from recovery.initial import _savgol
+    from recovery.calibration_init.common import correlate_valid, cumtrapz
+    from recovery.initial import savgol
 
     rng = np.random.default_rng(0)
     a, v = rng.normal(size=500), rng.normal(size=380)
-    np.testing.assert_allclose(_correlate_valid(a, v), signal.correlate(a, v, mode="valid", method="fft"),
+    np.testing.assert_allclose(correlate_valid(a, v), signal.correlate(a, v, mode="valid", method="fft"),
                                atol=1e-9)
     x, y = np.sort(rng.uniform(size=40)), rng.normal(size=(40, 3, 3))
-    np.testing.assert_allclose(_cumtrapz(y, x), cumulative_trapezoid(y, x, axis=0, initial=0), atol=1e-12)
+    np.testing.assert_allclose(cumtrapz(y, x), cumulative_trapezoid(y, x, axis=0, initial=0), atol=1e-12)
     for K, win in ((100, 31), (7, 7), (8, 7), (50, 5)):
         p = rng.normal(size=(K, 3)).cumsum(0)
         for deriv in (1, 2):
-            np.testing.assert_allclose(_savgol(p, win, 0.01, deriv),
+            np.testing.assert_allclose(savgol(p, win, 0.01, deriv),
                                        signal.savgol_filter(p, win, 2, deriv=deriv, delta=0.01, axis=0),
                                        rtol=1e-9, atol=1e-8 * 100.0**deriv)
 
@@ -83,17 +83,17 @@ def test_bias_values_pool_round_trip():
     """Bias initial values built from the cached zero pool carry the requested values, any K."""
     from gtsam.symbol_shorthand import B
 
-    from recovery.factors import _bias_values
+    from recovery.factors import bias_values
 
     rng = np.random.default_rng(3)
     for K in (5, 12, 7):
         b = rng.normal(size=(K, 6))
-        vals = _bias_values(b, K)
+        vals = bias_values(b, K)
         assert vals.size() == K
         for k in (0, K - 1):
             cb = vals.atConstantBias(B(k))
             np.testing.assert_allclose(np.r_[cb.gyroscope(), cb.accelerometer()], b[k], atol=1e-12)
-    assert _bias_values(np.zeros(6), 4).size() == 4
+    assert bias_values(np.zeros(6), 4).size() == 4
 
 
 # ----------------------------------------------------------------------------- robust loss
@@ -105,7 +105,7 @@ def test_robust_threshold_has_the_one_dimensional_tail_in_every_dimension():
 
     import gtsam
 
-    from recovery.factors import _robust, robust_norm_threshold
+    from recovery.factors import robust_noise, robust_norm_threshold
 
     k = 3.0
     p = math.erfc(k / math.sqrt(2.0))  # P(|z| > 3) = 0.0027
@@ -119,14 +119,14 @@ def test_robust_threshold_has_the_one_dimensional_tail_in_every_dimension():
     # the GTSAM model: a 6-D whitened error of norm 4 (beyond 3, inside 4.48) keeps its full weight
     base = gtsam.noiseModel.Isotropic.Sigma(6, 1.0)
     e = np.full(6, 4.0 / math.sqrt(6.0))
-    f = gtsam.PriorFactorVector(0, np.zeros(6), _robust(base, RobustLoss.HUBER, k))
+    f = gtsam.PriorFactorVector(0, np.zeros(6), robust_noise(base, RobustLoss.HUBER, k))
     vals = gtsam.Values()
     vals.insert(0, e)
     assert math.isclose(f.error(vals), 0.5 * 16.0, rel_tol=1e-9)
     vals.update(0, 2.0 * e)  # norm 8: Huber's linear branch at t = 4.48
     t = robust_norm_threshold(k, 6)
     assert math.isclose(f.error(vals), t * 8.0 - 0.5 * t * t, rel_tol=1e-9)
-    assert _robust(base, RobustLoss.NONE, k) is base
+    assert robust_noise(base, RobustLoss.NONE, k) is base
 
 
 # ----------------------------------------------------------------------------- scipy-free recovery process

@@ -18,7 +18,7 @@ from recovery_sim import FAST, _errors, _sim
 
 
 def test_coarse_offset_uses_the_most_rotating_span_of_long_recordings():
-    from recovery.recover import COARSE_OFFSET_SPAN_S, _coarse_offset_inputs
+    from recovery.recover import COARSE_OFFSET_SPAN_S, coarse_offset_inputs
 
     t_s = np.arange(0.0, 2000.0, 0.05)
     gyro = np.zeros((len(t_s), 3))
@@ -27,14 +27,14 @@ def test_coarse_offset_uses_the_most_rotating_span_of_long_recordings():
     tp = (t_s[::2] * 1e9).astype(np.int64)
     poses = PoseSeries(tp, np.zeros((len(tp), 3)), np.tile([1.0, 0, 0, 0], (len(tp), 1)), "m", PoseSourceKind.MOCAP)
     pieces = [(int(imu.t_ns[0]), int(imu.t_ns[-1]))]
-    imu_c, poses_c = _coarse_offset_inputs(imu, poses, pieces, 0.5)
+    imu_c, poses_c = coarse_offset_inputs(imu, poses, pieces, 0.5)
     span = (poses_c.t_ns[-1] - poses_c.t_ns[0]) / 1e9
     assert COARSE_OFFSET_SPAN_S - 1 <= span <= COARSE_OFFSET_SPAN_S
     assert poses_c.t_ns[0] <= 1200e9 and poses_c.t_ns[-1] >= 1500e9
     # the IMU reaches past the poses by more than the largest offset searched
     assert imu_c.t_ns[0] <= poses_c.t_ns[0] - 1.5e9 and imu_c.t_ns[-1] >= poses_c.t_ns[-1] + 1.4e9
     short = imu.take(slice(0, 4000))
-    assert _coarse_offset_inputs(short, poses, pieces, 0.5)[0] is short
+    assert coarse_offset_inputs(short, poses, pieces, 0.5)[0] is short
 
 
 @pytest.mark.slow

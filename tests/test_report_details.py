@@ -95,7 +95,7 @@ def test_allan_legend_names_where_the_calibration_came_from() -> None:
 def test_every_pose_source_kind_reads_in_plain_words() -> None:
     """The streams table says what a stream is: odometry (a wheel or VIO stream) is not labelled 'vio'."""
     from pipeline.types import PoseSourceKind
-    from reports.quality_verdict import _SOURCE_KIND_WORDS
+    from reports.quality_verdict import SOURCE_KIND_WORDS
 
-    assert set(_SOURCE_KIND_WORDS) == {k.value for k in PoseSourceKind}
-    assert "wheel" in _SOURCE_KIND_WORDS[PoseSourceKind.VIO.value]
+    assert set(SOURCE_KIND_WORDS) == {k.value for k in PoseSourceKind}
+    assert "wheel" in SOURCE_KIND_WORDS[PoseSourceKind.VIO.value]

@@ -82,7 +82,7 @@ def test_summary_on_top_says_the_models_are_demo_sized(report):
 def test_curve_legend_sits_beside_the_curves(tmp_path):
     import pandas as pd
 
-    from reports.training import _curves_figure
+    from reports.training import curves_figure
 
     runs = []
     for method in METHODS:
@@ -93,7 +93,7 @@ def test_curve_legend_sits_beside_the_curves(tmp_path):
         runs.append(run)
     from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-    fig = _curves_figure(runs)
+    fig = curves_figure(runs)
     canvas = FigureCanvasAgg(fig)
     canvas.draw()
     renderer = canvas.get_renderer()
@@ -118,7 +118,7 @@ def test_example_figure_draws_samples_and_the_dataset_bias_like_the_papers_fig_3
     import numpy as np
     import pandas as pd
 
-    from reports.training import _example_figure
+    from reports.training import example_figure
     from training.evaluate import CHANNELS
 
     T = 11
@@ -128,7 +128,7 @@ def test_example_figure_draws_samples_and_the_dataset_bias_like_the_papers_fig_3
             rows.append({"window": 3, "sequence": "s", "t_s": k * 0.1, "channel": ch, "sampler": "ddim",
                          "truth": 0.01, "dataset": 0.012, "mean": 0.011, "q0.025": 0.009, "q0.975": 0.013,
                          "sample0": 0.010, "sample1": 0.012})
-    fig = _example_figure({"diffusion_rnn": pd.DataFrame(rows)}, 3)
+    fig = example_figure({"diffusion_rnn": pd.DataFrame(rows)}, 3)
     labels = [ln.get_label() for ln in fig.axes[0].lines]
     assert {"recovered GT bias", "the dataset's own bias", "diffusion_rnn samples", "diffusion_rnn (mean)"} <= set(labels)
     assert sum(1 for ln in fig.axes[0].lines if ln.get_linewidth() == 0.5) == 2  # one thin line per sample

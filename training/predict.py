@@ -63,7 +63,7 @@ def load_input(path: str | Path, reader_kwargs: Mapping[str, Any] | None = None,
     return load_checked(path, reader_kwargs, repairs=repairs, check_options=check_options, action="predict")
 
 
-def _batch(imu: np.ndarray, temperature: np.ndarray | None, dtype: torch.dtype):
+def predict_batch(imu: np.ndarray, temperature: np.ndarray | None, dtype: torch.dtype):
     """A WindowBatch of IMU windows [B, T, 6]; the reference fields, which sampling never reads, are zero."""
     from training.batch import TEMPERATURE_KEY, WindowBatch
 
@@ -120,7 +120,7 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
                    logger=log)
     for b in range(0, len(starts), batch_windows):
         sl = idx[b:b + batch_windows]
-        batch = _batch(imu6[sl], None if temp is None else temp[sl], dtype).to(device)
+        batch = predict_batch(imu6[sl], None if temp is None else temp[sl], dtype).to(device)
         pred = model.sample(batch, num_samples=k, generator=gen, **kwargs).to("cpu", torch.float64).numpy()  # [B, K, T, 6]
         check_finite_output(pred, run.path)
         mean[b:b + len(sl)] = pred.mean(axis=1)

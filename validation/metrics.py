@@ -169,7 +169,7 @@ class SourceMetrics:
         }
 
 
-def _flags(pos: np.ndarray, rot: np.ndarray, config: ValidationConfig) -> tuple[np.ndarray, float, float]:
+def flag_windows(pos: np.ndarray, rot: np.ndarray, config: ValidationConfig) -> tuple[np.ndarray, float, float]:
     thr_p = max(config.flag_k * float(np.median(pos)), config.flag_min_pos_m)
     thr_r = max(config.flag_k * float(np.median(rot)), config.flag_min_rot_deg)
     return (pos > thr_p) | (rot > thr_r), thr_p, thr_r

@@ -106,14 +106,14 @@ class BiasSource:
     gravity_mps2: np.ndarray | None = None
 
 
-def _infer_kind(name: str) -> BiasSourceKind:
+def infer_kind(name: str) -> BiasSourceKind:
     try:
         return BiasSourceKind(name.lower())
     except ValueError:
         return BiasSourceKind.FILE
 
 
-def _std_at(track: BiasTrack, t_ns: np.ndarray) -> np.ndarray:
+def std_at(track: BiasTrack, t_ns: np.ndarray) -> np.ndarray:
     """The track's sigma at ``t_ns`` [N, 6] (linear, ends held; zeros for a track without sigma)."""
     std = np.asarray(track.std, dtype=np.float64)
     if not np.any(std):
@@ -122,7 +122,7 @@ def _std_at(track: BiasTrack, t_ns: np.ndarray) -> np.ndarray:
     return np.stack([np.interp(np.asarray(t_ns, dtype=np.float64), t, std[:, c]) for c in range(6)], axis=1)
 
 
-def _bias_at(track: BiasTrack, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def bias_at(track: BiasTrack, t_ns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(bias [N, 6], covered [N]) of a track at the IMU stamps (linear; never extrapolated)."""
     if len(track.t_ns) == len(t_ns) and np.array_equal(track.t_ns, t_ns):
         covered = np.ones(len(t_ns), bool) if track.clamped is None else ~np.asarray(track.clamped, bool)

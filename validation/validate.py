@@ -44,11 +44,11 @@ from pipeline.io.asl import CODE_CALIBRATION_DEFAULTED
 from recovery.outputs import SENSOR_YAML, RecoveryOutputs
 from validation.attitude import reference_attitude_offset
 from validation.config import CrossvalMode, ValidationConfig
-from validation.metrics import (SourceMetrics, WindowPlan, _flags, plan_windows, prmse_m, roe_deg, window_end_errors,
+from validation.metrics import (SourceMetrics, WindowPlan, flag_windows, plan_windows, prmse_m, roe_deg, window_end_errors,
                                 window_errors, windows_with_any)
 from validation.reference import (ReferenceKind, ReferenceStates, build_reference, gap_free_mask, reference_from_poses,
                                   reference_from_states)
-from validation.sources import (BiasSource, BiasSourceKind, _bias_at, _infer_kind, _std_at, bias_sources, dataset_bias,
+from validation.sources import (BiasSource, BiasSourceKind, bias_at, infer_kind, std_at, bias_sources, dataset_bias,
                                 read_bias_file, recovered_bias_at_imu)
 from validation.rules import RULES, Evidence, HeldOut, VerdictInputs, judge, next_steps_for, said_once
 from validation.verdict import Limitation, decide_verdict, input_limitations, recovery_limitations, sigma_window_errors
@@ -183,7 +183,7 @@ def _normalise_sources(sources: Mapping[str, BiasTrack | BiasSource]) -> list[Bi
         if isinstance(s, BiasSource):
             out.append(BiasSource(name, s.kind, s.track, s.gravity_mps2))
         elif isinstance(s, BiasTrack):
-            out.append(BiasSource(name, _infer_kind(name), s))
+            out.append(BiasSource(name, infer_kind(name), s))
         else:
             raise ValidationError(f"bias source '{name}' is a {type(s).__name__}, not a BiasTrack", field=name)
         b = np.asarray(out[-1].track.bias)
@@ -341,7 +341,7 @@ def _kept_windows(sequence: Sequence, imu: ImuSeries, plan: WindowPlan, referenc
     keep &= ~no_ref
     at_imu: dict[str, np.ndarray] = {}
     for src in given:
-        bias, covered = _bias_at(src.track, imu.t_ns)
+        bias, covered = bias_at(src.track, imu.t_ns)
         covered = covered & np.isfinite(bias).all(axis=1)
         uncovered = windows_with_any(~covered, s, plan.n + 1)
         by_reason[f"bias_not_covered:{src.name}"] = int(uncovered.sum())
@@ -405,8 +405,8 @@ def _source_metrics(imu: ImuSeries, plan: WindowPlan, starts: np.ndarray, evalua
     for src in evaluated:
         g_src = gravity if src.gravity_mps2 is None else _checked_gravity(src.gravity_mps2, f"{src.name}.gravity_mps2")
         pos, rot = window_errors(imu, at_imu[src.name], reference, starts, plan.n, g_src, config)
-        flagged, thr_p, thr_r = _flags(pos, rot, config)
-        std = _std_at(src.track, t0)
+        flagged, thr_p, thr_r = flag_windows(pos, rot, config)
+        std = std_at(src.track, t0)
         sigma_pos, sigma_rot = sigma_window_errors(std, reference.R[starts], window_s, g_src)
         metrics[src.name] = SourceMetrics(
             src.name, src.kind, t0, pos, rot, prmse_m(pos), roe_deg(rot),
@@ -425,7 +425,7 @@ def _heldout_metrics(imu: ImuSeries, heldout: BiasSource, reference: ReferenceSt
     """The held-out source's metrics on the kept windows it covers (added to ``metrics``), every other
     source's on the same windows, and, when it judges the verdict, those windows' errors for the held-out
     rules (:mod:`validation.rules`)."""
-    bias, covered = _bias_at(heldout.track, imu.t_ns)
+    bias, covered = bias_at(heldout.track, imu.t_ns)
     covered &= np.isfinite(bias).all(axis=1)
     ok = ~windows_with_any(~covered, starts, plan.n + 1)
     part: dict[str, Any] = {**info, "source": heldout.name, "judged": bool(judge), "windows": int(ok.sum())}
@@ -434,11 +434,11 @@ def _heldout_metrics(imu: ImuSeries, heldout: BiasSource, reference: ReferenceSt
         return part, None
     g = gravity if heldout.gravity_mps2 is None else np.asarray(heldout.gravity_mps2, dtype=np.float64)
     pos, rot = window_errors(imu, bias, reference, starts[ok], plan.n, g, config)
-    flagged, thr_p, thr_r = _flags(pos, rot, config)
+    flagged, thr_p, thr_r = flag_windows(pos, rot, config)
     t0 = imu.t_ns[starts[ok]]
     metrics[heldout.name] = SourceMetrics(heldout.name, heldout.kind, t0, pos, rot, prmse_m(pos), roe_deg(rot), flagged,
                                           thr_p, thr_r, mean_bias=bias[starts[ok]].mean(axis=0), gravity_mps2=g,
-                                          mean_std=_std_at(heldout.track, t0).mean(axis=0))
+                                          mean_std=std_at(heldout.track, t0).mean(axis=0))
     same = {name: m for name, m in metrics.items() if name != heldout.name and len(m.pos_err_m) == len(ok)}
     part["others_on_these_windows"] = {name: {"prmse_m": prmse_m(m.pos_err_m[ok]), "roe_deg": roe_deg(m.rot_err_deg[ok])}
                                        for name, m in same.items()}

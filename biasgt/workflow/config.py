@@ -27,12 +27,12 @@ from pipeline.configs import unknown_keys_message
 from pipeline.errors import ConfigError
 from pipeline.sim.config import SimConfig
 from pipeline.types import Split
-from biasgt.workflow.params import STAGE_CONFIGS, _check_ingest_settings, _check_stage_settings, resolved_section
+from biasgt.workflow.params import STAGE_CONFIGS, check_ingest_settings, check_stage_settings, resolved_section
 from biasgt.workflow.table import (
     SIMULATE,
     SequenceEntry,
     WorkflowConfig,
-    _sim_dict,
+    sim_dict,
     data_root,
     resolve_input_path,
     source_kind,
@@ -251,7 +251,7 @@ def check_config(
         raise combine_errors(problems, config_file)
     cfg = WorkflowConfig(data, config_file, tuple(entries))
     for entry in cfg.sequences:
-        for check in (_check_ingest_settings, lambda c, e: _check_stage_settings(c, e, check_paths)):
+        for check in (check_ingest_settings, lambda c, e: check_stage_settings(c, e, check_paths)):
             try:
                 check(cfg, entry)
             except ConfigError as exc:
@@ -278,7 +278,7 @@ def _checked_entry(i: int, raw: dict[str, Any], seen: dict[str, int], root: Path
     source = source_kind(raw["source"])  # checked by reader_name_errors
     path = None
     if source == SIMULATE:
-        sim = _sim_dict(raw, root, config_file, where)
+        sim = sim_dict(raw, root, config_file, where)
         _check_sim_config(sim, config_file, where, check_paths)
     else:
         path = resolve_input_path(raw["path"], root)

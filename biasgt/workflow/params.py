@@ -37,8 +37,8 @@ from pipeline.types import Split
 from biasgt.workflow.table import (  # noqa: F401  (source_kind: the .smk files read it as wf.source_kind)
     SequenceEntry,
     WorkflowConfig,
-    _deep_merge,
-    _sim_dict,
+    deep_merge,
+    sim_dict,
     data_root,
     reader_format,
     resolve_input_path,
@@ -85,7 +85,7 @@ def simulate_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     if not entry.is_simulated:
         raise ConfigError(f"{entry.where} is not simulated (source '{entry.source}')",
                           path=cfg.config_file, field="source")
-    return _sim_dict(entry.raw, data_root(cfg.data, cfg.config_file), cfg.config_file, entry.where)
+    return sim_dict(entry.raw, data_root(cfg.data, cfg.config_file), cfg.config_file, entry.where)
 
 
 def simulate_inputs(cfg: WorkflowConfig, sequence: str, workdir: str | Path | None = None) -> list[str]:
@@ -125,7 +125,7 @@ def ingest_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
     repairs = entry.raw.get("repairs")
     if repairs is None:
         repairs = section.get("repairs") or []
-    check_options = _deep_merge(section.get("check_options") or {}, entry.raw.get("check_options") or {})
+    check_options = deep_merge(section.get("check_options") or {}, entry.raw.get("check_options") or {})
     reader_kwargs: dict[str, Any] = dict(entry.raw.get("reader") or {})
     reader_kwargs.update(fmt=reader_format(entry.source), name=entry.name)
     root = data_root(cfg.data, cfg.config_file)
@@ -152,7 +152,7 @@ def make_check_options(options: dict[str, Any]) -> Any:
     return dataclass_from_mapping(CheckOptions, kwargs, what="check option", field="check_options")
 
 
-def _check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
+def check_ingest_settings(cfg: WorkflowConfig, entry: SequenceEntry) -> None:
     """Raise a ConfigError naming the entry when its ingest settings are invalid."""
     reader = entry.raw.get("reader") or {}
     reserved = sorted({"fmt", "name"} & set(reader))
@@ -220,7 +220,7 @@ def resolved_section(section: str, options: Mapping[str, Any]) -> dict[str, Any]
 
 
 def _merged_section(cfg: WorkflowConfig, entry: SequenceEntry, section: str) -> dict[str, Any]:
-    return _deep_merge(cfg.section(section), entry.raw.get(section) or {})
+    return deep_merge(cfg.section(section), entry.raw.get(section) or {})
 
 
 def recovery_settings(cfg: WorkflowConfig, sequence: str) -> dict[str, Any]:
@@ -320,7 +320,7 @@ def window_outputs(cfg: WorkflowConfig) -> list[str]:
     return [windows_dataset_dir()]
 
 
-def _check_stage_settings(cfg: WorkflowConfig, entry: SequenceEntry, check_paths: bool = True) -> None:
+def check_stage_settings(cfg: WorkflowConfig, entry: SequenceEntry, check_paths: bool = True) -> None:
     """Raise a ConfigError naming the entry when its stage overrides (merged over the sections) are invalid."""
     for section in ENTRY_OVERRIDE_SECTIONS:
         try:

@@ -76,7 +76,7 @@ def resolve_profile(profile: str | Path) -> Path:
                       hint=f"use one of {', '.join(shipped) or '(none)'} or a folder holding config.yaml")
 
 
-_JOB_HEADER = re.compile(r"^\s*(?:local)?(?:checkpoint|rule) ([A-Za-z0-9_]+):\s*$")
+JOB_HEADER = re.compile(r"^\s*(?:local)?(?:checkpoint|rule) ([A-Za-z0-9_]+):\s*$")
 
 
 def parse_dry_run_jobs(text: str) -> list[tuple[str, dict[str, str]]]:
@@ -87,7 +87,7 @@ def parse_dry_run_jobs(text: str) -> list[tuple[str, dict[str, str]]]:
     """
     jobs: list[tuple[str, dict[str, str]]] = []
     for line in text.splitlines():
-        m = _JOB_HEADER.match(line)
+        m = JOB_HEADER.match(line)
         if m:
             jobs.append((m.group(1), {}))
             continue
@@ -148,7 +148,7 @@ def _failed_jobs(lines: Sequence[str]) -> list[tuple[str, str | None, str | None
             current_job = j.group(1)
         elif (w := _WILDCARDS_LINE.match(line)) and current_job is not None:
             wildcards_of_job.setdefault(current_job, w.group(1).strip())
-        elif _JOB_HEADER.match(line) or _ERROR_IN_RULE.match(line):
+        elif JOB_HEADER.match(line) or _ERROR_IN_RULE.match(line):
             current_job = None
     failed = []
     for i, line in enumerate(lines):

@@ -15,7 +15,7 @@ from collections import Counter
 from pathlib import Path
 
 from pipeline.layout import Stage, dataset_report_path
-from biasgt.workflow.run import _JOB_HEADER
+from biasgt.workflow.run import JOB_HEADER
 
 #: Rules that depend on the window dataset through its checksum (directly or through evaluations).
 DATASET_CONTENT_RULES = ("train", "evaluate", "evaluate_reference", "table", "training_report")
@@ -42,7 +42,7 @@ def dry_run_jobs(text: str) -> list[tuple[str, list[str]]]:
     """``(rule, reasons)`` of every job of a dry-run printout (the target rule ``all`` left out)."""
     jobs: list[tuple[str, list[str]]] = []
     for line in text.splitlines():
-        head = _JOB_HEADER.match(line)
+        head = JOB_HEADER.match(line)
         if head:
             jobs.append((head.group(1), []))
             continue

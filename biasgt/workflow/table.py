@@ -153,17 +153,17 @@ def resolve_input_path(raw: str, root: Path) -> Path:
     return Path(os.path.normpath(p if p.is_absolute() else root / p))
 
 
-def _deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+def deep_merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
     out = copy.deepcopy(base)
     for k, v in over.items():
         if isinstance(v, dict) and isinstance(out.get(k), dict):
-            out[k] = _deep_merge(out[k], v)
+            out[k] = deep_merge(out[k], v)
         else:
             out[k] = copy.deepcopy(v)
     return out
 
 
-def _sim_dict(entry: dict[str, Any], root: Path, config_file: Path | None, where: str) -> dict[str, Any]:
+def sim_dict(entry: dict[str, Any], root: Path, config_file: Path | None, where: str) -> dict[str, Any]:
     overrides = entry.get("overrides") or {}
     for keys, shorthand in _SIM_SHORTHANDS.items():
         node: Any = overrides
@@ -182,7 +182,7 @@ def _sim_dict(entry: dict[str, Any], root: Path, config_file: Path | None, where
         "motion": {"preset": entry.get("preset", "handheld")},
         "poses": {"format": entry.get("pose_format", "mocap")},
     }
-    sim = _deep_merge(base, overrides)
+    sim = deep_merge(base, overrides)
     gt = (sim.get("motion") or {}).get("ground_truth_path")
     if gt is not None:
         sim["motion"]["ground_truth_path"] = str(resolve_input_path(str(gt), root))

@@ -13,7 +13,7 @@ import numpy as np
 
 from pipeline.checks.options import DEG_TO_RAD, G_MPS2, CheckOptions, Repair
 from pipeline.checks.stream_checks import detect_acc_in_g, detect_gyro_degps
-from pipeline.checks.streams import _finite_rows, _rows, _streams, _valid_rows
+from pipeline.checks.streams import finite_rows, masked_rows, stream_views, valid_rows
 from pipeline.errors import ConfigError
 from pipeline.types import ImuSeries, Sequence
 
@@ -78,10 +78,10 @@ def apply_repairs(seq: Sequence, repairs: Iterable[Repair | str], options: Check
     changes: list[str] = []
     imu, poses, gt = seq.imu, dict(seq.poses), seq.ground_truth
 
-    for s in _streams(seq):
+    for s in stream_views(seq):
         if len(s.t_ns) == 0:
             continue
-        obj = _fix_rows(s.name, s.obj, _valid_rows(s), allowed, changes)
+        obj = _fix_rows(s.name, s.obj, valid_rows(s), allowed, changes)
         if s.kind != "imu":
             obj = _fix_quat(s.name, obj, allowed, opts, changes)
         if s.kind == "imu":
@@ -155,14 +155,14 @@ def _fix_imu_units(work: Sequence, imu: ImuSeries, allowed: set[Repair], opts: C
                    ) -> ImuSeries:
     """Scale the gyro from deg/s and the accelerometer from g where their checks fire (as allowed and
     not ignored); says what it did in ``changes``."""
-    valid = _finite_rows(imu.gyro_radps) & _finite_rows(imu.acc_mps2)
+    valid = finite_rows(imu.gyro_radps) & finite_rows(imu.acc_mps2)
     if Repair.GYRO_DEG_TO_RAD in allowed and "GYRO_DEGPS" not in opts.ignore:
         hit = detect_gyro_degps(work, valid)
         if hit is not None:
             imu = _replace_stream(imu, gyro_radps=imu.gyro_radps * DEG_TO_RAD)
             changes.append(f"imu: scaled gyro by pi/180 (deg/s to rad/s, rule {hit['rule']}; {len(imu)} rows)")
     if Repair.ACC_G_TO_MPS2 in allowed and "ACC_IN_G" not in opts.ignore:
-        if detect_acc_in_g(_rows(imu.acc_mps2, valid)) is not None:
+        if detect_acc_in_g(masked_rows(imu.acc_mps2, valid)) is not None:
             imu = _replace_stream(imu, acc_mps2=imu.acc_mps2 * G_MPS2)
             changes.append(f"imu: scaled accelerometer by {G_MPS2} (g to m/s^2; {len(imu)} rows)")
     return imu

@@ -21,14 +21,14 @@ from pipeline.checks.options import (
     CheckOptions,
 )
 from pipeline.checks.stream_checks import (
-    _check_imu_units,
-    _check_nonfinite,
-    _check_pose_rate,
-    _check_quaternions,
-    _check_saturation,
-    _check_stamps,
+    check_imu_units,
+    check_nonfinite,
+    check_pose_rate,
+    check_quaternions,
+    check_saturation,
+    check_stamps,
 )
-from pipeline.checks.streams import _round, _Stream, _streams, _time_stats, _TimeStats, _valid_rows
+from pipeline.checks.streams import round_or_none, StreamView, stream_views, time_stats, TimeStats, valid_rows
 from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity, StateSeries, Verdict
 
 log = logging.getLogger(__package__)  # findings and repairs log as one: 'pipeline.checks'
@@ -44,9 +44,9 @@ def _check_overlap(seq: Sequence, spans: dict[str, tuple[int, int]], opts: Check
     for name, (p0, p1) in others.items():
         overlap_ns = min(i1, p1) - max(i0, p0)
         shorter_ns = max(1, min(i1 - i0, p1 - p0))
-        details = {"imu_t0_s": _round(i0 / NS_PER_S, 3), "imu_t1_s": _round(i1 / NS_PER_S, 3),
-                   "stream_t0_s": _round(p0 / NS_PER_S, 3), "stream_t1_s": _round(p1 / NS_PER_S, 3),
-                   "offset_s": _round((p0 - i0) / NS_PER_S, 3), "overlap_s": _round(max(overlap_ns, 0) / NS_PER_S, 3)}
+        details = {"imu_t0_s": round_or_none(i0 / NS_PER_S, 3), "imu_t1_s": round_or_none(i1 / NS_PER_S, 3),
+                   "stream_t0_s": round_or_none(p0 / NS_PER_S, 3), "stream_t1_s": round_or_none(p1 / NS_PER_S, 3),
+                   "offset_s": round_or_none((p0 - i0) / NS_PER_S, 3), "overlap_s": round_or_none(max(overlap_ns, 0) / NS_PER_S, 3)}
         epoch_i, epoch_p = i0 / NS_PER_S > EPOCH_2000_S, p0 / NS_PER_S > EPOCH_2000_S
         separation_s = -overlap_ns / NS_PER_S
         longest_s = max(i1 - i0, p1 - p0) / NS_PER_S
@@ -61,7 +61,7 @@ def _check_overlap(seq: Sequence, spans: dict[str, tuple[int, int]], opts: Check
                              f"({i0 / NS_PER_S:.3f}..{i1 / NS_PER_S:.3f} s); use a pose stream recorded with the IMU")
         else:
             frac = overlap_ns / shorter_ns
-            details["overlap_fraction"] = _round(frac, 4)
+            details["overlap_fraction"] = round_or_none(frac, 4)
             good += 1
             if frac < opts.min_overlap_fraction:
                 results[name] = ("CLOCK_MISMATCH_PARTIAL", details,
@@ -83,7 +83,7 @@ def _check_overlap(seq: Sequence, spans: dict[str, tuple[int, int]], opts: Check
 # public API
 
 
-def _check_imu_rate(seq: Sequence, s: _Stream, ts: _TimeStats) -> list[Finding]:
+def _check_imu_rate(seq: Sequence, s: StreamView, ts: TimeStats) -> list[Finding]:
     """IMU_RATE_MISMATCH: the IMU runs far from the rate its calibration file states."""
     cal = seq.calibration
     where = cal.sources.get("rate_hz")
@@ -97,7 +97,7 @@ def _check_imu_rate(seq: Sequence, s: _Stream, ts: _TimeStats) -> list[Finding]:
         f"imu runs at {rate:.4g} Hz but its calibration ({where}) says {cal.rate_hz:g} Hz: the noise values and a "
         f"model trained at that rate do not fit this recording; resample it (biasgt convert --resample-hz "
         f"{cal.rate_hz:g}) or correct rate_hz",
-        {"rate_hz": _round(rate), "calibration_rate_hz": float(cal.rate_hz)},
+        {"rate_hz": round_or_none(rate), "calibration_rate_hz": float(cal.rate_hz)},
     )]
 
 
@@ -129,7 +129,7 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
                                 "the input has no pose stream: bias recovery needs one (add a pose file with "
                                 "--add-poses PATH[:KIND], or pick a bag topic with --pose-topic); "
                                 "IMU-only data can still be converted", {}))
-    streams = _streams(seq)
+    streams = stream_views(seq)
     n_pose_usable = sum(1 for s in streams if s.kind != "imu" and len(s.t_ns) >= 2)
     spans: dict[str, tuple[int, int]] = {}
     for s in streams:
@@ -140,14 +140,14 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
                 "EMPTY_STREAM", Severity.FATAL if fatal else Severity.WARNING, s.name,
                 f"{s.name} has {n} rows; " + FATAL_HINTS["EMPTY_STREAM"], {"count": n}))
             continue
-        valid = _valid_rows(s)
-        findings += _check_nonfinite(s, valid)
-        ts = _time_stats(s.t_ns)
+        valid = valid_rows(s)
+        findings += check_nonfinite(s, valid)
+        ts = time_stats(s.t_ns)
         spans[s.name] = (ts.t0_ns, ts.t1_ns)
-        findings += _check_stamps(s, ts, opts)
-        findings += _check_pose_rate(s, ts, opts)
+        findings += check_stamps(s, ts, opts)
+        findings += check_pose_rate(s, ts, opts)
         findings += _check_imu_rate(seq, s, ts)
-        findings += _check_quaternions(s, valid, opts)
+        findings += check_quaternions(s, valid, opts)
         if s.kind == "imu":
             assert seq.imu is not None
             duration = (ts.t1_ns - ts.t0_ns) / NS_PER_S
@@ -156,9 +156,9 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
                     "TOO_SHORT", Severity.FATAL, s.name,
                     f"imu spans {duration:.3f} s, less than the {opts.min_duration_s:g} s minimum; "
                     + FATAL_HINTS["TOO_SHORT"],
-                    {"duration_s": _round(duration), "min_duration_s": opts.min_duration_s}))
-            findings += _check_imu_units(seq, valid)
-            findings += _check_saturation(seq.imu, valid, opts)
+                    {"duration_s": round_or_none(duration), "min_duration_s": opts.min_duration_s}))
+            findings += check_imu_units(seq, valid)
+            findings += check_saturation(seq.imu, valid, opts)
     findings += _check_overlap(seq, spans, opts)
     return _apply_ignore(findings, opts)
 
@@ -204,13 +204,13 @@ def _finite_stats(t_ns: np.ndarray) -> dict[str, Any]:
     if len(t_ns) == 0:
         return {"t0_ns": None, "t1_ns": None, "duration_s": 0.0, "rate_hz": None, "dt_std_ms": None,
                 "dt_max_ms": None}
-    ts = _time_stats(t_ns)
+    ts = time_stats(t_ns)
     dt_ms = ts.dt_ns / 1e6
     return {
-        "t0_ns": ts.t0_ns, "t1_ns": ts.t1_ns, "duration_s": _round((ts.t1_ns - ts.t0_ns) / NS_PER_S),
-        "rate_hz": _round(NS_PER_S / ts.nominal_ns) if len(dt_ms) else None,
-        "dt_std_ms": _round(float(dt_ms.std())) if len(dt_ms) else None,
-        "dt_max_ms": _round(float(dt_ms.max())) if len(dt_ms) else None,
+        "t0_ns": ts.t0_ns, "t1_ns": ts.t1_ns, "duration_s": round_or_none((ts.t1_ns - ts.t0_ns) / NS_PER_S),
+        "rate_hz": round_or_none(NS_PER_S / ts.nominal_ns) if len(dt_ms) else None,
+        "dt_std_ms": round_or_none(float(dt_ms.std())) if len(dt_ms) else None,
+        "dt_max_ms": round_or_none(float(dt_ms.max())) if len(dt_ms) else None,
     }
 
 
@@ -227,7 +227,7 @@ def stream_summaries(seq: Sequence) -> list[dict[str, Any]]:
     ``source_kind`` are ``None`` for the IMU.
     """
     rows = []
-    for s in _streams(seq):
+    for s in stream_views(seq):
         obj = s.obj
         if isinstance(obj, PoseSeries):
             frame, kind, has_q = obj.frame, obj.source_kind.value, obj.has_orientation

@@ -31,20 +31,20 @@ import numpy as np
 
 from pipeline.checks.options import G_MPS2, GROUND_TRUTH_STREAM, IMU_STREAM, MAX_LISTED, CheckOptions, Repair
 from pipeline.checks.streams import (
-    _finite_rows,
-    _rel_s,
-    _round,
-    _row_norm,
-    _rows,
-    _Stream,
-    _time_order,
-    _TimeStats,
+    finite_rows,
+    rel_s,
+    round_or_none,
+    row_norm,
+    masked_rows,
+    StreamView,
+    time_order,
+    TimeStats,
     pose_stream_label,
 )
 from pipeline.types import NS_PER_S, Finding, ImuSeries, Sequence, Severity
 
 
-def _check_stamps(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Finding]:
+def check_stamps(s: StreamView, ts: TimeStats, opts: CheckOptions) -> list[Finding]:
     out: list[Finding] = []
     t = s.t_ns
     dt = np.diff(t)
@@ -54,10 +54,10 @@ def _check_stamps(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Findin
         out.append(Finding(
             "NON_MONOTONIC", Severity.REPAIRABLE, s.name,
             f"{s.name} stamps go backwards {len(back)} times (first at row {int(rows[0])}, "
-            f"t={float(_rel_s(t[rows[0]], ts.t0_ns)):.3f} s); sort them with --repair {Repair.SORT.value}",
+            f"t={float(rel_s(t[rows[0]], ts.t0_ns)):.3f} s); sort them with --repair {Repair.SORT.value}",
             {"count": int(len(back)), "first_rows": [int(i) for i in rows[:MAX_LISTED]],
-             "first_t_s": [_round(x) for x in _rel_s(t[rows[:MAX_LISTED]], ts.t0_ns)],
-             "max_backward_s": _round(-float(dt[back].min()) / NS_PER_S)},
+             "first_t_s": [round_or_none(x) for x in rel_s(t[rows[:MAX_LISTED]], ts.t0_ns)],
+             "max_backward_s": round_or_none(-float(dt[back].min()) / NS_PER_S)},
         ))
     n_dup = len(t) - len(ts.sorted_unique)
     if n_dup:
@@ -68,9 +68,9 @@ def _check_stamps(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Findin
             dup_t = t[1:][dt == 0]
         out.append(Finding(
             "DUPLICATE_STAMPS", Severity.REPAIRABLE, s.name,
-            f"{s.name} has {n_dup} repeated stamps (first at t={float(_rel_s(dup_t[0], ts.t0_ns)):.3f} s); "
+            f"{s.name} has {n_dup} repeated stamps (first at t={float(rel_s(dup_t[0], ts.t0_ns)):.3f} s); "
             f"keep the first row of each with --repair {Repair.DROP_DUPLICATES.value}",
-            {"count": int(n_dup), "first_t_s": [_round(x) for x in _rel_s(dup_t[:MAX_LISTED], ts.t0_ns)]},
+            {"count": int(n_dup), "first_t_s": [round_or_none(x) for x in rel_s(dup_t[:MAX_LISTED], ts.t0_ns)]},
         ))
     if len(ts.dt_ns) == 0 or not math.isfinite(ts.nominal_ns):
         return out
@@ -83,19 +83,19 @@ def _check_stamps(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Findin
         out.append(Finding(
             "GAPS", Severity.WARNING, s.name,
             f"{s.name} has {len(gap_idx)} gaps longer than {opts.gap_factor:g}x its {nominal / 1e6:.3f} ms period "
-            f"(longest {durations[longest]:.3f} s at t={float(_rel_s(starts[longest], ts.t0_ns)):.3f} s); "
+            f"(longest {durations[longest]:.3f} s at t={float(rel_s(starts[longest], ts.t0_ns)):.3f} s); "
             "results across gaps are less reliable, cut the sequence there if they are long",
-            {"count": int(len(gap_idx)), "nominal_period_ms": _round(nominal / 1e6),
-             "total_gap_s": _round(float(durations.sum())),
-             "gaps": [{"start_t_ns": int(a), "start_t_s": _round(float(_rel_s(a, ts.t0_ns))), "duration_s": _round(d)}
+            {"count": int(len(gap_idx)), "nominal_period_ms": round_or_none(nominal / 1e6),
+             "total_gap_s": round_or_none(float(durations.sum())),
+             "gaps": [{"start_t_ns": int(a), "start_t_s": round_or_none(float(rel_s(a, ts.t0_ns))), "duration_s": round_or_none(d)}
                       for a, d in zip(starts[:MAX_LISTED], durations[:MAX_LISTED])]},
         ))
     dt_ms = ts.dt_ns / 1e6
     rate = NS_PER_S / nominal
     details: dict[str, Any] = {
-        "rate_hz": _round(rate), "nominal_period_ms": _round(nominal / 1e6),
-        "dt_std_ms": _round(float(dt_ms.std())), "dt_min_ms": _round(float(dt_ms.min())),
-        "dt_max_ms": _round(float(dt_ms.max())),
+        "rate_hz": round_or_none(rate), "nominal_period_ms": round_or_none(nominal / 1e6),
+        "dt_std_ms": round_or_none(float(dt_ms.std())), "dt_min_ms": round_or_none(float(dt_ms.min())),
+        "dt_max_ms": round_or_none(float(dt_ms.max())),
     }
     out.append(Finding(
         "RATE", Severity.INFO, s.name,
@@ -106,7 +106,7 @@ def _check_stamps(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Findin
     return out
 
 
-def _check_pose_rate(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Finding]:
+def check_pose_rate(s: StreamView, ts: TimeStats, opts: CheckOptions) -> list[Finding]:
     """POSE_RATE_LOW: a pose stream sampled too sparsely to pin the bias down over 1-s windows."""
     if s.kind == "imu" or not math.isfinite(ts.nominal_ns) or ts.nominal_ns <= 0:
         return []
@@ -117,11 +117,11 @@ def _check_pose_rate(s: _Stream, ts: _TimeStats, opts: CheckOptions) -> list[Fin
         "POSE_RATE_LOW", Severity.WARNING, s.name,
         f"{s.name} runs at {rate:.3g} Hz, below {opts.min_pose_rate_hz:g} Hz: the bias between poses rests on the "
         "IMU alone and 1-s validation windows have few references; use the full-rate stream if there is one",
-        {"rate_hz": _round(rate), "min_pose_rate_hz": opts.min_pose_rate_hz},
+        {"rate_hz": round_or_none(rate), "min_pose_rate_hz": opts.min_pose_rate_hz},
     )]
 
 
-def _check_nonfinite(s: _Stream, valid: np.ndarray) -> list[Finding]:
+def check_nonfinite(s: StreamView, valid: np.ndarray) -> list[Finding]:
     bad = np.flatnonzero(~valid)
     if not len(bad):
         return []
@@ -139,12 +139,12 @@ def _check_nonfinite(s: _Stream, valid: np.ndarray) -> list[Finding]:
     )]
 
 
-def _check_quaternions(s: _Stream, valid: np.ndarray, opts: CheckOptions) -> list[Finding]:
+def check_quaternions(s: StreamView, valid: np.ndarray, opts: CheckOptions) -> list[Finding]:
     if s.quat is None:
         return []
     out: list[Finding] = []
-    order = _time_order(s.t_ns)
-    q = _rows(s.quat[order], valid[order])
+    order = time_order(s.t_ns)
+    q = masked_rows(s.quat[order], valid[order])
     if len(q) == 0:
         return out
     norm = np.sqrt(np.einsum("ij,ij->i", q, q))
@@ -155,7 +155,7 @@ def _check_quaternions(s: _Stream, valid: np.ndarray, opts: CheckOptions) -> lis
             "QUAT_NOT_UNIT", Severity.REPAIRABLE, s.name,
             f"{s.name} quaternion norms deviate from 1 by up to {max_dev:.3g} ({int((dev > opts.quat_norm_tol).sum())} "
             f"rows); normalise them with --repair {Repair.NORMALISE_QUATERNIONS.value}",
-            {"max_deviation": _round(max_dev, 9), "count": int((dev > opts.quat_norm_tol).sum()),
+            {"max_deviation": round_or_none(max_dev, 9), "count": int((dev > opts.quat_norm_tol).sum()),
              "tolerance": opts.quat_norm_tol},
         ))
     if len(q) > 1:
@@ -172,10 +172,10 @@ def _check_quaternions(s: _Stream, valid: np.ndarray, opts: CheckOptions) -> lis
 
 def _pose_angular_speed(t_ns: np.ndarray, quat: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Angular speed between consecutive valid, time-ordered poses: (mid stamps [M], speed rad/s [M])."""
-    order = _time_order(t_ns)
-    t = _rows(t_ns[order], valid[order])
-    q = _rows(quat[order], valid[order])
-    q = q / _row_norm(q)[:, None]
+    order = time_order(t_ns)
+    t = masked_rows(t_ns[order], valid[order])
+    q = masked_rows(quat[order], valid[order])
+    q = q / row_norm(q)[:, None]
     dt = np.diff(t)
     keep = dt > 0
     if keep.sum() < 2:
@@ -205,10 +205,10 @@ def detect_gyro_degps(seq: Sequence, valid: np.ndarray | None = None) -> dict[st
     if imu is None or len(imu) < 2:
         return None
     if valid is None:
-        valid = _finite_rows(imu.gyro_radps) & _finite_rows(imu.acc_mps2)
-    t = _rows(imu.t_ns, valid)
-    gyro = _rows(imu.gyro_radps, valid)
-    gnorm = _row_norm(gyro)
+        valid = finite_rows(imu.gyro_radps) & finite_rows(imu.acc_mps2)
+    t = masked_rows(imu.t_ns, valid)
+    gyro = masked_rows(imu.gyro_radps, valid)
+    gnorm = row_norm(gyro)
     if len(gnorm) < 2:
         return None
     # Rule 1: against the pose streams' angular speed.
@@ -222,7 +222,7 @@ def detect_gyro_degps(seq: Sequence, valid: np.ndarray | None = None) -> dict[st
         if len(pt) < 3:
             continue
         with np.errstate(invalid="ignore"):
-            pvalid = _finite_rows(pq) & (np.einsum("ij,ij->i", pq, pq) > 1e-2)
+            pvalid = finite_rows(pq) & (np.einsum("ij,ij->i", pq, pq) > 1e-2)
         mid, speed = _pose_angular_speed(pt, pq, pvalid)
         if len(mid) < 10:
             continue
@@ -239,28 +239,28 @@ def detect_gyro_degps(seq: Sequence, valid: np.ndarray | None = None) -> dict[st
         p90_gyro = float(np.percentile(gi, 90))
         ratio = p90_gyro / p90_pose
         if ratio > math.sqrt(180.0 / math.pi):
-            return {"rule": "pose_rate_ratio", "pose_stream": name, "ratio": _round(ratio, 3),
-                    "gyro_p90": _round(p90_gyro), "pose_rate_p90_radps": _round(p90_pose)}
+            return {"rule": "pose_rate_ratio", "pose_stream": name, "ratio": round_or_none(ratio, 3),
+                    "gyro_p90": round_or_none(p90_gyro), "pose_rate_p90_radps": round_or_none(p90_pose)}
         return None  # the poses say rad/s: trust them over the magnitude rules
     # Rule 2: beyond any MEMS full scale in rad/s.
     p99 = float(np.percentile(gnorm, 99))
     if p99 > 35.0:
-        return {"rule": "p99_magnitude", "gyro_p99": _round(p99, 3), "threshold": 35.0}
+        return {"rule": "p99_magnitude", "gyro_p99": round_or_none(p99, 3), "threshold": 35.0}
     # Rule 3: static stretches with an absurd bias.
     rate = imu.rate_hz
     block = max(10, int(round(0.5 * rate))) if math.isfinite(rate) else 100
     nb = len(gnorm) // block
     if nb >= 2:
-        anorm = _row_norm(_rows(imu.acc_mps2, valid)[: nb * block]).reshape(nb, block)
+        anorm = row_norm(masked_rows(imu.acc_mps2, valid)[: nb * block]).reshape(nb, block)
         mean_a = anorm.mean(axis=1)
         with np.errstate(divide="ignore", invalid="ignore"):
             static = (anorm.std(axis=1) < 0.01 * mean_a) & (mean_a > 0)
         if static.sum() >= 2:
             gmean = gyro[: nb * block].reshape(nb, block, 3).mean(axis=1)[static]
-            static_mag = float(np.median(_row_norm(gmean)))
+            static_mag = float(np.median(row_norm(gmean)))
             if static_mag > 1.0:
-                return {"rule": "static_magnitude", "static_gyro_magnitude": _round(static_mag, 4),
-                        "static_seconds": _round(float(static.sum() * block / rate), 2), "threshold": 1.0}
+                return {"rule": "static_magnitude", "static_gyro_magnitude": round_or_none(static_mag, 4),
+                        "static_seconds": round_or_none(float(static.sum() * block / rate), 2), "threshold": 1.0}
     return None
 
 
@@ -270,16 +270,16 @@ def detect_acc_in_g(acc: np.ndarray) -> dict[str, Any] | None:
     Returns:
         ``None`` when they do not look like g, else details (median and 10th percentile of |acc|).
     """
-    n = _row_norm(_rows(acc, _finite_rows(acc)))
+    n = row_norm(masked_rows(acc, finite_rows(acc)))
     if len(n) < 2:
         return None
     p10, med = (float(x) for x in np.percentile(n, [10, 50]))
     if 0.8 <= med <= 1.25 and p10 >= 0.5:
-        return {"median_norm": _round(med, 4), "p10_norm": _round(p10, 4)}
+        return {"median_norm": round_or_none(med, 4), "p10_norm": round_or_none(p10, 4)}
     return None
 
 
-def _check_imu_units(seq: Sequence, valid: np.ndarray) -> list[Finding]:
+def check_imu_units(seq: Sequence, valid: np.ndarray) -> list[Finding]:
     imu = seq.imu
     assert imu is not None
     out: list[Finding] = []
@@ -291,7 +291,7 @@ def _check_imu_units(seq: Sequence, valid: np.ndarray) -> list[Finding]:
             f"--repair {Repair.GYRO_DEG_TO_RAD.value} (or --ignore GYRO_DEGPS if they are rad/s)",
             g,
         ))
-    acc = _rows(imu.acc_mps2, valid)
+    acc = masked_rows(imu.acc_mps2, valid)
     a = detect_acc_in_g(acc)
     if a is not None:
         out.append(Finding(
@@ -302,13 +302,13 @@ def _check_imu_units(seq: Sequence, valid: np.ndarray) -> list[Finding]:
         ))
     else:
         if len(acc) >= 2:
-            med = float(np.median(_row_norm(acc)))
+            med = float(np.median(row_norm(acc)))
             if not 4.0 <= med <= 20.0:
                 out.append(Finding(
                     "ACC_SCALE_SUSPECT", Severity.WARNING, IMU_STREAM,
                     f"median |acc| is {med:.4g}, far from 9.81 m/s^2 (raw counts? gravity removed?); "
                     "give raw specific force in m/s^2",
-                    {"median_norm": _round(med, 4)},
+                    {"median_norm": round_or_none(med, 4)},
                 ))
     return out
 
@@ -337,13 +337,13 @@ def _saturated_axis(x: np.ndarray, min_count: int) -> dict[str, Any] | None:
         next_count = 0
     if count <= 2 * band or count <= 2 * next_count:
         return None  # a smooth peak or a noise tail, not a clipped one
-    return {"value": _round(top, 9), "count": count, "band_count": band, "next_level_count": next_count}
+    return {"value": round_or_none(top, 9), "count": count, "band_count": band, "next_level_count": next_count}
 
 
-def _check_saturation(imu: ImuSeries, valid: np.ndarray, opts: CheckOptions) -> list[Finding]:
+def check_saturation(imu: ImuSeries, valid: np.ndarray, opts: CheckOptions) -> list[Finding]:
     axes: dict[str, Any] = {}
     for prefix, arr in (("gyro", imu.gyro_radps), ("acc", imu.acc_mps2)):
-        arr = _rows(arr, valid)
+        arr = masked_rows(arr, valid)
         for i, ax in enumerate("xyz"):
             hit = _saturated_axis(arr[:, i], opts.saturation_min_count)
             if hit is not None:

@@ -16,7 +16,7 @@ import pyarrow.compute as pc
 if TYPE_CHECKING:  # pandas is imported where a table is parsed (it costs ~0.7 s to import)
     import pandas as pd
 
-_INT64_MAX = np.iinfo(np.int64).max
+INT64_MAX = np.iinfo(np.int64).max
 
 
 class TimeUnit(str, enum.Enum):
@@ -105,7 +105,7 @@ def _integer_stamps_to_ns(trimmed: pa.Array, arr: pa.Array, exp_unit: int) -> np
         return _decimal_to_ns_slow(arr, exp_unit)
     scale = 10**exp_unit
     if scale > 1:
-        if np.any(np.abs(ints) > _INT64_MAX // scale):
+        if np.any(np.abs(ints) > INT64_MAX // scale):
             raise ValueError("stamp does not fit int64 nanoseconds")
         ints = ints * np.int64(scale)
     return ints
@@ -124,7 +124,7 @@ def _scaled_to_ns(mant: np.ndarray, e: np.ndarray) -> np.ndarray:
         if np.any((ep > 18) & (mant[pos] != 0)):
             raise ValueError("stamp does not fit int64 nanoseconds")
         scale = np.power(np.int64(10), np.minimum(ep, 18))
-        if np.any(mant[pos] > _INT64_MAX // scale):
+        if np.any(mant[pos] > INT64_MAX // scale):
             raise ValueError("stamp does not fit int64 nanoseconds")
         out[pos] = mant[pos] * scale
     neg = ~pos
@@ -149,7 +149,7 @@ def _decimal_to_ns_slow(arr: pa.Array, exp_unit: int) -> np.ndarray:
             value = Decimal(s.strip()).scaleb(exp_unit).to_integral_value(rounding=ROUND_HALF_EVEN)
         except (InvalidOperation, AttributeError) as exc:
             raise ValueError(f"not a decimal number: {s!r}") from exc
-        if not value.is_finite() or abs(value) > _INT64_MAX:
+        if not value.is_finite() or abs(value) > INT64_MAX:
             raise ValueError(f"stamp {s!r} does not fit int64 nanoseconds")
         out[i] = int(value)
     return out

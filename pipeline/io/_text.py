@@ -37,7 +37,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from pipeline.errors import InputFormatError
-from pipeline.io._stamps import _INT64_MAX, TimeUnit, decimal_to_ns, guess_time_unit, stamp_resolution_ns
+from pipeline.io._stamps import INT64_MAX, TimeUnit, decimal_to_ns, guess_time_unit, stamp_resolution_ns
 from pipeline.types import NS_PER_S, Finding, Severity
 
 if TYPE_CHECKING:  # pandas is imported where a table is parsed (it costs ~0.7 s to import)
@@ -397,7 +397,7 @@ def _int_stamps_to_ns(raw: np.ndarray, unit: TimeUnit) -> np.ndarray:
     scale = 10**unit.ns_exponent
     if scale == 1:
         return raw
-    if np.any(np.abs(raw) > _INT64_MAX // scale):
+    if np.any(np.abs(raw) > INT64_MAX // scale):
         raise ValueError("stamp does not fit int64 nanoseconds")
     return raw * np.int64(scale)
 

@@ -106,11 +106,11 @@ class GravityEstimate:
 # ----------------------------------------------------------------------------- helpers
 
 
-def _pose_name(poses: PoseSeries) -> str:
+def pose_name(poses: PoseSeries) -> str:
     return f"poses (frame '{poses.frame}', {poses.source_kind.value})"
 
 
-def _check_increasing(t_ns: np.ndarray, name: str, min_len: int = 3) -> None:
+def check_increasing(t_ns: np.ndarray, name: str, min_len: int = 3) -> None:
     if len(t_ns) < min_len:
         raise DataError(f"{name} has {len(t_ns)} samples, need at least {min_len}", field=name,
                         hint="give a longer recording")
@@ -119,7 +119,7 @@ def _check_increasing(t_ns: np.ndarray, name: str, min_len: int = 3) -> None:
                         hint="run 'biasgt convert' so the input checks sort and deduplicate the stream")
 
 
-def _cumtrapz(y: np.ndarray, x: np.ndarray, axis: int = 0, initial: float = 0.0) -> np.ndarray:
+def cumtrapz(y: np.ndarray, x: np.ndarray, axis: int = 0, initial: float = 0.0) -> np.ndarray:
     """``scipy.integrate.cumulative_trapezoid(y, x, axis=0, initial=0)`` in numpy (axis 0 only).
 
     Kept local: scipy.integrate and scipy.signal add ~50 MB of RSS to every recovery run.
@@ -136,7 +136,7 @@ def _cumtrapz(y: np.ndarray, x: np.ndarray, axis: int = 0, initial: float = 0.0)
     return out
 
 
-def _correlate_valid(a: np.ndarray, v: np.ndarray) -> np.ndarray:
+def correlate_valid(a: np.ndarray, v: np.ndarray) -> np.ndarray:
     """``scipy.signal.correlate(a, v)`` for real 1-D, len(a) >= len(v):
     ``out[k] = sum_l a[l + k] v[l]``, [len(a) - len(v) + 1]."""
     n, m = len(a), len(v)
@@ -152,12 +152,12 @@ def pose_rotations(poses: PoseSeries) -> Rotation:
         DataError: the stream has no orientation, or a zero or non-finite quaternion.
     """
     if poses.quat_wxyz is None:
-        raise DataError(f"{_pose_name(poses)} has no orientation", field="quat_wxyz",
+        raise DataError(f"{pose_name(poses)} has no orientation", field="quat_wxyz",
                         hint="this estimate needs a 6-DoF pose stream (mocap, VIO or ground truth)")
     q = poses.quat_wxyz
     norms = np.linalg.norm(q, axis=1)
     if not np.all(np.isfinite(norms)) or np.any(norms < 1e-6):
-        raise DataError(f"{_pose_name(poses)} has zero or non-finite quaternions", field="quat_wxyz",
+        raise DataError(f"{pose_name(poses)} has zero or non-finite quaternions", field="quat_wxyz",
                         hint="run 'biasgt convert' to drop invalid pose rows")
     return Rotation.from_quat(q, scalar_first=True)
 
@@ -165,10 +165,10 @@ def pose_rotations(poses: PoseSeries) -> Rotation:
 def gyro_integral(imu: ImuSeries, t_ref_ns: int) -> tuple[np.ndarray, np.ndarray]:
     """Times [N] (s, relative to t_ref_ns) and the cumulative gyro integral [N, 3] (rad)."""
     t_s = (imu.t_ns - t_ref_ns) / NS_PER_S
-    return t_s, _cumtrapz(imu.gyro_radps, t_s, axis=0, initial=0.0)
+    return t_s, cumtrapz(imu.gyro_radps, t_s, axis=0, initial=0.0)
 
 
-def _interp_cols(t: np.ndarray, tp: np.ndarray, fp: np.ndarray) -> np.ndarray:
+def interp_cols(t: np.ndarray, tp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     """Linear interpolation of fp [N, ...] (rows at increasing tp [N]) at t [M] -> [M, ...].
 
     np.interp (clamped at the ends) column by column: its search starts from the previous
@@ -182,12 +182,12 @@ def _interp_cols(t: np.ndarray, tp: np.ndarray, fp: np.ndarray) -> np.ndarray:
     return out.reshape((len(t),) + fp.shape[1:])
 
 
-def _mean_gyro(t0_s: np.ndarray, t1_s: np.ndarray, t_imu_s: np.ndarray, G: np.ndarray) -> np.ndarray:
+def mean_gyro(t0_s: np.ndarray, t1_s: np.ndarray, t_imu_s: np.ndarray, G: np.ndarray) -> np.ndarray:
     """Exact mean gyro rate over [t0, t1] (trapezoid model), [M, 3]."""
-    return (_interp_cols(t1_s, t_imu_s, G) - _interp_cols(t0_s, t_imu_s, G)) / (t1_s - t0_s)[:, None]
+    return (interp_cols(t1_s, t_imu_s, G) - interp_cols(t0_s, t_imu_s, G)) / (t1_s - t0_s)[:, None]
 
 
-def _overlap(imu: ImuSeries, poses: PoseSeries, offset_s: float, margin_s: float) -> tuple[float, float]:
+def overlap_span(imu: ImuSeries, poses: PoseSeries, offset_s: float, margin_s: float) -> tuple[float, float]:
     """Common span on the IMU clock, shrunk by margin, in ns (floats); raises if too short."""
     p0 = poses.t_ns[0] + offset_s * NS_PER_S
     p1 = poses.t_ns[-1] + offset_s * NS_PER_S
@@ -195,7 +195,7 @@ def _overlap(imu: ImuSeries, poses: PoseSeries, offset_s: float, margin_s: float
     b = min(float(imu.t_ns[-1]), float(p1)) - margin_s * NS_PER_S
     if b - a < MIN_OVERLAP_S * NS_PER_S:
         raise RecoveryError(
-            f"imu and {_pose_name(poses)} overlap for only {max(b - a, 0) / NS_PER_S:.2f} s "
+            f"imu and {pose_name(poses)} overlap for only {max(b - a, 0) / NS_PER_S:.2f} s "
             f"(imu {imu.t_ns[0]}..{imu.t_ns[-1]} ns, poses {poses.t_ns[0]}..{poses.t_ns[-1]} ns, "
             f"offset {offset_s:+.3f} s, margin {margin_s:.2f} s; need {MIN_OVERLAP_S:.0f} s)",
             field="t_ns",
@@ -204,7 +204,7 @@ def _overlap(imu: ImuSeries, poses: PoseSeries, offset_s: float, margin_s: float
     return a, b
 
 
-def _box_mean(x: np.ndarray, n: int) -> np.ndarray:
+def box_mean(x: np.ndarray, n: int) -> np.ndarray:
     """Centred moving average over n samples along axis 0 ('valid' part)."""
     c = np.cumsum(np.concatenate([np.zeros((1,) + x.shape[1:]), x]), axis=0)
     return (c[n:] - c[:-n]) / n
@@ -231,7 +231,7 @@ def pose_angular_rates(poses: PoseSeries, *, smooth_s: float = 0.0) -> tuple[np.
         DataError: No orientation, fewer than 3 poses, or non-increasing stamps.
     """
     rot = pose_rotations(poses)
-    _check_increasing(poses.t_ns, _pose_name(poses))
+    check_increasing(poses.t_ns, pose_name(poses))
     dt_s = np.diff(poses.t_ns) / NS_PER_S
     omega = relative_rotvecs(rot) / dt_s[:, None]
     t_mid = poses.t_ns[:-1] + np.diff(poses.t_ns) // 2
@@ -242,7 +242,7 @@ def pose_angular_rates(poses: PoseSeries, *, smooth_s: float = 0.0) -> tuple[np.
             omega = np.stack([np.convolve(omega[:, j], kernel, mode="same") for j in range(3)], axis=1)
     return t_mid.astype(np.int64), omega
 
-def _sliding_std(y: np.ndarray, n: int) -> np.ndarray:
+def sliding_std(y: np.ndarray, n: int) -> np.ndarray:
     c1 = np.concatenate([[0.0], np.cumsum(y)])
     c2 = np.concatenate([[0.0], np.cumsum(y * y)])
     m = (c1[n:] - c1[:-n]) / n

@@ -30,11 +30,11 @@ from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
 from recovery.calibration_init.common import (
     LeverArmEstimate,
     RotationEstimate,
-    _check_increasing,
-    _cumtrapz,
-    _interp_cols,
-    _overlap,
-    _pose_name,
+    check_increasing,
+    cumtrapz,
+    interp_cols,
+    overlap_span,
+    pose_name,
     gyro_integral,
     pose_rotations,
 )
@@ -53,9 +53,9 @@ def _interval_increments(imu: ImuSeries, poses: PoseSeries, offset_s: float):
     """Per pose interval inside the overlap: pose rotation vector increment [M, 3] (tracked
     frame), gyro integral increment [M, 3] (IMU frame, bias included) and duration [M] (s)."""
     rot = pose_rotations(poses)
-    _check_increasing(imu.t_ns, "imu")
-    _check_increasing(poses.t_ns, _pose_name(poses))
-    a_ns, b_ns = _overlap(imu, poses, offset_s, 0.0)
+    check_increasing(imu.t_ns, "imu")
+    check_increasing(poses.t_ns, pose_name(poses))
+    a_ns, b_ns = overlap_span(imu, poses, offset_s, 0.0)
     t_ref = int(imu.t_ns[0])
     t_imu_s, G = gyro_integral(imu, t_ref)
     t_pose_s = (poses.t_ns - t_ref) / NS_PER_S + offset_s
@@ -64,11 +64,11 @@ def _interval_increments(imu: ImuSeries, poses: PoseSeries, offset_s: float):
     i0, i1 = i[0], i[-1] + 1
     t = t_pose_s[i0:i1]
     rv = relative_rotvecs(rot[i0:i1])
-    dG = np.diff(_interp_cols(t, t_imu_s, G), axis=0)
+    dG = np.diff(interp_cols(t, t_imu_s, G), axis=0)
     return rv, dG, np.diff(t)
 
 
-def _kabsch_with_bias(w_imu: np.ndarray, w_pose: np.ndarray, n_iter: int = 3):
+def kabsch_with_bias(w_imu: np.ndarray, w_pose: np.ndarray, n_iter: int = 3):
     """Robust joint fit of ``w_imu = R w_pose + b``: Kabsch on centred rates, 5-MAD rejection."""
     keep = np.ones(len(w_pose), bool)
     for _ in range(n_iter):
@@ -118,10 +118,10 @@ def estimate_extrinsic_rotation(
     rv, dG, dt = _interval_increments(imu, poses, offset_s)
     w_pose1, w_imu1 = rv / dt[:, None], dG / dt[:, None]
     if np.max(np.std(w_pose1, axis=0)) < 1e-6 or np.max(np.std(w_imu1, axis=0)) < 1e-6:
-        raise RecoveryError(f"imu or {_pose_name(poses)} does not rotate", field="quat_wxyz",
+        raise RecoveryError(f"imu or {pose_name(poses)} does not rotate", field="quat_wxyz",
                             hint="the extrinsic rotation needs rotation about several axes; give it in the "
                             "calibration (T_imu_frames) instead")
-    _, _, _, good = _kabsch_with_bias(w_imu1, w_pose1)
+    _, _, _, good = kabsch_with_bias(w_imu1, w_pose1)
     n = max(1, int(round(window_s / np.median(dt))))
     if n > 1:
         def wsum(x: np.ndarray) -> np.ndarray:
@@ -134,7 +134,7 @@ def estimate_extrinsic_rotation(
         w_imu = wsum(dG * good[:, None])[ok] / T[ok, None]
     else:
         w_pose, w_imu = w_pose1[good], w_imu1[good]
-    rot, bias, res, keep = _kabsch_with_bias(w_imu, w_pose)
+    rot, bias, res, keep = kabsch_with_bias(w_imu, w_pose)
     res_rms = float(np.sqrt(np.mean(res[keep] ** 2)))
     ev = np.linalg.eigvalsh(np.cov(w_imu[keep].T))
     condition = float(max(ev[0], 0.0) / ev[-1]) if ev[-1] > 0 else 0.0
@@ -181,23 +181,23 @@ class _SecondDifferences:
 def _second_differences(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_imu_pose: np.ndarray,
                         half_window_s: float, p_imu_pose_m: np.ndarray | None) -> tuple[_SecondDifferences, int]:
     """The rows of the module docstring's relation at every pose window; returns them and t_ref."""
-    _check_increasing(imu.t_ns, "imu")
-    _check_increasing(poses.t_ns, _pose_name(poses))
-    a_ns, b_ns = _overlap(imu, poses, offset_s, 0.0)
+    check_increasing(imu.t_ns, "imu")
+    check_increasing(poses.t_ns, pose_name(poses))
+    a_ns, b_ns = overlap_span(imu, poses, offset_s, 0.0)
     t_ref = int(imu.t_ns[0])
     R_ip = np.asarray(R_imu_pose, float)
     sel_imu = (imu.t_ns >= a_ns - 0.1 * NS_PER_S) & (imu.t_ns <= b_ns + 0.1 * NS_PER_S)
     ti = (imu.t_ns[sel_imu] - t_ref) / NS_PER_S
     R_wi = _imu_rotations(imu, poses, offset_s, R_ip, ti, t_ref)  # [N, 3, 3]
     f_w = np.einsum("nij,nj->ni", R_wi, imu.acc_mps2[sel_imu])
-    AA_f = _cumtrapz(_cumtrapz(f_w, ti, axis=0, initial=0), ti, axis=0, initial=0)
-    AA_R = _cumtrapz(_cumtrapz(R_wi, ti, axis=0, initial=0), ti, axis=0, initial=0)
+    AA_f = cumtrapz(cumtrapz(f_w, ti, axis=0, initial=0), ti, axis=0, initial=0)
+    AA_R = cumtrapz(cumtrapz(R_wi, ti, axis=0, initial=0), ti, axis=0, initial=0)
 
     tp = (poses.t_ns - t_ref) / NS_PER_S + offset_s
     inside = np.flatnonzero((tp >= ti[0]) & (tp <= ti[-1]))
     n = max(1, int(round(half_window_s / np.median(np.diff(tp[inside])))))
     if len(inside) < 2 * n + 10:
-        raise RecoveryError(f"{_pose_name(poses)} overlaps the imu for too short a time for the lever arm",
+        raise RecoveryError(f"{pose_name(poses)} overlaps the imu for too short a time for the lever arm",
                             hint="give a longer recording or a smaller half_window_s")
     stride = max(1, n // 10)  # neighbouring windows overlap almost fully: thin them out
     km = inside[n:-n:stride]
@@ -211,8 +211,8 @@ def _second_differences(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_im
         return w0.reshape(shape) * v0 + wm.reshape(shape) * vm + w1.reshape(shape) * v1
 
     p = poses.p_m
-    y = d2(p[k0], p[km], p[k1]) - d2(*(_interp_cols(t, ti, AA_f) for t in (t0, tm, t1)))  # [M, 3]
-    J_b = -d2(*(_interp_cols(t, ti, AA_R) for t in (t0, tm, t1)))  # [M, 3, 3]
+    y = d2(p[k0], p[km], p[k1]) - d2(*(interp_cols(t, ti, AA_f) for t in (t0, tm, t1)))  # [M, 3]
+    J_b = -d2(*(interp_cols(t, ti, AA_R) for t in (t0, tm, t1)))  # [M, 3, 3]
     J_g = d2(0.5 * (t0 - tm) ** 2, np.zeros_like(tm), 0.5 * (t1 - tm) ** 2)  # [M]
     R_wi_p = pose_rotations(poses).as_matrix() @ R_ip.T
     J_r = d2(R_wi_p[k0], R_wi_p[km], R_wi_p[k1])  # [M, 3, 3]
@@ -257,7 +257,7 @@ def _sparse_design(d: _SecondDifferences, bias_knot_s: float) -> tuple[sparse.cs
     return A, (d.y * scale[:, None]).reshape(-1), knots
 
 
-def _acc_lstsq(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_imu_pose: np.ndarray,
+def accelerometer_lstsq(imu: ImuSeries, poses: PoseSeries, offset_s: float, R_imu_pose: np.ndarray,
                half_window_s: float, bias_knot_s: float, p_imu_pose_m: np.ndarray | None) -> tuple[_AccFit, int]:
     """The second-difference least squares of the module docstring; returns the fit and t_ref.
 
@@ -318,7 +318,7 @@ def estimate_lever_arm(
         DataError: Position-only stream, too few samples.
         RecoveryError: No overlap.
     """
-    fit, t_ref = _acc_lstsq(imu, poses, offset_s, R_imu_pose, half_window_s, bias_knot_s, None)
+    fit, t_ref = accelerometer_lstsq(imu, poses, offset_s, R_imu_pose, half_window_s, bias_knot_s, None)
     x = fit.x
     std = np.sqrt(np.clip(np.diag(fit.cov)[0:3], 0, None))
     observable = bool(np.all(std < max_std_m))

@@ -15,11 +15,11 @@ from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
 from recovery.calibration_init.common import (
     GravityEstimate,
-    _box_mean,
-    _check_increasing,
-    _sliding_std,
+    box_mean,
+    check_increasing,
+    sliding_std,
 )
-from recovery.calibration_init.extrinsic import _acc_lstsq
+from recovery.calibration_init.extrinsic import accelerometer_lstsq
 
 log = logging.getLogger(__name__)
 
@@ -49,15 +49,15 @@ def find_static_segments(
     Returns:
         ``[(t0_ns, t1_ns), ...]`` in time order (Python ints, inclusive IMU stamps).
     """
-    _check_increasing(imu.t_ns, "imu")
+    check_increasing(imu.t_ns, "imu")
     n = len(imu)
     w = max(3, int(round(window_s * imu.rate_hz)) | 1)
     if n < w:
         return []
     g2 = np.sum(imu.gyro_radps**2, axis=1)
     an = np.linalg.norm(imu.acc_mps2, axis=1)
-    g_rms = np.sqrt(_box_mean(g2, w))
-    a_std = _sliding_std(an, w)
+    g_rms = np.sqrt(box_mean(g2, w))
+    a_std = sliding_std(an, w)
     ok_valid = (g_rms < gyro_thresh_radps) & (a_std < acc_std_thresh_mps2)
     ok = np.zeros(n, bool)
     ok[w // 2: w // 2 + len(ok_valid)] = ok_valid
@@ -106,7 +106,7 @@ def estimate_gravity(
         DataError: Position-only stream, too few samples.
         RecoveryError: No overlap, zero gravity fit.
     """
-    fit, _ = _acc_lstsq(imu, poses, offset_s, R_imu_pose, half_window_s, bias_knot_s, p_imu_pose_m)
+    fit, _ = accelerometer_lstsq(imu, poses, offset_s, R_imu_pose, half_window_s, bias_knot_s, p_imu_pose_m)
     g = fit.x[fit.n_r:fit.n_r + 3]
     cov = fit.cov[fit.n_r:fit.n_r + 3, fit.n_r:fit.n_r + 3]
     mag = float(np.linalg.norm(g))

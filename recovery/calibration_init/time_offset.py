@@ -29,17 +29,17 @@ from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
 from recovery.calibration_init.common import (
     TimeOffsetEstimate,
-    _check_increasing,
-    _correlate_valid,
-    _interp_cols,
-    _mean_gyro,
-    _overlap,
-    _pose_name,
-    _sliding_std,
+    check_increasing,
+    correlate_valid,
+    interp_cols,
+    mean_gyro,
+    overlap_span,
+    pose_name,
+    sliding_std,
     gyro_integral,
     pose_rotations,
 )
-from recovery.calibration_init.extrinsic import _kabsch_with_bias
+from recovery.calibration_init.extrinsic import kabsch_with_bias
 from recovery.rotations import relative_rotvecs
 
 log = logging.getLogger(__name__)
@@ -64,8 +64,8 @@ def _lag_correlation(x: np.ndarray, y_ext: np.ndarray) -> np.ndarray:
     n = len(x)
     xc = x - x.mean()
     sx = xc.std()
-    sy = _sliding_std(y_ext, n)
-    c = _correlate_valid(y_ext, xc)
+    sy = sliding_std(y_ext, n)
+    c = correlate_valid(y_ext, xc)
     with np.errstate(invalid="ignore", divide="ignore"):
         r = c / (n * sx * sy)
     return np.nan_to_num(r, nan=-1.0)
@@ -89,13 +89,13 @@ def _rotation_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     rv = relative_rotvecs(rot)
     x_native = np.linalg.norm(rv / dt_p[:, None], axis=1)
     if np.std(x_native) < 1e-6:
-        raise RecoveryError(f"{_pose_name(poses)} does not rotate (constant orientation)", field="quat_wxyz",
+        raise RecoveryError(f"{pose_name(poses)} does not rotate (constant orientation)", field="quat_wxyz",
                             hint="the clock offset cannot be found without motion; give --time-offset-s")
     if np.std(np.linalg.norm(imu.gyro_radps, axis=1)) < 1e-6:
         raise RecoveryError("imu gyro signal is constant", field="gyro_radps",
                             hint="check the IMU stream (units, saturation) or give --time-offset-s")
 
-    a_ns, b_ns = _overlap(imu, poses, 0.0, max_offset_s)
+    a_ns, b_ns = overlap_span(imu, poses, 0.0, max_offset_s)
     rate = float(resample_hz) if resample_hz else float(np.clip(poses.rate_hz, 20.0, 400.0))
     dt = 1.0 / rate
     K = int(np.ceil(max_offset_s / dt))
@@ -116,15 +116,15 @@ def _rotation_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     w_pose = (crv[j0 + n] - crv[j0]) / (t_pose_s[j0 + n] - t_pose_s[j0])[:, None]
 
     def w_imu(tau: float, sel: np.ndarray, Gb: np.ndarray) -> np.ndarray:
-        return _mean_gyro(t_pose_s[j0[sel]] + tau, t_pose_s[j0[sel] + n] + tau, t_imu_s, Gb)
+        return mean_gyro(t_pose_s[j0[sel]] + tau, t_pose_s[j0[sel] + n] + tau, t_imu_s, Gb)
 
     def coarse(Gb: np.ndarray) -> tuple[float, float, int]:
-        y_ext = np.linalg.norm(_mean_gyro(tg_ext - hc / 2, tg_ext + hc / 2, t_imu_s, Gb), axis=1)
+        y_ext = np.linalg.norm(mean_gyro(tg_ext - hc / 2, tg_ext + hc / 2, t_imu_s, Gb), axis=1)
         r = _lag_correlation(x, y_ext)
         k = int(np.argmax(r))
         if k <= 1 or k >= len(r) - 2:
             raise RecoveryError(
-                f"time-offset peak between imu and {_pose_name(poses)} is at the search boundary "
+                f"time-offset peak between imu and {pose_name(poses)} is at the search boundary "
                 f"({(k - K) * dt:+.3f} s of +-{max_offset_s:.3f} s, correlation {r[k]:.2f})",
                 field="t_ns", hint="increase max_offset_s, or give --time-offset-s")
         return (k - K + _parabolic(r, k)) * dt, float(r[k]), k
@@ -133,12 +133,12 @@ def _rotation_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     tau0, _, _ = coarse(G)
     # Joint R, b at tau0 (b barely depends on the offset), then pass 2 without the bias.
     all_sel = np.arange(len(j0))
-    _, bias, _, _ = _kabsch_with_bias(w_imu(tau0, all_sel, G), w_pose)
+    _, bias, _, _ = kabsch_with_bias(w_imu(tau0, all_sel, G), w_pose)
     Gb = G - np.outer(t_imu_s, bias)
     tau1, corr, _ = coarse(Gb)
     if corr < min_correlation:
         raise RecoveryError(
-            f"|omega| of imu and {_pose_name(poses)} correlate only {corr:.2f} (< {min_correlation})",
+            f"|omega| of imu and {pose_name(poses)} correlate only {corr:.2f} (< {min_correlation})",
             field="t_ns", hint="check that the streams belong to the same rigid body and overlap in time, "
             "or give --time-offset-s")
 
@@ -164,12 +164,12 @@ def _position_r2(acc: np.ndarray, u: np.ndarray) -> np.ndarray:
     a2 = np.sum(acc**2, axis=1)
     D = np.column_stack([-2 * acc, np.ones(n)])
     Minv = np.linalg.pinv(D.T @ D)
-    Dz = np.stack([_correlate_valid(u, D[:, j]) for j in range(4)], axis=1)
+    Dz = np.stack([correlate_valid(u, D[:, j]) for j in range(4)], axis=1)
     Dz -= (D.T @ a2)[None, :]
     c1 = np.concatenate([[0.0], np.cumsum(u)])
     c2 = np.concatenate([[0.0], np.cumsum(u * u)])
     su, suu = c1[n:] - c1[:-n], c2[n:] - c2[:-n]
-    sua = _correlate_valid(u, a2)
+    sua = correlate_valid(u, a2)
     zz = suu - 2 * sua + np.sum(a2**2)
     zsum = su - a2.sum()
     tss = zz - zsum**2 / n
@@ -183,9 +183,9 @@ def _position_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     t_imu_s = (imu.t_ns - t_ref) / NS_PER_S
     t_pose_s = (poses.t_ns - t_ref) / NS_PER_S
     if np.all(np.std(poses.p_m, axis=0) < 1e-6):
-        raise RecoveryError(f"{_pose_name(poses)} does not move (constant position)", field="p_m",
+        raise RecoveryError(f"{pose_name(poses)} does not move (constant position)", field="p_m",
                             hint="the clock offset cannot be found without motion; give --time-offset-s")
-    a_ns, b_ns = _overlap(imu, poses, 0.0, max_offset_s)
+    a_ns, b_ns = overlap_span(imu, poses, 0.0, max_offset_s)
     rate = float(resample_hz) if resample_hz else 100.0
     dt = 1.0 / rate
     K = int(np.ceil(max_offset_s / dt))
@@ -193,10 +193,10 @@ def _position_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     tg = np.arange((a_ns - t_ref) / NS_PER_S, (b_ns - t_ref) / NS_PER_S, dt)
     pad = int(4 * sigma) + 1
     tg_pad = tg[0] + dt * np.arange(-pad, len(tg) + pad)
-    p = _interp_cols(tg_pad, t_pose_s, poses.p_m)
+    p = interp_cols(tg_pad, t_pose_s, poses.p_m)
     acc = gaussian_filter1d(p, sigma, axis=0, order=2)[pad:-pad] / dt**2  # [N, 3]
     tg_ext = tg[0] + dt * np.arange(-K - pad, len(tg) + K + pad)
-    f2 = np.sum(_interp_cols(tg_ext, t_imu_s, imu.acc_mps2) ** 2, axis=1)
+    f2 = np.sum(interp_cols(tg_ext, t_imu_s, imu.acc_mps2) ** 2, axis=1)
     u = gaussian_filter1d(f2, sigma)[pad:-pad]  # [N + 2K]
     if np.std(u) < 1e-9:
         raise RecoveryError("imu accelerometer signal is constant", field="acc_mps2",
@@ -205,14 +205,14 @@ def _position_offset(imu: ImuSeries, poses: PoseSeries, max_offset_s: float, res
     k = int(np.argmax(r2))
     if k <= 1 or k >= len(r2) - 2:
         raise RecoveryError(
-            f"time-offset peak between imu and {_pose_name(poses)} is at the search boundary "
+            f"time-offset peak between imu and {pose_name(poses)} is at the search boundary "
             f"({(k - K) * dt:+.3f} s of +-{max_offset_s:.3f} s)", field="t_ns",
             hint="increase max_offset_s, or give --time-offset-s")
     tau = (k - K + _parabolic(r2, k)) * dt
     corr = float(np.sqrt(r2[k]))
     if corr < min_correlation:
         raise RecoveryError(
-            f"accelerations of imu and {_pose_name(poses)} fit only with R = {corr:.2f} (< {min_correlation})",
+            f"accelerations of imu and {pose_name(poses)} fit only with R = {corr:.2f} (< {min_correlation})",
             field="t_ns", hint="check that the streams belong to the same rigid body, or give --time-offset-s")
     # Per-chunk peaks (searched within +-5 grid steps of the global one) for the std.
     est = []
@@ -255,8 +255,8 @@ def estimate_time_offset(
         DataError: Too few samples or non-increasing stamps.
         RecoveryError: No overlap, no motion, low correlation or a peak at the boundary.
     """
-    _check_increasing(imu.t_ns, "imu")
-    _check_increasing(poses.t_ns, _pose_name(poses))
+    check_increasing(imu.t_ns, "imu")
+    check_increasing(poses.t_ns, pose_name(poses))
     if poses.has_orientation:
         return _rotation_offset(imu, poses, max_offset_s, resample_hz, min_correlation)
     return _position_offset(imu, poses, max_offset_s, resample_hz, min_correlation)

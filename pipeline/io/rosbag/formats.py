@@ -20,7 +20,7 @@ TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 POSE_TYPES = (POSE_STAMPED, POSE_COV_STAMPED, TRANSFORM_STAMPED, ODOMETRY)
 
 BAG_READ_ERRORS = (AnyReaderError, Ros1ReaderError, Ros2ReaderError, TypesysError)
-_BAG_HINT = (
+BAG_HINT = (
     "give a ROS1 .bag file, a ROS2 bag folder with metadata.yaml, or a ROS2 .db3/.mcap file, "
     "and check that the file is complete (not truncated)"
 )

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.errors import AmbiguousInputError, InputFormatError, UnsupportedInputError
 from pipeline.io.rosbag.formats import (
-    _BAG_HINT,
+    BAG_HINT,
     BAG_READ_ERRORS,
     IMU_TYPE,
     ODOMETRY,
@@ -389,9 +389,9 @@ def read_bag(
                 all_pose_topics,
             )
     except BAG_READ_ERRORS as err:
-        raise InputFormatError(f"cannot read bag: {err}", path=path, hint=_BAG_HINT) from err
+        raise InputFormatError(f"cannot read bag: {err}", path=path, hint=BAG_HINT) from err
     except FileNotFoundError as err:
-        raise InputFormatError(f"cannot read bag: {err}", path=path, hint=_BAG_HINT) from err
+        raise InputFormatError(f"cannot read bag: {err}", path=path, hint=BAG_HINT) from err
 
 
 class _PoseJobKind(enum.Enum):
