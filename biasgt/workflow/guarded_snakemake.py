@@ -27,13 +27,12 @@ import time
 
 import psutil
 
-from biasgt.workflow.process_group import STOP_GRACE_S
+from biasgt.workflow.process_group import STOP_GRACE_S, end_processes
 
 #: prctl option that sets the signal a process gets when its parent dies (linux/prctl.h).
 _PR_SET_PDEATHSIG = 1
 #: Seconds between two looks at the parent where prctl is not available.
 _POLL_S = 1.0
-_KILL_AFTER_S = 5.0
 
 
 def _group_members() -> list[psutil.Process]:
@@ -49,14 +48,7 @@ def _group_members() -> list[psutil.Process]:
 
 def _end_left_over(started: list[psutil.Process]) -> None:
     """At exit: end the jobs that outlived Snakemake's own clean-up (SIGTERM, then SIGKILL)."""
-    left = [p for p in started if p.is_running()]
-    for p in left:
-        with contextlib.suppress(psutil.Error):
-            p.terminate()
-    _, alive = psutil.wait_procs(left, timeout=_KILL_AFTER_S)
-    for p in alive:
-        with contextlib.suppress(psutil.Error):
-            p.kill()
+    end_processes(started)
 
 
 def _kill_group_after(grace_s: float) -> None:

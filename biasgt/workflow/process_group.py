@@ -20,13 +20,26 @@ from typing import IO
 
 import psutil
 
-__all__ = ["STOP_GRACE_S", "start_group", "stop_group", "exclusive_lock", "workflow_processes"]
+__all__ = ["STOP_GRACE_S", "end_processes", "start_group", "stop_group", "exclusive_lock", "workflow_processes"]
 
 #: Seconds the group gets to clean up after the forwarded signal before it is killed (SLURM's
 #: ``scancel`` of many jobs takes a while).
 STOP_GRACE_S = 120.0
 #: Seconds a left-over process gets after SIGTERM before SIGKILL.
 _KILL_AFTER_S = 5.0
+
+
+def end_processes(processes: Sequence[psutil.Process]) -> None:
+    """End those of ``processes`` still running: SIGTERM, then SIGKILL after ``_KILL_AFTER_S``."""
+    left = [p for p in processes if p.is_running()]
+    for p in left:
+        with contextlib.suppress(psutil.Error):
+            p.terminate()
+    _, alive = psutil.wait_procs(left, timeout=_KILL_AFTER_S)
+    for p in alive:
+        with contextlib.suppress(psutil.Error):
+            p.kill()
+    psutil.wait_procs(alive, timeout=_KILL_AFTER_S)
 
 
 def start_group(cmd: Sequence[str], **popen_kwargs) -> subprocess.Popen:
@@ -104,15 +117,7 @@ def stop_group(proc: subprocess.Popen, leader_signal: int = signal.SIGINT, other
                 os.killpg(proc.pid, signal.SIGKILL)
             rc = proc.wait()
         # jobs that left the group (a new session) or outlived their parent
-        left = [p for p in started if p.is_running()]
-        for p in left:
-            with contextlib.suppress(psutil.NoSuchProcess):
-                p.terminate()
-        _, alive = psutil.wait_procs(left, timeout=_KILL_AFTER_S)
-        for p in alive:
-            with contextlib.suppress(psutil.NoSuchProcess):
-                p.kill()
-        psutil.wait_procs(alive, timeout=_KILL_AFTER_S)
+        end_processes(started)
         if drain is not None:
             drain.join(timeout=_KILL_AFTER_S)
     return rc
