@@ -41,6 +41,7 @@ from pipeline.errors import BiasgtError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.gyro_consistency import CouplingKind, rate_coupling
+from recovery.intrinsics_report import term_table
 from recovery.outputs import RecoveryReport
 
 log = logging.getLogger(__name__)
@@ -95,6 +96,8 @@ class IntrinsicsFit:
             present already).
         cov: Covariance of the fitted terms, row-major per group: ``rotation`` (S_g, then G when
             fitted), ``velocity`` (S_a).
+        estimate: The same groups, 3x3: every term's least-squares value, applied or not (what the
+            readings the fit saw still carry of it).
     """
 
     step: ImuIntrinsics
@@ -104,6 +107,7 @@ class IntrinsicsFit:
     estimated: tuple[str, ...] = ("gyro_scale_misalignment", "acc_scale_misalignment")
     applied: dict[str, np.ndarray] | None = None  # per group, 3x3: the terms the step changes
     cov: dict[str, np.ndarray] | None = None  # "rotation": [9 or 18]^2 (S_g, G), "velocity": [9, 9] (S_a)
+    estimate: dict[str, np.ndarray] | None = None  # per group, 3x3: the least-squares values
 
     def moved(self, n_sigma: float = 3.0) -> bool:
         """Whether the step changes any observable term by more than ``n_sigma`` of its sigmas."""
@@ -231,8 +235,9 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
               "acc_scale_misalignment": (x_vel[:9], s_vel[:9], max_sigma)}
     if g_sensitivity:
         groups["gyro_g_sensitivity"] = (x_rot[9:18], s_rot[9:18], max_sigma_g_sensitivity)
-    mats, sigma, observable, applied = {}, {}, {}, {}
+    mats, sigma, observable, applied, estimate = {}, {}, {}, {}, {}
     for name, (x, s_, limit) in groups.items():
+        estimate[name] = x.reshape(3, 3)
         ok = np.isfinite(s_) & (s_ <= limit)
         # a term not significantly different from zero stays zero: applying its noise would move
         # the bias (a G term times gravity is a constant gyro offset) for nothing
@@ -252,7 +257,7 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
     step = ImuIntrinsics(M_g, np.linalg.inv(np.eye(3) - mats["acc_scale_misalignment"]),
                          M_g @ mats["gyro_g_sensitivity"])
     return IntrinsicsFit(step, sigma, observable, {"rotation_rad": rms_rot, "velocity_mps": rms_vel},
-                         tuple(groups), applied, {"rotation": c_rot, "velocity": c_vel})
+                         tuple(groups), applied, {"rotation": c_rot, "velocity": c_vel}, estimate)
 
 
 def _block_means(values: np.ndarray, block: np.ndarray) -> np.ndarray:
@@ -341,18 +346,28 @@ def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[n
     return out, np.sqrt(np.hstack([var_g, var_a]))
 
 
+#: The size (1 sigma) of a term on a MEMS IMU's datasheet: scale and misalignment 0.5 %, g-sensitivity
+#: 2e-4 rad/s per m/s^2 (0.1 deg/s per g). The prior of a term the fit cannot tell from the bias.
+TERM_PRIOR = {"gyro_scale_misalignment": 5e-3, "acc_scale_misalignment": 5e-3, "gyro_g_sensitivity": 2e-4}
+
+
 def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray,
-                             f_mps2: np.ndarray) -> np.ndarray:
-    """Bias variance [N, 6] (gyro, acc) from the uncertainty of the estimated intrinsics.
+                             f_mps2: np.ndarray, left: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """Bias variance [N, 6] (gyro, acc) from the intrinsics: those estimated and those the bias absorbed.
 
     With ``gyro = M_g omega + G f + b_g`` and ``acc = M_a f + b_a``, errors ``dS`` / ``dG`` of the
     terms move the recovered bias by ``-(dS_g omega + dG f)`` and ``-dS_a f`` (first order). A term on
     the gravity axis times ``f ~ g`` is nearly a constant offset, so its sigma reaches the bias in
-    full. Only the terms in the model (``terms``: per group, 3x3 booleans) count; the others are
-    fixed to zero.
+    full. A term in the model (``terms``: per group, 3x3 booleans) errs by the fit's covariance. The
+    terms left out (not significant, not observable, or dropped) are still in the readings: with
+    ``left`` (per group, 3x3: the fit's estimate ``x`` of what the readings carry of each, covariance
+    ``C`` among them) they err by their mean square error as zero, ``P + m m^T``, the posterior
+    ``m = L (C + L)^-1 x``, ``P = C (C + L)^-1 L`` under the datasheet prior ``L``
+    (:data:`TERM_PRIOR`); a term the fit cannot see (not ``fit.observable``) keeps the prior as its
+    error. Without ``left``, terms left out add nothing.
 
     Args:
-        fit: The last fit (its ``cov``). terms: The terms estimated.
+        fit: The last fit (its ``cov``). terms: The terms estimated. left: See above.
         omega_radps / f_mps2: Bias-free angular rate and specific force at the keyframes, [N, 3].
     """
     N = len(omega_radps)
@@ -362,13 +377,34 @@ def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], o
         gyro_groups.append(("gyro_g_sensitivity", f_mps2))
     for cov, groups, col in ((fit.cov["rotation"], gyro_groups, 0),
                              (fit.cov["velocity"], [("acc_scale_misalignment", f_mps2)], 3)):
-        for r in range(3):
-            # d(bias_r) / d(term [r, c]) = -signal_c, for the terms of row r of each group
-            grad = np.zeros((N, cov.shape[0]))
-            for g, (name, signal) in enumerate(groups):
-                used = np.asarray(terms.get(name, np.zeros((3, 3), bool)))[r]
-                grad[:, 9 * g + 3 * r: 9 * g + 3 * r + 3] = -signal * used
-            out[:, col + r] = np.einsum("np,pq,nq->n", grad, cov, grad)
+        P = cov.shape[0]
+        used = np.zeros(P, bool)
+        x, prior = np.zeros(P), np.zeros(P)
+        for g, (name, _) in enumerate(groups):
+            sl = slice(9 * g, 9 * g + 9)
+            used[sl] = np.asarray(terms.get(name, np.zeros((3, 3), bool)), bool).ravel()
+            if left is not None:
+                x[sl] = np.nan_to_num(np.asarray(left.get(name, np.zeros((3, 3))), float).ravel())
+                prior[sl] = TERM_PRIOR[name] ** 2
+        out_of_model = ~used if left is not None else np.zeros(P, bool)
+        eff = np.where(np.outer(used, used), cov, 0.0)
+        # a term the fit cannot see (sigma over its limit) keeps the prior: its estimate says nothing
+        blind = out_of_model & ~np.concatenate([np.asarray(fit.observable.get(name, np.ones((3, 3), bool)), bool).ravel()
+                                                 for name, _ in groups])
+        eff[blind, blind] = prior[blind]
+        u = np.flatnonzero(out_of_model & ~blind)
+        if len(u):
+            C, L = cov[np.ix_(u, u)], np.diag(prior[u])
+            gain = np.linalg.solve(C + L, np.eye(len(u)))  # (C + L)^-1
+            m, post = L @ gain @ x[u], C @ gain @ L
+            eff[np.ix_(u, u)] = 0.5 * (post + post.T) + np.outer(m, m)
+        counted = used | out_of_model
+        for row in range(3):
+            # d(bias_row) / d(term [row, c]) = -signal_c, for the terms of that row of each group
+            grad = np.zeros((N, P))
+            for g, (_, signal) in enumerate(groups):
+                grad[:, 9 * g + 3 * row: 9 * g + 3 * row + 3] = -signal * counted[9 * g + 3 * row: 9 * g + 3 * row + 3]
+            out[:, col + row] = np.einsum("np,pq,nq->n", grad, eff, grad)
     return out
 
 
@@ -514,10 +550,14 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
         work, result, total = _solve_corrected(sequence, solve, result, total, total.compose(fit.step))
     assert fit is not None
     dropped: list[str] = []
+    # what the final readings still carry of each term: the last fit's estimate, and a dropped term's value
+    left = {k: np.nan_to_num(v) for k, v in (fit.estimate or {}).items()}
     if present:
         trimmed, present, dropped = drop_insignificant(total, fit, present)
         if dropped:
             log.info("intrinsics: %s no longer significant, dropped; solving once more", ", ".join(dropped))
+            before, after = total.deviations(), trimmed.deviations()
+            left = {k: v + before[k] - after[k] for k, v in left.items()}
             work, result, total = _solve_corrected(sequence, solve, result, total, trimmed)
     bias, std = raw_bias(total, np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]),
                          np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]))
@@ -526,12 +566,13 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     def at(y: np.ndarray) -> np.ndarray:
         return np.stack([np.interp(result.t_ns, imu.t_ns, y[:, c]) for c in range(3)], axis=1)
     added = intrinsics_bias_variance(fit, present or {}, at(imu.gyro_radps) - result.bias_gyro_radps,
-                                     at(imu.acc_mps2) - result.bias_acc_mps2)
+                                     at(imu.acc_mps2) - result.bias_acc_mps2, left=left)
     inflation = np.sqrt(1.0 + added / np.maximum(std**2, 1e-300))
     std = np.sqrt(std**2 + added)
     data = dict(result.report.data)
+    table = term_table(total.deviations(), fit.sigma, fit.observable, present or {}, left, dropped, fit.estimated)
     data["intrinsics"] = {**intrinsics_report(total, fit, rounds), "bias_std_inflation_mean": inflation.mean(0).tolist(),
-                          "dropped_at_end": dropped}
+                          "bias_std_added_mean": np.sqrt(added).mean(0).tolist(), "dropped_at_end": dropped, **table}
     warning = unobservable_warning(fit)
     if warning:
         data["warnings"] = [*data.get("warnings", []), warning]
