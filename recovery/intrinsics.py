@@ -24,7 +24,12 @@ through the trajectory, which the pose stream pins down whatever the bias does):
 A position-only pose stream does not pin the trajectory down: nothing is estimated for it
 (identity, with a warning). The bias is reported in the raw readings' convention (``b = M b'``),
 and its sigma includes the uncertainty of the estimated terms (:func:`intrinsics_bias_variance`):
-a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. Design notes and the
+a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. The terms left out (not
+significant, not observable) are still in the readings and in the bias: under a datasheet prior
+(:func:`term_prior`), their posterior means are taken out of the bias (:func:`left_out_shift`) and
+their posterior variance (the prior, for a term the fit cannot see) is added to its sigma. Where the
+first solve turned a calibration file's extrinsic by the gyro's own rotation, the file's is held when
+the accelerometer agrees with it (:mod:`recovery.intrinsics_frame`). Design notes and the
 reasons for this scheme: ``docs/internals.md``.
 """
 
@@ -41,6 +46,7 @@ from pipeline.errors import BiasgtError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.gyro_consistency import CouplingKind, rate_coupling
+from recovery.intrinsics_frame import calibration_agreement
 from recovery.intrinsics_report import term_table
 from recovery.outputs import RecoveryReport
 
@@ -349,10 +355,55 @@ def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[n
 #: The size (1 sigma) of a term on a MEMS IMU's datasheet: scale and misalignment 0.5 %, g-sensitivity
 #: 2e-4 rad/s per m/s^2 (0.1 deg/s per g). The prior of a term the fit cannot tell from the bias.
 TERM_PRIOR = {"gyro_scale_misalignment": 5e-3, "acc_scale_misalignment": 5e-3, "gyro_g_sensitivity": 2e-4}
+#: An accelerometer off-diagonal term when the accelerometer's frame is the IMU frame the solve used (the
+#: extrinsic held at a calibration it agrees with, or known): only the triad's non-orthogonality (0.06 deg).
+ACC_CROSS_AXIS_PRIOR = 1e-3
+
+
+def term_prior(frame_held: bool) -> dict[str, np.ndarray]:
+    """Per group, the 3x3 prior sigmas (:data:`TERM_PRIOR`; with ``frame_held``, the accelerometer's
+    off-diagonal terms :data:`ACC_CROSS_AXIS_PRIOR`, else they carry its rotation against the solve's frame too)."""
+    out = {k: np.full((3, 3), v) for k, v in TERM_PRIOR.items()}
+    if frame_held:
+        out["acc_scale_misalignment"] = np.where(np.eye(3, dtype=bool), TERM_PRIOR["acc_scale_misalignment"],
+                                                 ACC_CROSS_AXIS_PRIOR)
+    return out
+
+
+def _blocks(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray, f_mps2: np.ndarray,
+            left: dict[str, np.ndarray] | None, prior: dict[str, np.ndarray] | None):
+    """Per covariance block (rotation: S_g[, G]; velocity: S_a): ``(cov, [(group, signal)], first bias
+    column, in-model mask, left-out mask, posterior of the left-out terms)``; the posterior is
+    ``(indices, m, P)`` of the observable left-out terms and ``(indices, prior variance)`` of the blind ones."""
+    gyro_groups = [("gyro_scale_misalignment", omega_radps)]
+    if "gyro_g_sensitivity" in fit.estimated:
+        gyro_groups.append(("gyro_g_sensitivity", f_mps2))
+    for cov, groups, col in ((fit.cov["rotation"], gyro_groups, 0),
+                             (fit.cov["velocity"], [("acc_scale_misalignment", f_mps2)], 3)):
+        n = cov.shape[0]
+        used, seen = np.zeros(n, bool), np.ones(n, bool)
+        x, prior_var = np.zeros(n), np.zeros(n)
+        for g, (name, _) in enumerate(groups):
+            sl = slice(9 * g, 9 * g + 9)
+            used[sl] = np.asarray(terms.get(name, np.zeros((3, 3), bool)), bool).ravel()
+            seen[sl] = np.asarray(fit.observable.get(name, np.ones((3, 3), bool)), bool).ravel()
+            if left is not None:
+                x[sl] = np.nan_to_num(np.asarray(left.get(name, np.zeros((3, 3))), float).ravel())
+                prior_var[sl] = np.asarray((prior or term_prior(False))[name], float).ravel() ** 2
+        out_of_model = ~used if left is not None else np.zeros(n, bool)
+        blind = np.flatnonzero(out_of_model & ~seen)  # the fit cannot see them: the prior, its estimate says nothing
+        u = np.flatnonzero(out_of_model & seen)
+        m, post = np.zeros(len(u)), np.zeros((len(u), len(u)))
+        if len(u):
+            C, L = cov[np.ix_(u, u)], np.diag(prior_var[u])
+            gain = np.linalg.solve(C + L, np.eye(len(u)))  # (C + L)^-1
+            m, post = L @ gain @ x[u], C @ gain @ L
+        yield cov, groups, col, used, out_of_model, (u, m, 0.5 * (post + post.T)), (blind, prior_var[blind])
 
 
 def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray,
-                             f_mps2: np.ndarray, left: dict[str, np.ndarray] | None = None) -> np.ndarray:
+                             f_mps2: np.ndarray, left: dict[str, np.ndarray] | None = None,
+                             prior: dict[str, np.ndarray] | None = None, corrected: bool = False) -> np.ndarray:
     """Bias variance [N, 6] (gyro, acc) from the intrinsics: those estimated and those the bias absorbed.
 
     With ``gyro = M_g omega + G f + b_g`` and ``acc = M_a f + b_a``, errors ``dS`` / ``dG`` of the
@@ -361,50 +412,50 @@ def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], o
     full. A term in the model (``terms``: per group, 3x3 booleans) errs by the fit's covariance. The
     terms left out (not significant, not observable, or dropped) are still in the readings: with
     ``left`` (per group, 3x3: the fit's estimate ``x`` of what the readings carry of each, covariance
-    ``C`` among them) they err by their mean square error as zero, ``P + m m^T``, the posterior
-    ``m = L (C + L)^-1 x``, ``P = C (C + L)^-1 L`` under the datasheet prior ``L``
-    (:data:`TERM_PRIOR`); a term the fit cannot see (not ``fit.observable``) keeps the prior as its
-    error. Without ``left``, terms left out add nothing.
+    ``C`` among them) their posterior under the datasheet prior ``L`` (``prior``: per group 3x3 sigmas,
+    default :func:`term_prior` without a held frame) is ``m = L (C + L)^-1 x``, ``P = C (C + L)^-1 L``:
+    they err by ``P + m m^T`` (their mean square error as zero), or by ``P`` when the bias was
+    ``corrected`` by ``m`` (:func:`left_out_shift`). A term the fit cannot see (not
+    ``fit.observable``) keeps the prior as its error. Without ``left``, terms left out add nothing.
 
     Args:
-        fit: The last fit (its ``cov``). terms: The terms estimated. left: See above.
+        fit: The last fit (its ``cov``). terms: The terms estimated. left / prior / corrected: See above.
         omega_radps / f_mps2: Bias-free angular rate and specific force at the keyframes, [N, 3].
     """
     N = len(omega_radps)
     out = np.zeros((N, 6))
-    gyro_groups = [("gyro_scale_misalignment", omega_radps)]
-    if "gyro_g_sensitivity" in fit.estimated:
-        gyro_groups.append(("gyro_g_sensitivity", f_mps2))
-    for cov, groups, col in ((fit.cov["rotation"], gyro_groups, 0),
-                             (fit.cov["velocity"], [("acc_scale_misalignment", f_mps2)], 3)):
-        P = cov.shape[0]
-        used = np.zeros(P, bool)
-        x, prior = np.zeros(P), np.zeros(P)
-        for g, (name, _) in enumerate(groups):
-            sl = slice(9 * g, 9 * g + 9)
-            used[sl] = np.asarray(terms.get(name, np.zeros((3, 3), bool)), bool).ravel()
-            if left is not None:
-                x[sl] = np.nan_to_num(np.asarray(left.get(name, np.zeros((3, 3))), float).ravel())
-                prior[sl] = TERM_PRIOR[name] ** 2
-        out_of_model = ~used if left is not None else np.zeros(P, bool)
+    for cov, groups, col, used, out_of_model, (u, m, post), (blind, blind_var) in _blocks(
+            fit, terms, omega_radps, f_mps2, left, prior):
         eff = np.where(np.outer(used, used), cov, 0.0)
-        # a term the fit cannot see (sigma over its limit) keeps the prior: its estimate says nothing
-        blind = out_of_model & ~np.concatenate([np.asarray(fit.observable.get(name, np.ones((3, 3), bool)), bool).ravel()
-                                                 for name, _ in groups])
-        eff[blind, blind] = prior[blind]
-        u = np.flatnonzero(out_of_model & ~blind)
-        if len(u):
-            C, L = cov[np.ix_(u, u)], np.diag(prior[u])
-            gain = np.linalg.solve(C + L, np.eye(len(u)))  # (C + L)^-1
-            m, post = L @ gain @ x[u], C @ gain @ L
-            eff[np.ix_(u, u)] = 0.5 * (post + post.T) + np.outer(m, m)
+        eff[blind, blind] = blind_var
+        eff[np.ix_(u, u)] = post if corrected else post + np.outer(m, m)
         counted = used | out_of_model
         for row in range(3):
             # d(bias_row) / d(term [row, c]) = -signal_c, for the terms of that row of each group
-            grad = np.zeros((N, P))
+            grad = np.zeros((N, cov.shape[0]))
             for g, (_, signal) in enumerate(groups):
                 grad[:, 9 * g + 3 * row: 9 * g + 3 * row + 3] = -signal * counted[9 * g + 3 * row: 9 * g + 3 * row + 3]
             out[:, col + row] = np.einsum("np,pq,nq->n", grad, eff, grad)
+    return out
+
+
+def left_out_shift(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray, f_mps2: np.ndarray,
+                   left: dict[str, np.ndarray], prior: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """What the bias absorbed of the terms left out, to subtract from it: ``m s`` per bias axis, [N, 6].
+
+    The posterior means ``m`` of :func:`intrinsics_bias_variance` times their signals; pass the
+    signals low-passed as the bias follows them (a bias random walk takes up ``G f ~ G g`` in full,
+    little of ``S_g omega``).
+
+    Args:
+        omega_radps / f_mps2: The signals at the keyframes, [N, 3].
+    """
+    out = np.zeros((len(omega_radps), 6))
+    for _, groups, col, _, _, (u, m, _), _ in _blocks(fit, terms, omega_radps, f_mps2, left, prior):
+        full = np.zeros(9 * len(groups))
+        full[u] = m
+        for g, (_, signal) in enumerate(groups):
+            out[:, col:col + 3] += signal @ full[9 * g: 9 * g + 9].reshape(3, 3).T
     return out
 
 
@@ -516,12 +567,33 @@ def _solve_corrected(sequence: Sequence, solve: Callable[[Sequence], object], re
     return work, solve(work), new
 
 
+def _hold_calibrated_extrinsic(sequence: Sequence, result, solve_calibrated: Callable[[Sequence], object],
+                               g_sensitivity: bool, block_s: float):
+    """``(result, agreement)``: the solve with the calibration file's extrinsic held when the
+    accelerometer agrees with its rotation (:mod:`recovery.intrinsics_frame`), else ``result``;
+    ``agreement`` is None when there is no file to compare with."""
+    gravity = np.asarray(result.report.get("gravity_world_mps2", DEFAULT_GRAVITY_MPS2), dtype=float)
+    fit = fit_intrinsics(sequence.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
+                         _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s)
+    assert fit.estimate is not None and fit.cov is not None
+    agreement = calibration_agreement(fit.estimate["acc_scale_misalignment"], fit.cov["velocity"], result.report.data)
+    if agreement is None or not agreement["agrees"]:
+        return result, agreement
+    log.info("intrinsics: the accelerometer agrees with the calibration's extrinsic rotation; holding it")
+    return solve_calibrated(sequence), agreement
+
+
 def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
-                            block_s: float, max_rounds: int = 5, first=None):
+                            block_s: float, max_rounds: int = 5, first=None,
+                            solve_calibrated: Callable[[Sequence], object] | None = None):
     """The alternating loop of the module docstring around ``solve`` (a full recovery).
 
     Args:
         first: ``solve(sequence)`` when the caller has it already.
+        solve_calibrated: ``solve`` with the calibration file's extrinsic held: used instead of
+            ``solve`` when the first solve estimated the extrinsic with the file as a prior and the
+            accelerometer agrees with the file's rotation (:mod:`recovery.intrinsics_frame`: the gyro's
+            own rotation, an intrinsic term, would otherwise turn the extrinsic).
 
     Returns:
         The last solve's :class:`recovery.recover.RecoveryResult`, its bias mapped back to the raw
@@ -533,6 +605,11 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     stream = sequence.poses.get(str(result.report.get("pose_stream")))
     if stream is not None and stream.quat_wxyz is None:
         return _not_estimated(result, str(result.report.get("pose_stream")))
+    agreement = None
+    if solve_calibrated is not None:
+        result, agreement = _hold_calibrated_extrinsic(sequence, result, solve_calibrated, g_sensitivity, block_s)
+        if agreement is not None and agreement["agrees"]:
+            solve = solve_calibrated
     work = sequence
     fit = None
     rounds = 0
@@ -561,18 +638,30 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
             work, result, total = _solve_corrected(sequence, solve, result, total, trimmed)
     bias, std = raw_bias(total, np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]),
                          np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]))
-    # the estimated terms' uncertainty in the bias sigmas, at the keyframes' bias-free rate and force
+    # the terms' uncertainty in the bias sigmas, at the keyframes' bias-free rate and force; what the bias
+    # absorbed of the terms left out (their posterior means times the signals, block-averaged as the bias
+    # follows them) taken out of it
     imu = work.imu
     def at(y: np.ndarray) -> np.ndarray:
         return np.stack([np.interp(result.t_ns, imu.t_ns, y[:, c]) for c in range(3)], axis=1)
-    added = intrinsics_bias_variance(fit, present or {}, at(imu.gyro_radps) - result.bias_gyro_radps,
-                                     at(imu.acc_mps2) - result.bias_acc_mps2, left=left)
+    omega, force = at(imu.gyro_radps) - result.bias_gyro_radps, at(imu.acc_mps2) - result.bias_acc_mps2
+    prior = term_prior((result.report.get("extrinsic") or {}).get("mode") == "known")
+    block = ((result.t_ns - result.t_ns[0]) / NS_PER_S // block_s).astype(int)
+    shift = left_out_shift(fit, present or {}, _block_means(omega, block), _block_means(force, block), left, prior)
+    bias = bias - shift
+    added = intrinsics_bias_variance(fit, present or {}, omega, force, left=left, prior=prior, corrected=True)
     inflation = np.sqrt(1.0 + added / np.maximum(std**2, 1e-300))
     std = np.sqrt(std**2 + added)
     data = dict(result.report.data)
     table = term_table(total.deviations(), fit.sigma, fit.observable, present or {}, left, dropped, fit.estimated)
     data["intrinsics"] = {**intrinsics_report(total, fit, rounds), "bias_std_inflation_mean": inflation.mean(0).tolist(),
-                          "bias_std_added_mean": np.sqrt(added).mean(0).tolist(), "dropped_at_end": dropped, **table}
+                          "bias_std_added_mean": np.sqrt(added).mean(0).tolist(),
+                          "bias_shift_left_out_mean": shift.mean(0).tolist(), "dropped_at_end": dropped, **table}
+    if agreement is not None:
+        data["intrinsics"]["extrinsic_rotation"] = {
+            **agreement, "held_at_calibration": agreement["agrees"],
+            "why": "the gyro's rotation against the accelerometer is an intrinsic term; the accelerometer alone "
+                   "tells the extrinsic rotation, and is checked against the calibration file's"}
     warning = unobservable_warning(fit)
     if warning:
         data["warnings"] = [*data.get("warnings", []), warning]
