@@ -194,9 +194,10 @@ def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     same = recover(drone.sequence, config=on).report["intrinsics"]
     np.testing.assert_array_equal(same["gyro_matrix"], np.eye(3))
     np.testing.assert_array_equal(same["acc_matrix"], np.eye(3))
-    # the estimated terms' uncertainty widens the bias sigmas; with no term estimated, nothing
+    # the terms' uncertainty widens the bias sigmas: those estimated, and with none estimated, those left
+    # out (their datasheet prior where the fit cannot see them)
     assert min(rep["bias_std_inflation_mean"]) >= 1.0 and max(rep["bias_std_inflation_mean"]) > 1.0
-    assert same["bias_std_inflation_mean"] == [1.0] * 6
+    assert min(same["bias_std_inflation_mean"]) >= 1.0 and not same["estimated"]
 
 
 def test_a_report_record_answers_membership():
