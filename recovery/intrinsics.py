@@ -47,13 +47,12 @@ from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.gyro_consistency import CouplingKind, rate_coupling
 from recovery.intrinsics_frame import calibration_agreement
-from recovery.intrinsics_report import term_table
+from recovery.intrinsics_report import TERMS as _TERMS
+from recovery.intrinsics_report import intrinsics_report, term_table, unobservable_warning
 from recovery.outputs import RecoveryReport
 
 log = logging.getLogger(__name__)
 
-#: Names of the nine terms of a 3x3 matrix in row-major order (``S[r, c]``).
-_TERMS = tuple(f"{'xyz'[r]}{'xyz'[c]}" for r in range(3) for c in range(3))
 
 
 @dataclass(frozen=True)
@@ -319,31 +318,6 @@ def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.nda
     return x[:P], sigma, scale * noise_density, 0.5 * (cov + cov.T)
 
 
-def intrinsics_report(total: ImuIntrinsics, last: IntrinsicsFit, rounds: int) -> dict:
-    """The ``intrinsics`` entry of ``recovery.json``."""
-    return {
-        "method": "alternating: least-squares fit on the solved trajectory, full solve on corrected readings",
-        "rounds": rounds,
-        "gyro_matrix": total.gyro_matrix.tolist(),
-        "acc_matrix": total.acc_matrix.tolist(),
-        "gyro_g_sensitivity": total.gyro_g_sensitivity.tolist(),
-        "sigma": {k: np.where(np.isfinite(v), v, None).tolist() for k, v in last.sigma.items()},
-        "observable": {k: v.tolist() for k, v in last.observable.items()},
-        "residual_rms": last.residual_rms,
-        "terms": "row-major 3x3, rows/columns x, y, z",
-    }
-
-
-def unobservable_warning(fit: IntrinsicsFit) -> str | None:
-    """A warning naming the terms that could not be estimated (fixed to identity / zero)."""
-    missing = [f"{group}[{_TERMS[i]}]" for group in fit.estimated
-               for i in np.flatnonzero(~fit.observable[group].ravel())]
-    if not missing:
-        return None
-    return ("IMU intrinsics not observable from this motion, fixed to identity/zero: " + ", ".join(missing[:12])
-            + (", ..." if len(missing) > 12 else "") + "; record rotations about and accelerations along every axis")
-
-
 def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bias and sigma [K, 6] in the raw readings' convention from those of corrected readings."""
     out = np.hstack([bias[:, :3] @ total.gyro_matrix.T, bias[:, 3:] @ total.acc_matrix.T])
@@ -436,6 +410,19 @@ def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], o
             for g, (_, signal) in enumerate(groups):
                 grad[:, 9 * g + 3 * row: 9 * g + 3 * row + 3] = -signal * counted[9 * g + 3 * row: 9 * g + 3 * row + 3]
             out[:, col + row] = np.einsum("np,pq,nq->n", grad, eff, grad)
+    return out
+
+
+def left_out_means(fit: IntrinsicsFit, terms: dict[str, np.ndarray], left: dict[str, np.ndarray],
+                   prior: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """Per group, 3x3: the posterior means of the terms left out (:func:`intrinsics_bias_variance`; zero
+    for the terms in the model and for those the fit cannot see)."""
+    out = {}
+    zeros = np.zeros((1, 3))
+    for _, groups, _, _, _, (u, m, _), _ in _blocks(fit, terms, zeros, zeros, left, prior):
+        full = np.zeros(9 * len(groups))
+        full[u] = m
+        out.update({name: full[9 * g: 9 * g + 9].reshape(3, 3) for g, (name, _) in enumerate(groups)})
     return out
 
 
@@ -649,14 +636,22 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     block = ((result.t_ns - result.t_ns[0]) / NS_PER_S // block_s).astype(int)
     shift = left_out_shift(fit, present or {}, _block_means(omega, block), _block_means(force, block), left, prior)
     bias = bias - shift
+    # the intrinsics reported with those means in: readings corrected by them match the bias without them
+    means, dev = left_out_means(fit, present or {}, left, prior), total.deviations()
+    reported = ImuIntrinsics(np.eye(3) + dev["gyro_scale_misalignment"] + means["gyro_scale_misalignment"],
+                             np.eye(3) + dev["acc_scale_misalignment"] + means["acc_scale_misalignment"],
+                             dev["gyro_g_sensitivity"] + means.get("gyro_g_sensitivity", np.zeros((3, 3))))
     added = intrinsics_bias_variance(fit, present or {}, omega, force, left=left, prior=prior, corrected=True)
     inflation = np.sqrt(1.0 + added / np.maximum(std**2, 1e-300))
     std = np.sqrt(std**2 + added)
     data = dict(result.report.data)
     table = term_table(total.deviations(), fit.sigma, fit.observable, present or {}, left, dropped, fit.estimated)
-    data["intrinsics"] = {**intrinsics_report(total, fit, rounds), "bias_std_inflation_mean": inflation.mean(0).tolist(),
+    data["intrinsics"] = {**intrinsics_report(reported, fit, rounds), "bias_std_inflation_mean": inflation.mean(0).tolist(),
                           "bias_std_added_mean": np.sqrt(added).mean(0).tolist(),
-                          "bias_shift_left_out_mean": shift.mean(0).tolist(), "dropped_at_end": dropped, **table}
+                          "bias_shift_left_out_mean": shift.mean(0).tolist(), "dropped_at_end": dropped, **table,
+                          "left_out_posterior_means": {k: v.tolist() for k, v in means.items()},
+                          "matrices_note": "gyro_matrix, acc_matrix and gyro_g_sensitivity include the posterior means "
+                                           "of the terms left out, which were taken out of the bias"}
     if agreement is not None:
         data["intrinsics"]["extrinsic_rotation"] = {
             **agreement, "held_at_calibration": agreement["agrees"],

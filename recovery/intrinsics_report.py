@@ -27,7 +27,7 @@ def term_table(values: dict[str, np.ndarray], sigma: dict[str, np.ndarray], obse
         values: Per group, the 3x3 total terms (``M - I``, ``G``; raw readings' convention).
         sigma / observable: The last fit's, per group 3x3.
         in_model: Per group 3x3 booleans: the terms the readings were corrected for.
-        left: Per group 3x3: what the final readings still carry of each term left out.
+        left: Per group 3x3: what the final readings still carry of each term left out (the fit's estimate).
         dropped: ``group[term]`` names dropped after the last round.
         groups: The groups fitted.
 
@@ -54,6 +54,32 @@ def term_table(values: dict[str, np.ndarray], sigma: dict[str, np.ndarray], obse
             absorbed.append({"term": term, "estimate": float(np.asarray(left[group]).ravel()[i]), "sigma": s_json,
                              "why": why})
     return {"estimated": estimated, "absorbed_by_bias": absorbed}
+
+
+def intrinsics_report(total, last, rounds: int) -> dict:
+    """The ``intrinsics`` entry of ``recovery.json`` (``total``: :class:`recovery.intrinsics.ImuIntrinsics`,
+    ``last``: the last :class:`recovery.intrinsics.IntrinsicsFit`)."""
+    return {
+        "method": "alternating: least-squares fit on the solved trajectory, full solve on corrected readings",
+        "rounds": rounds,
+        "gyro_matrix": total.gyro_matrix.tolist(),
+        "acc_matrix": total.acc_matrix.tolist(),
+        "gyro_g_sensitivity": total.gyro_g_sensitivity.tolist(),
+        "sigma": {k: np.where(np.isfinite(v), v, None).tolist() for k, v in last.sigma.items()},
+        "observable": {k: v.tolist() for k, v in last.observable.items()},
+        "residual_rms": last.residual_rms,
+        "terms": "row-major 3x3, rows/columns x, y, z",
+    }
+
+
+def unobservable_warning(fit) -> str | None:
+    """A warning naming the terms that could not be estimated (fixed to identity / zero)."""
+    missing = [f"{group}[{TERMS[i]}]" for group in fit.estimated
+               for i in np.flatnonzero(~fit.observable[group].ravel())]
+    if not missing:
+        return None
+    return ("IMU intrinsics not observable from this motion, fixed to identity/zero: " + ", ".join(missing[:12])
+            + (", ..." if len(missing) > 12 else "") + "; record rotations about and accelerations along every axis")
 
 
 def _names(entries: list[Mapping[str, Any]], limit: int = 6) -> str:
