@@ -9,8 +9,9 @@ the antisymmetric part of the fitted ``S_a`` is the rotation ``phi = log(R_cal R
 solve's IMU frame to the accelerometer's. Its tilt is hard to tell from a constant accelerometer
 bias (only the attitude's changes separate them), so the data alone leave it ~0.1 deg uncertain,
 but they can check the calibration file: when ``phi`` agrees with the file's
-(``-R_est dtheta``, ``dtheta`` the solve's difference from the file), the file's extrinsic is held
-(:func:`calibration_agreement`).
+(``-R_est dtheta``, ``dtheta`` the solve's difference from the file), the solve's turn from the file
+is the gyro's own rotation (:func:`calibration_agreement`; recovery.json reports it, and
+:func:`recovery.intrinsics.recover_with_intrinsics` can hold the file's extrinsic then).
 """
 
 from __future__ import annotations

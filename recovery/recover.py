@@ -137,11 +137,9 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
         if decision is not None and decision.mode is IntrinsicsMode.OFF:
             return decision.annotate(first)
         mode = config.intrinsics if decision is None else decision.mode
-        held = replace(plain, extrinsic_mode=ExtrinsicMode.KNOWN)
         result = recover_with_intrinsics(
             sequence, lambda seq: _recover(seq, pose_stream=pose_stream, config=plain),
-            g_sensitivity=mode is IntrinsicsMode.WITH_G_SENSITIVITY, block_s=config.intrinsics_block_s, first=first,
-            solve_calibrated=lambda seq: _recover(seq, pose_stream=pose_stream, config=held))
+            g_sensitivity=mode is IntrinsicsMode.WITH_G_SENSITIVITY, block_s=config.intrinsics_block_s, first=first)
         result = _record_intrinsics_mode(result, mode)
         return result if decision is None else decision.annotate(result)
     except (RuntimeError, ValueError) as exc:

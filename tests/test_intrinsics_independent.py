@@ -39,24 +39,24 @@ def test_bias_sigma_covers_the_intrinsics_on_an_independent_imu(runs):
     """Per-axis NEES against the generator's bias: no seed above 4 (before: up to 23 on these seeds, the
     terms the bias absorbed outside its sigma). The mean over two seeds is loose: one constant term
     dominates an axis's error (a g-sensitivity term times g, an accelerometer scale times g), so a seed's
-    NEES is close to one chi-square draw; the benchmark's four seeds give means 0.37-1.18, the lowest on
-    the accelerometer y axis, whose sigma carries the prior of a cross-axis term the generator lacks."""
+    NEES is close to one chi-square draw; the benchmark's four seeds give means 0.6-0.9 on every axis."""
     nees = np.array([runs[s][2] for s in SEEDS])
     assert np.all(nees <= 4.0), nees
-    assert np.all((nees.mean(0) >= 0.25) & (nees.mean(0) <= 2.5)), nees
+    assert np.all((nees.mean(0) >= 0.3) & (nees.mean(0) <= 2.5)), nees
 
 
 @pytest.mark.slow
-def test_the_accelerometer_frame_follows_the_calibration_not_the_gyro(runs):
-    """The gyro's rotation against the accelerometer does not turn the extrinsic: the accelerometer agrees
-    with the calibration file's rotation, which is held, and the horizontal accelerometer bias stays within
-    2x the clean recovery's RMSE (it absorbed g times the gyro's rotation, up to 8x, before)."""
+def test_the_accelerometer_checks_the_calibration_rotation(runs):
+    """The gyro's rotation against the accelerometer turns the estimated extrinsic away from the calibration
+    file's; the accelerometer's own rotation agrees with the file's (reported), and the horizontal
+    accelerometer bias, which takes g times the turn, stays within its sigma (NEES <= 4)."""
     for seed in SEEDS:
-        res, ratio, _ = runs[seed]
+        res, _, nees = runs[seed]
         entry = res.report["intrinsics"]
         assert res.report["intrinsics_auto"]["estimated"] is True
-        assert entry["extrinsic_rotation"]["held_at_calibration"] is True, entry["extrinsic_rotation"]
-        assert np.all(ratio[3:5] <= 2.0), (seed, ratio)
+        rotation = entry["extrinsic_rotation"]
+        assert rotation["agrees"] is True and rotation["held_at_calibration"] is False, rotation
+        assert np.all(nees[3:5] <= 4.0), (seed, nees)
 
 
 @pytest.mark.slow
