@@ -24,7 +24,12 @@ through the trajectory, which the pose stream pins down whatever the bias does):
 A position-only pose stream does not pin the trajectory down: nothing is estimated for it
 (identity, with a warning). The bias is reported in the raw readings' convention (``b = M b'``),
 and its sigma includes the uncertainty of the estimated terms (:func:`intrinsics_bias_variance`):
-a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. Design notes and the
+a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. The terms left out (not
+significant, not observable) are still in the readings and in the bias: under a datasheet prior
+(:func:`term_prior`), their posterior means are taken out of the bias (:func:`left_out_shift`) and
+their posterior variance (the prior, for a term the fit cannot see) is added to its sigma. Whether
+the accelerometer agrees with a calibration file's extrinsic rotation (then the solve's turn from it
+is the gyro's own rotation) is reported (:mod:`recovery.intrinsics_frame`). Design notes and the
 reasons for this scheme: ``docs/internals.md``.
 """
 
@@ -41,12 +46,13 @@ from pipeline.errors import BiasgtError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.gyro_consistency import CouplingKind, rate_coupling
+from recovery.intrinsics_frame import calibration_agreement
+from recovery.intrinsics_report import TERMS as _TERMS
+from recovery.intrinsics_report import intrinsics_report, term_table, unobservable_warning
 from recovery.outputs import RecoveryReport
 
 log = logging.getLogger(__name__)
 
-#: Names of the nine terms of a 3x3 matrix in row-major order (``S[r, c]``).
-_TERMS = tuple(f"{'xyz'[r]}{'xyz'[c]}" for r in range(3) for c in range(3))
 
 
 @dataclass(frozen=True)
@@ -95,6 +101,8 @@ class IntrinsicsFit:
             present already).
         cov: Covariance of the fitted terms, row-major per group: ``rotation`` (S_g, then G when
             fitted), ``velocity`` (S_a).
+        estimate: The same groups, 3x3: every term's least-squares value, applied or not (what the
+            readings the fit saw still carry of it).
     """
 
     step: ImuIntrinsics
@@ -104,6 +112,7 @@ class IntrinsicsFit:
     estimated: tuple[str, ...] = ("gyro_scale_misalignment", "acc_scale_misalignment")
     applied: dict[str, np.ndarray] | None = None  # per group, 3x3: the terms the step changes
     cov: dict[str, np.ndarray] | None = None  # "rotation": [9 or 18]^2 (S_g, G), "velocity": [9, 9] (S_a)
+    estimate: dict[str, np.ndarray] | None = None  # per group, 3x3: the least-squares values
 
     def moved(self, n_sigma: float = 3.0) -> bool:
         """Whether the step changes any observable term by more than ``n_sigma`` of its sigmas."""
@@ -231,8 +240,9 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
               "acc_scale_misalignment": (x_vel[:9], s_vel[:9], max_sigma)}
     if g_sensitivity:
         groups["gyro_g_sensitivity"] = (x_rot[9:18], s_rot[9:18], max_sigma_g_sensitivity)
-    mats, sigma, observable, applied = {}, {}, {}, {}
+    mats, sigma, observable, applied, estimate = {}, {}, {}, {}, {}
     for name, (x, s_, limit) in groups.items():
+        estimate[name] = x.reshape(3, 3)
         ok = np.isfinite(s_) & (s_ <= limit)
         # a term not significantly different from zero stays zero: applying its noise would move
         # the bias (a G term times gravity is a constant gyro offset) for nothing
@@ -252,7 +262,7 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
     step = ImuIntrinsics(M_g, np.linalg.inv(np.eye(3) - mats["acc_scale_misalignment"]),
                          M_g @ mats["gyro_g_sensitivity"])
     return IntrinsicsFit(step, sigma, observable, {"rotation_rad": rms_rot, "velocity_mps": rms_vel},
-                         tuple(groups), applied, {"rotation": c_rot, "velocity": c_vel})
+                         tuple(groups), applied, {"rotation": c_rot, "velocity": c_vel}, estimate)
 
 
 def _block_means(values: np.ndarray, block: np.ndarray) -> np.ndarray:
@@ -308,31 +318,6 @@ def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.nda
     return x[:P], sigma, scale * noise_density, 0.5 * (cov + cov.T)
 
 
-def intrinsics_report(total: ImuIntrinsics, last: IntrinsicsFit, rounds: int) -> dict:
-    """The ``intrinsics`` entry of ``recovery.json``."""
-    return {
-        "method": "alternating: least-squares fit on the solved trajectory, full solve on corrected readings",
-        "rounds": rounds,
-        "gyro_matrix": total.gyro_matrix.tolist(),
-        "acc_matrix": total.acc_matrix.tolist(),
-        "gyro_g_sensitivity": total.gyro_g_sensitivity.tolist(),
-        "sigma": {k: np.where(np.isfinite(v), v, None).tolist() for k, v in last.sigma.items()},
-        "observable": {k: v.tolist() for k, v in last.observable.items()},
-        "residual_rms": last.residual_rms,
-        "terms": "row-major 3x3, rows/columns x, y, z",
-    }
-
-
-def unobservable_warning(fit: IntrinsicsFit) -> str | None:
-    """A warning naming the terms that could not be estimated (fixed to identity / zero)."""
-    missing = [f"{group}[{_TERMS[i]}]" for group in fit.estimated
-               for i in np.flatnonzero(~fit.observable[group].ravel())]
-    if not missing:
-        return None
-    return ("IMU intrinsics not observable from this motion, fixed to identity/zero: " + ", ".join(missing[:12])
-            + (", ..." if len(missing) > 12 else "") + "; record rotations about and accelerations along every axis")
-
-
 def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Bias and sigma [K, 6] in the raw readings' convention from those of corrected readings."""
     out = np.hstack([bias[:, :3] @ total.gyro_matrix.T, bias[:, 3:] @ total.acc_matrix.T])
@@ -341,34 +326,123 @@ def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[n
     return out, np.sqrt(np.hstack([var_g, var_a]))
 
 
-def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray,
-                             f_mps2: np.ndarray) -> np.ndarray:
-    """Bias variance [N, 6] (gyro, acc) from the uncertainty of the estimated intrinsics.
+#: The size (1 sigma) of a term on a MEMS IMU's datasheet: scale and misalignment 0.5 %, g-sensitivity
+#: 2e-4 rad/s per m/s^2 (0.1 deg/s per g). The prior of a term the fit cannot tell from the bias.
+TERM_PRIOR = {"gyro_scale_misalignment": 5e-3, "acc_scale_misalignment": 5e-3, "gyro_g_sensitivity": 2e-4}
+#: An accelerometer off-diagonal term when the accelerometer's frame is the IMU frame the solve used (the
+#: extrinsic held at a calibration it agrees with, or known): only the triad's non-orthogonality (0.06 deg).
+ACC_CROSS_AXIS_PRIOR = 1e-3
 
-    With ``gyro = M_g omega + G f + b_g`` and ``acc = M_a f + b_a``, errors ``dS`` / ``dG`` of the
-    terms move the recovered bias by ``-(dS_g omega + dG f)`` and ``-dS_a f`` (first order). A term on
-    the gravity axis times ``f ~ g`` is nearly a constant offset, so its sigma reaches the bias in
-    full. Only the terms in the model (``terms``: per group, 3x3 booleans) count; the others are
-    fixed to zero.
 
-    Args:
-        fit: The last fit (its ``cov``). terms: The terms estimated.
-        omega_radps / f_mps2: Bias-free angular rate and specific force at the keyframes, [N, 3].
-    """
-    N = len(omega_radps)
-    out = np.zeros((N, 6))
+def term_prior(frame_held: bool) -> dict[str, np.ndarray]:
+    """Per group, the 3x3 prior sigmas (:data:`TERM_PRIOR`; with ``frame_held``, the accelerometer's
+    off-diagonal terms :data:`ACC_CROSS_AXIS_PRIOR`, else they carry its rotation against the solve's frame too)."""
+    out = {k: np.full((3, 3), v) for k, v in TERM_PRIOR.items()}
+    if frame_held:
+        out["acc_scale_misalignment"] = np.where(np.eye(3, dtype=bool), TERM_PRIOR["acc_scale_misalignment"],
+                                                 ACC_CROSS_AXIS_PRIOR)
+    return out
+
+
+def _blocks(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray, f_mps2: np.ndarray,
+            left: dict[str, np.ndarray] | None, prior: dict[str, np.ndarray] | None):
+    """Per covariance block (rotation: S_g[, G]; velocity: S_a): ``(cov, [(group, signal)], first bias
+    column, in-model mask, left-out mask, posterior of the left-out terms)``; the posterior is
+    ``(indices, m, P)`` of the observable left-out terms and ``(indices, prior variance)`` of the blind ones."""
     gyro_groups = [("gyro_scale_misalignment", omega_radps)]
     if "gyro_g_sensitivity" in fit.estimated:
         gyro_groups.append(("gyro_g_sensitivity", f_mps2))
     for cov, groups, col in ((fit.cov["rotation"], gyro_groups, 0),
                              (fit.cov["velocity"], [("acc_scale_misalignment", f_mps2)], 3)):
-        for r in range(3):
-            # d(bias_r) / d(term [r, c]) = -signal_c, for the terms of row r of each group
+        n = cov.shape[0]
+        used, seen = np.zeros(n, bool), np.ones(n, bool)
+        x, prior_var = np.zeros(n), np.zeros(n)
+        for g, (name, _) in enumerate(groups):
+            sl = slice(9 * g, 9 * g + 9)
+            used[sl] = np.asarray(terms.get(name, np.zeros((3, 3), bool)), bool).ravel()
+            seen[sl] = np.asarray(fit.observable.get(name, np.ones((3, 3), bool)), bool).ravel()
+            if left is not None:
+                x[sl] = np.nan_to_num(np.asarray(left.get(name, np.zeros((3, 3))), float).ravel())
+                prior_var[sl] = np.asarray((prior or term_prior(False))[name], float).ravel() ** 2
+        out_of_model = ~used if left is not None else np.zeros(n, bool)
+        blind = np.flatnonzero(out_of_model & ~seen)  # the fit cannot see them: the prior, its estimate says nothing
+        u = np.flatnonzero(out_of_model & seen)
+        m, post = np.zeros(len(u)), np.zeros((len(u), len(u)))
+        if len(u):
+            C, L = cov[np.ix_(u, u)], np.diag(prior_var[u])
+            gain = np.linalg.solve(C + L, np.eye(len(u)))  # (C + L)^-1
+            m, post = L @ gain @ x[u], C @ gain @ L
+        yield cov, groups, col, used, out_of_model, (u, m, 0.5 * (post + post.T)), (blind, prior_var[blind])
+
+
+def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray,
+                             f_mps2: np.ndarray, left: dict[str, np.ndarray] | None = None,
+                             prior: dict[str, np.ndarray] | None = None, corrected: bool = False) -> np.ndarray:
+    """Bias variance [N, 6] (gyro, acc) from the intrinsics: those estimated and those the bias absorbed.
+
+    With ``gyro = M_g omega + G f + b_g`` and ``acc = M_a f + b_a``, errors ``dS`` / ``dG`` of the
+    terms move the recovered bias by ``-(dS_g omega + dG f)`` and ``-dS_a f`` (first order). A term on
+    the gravity axis times ``f ~ g`` is nearly a constant offset, so its sigma reaches the bias in
+    full. A term in the model (``terms``: per group, 3x3 booleans) errs by the fit's covariance. The
+    terms left out (not significant, not observable, or dropped) are still in the readings: with
+    ``left`` (per group, 3x3: the fit's estimate ``x`` of what the readings carry of each, covariance
+    ``C`` among them) their posterior under the datasheet prior ``L`` (``prior``: per group 3x3 sigmas,
+    default :func:`term_prior` without a held frame) is ``m = L (C + L)^-1 x``, ``P = C (C + L)^-1 L``:
+    they err by ``P + m m^T`` (their mean square error as zero), or by ``P`` when the bias was
+    ``corrected`` by ``m`` (:func:`left_out_shift`). A term the fit cannot see (not
+    ``fit.observable``) keeps the prior as its error. Without ``left``, terms left out add nothing.
+
+    Args:
+        fit: The last fit (its ``cov``). terms: The terms estimated. left / prior / corrected: See above.
+        omega_radps / f_mps2: Bias-free angular rate and specific force at the keyframes, [N, 3].
+    """
+    N = len(omega_radps)
+    out = np.zeros((N, 6))
+    for cov, groups, col, used, out_of_model, (u, m, post), (blind, blind_var) in _blocks(
+            fit, terms, omega_radps, f_mps2, left, prior):
+        eff = np.where(np.outer(used, used), cov, 0.0)
+        eff[blind, blind] = blind_var
+        eff[np.ix_(u, u)] = post if corrected else post + np.outer(m, m)
+        counted = used | out_of_model
+        for row in range(3):
+            # d(bias_row) / d(term [row, c]) = -signal_c, for the terms of that row of each group
             grad = np.zeros((N, cov.shape[0]))
-            for g, (name, signal) in enumerate(groups):
-                used = np.asarray(terms.get(name, np.zeros((3, 3), bool)))[r]
-                grad[:, 9 * g + 3 * r: 9 * g + 3 * r + 3] = -signal * used
-            out[:, col + r] = np.einsum("np,pq,nq->n", grad, cov, grad)
+            for g, (_, signal) in enumerate(groups):
+                grad[:, 9 * g + 3 * row: 9 * g + 3 * row + 3] = -signal * counted[9 * g + 3 * row: 9 * g + 3 * row + 3]
+            out[:, col + row] = np.einsum("np,pq,nq->n", grad, eff, grad)
+    return out
+
+
+def left_out_means(fit: IntrinsicsFit, terms: dict[str, np.ndarray], left: dict[str, np.ndarray],
+                   prior: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+    """Per group, 3x3: the posterior means of the terms left out (:func:`intrinsics_bias_variance`; zero
+    for the terms in the model and for those the fit cannot see)."""
+    out = {}
+    zeros = np.zeros((1, 3))
+    for _, groups, _, _, _, (u, m, _), _ in _blocks(fit, terms, zeros, zeros, left, prior):
+        full = np.zeros(9 * len(groups))
+        full[u] = m
+        out.update({name: full[9 * g: 9 * g + 9].reshape(3, 3) for g, (name, _) in enumerate(groups)})
+    return out
+
+
+def left_out_shift(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray, f_mps2: np.ndarray,
+                   left: dict[str, np.ndarray], prior: dict[str, np.ndarray] | None = None) -> np.ndarray:
+    """What the bias absorbed of the terms left out, to subtract from it: ``m s`` per bias axis, [N, 6].
+
+    The posterior means ``m`` of :func:`intrinsics_bias_variance` times their signals; pass the
+    signals low-passed as the bias follows them (a bias random walk takes up ``G f ~ G g`` in full,
+    little of ``S_g omega``).
+
+    Args:
+        omega_radps / f_mps2: The signals at the keyframes, [N, 3].
+    """
+    out = np.zeros((len(omega_radps), 6))
+    for _, groups, col, _, _, (u, m, _), _ in _blocks(fit, terms, omega_radps, f_mps2, left, prior):
+        full = np.zeros(9 * len(groups))
+        full[u] = m
+        for g, (_, signal) in enumerate(groups):
+            out[:, col:col + 3] += signal @ full[9 * g: 9 * g + 9].reshape(3, 3).T
     return out
 
 
@@ -480,12 +554,36 @@ def _solve_corrected(sequence: Sequence, solve: Callable[[Sequence], object], re
     return work, solve(work), new
 
 
+def _hold_calibrated_extrinsic(sequence: Sequence, result, solve_calibrated: Callable[[Sequence], object],
+                               g_sensitivity: bool, block_s: float):
+    """``(result, agreement)``: the solve with the calibration file's extrinsic held when the
+    accelerometer agrees with its rotation (:mod:`recovery.intrinsics_frame`), else ``result``;
+    ``agreement`` is None when there is no file to compare with."""
+    gravity = np.asarray(result.report.get("gravity_world_mps2", DEFAULT_GRAVITY_MPS2), dtype=float)
+    fit = fit_intrinsics(sequence.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
+                         _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s)
+    assert fit.estimate is not None and fit.cov is not None
+    agreement = calibration_agreement(fit.estimate["acc_scale_misalignment"], fit.cov["velocity"], result.report.data)
+    if agreement is None or not agreement["agrees"]:
+        return result, agreement
+    log.info("intrinsics: the accelerometer agrees with the calibration's extrinsic rotation; holding it")
+    return solve_calibrated(sequence), agreement
+
+
 def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
-                            block_s: float, max_rounds: int = 5, first=None):
+                            block_s: float, max_rounds: int = 5, first=None,
+                            solve_calibrated: Callable[[Sequence], object] | None = None):
     """The alternating loop of the module docstring around ``solve`` (a full recovery).
 
     Args:
         first: ``solve(sequence)`` when the caller has it already.
+        solve_calibrated: ``solve`` with the calibration file's extrinsic held: used instead of
+            ``solve`` when the first solve estimated the extrinsic with the file as a prior and the
+            accelerometer agrees with the file's rotation (:mod:`recovery.intrinsics_frame`: the gyro's
+            own rotation, an intrinsic term, would otherwise turn the extrinsic). Not used by
+            :func:`recovery.recover.recover`: on the simulator's aggressive drone with every term at
+            once, the loop started from the held solve leaves g-sensitivity errors of up to 13 % (NEES
+            4.2); without it, the agreement is only reported.
 
     Returns:
         The last solve's :class:`recovery.recover.RecoveryResult`, its bias mapped back to the raw
@@ -497,6 +595,12 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     stream = sequence.poses.get(str(result.report.get("pose_stream")))
     if stream is not None and stream.quat_wxyz is None:
         return _not_estimated(result, str(result.report.get("pose_stream")))
+    agreement, held = None, False
+    if solve_calibrated is not None:
+        result, agreement = _hold_calibrated_extrinsic(sequence, result, solve_calibrated, g_sensitivity, block_s)
+        held = agreement is not None and agreement["agrees"]
+        if held:
+            solve = solve_calibrated
     work = sequence
     fit = None
     rounds = 0
@@ -514,24 +618,55 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
         work, result, total = _solve_corrected(sequence, solve, result, total, total.compose(fit.step))
     assert fit is not None
     dropped: list[str] = []
+    # what the final readings still carry of each term: the last fit's estimate, and a dropped term's value
+    left = {k: np.nan_to_num(v) for k, v in (fit.estimate or {}).items()}
     if present:
         trimmed, present, dropped = drop_insignificant(total, fit, present)
         if dropped:
             log.info("intrinsics: %s no longer significant, dropped; solving once more", ", ".join(dropped))
+            before, after = total.deviations(), trimmed.deviations()
+            left = {k: v + before[k] - after[k] for k, v in left.items()}
             work, result, total = _solve_corrected(sequence, solve, result, total, trimmed)
     bias, std = raw_bias(total, np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]),
                          np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]))
-    # the estimated terms' uncertainty in the bias sigmas, at the keyframes' bias-free rate and force
+    # the terms' uncertainty in the bias sigmas, at the keyframes' bias-free rate and force; what the bias
+    # absorbed of the terms left out (their posterior means times the signals, block-averaged as the bias
+    # follows them) taken out of it
     imu = work.imu
     def at(y: np.ndarray) -> np.ndarray:
         return np.stack([np.interp(result.t_ns, imu.t_ns, y[:, c]) for c in range(3)], axis=1)
-    added = intrinsics_bias_variance(fit, present or {}, at(imu.gyro_radps) - result.bias_gyro_radps,
-                                     at(imu.acc_mps2) - result.bias_acc_mps2)
+    omega, force = at(imu.gyro_radps) - result.bias_gyro_radps, at(imu.acc_mps2) - result.bias_acc_mps2
+    prior = term_prior((result.report.get("extrinsic") or {}).get("mode") == "known")
+    block = ((result.t_ns - result.t_ns[0]) / NS_PER_S // block_s).astype(int)
+    shift = left_out_shift(fit, present or {}, _block_means(omega, block), _block_means(force, block), left, prior)
+    bias = bias - shift
+    # the intrinsics reported with those means in: readings corrected by them match the bias without them
+    means, dev = left_out_means(fit, present or {}, left, prior), total.deviations()
+    reported = ImuIntrinsics(np.eye(3) + dev["gyro_scale_misalignment"] + means["gyro_scale_misalignment"],
+                             np.eye(3) + dev["acc_scale_misalignment"] + means["acc_scale_misalignment"],
+                             dev["gyro_g_sensitivity"] + means.get("gyro_g_sensitivity", np.zeros((3, 3))))
+    added = intrinsics_bias_variance(fit, present or {}, omega, force, left=left, prior=prior, corrected=True)
     inflation = np.sqrt(1.0 + added / np.maximum(std**2, 1e-300))
     std = np.sqrt(std**2 + added)
     data = dict(result.report.data)
-    data["intrinsics"] = {**intrinsics_report(total, fit, rounds), "bias_std_inflation_mean": inflation.mean(0).tolist(),
-                          "dropped_at_end": dropped}
+    table = term_table(total.deviations(), fit.sigma, fit.observable, present or {}, left, dropped, fit.estimated)
+    data["intrinsics"] = {**intrinsics_report(reported, fit, rounds), "bias_std_inflation_mean": inflation.mean(0).tolist(),
+                          "bias_std_added_mean": np.sqrt(added).mean(0).tolist(),
+                          "bias_shift_left_out_mean": shift.mean(0).tolist(), "dropped_at_end": dropped, **table,
+                          "left_out_posterior_means": {k: v.tolist() for k, v in means.items()},
+                          "matrices_note": "gyro_matrix, acc_matrix and gyro_g_sensitivity include the posterior means "
+                                           "of the terms left out, which were taken out of the bias"}
+    if agreement is None and fit.estimate is not None and fit.cov is not None:
+        # the accelerometer's rotation (the terms applied and the last fit's rest) against the final solve's
+        # difference from the calibration file: agreement means the extrinsic took the gyro's own rotation
+        agreement = calibration_agreement(dev["acc_scale_misalignment"] + fit.estimate["acc_scale_misalignment"],
+                                          fit.cov["velocity"], result.report.data)
+    if agreement is not None:
+        data["intrinsics"]["extrinsic_rotation"] = {
+            **agreement, "held_at_calibration": held,
+            "why": "the gyro's rotation against the accelerometer is an intrinsic term; the accelerometer alone "
+                   "tells the extrinsic rotation: agreement with the calibration file's means the solve's turn from "
+                   "it is the gyro's own rotation, whose gravity the accelerometer bias absorbs (within its sigma)"}
     warning = unobservable_warning(fit)
     if warning:
         data["warnings"] = [*data.get("warnings", []), warning]

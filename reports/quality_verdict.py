@@ -15,6 +15,7 @@ from pipeline.checks.options import CHECK_CODES
 from pipeline.checks.run import run_checks, stream_summaries
 from pipeline.errors import BiasgtError
 from pipeline.types import NS_PER_S, Finding, Sequence, Severity
+from recovery.intrinsics_report import intrinsics_clause
 from reports.html import Html, esc, fmt, join, p, section, table, tag, ul
 from reports.quality_inputs import (TITLE, ReportInputs, better_worse, candidate_name, first_of_kind, num,
                                     source_label, validation_sources)
@@ -100,8 +101,9 @@ def verdict_summary(validation: dict[str, Any] | None,
     return word, sentence.strip()
 
 
-def checked_and_not(validation: dict[str, Any]) -> list[str]:
-    """Plain sentences: what the validation checked, and what it did not."""
+def checked_and_not(validation: dict[str, Any], recovery: Mapping[str, Any] | None = None) -> list[str]:
+    """Plain sentences: what the validation checked, and what it did not (the IMU intrinsics: as
+    ``recovery``, ``recovery.json``'s data, says the recovery ran)."""
     ref, cfg, dropped = (validation.get(k) if isinstance(validation.get(k), dict) else {}
                          for k in ("reference", "config", "windows_dropped"))
     kept = dropped.get("kept", "?")
@@ -121,7 +123,7 @@ def checked_and_not(validation: dict[str, Any]) -> list[str]:
                                                                   "to (pose errors absorbed by the bias are not seen)."),
         *plausibility_checked(validation),
         "Not checked: drift over spans longer than one window; errors the reference and the IMU share (e.g. a "
-        "wrong extrinsic used by both); IMU scale and misalignment (not modelled: the bias absorbs them).",
+        f"wrong extrinsic used by both); {intrinsics_clause(recovery)}.",
     ]
 
 
@@ -172,7 +174,7 @@ def verdict_section(inp: ReportInputs) -> Html:
             body.append(p("What to do next:"))
             body.append(ul(steps))
         body.append(p("What was checked:"))
-        body.append(ul(checked_and_not(inp.validation)))
+        body.append(ul(checked_and_not(inp.validation, inp.recovery.data if inp.recovery is not None else None)))
     else:
         where = inp.validation_dir if inp.validation_dir is not None else "(not given)"
         body.append(p(f"Looked for the validation output in {where}. Run the validation stage to get a verdict; "

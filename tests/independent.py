@@ -16,7 +16,9 @@ Generators:
   for the truth, ``measured*`` with zero bias for GTSAM-sampled white noise).
 * :func:`make_sequence`: a motion + a known time-varying bias (turn-on offset + random walk)
   + white noise + a 100-Hz mocap stream (0.5 mm / 0.5 mrad, optional clock offset and marker
-  extrinsic), as an :class:`IndependentSequence`.
+  extrinsic), as an :class:`IndependentSequence`; optionally IMU intrinsic errors
+  (:class:`IntrinsicErrors`, drawn at MEMS-like sizes by :func:`draw_intrinsics`):
+  ``gyro = M_g omega + G f + b_g + n_g``, ``acc = M_a f + b_a + n_a``.
 
 Writers (own code: plain pandas/numpy text output, ``rosbags`` directly):
 :func:`write_euroc`, :func:`write_tum_text`, :func:`write_ros1_bag`.
@@ -260,6 +262,42 @@ HARD_EXTRINSIC = extrinsic(tuple(15.0 * np.array([0.48, -0.64, 0.6]) / np.linalg
                            tuple(0.10 * np.array([0.6, 0.0, -0.8])))
 
 
+@dataclass(frozen=True)
+class IntrinsicErrors:
+    """IMU intrinsic errors: ``gyro = M_g omega + G f + ...``, ``acc = M_a f + ...`` (IMU frame).
+
+    Attributes:
+        gyro_matrix / acc_matrix: ``M_g`` / ``M_a``, [3, 3] (identity = perfect).
+        g_sensitivity: ``G``, [3, 3] rad/s per m/s^2.
+    """
+
+    gyro_matrix: np.ndarray
+    acc_matrix: np.ndarray
+    g_sensitivity: np.ndarray
+
+
+def draw_intrinsics(seed: int, *, gyro_scale: tuple[float, float] = (0.005, 0.01),
+                    misalignment_deg: tuple[float, float] = (0.2, 0.5), acc_scale: tuple[float, float] = (0.002, 0.005),
+                    g_sensitivity: float = 2e-4) -> IntrinsicErrors:
+    """MEMS-like intrinsic errors drawn for ``seed`` (a stream of its own: the sequence's draws are unchanged).
+
+    Every size is uniform in its range with a random sign: the scale errors on the diagonals; each of
+    the six off-diagonal terms of ``M_g`` independently (a non-orthogonal gyro triad that is also
+    rotated against the accelerometer's: the matrix is not symmetric); each of the nine terms of
+    ``G`` uniform in [-g, g]. ``M_g = diag(1 + s_g) + offdiag``, ``M_a = diag(1 + s_a)``: the
+    accelerometer triad defines the IMU frame (its rotation is the pose extrinsic's).
+    """
+    rng = np.random.default_rng([seed, 7_170_345])
+
+    def signed(lo: float, hi: float, n: int) -> np.ndarray:
+        return rng.uniform(lo, hi, n) * rng.choice([-1.0, 1.0], n)
+
+    M_g = np.diag(1.0 + signed(*gyro_scale, 3))
+    M_g[~np.eye(3, dtype=bool)] = np.radians(signed(*misalignment_deg, 6))
+    M_a = np.diag(1.0 + signed(*acc_scale, 3))
+    return IntrinsicErrors(M_g, M_a, rng.uniform(-g_sensitivity, g_sensitivity, (3, 3)))
+
+
 def make_sequence(
     duration_s: float = 60.0,
     *,
@@ -280,6 +318,7 @@ def make_sequence(
     clock_offset_s: float = 0.0,
     T_imu_marker: np.ndarray | None = None,
     t0_ns: int = T0_NS,
+    intrinsics: IntrinsicErrors | None = None,
 ) -> IndependentSequence:
     """Generate an independent sequence (IMU with known bias + mocap), see module docstring.
 
@@ -292,6 +331,8 @@ def make_sequence(
         gtsam_noise: Draw the IMU white noise with GTSAM's ScenarioRunner (GtsamScenarioMotion only).
         clock_offset_s: Mocap stamps are ``t_imu - clock_offset_s`` (rounded to ns).
         T_imu_marker: Marker extrinsic (default identity: the mocap tracks the IMU).
+        intrinsics: IMU intrinsic errors applied to the true rate and specific force (the
+            ``*_true`` fields stay the ideal ones).
     """
     motion = motion or LissajousMotion()
     rng = np.random.default_rng([seed, 20261122])
@@ -325,8 +366,12 @@ def make_sequence(
         p_marker = p_marker + rng.standard_normal((m, 3)) * position_noise_m
         rot_marker = rot_marker * Rotation.from_rotvec(rng.standard_normal((m, 3)) * rotation_noise_rad)
     pose_t_ns = t0_ns + true_rel_ns - int(round(clock_offset_s * NS))
+    w_meas, f_meas = w_true, f_true
+    if intrinsics is not None:
+        w_meas = w_true @ intrinsics.gyro_matrix.T + f_true @ intrinsics.g_sensitivity.T
+        f_meas = f_true @ intrinsics.acc_matrix.T
     return IndependentSequence(
-        t_ns=t_ns, gyro_radps=w_true + bg + ng, acc_mps2=f_true + ba + na, gyro_true_radps=w_true,
+        t_ns=t_ns, gyro_radps=w_meas + bg + ng, acc_mps2=f_meas + ba + na, gyro_true_radps=w_true,
         acc_true_mps2=f_true, bias_gyro_radps=bg, bias_acc_mps2=ba, p_m=st.p_m, quat_wxyz=quat_wxyz(st.rotation),
         v_mps=st.v_mps, pose_t_ns=pose_t_ns, pose_p_m=p_marker, pose_quat_wxyz=quat_wxyz(rot_marker),
         clock_offset_s=float(clock_offset_s), T_imu_marker=T, rate_hz=rate_hz,

@@ -190,13 +190,16 @@ def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     # the gyro bias no longer absorbs 1 % of the rate: within 1.5x of the clean recovery on 60 s
     ratio = bias_rmse(fixed, drone.truth) / bias_rmse(clean, drone.truth)
     assert np.all(ratio[:3] < 1.5), ratio
-    # on readings without intrinsic errors, nothing significant is found, nothing is applied
+    # on readings without intrinsic errors, nothing significant is found, nothing is applied; the matrices
+    # reported carry only the posterior means of the terms left out (noise, far below the 1 % of the case)
     same = recover(drone.sequence, config=on).report["intrinsics"]
-    np.testing.assert_array_equal(same["gyro_matrix"], np.eye(3))
-    np.testing.assert_array_equal(same["acc_matrix"], np.eye(3))
-    # the estimated terms' uncertainty widens the bias sigmas; with no term estimated, nothing
+    assert not same["estimated"] and not same["dropped_at_end"]
+    np.testing.assert_allclose(same["gyro_matrix"], np.eye(3), atol=5e-4)
+    np.testing.assert_allclose(same["acc_matrix"], np.eye(3), atol=5e-3)
+    # the terms' uncertainty widens the bias sigmas: those estimated, and with none estimated, those left
+    # out (their datasheet prior where the fit cannot see them)
     assert min(rep["bias_std_inflation_mean"]) >= 1.0 and max(rep["bias_std_inflation_mean"]) > 1.0
-    assert same["bias_std_inflation_mean"] == [1.0] * 6
+    assert min(same["bias_std_inflation_mean"]) >= 1.0 and not same["estimated"]
 
 
 def test_a_report_record_answers_membership():
