@@ -357,7 +357,15 @@ def test_temperature_only_when_every_sequence_carries_it(sim10, tmp_path):
     sources = [_source(tmp_path, sim10, "A", "train"), _source(tmp_path, bare, "B", "test")]
     m = build_window_dataset(sources, tmp_path / "ds")
     assert m["has_temperature"] is False and "temperature_mean" not in m["normalization"]
-    assert not list((tmp_path / "ds").rglob(f"{TEMPERATURE}.npy"))
+    assert not list((tmp_path / "ds" / "sequences").rglob(f"{TEMPERATURE}.npy"))  # context/ keeps A's record
+    # the sequence records (training.context) are written with the windows: each whole IMU record once
+    from training.context import open_context
+
+    imu = sim10.sequence.imu
+    rec = open_context(tmp_path / "ds", "A")
+    np.testing.assert_array_equal(np.asarray(rec.imu), np.hstack([imu.gyro_radps, imu.acc_mps2]))
+    np.testing.assert_array_equal(np.asarray(rec.t_ns), imu.t_ns)
+    assert open_context(tmp_path / "ds", "B").temperature_degc is None
     ds = WindowDataset(tmp_path / "ds", "train")
     assert not ds.has_temperature and TEMPERATURE not in ds[0]
 
