@@ -357,15 +357,7 @@ def test_temperature_only_when_every_sequence_carries_it(sim10, tmp_path):
     sources = [_source(tmp_path, sim10, "A", "train"), _source(tmp_path, bare, "B", "test")]
     m = build_window_dataset(sources, tmp_path / "ds")
     assert m["has_temperature"] is False and "temperature_mean" not in m["normalization"]
-    assert not list((tmp_path / "ds" / "sequences").rglob(f"{TEMPERATURE}.npy"))  # context/ keeps A's record
-    # the sequence records (training.context) are written with the windows: each whole IMU record once
-    from training.context import open_context
-
-    imu = sim10.sequence.imu
-    rec = open_context(tmp_path / "ds", "A")
-    np.testing.assert_array_equal(np.asarray(rec.imu), np.hstack([imu.gyro_radps, imu.acc_mps2]))
-    np.testing.assert_array_equal(np.asarray(rec.t_ns), imu.t_ns)
-    assert open_context(tmp_path / "ds", "B").temperature_degc is None
+    assert not list((tmp_path / "ds").rglob(f"{TEMPERATURE}.npy"))
     ds = WindowDataset(tmp_path / "ds", "train")
     assert not ds.has_temperature and TEMPERATURE not in ds[0]
 
@@ -432,6 +424,14 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
     m = read_manifest(tmp_path / "ds")
     assert m["splits"] == {"train": ["sim_a"], "test": ["sim_b"]}
     assert len(WindowDataset(tmp_path / "ds", "test")) == 9
+    # with the sequence records (training.context): each whole IMU record once, the test one too
+    from pipeline.store import read_store
+    from training.context import open_context
+
+    imu = read_store(results / "ingest" / "sim_b").imu
+    rec = open_context(tmp_path / "ds", "sim_b")
+    np.testing.assert_array_equal(np.asarray(rec.imu), np.hstack([imu.gyro_radps, imu.acc_mps2]))
+    np.testing.assert_array_equal(np.asarray(rec.t_ns), imu.t_ns)
 
     # --seq without --validation: refused the same way
     rc = main(["windows", "--seq", "sim_a", "train", str(results / "ingest/sim_a"), str(results / "recovery/sim_a"),

@@ -394,9 +394,11 @@ def _check_sources(sources: list[WindowSource]) -> None:
 
 def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
                          config: WindowConfig = WindowConfig()) -> WindowManifest:
-    """Window every source and write the dataset atomically (:func:`training.dataset.write_dataset`),
-    then its sequence records (``context/``, :func:`training.context.write_context`: each sequence's
-    whole IMU record once, 56 bytes per IMU sample, 64 with temperature, whatever the overlap).
+    """Window every source and write the dataset atomically (:func:`training.dataset.write_dataset`).
+
+    ``biasgt windows`` and the workflow's windows stage then write the sequence records
+    (``context/``, :func:`training.context.write_context`: each whole IMU record once, 56 bytes per
+    IMU sample, 64 with temperature, whatever the overlap).
 
     Sequences are loaded, cut and written one at a time. The dataset rate is ``config.resample_hz``
     when set, else the first source's IMU rate; every other sequence must match it (see the module
@@ -441,12 +443,8 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
                 rate = float(sw.info["rate_hz"])
             yield sw
 
-    manifest = write_dataset(windows(), out_dir, config=config.to_dict(),
-                             extra={"excluded": excluded, "not_validated": not_validated})
-    from training.context import write_context  # imports this module (resample_imu)
-
-    write_context(out_dir)  # the sequence records (training.context): start_rest, sequence_mean, context models
-    return manifest
+    return write_dataset(windows(), out_dir, config=config.to_dict(),
+                         extra={"excluded": excluded, "not_validated": not_validated})
 
 
 #: Sequences whose reasons the "none is usable" error lists (the worst first); the rest are counted.
