@@ -164,3 +164,16 @@ def test_registered_context_network_trains_and_evaluates_through_the_public_func
     assert results[0].summary.method == "context_residual"
     closed = _closure(sim_dataset, results[0])
     assert min(closed) >= 0.8, closed
+
+
+def test_the_record_rows_carry_table_i_footnotes_when_present():
+    from types import SimpleNamespace
+
+    from training.references import get_reference
+
+    rest, mean = get_reference("start_rest"), get_reference("sequence_mean")
+    assert not rest.oracle and mean.oracle  # start_rest is ranked; sequence_mean is a bound
+    present = [SimpleNamespace(method="start_rest"), SimpleNamespace(method="sequence_mean")]
+    assert "56 bytes per IMU sample" in rest.footnote(present)  # the records' memory cost
+    assert mean.footnote(present).startswith("Sequence-mean bias (oracle")
+    assert rest.footnote(present[1:]) is None and mean.footnote(present[:1]) is None
