@@ -18,6 +18,10 @@ untrained model *is* its base and training learns a correction (as AirIMU and Br
 scale small corrections). Losses (:class:`ContextLoss`): the label MSE in normalised units, the
 1-s integrated rotation and position error from the reference start state through the project's
 torch integrator (:func:`integration_errors`, no label read), or their sum.
+
+Two ways to train it: :mod:`training.context_train` (the benchmarks' trainer, three losses), or as
+the registered network :class:`ContextNet` (``biasgt train``; integration loss), whose batches
+carry the context vectors from :class:`ContextFeeder`.
 """
 
 from __future__ import annotations
@@ -250,11 +254,13 @@ class ContextFeeder:
 
     @classmethod
     def for_model(cls, root: str | Path, config: ContextModelConfig, normalizer: Any) -> ContextFeeder:
-        """The feeder of a model of ``config`` (:func:`model_config_of`) on the dataset ``root``, with the statistics of its
-        :class:`training.normalizer.Normalizer` (the train split's, as the checkpoint holds them)."""
+        """The feeder of a model of ``config`` (:func:`model_config_of`) on the dataset ``root``, with
+        the statistics of its :class:`training.normalizer.Normalizer` (the train split's, as the
+        checkpoint holds them)."""
         n = {k: getattr(normalizer, k).double().numpy() for k in ("imu_mean", "imu_std", "bias_mean", "bias_std")}
-        return cls(Path(root), config, Stats(**n, temperature_mean=float(normalizer.temperature_mean),
-                                                         temperature_std=float(normalizer.temperature_std)))
+        stats = Stats(**n, temperature_mean=float(normalizer.temperature_mean),
+                      temperature_std=float(normalizer.temperature_std))
+        return cls(Path(root), config, stats)
 
     def __call__(self, sequences: Sequence[str], t0_ns: Any, T: int) -> torch.Tensor:
         t0 = np.asarray(t0_ns, dtype=np.int64).reshape(-1)
