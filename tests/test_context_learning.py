@@ -141,3 +141,39 @@ def test_context_model_learns_the_bias_and_needs_its_input(sim_dataset):
     assert min(learned) >= 0.8, learned
     assert learned[0] > rest_only[0] + 0.1, (learned, rest_only)  # the temperature term is learned
     assert max(blind) < 0.5, blind
+
+
+@pytest.mark.usefixtures("one_torch_thread")
+def test_registered_context_network_trains_and_evaluates_through_the_public_functions(sim_dataset, tmp_path):
+    """``biasgt train --method context_residual`` / ``biasgt evaluate``'s functions: the batches carry the
+    records' context, the checkpoint alone rebuilds the model, and it closes the simulated gap."""
+    from training.checkpoint import load_run
+    from training.config import TrainConfig
+    from training.evaluate import evaluate_run
+    from training.train import train
+
+    config = TrainConfig(method="context_residual", preset="tiny", seed=0, max_steps=300, batch_size=64, lr=3e-3,
+                         warmup_steps=10, val_every=50, checkpoint_every=300, use_temperature=True, device="cpu",
+                         model_overrides={"base": "rest", "history_s": (), "pos_scale_m": 0.01})
+    runs = [train(config, sim_dataset, tmp_path / f"run{i}") for i in range(2)]
+    results = [evaluate_run(r, sim_dataset, None, EVAL, method="context_residual") for r in runs]
+    a, b = (r.summary.rows[0].average for r in results)
+    assert (a.prmse_m, a.roe_deg) == (b.prmse_m, b.roe_deg)  # deterministic
+    run = load_run(runs[0])
+    assert run.model.config.network.base == "rest" and run.model.config.condition_channels == 7
+    assert results[0].summary.method == "context_residual"
+    closed = _closure(sim_dataset, results[0])
+    assert min(closed) >= 0.8, closed
+
+
+def test_the_record_rows_carry_table_i_footnotes_when_present():
+    from types import SimpleNamespace
+
+    from training.references import get_reference
+
+    rest, mean = get_reference("start_rest"), get_reference("sequence_mean")
+    assert not rest.oracle and mean.oracle  # start_rest is ranked; sequence_mean is a bound
+    present = [SimpleNamespace(method="start_rest"), SimpleNamespace(method="sequence_mean")]
+    assert "56 bytes per IMU sample" in rest.footnote(present)  # the records' memory cost
+    assert mean.footnote(present).startswith("Sequence-mean bias (oracle")
+    assert rest.footnote(present[1:]) is None and mean.footnote(present[:1]) is None

@@ -424,6 +424,14 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
     m = read_manifest(tmp_path / "ds")
     assert m["splits"] == {"train": ["sim_a"], "test": ["sim_b"]}
     assert len(WindowDataset(tmp_path / "ds", "test")) == 9
+    # with the sequence records (training.context): each whole IMU record once, the test one too
+    from pipeline.store import read_store
+    from training.context import open_context
+
+    imu = read_store(results / "ingest" / "sim_b").imu
+    rec = open_context(tmp_path / "ds", "sim_b")
+    np.testing.assert_array_equal(np.asarray(rec.imu), np.hstack([imu.gyro_radps, imu.acc_mps2]))
+    np.testing.assert_array_equal(np.asarray(rec.t_ns), imu.t_ns)
 
     # --seq without --validation: refused the same way
     rc = main(["windows", "--seq", "sim_a", "train", str(results / "ingest/sim_a"), str(results / "recovery/sim_a"),

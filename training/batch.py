@@ -31,6 +31,8 @@ class WindowBatch:
         temperature_degc: [B, T] IMU temperature (deg C) when the dataset carries it, else None.
         gravity_mps2: [B, 3] gravity in the reference world frame when known (the indirect loss
             integrates with it), else None (the loss uses the validation's default).
+        context: [B, F] each window's context vector from its sequence's record, for a network
+            that reads one (:attr:`training.networks.Network.context`), else None.
     """
 
     imu: torch.Tensor
@@ -45,6 +47,7 @@ class WindowBatch:
     end_p: torch.Tensor
     temperature_degc: torch.Tensor | None = None
     gravity_mps2: torch.Tensor | None = None
+    context: torch.Tensor | None = None
 
     @classmethod
     def from_items(cls, items: Mapping[str, Any]) -> WindowBatch:
@@ -54,12 +57,12 @@ class WindowBatch:
         Raises:
             DataError: A required array is missing.
         """
-        names = [f.name for f in fields(cls) if f.name not in (TEMPERATURE_KEY, "gravity_mps2")]
+        names = [f.name for f in fields(cls) if f.name not in (TEMPERATURE_KEY, "gravity_mps2", "context")]
         missing = [n for n in names if n not in items]
         if missing:
             raise DataError(f"window batch lacks {missing}", hint="load windows with training.dataset.WindowDataset")
         return cls(**{n: items[n] for n in names}, temperature_degc=items.get(TEMPERATURE_KEY),
-                   gravity_mps2=items.get("gravity_mps2"))
+                   gravity_mps2=items.get("gravity_mps2"), context=items.get("context"))
 
     def to(self, device: torch.device | str) -> WindowBatch:
         """The batch on ``device`` (tensors moved, None kept)."""

@@ -18,12 +18,20 @@ untrained model *is* its base and training learns a correction (as AirIMU and Br
 scale small corrections). Losses (:class:`ContextLoss`): the label MSE in normalised units, the
 1-s integrated rotation and position error from the reference start state through the project's
 torch integrator (:func:`integration_errors`, no label read), or their sum.
+
+Two ways to train it: :mod:`training.context_train` (the benchmarks' trainer, three losses), or as
+the registered network :class:`ContextNet` (``biasgt train``; integration loss), whose batches
+carry the context vectors from :class:`ContextFeeder`.
 """
 
 from __future__ import annotations
 
 import enum
+import math
+from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -31,10 +39,12 @@ from torch import nn
 
 from pipeline.geometry.integration import integrate
 from pipeline.geometry.so3_torch import so3_log
-from training.context import SequenceContext
+from pipeline.types import DEFAULT_GRAVITY_MPS2
+from training.context import SequenceContext, open_context
 from training.ref_start_rest import start_rest_bias
 
-__all__ = ["Base", "ContextLoss", "ContextModelConfig", "ContextResidual", "context_features", "integration_errors"]
+__all__ = ["Base", "ContextFeeder", "ContextLoss", "ContextModelConfig", "ContextNet", "ContextResidual",
+           "context_features", "integration_errors"]
 
 
 class Base(str, enum.Enum):
@@ -129,6 +139,34 @@ def context_features(ctx: SequenceContext, t0_ns: np.ndarray, T: int, stats: Sta
     return feats, rest_b
 
 
+class _Residual(nn.Module):
+    """The learned part: ``mlp(encoder(x), mean(x), features) + linear(mean(x), features)`` [B, 6]
+    (normalised bias units) of the normalised window ``x`` [B, T, C] and the context [B, F]; the
+    last layers start at zero."""
+
+    def __init__(self, c_in: int, config: ContextModelConfig) -> None:
+        super().__init__()
+        c = config.channels
+        self.encoder = nn.Sequential(nn.Conv1d(c_in, c, 8, stride=4), nn.GELU(), nn.Conv1d(c, c, 8, stride=4), nn.GELU())
+        self.head = nn.Sequential(nn.Linear(c + c_in + config.features(), config.hidden), nn.GELU(),
+                                  nn.Linear(config.hidden, config.hidden), nn.GELU(), nn.Linear(config.hidden, 6))
+        self.linear = nn.Linear(c_in + config.features(), 6)  # a linear path beside the MLP
+        for last in (self.head[-1], self.linear):
+            nn.init.zeros_(last.weight)
+            nn.init.zeros_(last.bias)
+
+    #: Shortest window the encoder takes as it is; a shorter one is padded with its last sample.
+    MIN_SAMPLES = 36
+
+    def forward(self, x: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        xt = x.transpose(1, 2)
+        if xt.shape[-1] < self.MIN_SAMPLES:
+            xt = nn.functional.pad(xt, (0, self.MIN_SAMPLES - xt.shape[-1]), mode="replicate")
+        code = self.encoder(xt).mean(-1)
+        summary = torch.cat([x.mean(1), features.to(x)], dim=-1)
+        return self.head(torch.cat([code, summary], dim=-1)) + self.linear(summary)
+
+
 class ContextResidual(nn.Module):
     """``bias = base + bias_std * (mlp(...) + linear(...))`` (module docstring).
 
@@ -144,14 +182,7 @@ class ContextResidual(nn.Module):
         for name in ("imu_mean", "imu_std", "bias_mean", "bias_std"):
             self.register_buffer(name, torch.tensor(getattr(stats, name), dtype=torch.float32))
         self.register_buffer("temperature", torch.tensor([stats.temperature_mean, stats.temperature_std]))
-        c = config.channels
-        self.encoder = nn.Sequential(nn.Conv1d(c_in, c, 8, stride=4), nn.GELU(), nn.Conv1d(c, c, 8, stride=4), nn.GELU())
-        self.head = nn.Sequential(nn.Linear(c + c_in + config.features(), config.hidden), nn.GELU(),
-                                  nn.Linear(config.hidden, config.hidden), nn.GELU(), nn.Linear(config.hidden, 6))
-        self.linear = nn.Linear(c_in + config.features(), 6)  # a linear path beside the MLP
-        for last in (self.head[-1], self.linear):
-            nn.init.zeros_(last.weight)
-            nn.init.zeros_(last.bias)
+        self.core = _Residual(c_in, config)
 
     def forward(self, imu: torch.Tensor, features: torch.Tensor, base: torch.Tensor,
                 temperature_degc: torch.Tensor | None = None) -> torch.Tensor:
@@ -161,10 +192,85 @@ class ContextResidual(nn.Module):
         if self.config.use_temperature:
             t = (temperature_degc - self.temperature[0]) / self.temperature[1]
             x = torch.cat([x, t.unsqueeze(-1).to(x)], dim=-1)
-        code = self.encoder(x.transpose(1, 2)).mean(-1)
-        summary = torch.cat([x.mean(1), features.to(x)], dim=-1)
-        z = self.head(torch.cat([code, summary], dim=-1)) + self.linear(summary)
-        return base.to(x) + z * self.bias_std
+        return base.to(x) + self.core(x, features) * self.bias_std
+
+
+def model_config_of(config: Any) -> ContextModelConfig:
+    """The :class:`ContextModelConfig` of a registered context network's
+    :class:`training.config.ModelConfig` (options :class:`training.networks.ContextOptions`)."""
+    o = config.network
+    return ContextModelConfig(base=o.base, history_s=o.history_s, use_temperature=config.condition_channels > 6,
+                              channels=o.channels, hidden=o.hidden)
+
+
+class ContextNet(nn.Module):
+    """The context residual as a registered network (:mod:`training.networks`, objective indirect).
+
+    ``forward(condition [B, T, C_in] normalised, context [B, F]) -> normalised bias [B, T, 6]``,
+    the window's one bias held over it: ``base + residual``, with ``base`` zero (the train mean)
+    or the context's first six values (the start-rest estimate, normalised). ``context`` is
+    :class:`ContextFeeder`'s. ``integration_weights`` (rotation, velocity, position) replace the
+    training's ``indirect_weights``: ``1 / rot_scale^2, 0, 1 / pos_scale^2``.
+
+    Args:
+        config: A :class:`training.config.ModelConfig` whose options are
+            :class:`training.networks.ContextOptions`.
+    """
+
+    def __init__(self, config: Any) -> None:
+        super().__init__()
+        self.context_config = model_config_of(config)
+        o = config.network
+        self.integration_weights = (1.0 / math.radians(o.rot_scale_deg) ** 2, 0.0, 1.0 / o.pos_scale_m ** 2)
+        self.core = _Residual(config.condition_channels, self.context_config)
+
+    @property
+    def features(self) -> int:
+        """Size F of the context vector."""
+        return self.context_config.features()
+
+    def forward(self, condition: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        z = self.core(condition, context)
+        if self.context_config.base is Base.REST:
+            z = z + context[:, :6].to(z)
+        return z[:, None].expand(-1, condition.shape[1], -1)
+
+
+#: Gravity magnitude the context's start-rest estimate is computed with, in training and evaluation alike.
+CONTEXT_GRAVITY_MPS2 = float(np.linalg.norm(DEFAULT_GRAVITY_MPS2))
+
+
+@dataclass(frozen=True)
+class ContextFeeder:
+    """The context vectors of windows, read from a dataset's sequence records.
+
+    ``feeder(sequences [B] names, t0_ns [B], T) -> context [B, F]`` (float64 tensor, rows in the
+    given order; :func:`context_features` with the nominal gravity magnitude).
+    """
+
+    root: Path
+    config: ContextModelConfig
+    stats: Stats
+
+    @classmethod
+    def for_model(cls, root: str | Path, config: ContextModelConfig, normalizer: Any) -> ContextFeeder:
+        """The feeder of a model of ``config`` (:func:`model_config_of`) on the dataset ``root``, with
+        the statistics of its :class:`training.normalizer.Normalizer` (the train split's, as the
+        checkpoint holds them)."""
+        n = {k: getattr(normalizer, k).double().numpy() for k in ("imu_mean", "imu_std", "bias_mean", "bias_std")}
+        stats = Stats(**n, temperature_mean=float(normalizer.temperature_mean),
+                      temperature_std=float(normalizer.temperature_std))
+        return cls(Path(root), config, stats)
+
+    def __call__(self, sequences: Sequence[str], t0_ns: Any, T: int) -> torch.Tensor:
+        t0 = np.asarray(t0_ns, dtype=np.int64).reshape(-1)
+        names = np.asarray(list(sequences), dtype=object)
+        out = np.zeros((len(t0), self.config.features()))
+        for name in dict.fromkeys(names):
+            rows = np.flatnonzero(names == name)
+            out[rows], _ = context_features(open_context(self.root, str(name)), t0[rows], T, self.stats, self.config,
+                                            CONTEXT_GRAVITY_MPS2)
+        return torch.from_numpy(out)
 
 
 def integration_errors(imu: torch.Tensor, bias: torch.Tensor, dt_s: torch.Tensor, start_R: torch.Tensor,

@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from pipeline.errors import ConfigError, InputFormatError
+from pipeline.errors import ConfigError, DataError, InputFormatError
 from training.checkpoint import CheckpointError, check_finite_output
 from training.clip import ClipUse, clip_use
 from training.config import EvaluationConfig, Sampler
@@ -149,6 +149,7 @@ class ModelPredictor:
     run: Any  # training.checkpoint.LoadedRun
     steps: int = 25
     clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.scheduler.ClipCount
+    context: Any = None  # a context network's training.context_model.ContextFeeder (evaluate_run sets it)
 
     @property
     def method(self) -> Network:
@@ -174,6 +175,8 @@ class ModelPredictor:
         device = next(model.parameters()).device
         dtype = next(model.parameters()).dtype
         cast = {key: (v.to(dtype) if torch.is_tensor(v) and v.is_floating_point() else v) for key, v in items.items()}
+        if self.context is not None:
+            cast["context"] = self.context(items["sequence"], items["t0_ns"], items["imu"].shape[1]).to(dtype)
         batch = WindowBatch.from_items(cast).to(device)
         gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + int(items["t0_ns"][0]) % 1_000_003)
         kwargs = {}
@@ -468,6 +471,20 @@ def _read_json(path: Path) -> dict[str, Any]:
         return {}
 
 
+def _context_feeder(run: Any, root: Path) -> Any:
+    """A context network's feeder on the dataset ``root`` (checkpoint's normaliser), else None."""
+    if not get_network(run.config.method).context:
+        return None
+    from training.context import has_context
+    from training.context_model import ContextFeeder
+
+    if not has_context(root):
+        raise DataError(f"{run.config.method} reads the sequence records and the dataset has none", path=root,
+                        hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them with "
+                             "training.context.write_context")
+    return ContextFeeder.for_model(root, run.model.net.context_config, run.model.normalizer)
+
+
 def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str | Path | None = None,
                  config: EvaluationConfig = EvaluationConfig(), *, method: str | None = None,
                  device: str = "cpu") -> EvaluationResult:
@@ -490,7 +507,7 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
     windows = load_test_windows(dataset_dir, config)
     run = load_run(checkpoint, device=device)
     check_compatible(run, windows, checkpoint, method=method)
-    predictor = ModelPredictor(run, steps=config.steps)
+    predictor = ModelPredictor(run, steps=config.steps, context=_context_feeder(run, windows.root))
     try:
         result = evaluate_predictor(predictor, windows, config, kind="learned",
                                     checkpoint=_run_provenance(run, checkpoint))

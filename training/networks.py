@@ -17,7 +17,8 @@ Factory contract: ``factory(config)`` with ``config`` a :class:`training.config.
 
 * diffusion: ``encode(condition [B, T, C_in]) -> code [B, C]`` and
   ``denoise(x_t [B, T, 6], t [B], code [B, C]) -> noise estimate [B, T, 6]``;
-* regression / indirect: ``forward(condition [B, T, C_in]) -> normalised bias [B, T, 6]``.
+* regression / indirect: ``forward(condition [B, T, C_in]) -> normalised bias [B, T, 6]`` (a
+  :attr:`Network.context` network: ``forward(condition, context [B, F])``).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from typing import Any
 
 from pipeline.errors import ConfigError
 
-__all__ = ["Network", "Objective", "RnnOptions", "UnetOptions", "get_network", "network_names", "register_network",
+__all__ = ["ContextOptions", "Network", "Objective", "RnnOptions", "UnetOptions", "get_network", "network_names", "register_network",
            "unregister_network"]
 
 
@@ -104,6 +105,37 @@ class UnetOptions(TcnOptions):
                               field="unet_dims", hint="choose dims divisible by the GroupNorm groups")
 
 
+@dataclass(frozen=True)
+class ContextOptions:
+    """The context residual (:class:`training.context_model.ContextNet`): a constant base plus a
+    residual from the window and what came before it in its sequence's record.
+
+    Attributes:
+        base: ``mean`` (the train split's mean bias) or ``rest`` (the start-rest estimate).
+        history_s: Spans (s) of the history means before the window (plus one since the record's
+            start, and the time since it); empty: the start rest only.
+        channels: Window encoder channels.
+        hidden: Head width.
+        rot_scale_deg / pos_scale_m: The integration loss is ``mean(rot^2) / rot_scale^2 +
+            mean(pos^2) / pos_scale^2`` (end errors of the windows; no velocity term). It replaces
+            the training's ``indirect_weights``.
+    """
+
+    base: str = "mean"
+    history_s: tuple[float, ...] = (5.0, 30.0)
+    channels: int = 32
+    hidden: int = 64
+    rot_scale_deg: float = 0.1
+    pos_scale_m: float = 0.05
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "history_s", tuple(float(s) for s in self.history_s))
+        if self.base not in ("mean", "rest"):
+            raise ConfigError(f"context base '{self.base}'", field="base", hint="use mean or rest")
+        if not (self.rot_scale_deg > 0 and self.pos_scale_m > 0):
+            raise ConfigError("rot_scale_deg and pos_scale_m must be positive", field="rot_scale_deg")
+
+
 #: Preset values of the TCN encoder (``paper`` = the dataclass defaults).
 _TCN_PRESETS = {"small": dict(tcn_channels=(32, 32, 32, 32, 64, 64, 64), cond_dim=64, step_embed_dim=64),
                 "tiny": dict(tcn_channels=(16, 16, 16, 16), tcn_dropout=0.0, cond_dim=32, step_embed_dim=32)}
@@ -130,6 +162,9 @@ class Network:
             or ``"module:attr"`` naming one.
         factory: ``"module:attr"`` of the network's constructor (see the module docstring), or a callable.
         presets: Preset name -> option values replacing the defaults (a preset not listed: the defaults).
+        context: The network reads a context vector of each window from its sequence's record
+            (``WindowBatch.context`` [B, F]; the dataset needs ``context/``, :mod:`training.context`):
+            ``forward(condition [B, T, C_in], context [B, F])``.
     """
 
     name: str
@@ -140,6 +175,7 @@ class Network:
     options: type | str
     factory: str | Callable[[Any], Any]
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    context: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objective", Objective(self.objective))
@@ -220,6 +256,9 @@ BUILTIN = (
     Network("indirect_rnn", "indirect_rnn", Objective.INDIRECT, "AirIMU-style: the RNN regressor trained through the "
             "IMU integrator, no bias labels", "#2ca02c", RnnOptions,
             "training.models.rnn:GruRegressor", RNN_PRESETS),
+    Network("context_residual", "context_residual", Objective.INDIRECT, "train mean + a residual from the window "
+            "and the means of the IMU record before it, trained through the integrator", "#d62728", ContextOptions,
+            "training.context_model:ContextNet", context=True),
 )
 for _network in BUILTIN:
     register_network(_network)

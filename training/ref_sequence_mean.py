@@ -15,7 +15,7 @@ import numpy as np
 
 from training.dataset import STATE_BIAS
 
-__all__ = ["sequence_mean_bias", "sequence_mean_row"]
+__all__ = ["sequence_mean_bias", "sequence_mean_note", "sequence_mean_row"]
 
 
 def sequence_mean_bias(sequence_folder: str | Path) -> np.ndarray:
@@ -35,3 +35,12 @@ def sequence_mean_row(items: dict, *, sequence_dir: Path) -> np.ndarray:
     (:mod:`training.references` gives the inputs)."""
     B, T, _ = np.shape(items["imu"])
     return np.broadcast_to(sequence_mean_bias(sequence_dir), (B, 1, T, 6)).copy()
+
+
+def sequence_mean_note(summaries: list) -> str | None:
+    """Table I's footnote on the ``sequence_mean`` oracle (None when the table does not hold it)."""
+    if not any(s.method == "sequence_mean" for s in summaries):
+        return None
+    return ("Sequence-mean bias (oracle, not in the paper): each test sequence's own mean of its dataset "
+            "bias (the ground-truth state's where there is one, else the labels), held constant: the best "
+            "one constant per sequence can do.")

@@ -22,7 +22,7 @@ import numpy as np
 
 from training.context import SequenceContext
 
-__all__ = ["start_rest_bias", "start_rest_row"]
+__all__ = ["start_rest_bias", "start_rest_note", "start_rest_row"]
 
 
 def start_rest_bias(context: SequenceContext, stop: np.ndarray, bias_mean: np.ndarray,
@@ -50,3 +50,14 @@ def start_rest_row(items: dict, *, context: SequenceContext, bias_mean: np.ndarr
     stop = context.index(np.asarray(items["t0_ns"], dtype=np.int64)) + T
     b, _ = start_rest_bias(context, stop, bias_mean, float(np.linalg.norm(gravity_mps2)))
     return np.broadcast_to(b[:, None, None, :], (B, 1, T, 6)).copy()
+
+
+def start_rest_note(summaries: list) -> str | None:
+    """Table I's footnote on the ``start_rest`` row (None when the table does not hold it)."""
+    if not any(s.method == "start_rest" for s in summaries):
+        return None
+    return ("Start-rest bias (a usable row, not in the paper): from the IMU alone, the gyro mean over the "
+            "record's first rest and the accelerometer bias along gravity there (the train mean across "
+            "gravity, and on every channel before a rest is seen), held for the sequence. It reads the "
+            "dataset's sequence records (context/: each whole IMU record once, 56 bytes per IMU sample, 64 "
+            "with temperature, whatever the window overlap).")

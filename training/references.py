@@ -155,10 +155,11 @@ BUILTIN = (
     ReferenceRow("start_rest", "Start-rest bias", "from the IMU alone: the gyro mean over the record's first rest, "
                  "the accelerometer's bias along gravity there (the train mean across it), held constant",
                  "training.ref_start_rest:start_rest_row", needs=("context", "bias_mean", "gravity_mps2"),
-                 default=False),
+                 default=False, note="training.ref_start_rest:start_rest_note"),
     ReferenceRow("sequence_mean", "Sequence-mean bias (oracle)", "each test sequence's own mean dataset bias, held "
                  "constant: the best one constant per sequence", "training.ref_sequence_mean:sequence_mean_row",
-                 oracle=True, needs=("sequence_dir",), default=False),
+                 oracle=True, needs=("sequence_dir",), default=False,
+                 note="training.ref_sequence_mean:sequence_mean_note"),
 )
 for _row in BUILTIN:
     register_reference(_row)

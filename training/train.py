@@ -111,9 +111,12 @@ class _Data:
     info: dict[str, Any]
     normalizer: Normalizer
     gravity: dict[str, list[float]] = field(default_factory=dict)
+    context: Any = None  # a context network's training.context_model.ContextFeeder, else None
 
     def collate(self, items: list[dict[str, Any]]) -> WindowBatch:
         out = default_collate(items)
+        if self.context is not None:
+            out["context"] = self.context(out["sequence"], out["t0_ns"], out["imu"].shape[1]).to(out["imu"].dtype)
         if self.gravity:
             from training.models import DEFAULT_GRAVITY_MPS2
 
@@ -161,7 +164,23 @@ def _open_data(config: TrainConfig, dataset_dir: Path) -> _Data:
             "rate_hz": manifest.get("rate_hz"), "config_hash": manifest.get("config_hash"),
             "manifest_hash": hashlib.sha256(mpath.read_bytes()).hexdigest()[:16],
             "train_windows": len(train_ds), "val_windows": len(val_ds)}
-    return _Data(train_ds, val_ds, manifest, info, normalizer, gravity)
+    return _Data(train_ds, val_ds, manifest, info, normalizer, gravity, _context_feeder(config, dataset_dir, normalizer))
+
+
+def _context_feeder(config: TrainConfig, dataset_dir: Path, normalizer: Normalizer) -> Any:
+    """The context vectors' source of a network that reads them (:attr:`training.networks.Network.context`),
+    else None (every other model's batches are as before)."""
+    mc = config.model_config()
+    if not mc.spec.context:
+        return None
+    from training.context import has_context
+    from training.context_model import ContextFeeder, model_config_of
+
+    if not has_context(dataset_dir):
+        raise DataError(f"{config.method} reads the sequence records and the dataset has none", path=dataset_dir,
+                        hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them with "
+                             "training.context.write_context")
+    return ContextFeeder.for_model(dataset_dir, model_config_of(mc), normalizer)
 
 
 def _model_config(config: TrainConfig, data: _Data) -> ModelConfig:

@@ -396,6 +396,10 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
                          config: WindowConfig = WindowConfig()) -> WindowManifest:
     """Window every source and write the dataset atomically (:func:`training.dataset.write_dataset`).
 
+    ``biasgt windows`` and the workflow's windows stage then write the sequence records
+    (``context/``, :func:`training.context.write_context`: each whole IMU record once, 56 bytes per
+    IMU sample, 64 with temperature, whatever the overlap).
+
     Sequences are loaded, cut and written one at a time. The dataset rate is ``config.resample_hz``
     when set, else the first source's IMU rate; every other sequence must match it (see the module
     docstring). A failure anywhere leaves ``out_dir`` as it was.

@@ -147,7 +147,8 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
 
 def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path], validations: Sequence[str | Path],
                  out_dir: str | Path, settings: dict[str, Any]) -> Path:
-    """Cut the window dataset of the train / val / test sequences whose validation verdict allows it.
+    """Cut the window dataset of the train / val / test sequences whose validation verdict allows it,
+    with its sequence records (``context/``, :func:`training.context.write_context`).
 
     Args:
         stores / recoveries / validations: Each sequence's canonical store, recovery and validation
@@ -155,6 +156,7 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
         out_dir: The dataset folder.
         settings: :func:`windows_settings`.
     """
+    from training.context import write_context
     from training.windows import WindowSource, build_window_dataset  # torch: only in the job of this step
 
     named = list(settings.get("sequences") or [])
@@ -168,6 +170,7 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
     log.info("cutting windows of %d sequence(s): %s", len(sources),
              ", ".join(f"{s.name} ({s.split})" for s in sources))
     build_window_dataset(sources, out_dir, config)
+    write_context(out_dir)  # the sequence records: the start_rest / sequence_mean rows, context networks
     log.info("wrote %s", out_dir)
     return Path(out_dir)
 

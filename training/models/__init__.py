@@ -22,6 +22,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from pipeline.errors import DataError
 from pipeline.geometry.integration import integrate
 from pipeline.geometry.so3_torch import so3_log
 from training.batch import WindowBatch
@@ -60,6 +61,17 @@ class BiasModel(nn.Module):
         """Normalised condition [B, T, 6 or 7]."""
         return self.normalizer.condition(batch.condition(self.use_temperature))
 
+    def _net(self, cond: torch.Tensor, batch: WindowBatch) -> torch.Tensor:
+        """A regression / indirect network's normalised bias [B, T, 6] (a context network also reads
+        ``batch.context``)."""
+        if not self.spec.context:
+            return self.net(cond)
+        if batch.context is None:
+            raise DataError(f"{self.method} reads each window's context from its sequence's record, and the batch "
+                            "carries none", hint="train and evaluate it on a window dataset with records "
+                            "(context/, written by 'biasgt windows'), with 'biasgt train' / 'biasgt evaluate'")
+        return self.net(cond, batch.context.to(cond))
+
     def draw_noise(self, shape: tuple[int, ...], generator: torch.Generator | None = None,
                    device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
         """Diffusion noise [B, T, 6] and steps [B] for a batch of ``shape`` (noise drawn first)."""
@@ -86,7 +98,7 @@ class BiasModel(nn.Module):
             noise, t = noise.to(x0), t.to(x0.device)
             eps = self.net.denoise(self.scheduler.add_noise(x0, noise, t), t, self.net.encode(cond))
             return F.mse_loss(eps, noise)
-        pred = self.net(cond)
+        pred = self._net(cond, batch)
         if self.spec.is_indirect:
             return self._integration_loss(batch, self.normalizer.unbias(pred))
         return F.mse_loss(pred, self.normalizer.bias(batch.bias))
@@ -114,7 +126,8 @@ class BiasModel(nn.Module):
             vel = (res.v - batch.end_v[i].to(f64)).square().sum(-1)
             pos = (res.p - batch.end_p[i].to(f64)).square().sum(-1)
             terms = terms + torch.stack([rot.sum(), vel.sum(), pos.sum()])
-        weights = torch.tensor(self.indirect_weights, dtype=f64, device=terms.device)
+        weights = torch.tensor(getattr(self.net, "integration_weights", self.indirect_weights), dtype=f64,
+                               device=terms.device)
         return ((weights * terms).sum() / len(batch)).to(batch.imu.dtype)
 
     def forward(self, batch: WindowBatch, generator: torch.Generator | None = None, *,
@@ -154,7 +167,7 @@ class BiasModel(nn.Module):
         B, T, _ = cond.shape
         K = int(num_samples)
         if not self.spec.is_diffusion:
-            return self.normalizer.unbias(self.net(cond))[:, None].expand(B, K, T, IMU_CHANNELS).clone()
+            return self.normalizer.unbias(self._net(cond, batch))[:, None].expand(B, K, T, IMU_CHANNELS).clone()
         code = self.net.encode(cond).repeat_interleave(K, dim=0)  # [B*K, C], window b's samples adjacent
         z = self.scheduler.sample(lambda x, t: self.net.denoise(x, t, code), (B * K, T, IMU_CHANNELS),
                                   sampler=Sampler(sampler), steps=steps, eta=eta, generator=generator,

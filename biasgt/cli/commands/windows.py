@@ -85,6 +85,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from training.context import write_context
     from training.windows import (  # torch: off the CLI start-up path
         WindowSource,
         build_window_dataset,
@@ -120,6 +121,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.allow_unvalidated:
         _refuse_unvalidated(sources, args.results)
     manifest = build_window_dataset(sources, args.out, config)
+    write_context(args.out)  # the sequence records (training.context)
     print(f"{len(manifest.sequences)} sequences, {manifest.window_samples} samples per window "
           f"({config.window_s:g} s at {manifest.rate_hz:g} Hz, overlap {config.overlap:g}), "
           f"config {manifest.config_hash}")
