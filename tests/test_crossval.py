@@ -19,7 +19,7 @@ from pipeline.sim.config import (
 )
 from recovery.recover import recover
 from validation.config import ValidationConfig
-from validation.crossval import BlockFolds, crossvalidate_recovery, held_constant, without_fold
+from validation.crossval import BlockFolds, crossvalidate_recovery, fold_prediction, held_constant, without_fold
 from validation.heldout import held_out_errors, held_out_windows
 from validation.validate import plan_windows, reference_from_states
 
@@ -87,6 +87,23 @@ def test_each_sample_gets_the_bias_of_the_fold_that_left_it_out(handheld):
     np.testing.assert_array_equal(cv.bias[:, 0], folds.fold(seq.imu.t_ns))
     np.testing.assert_array_equal(cv.raw_std[:, 5], 0.5 + folds.fold(seq.imu.t_ns))  # and that fold's sigma
     assert len(cv.recoveries) == 3
+
+
+def test_an_edge_block_gets_the_end_value_with_the_random_walk_sigma():
+    """Keyframes at 5-10 s (bias 0.1 + 0.01 t, sigma 0.02; random walks 0.03 and 0.2): beyond the span the
+    bias random walk predicts the end value with variance sigma_end^2 + rw^2 |t - t_end| (closed form);
+    inside, the keyframes' interpolation (the Brownian bridge adds nothing at a keyframe)."""
+    kt = np.arange(5, 11) * S
+    b = np.repeat((0.1 + 0.01 * np.arange(5, 11))[:, None], 3, 1)
+    sd = np.full((6, 3), 0.02)
+    res = SimpleNamespace(t_ns=kt, bias_gyro_radps=b, bias_acc_mps2=b, bias_gyro_std_radps=sd,
+                          bias_acc_std_mps2=sd, report={"noise": {"gyro_random_walk": 0.03, "acc_random_walk": 0.2}})
+    t = np.array([0, 3, 5, 7, 10, 14]) * S
+    got = fold_prediction(res, t)
+    np.testing.assert_allclose(got.bias[:, 0], [0.15, 0.15, 0.15, 0.17, 0.20, 0.20])
+    np.testing.assert_allclose(got.std[:, 0], np.sqrt(0.02**2 + 0.03**2 * np.array([5, 2, 0, 0, 0, 4])))
+    np.testing.assert_allclose(got.std[:, 3], np.sqrt(0.02**2 + 0.2**2 * np.array([5, 2, 0, 0, 0, 4])))
+    np.testing.assert_array_equal(got.clamped, [True, True, False, False, False, True])
 
 
 def test_crossvalidated_recovery_integrates_nearly_like_the_truth(handheld):

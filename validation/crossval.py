@@ -11,7 +11,11 @@ recoveries), integrated against the FULL pose stream with the project's one metr
 (:mod:`validation.heldout`: :func:`validation.metrics.window_errors`, PRMSE, ROE).
 
 A recovery sees a held-out block as a pose gap, spanned by keyframes without pose factors
-(:mod:`recovery.gaps`): the block's own IMU readings still enter, its poses do not.
+(:mod:`recovery.gaps`): the block's own IMU readings still enter, its poses do not. A held-out block
+at the start or end of the recording lies outside the fold recovery's keyframe span (poses on one
+side only): there the prediction of the bias random walk from the nearest keyframe is that keyframe's
+value with a sigma growing as ``sigma_end^2 + q |t - t_end|`` (:func:`fold_prediction`), so that a
+held-out bias far from any pose it was fitted to is judged at its real uncertainty.
 
 A fold whose recovery fails (too few poses left, too little motion, a degenerate optimisation) is
 dropped and counted: its blocks have no held-out bias, and the other folds still judge theirs.
@@ -25,12 +29,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from interpolation.bias import interpolate_bias
 from pipeline.bias_table import BiasTrack
 from pipeline.errors import BiasgtError, ValidationError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence
 
-__all__ = ["BlockFolds", "CrossValidatedBias", "crossvalidate_recovery", "held_constant", "heldout_track",
-           "imu_and_bias_of", "without_fold"]
+__all__ = ["BlockFolds", "CrossValidatedBias", "crossvalidate_recovery", "fold_prediction", "held_constant",
+           "heldout_track", "imu_and_bias_of", "without_fold"]
 
 
 @dataclass(frozen=True)
@@ -82,6 +87,27 @@ def imu_and_bias_of(imu: ImuSeries, result) -> tuple[ImuSeries, np.ndarray]:
     return corrected, b
 
 
+def fold_prediction(result, t_ns: np.ndarray) -> BiasTrack:
+    """A fold recovery's bias and sigma at ``t_ns`` (raw readings' convention), [M, 6] each.
+
+    Inside the recovery's keyframe span: its bias and sigma interpolated. Beyond it (a held-out block at
+    the recording's start or end): the random walk's prediction from the end keyframe, its value with the
+    variance ``sigma_end^2 + q |t - t_end|`` (:func:`interpolation.bias.interpolate_bias` with ``clamp``;
+    ``q`` the squared random walk the recovery used, ``report["noise"]``; flagged ``clamped``). A result
+    without keyframes or random walks gives its own ``bias_at`` / ``std_at``.
+    """
+    t_ns = np.asarray(t_ns, dtype=np.int64)
+    noise = (getattr(result, "report", None) or {}).get("noise") or {}
+    g_rw, a_rw = noise.get("gyro_random_walk"), noise.get("acc_random_walk")
+    if g_rw is None or a_rw is None or getattr(result, "t_ns", None) is None:
+        return BiasTrack(t_ns, result.bias_at(t_ns), result.std_at(t_ns))
+    keyframes = BiasTrack(np.asarray(result.t_ns, dtype=np.int64),
+                          np.hstack([result.bias_gyro_radps, result.bias_acc_mps2]).astype(float),
+                          np.hstack([result.bias_gyro_std_radps, result.bias_acc_std_mps2]).astype(float))
+    return interpolate_bias(keyframes, t_ns, random_walk=np.array([float(g_rw)] * 3 + [float(a_rw)] * 3),
+                            clamp=True)
+
+
 @dataclass(frozen=True)
 class CrossValidatedBias:
     """A bias at the IMU stamps where each sample's value comes from the fold that left it out.
@@ -94,7 +120,8 @@ class CrossValidatedBias:
             not spliced from recoveries. NaN in a dropped fold's blocks.
         dropped: ``{fold: reason}`` of the folds whose recovery failed.
         raw_std: The bias sigma of the fold that left each sample out, [N, 6] (raw readings' convention;
-            NaN in a dropped fold's blocks), or None.
+            NaN in a dropped fold's blocks; growing with the random walk beyond the fold's span,
+            :func:`fold_prediction`), or None.
     """
 
     imu: ImuSeries
@@ -138,8 +165,8 @@ def crossvalidate_recovery(sequence: Sequence, stream: str, folds: BlockFolds,
         imu_k, bias_k = imu_and_bias_of(imu, res)
         m = fold_of_imu == k
         gyro[m], acc[m], bias[m] = imu_k.gyro_radps[m], imu_k.acc_mps2[m], bias_k[m]
-        raw[m] = res.bias_at(imu.t_ns[m])
-        raw_std[m] = res.std_at(imu.t_ns[m])
+        predicted = fold_prediction(res, imu.t_ns[m])
+        raw[m], raw_std[m] = predicted.bias, predicted.std
     return CrossValidatedBias(dataclasses.replace(imu, gyro_radps=gyro, acc_mps2=acc), bias, tuple(results), raw,
                               dropped, raw_std)
 
