@@ -44,7 +44,7 @@ def window_solver():
     sim = simulate(SimConfig(duration_s=20.0, seed=1, poses=PoseStreamConfig(extrinsic_rotation_deg=15.0,
                                                                              extrinsic_translation_m=0.10)))
     inputs = rr._checked_inputs(sim.sequence, None, RecoveryConfig())
-    problem = rr._Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse)
+    problem = rr.Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse)
     truth_bias = _truth_bias(sim)
     problem.set_linearisation(bias=truth_bias)
     a, b = inputs.pieces[0]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from recovery.intrinsics import ImuIntrinsics, IntrinsicsFit, intrinsics_bias_variance, left_out_shift
 from recovery.intrinsics_report import intrinsics_clause, term_table
@@ -99,3 +100,12 @@ def test_calibration_agreement_of_the_accelerometer_rotation():
     off[2, 0] -= np.radians(1.0)
     assert not calibration_agreement(off, cov, report)["agrees"]
     assert calibration_agreement(S, cov, {**report, "extrinsic": {"mode": "known"}}) is None
+
+
+def test_chi2_quantile_is_scipy_stats_chi2_ppf() -> None:
+    from scipy.stats import chi2
+
+    from recovery.intrinsics_frame import chi2_quantile
+
+    for q, dof in ((0.997, 3), (0.5, 1), (0.95, 6)):
+        assert chi2_quantile(q, dof) == pytest.approx(chi2.ppf(q, dof), rel=1e-10)

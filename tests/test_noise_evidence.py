@@ -31,7 +31,7 @@ def window():
     """A 20-s simulated mocap window (fused 10-Hz keyframes at the true calibration) and its options."""
     sim = simulate(SimConfig(duration_s=20.0, seed=3))
     inputs = rr._checked_inputs(sim.sequence, None, RecoveryConfig())
-    problem = rr._Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse)
+    problem = rr.Problem(inputs.imu, inputs.poses, inputs.pieces, fuse=inputs.fuse)
     problem.set_linearisation(T_imu_pose=sim.truth.T_imu_frame)
     a, b = inputs.pieces[0]
     samples, kf = problem.window(sim.truth.clock_offset_s, a, b, None)

@@ -342,7 +342,8 @@ def test_a_held_out_error_worse_than_zero_or_constant_is_a_fail(v1_02_recovery):
         reasons = [r for r in res.reasons if r.startswith("held out") and "not significantly" not in r]
         assert (res.verdict is Verdict.FAIL) == fails and bool(reasons) == fails, res.reasons
         assert res.heldout["judged"] and res.heldout["windows"] == res.sources["recovered"].windows
-    assert "worse than the 'zero' bias" in " ".join(reasons) or "worse than the 'constant' bias" in " ".join(reasons)
+    assert "HELDOUT_WORSE" in res.reason_codes
+    assert "for the 'zero' bias" in " ".join(reasons) or "for the 'constant' bias" in " ".join(reasons)
 
 
 def test_a_degenerate_fold_is_dropped_and_counted(v1_02, tmp_path):
