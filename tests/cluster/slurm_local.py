@@ -391,7 +391,7 @@ def check_slurm_jobs(c: Cluster, workdir: Path, jobs: list[tuple[str, str, str]]
     finished = c.finished_jobs()
     folders = {"recover": "recovery", "interpolate": "interpolation", "validate": "validation",
                "train": "training", "evaluate": "evaluation", "evaluate_reference": "evaluation",
-               "training_report": "report"}
+               "training_report": "report", "dataset_report": "report"}
     for rule, name, slurm_id in jobs:
         job_log = workdir / "logs" / folders.get(rule, rule) / f"{name}.log"
         text = job_log.read_text() if job_log.exists() else ""
@@ -480,7 +480,9 @@ def check_failed_ingest(c: Cluster, remote: Path, rc: int, out: str, jobs: list[
 
 def rerun_after_repair(c: Cluster, config: Path, remote: Path, imu: Path, good_imu: Path) -> list[tuple[str, str, str]]:
     """Repair the corrupt file and rerun: only that sequence's jobs run, the rest is untouched."""
-    before = {p: p.stat().st_mtime_ns for p in (remote / "results").rglob("*") if p.is_file()}
+    # every file but the dataset page, which a changed sequence rewrites by design
+    before = {p: p.stat().st_mtime_ns for p in (remote / "results").rglob("*")
+              if p.is_file() and p.name != "index.html"}
     shutil.copy(good_imu, imu)
     rc, out, seconds = biasgt_run(config, remote, *slurm_args())
     jobs = submitted_jobs(remote)
