@@ -53,7 +53,7 @@ def test_every_rule_has_a_code_a_level_wording_and_is_listed_in_the_docs():
         assert rule.level in (Verdict.WARN, Verdict.FAIL) and rule.wording
         assert f"`{code}`" in docs, f"{code} is not in docs/validation.md"
         assert f"``{code}``" in caption, f"{code} is not in workflow/report/validate.rst"
-    with pytest.raises(ValueError, match="taken"):
+    with pytest.raises(ValueError, match="already registered"):
         register(RULES["NO_BASELINE"])
 
 

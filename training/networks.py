@@ -25,11 +25,11 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
+from pipeline.registry import Registry, resolve
 from pipeline.errors import ConfigError
 
 __all__ = ["ContextOptions", "Network", "Objective", "RnnOptions", "UnetOptions", "get_network", "network_names", "register_network",
@@ -189,7 +189,7 @@ class Network:
         return self.objective is Objective.INDIRECT
 
     def options_class(self) -> type:
-        return _resolve(self.options) if isinstance(self.options, str) else self.options
+        return resolve(self.options)
 
     def option_names(self) -> set[str]:
         return {f.name for f in dataclasses.fields(self.options_class())}
@@ -200,29 +200,21 @@ class Network:
 
     def build(self, config: Any) -> Any:
         """The network's ``nn.Module`` for ``config`` (:class:`training.config.ModelConfig`)."""
-        factory = _resolve(self.factory) if isinstance(self.factory, str) else self.factory
+        factory = resolve(self.factory)
         return factory(config)
 
 
-def _resolve(ref: str) -> Any:
-    module, _, attr = ref.partition(":")
-    return getattr(importlib.import_module(module), attr)
-
-
-_NETWORKS: dict[str, Network] = {}
+_NETWORKS: Registry[Network] = Registry("network")
 
 
 def register_network(network: Network) -> Network:
     """Add ``network`` (after the registered ones: its place in Table I). Refuses a name in use."""
-    if network.name in _NETWORKS:
-        raise ValueError(f"a network named '{network.name}' is already registered")
-    _NETWORKS[network.name] = network
-    return network
+    return _NETWORKS.add(network.name, network)
 
 
 def unregister_network(name: str) -> None:
     """Remove a registered network (tests)."""
-    _NETWORKS.pop(name, None)
+    _NETWORKS.remove(name)
 
 
 def network_names() -> tuple[str, ...]:

@@ -39,11 +39,11 @@ any other name
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+from pipeline.registry import Registry, resolve
 from pipeline.errors import ConfigError
 
 __all__ = ["EVALUATION_INPUTS", "ReferenceRow", "get_reference", "reference_names", "register_reference",
@@ -85,33 +85,23 @@ class ReferenceRow:
 
     def predict(self, items: dict[str, Any], inputs: dict[str, Any]) -> Any:
         """The row's bias [B, 1, T, 6] for ``items``, given the ``inputs`` it declared."""
-        return _resolve(self.bias)(items, **{n.removeprefix("info."): inputs[n] for n in self.needs})
+        return resolve(self.bias)(items, **{n.removeprefix("info."): inputs[n] for n in self.needs})
 
     def footnote(self, summaries: list[Any]) -> str | None:
-        return None if self.note is None else _resolve(self.note)(summaries)
+        return None if self.note is None else resolve(self.note)(summaries)
 
 
-def _resolve(ref: str | Callable[..., Any]) -> Callable[..., Any]:
-    if not isinstance(ref, str):
-        return ref
-    module, _, attr = ref.partition(":")
-    return getattr(importlib.import_module(module), attr)
-
-
-_REFERENCES: dict[str, ReferenceRow] = {}
+_REFERENCES: Registry[ReferenceRow] = Registry("reference row")
 
 
 def register_reference(row: ReferenceRow) -> ReferenceRow:
     """Add ``row`` (after the registered ones: its place in Table I). Refuses a name in use."""
-    if row.name in _REFERENCES:
-        raise ValueError(f"a reference row named '{row.name}' is already registered")
-    _REFERENCES[row.name] = row
-    return row
+    return _REFERENCES.add(row.name, row)
 
 
 def unregister_reference(name: str) -> None:
     """Remove a registered row (tests)."""
-    _REFERENCES.pop(name, None)
+    _REFERENCES.remove(name)
 
 
 def reference_names(*, default_only: bool = False) -> tuple[str, ...]:

@@ -27,6 +27,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from pipeline.registry import Registry
 from pipeline.types import Finding, Severity, Verdict
 from validation.config import BiasSourceKind, ValidationConfig
 
@@ -150,7 +151,7 @@ class Rule:
 
 
 #: Every rule, by code, in the order the reasons are listed.
-RULES: dict[str, Rule] = {}
+RULES: Registry[Rule] = Registry("rule")
 
 
 def register(rule: Rule, *, before: str | None = None) -> Rule:
@@ -159,21 +160,14 @@ def register(rule: Rule, *, before: str | None = None) -> Rule:
     Raises:
         ValueError: Its code is taken, its level is PASS, or ``before`` is not a rule.
     """
-    if rule.code in RULES or rule.level is Verdict.PASS:
-        raise ValueError(f"rule code {rule.code!r} is taken or its level is PASS")
-    if before is not None and before not in RULES:
-        raise ValueError(f"no rule {before!r} to register {rule.code!r} before")
-    items = list(RULES.items())
-    at = len(items) if before is None else [code for code, _ in items].index(before)
-    items.insert(at, (rule.code, rule))
-    RULES.clear()
-    RULES.update(items)
-    return rule
+    if rule.level is Verdict.PASS:
+        raise ValueError(f"rule {rule.code!r}: a rule's level is WARN or FAIL, not PASS")
+    return RULES.add(rule.code, rule, before=before)
 
 
 def unregister(code: str) -> None:
     """Remove the rule ``code`` (a test's dummy rule)."""
-    RULES.pop(code, None)
+    RULES.remove(code)
 
 
 # ----------------------------------------------------------------------------- the engine

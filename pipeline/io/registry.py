@@ -18,12 +18,12 @@ e.g. ``"rosbag"``); :func:`recorded_format` is the one place that reads it back.
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pipeline.registry import Registry, resolve
 from pipeline.errors import ConfigError, InputFormatError, UnsupportedInputError
 
 #: ``Sequence.metadata`` key of the format that produced a sequence (a reader's name or alias).
@@ -69,18 +69,11 @@ class Reader:
 
     def loader(self) -> Callable[..., Any]:
         """The ``load`` function (imported now when given as ``"module:function"``)."""
-        return _resolve(self.load)
+        return resolve(self.load)
 
     def detects(self, path: Path) -> bool:
         """Whether this reader recognises ``path``."""
-        return self.detect is not None and bool(_resolve(self.detect)(path))
-
-
-def _resolve(ref: Callable[..., Any] | str) -> Callable[..., Any]:
-    if callable(ref):
-        return ref
-    module, _, attr = ref.partition(":")
-    return getattr(importlib.import_module(module), attr)
+        return self.detect is not None and bool(resolve(self.detect)(path))
 
 
 def _builtin_readers() -> list[Reader]:
@@ -107,7 +100,9 @@ def _builtin_readers() -> list[Reader]:
 
 
 #: The registered readers by name, in registration (= detection) order.
-READERS: dict[str, Reader] = {r.name: r for r in _builtin_readers()}
+READERS: Registry[Reader] = Registry("reader")
+for _reader in _builtin_readers():
+    READERS.add(_reader.name, _reader)
 
 
 def register(reader: Reader, *, before: str | None = None) -> Reader:
@@ -125,17 +120,12 @@ def register(reader: Reader, *, before: str | None = None) -> Reader:
     if before is not None and before not in READERS:
         raise ConfigError(f"no reader {before!r} to register {reader.name!r} before", field="before",
                           hint="registered: " + ", ".join(READERS))
-    items = list(READERS.items())
-    at = len(items) if before is None else [n for n, _ in items].index(before)
-    items.insert(at, (reader.name, reader))
-    READERS.clear()
-    READERS.update(items)
-    return reader
+    return READERS.add(reader.name, reader, before=before)
 
 
 def unregister(name: str) -> None:
     """Remove a registered reader (tests clean up with it)."""
-    READERS.pop(name, None)
+    READERS.remove(name)
 
 
 def names() -> list[str]:
@@ -256,5 +246,5 @@ def recorded_format(metadata: Mapping[str, Any], *, variant: bool = False) -> st
         return None
     reader = find_reader(value) if variant else None
     if reader is not None and reader.variant is not None:
-        return _resolve(reader.variant)(metadata) or value
+        return resolve(reader.variant)(metadata) or value
     return value
