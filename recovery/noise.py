@@ -33,7 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from recovery.config import NoiseEstimation, PoseSigmaMethod
+from pipeline.types import PoseSourceKind
+from recovery.config import NoiseEstimation, PoseSigmaMethod, RecoveryConfig
 from recovery.factors import noise_basis
 from recovery.graph import evidence_step, solve_window
 from recovery.window import KeyframePoses, SolveOptions, WindowInit
@@ -313,3 +314,25 @@ def estimate_noise(
                        chosen["g"], chosen["a"], chosen["p"], NoiseEstimation.EVIDENCE, ev.table,
                        pose_error=model if model is not None and model.active else None,
                        gyro_density_scale=chosen["gn"], acc_density_scale=chosen["an"])
+
+def grid_edge_warnings(choice: NoiseChoice, kind: PoseSourceKind, config: RecoveryConfig) -> tuple[str, ...]:
+    """Warnings for evidence searches that ended on an edge of their candidate grid."""
+    out = []
+    grid = config.random_walk_scales
+    for sensor, scale in (("gyro", choice.gyro_rw_scale), ("acc", choice.acc_rw_scale)):
+        bound = (f"{sensor} random walk: the evidence search hit its bound ({scale:g}x the calibration; "
+                 f"random_walk_scales spans {min(grid):g}x-{max(grid):g}x). ")
+        if scale >= max(grid):
+            out.append(bound + "Either the calibration's random walk is far off or the pose stream has artefacts the "
+                       "bias would absorb; widen random_walk_scales only if the calibration is known to be wrong")
+        elif scale <= min(grid):
+            out.append(bound + "The bias drifts less than the calibration's random walk allows (datasheet walks are "
+                       "upper limits): the bias is steadier, not less certain; judge it by the held-out blocks, and "
+                       "lower random_walk_scales' smallest value to let the search go further")
+    grid = config.pose_sigma_scales
+    # a fixed pose sigma is not searched; smoothed ground-truth poses legitimately hit the lower edge
+    searched = config.position_sigma_m is None and kind != PoseSourceKind.GROUND_TRUTH
+    if searched and (choice.pose_scale <= min(grid) or choice.pose_scale >= max(grid)):
+        out.append(f"pose sigma scale {choice.pose_scale:g} is at the edge of its candidate grid "
+                   "(pose_sigma_scales); widen the grid")
+    return tuple(out)

@@ -61,7 +61,7 @@ from recovery.frame_check import check_frames
 from recovery.calibration_uncertainty import CalibrationCovariance
 from recovery.graph import solve_window
 from recovery.window import SolveOptions, WindowInit, WindowSolution
-from recovery.noise import NoiseChoice, PoseErrorGrid, estimate_noise
+from recovery.noise import grid_edge_warnings, NoiseChoice, PoseErrorGrid, estimate_noise
 from recovery.noise_from_data import DENSITY_FIELDS, data_noise_for
 from recovery.pose_error import PoseErrorModel
 from recovery.outputs import RecoveryReport
@@ -509,28 +509,6 @@ def _fixed_pose_error(inputs: Inputs, config: RecoveryConfig) -> PoseErrorModel 
                            config.pose_error_position_sigma_m, config.pose_error_position_tau_s)
     return model if model.active else None
 
-
-def grid_edge_warnings(choice: NoiseChoice, kind: PoseSourceKind, config: RecoveryConfig) -> tuple[str, ...]:
-    """Warnings for evidence searches that ended on an edge of their candidate grid."""
-    out = []
-    grid = config.random_walk_scales
-    for sensor, scale in (("gyro", choice.gyro_rw_scale), ("acc", choice.acc_rw_scale)):
-        bound = (f"{sensor} random walk: the evidence search hit its bound ({scale:g}x the calibration; "
-                 f"random_walk_scales spans {min(grid):g}x-{max(grid):g}x). ")
-        if scale >= max(grid):
-            out.append(bound + "Either the calibration's random walk is far off or the pose stream has artefacts the "
-                       "bias would absorb; widen random_walk_scales only if the calibration is known to be wrong")
-        elif scale <= min(grid):
-            out.append(bound + "The bias drifts less than the calibration's random walk allows (datasheet walks are "
-                       "upper limits): the bias is steadier, not less certain; judge it by the held-out blocks, and "
-                       "lower random_walk_scales' smallest value to let the search go further")
-    grid = config.pose_sigma_scales
-    # a fixed pose sigma is not searched; smoothed ground-truth poses legitimately hit the lower edge
-    searched = config.position_sigma_m is None and kind != PoseSourceKind.GROUND_TRUTH
-    if searched and (choice.pose_scale <= min(grid) or choice.pose_scale >= max(grid)):
-        out.append(f"pose sigma scale {choice.pose_scale:g} is at the edge of its candidate grid "
-                   "(pose_sigma_scales); widen the grid")
-    return tuple(out)
 
 
 def _calibration_covariance(offset: ClockOffset, ext_sol: WindowSolution | None,

@@ -13,13 +13,13 @@ FAST = dict(keyframe_rate_hz=20.0, noise_estimation="fixed", gyro_random_walk=10
             offset_refine_keyframe_rate_hz=10.0, extrinsic_keyframe_rate_hz=10.0, gravity_keyframe_rate_hz=5.0)
 
 
-def _sim(duration_s: float = 30.0, seed: int = 0, **poses) -> object:
+def sim_sequence(duration_s: float = 30.0, seed: int = 0, **poses) -> object:
     """A simulation of ``duration_s`` seconds; ``poses`` set the pose stream (extrinsic known by default)."""
     poses.setdefault("extrinsic_known", True)
     return simulate(SimConfig(duration_s=duration_s, seed=seed, poses=PoseStreamConfig(**poses)))
 
 
-def _errors(res, truth) -> tuple[np.ndarray, np.ndarray]:
+def bias_errors(res, truth) -> tuple[np.ndarray, np.ndarray]:
     """Recovered minus true gyro and accelerometer bias at the recovery's keyframes, each [K, 3]."""
     tb = np.stack([np.interp(res.t_ns, truth.t_ns, truth.bias_gyro_radps[:, c]) for c in range(3)], 1)
     ta = np.stack([np.interp(res.t_ns, truth.t_ns, truth.bias_acc_mps2[:, c]) for c in range(3)], 1)

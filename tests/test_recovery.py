@@ -21,7 +21,7 @@ from pipeline.atomic import umask
 from pipeline.bias_table import CSV_HEADER
 from recovery.recover import write_recovery
 from recovery.recover import recover
-from recovery_sim import FAST, _errors, _sim
+from recovery_sim import FAST, bias_errors, sim_sequence
 
 
 # ----------------------------------------------------------------------------- config
@@ -70,14 +70,14 @@ def test_config_yaml(tmp_path):
 
 @pytest.fixture(scope="module")
 def clean_run():
-    sim = _sim(40.0, seed=1)
+    sim = sim_sequence(40.0, seed=1)
     res = recover(sim.sequence, config=RecoveryConfig(**FAST, time_offset_mode="fixed"))
     return sim, res
 
 
 def test_clean_bias_accuracy_and_nees(clean_run):
     sim, res = clean_run
-    eg, ea = _errors(res, sim.truth)
+    eg, ea = bias_errors(res, sim.truth)
     assert (np.sqrt((eg**2).mean(0)) < 3e-4).all()
     assert (np.sqrt((ea**2).mean(0)) < 2e-2).all()
     nees = np.concatenate([(eg / res.bias_gyro_std_radps) ** 2, (ea / res.bias_acc_std_mps2) ** 2], 1).mean()
@@ -98,7 +98,7 @@ def test_accuracy_floor_is_reported_and_not_beaten(clean_run):
     # are recovery.bounds' for that noise (regression values there, checked against an RTS smoother)
     assert floor["acc_mps2"] == pytest.approx(6.66e-3, rel=0.02)
     assert floor["gyro_radps"] == pytest.approx(1.304e-4, rel=0.02)
-    eg, ea = _errors(res, sim.truth)
+    eg, ea = bias_errors(res, sim.truth)
     rg, ra = np.sqrt((eg**2).mean(0)), np.sqrt((ea**2).mean(0))
     assert (rg > 0.6 * floor["gyro_radps"]).all() and (rg < 2.5 * floor["gyro_radps"]).all()  # 40 s: noisy RMSE
     assert (ra > 0.6 * floor["acc_mps2"]).all() and (ra < 2.5 * floor["acc_mps2"]).all()
@@ -124,7 +124,7 @@ def test_a_tilted_mocap_frame_keeps_its_tilt():
     is kept, within a few of its sigmas of the truth."""
     from scipy.spatial.transform import Rotation
 
-    sim = _sim(40.0, seed=1)
+    sim = sim_sequence(40.0, seed=1)
     tilt = Rotation.from_rotvec([np.radians(2.0), 0.0, 0.0])
     poses = {k: dataclasses.replace(v, p_m=tilt.apply(v.p_m), quat_wxyz=(tilt * Rotation.from_quat(
         v.quat_wxyz, scalar_first=True)).as_quat(scalar_first=True)) for k, v in sim.sequence.poses.items()}
@@ -140,10 +140,10 @@ def test_a_tilted_mocap_frame_keeps_its_tilt():
 def test_acc_nees_honest_with_gravity_uncertainty():
     """Full-rate 60 s: the x/y accelerometer-bias std includes the gravity-direction uncertainty
     (held fixed, the per-axis NEES was ~2 on x/y)."""
-    sim = _sim(60.0, seed=0)
+    sim = sim_sequence(60.0, seed=0)
     cfg = RecoveryConfig(**{**FAST, "keyframe_rate_hz": None}, time_offset_mode="fixed")
     res = recover(sim.sequence, config=cfg)
-    _, ea = _errors(res, sim.truth)
+    _, ea = bias_errors(res, sim.truth)
     nees_axes = ((ea / res.bias_acc_std_mps2) ** 2).mean(axis=0)
     assert (nees_axes < 1.6).all(), nees_axes
 
@@ -167,7 +167,7 @@ def test_a_walk_at_either_bound_says_what_that_bound_means():
 def test_random_walk_bound_is_reported():
     """The evidence search stays inside random_walk_scales and says so when it hits a bound
     (the simulated random walk is 10x the calibration, above this 0.5x-3x range)."""
-    sim = _sim(20.0, seed=2)
+    sim = sim_sequence(20.0, seed=2)
     fast = {k: v for k, v in FAST.items() if k not in ("noise_estimation", "gyro_random_walk", "acc_random_walk")}
     cfg = RecoveryConfig(**fast, time_offset_mode="fixed", random_walk_scales=[0.5, 1.0, 3.0],
                          noise_keyframe_rate_hz=5.0)
@@ -186,11 +186,11 @@ def test_random_walk_bound_is_reported():
 
 
 def test_position_tracker_with_lever_arm():
-    sim = _sim(40.0, seed=5, format=PoseFormat.POSITION, rate_hz=20.0, extrinsic_known=True,
+    sim = sim_sequence(40.0, seed=5, format=PoseFormat.POSITION, rate_hz=20.0, extrinsic_known=True,
                extrinsic_translation_xyz_m=(0.07, -0.02, -0.12), position_noise_m=1e-3)
     cfg = RecoveryConfig(**{**FAST, "keyframe_rate_hz": None, "position_sigma_m": 1e-3}, time_offset_mode="fixed")
     res = recover(sim.sequence, config=cfg)
-    eg, ea = _errors(res, sim.truth)
+    eg, ea = bias_errors(res, sim.truth)
     assert res.report["pose_source_kind"] == "position_tracker"
     assert (np.sqrt((eg**2).mean(0)) < 2e-3).all()
     assert (np.sqrt((ea**2).mean(0)) < 0.1).all()
@@ -201,12 +201,12 @@ def test_position_tracker_with_lever_arm():
 
 
 def test_vio_relative_factors():
-    sim = _sim(30.0, seed=6, format=PoseFormat.VIO, rate_hz=30.0, extrinsic_known=True)
+    sim = sim_sequence(30.0, seed=6, format=PoseFormat.VIO, rate_hz=30.0, extrinsic_known=True)
     cfg = RecoveryConfig(**{**FAST, "keyframe_rate_hz": None, "position_sigma_m": None, "rotation_sigma_rad": None},
                          time_offset_mode="fixed")
     res = recover(sim.sequence, config=cfg)
     assert res.report["pose_factor_mode"] == PoseFactorMode.RELATIVE.value
-    eg, _ = _errors(res, sim.truth)
+    eg, _ = bias_errors(res, sim.truth)
     assert (np.sqrt((eg**2).mean(0)) < 2e-3).all()
 
 

@@ -11,7 +11,7 @@ from pipeline.errors import RecoveryError
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import RecoveryConfig
 from recovery.recover import recover
-from recovery_sim import FAST, _errors, _sim
+from recovery_sim import FAST, bias_errors, sim_sequence
 
 
 # ----------------------------------------------------------------------------- bad input
@@ -49,7 +49,7 @@ def test_missing_stream_and_missing_imu():
 
 
 def test_imu_gap_refuse_and_split():
-    sim = _sim(30.0, seed=8)
+    sim = sim_sequence(30.0, seed=8)
     seq = sim.sequence
     t = seq.imu.t_ns
     keep = (t < t[0] + int(12e9)) | (t > t[0] + int(13e9))
@@ -65,7 +65,7 @@ def test_imu_gap_refuse_and_split():
 
 def test_no_rotation_excitation_flags_extrinsic_unobservable():
     """Translation-only motion: the extrinsic rotation cannot be estimated -> warn and fall back."""
-    sim = _sim(25.0, seed=9, extrinsic_known=False)
+    sim = sim_sequence(25.0, seed=9, extrinsic_known=False)
     seq = sim.sequence
     ps = seq.poses["mocap0"]
     # the same positions with a constant orientation: IMU gyro = bias + noise only, f = a - g + bias
@@ -165,7 +165,7 @@ def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
 
 def _frame_cases() -> dict[str, Sequence]:
     """A correct 20-s simulation with pose outliers and dropouts, and two frame mistakes built from it."""
-    seq = _sim(20.0, seed=5, outliers=10, outlier_offset_m=0.1, dropouts=2, dropout_max_s=0.5).sequence
+    seq = sim_sequence(20.0, seed=5, outliers=10, outlier_offset_m=0.1, dropouts=2, dropout_max_s=0.5).sequence
     swapped = dataclasses.replace(seq.imu, acc_mps2=seq.imu.acc_mps2[:, [2, 1, 0]])  # accelerometer x <-> z
     name, poses = next(iter(seq.poses.items()))
     w_last = dataclasses.replace(poses, quat_wxyz=poses.quat_wxyz[:, [1, 2, 3, 0]])  # xyzw read as wxyz
@@ -198,7 +198,7 @@ def test_frames_that_disagree_are_refused_naming_axis_and_quaternion_order(frame
 def test_a_correct_recording_with_outliers_and_dropouts_passes_the_frame_check(frame_cases):
     res = recover(frame_cases["correct"], config=RecoveryConfig(**FAST))
     truth = frame_cases["correct"].ground_truth
-    _, acc_err = _errors(res, truth)
+    _, acc_err = bias_errors(res, truth)
     assert np.abs(acc_err).max() < 0.5  # recovered near the truth, and not refused
 
 
@@ -210,7 +210,7 @@ def test_the_frame_check_through_the_cli_writes_nothing(frame_cases, tmp_path, c
     from biasgt.cli.app import main
     from pipeline.sim.writer import write_simulation
 
-    sim = _sim(20.0, seed=5)
+    sim = sim_sequence(20.0, seed=5)
     write_simulation(sim, tmp_path / "rec")
     csv = tmp_path / "rec" / "mav0" / "imu0" / "data.csv"
     table = pd.read_csv(csv)

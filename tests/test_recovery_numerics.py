@@ -13,7 +13,7 @@ from pipeline.sim.config import PoseStreamConfig, SimConfig
 from recovery.config import RecoveryConfig, RobustLoss
 from recovery.preintegration import midpoint_samples
 from recovery.recover import recover
-from recovery_sim import FAST, _errors, _sim
+from recovery_sim import FAST, bias_errors, sim_sequence
 
 
 # ----------------------------------------------------------------------------- preintegration
@@ -48,7 +48,7 @@ def test_noise_free_recovery_has_no_integration_bias():
                             "gyro_random_walk": 1.9393e-5, "acc_random_walk": 3e-3, "estimate_gravity": False,
                             "time_offset_mode": "fixed", "compute_marginals": False})
     res = recover(sim.sequence, config=cfg)
-    eg, ea = _errors(res, sim.truth)
+    eg, ea = bias_errors(res, sim.truth)
     core = slice(len(eg) // 10, -len(eg) // 10)
     assert np.sqrt((eg[core] ** 2).mean()) < 2e-5
     assert np.sqrt((ea[core] ** 2).mean()) < 2e-3
@@ -141,7 +141,7 @@ def test_a_recovery_process_loads_neither_scipy_signal_nor_scipy_stats(tmp_path)
 
     from pipeline.store import write_store
 
-    write_store(_sim(60.0, seed=2).sequence, tmp_path / "store")
+    write_store(sim_sequence(60.0, seed=2).sequence, tmp_path / "store")
     code = ("import json, sys\n"
             "from pipeline.store import read_store\n"
             "from recovery.recover import recover\n"
@@ -166,7 +166,7 @@ def test_gyro_keyframe_rotations_equal_composing_every_sample():
 
     from recovery.initial import gyro_keyframe_rotations
 
-    sim = _sim(6.0, seed=3)
+    sim = sim_sequence(6.0, seed=3)
     imu = sim.sequence.imu
     kf = imu.t_ns[5:-5:37]  # keyframes off the IMU grid's phase: split sub-intervals
     kf = np.unique(np.concatenate([kf, kf[:-1] + 2_500_000]))
@@ -186,7 +186,7 @@ def test_propagated_orientations_equal_composing_every_sample_from_the_last_know
 
     from recovery.initial import propagate_orientations
 
-    sim = _sim(6.0, seed=3)
+    sim = sim_sequence(6.0, seed=3)
     imu = sim.sequence.imu
     kf = imu.t_ns[5:-5:37]
     samples = midpoint_samples(imu.t_ns, imu.imu_6, kf)

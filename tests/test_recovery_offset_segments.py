@@ -11,7 +11,7 @@ from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind
 from recovery.config import RecoveryConfig
 from recovery.recover import recover
 from recovery.segments import plan_segments
-from recovery_sim import FAST, _errors, _sim
+from recovery_sim import FAST, bias_errors, sim_sequence
 
 
 # ----------------------------------------------------------------------------- clock offset, extrinsic and outliers
@@ -39,7 +39,7 @@ def test_coarse_offset_uses_the_most_rotating_span_of_long_recordings():
 
 @pytest.mark.slow
 def test_hard_offset_extrinsic_outliers_dropouts():
-    sim = _sim(40.0, seed=2, extrinsic_known=False, extrinsic_rotation_deg=15.0, extrinsic_translation_m=0.10,
+    sim = sim_sequence(40.0, seed=2, extrinsic_known=False, extrinsic_rotation_deg=15.0, extrinsic_translation_m=0.10,
                clock_offset_s=0.012, dropouts=2, dropout_max_s=1.5, outliers=8, outlier_offset_m=0.1)
     res = recover(sim.sequence, config=RecoveryConfig(**FAST))
     rep = res.report
@@ -59,7 +59,7 @@ def test_hard_offset_extrinsic_outliers_dropouts():
     assert n_out == 8
     assert rep["pose_fusion"]["enabled"] and rep["pose_fusion"]["samples_rejected"] >= n_out
     assert n_out <= rep["outliers_rejected"] <= n_out + 2
-    eg, ea = _errors(res, sim.truth)
+    eg, ea = bias_errors(res, sim.truth)
     assert (np.sqrt((eg**2).mean(0)) < 4e-4).all()
     assert rep["extrinsic_rotation_observable"] is True
 
@@ -71,7 +71,7 @@ def test_newton_clock_offset_equals_the_cost_parabola(seed, monkeypatch):
     from a coarse value ~0.1 ms off, in one solve; both near the truth."""
     from recovery import offset as ro
 
-    sim = _sim(40.0, seed=seed, clock_offset_s=0.012, dropouts=1, outliers=4, outlier_offset_m=0.1)
+    sim = sim_sequence(40.0, seed=seed, clock_offset_s=0.012, dropouts=1, outliers=4, outlier_offset_m=0.1)
     cfg = RecoveryConfig(**FAST, intrinsics="off")
     newton = recover(sim.sequence, config=cfg).report
     monkeypatch.setattr(ro, "_newton_offset", lambda *a, **k: None)
@@ -87,7 +87,7 @@ def test_newton_clock_offset_equals_the_cost_parabola(seed, monkeypatch):
 
 def test_position_only_clock_offset_uses_the_cost_parabola():
     """No 6-DoF pose factors, no analytic slope: the offset comes from the parabola."""
-    sim = _sim(40.0, seed=5, format=PoseFormat.POSITION, rate_hz=20.0, extrinsic_known=True,
+    sim = sim_sequence(40.0, seed=5, format=PoseFormat.POSITION, rate_hz=20.0, extrinsic_known=True,
                extrinsic_translation_xyz_m=(0.07, -0.02, -0.12), position_noise_m=1e-3, clock_offset_s=0.005)
     cfg = RecoveryConfig(**{**FAST, "keyframe_rate_hz": None, "position_sigma_m": 1e-3}, intrinsics="off")
     rep = recover(sim.sequence, config=cfg).report
@@ -96,8 +96,8 @@ def test_position_only_clock_offset_uses_the_cost_parabola():
 
 
 def test_outliers_do_not_move_the_bias():
-    sim_clean = _sim(30.0, seed=4)
-    sim_bad = _sim(30.0, seed=4, outliers=15, outlier_offset_m=0.1)
+    sim_clean = sim_sequence(30.0, seed=4)
+    sim_bad = sim_sequence(30.0, seed=4, outliers=15, outlier_offset_m=0.1)
     cfg = RecoveryConfig(**{**FAST, "keyframe_rate_hz": None}, time_offset_mode="fixed", compute_marginals=False)
     a = recover(sim_clean.sequence, config=cfg)
     b = recover(sim_bad.sequence, config=cfg)
@@ -121,7 +121,7 @@ def test_plan_segments_cover_with_overlap():
 
 
 def test_segment_seams_within_sigma():
-    sim = _sim(50.0, seed=7)
+    sim = sim_sequence(50.0, seed=7)
     cfg = RecoveryConfig(**FAST, time_offset_mode="fixed", segment_s=20.0, segment_overlap_s=6.0)
     res = recover(sim.sequence, config=cfg)
     seams = res.report["segment_seams"]
