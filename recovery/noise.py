@@ -12,7 +12,9 @@ determinant of the eliminated Bayes net; for keyframes fused from several pose
 samples, plus the Gaussian likelihood of the samples' scatter about their
 keyframes, :class:`recovery.fusion.WithinBinStats`). It is maximised coordinate-wise over
 inflation factors of (1) the pose sigmas, (2) the gyro random walk, (3) the acc
-random walk, on a decimated graph over the calibration window. The random walk
+random walk, on a decimated graph over the calibration window, from a start at 10x the
+calibration's walks and, where they score higher, again from the calibration's own values (a
+file written by an earlier search holds its optimum). The random walk
 is a continuous-time density, so decimation changes how much information the
 window carries but not what the optimum estimates.
 
@@ -290,19 +292,33 @@ def estimate_noise(
     if estimate_pose:
         ev.search(state, chosen, "p", list(pose_scales or POSE_SCALES))
     passes = 2 if pose_error is not None or density_scales is not None else 1
-    for _ in range(passes):
-        if pose_error is not None:
-            for group in ("r", "p"):
-                ev.search(state, chosen, group + "s", list(pose_error.sigma_scales))
-                if state[group + "s"] > 0:
-                    ev.search(state, chosen, group + "t", list(pose_error.taus_s))
-        if density_scales is not None:
-            ev.search(state, chosen, "an", list(density_scales))
-            ev.search(state, chosen, "gn", list(density_scales))
-        if estimate_gyro:
-            ev.search(state, chosen, "g", list(rw_scales))
-        if estimate_acc:
-            ev.search(state, chosen, "a", list(rw_scales))
+
+    def coordinate_passes() -> None:
+        for _ in range(passes):
+            if pose_error is not None:
+                for group in ("r", "p"):
+                    ev.search(state, chosen, group + "s", list(pose_error.sigma_scales))
+                    if state[group + "s"] > 0:
+                        ev.search(state, chosen, group + "t", list(pose_error.taus_s))
+            if density_scales is not None:
+                ev.search(state, chosen, "an", list(density_scales))
+                ev.search(state, chosen, "gn", list(density_scales))
+            if estimate_gyro:
+                ev.search(state, chosen, "g", list(rw_scales))
+            if estimate_acc:
+                ev.search(state, chosen, "a", list(rw_scales))
+
+    coordinate_passes()
+    # A second start at the calibration's own values (every IMU factor 1x): a calibration written by
+    # an earlier search holds that search's optimum, which a walk started at start_rw can pass by
+    # for a local optimum. The search continues from whichever start has the higher evidence.
+    home = {**state, "g": 1.0, "a": 1.0, "gn": 1.0, "an": 1.0}
+    if (start_rw != 1.0 and home != state and 1.0 in rw_scales
+            and (density_scales is None or 1.0 in density_scales) and ev.evaluate(home) > ev.evaluate(state)):
+        log.info("noise search: the calibration's own values have the higher evidence; searching again from there")
+        state.update(home)
+        chosen.update(home)
+        coordinate_passes()
     for name in ("rs", "rt", "ps", "pt", "gn", "an"):
         chosen[name] = state[name]  # grid points: these coordinates are not interpolated
     noise = _imu_noise(base_imu, chosen["g"], chosen["a"], chosen["gn"], chosen["an"])

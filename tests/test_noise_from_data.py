@@ -50,16 +50,16 @@ def _independent(root: Path) -> Path:
 
 
 #: How far (RMS over the keyframes, in the two recoveries' combined sigma) the bias recovered with the
-#: written file may lie from the first. On the independent generator the evidence search returns the
-#: file's walks (1x) and the biases agree within their sigma. On the simulator its coordinate search,
-#: which starts the walks at 10x the file's, settles on 0.3x the gyro density and a 6-7x walk (a local
-#: optimum: the first recovery's choice is the truth's), which moves the gyro bias by 0.9-1.3 sigma.
-AGREEMENT = {"simulator": 1.5, "independent": 1.0}
+#: written file may lie from the first: within its sigma. Measured: 0.03-0.05 (gyro) and 0.31-0.37
+#: (acc) on the simulator, 0.005-0.02 on the independent generator. The evidence search starts again
+#: at the file's own values when they beat the walk from 10x (before it did, the simulator's
+#: second recovery settled on a local optimum 0.9-1.3 sigma away).
+AGREEMENT = 1.0
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("generate", [_simulated, _independent], ids=["simulator", "independent"])
-def test_noise_read_off_the_rest_is_written_used_and_recovered_again(generate, tmp_path, request):
+def test_noise_read_off_the_rest_is_written_used_and_recovered_again(generate, tmp_path):
     data = generate(tmp_path / "rec")
     imu_yaml = data / "mav0" / "imu0" / "sensor.yaml"
     imu_yaml.unlink()  # a recording without a calibration file
@@ -94,6 +94,6 @@ def test_noise_read_off_the_rest_is_written_used_and_recovered_again(generate, t
     first_at, first_std = ([np.interp(b2.t_ns[inside], b1.t_ns, x[:, c]) for c in range(6)] for x in (b1.bias, b1.std))
     z = (b2.bias[inside] - np.column_stack(first_at)) / np.hypot(b2.std[inside], np.column_stack(first_std))
     rms = np.sqrt(np.mean(z**2, axis=0))
-    assert np.all(rms < AGREEMENT[request.node.callspec.id]), rms
+    assert np.all(rms < AGREEMENT), rms
     val2 = validate_inputs(second, recovery_dir=tmp_path / "rec2")
     assert not any(BORROWED in r for r in val2.reasons), val2.reasons
