@@ -4,11 +4,11 @@ Usage::
 
     biasgt run --config config/euroc.yaml --until windows --directory RUN    # the window dataset only
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/context_euroc.py RUN/results/windows/dataset \\
-        --base-dir RUN [--steps N] [--seed S] [--variants NAME ...]
+        --base-dir RUN [--steps N] [--seed S] [--variants NAME ...] [--grid] [--channel-oracles] [--labels dataset|state]
 
 Writes the dataset's sequence records (``context/``, :func:`training.context.write_context`) when it
 has none, evaluates the reference rows ``train_mean``, ``start_rest``, ``sequence_mean`` (oracle) and
-``state_bias`` (EuRoC's own bias, oracle) with config/euroc.yaml's protocol (nominal gravity), trains
+``state_bias`` (EuRoC's own bias, oracle), ``bias_filter`` with config/euroc.yaml's protocol (nominal gravity), trains
 the context model variants (one seed, single thread) and evaluates them the same way. Prints, per
 row, PRMSE (m) / ROE (deg) averaged over the test sequences and per sequence, the rests found in
 each test record, and wall and CPU time. Exit code 0 (the figures are the output).
@@ -17,6 +17,7 @@ each test record, and wall and CPU time. Exit code 0 (the figures are the output
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import sys
 import time
@@ -34,8 +35,10 @@ from training.context import has_context, open_context, write_context  # noqa: E
 from training.context_train import ContextTrainConfig, evaluate_context, train_context  # noqa: E402
 from training.dataset import read_manifest  # noqa: E402
 from training.evaluate import evaluate_reference  # noqa: E402
+from training.ref_sequence_mean import sequence_mean_bias  # noqa: E402
+from training.references import ReferenceRow, register_reference  # noqa: E402
 
-REFERENCES = ("train_mean", "start_rest", "sequence_mean", "state_bias")
+REFERENCES = ("train_mean", "start_rest", "bias_filter", "sequence_mean", "state_bias")
 VARIANTS = {
     "rest_label": dict(model=dict(base="rest", history_s=()), loss="label"),
     "rest_integration": dict(model=dict(base="rest", history_s=()), loss="integration"),
@@ -45,7 +48,49 @@ VARIANTS = {
     "mean_history_label": dict(model=dict(base="mean"), loss="label"),
     "mean_history_integration": dict(model=dict(base="mean"), loss="integration"),
     "mean_history_both": dict(model=dict(base="mean"), loss="both"),
+    "filter_history_integration": dict(model=dict(base="filter"), loss="integration"),
+    "filter_history_both": dict(model=dict(base="filter"), loss="both"),
+    "filter_history_label": dict(model=dict(base="filter"), loss="label"),
 }
+#: The ablation grid (``--grid``): context x target x base, named ``<context>_<target>_<base>``. Context
+#: ``1s`` is the window alone (no context vector); the others add the start rest's summary and one
+#: history mean (5 s, 30 s before the window, or since the record's start).
+GRID_CONTEXT = {"1s": dict(use_context=False, history_s=()), "5s": dict(history_s=(5.0,), since_start=False),
+                "30s": dict(history_s=(30.0,), since_start=False), "start": dict(history_s=(), since_start=True)}
+GRID_TARGET = ("label", "integration", "both")
+GRID_BASE = ("none", "mean", "rest")
+GRID = {f"{c}_{t}_{b}": dict(model=dict(base=b, **GRID_CONTEXT[c]), loss=t)
+        for c in GRID_CONTEXT for t in GRID_TARGET for b in GRID_BASE}
+
+
+def _channel_oracle(items: dict, *, sequence_dir: Path, bias_mean: np.ndarray, context, part: str) -> np.ndarray:
+    """``sequence_mean`` (oracle) on one part of the bias, the train mean on the rest: ``gyro``, ``acc``,
+    ``acc_along`` / ``acc_across`` (the accelerometer bias along / across the record's mean specific
+    force, i.e. gravity in the body frame)."""
+    B, T, _ = np.shape(items["imu"])
+    seq, out = sequence_mean_bias(sequence_dir), np.asarray(bias_mean, dtype=np.float64).copy()
+    u = np.asarray(context.imu, dtype=np.float64)[:, 3:].mean(axis=0)
+    u /= np.linalg.norm(u)
+    d = seq[3:] - out[3:]
+    if part == "gyro":
+        out[:3] = seq[:3]
+    elif part == "acc":
+        out[3:] = seq[3:]
+    else:
+        along = (d @ u) * u
+        out[3:] += along if part == "acc_along" else d - along
+    return np.broadcast_to(out, (B, 1, T, 6)).copy()
+
+
+def _channel_rows() -> list[str]:
+    """Registers the four :func:`_channel_oracle` rows; their names."""
+    names = []
+    for part in ("gyro", "acc", "acc_along", "acc_across"):
+        name = f"sequence_mean_{part}"
+        register_reference(ReferenceRow(name, f"Sequence mean on {part} (oracle)", "", functools.partial(
+            _channel_oracle, part=part), oracle=True, needs=("sequence_dir", "bias_mean", "context"), default=False))
+        names.append(name)
+    return names
 
 
 def _line(name: str, summary) -> str:
@@ -60,8 +105,14 @@ def main() -> int:
     parser.add_argument("--base-dir", type=Path, default=None, help="the workflow's folder (store paths start there)")
     parser.add_argument("--steps", type=int, default=600)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=list(VARIANTS))
+    parser.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=[*VARIANTS, *GRID])
+    parser.add_argument("--labels", choices=["dataset", "state"], default="dataset",
+                        help="the label loss's target: the dataset's labels, or EuRoC's own bias where a sequence has it")
+    parser.add_argument("--grid", action="store_true", help="train the whole ablation grid (GRID) instead")
     parser.add_argument("--no-references", action="store_true", help="train and evaluate the variants only")
+    parser.add_argument("--channel-oracles", action="store_true",
+                        help="also the sequence_mean oracle on the gyro, the accelerometer, and the accelerometer "
+                             "along and across gravity alone (the train mean elsewhere): where the headroom lies")
     args = parser.parse_args()
     torch.set_num_threads(1)
     wall0, cpu0 = time.perf_counter(), time.process_time()
@@ -76,12 +127,13 @@ def main() -> int:
         print(f"  {name}: {rests} (of {len(ctx.rests)}); first window {(t_first - ctx.t_ns[0]) * 1e-9:.1f}")
     cfg = EvaluationConfig(samples=1, gravity="nominal")
     print("\nrow                    PRMSE m / ROE deg (average; per sequence)")
-    for ref in () if args.no_references else REFERENCES:
+    refs = () if args.no_references else REFERENCES
+    for ref in (*refs, *(_channel_rows() if args.channel_oracles else ())):
         print(_line(ref, evaluate_reference(ref, args.dataset, None, cfg).summary), flush=True)
-    for name in args.variants:
+    for name in list(GRID) if args.grid else args.variants:
         t, c = time.perf_counter(), time.process_time()
         model = train_context(args.dataset, ContextTrainConfig(steps=args.steps, seed=args.seed, val_every=50,
-                                                               **VARIANTS[name]))
+                                                               labels=args.labels, **{**VARIANTS, **GRID}[name]))
         summary = evaluate_context(model, args.dataset, cfg, name=name).summary
         print(_line(name, summary) + f"   [best step {model.info['best_step']}, {time.perf_counter() - t:.0f} s wall, "
               f"{time.process_time() - c:.0f} s CPU]", flush=True)

@@ -112,6 +112,8 @@ class SequenceContext:
     rests: list[tuple[int, int]] = dataclasses.field(default_factory=list)
     _cum: np.ndarray | None = None
     _tcum: np.ndarray | None = None
+    #: Arrays derived from the record once per process (e.g. :func:`training.bias_filter.track_of`), by key.
+    derived: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
     def open(cls, dataset_dir: str | Path, name: str, rest: RestConfig = RestConfig()) -> SequenceContext:

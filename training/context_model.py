@@ -40,6 +40,7 @@ from torch import nn
 from pipeline.geometry.integration import integrate
 from pipeline.geometry.so3_torch import so3_log
 from pipeline.types import DEFAULT_GRAVITY_MPS2
+from training.bias_filter import track_of
 from training.context import SequenceContext, open_context
 from training.ref_start_rest import start_rest_bias
 
@@ -50,8 +51,10 @@ __all__ = ["Base", "ContextFeeder", "ContextLoss", "ContextModelConfig", "Contex
 class Base(str, enum.Enum):
     """The constant the residual is added to."""
 
+    NONE = "none"  # no base: the residual is the whole bias (the benchmarks' trainer only)
     MEAN = "mean"  # the train split's mean bias (the train_mean row)
     REST = "rest"  # the start-rest estimate (the start_rest row, training/ref_start_rest.py)
+    FILTER = "filter"  # the bias filter's gyro bias (training/bias_filter.py), the train mean's accelerometer
 
 
 class ContextLoss(str, enum.Enum):
@@ -68,8 +71,11 @@ class ContextModelConfig:
 
     Attributes:
         base: The constant the residual is added to.
-        history_s: Spans (s) of the history means before the window (plus one since the start, and
-            the time since the start); empty: no history features (the start rest only).
+        history_s: Spans (s) of the history means before the window (plus the time since the
+            record's start); empty: no history features (the start rest only).
+        since_start: A history mean since the record's start too; None: with ``history_s`` only.
+        filter: The bias filter's estimate and sigma at the window's end in the context
+            (:mod:`training.bias_filter`; on with ``base`` ``filter``).
         use_temperature: The window's temperature as a 7th channel and the rest's in the context.
         use_context: Give the context vector (False: zeros, the 1-s model's information).
         channels: Encoder channels.
@@ -78,6 +84,8 @@ class ContextModelConfig:
 
     base: Base = Base.REST
     history_s: tuple[float, ...] = (5.0, 30.0)
+    since_start: bool | None = None
+    filter: bool = False
     use_temperature: bool = False
     use_context: bool = True
     channels: int = 32
@@ -86,10 +94,18 @@ class ContextModelConfig:
     def __post_init__(self) -> None:
         object.__setattr__(self, "base", Base(self.base))
         object.__setattr__(self, "history_s", tuple(float(s) for s in self.history_s))
+        if self.base is Base.FILTER:
+            object.__setattr__(self, "filter", True)
+
+    def spans(self) -> tuple[float | None, ...]:
+        """The history means' spans (s; None: since the record's start)."""
+        since = bool(self.history_s) if self.since_start is None else self.since_start
+        return (*self.history_s, *((None,) if since else ()))
 
     def features(self) -> int:
         """Size F of the context vector."""
-        return 6 + 1 + 1 + (6 * (len(self.history_s) + 1) + len(self.history_s) + 1 if self.history_s else 0)
+        n = len(self.spans())
+        return 6 + 1 + 1 + (6 * n + len(self.history_s) + 1 if n else 0) + (12 if self.filter else 0)
 
 
 @dataclass(frozen=True)
@@ -113,9 +129,9 @@ class Stats:
 
 def context_features(ctx: SequenceContext, t0_ns: np.ndarray, T: int, stats: Stats, config: ContextModelConfig,
                      gravity_norm_mps2: float) -> tuple[np.ndarray, np.ndarray]:
-    """Context vectors [B, F] of windows starting at ``t0_ns`` [B] with ``T`` samples, and the
-    start-rest bias [B, 6] (raw units; the train mean where no rest is seen). Causal: reads samples
-    before each window's end only."""
+    """Context vectors [B, F] of windows starting at ``t0_ns`` [B] with ``T`` samples, and their
+    base bias [B, 6] (raw units, :class:`Base`; the start rest's is the train mean where no rest is
+    seen). Causal: reads samples before each window's end only."""
     start = ctx.index(t0_ns)
     stop = start + T
     rest_b, found = start_rest_bias(ctx, stop, stats.bias_mean, gravity_norm_mps2)
@@ -125,18 +141,36 @@ def context_features(ctx: SequenceContext, t0_ns: np.ndarray, T: int, stats: Sta
         (rest_t - stats.temperature_mean) / stats.temperature_std)
     parts.append(rt[:, None])
     fills = []
-    for span in ((*config.history_s, None) if config.history_s else ()):
+    for span in config.spans():
         mean, fill = ctx.history_mean(start, None if span is None else int(round(span * ctx.rate_hz)))
         parts.append(np.where(fill[:, None] > 0, (mean - stats.imu_mean) / stats.imu_std, 0.0))
         if span is not None:
             fills.append(fill[:, None])
     parts.extend(fills)
-    if config.history_s:
+    if config.spans():
         parts.append((start / ctx.rate_hz / 300.0)[:, None])
+    filt = None
+    if config.filter:
+        track = track_of(ctx, stats.bias_mean, stats.bias_std, gravity_norm_mps2)
+        filt = track.bias[stop - 1]
+        parts.extend([(filt - stats.bias_mean) / stats.bias_std, track.std[stop - 1] / stats.bias_std])
     feats = np.concatenate(parts, axis=1)
     if not config.use_context:
         feats = np.zeros_like(feats)
-    return feats, rest_b
+    return feats, _base(config.base, rest_b, filt, stats.bias_mean)
+
+
+def _base(base: Base, rest: np.ndarray, filt: np.ndarray | None, bias_mean: np.ndarray) -> np.ndarray:
+    """The base bias [B, 6] of :class:`Base` ``base`` (``rest``, ``filt``: [B, 6] estimates)."""
+    mean = np.tile(np.asarray(bias_mean, dtype=np.float64), (len(rest), 1))
+    if base is Base.NONE:
+        return np.zeros_like(mean)
+    if base is Base.REST:
+        return rest
+    if base is Base.FILTER:
+        assert filt is not None
+        return np.concatenate([filt[:, :3], mean[:, 3:]], axis=1)
+    return mean
 
 
 class _Residual(nn.Module):
@@ -199,16 +233,17 @@ def model_config_of(config: Any) -> ContextModelConfig:
     """The :class:`ContextModelConfig` of a registered context network's
     :class:`training.config.ModelConfig` (options :class:`training.networks.ContextOptions`)."""
     o = config.network
-    return ContextModelConfig(base=o.base, history_s=o.history_s, use_temperature=config.condition_channels > 6,
-                              channels=o.channels, hidden=o.hidden)
+    return ContextModelConfig(base=o.base, history_s=o.history_s, filter=o.filter,
+                              use_temperature=config.condition_channels > 6, channels=o.channels, hidden=o.hidden)
 
 
 class ContextNet(nn.Module):
     """The context residual as a registered network (:mod:`training.networks`, objective indirect).
 
     ``forward(condition [B, T, C_in] normalised, context [B, F]) -> normalised bias [B, T, 6]``,
-    the window's one bias held over it: ``base + residual``, with ``base`` zero (the train mean)
-    or the context's first six values (the start-rest estimate, normalised). ``context`` is
+    the window's one bias held over it: ``base + residual``, with ``base`` zero (the train mean),
+    the context's first six values (the start-rest estimate, normalised) or the filter block's gyro
+    (the bias filter's gyro, the train mean's accelerometer). ``context`` is
     :class:`ContextFeeder`'s. ``integration_weights`` (rotation, velocity, position) replace the
     training's ``indirect_weights``: ``1 / rot_scale^2, 0, 1 / pos_scale^2``.
 
@@ -233,6 +268,9 @@ class ContextNet(nn.Module):
         z = self.core(condition, context)
         if self.context_config.base is Base.REST:
             z = z + context[:, :6].to(z)
+        elif self.context_config.base is Base.FILTER:  # the filter block closes the vector: bias then sigma
+            gyro = context[:, -12:-9].to(z)
+            z = z + torch.cat([gyro, torch.zeros_like(gyro)], dim=-1)
         return z[:, None].expand(-1, condition.shape[1], -1)
 
 

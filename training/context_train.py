@@ -11,6 +11,7 @@ split, the protocol of every row of Table I.
 from __future__ import annotations
 
 import dataclasses
+import enum
 import json
 import logging
 import math
@@ -26,7 +27,6 @@ from pipeline.atomic import write_text_atomic
 from pipeline.types import DEFAULT_GRAVITY_MPS2, Split
 from training.config import EvalGravity, EvaluationConfig
 from training.context_model import (
-    Base,
     ContextLoss,
     ContextModelConfig,
     ContextResidual,
@@ -34,7 +34,7 @@ from training.context_model import (
     context_features,
     integration_errors,
 )
-from training.dataset import TEMPERATURE, WindowDataset
+from training.dataset import STATE_BIAS, TEMPERATURE, WindowDataset
 from training.evaluate import evaluate_predictor, load_test_windows
 from training.outputs import EvaluationResult, write_evaluation
 from training.context import open_context
@@ -44,6 +44,15 @@ log = logging.getLogger(__name__)
 __all__ = ["ContextPredictor", "ContextTrainConfig", "evaluate_context", "load_split", "train_context"]
 
 _KEYS = ("imu", "bias", "start_R", "start_v", "start_p", "end_R", "end_p")
+
+
+class LabelSource(str, enum.Enum):
+    """What the label loss fits: the dataset's labels (the recovered bias), or the dataset's own
+    ground-truth-state bias (:data:`training.dataset.STATE_BIAS`, EuRoC's) where a sequence has one
+    and its labels elsewhere."""
+
+    DATASET = "dataset"
+    STATE = "state"
 
 
 @dataclass(frozen=True)
@@ -58,6 +67,7 @@ class ContextTrainConfig:
         rot_scale_deg / pos_scale_m: The integration loss is ``mean(rot^2) / rot_scale^2 +
             mean(pos^2) / pos_scale^2`` (end errors of the 1-s windows).
         label_weight: Weight of the label term in ``both``.
+        labels: The label loss's target (:class:`LabelSource`).
     """
 
     model: ContextModelConfig = field(default_factory=ContextModelConfig)
@@ -72,12 +82,14 @@ class ContextTrainConfig:
     rot_scale_deg: float = 0.1
     pos_scale_m: float = 0.05
     label_weight: float = 1.0
+    labels: LabelSource = LabelSource.DATASET
 
     def __post_init__(self) -> None:
         model = self.model if isinstance(self.model, ContextModelConfig) else ContextModelConfig(**dict(self.model))
         object.__setattr__(self, "model", model)
         object.__setattr__(self, "loss", ContextLoss(self.loss))
         object.__setattr__(self, "gravity", EvalGravity(self.gravity))
+        object.__setattr__(self, "labels", LabelSource(self.labels))
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=lambda o: getattr(o, "value", str(o))))
@@ -89,9 +101,10 @@ def _gravity(info: dict, mode: EvalGravity) -> np.ndarray:
 
 
 def load_split(root: str | Path, split: Split, stats: Stats, mc: ContextModelConfig,
-               gravity: EvalGravity) -> dict[str, torch.Tensor]:
+               gravity: EvalGravity, labels: LabelSource = LabelSource.DATASET) -> dict[str, torch.Tensor]:
     """Every window of ``split`` in memory: ``_KEYS`` arrays, ``dt_s`` [W, T-1], ``features`` [W, F],
-    ``base`` [W, 6], ``gravity`` [W, 3] and ``temperature_degc`` [W, T] when the dataset has it."""
+    ``base`` [W, 6], ``gravity`` [W, 3] and ``temperature_degc`` [W, T] when the dataset has it;
+    ``bias`` [W, T, 6] from ``labels``."""
     ds = WindowDataset(root, split, dtype=torch.float64)
     out: dict[str, list[np.ndarray]] = {}
     for name in ds.sequences:
@@ -99,12 +112,16 @@ def load_split(root: str | Path, split: Split, stats: Stats, mc: ContextModelCon
         info = ds.manifest["sequences"][name].get("info") or {}
         g = _gravity(info, gravity)
         t_ns = np.asarray(a["t_ns"])
-        feats, rest = context_features(open_context(root, name), t_ns[:, 0], t_ns.shape[1],
+        feats, base = context_features(open_context(root, name), t_ns[:, 0], t_ns.shape[1],
                                        stats, mc, float(np.linalg.norm(g)))
         cols = {k: np.asarray(a[k], dtype=np.float64) for k in _KEYS}
+        state_file = Path(root) / ds.manifest["sequences"][name]["path"] / f"{STATE_BIAS}.npy"
+        state = np.load(state_file).astype(np.float64) if state_file.is_file() else None
+        if labels is LabelSource.STATE and state is not None and np.all(np.isfinite(state)):
+            cols["bias"] = state.reshape(cols["bias"].shape)
         cols["dt_s"] = np.diff(t_ns, axis=1) * 1e-9
         cols["features"] = feats
-        cols["base"] = rest if mc.base is Base.REST else np.tile(stats.bias_mean, (len(t_ns), 1))
+        cols["base"] = base
         cols["gravity"] = np.tile(g, (len(t_ns), 1))
         if TEMPERATURE in a:
             cols[TEMPERATURE] = np.asarray(a[TEMPERATURE], dtype=np.float64)
@@ -138,8 +155,8 @@ def train_context(root: str | Path, config: ContextTrainConfig, out_dir: str | P
     torch.manual_seed(config.seed)
     ds = WindowDataset(root, Split.TRAIN)
     stats = Stats.from_manifest(dict(ds.manifest.normalization))
-    train = load_split(root, Split.TRAIN, stats, config.model, config.gravity)
-    val = load_split(root, Split.VAL, stats, config.model, config.gravity)
+    train = load_split(root, Split.TRAIN, stats, config.model, config.gravity, config.labels)
+    val = load_split(root, Split.VAL, stats, config.model, config.gravity, config.labels)
     model = ContextResidual(config.model, stats)
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, config.steps) / config.steps)))
@@ -201,9 +218,8 @@ class ContextPredictor:
         imu = items["imu"]
         B, T, _ = imu.shape
         ctx = open_context(self.root, sequence)
-        feats, rest = context_features(ctx, np.asarray(items["t0_ns"], dtype=np.int64), T, self.stats,
+        feats, base = context_features(ctx, np.asarray(items["t0_ns"], dtype=np.int64), T, self.stats,
                                        self.model.config, float(np.linalg.norm(self.gravity[sequence])))
-        base = rest if self.model.config.base is Base.REST else np.tile(self.stats.bias_mean, (B, 1))
         temp = items.get(TEMPERATURE)
         out = self.model(imu.float(), torch.from_numpy(feats).float(), torch.from_numpy(base).float(),
                          None if temp is None else temp.float())

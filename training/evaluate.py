@@ -119,6 +119,8 @@ class ReferencePredictor:
         w = self.windows
         if need == "bias_mean":
             return w.bias_mean
+        if need == "bias_std":
+            return np.asarray(w.manifest["normalization"]["bias_std"], dtype=np.float64)
         if need == "random_walk":
             return np.tile(w.random_walk[sequence], (len(items["imu"]), 1))
         if need == "gravity_mps2":

@@ -111,9 +111,12 @@ class ContextOptions:
     residual from the window and what came before it in its sequence's record.
 
     Attributes:
-        base: ``mean`` (the train split's mean bias) or ``rest`` (the start-rest estimate).
+        base: ``mean`` (the train split's mean bias), ``rest`` (the start-rest estimate) or
+            ``filter`` (the bias filter's gyro bias, :mod:`training.bias_filter`; the train mean's
+            accelerometer).
         history_s: Spans (s) of the history means before the window (plus one since the record's
             start, and the time since it); empty: the start rest only.
+        filter: The bias filter's estimate and sigma in the context (always with base ``filter``).
         channels: Window encoder channels.
         hidden: Head width.
         rot_scale_deg / pos_scale_m: The integration loss is ``mean(rot^2) / rot_scale^2 +
@@ -123,6 +126,7 @@ class ContextOptions:
 
     base: str = "mean"
     history_s: tuple[float, ...] = (5.0, 30.0)
+    filter: bool = False
     channels: int = 32
     hidden: int = 64
     rot_scale_deg: float = 0.1
@@ -130,8 +134,8 @@ class ContextOptions:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "history_s", tuple(float(s) for s in self.history_s))
-        if self.base not in ("mean", "rest"):
-            raise ConfigError(f"context base '{self.base}'", field="base", hint="use mean or rest")
+        if self.base not in ("mean", "rest", "filter"):
+            raise ConfigError(f"context base '{self.base}'", field="base", hint="use mean, rest or filter")
         if not (self.rot_scale_deg > 0 and self.pos_scale_m > 0):
             raise ConfigError("rot_scale_deg and pos_scale_m must be positive", field="rot_scale_deg")
 

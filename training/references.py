@@ -17,6 +17,8 @@ items of one test sequence: ``imu`` [B, T, 6], ``bias`` [B, T, 6], ``dt_s`` [B, 
 
 ``bias_mean``
     The train split's mean bias, [6].
+``bias_std``
+    The train split's bias standard deviation (the manifest's normalisation), [6].
 ``random_walk``
     The bias random-walk strengths of the windows' sequence, [B, 6] (NaN when unknown; the
     evaluation's ``oracle_random_walk`` choice).
@@ -50,7 +52,7 @@ __all__ = ["EVALUATION_INPUTS", "ReferenceRow", "get_reference", "reference_name
            "unregister_reference"]
 
 #: Inputs the evaluation computes itself (see the module docstring); ``info.<key>`` and array names aside.
-EVALUATION_INPUTS = ("bias_mean", "random_walk", "gravity_mps2", "rng", "context", "sequence_dir")
+EVALUATION_INPUTS = ("bias_mean", "bias_std", "random_walk", "gravity_mps2", "rng", "context", "sequence_dir")
 
 
 @dataclass(frozen=True)
@@ -150,6 +152,10 @@ BUILTIN = (
                  "constant: the best one constant per sequence", "training.ref_sequence_mean:sequence_mean_row",
                  oracle=True, needs=("sequence_dir",), default=False,
                  note="training.ref_sequence_mean:sequence_mean_note"),
+    ReferenceRow("bias_filter", "Bias filter", "from the IMU alone: a causal error-state Kalman filter over the "
+                 "record (rests and bounded motion), its estimate at each window's end",
+                 "training.bias_filter:bias_filter_row", needs=("context", "bias_mean", "bias_std", "gravity_mps2"),
+                 default=False, note="training.bias_filter:bias_filter_note"),
 )
 for _row in BUILTIN:
     register_reference(_row)
