@@ -342,7 +342,7 @@ def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[n
 #: 2e-4 rad/s per m/s^2 (0.1 deg/s per g). The prior of a term the fit cannot tell from the bias.
 TERM_PRIOR = {"gyro_scale_misalignment": 5e-3, "acc_scale_misalignment": 5e-3, "gyro_g_sensitivity": 2e-4}
 #: An accelerometer off-diagonal term when the accelerometer's frame is the IMU frame the solve used (the
-#: extrinsic held at a calibration it agrees with, or known): only the triad's non-orthogonality (0.06 deg).
+#: extrinsic known): only the triad's non-orthogonality (0.06 deg).
 ACC_CROSS_AXIS_PRIOR = 1e-3
 
 
@@ -577,38 +577,17 @@ def _fit_round(sequence: Sequence, work: Sequence, result, total: ImuIntrinsics,
                           present=present, acc_prior=acc_prior)
 
 
-def _hold_calibrated_extrinsic(sequence: Sequence, result, solve_calibrated: Callable[[Sequence], object],
-                               g_sensitivity: bool, block_s: float):
-    """``(result, agreement)``: the solve with the calibration file's extrinsic held when the
-    accelerometer agrees with its rotation (:mod:`recovery.intrinsics_frame`), else ``result``;
-    ``agreement`` is None when there is no file to compare with."""
-    gravity = np.asarray(result.report.get("gravity_world_mps2", DEFAULT_GRAVITY_MPS2), dtype=float)
-    fit = fit_intrinsics(sequence.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
-                         _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s)
-    assert fit.estimate is not None and fit.cov is not None
-    agreement = calibration_agreement(fit.estimate["acc_scale_misalignment"], fit.cov["velocity"], result.report.data)
-    if agreement is None or not agreement["agrees"]:
-        return result, agreement
-    log.info("intrinsics: the accelerometer agrees with the calibration's extrinsic rotation; holding it")
-    return solve_calibrated(sequence), agreement
-
-
 def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
-                            block_s: float, max_rounds: int = 5, first=None,
-                            solve_calibrated: Callable[[Sequence], object] | None = None):
+                            block_s: float, max_rounds: int = 5, first=None):
     """The alternating loop of the module docstring around ``solve`` (a full recovery).
+
+    The solve's extrinsic is never held at a calibration file's: it follows the gyro (whose own rotation
+    against the accelerometer it takes), and on agreement the fits turn the accelerometer into it
+    (:func:`recovery.intrinsics_frame.rotation_prior`). Held instead, the gyro's rotation would have to be
+    fitted beside the g-sensitivity, which a tilting drone's motion confuses with it.
 
     Args:
         first: ``solve(sequence)`` when the caller has it already.
-        solve_calibrated: ``solve`` with the calibration file's extrinsic held: used instead of
-            ``solve`` when the first solve estimated the extrinsic with the file as a prior and the
-            accelerometer agrees with the file's rotation (:mod:`recovery.intrinsics_frame`: the gyro's
-            own rotation, an intrinsic term, would otherwise turn the extrinsic). Not used by
-            :func:`recovery.recover.recover`: on the simulator's aggressive drone with every term at
-            once, the loop started from the held solve leaves g-sensitivity errors of up to 13 % (NEES
-            4.2). Without it, the extrinsic stays the solve's (the gyro's frame) and, on agreement, the
-            fits take the file's rotation as the accelerometer's against that frame
-            (:func:`recovery.intrinsics_frame.rotation_prior`; ``extrinsic_rotation`` in the report).
 
     Returns:
         The last solve's :class:`recovery.recover.RecoveryResult`, its bias mapped back to the raw
@@ -620,12 +599,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     stream = sequence.poses.get(str(result.report.get("pose_stream")))
     if stream is not None and stream.quat_wxyz is None:
         return _not_estimated(result, str(result.report.get("pose_stream")))
-    agreement, held = None, False
-    if solve_calibrated is not None:
-        result, agreement = _hold_calibrated_extrinsic(sequence, result, solve_calibrated, g_sensitivity, block_s)
-        held = agreement is not None and agreement["agrees"]
-        if held:
-            solve = solve_calibrated
+    agreement = None
     work = sequence
     fit = None
     rounds = 0
@@ -633,7 +607,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     from_file = False  # the accelerometer's rotation is the calibration file's: a prior in every fit
     for rounds in range(1, max_rounds + 1):
         fit = _fit_round(sequence, work, result, total, g_sensitivity, block_s, present, from_file)
-        if rounds == 1 and agreement is None and fit.estimate is not None and fit.cov is not None:
+        if rounds == 1 and fit.estimate is not None and fit.cov is not None:
             # the raw readings' accelerometer rotation against the first solve's difference from the file
             agreement = calibration_agreement(fit.estimate["acc_scale_misalignment"], fit.cov["velocity"],
                                               result.report.data)
@@ -690,7 +664,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
                                            "of the terms left out, which were taken out of the bias"}
     if agreement is not None:
         data["intrinsics"]["extrinsic_rotation"] = {
-            **agreement, "held_at_calibration": held, "accelerometer_rotation_from_calibration": from_file,
+            **agreement, "accelerometer_rotation_from_calibration": from_file,
             "why": "the gyro's rotation against the accelerometer is an intrinsic term; the accelerometer alone "
                    "tells the extrinsic rotation: agreement with the calibration file's (first solve, raw readings) "
                    "means the solve's turn from it is the gyro's own rotation, and the file's rotation (within "
