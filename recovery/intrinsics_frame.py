@@ -12,10 +12,11 @@ but they can check the calibration file: when ``phi`` agrees with the file's
 (``-R_est dtheta``, ``dtheta`` the solve's difference from the file), the solve's turn from the file
 is the gyro's own rotation (:func:`calibration_agreement`; recovery.json reports it). Then the file
 tells the accelerometer's rotation against the solve's (the gyro's) frame far better than the data:
-the fit takes it as a prior on ``S_a``'s antisymmetric part, with a nearly orthogonal triad as one on its
-symmetric off-diagonal part (:func:`rotation_prior`), so the
-accelerometer readings are turned into the frame the solve uses instead of its bias absorbing
-gravity times the turn; the extrinsic and the gyro are left as the solve has them.
+the fit takes it as a prior on ``S_a``'s antisymmetric part, with a nearly orthogonal triad as one
+on its symmetric off-diagonal part (:func:`rotation_prior`), so the accelerometer readings are
+turned into the frame the solve uses instead of its bias absorbing gravity times the turn; the
+extrinsic and the gyro are left as the solve has them. Where the file and the accelerometer
+disagree (EuRoC V1_01's Vicon body frame: 17 against the 13.9 threshold), nothing changes.
 """
 
 from __future__ import annotations
