@@ -16,7 +16,7 @@ the fit takes it as a prior on ``S_a``'s antisymmetric part, with a nearly ortho
 on its symmetric off-diagonal part (:func:`rotation_prior`), so the accelerometer readings are
 turned into the frame the solve uses instead of its bias absorbing gravity times the turn; the
 extrinsic and the gyro are left as the solve has them. Where the file and the accelerometer
-disagree (EuRoC V1_01's Vicon body frame: 17 against the 13.9 threshold), nothing changes.
+disagree, nothing changes.
 """
 
 from __future__ import annotations
