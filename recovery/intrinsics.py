@@ -27,10 +27,12 @@ and its sigma includes the uncertainty of the estimated terms (:func:`intrinsics
 a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. The terms left out (not
 significant, not observable) are still in the readings and in the bias: under a datasheet prior
 (:func:`term_prior`), their posterior means are taken out of the bias (:func:`left_out_shift`) and
-their posterior variance (the prior, for a term the fit cannot see) is added to its sigma. Whether
-the accelerometer agrees with a calibration file's extrinsic rotation (then the solve's turn from it
-is the gyro's own rotation) is reported (:mod:`recovery.intrinsics_frame`). Design notes and the
-reasons for this scheme: ``docs/internals.md``.
+their posterior variance (the prior, for a term the fit cannot see) is added to its sigma. When the
+accelerometer agrees with a calibration file's extrinsic rotation (the solve's turn from it is then
+the gyro's own rotation), every fit takes the file's rotation as the accelerometer's
+(:mod:`recovery.intrinsics_frame`): the accelerometer readings are turned into the solve's frame
+instead of its bias absorbing gravity times the turn. Design notes and the reasons for this scheme:
+``docs/internals.md``.
 """
 
 from __future__ import annotations
@@ -46,7 +48,7 @@ from pipeline.errors import BiasgtError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.gyro_consistency import CouplingKind, rate_coupling
-from recovery.intrinsics_frame import calibration_agreement
+from recovery.intrinsics_frame import CALIBRATION_ROTATION_SIGMA_RAD, calibration_agreement, rotation_prior
 from recovery.intrinsics_report import TERMS as _TERMS
 from recovery.intrinsics_report import intrinsics_report, term_table, unobservable_warning
 from recovery.outputs import RecoveryReport
@@ -190,7 +192,8 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
                    bias_at: Callable[[np.ndarray], np.ndarray], gravity_mps2: np.ndarray, noise: FitNoise, *,
                    g_sensitivity: bool, block_s: float = 10.0, max_sigma: float = 2e-3,
                    max_sigma_g_sensitivity: float = 5e-4, n_sigma: float = 3.0,
-                   present: dict[str, np.ndarray] | None = None) -> IntrinsicsFit:
+                   present: dict[str, np.ndarray] | None = None,
+                   acc_prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> IntrinsicsFit:
     """Fit the intrinsics of ``imu`` against a solved trajectory (see the module docstring).
 
     Per keyframe interval the bias correction is a free variable tied to its neighbours by the
@@ -210,6 +213,8 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
             or when it is ``present`` already (per group, 3x3 booleans: terms applied in earlier
             rounds, whose least-squares refinement is the best estimate of what is left of them;
             gating each refinement again would leave up to ``n_sigma`` sigmas of them unapplied).
+        acc_prior: Prior rows ``(H [m, 9], target [m], sigma [m])`` on ``S_a`` (row-major): the
+            accelerometer's rotation from a calibration file (:func:`recovery.intrinsics_frame.rotation_prior`).
     """
     R_kf = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
     sample_block = np.clip(((imu.t_ns - t_ns[0]) / NS_PER_S // block_s).astype(int), 0, None)
@@ -235,7 +240,7 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
                                              span, noise.gyro_noise_density, noise.gyro_random_walk)
     x_vel, s_vel, rms_vel, c_vel = _solve_with_walk(np.stack([iv.A_vel for iv in rows]), np.stack([iv.B_vel for iv in rows]),
                                              np.stack([iv.r_vel for iv in rows]), span, noise.acc_noise_density,
-                                             noise.acc_random_walk)
+                                             noise.acc_random_walk, acc_prior)
     groups = {"gyro_scale_misalignment": (x_rot[:9], s_rot[:9], max_sigma),
               "acc_scale_misalignment": (x_vel[:9], s_vel[:9], max_sigma)}
     if g_sensitivity:
@@ -273,7 +278,8 @@ def _block_means(values: np.ndarray, block: np.ndarray) -> np.ndarray:
 
 
 def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.ndarray, noise_density: float,
-                     random_walk: float) -> tuple[np.ndarray, np.ndarray, float]:
+                     random_walk: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+                     ) -> tuple[np.ndarray, np.ndarray, float]:
     """Sparse weighted least squares for ``r_k = A_k x + B_k d_k`` with a random walk on ``d``.
 
     Args:
@@ -281,6 +287,7 @@ def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.nda
             correction ``d_k``; r: [K, 3] residuals; span_s: [K] interval lengths.
         noise_density / random_walk: Sigma of a residual is ``noise_density sqrt(span)`` (rescaled
             by the fit's own residuals); ``d_k+1 - d_k`` has sigma ``random_walk sqrt(span)``.
+        prior: ``(H [m, P], target [m], sigma [m])``: ``H x = target`` within ``sigma`` (a prior on x).
 
     Returns:
         ``(x [P], sigma of x [P] (huge where a term is not identifiable), residual scale, covariance of
@@ -303,8 +310,13 @@ def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.nda
     i = np.arange(3 * (K - 1))
     walk = sparse.csr_matrix((np.concatenate([-np.repeat(w_walk, 3), np.repeat(w_walk, 3)]),
                               (np.concatenate([i, i]), np.concatenate([P + i, P + 3 + i]))), shape=(3 * (K - 1), n))
-    M = sparse.vstack([meas, walk]).tocsc()
-    y = np.concatenate([(r * w_meas[:, None]).ravel(), np.zeros(3 * (K - 1))])
+    blocks, targets = [meas, walk], [(r * w_meas[:, None]).ravel(), np.zeros(3 * (K - 1))]
+    if prior is not None:
+        H, target, sigma_prior = (np.asarray(v, dtype=float) for v in prior)
+        blocks.append(sparse.csr_matrix(np.hstack([H / sigma_prior[:, None], np.zeros((len(H), 3 * K))])))
+        targets.append(target / sigma_prior)
+    M = sparse.vstack(blocks).tocsc()
+    y = np.concatenate(targets)
     N = (M.T @ M).tocsc() + sparse.identity(n, format="csc") * 1e-12
     lu = splu(N)
     x = lu.solve(M.T @ y)
@@ -330,7 +342,7 @@ def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[n
 #: 2e-4 rad/s per m/s^2 (0.1 deg/s per g). The prior of a term the fit cannot tell from the bias.
 TERM_PRIOR = {"gyro_scale_misalignment": 5e-3, "acc_scale_misalignment": 5e-3, "gyro_g_sensitivity": 2e-4}
 #: An accelerometer off-diagonal term when the accelerometer's frame is the IMU frame the solve used (the
-#: extrinsic held at a calibration it agrees with, or known): only the triad's non-orthogonality (0.06 deg).
+#: extrinsic known): only the triad's non-orthogonality (0.06 deg).
 ACC_CROSS_AXIS_PRIOR = 1e-3
 
 
@@ -554,36 +566,28 @@ def _solve_corrected(sequence: Sequence, solve: Callable[[Sequence], object], re
     return work, solve(work), new
 
 
-def _hold_calibrated_extrinsic(sequence: Sequence, result, solve_calibrated: Callable[[Sequence], object],
-                               g_sensitivity: bool, block_s: float):
-    """``(result, agreement)``: the solve with the calibration file's extrinsic held when the
-    accelerometer agrees with its rotation (:mod:`recovery.intrinsics_frame`), else ``result``;
-    ``agreement`` is None when there is no file to compare with."""
+def _fit_round(sequence: Sequence, work: Sequence, result, total: ImuIntrinsics, g_sensitivity: bool, block_s: float,
+               present: dict[str, np.ndarray] | None, from_file: bool) -> IntrinsicsFit:
+    """One fit of the loop on ``work`` (``sequence`` corrected by ``total``) against the solve ``result``; with
+    ``from_file``, the accelerometer's rotation is the calibration file's (:func:`rotation_prior`)."""
     gravity = np.asarray(result.report.get("gravity_world_mps2", DEFAULT_GRAVITY_MPS2), dtype=float)
-    fit = fit_intrinsics(sequence.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
-                         _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s)
-    assert fit.estimate is not None and fit.cov is not None
-    agreement = calibration_agreement(fit.estimate["acc_scale_misalignment"], fit.cov["velocity"], result.report.data)
-    if agreement is None or not agreement["agrees"]:
-        return result, agreement
-    log.info("intrinsics: the accelerometer agrees with the calibration's extrinsic rotation; holding it")
-    return solve_calibrated(sequence), agreement
+    acc_prior = rotation_prior(result.report.data, total.acc_matrix - np.eye(3)) if from_file else None
+    return fit_intrinsics(work.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
+                          _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s,
+                          present=present, acc_prior=acc_prior)
 
 
 def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
-                            block_s: float, max_rounds: int = 5, first=None,
-                            solve_calibrated: Callable[[Sequence], object] | None = None):
+                            block_s: float, max_rounds: int = 5, first=None):
     """The alternating loop of the module docstring around ``solve`` (a full recovery).
+
+    The solve's extrinsic is never held at a calibration file's: it follows the gyro (whose own rotation
+    against the accelerometer it takes), and on agreement the fits turn the accelerometer into it
+    (:func:`recovery.intrinsics_frame.rotation_prior`). Held instead, the gyro's rotation would have to be
+    fitted beside the g-sensitivity, which a tilting drone's motion confuses with it.
 
     Args:
         first: ``solve(sequence)`` when the caller has it already.
-        solve_calibrated: ``solve`` with the calibration file's extrinsic held: used instead of
-            ``solve`` when the first solve estimated the extrinsic with the file as a prior and the
-            accelerometer agrees with the file's rotation (:mod:`recovery.intrinsics_frame`: the gyro's
-            own rotation, an intrinsic term, would otherwise turn the extrinsic). Not used by
-            :func:`recovery.recover.recover`: on the simulator's aggressive drone with every term at
-            once, the loop started from the held solve leaves g-sensitivity errors of up to 13 % (NEES
-            4.2); without it, the agreement is only reported.
 
     Returns:
         The last solve's :class:`recovery.recover.RecoveryResult`, its bias mapped back to the raw
@@ -595,21 +599,23 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     stream = sequence.poses.get(str(result.report.get("pose_stream")))
     if stream is not None and stream.quat_wxyz is None:
         return _not_estimated(result, str(result.report.get("pose_stream")))
-    agreement, held = None, False
-    if solve_calibrated is not None:
-        result, agreement = _hold_calibrated_extrinsic(sequence, result, solve_calibrated, g_sensitivity, block_s)
-        held = agreement is not None and agreement["agrees"]
-        if held:
-            solve = solve_calibrated
+    agreement = None
     work = sequence
     fit = None
     rounds = 0
     present: dict[str, np.ndarray] | None = None
+    from_file = False  # the accelerometer's rotation is the calibration file's: a prior in every fit
     for rounds in range(1, max_rounds + 1):
-        gravity = np.asarray(result.report.get("gravity_world_mps2", DEFAULT_GRAVITY_MPS2), dtype=float)
-        fit = fit_intrinsics(work.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
-                             _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s,
-                             present=present)
+        fit = _fit_round(sequence, work, result, total, g_sensitivity, block_s, present, from_file)
+        if rounds == 1 and fit.estimate is not None and fit.cov is not None:
+            # the raw readings' accelerometer rotation against the first solve's difference from the file
+            agreement = calibration_agreement(fit.estimate["acc_scale_misalignment"], fit.cov["velocity"],
+                                              result.report.data)
+            if agreement is not None and agreement["agrees"]:
+                from_file = True
+                log.info("intrinsics: the accelerometer agrees with the calibration's extrinsic rotation; "
+                         "its rotation is taken from the file")
+                fit = _fit_round(sequence, work, result, total, g_sensitivity, block_s, present, from_file)
         log.info("intrinsics round %d: gyro scale %s, acc scale %s", rounds,
                  np.round(np.diag(fit.step.gyro_matrix) - 1, 5), np.round(np.diag(fit.step.acc_matrix) - 1, 5))
         if rounds > 1 and not fit.moved(REFINE_SIGMAS):
@@ -656,17 +662,13 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
                           "left_out_posterior_means": {k: v.tolist() for k, v in means.items()},
                           "matrices_note": "gyro_matrix, acc_matrix and gyro_g_sensitivity include the posterior means "
                                            "of the terms left out, which were taken out of the bias"}
-    if agreement is None and fit.estimate is not None and fit.cov is not None:
-        # the accelerometer's rotation (the terms applied and the last fit's rest) against the final solve's
-        # difference from the calibration file: agreement means the extrinsic took the gyro's own rotation
-        agreement = calibration_agreement(dev["acc_scale_misalignment"] + fit.estimate["acc_scale_misalignment"],
-                                          fit.cov["velocity"], result.report.data)
     if agreement is not None:
         data["intrinsics"]["extrinsic_rotation"] = {
-            **agreement, "held_at_calibration": held,
+            **agreement, "accelerometer_rotation_from_calibration": from_file,
             "why": "the gyro's rotation against the accelerometer is an intrinsic term; the accelerometer alone "
-                   "tells the extrinsic rotation: agreement with the calibration file's means the solve's turn from "
-                   "it is the gyro's own rotation, whose gravity the accelerometer bias absorbs (within its sigma)"}
+                   "tells the extrinsic rotation: agreement with the calibration file's (first solve, raw readings) "
+                   "means the solve's turn from it is the gyro's own rotation, and the file's rotation (within "
+                   f"{CALIBRATION_ROTATION_SIGMA_RAD:g} rad) then turns the accelerometer into the solve's frame"}
     warning = unobservable_warning(fit)
     if warning:
         data["warnings"] = [*data.get("warnings", []), warning]

@@ -10,8 +10,13 @@ solve's IMU frame to the accelerometer's. Its tilt is hard to tell from a consta
 bias (only the attitude's changes separate them), so the data alone leave it ~0.1 deg uncertain,
 but they can check the calibration file: when ``phi`` agrees with the file's
 (``-R_est dtheta``, ``dtheta`` the solve's difference from the file), the solve's turn from the file
-is the gyro's own rotation (:func:`calibration_agreement`; recovery.json reports it, and
-:func:`recovery.intrinsics.recover_with_intrinsics` can hold the file's extrinsic then).
+is the gyro's own rotation (:func:`calibration_agreement`; recovery.json reports it). Then the file
+tells the accelerometer's rotation against the solve's (the gyro's) frame far better than the data:
+the fit takes it as a prior on ``S_a``'s antisymmetric part, with a nearly orthogonal triad as one
+on its symmetric off-diagonal part (:func:`rotation_prior`), so the accelerometer readings are
+turned into the frame the solve uses instead of its bias absorbing gravity times the turn; the
+extrinsic and the gyro are left as the solve has them. Where the file and the accelerometer
+disagree, nothing changes.
 """
 
 from __future__ import annotations
@@ -28,7 +33,15 @@ _ANTISYMMETRIC = np.zeros((3, 9))
 _ANTISYMMETRIC[0, 7], _ANTISYMMETRIC[0, 5] = 0.5, -0.5  # (S_zy - S_yz) / 2
 _ANTISYMMETRIC[1, 2], _ANTISYMMETRIC[1, 6] = 0.5, -0.5  # (S_xz - S_zx) / 2
 _ANTISYMMETRIC[2, 3], _ANTISYMMETRIC[2, 1] = 0.5, -0.5  # (S_yx - S_xy) / 2
-#: The file's rotation is held when the accelerometer's differs from it by less than this quantile
+#: ``(S_xy + S_yx) / 2``, ``(S_xz + S_zx) / 2``, ``(S_yz + S_zy) / 2``: the triad's non-orthogonality.
+_SYMMETRIC = np.zeros((3, 9))
+_SYMMETRIC[0, [1, 3]] = _SYMMETRIC[1, [2, 6]] = _SYMMETRIC[2, [5, 7]] = 0.5
+#: Sigma (rad, per axis) of a calibration file's rotation taken as the accelerometer's: a camera-IMU
+#: calibration's rotation accuracy (~0.03 deg).
+CALIBRATION_ROTATION_SIGMA_RAD = 5e-4
+#: Sigma of an accelerometer triad's non-orthogonality (each symmetric off-diagonal pair, 0.06 deg).
+NON_ORTHOGONALITY_SIGMA = 1e-3
+#: The file's rotation is used when the accelerometer's differs from it by less than this quantile
 #: of chi-square with 3 degrees of freedom.
 AGREEMENT_QUANTILE = 0.997
 
@@ -51,14 +64,9 @@ def calibration_agreement(acc_terms: np.ndarray, acc_cov: np.ndarray, report: Ma
         ``{"agrees", "mahalanobis_sq", "threshold", "accelerometer_rotation_rad", "sigma_rad",
         "calibration_rotation_rad"}`` (rotations in the solve's IMU frame).
     """
-    extrinsic = report.get("extrinsic") if isinstance(report.get("extrinsic"), Mapping) else {}
-    diff = extrinsic.get("difference_from_calibration")
-    pose = report.get("T_imu_pose")
-    if extrinsic.get("mode") != "prior" or not isinstance(diff, Mapping) or not isinstance(pose, Mapping):
+    phi_cal = calibration_rotation(report)
+    if phi_cal is None:
         return None
-    q = np.asarray(pose["quat_wxyz"], dtype=float)
-    R_est = Rotation.from_quat(q[[1, 2, 3, 0]]).as_matrix()
-    phi_cal = -R_est @ np.radians(np.asarray(diff["rotation_vector_deg"], dtype=float))
     phi = _ANTISYMMETRIC @ np.asarray(acc_terms, dtype=float).ravel()
     cov = _ANTISYMMETRIC @ np.asarray(acc_cov, dtype=float) @ _ANTISYMMETRIC.T
     d = phi - phi_cal
@@ -67,3 +75,38 @@ def calibration_agreement(acc_terms: np.ndarray, acc_cov: np.ndarray, report: Ma
     return {"agrees": bool(m2 <= threshold), "mahalanobis_sq": m2, "threshold": threshold,
             "accelerometer_rotation_rad": phi.tolist(), "sigma_rad": np.sqrt(np.diag(cov)).tolist(),
             "calibration_rotation_rad": phi_cal.tolist()}
+
+
+def calibration_rotation(report: Mapping[str, Any]) -> np.ndarray | None:
+    """``phi_cal`` [3] (rad): the calibration file's IMU frame against the solve's, in the solve's IMU frame
+    (the rotation vector of ``S_a``'s antisymmetric part if the accelerometer's frame is the file's); None
+    unless the solve estimated the extrinsic with the file as its prior (``extrinsic.mode`` ``prior``)."""
+    extrinsic = report.get("extrinsic") if isinstance(report.get("extrinsic"), Mapping) else {}
+    diff = extrinsic.get("difference_from_calibration")
+    pose = report.get("T_imu_pose")
+    if extrinsic.get("mode") != "prior" or not isinstance(diff, Mapping) or not isinstance(pose, Mapping):
+        return None
+    q = np.asarray(pose["quat_wxyz"], dtype=float)
+    R_est = Rotation.from_quat(q[[1, 2, 3, 0]]).as_matrix()
+    return -R_est @ np.radians(np.asarray(diff["rotation_vector_deg"], dtype=float))
+
+
+def rotation_prior(report: Mapping[str, Any], applied_acc_terms: np.ndarray,
+                   sigma_rad: float = CALIBRATION_ROTATION_SIGMA_RAD,
+                   sigma_non_orthogonal: float = NON_ORTHOGONALITY_SIGMA) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+    """Prior rows ``(H [6, 9], target [6], sigma [6])`` on a fit's ``S_a`` (row-major [9]), None when the solve did
+    not estimate the extrinsic against a file.
+
+    The accelerometer triad is the calibration file's frame (its rotation against the solve's is
+    :func:`calibration_rotation` of the solve ``report``, within ``sigma_rad``) and nearly orthogonal (its
+    symmetric off-diagonal part within ``sigma_non_orthogonal``): a tilt term (``S_xz``, ``S_yz``, times
+    ``f_z ~ g``), which the data cannot tell from a constant bias, is then the file's rotation. Both less what
+    the readings the fit sees were corrected by already (``applied_acc_terms``: ``M_a - I`` [3, 3]; first order).
+    """
+    phi_cal = calibration_rotation(report)
+    if phi_cal is None:
+        return None
+    applied = np.asarray(applied_acc_terms, dtype=float).ravel()
+    H = np.vstack([_ANTISYMMETRIC, _SYMMETRIC])
+    target = np.concatenate([phi_cal - _ANTISYMMETRIC @ applied, -_SYMMETRIC @ applied])
+    return H, target, np.repeat([float(sigma_rad), float(sigma_non_orthogonal)], 3)
