@@ -115,3 +115,11 @@ def test_label_source_state_reads_the_state_bias_where_a_sequence_has_one(tmp_pa
     # the other sequence has no state: its labels stay
     np.testing.assert_array_equal(taken["bias"][n:].numpy(), kept["bias"][n:].numpy())
     assert second != first
+
+
+def test_bias_filter_row_has_a_table_i_footnote_only_when_present():
+    from types import SimpleNamespace
+
+    row = get_reference("bias_filter")
+    assert "error-state Kalman filter" in row.footnote([SimpleNamespace(method="bias_filter")])
+    assert row.footnote([SimpleNamespace(method="train_mean")]) is None

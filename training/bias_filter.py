@@ -180,10 +180,9 @@ def bias_filter_row(items: dict, *, context: SequenceContext, bias_mean: np.ndar
     return np.broadcast_to(track.bias[last][:, None, None, :], (B, 1, T, 6)).copy()
 
 
-def bias_filter_note(summaries: list) -> str | None:
-    """Table I's footnote on the ``bias_filter`` row (None when the table does not hold it)."""
-    if not any(s.method == "bias_filter" for s in summaries):
-        return None
+def bias_filter_note(summaries: list) -> str:
+    """Table I's footnote on the ``bias_filter`` row (:meth:`training.references.ReferenceRow.footnote`
+    asks for it only when the table holds the row)."""
     return ("Bias filter (a usable row, not in the paper): from the IMU alone, an error-state Kalman filter run "
             "causally over each record from the train split's bias, with zero-velocity updates at rest and a "
             "bounded-motion update elsewhere (the platform stays within metres of its start); its estimate at "

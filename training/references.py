@@ -90,7 +90,10 @@ class ReferenceRow:
         return resolve(self.bias)(items, **{n.removeprefix("info."): inputs[n] for n in self.needs})
 
     def footnote(self, summaries: list[Any]) -> str | None:
-        return None if self.note is None else resolve(self.note)(summaries)
+        """The row's footnote of a Table I of ``summaries``; None when the row is not among them."""
+        if self.note is None or not any(getattr(s, "method", None) == self.name for s in summaries):
+            return None
+        return resolve(self.note)(summaries)
 
 
 _REFERENCES: Registry[ReferenceRow] = Registry("reference row")
