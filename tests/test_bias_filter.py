@@ -123,3 +123,23 @@ def test_bias_filter_row_has_a_table_i_footnote_only_when_present():
     row = get_reference("bias_filter")
     assert "error-state Kalman filter" in row.footnote([SimpleNamespace(method="bias_filter")])
     assert row.footnote([SimpleNamespace(method="train_mean")]) is None
+
+
+def test_registered_network_with_the_filter_base_starts_at_the_filter_gyro():
+    from types import SimpleNamespace
+
+    import torch
+
+    from training.context_model import ContextNet
+    from training.networks import ContextOptions
+
+    options = ContextOptions(base="filter", history_s=())
+    net = ContextNet(SimpleNamespace(network=options, condition_channels=6))
+    F = net.features
+    assert F == 8 + 12  # the rest summary, then the filter block
+    context = torch.zeros(2, F, dtype=torch.float64)
+    context[:, -12:-6] = torch.tensor([[0.5, -1.0, 2.0, 3.0, 3.0, 3.0], [0.0, 1.0, 0.0, -3.0, 0.0, 0.0]])
+    out = net(torch.zeros(2, 40, 6), context)  # untrained: the residual's last layers are zero
+    assert out.shape == (2, 40, 6)
+    torch.testing.assert_close(out[:, 0, :3], context[:, -12:-9].float())  # the filter's gyro (normalised)
+    torch.testing.assert_close(out[:, 0, 3:], torch.zeros(2, 3))  # the train mean's accelerometer
