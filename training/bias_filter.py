@@ -39,6 +39,7 @@ from dataclasses import astuple, dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from pipeline.geometry.so3_numpy import hat_np, so3_exp_np
 from training.context import SequenceContext
 
 __all__ = ["BiasTrack", "FilterConfig", "bias_filter_row", "bias_filter_note", "run_bias_filter", "track_of"]
@@ -80,18 +81,11 @@ class BiasTrack:
     std: np.ndarray
 
 
-def _skew(x: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -x[2], x[1]], [x[2], 0.0, -x[0]], [-x[1], x[0], 0.0]])
-
-
 def _level(acc_mean: np.ndarray) -> np.ndarray:
-    """R_world_imu [3, 3] that turns the mean specific force ``acc_mean`` [3] to the world's up (yaw 0)."""
-    u = acc_mean / np.linalg.norm(acc_mean)
-    axis = np.cross(u, [0.0, 0.0, 1.0])
-    s = float(np.linalg.norm(axis))
-    if s < 1e-12:
-        return np.eye(3) if u[2] > 0 else np.diag([1.0, -1.0, -1.0])
-    return Rotation.from_rotvec(axis / s * np.arctan2(s, float(u[2]))).as_matrix()
+    """R_world_imu [3, 3] that turns the mean specific force ``acc_mean`` [3] to the world's up
+    (the smallest such rotation: SciPy's ``align_vectors``)."""
+    rot, _ = Rotation.align_vectors([[0.0, 0.0, 1.0]], [acc_mean])
+    return rot.as_matrix()
 
 
 def run_bias_filter(imu: np.ndarray, t_ns: np.ndarray, rests: list[tuple[int, int]], bias_mean: np.ndarray,
@@ -125,9 +119,9 @@ def run_bias_filter(imu: np.ndarray, t_ns: np.ndarray, rests: list[tuple[int, in
             f = R @ a + g  # 2.
             p += v * h + 0.5 * f * h * h
             v += f * h
-            R = R @ Rotation.from_rotvec(w * h).as_matrix()
-            F[0:3, 0:3] = -_skew(w)  # 3.
-            F[3:6, 0:3] = -R @ _skew(a)
+            R = R @ so3_exp_np(w * h)
+            F[0:3, 0:3] = -hat_np(w)  # 3.
+            F[3:6, 0:3] = -R @ hat_np(a)
             F[3:6, 12:15] = -R
             Phi = eye + F * h
             P = Phi @ P @ Phi.T + np.diag(q * h)  # 4.
@@ -154,7 +148,7 @@ def _update(R, v, p, b, P, gyro_mean, rest: bool, c: FilterConfig):
     dx = K @ y
     IKH = np.eye(15) - K @ H
     P = IKH @ P @ IKH.T + (K * noise) @ K.T
-    R = R @ Rotation.from_rotvec(dx[0:3]).as_matrix()
+    R = R @ so3_exp_np(dx[0:3])
     return R, v + dx[3:6], p + dx[6:9], b + dx[9:15], P
 
 
