@@ -34,7 +34,7 @@ import numpy as np
 
 from pipeline.errors import DataError
 from pipeline.types import NS_PER_S, ImuSeries
-from recovery.calibration_init import find_static_segments
+from recovery.calibration_init import RestTest, find_static_segments
 
 #: Default number of log-spaced cluster times (fewer after removing duplicate cluster sizes).
 DEFAULT_NUM_TAUS = 60
@@ -279,8 +279,10 @@ class ImuAllan:
 
 
 def _find_static_segments(imu: ImuSeries, min_duration_s: float) -> list[tuple[int, int]]:
-    """Static intervals ``[(t0_ns, t1_ns)]`` from the recovery's detector."""
-    return find_static_segments(imu, min_duration_s=min_duration_s)
+    """Static intervals ``[(t0_ns, t1_ns)]`` from the recovery's detector, judged by each sensor's
+    variation (:attr:`RestTest.VARIATION`): a constant rate, the bias above all, does not move an
+    Allan deviation, so a unit's turn-on bias must not hide its rest."""
+    return find_static_segments(imu, min_duration_s=min_duration_s, test=RestTest.VARIATION)
 
 
 def imu_allan(
@@ -296,7 +298,7 @@ def imu_allan(
     motion only :func:`white_noise_upper_bound` is given and the random walk is NaN.
 
     Static segments come from :func:`recovery.calibration_init.find_static_segments`
-    (``min_duration_s = min_static_s``); they are used when together they last at least
+    (``min_duration_s = min_static_s``, judged by each sensor's variation about its window mean); they are used when together they last at least
     ``min_total_static_s``. Stamps are assumed uniform at the IMU's nominal rate (a small
     jitter does not matter for the Allan deviation; a gap inside a segment splits it).
 

@@ -17,6 +17,7 @@ from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind
 from recovery.calibration_init import (
     GravityEstimate,
     LeverArmEstimate,
+    RestTest,
     RotationEstimate,
     TimeOffsetEstimate,
     estimate_extrinsic_rotation,
@@ -238,6 +239,31 @@ def test_static_segments_two_known_intervals() -> None:
     assert 8.0 <= a0 < 8.4 and 11.6 < a1 < 12.0
     assert 25.0 <= b0 < 25.4 and 31.1 < b1 < 31.5
     assert find_static_segments(imu, min_duration_s=5.0) == [segs[1]]
+
+
+def test_static_segments_by_variation_ignore_the_bias_but_not_a_turn() -> None:
+    """A unit at rest with a 0.08 rad/s turn-on gyro bias, then a slow turn about a tilted axis at a
+    constant 0.2 rad/s (below the mean-rate cap, so only the accelerometer can show it), then a
+    fast constant turn about gravity (0.5 rad/s: the cap), then rest again."""
+    rng = np.random.default_rng(2)
+    t = np.arange(0.0, 40.0, 0.005)
+    bias = np.array([0.05, -0.06, 0.02])  # |b| = 0.081 rad/s
+    omega = np.zeros((len(t), 3))
+    tilted = (t >= 10.0) & (t < 20.0)
+    yaw = (t >= 20.0) & (t < 28.0)
+    omega[tilted] = 0.2 * np.array([1.0, 0.0, 0.0])
+    omega[yaw] = [0.0, 0.0, 0.5]
+    angle = np.cumsum(np.where(tilted, 0.2, 0.0)) * 0.005  # roll angle about x, held after the turn
+    g_body = 9.81 * np.stack([np.zeros_like(t), np.sin(angle), np.cos(angle)], 1)
+    gyro = omega + bias + 2e-3 * rng.standard_normal((len(t), 3))
+    acc = g_body + 0.03 * rng.standard_normal((len(t), 3))
+    imu = ImuSeries(T0_NS + np.round(t * NS_PER_S).astype(np.int64), gyro, acc)
+    assert find_static_segments(imu, min_duration_s=1.0) == []  # the bias alone fails the calibrated-IMU test
+    segs = find_static_segments(imu, min_duration_s=1.0, test=RestTest.VARIATION)
+    spans = [((s - T0_NS) / NS_PER_S, (e - T0_NS) / NS_PER_S) for s, e in segs]
+    assert len(spans) == 2, spans
+    assert spans[0][0] < 0.3 and 9.6 < spans[0][1] <= 10.0
+    assert 28.0 <= spans[1][0] < 28.4 and spans[1][1] > 39.6
 
 
 # ----------------------------------------------------------------------------- real data

@@ -17,7 +17,9 @@ import pytest
 from independent import LissajousMotion, RestThenMotion, make_sequence, write_euroc
 from pipeline.io import load_sequence
 from pipeline.io.sensor_yaml import read_imu_calibration
+from recovery.calibration_init import find_static_segments
 from recovery.config import RecoveryConfig
+from recovery.noise_from_data import MIN_STRETCH_S, densities_from_rest
 from recovery.outputs import SENSOR_YAML, RecoveryOutputs, read_report
 from recovery.recover import recover, write_recovery
 from validation.validate import validate_inputs
@@ -29,12 +31,12 @@ CONFIG = RecoveryConfig(keyframe_rate_hz=20.0, offset_refine_keyframe_rate_hz=10
                         gravity_keyframe_rate_hz=5.0)
 
 
-def _simulated(root: Path) -> Path:
+def _simulated(root: Path, seed: int = 3) -> Path:
     from pipeline.sim.config import SimConfig
     from pipeline.sim.simulator import simulate
     from pipeline.sim.writer import write_simulation
 
-    cfg = SimConfig.from_dict({"name": "rest_sim", "duration_s": 50, "seed": 3, "motion": {"rest_s": 15.0},
+    cfg = SimConfig.from_dict({"name": "rest_sim", "duration_s": 50, "seed": seed, "motion": {"rest_s": 15.0},
                                "imu": {"gyro_noise_density": GYRO_DENSITY, "acc_noise_density": ACC_DENSITY,
                                        "reported_gyro_noise_density": GYRO_DENSITY,
                                        "reported_acc_noise_density": ACC_DENSITY}})
@@ -42,11 +44,26 @@ def _simulated(root: Path) -> Path:
     return root
 
 
-def _independent(root: Path) -> Path:
-    seq = make_sequence(50.0, seed=4, motion=RestThenMotion(LissajousMotion(), rest_s=15.0),
+def _independent(root: Path, seed: int = 4) -> Path:
+    seq = make_sequence(50.0, seed=seed, motion=RestThenMotion(LissajousMotion(), rest_s=15.0),
                         gyro_noise_density=GYRO_DENSITY, acc_noise_density=ACC_DENSITY)
     write_euroc(seq, root, with_ground_truth=True)
     return root
+
+
+@pytest.mark.parametrize(("generate", "seed"), [(_simulated, 4), (_simulated, 5), (_independent, 3)],
+                         ids=["simulator-4", "simulator-5", "independent-3"])
+def test_a_large_turn_on_gyro_bias_does_not_hide_the_rest(generate, seed, tmp_path):
+    """These units' gyro bias alone exceeds the calibrated-IMU rest threshold (0.05 rad/s RMS, bias
+    included), so only a test on the variation about the window mean sees their 15-s rest."""
+    imu = load_sequence(generate(tmp_path / "rec", seed)).imu
+    rest = imu.gyro_radps[: int(10 * imu.rate_hz)]
+    assert np.linalg.norm(rest.mean(axis=0)) > 0.05  # the case: the bias alone is above that threshold
+    assert find_static_segments(imu, min_duration_s=MIN_STRETCH_S) == []  # the calibrated-IMU test misses it
+    noise = densities_from_rest(imu)
+    assert noise is not None and 13.0 <= noise.rest_s <= 16.0  # the 15-s rest (motion starts smoothly)
+    assert noise.gyro_noise_density == pytest.approx(GYRO_DENSITY, rel=0.3)
+    assert noise.acc_noise_density == pytest.approx(ACC_DENSITY, rel=0.3)
 
 
 #: How far (RMS over the keyframes, in the two recoveries' combined sigma) the bias recovered with the

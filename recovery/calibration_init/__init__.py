@@ -23,7 +23,12 @@ from recovery.calibration_init.common import (
     pose_rotations,
 )
 from recovery.calibration_init.extrinsic import estimate_extrinsic_rotation, estimate_lever_arm
-from recovery.calibration_init.gravity import estimate_gravity, estimate_gravity_direction, find_static_segments
+from recovery.calibration_init.gravity import (
+    RestTest,
+    estimate_gravity,
+    estimate_gravity_direction,
+    find_static_segments,
+)
 from recovery.calibration_init.time_offset import estimate_time_offset
 
 __all__ = [
@@ -38,6 +43,7 @@ __all__ = [
     "estimate_extrinsic_rotation",
     "estimate_lever_arm",
     "find_static_segments",
+    "RestTest",
     "estimate_gravity",
     "estimate_gravity_direction",
 ]

@@ -8,6 +8,7 @@ the reliable part. Conventions: :mod:`recovery.calibration_init.common`.
 from __future__ import annotations
 
 import logging
+from enum import Enum
 
 import numpy as np
 
@@ -23,6 +24,29 @@ from recovery.calibration_init.extrinsic import accelerometer_lstsq
 
 log = logging.getLogger(__name__)
 
+#: Largest mean angular rate a window may show under :attr:`RestTest.VARIATION` (rad/s): far
+#: above any gyro bias, far below a deliberate turn.
+MAX_REST_MEAN_RATE_RADPS = 0.3
+
+
+class RestTest(str, Enum):
+    """How :func:`find_static_segments` judges the gyro and accelerometer at rest.
+
+    ``RATE``: the gyro's RMS norm (bias included) and the accelerometer norm's std, for a
+    calibrated IMU whose bias is small. ``VARIATION``: each sensor's spread about its window
+    mean (RMS over the axes; the bias excluded, so an uncalibrated unit with a large turn-on
+    bias still shows its rest), the accelerometer taken per axis so that a slow turn shows, and
+    the mean rate capped at :data:`MAX_REST_MEAN_RATE_RADPS`.
+    """
+
+    RATE = "rate"
+    VARIATION = "variation"
+
+
+def _spread(x: np.ndarray, w: int) -> np.ndarray:
+    """Root of the mean per-axis variance of x [N, 3] over a centred window of w samples ('valid'), [N - w + 1]."""
+    return np.sqrt(np.mean([sliding_std(x[:, k], w) ** 2 for k in range(x.shape[1])], axis=0))
+
 
 def find_static_segments(
     imu: ImuSeries,
@@ -31,20 +55,23 @@ def find_static_segments(
     gyro_thresh_radps: float = 0.05,
     acc_std_thresh_mps2: float = 0.15,
     window_s: float = 0.5,
+    test: RestTest = RestTest.RATE,
 ) -> list[tuple[int, int]]:
     """Intervals where the IMU is at rest.
 
-    A sample is static when, over a centred window of ``window_s``, the RMS gyro norm is
-    below ``gyro_thresh_radps`` (so it includes the gyro bias) and the std of the
-    accelerometer norm is below ``acc_std_thresh_mps2``. Runs shorter than
-    ``min_duration_s`` are dropped. Edges shrink by up to half a window.
+    A sample is static when, over a centred window of ``window_s``, the gyro passes
+    ``gyro_thresh_radps`` and the accelerometer ``acc_std_thresh_mps2`` under ``test``
+    (:class:`RestTest`: by default the RMS gyro norm, bias included, and the std of the
+    accelerometer norm). Runs shorter than ``min_duration_s`` are dropped. Edges shrink by
+    up to half a window.
 
     Args:
         imu: IMU readings with increasing stamps.
         min_duration_s: Shortest segment kept.
-        gyro_thresh_radps: RMS angular-rate threshold.
-        acc_std_thresh_mps2: Accelerometer-norm std threshold.
+        gyro_thresh_radps: Angular-rate threshold (RMS norm, or spread about the mean).
+        acc_std_thresh_mps2: Accelerometer threshold (std of the norm, or spread about the mean).
         window_s: Detector window.
+        test: What the thresholds apply to.
 
     Returns:
         ``[(t0_ns, t1_ns), ...]`` in time order (Python ints, inclusive IMU stamps).
@@ -54,11 +81,14 @@ def find_static_segments(
     w = max(3, int(round(window_s * imu.rate_hz)) | 1)
     if n < w:
         return []
-    g2 = np.sum(imu.gyro_radps**2, axis=1)
-    an = np.linalg.norm(imu.acc_mps2, axis=1)
-    g_rms = np.sqrt(box_mean(g2, w))
-    a_std = sliding_std(an, w)
-    ok_valid = (g_rms < gyro_thresh_radps) & (a_std < acc_std_thresh_mps2)
+    if RestTest(test) is RestTest.VARIATION:
+        mean_rate = np.linalg.norm(box_mean(imu.gyro_radps, w), axis=1)
+        ok_valid = ((_spread(imu.gyro_radps, w) < gyro_thresh_radps) & (mean_rate < MAX_REST_MEAN_RATE_RADPS)
+                    & (_spread(imu.acc_mps2, w) < acc_std_thresh_mps2))
+    else:
+        g_rms = np.sqrt(box_mean(np.sum(imu.gyro_radps**2, axis=1), w))
+        a_std = sliding_std(np.linalg.norm(imu.acc_mps2, axis=1), w)
+        ok_valid = (g_rms < gyro_thresh_radps) & (a_std < acc_std_thresh_mps2)
     ok = np.zeros(n, bool)
     ok[w // 2: w // 2 + len(ok_valid)] = ok_valid
     edges = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
