@@ -23,7 +23,8 @@ Each model, and the reference rows, are judged on the test split three ways:
 * ``turned``: EuRoC's positions and velocities with its attitude turned by the constant IMU-frame
   rotation onto the vicon0 recovery's attitude (:func:`validation.attitude.reference_attitude_offset`).
   This separates an accelerometer offset across gravity that stands for a tilt of EuRoC's attitude
-  from one of the IMU. Its ROE is not a judge (turning a relative rotation by an IMU-frame offset
+  from one of the IMU (printed: EuRoC's mean accelerometer bias less the train mean, across gravity,
+  beside the bias that tilt stands for). Its ROE is not a judge (turning a relative rotation by an IMU-frame offset
   changes it), so only its PRMSE is printed.
 
 Prints PRMSE m / ROE deg, averaged over the test sequences (mean +- std over the seeds) and per
@@ -122,8 +123,23 @@ def turned_dataset(state_ds: Path, vicon_run: Path, out: Path, folders: dict[str
             path = out / read_manifest(out).sequences[name].path / f"{key}.npy"
             R = np.load(path)
             np.save(path, (R @ dR).astype(R.dtype))
-        offsets[name] = {"tilt_deg": off.tilt_deg, "heading_deg": off.heading_deg}
+        offsets[name] = {"tilt_deg": off.tilt_deg, "heading_deg": off.heading_deg,
+                         **_across_gravity(seq, np.radians(off.rotvec_deg), read_manifest(state_ds))}
     return offsets
+
+
+def _across_gravity(seq, rotvec_rad: np.ndarray, manifest) -> dict[str, np.ndarray]:
+    """EuRoC's mean accelerometer bias less the train mean, and the bias a tilt of EuRoC's attitude by
+    ``rotvec_rad`` stands for (R_state = R_ours Exp(-d): b_state - b_ours = -d x a, with a the mean
+    specific force), both across gravity (m/s^2, IMU frame), [3] each."""
+    a = seq.imu.acc_mps2.mean(axis=0)
+    u = a / np.linalg.norm(a)
+
+    def across(v: np.ndarray) -> np.ndarray:
+        return v - (v @ u) * u
+
+    euroc = seq.ground_truth.bias_acc_mps2.mean(axis=0) - np.asarray(manifest.normalization["bias_mean"])[3:]
+    return {"euroc_minus_train_mean": across(euroc), "tilt_equivalent": across(-np.cross(rotvec_rad, a))}
 
 
 def _stats(dataset: Path) -> Stats:
@@ -157,8 +173,11 @@ def run(work: Path, seeds: list[int], steps: int, variant: str) -> None:
         if not has_context(ds):
             write_context(ds, work / key)
     offsets = turned_dataset(datasets["a"], work / "v", work / "turned" / "dataset", folders)
-    print("EuRoC's attitude turned onto the vicon0 recovery's: " + "  ".join(
-        f"{n[:5]} tilt {o['tilt_deg']:.2f} deg, heading {o['heading_deg']:.2f} deg" for n, o in offsets.items()))
+    print("EuRoC's attitude turned onto the vicon0 recovery's; across gravity (IMU frame, m/s^2), EuRoC's mean "
+          "accelerometer bias less the train mean beside the bias that tilt stands for:")
+    for n, o in offsets.items():
+        print(f"  {n[:5]} tilt {o['tilt_deg']:.2f} deg, heading {o['heading_deg']:.2f} deg; "
+              f"{np.round(o['euroc_minus_train_mean'], 3)} beside {np.round(o['tilt_equivalent'], 3)}")
     judged = {"state": datasets["a"], "vicon0": datasets["v"], "turned": work / "turned" / "dataset"}
     windows = {j: load_test_windows(ds, cfg) for j, ds in judged.items()}
     print("\nreference rows (train_mean etc. from label set a)")
