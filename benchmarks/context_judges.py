@@ -34,6 +34,7 @@ sequence, and wall and CPU time. Exit code 0 (the figures are the output).
 from __future__ import annotations
 
 import argparse
+import copy
 import os
 import shutil
 import sys
@@ -77,7 +78,7 @@ def derived_configs(base: dict, config_dir: Path) -> dict[str, dict]:
     """``labels_gt`` and ``test_vicon0`` (see the module docstring) from the config ``base`` read from
     ``config_dir``; ``data_root`` made absolute."""
     data_root = (config_dir / base["data_root"]).resolve()
-    gt, vic = yaml.safe_load(yaml.safe_dump(base)), yaml.safe_load(yaml.safe_dump(base))
+    gt, vic = copy.deepcopy(base), copy.deepcopy(base)
     for cfg in (gt, vic):
         cfg["data_root"] = str(data_root)
     for entry in gt["sequences"]:
@@ -108,6 +109,7 @@ def turned_dataset(state_ds: Path, vicon_run: Path, out: Path, folders: dict[str
     shutil.rmtree(out, ignore_errors=True)
     shutil.copytree(state_ds, out)
     vman = read_manifest(vicon_run / "results" / "windows" / "dataset")
+    manifest = read_manifest(out)
     offsets = {}
     for name in vman.names("test"):
         info = vman["sequences"][name].get("info") or {}
@@ -120,11 +122,11 @@ def turned_dataset(state_ds: Path, vicon_run: Path, out: Path, folders: dict[str
                                         np.asarray(DEFAULT_GRAVITY_MPS2))
         dR = Rotation.from_rotvec(np.radians(off.rotvec_deg)).as_matrix()
         for key in ("start_R", "end_R"):
-            path = out / read_manifest(out).sequences[name].path / f"{key}.npy"
+            path = out / manifest.sequences[name].path / f"{key}.npy"
             R = np.load(path)
             np.save(path, (R @ dR).astype(R.dtype))
         offsets[name] = {"tilt_deg": off.tilt_deg, "heading_deg": off.heading_deg,
-                         **_across_gravity(seq, np.radians(off.rotvec_deg), read_manifest(state_ds))}
+                         **_across_gravity(seq, np.radians(off.rotvec_deg), manifest)}
     return offsets
 
 

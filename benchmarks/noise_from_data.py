@@ -28,43 +28,7 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 
-GYRO_DENSITY, ACC_DENSITY = 5.0e-4, 6.0e-3
-
-
-def _simulated(root: Path, seed: int) -> Path:
-    from pipeline.sim.config import SimConfig
-    from pipeline.sim.simulator import simulate
-    from pipeline.sim.writer import write_simulation
-
-    cfg = SimConfig.from_dict({"name": "rest_sim", "duration_s": 50, "seed": seed, "motion": {"rest_s": 15.0},
-                               "imu": {"gyro_noise_density": GYRO_DENSITY, "acc_noise_density": ACC_DENSITY,
-                                       "reported_gyro_noise_density": GYRO_DENSITY,
-                                       "reported_acc_noise_density": ACC_DENSITY}})
-    write_simulation(simulate(cfg), root)
-    return root
-
-
-def _independent(root: Path, seed: int) -> Path:
-    from independent import LissajousMotion, RestThenMotion, make_sequence, write_euroc
-
-    seq = make_sequence(50.0, seed=seed, motion=RestThenMotion(LissajousMotion(), rest_s=15.0),
-                        gyro_noise_density=GYRO_DENSITY, acc_noise_density=ACC_DENSITY)
-    write_euroc(seq, root, with_ground_truth=True)
-    return root
-
-
-def agreement(first: Path, second: Path) -> np.ndarray:
-    """RMS over the second recovery's keyframes (inside the first's span) of the bias difference in
-    the two recoveries' combined sigma, [6]."""
-    from recovery.outputs import RecoveryOutputs
-
-    b1, b2 = RecoveryOutputs.read(first).bias, RecoveryOutputs.read(second).bias
-    inside = (b2.t_ns >= b1.t_ns[0]) & (b2.t_ns <= b1.t_ns[-1])
-    at, std = (np.column_stack([np.interp(b2.t_ns[inside], b1.t_ns, x[:, c]) for c in range(6)])
-               for x in (b1.bias, b1.std))
-    z = (b2.bias[inside] - at) / np.hypot(b2.std[inside], std)
-    return np.sqrt(np.mean(z**2, axis=0))
-
+from rest_recordings import ACC_DENSITY, GYRO_DENSITY, bias_agreement, independent, simulated  # noqa: E402
 
 def run(generate, seed: int, tmp: Path) -> None:
     from pipeline.io import load_sequence
@@ -80,7 +44,7 @@ def run(generate, seed: int, tmp: Path) -> None:
     if not (tmp / "rec1" / SENSOR_YAML).is_file():
         imu = load_sequence(data).imu
         rest = np.linalg.norm(imu.gyro_radps[: int(10 * imu.rate_hz)].mean(axis=0))
-        print(f"  {generate.__name__[1:]:11s} seed {seed}: no sensor.yaml written (noise_from_data: "
+        print(f"  {generate.__name__:11s} seed {seed}: no sensor.yaml written (noise_from_data: "
               f"{read_report(tmp / 'rec1').data.get('noise_from_data')}); the gyro's mean norm over the rest's "
               f"first 10 s is {rest:.3f} rad/s",
               flush=True)
@@ -88,8 +52,8 @@ def run(generate, seed: int, tmp: Path) -> None:
     written = read_imu_calibration(tmp / "rec1" / SENSOR_YAML)
     shutil.copyfile(tmp / "rec1" / SENSOR_YAML, imu_yaml)
     write_recovery(recover(load_sequence(data)), tmp / "rec2")
-    z = agreement(tmp / "rec1", tmp / "rec2")
-    print(f"  {generate.__name__[1:]:11s} seed {seed}: densities written / simulated: gyro "
+    z = bias_agreement(tmp / "rec1", tmp / "rec2")
+    print(f"  {generate.__name__:11s} seed {seed}: densities written / simulated: gyro "
           f"{written.gyro_noise_density / GYRO_DENSITY:.2f}, acc {written.acc_noise_density / ACC_DENSITY:.2f}; "
           f"second recovery, RMS of the difference in sigma: " + " ".join(f"{v:.2f}" for v in z)
           + f"  [{time.perf_counter() - t0:.0f} s]", flush=True)
@@ -101,7 +65,7 @@ def main() -> int:
     args = parser.parse_args()
     print("generator, seed: densities (ratio to the simulated; goal 0.7-1.3); second recovery's bias "
           "difference (gyro xyz, acc xyz; goal < 1)")
-    for generate in (_simulated, _independent):
+    for generate in (simulated, independent):
         for seed in args.seeds:
             with tempfile.TemporaryDirectory() as tmp:
                 run(generate, seed, Path(tmp))

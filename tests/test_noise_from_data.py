@@ -9,49 +9,26 @@ written from the equations). The densities are checked against the values simula
 from __future__ import annotations
 
 import shutil
-from pathlib import Path
 
 import numpy as np
 import pytest
 
-from independent import LissajousMotion, RestThenMotion, make_sequence, write_euroc
 from pipeline.io import load_sequence
 from pipeline.io.sensor_yaml import read_imu_calibration
 from recovery.calibration_init import find_static_segments
 from recovery.config import RecoveryConfig
 from recovery.noise_from_data import MIN_STRETCH_S, densities_from_rest
-from recovery.outputs import SENSOR_YAML, RecoveryOutputs, read_report
+from recovery.outputs import SENSOR_YAML, read_report
 from recovery.recover import recover, write_recovery
+from rest_recordings import ACC_DENSITY, GYRO_DENSITY, bias_agreement, independent, simulated
 from validation.validate import validate_inputs
 
-#: White noise a few times the EuRoC datasheet's (1.6968e-4, 2.0e-3), so that borrowed values show.
-GYRO_DENSITY, ACC_DENSITY = 5.0e-4, 6.0e-3
 BORROWED = "ADIS16448"
 CONFIG = RecoveryConfig(keyframe_rate_hz=20.0, offset_refine_keyframe_rate_hz=10.0, extrinsic_keyframe_rate_hz=10.0,
                         gravity_keyframe_rate_hz=5.0)
 
 
-def _simulated(root: Path, seed: int = 3) -> Path:
-    from pipeline.sim.config import SimConfig
-    from pipeline.sim.simulator import simulate
-    from pipeline.sim.writer import write_simulation
-
-    cfg = SimConfig.from_dict({"name": "rest_sim", "duration_s": 50, "seed": seed, "motion": {"rest_s": 15.0},
-                               "imu": {"gyro_noise_density": GYRO_DENSITY, "acc_noise_density": ACC_DENSITY,
-                                       "reported_gyro_noise_density": GYRO_DENSITY,
-                                       "reported_acc_noise_density": ACC_DENSITY}})
-    write_simulation(simulate(cfg), root)
-    return root
-
-
-def _independent(root: Path, seed: int = 4) -> Path:
-    seq = make_sequence(50.0, seed=seed, motion=RestThenMotion(LissajousMotion(), rest_s=15.0),
-                        gyro_noise_density=GYRO_DENSITY, acc_noise_density=ACC_DENSITY)
-    write_euroc(seq, root, with_ground_truth=True)
-    return root
-
-
-@pytest.mark.parametrize(("generate", "seed"), [(_simulated, 4), (_simulated, 5), (_independent, 3)],
+@pytest.mark.parametrize(("generate", "seed"), [(simulated, 4), (simulated, 5), (independent, 3)],
                          ids=["simulator-4", "simulator-5", "independent-3"])
 def test_a_large_turn_on_gyro_bias_does_not_hide_the_rest(generate, seed, tmp_path):
     """These units' gyro bias alone exceeds the calibrated-IMU rest threshold (0.05 rad/s RMS, bias
@@ -75,7 +52,7 @@ AGREEMENT = 1.0
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("generate", [_simulated, _independent], ids=["simulator", "independent"])
+@pytest.mark.parametrize("generate", [simulated, independent], ids=["simulator", "independent"])
 def test_noise_read_off_the_rest_is_written_used_and_recovered_again(generate, tmp_path):
     data = generate(tmp_path / "rec")
     imu_yaml = data / "mav0" / "imu0" / "sensor.yaml"
@@ -106,11 +83,7 @@ def test_noise_read_off_the_rest_is_written_used_and_recovered_again(generate, t
     write_recovery(res2, tmp_path / "rec2")
     assert read_report(tmp_path / "rec2").data["noise_from_data"] is None
     assert not (tmp_path / "rec2" / SENSOR_YAML).exists()
-    b1, b2 = RecoveryOutputs.read(tmp_path / "rec1").bias, RecoveryOutputs.read(tmp_path / "rec2").bias
-    inside = (b2.t_ns >= b1.t_ns[0]) & (b2.t_ns <= b1.t_ns[-1])  # keyframe stamps follow each clock offset
-    first_at, first_std = ([np.interp(b2.t_ns[inside], b1.t_ns, x[:, c]) for c in range(6)] for x in (b1.bias, b1.std))
-    z = (b2.bias[inside] - np.column_stack(first_at)) / np.hypot(b2.std[inside], np.column_stack(first_std))
-    rms = np.sqrt(np.mean(z**2, axis=0))
+    rms = bias_agreement(tmp_path / "rec1", tmp_path / "rec2")
     assert np.all(rms < AGREEMENT), rms
     val2 = validate_inputs(second, recovery_dir=tmp_path / "rec2")
     assert not any(BORROWED in r for r in val2.reasons), val2.reasons
