@@ -8,13 +8,14 @@ Usage::
 
 Writes the dataset's sequence records (``context/``, :func:`training.context.write_context`) when it
 has none, evaluates the reference rows ``train_mean``, ``start_rest``, ``sequence_mean`` (oracle) and
-``state_bias`` (EuRoC's own bias, oracle), ``bias_filter`` with config/euroc.yaml's protocol (nominal gravity; ``--gravity recovered``: each
-sequence's recovered gravity), trains
-the context model variants (one seed, single thread) and evaluates them the same way. Prints, per
-row, PRMSE (m) / ROE (deg) averaged over the test sequences and per sequence, the rests found in
-each test record, the share of the gap from ``train_mean`` to ``sequence_mean`` each variant
-closes (PRMSE: the accelerometer's part; ROE: the gyro's), and wall and CPU time. Exit code 0 (the
-figures are the output).
+``state_bias`` (EuRoC's own bias, oracle), ``bias_filter`` with config/euroc.yaml's protocol (nominal
+gravity; ``--gravity recovered``: each sequence's recovered gravity), trains the context model
+variants (one seed, single thread) and evaluates them the same way; a diffusion variant draws
+DIFFUSION_SAMPLES DDIM samples per window and prints the metric over samples, then the sample mean
+and median as predictions. Prints, per row, PRMSE (m) / ROE (deg) averaged over the test sequences
+and per sequence, the rests found in each test record, the share of the gap from ``train_mean`` to
+``sequence_mean`` each variant closes (PRMSE: the accelerometer's part; ROE: the gyro's), and wall
+and CPU time. Exit code 0 (the figures are the output).
 """
 
 from __future__ import annotations
@@ -54,7 +55,13 @@ VARIANTS = {
     "filter_history_integration": dict(model=dict(base="filter"), loss="integration"),
     "filter_history_both": dict(model=dict(base="filter"), loss="both"),
     "filter_history_label": dict(model=dict(base="filter"), loss="label"),
+    # the residual drawn by a conditional diffusion model (training/context_diffusion.py): its noise
+    # loss alone, or with the integration of its x0 estimate
+    "filter_history_diffusion": dict(model=dict(base="filter", diffusion=True), loss="label"),
+    "filter_history_diffusion_both": dict(model=dict(base="filter", diffusion=True), loss="both"),
 }
+#: Samples per window of the diffusion variants (DDIM), as config/euroc.yaml's diffusion rows.
+DIFFUSION_SAMPLES = 10
 #: The ablation grid (``--grid``): context x target x base, named ``<context>_<target>_<base>``. Context
 #: ``1s`` is the window alone (no context vector); the others add the start rest's summary and one
 #: history mean (5 s, 30 s before the window, or since the record's start).
@@ -104,8 +111,8 @@ def _closed(row, train_mean, sequence_mean) -> str:
     return f"gap from train_mean to sequence_mean closed: PRMSE {100 * p:.0f} %, ROE {100 * r:.0f} %"
 
 
-def _line(name: str, summary) -> str:
-    row = summary.rows[0]
+def _line(name: str, summary, row=None) -> str:
+    row = summary.rows[0] if row is None else row
     per = "  ".join(f"{s[:5]} {m.prmse_m:.4f}/{m.roe_deg:.4f}" for s, m in row.sequences.items())
     return f"  {name:<22s} {row.average.prmse_m:.4f} / {row.average.roe_deg:.4f}   {per}"
 
@@ -140,6 +147,7 @@ def main() -> int:
         rests = [(round(a / ctx.rate_hz, 1), round((b - a) / ctx.rate_hz, 1)) for a, b in ctx.rests[:4]]
         print(f"  {name}: {rests} (of {len(ctx.rests)}); first window {(t_first - ctx.t_ns[0]) * 1e-9:.1f}")
     cfg = EvaluationConfig(samples=1, gravity=args.gravity)
+    sampled_cfg = EvaluationConfig(samples=DIFFUSION_SAMPLES, samplers=["ddim"], gravity=args.gravity)
     print("\nrow                    PRMSE m / ROE deg (average; per sequence)")
     refs = () if args.no_references else REFERENCES
     for ref in (*refs, *(_channel_rows() if args.channel_oracles else ())):
@@ -149,10 +157,14 @@ def main() -> int:
         t, c = time.perf_counter(), time.process_time()
         model = train_context(args.dataset, ContextTrainConfig(steps=args.steps, seed=args.seed, val_every=50,
                                                                labels=args.labels, **{**VARIANTS, **GRID}[name]))
-        summary = evaluate_context(model, args.dataset, cfg, name=name).summary
+        sampled = getattr(model, "stochastic", False)
+        summary = evaluate_context(model, args.dataset, sampled_cfg if sampled else cfg, name=name).summary
         print(_line(name, summary) + f"   [best step {model.info['best_step']}, {time.perf_counter() - t:.0f} s wall, "
               f"{time.process_time() - c:.0f} s CPU]", flush=True)
-        print(f"  {'':22s} {_closed(summary.rows[0].average, *ends)}", flush=True)
+        for row in summary.rows:  # a diffusion variant: the metric over samples, then the sample mean and median
+            if row.key:
+                print(_line(f"  sample {row.key}", summary, row), flush=True)
+            print(f"  {'':22s} {_closed(row.average, *ends)}", flush=True)
     print(f"\nwall {time.perf_counter() - wall0:.0f} s, CPU {time.process_time() - cpu0:.0f} s (this process, 1 thread)")
     return 0
 

@@ -45,7 +45,7 @@ from training.context import SequenceContext, open_context
 from training.ref_start_rest import start_rest_bias
 
 __all__ = ["Base", "ContextFeeder", "ContextLoss", "ContextModelConfig", "ContextNet", "ContextResidual",
-           "context_features", "integration_errors"]
+           "WindowEncoder", "context_features", "integration_errors"]
 
 
 class Base(str, enum.Enum):
@@ -80,6 +80,8 @@ class ContextModelConfig:
         use_context: Give the context vector (False: zeros, the 1-s model's information).
         channels: Encoder channels.
         hidden: Head width.
+        diffusion: Draw the residual from a conditional diffusion model
+            (:class:`training.context_diffusion.ContextDiffusion`) instead of regressing it.
     """
 
     base: Base = Base.REST
@@ -90,6 +92,7 @@ class ContextModelConfig:
     use_context: bool = True
     channels: int = 32
     hidden: int = 64
+    diffusion: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "base", Base(self.base))
@@ -173,6 +176,26 @@ def _base(base: Base, rest: np.ndarray, filt: np.ndarray | None, bias_mean: np.n
     return mean
 
 
+class WindowEncoder(nn.Sequential):
+    """Two strided convolutions over the normalised window; :meth:`summary` gives what a head reads."""
+
+    #: Shortest window the encoder takes as it is; a shorter one is padded with its last sample.
+    MIN_SAMPLES = 36
+
+    def __init__(self, c_in: int, channels: int) -> None:
+        super().__init__(nn.Conv1d(c_in, channels, 8, stride=4), nn.GELU(), nn.Conv1d(channels, channels, 8, stride=4),
+                         nn.GELU())
+        self.channels = channels
+
+    def summary(self, x: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
+        """``[code, mean(x), features]`` [B, channels + C + F] of the window ``x`` [B, T, C] and the
+        context [B, F]; ``code`` is the encoder's output averaged over time."""
+        xt = x.transpose(1, 2)
+        if xt.shape[-1] < self.MIN_SAMPLES:
+            xt = nn.functional.pad(xt, (0, self.MIN_SAMPLES - xt.shape[-1]), mode="replicate")
+        return torch.cat([self(xt).mean(-1), x.mean(1), features.to(x)], dim=-1)
+
+
 class _Residual(nn.Module):
     """The learned part: ``mlp(encoder(x), mean(x), features) + linear(mean(x), features)`` [B, 6]
     (normalised bias units) of the normalised window ``x`` [B, T, C] and the context [B, F]; the
@@ -181,7 +204,7 @@ class _Residual(nn.Module):
     def __init__(self, c_in: int, config: ContextModelConfig) -> None:
         super().__init__()
         c = config.channels
-        self.encoder = nn.Sequential(nn.Conv1d(c_in, c, 8, stride=4), nn.GELU(), nn.Conv1d(c, c, 8, stride=4), nn.GELU())
+        self.encoder = WindowEncoder(c_in, c)
         self.head = nn.Sequential(nn.Linear(c + c_in + config.features(), config.hidden), nn.GELU(),
                                   nn.Linear(config.hidden, config.hidden), nn.GELU(), nn.Linear(config.hidden, 6))
         self.linear = nn.Linear(c_in + config.features(), 6)  # a linear path beside the MLP
@@ -189,16 +212,9 @@ class _Residual(nn.Module):
             nn.init.zeros_(last.weight)
             nn.init.zeros_(last.bias)
 
-    #: Shortest window the encoder takes as it is; a shorter one is padded with its last sample.
-    MIN_SAMPLES = 36
-
     def forward(self, x: torch.Tensor, features: torch.Tensor) -> torch.Tensor:
-        xt = x.transpose(1, 2)
-        if xt.shape[-1] < self.MIN_SAMPLES:
-            xt = nn.functional.pad(xt, (0, self.MIN_SAMPLES - xt.shape[-1]), mode="replicate")
-        code = self.encoder(xt).mean(-1)
-        summary = torch.cat([x.mean(1), features.to(x)], dim=-1)
-        return self.head(torch.cat([code, summary], dim=-1)) + self.linear(summary)
+        full = self.encoder.summary(x, features)
+        return self.head(full) + self.linear(full[:, self.encoder.channels:])
 
 
 class ContextResidual(nn.Module):

@@ -24,8 +24,10 @@ import numpy as np
 import torch
 
 from pipeline.atomic import write_text_atomic
+from pipeline.errors import ConfigError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, Split
-from training.config import EvalGravity, EvaluationConfig
+from training.config import EvalGravity, EvaluationConfig, Sampler
+from training.context_diffusion import ContextDiffusion
 from training.context_model import (
     ContextLoss,
     ContextModelConfig,
@@ -90,6 +92,9 @@ class ContextTrainConfig:
         object.__setattr__(self, "loss", ContextLoss(self.loss))
         object.__setattr__(self, "gravity", EvalGravity(self.gravity))
         object.__setattr__(self, "labels", LabelSource(self.labels))
+        if model.diffusion and self.loss is ContextLoss.INTEGRATION:
+            raise ConfigError("a diffusion residual needs its noise loss: loss 'integration' alone trains no diffusion model",
+                              field="loss", hint="use 'label' (the noise loss) or 'both' (plus the integration of x0_hat)")
 
     def to_dict(self) -> dict[str, Any]:
         return json.loads(json.dumps(dataclasses.asdict(self), default=lambda o: getattr(o, "value", str(o))))
@@ -130,13 +135,22 @@ def load_split(root: str | Path, split: Split, stats: Stats, mc: ContextModelCon
     return {k: torch.from_numpy(np.concatenate(v)) for k, v in out.items()}
 
 
-def _loss(model: ContextResidual, d: dict[str, torch.Tensor], rows: torch.Tensor, config: ContextTrainConfig) -> torch.Tensor:
+def _loss(model: ContextResidual | ContextDiffusion, d: dict[str, torch.Tensor], rows: torch.Tensor,
+          config: ContextTrainConfig, generator: torch.Generator | None = None) -> torch.Tensor:
     x = {k: v[rows] for k, v in d.items()}
-    pred = model(x["imu"].float(), x["features"].float(), x["base"].float(), x.get(TEMPERATURE))
     total = torch.zeros((), dtype=torch.float64)
-    if config.loss in (ContextLoss.LABEL, ContextLoss.BOTH):
-        z = (pred.double()[:, None] - x["bias"]) / model.bias_std.double()
-        total = total + config.label_weight * z.square().mean()
+    weights = None
+    if isinstance(model, ContextDiffusion):  # the noise MSE always; the integration of x0_hat with 'both'
+        cond = model.condition(x["imu"].float(), x["features"].float(), x.get(TEMPERATURE))
+        target = (x["bias"].mean(1) - x["base"]) / model.bias_std.double()
+        eps_mse, x0, w = model.losses(cond, target.float(), generator)
+        total = total + config.label_weight * eps_mse.double()
+        pred, weights = model.unnormalise(x["base"].float(), x0), w.double()
+    else:
+        pred = model(x["imu"].float(), x["features"].float(), x["base"].float(), x.get(TEMPERATURE))
+        if config.loss in (ContextLoss.LABEL, ContextLoss.BOTH):
+            z = (pred.double()[:, None] - x["bias"]) / model.bias_std.double()
+            total = total + config.label_weight * z.square().mean()
     if config.loss in (ContextLoss.INTEGRATION, ContextLoss.BOTH):
         values, group = torch.unique(x["gravity"], dim=0, return_inverse=True)
         rot_s, pos_s = math.radians(config.rot_scale_deg) ** 2, config.pos_scale_m ** 2
@@ -144,30 +158,36 @@ def _loss(model: ContextResidual, d: dict[str, torch.Tensor], rows: torch.Tensor
             i = (group == gi).nonzero().squeeze(1)
             rot, pos = integration_errors(x["imu"][i], pred[i], x["dt_s"][i], x["start_R"][i], x["start_v"][i],
                                           x["start_p"][i], x["end_R"][i], x["end_p"][i], values[gi])
-            total = total + (rot.sum() / rot_s + pos.sum() / pos_s) / len(rows)
+            if weights is None:
+                total = total + (rot.sum() / rot_s + pos.sum() / pos_s) / len(rows)
+            else:
+                total = total + (weights[i] * (rot / rot_s + pos / pos_s)).sum() / len(rows)
     return total
 
 
-def train_context(root: str | Path, config: ContextTrainConfig, out_dir: str | Path | None = None) -> ContextResidual:
+def train_context(root: str | Path, config: ContextTrainConfig,
+                  out_dir: str | Path | None = None) -> ContextResidual | ContextDiffusion:
     """Train on the train split, keep the weights of the best validation loss; write ``model.pt`` and
-    ``run.json`` to ``out_dir`` when given. Returns the model (eval mode)."""
+    ``run.json`` to ``out_dir`` when given. Returns the model (eval mode): a :class:`ContextDiffusion`
+    with ``config.model.diffusion``, else a :class:`ContextResidual`."""
     t_start, cpu_start = time.perf_counter(), time.process_time()
     torch.manual_seed(config.seed)
     ds = WindowDataset(root, Split.TRAIN)
     stats = Stats.from_manifest(dict(ds.manifest.normalization))
     train = load_split(root, Split.TRAIN, stats, config.model, config.gravity, config.labels)
     val = load_split(root, Split.VAL, stats, config.model, config.gravity, config.labels)
-    model = ContextResidual(config.model, stats)
+    model = (ContextDiffusion if config.model.diffusion else ContextResidual)(config.model, stats)
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     sched = torch.optim.lr_scheduler.LambdaLR(opt, lambda s: 0.5 * (1 + math.cos(math.pi * min(s, config.steps) / config.steps)))
     gen = torch.Generator().manual_seed(config.seed)
+    noise_gen = torch.Generator().manual_seed(config.seed + 1)  # the diffusion's steps and noise
     n = len(train["imu"])
     all_val = torch.arange(len(val["imu"]))
 
     def val_loss() -> float:
         model.eval()
-        with torch.no_grad():
-            v = float(_loss(model, val, all_val, config))
+        with torch.no_grad():  # the same steps and noise at every validation
+            v = float(_loss(model, val, all_val, config, torch.Generator().manual_seed(config.seed + 2)))
         model.train()
         return v
 
@@ -175,7 +195,7 @@ def train_context(root: str | Path, config: ContextTrainConfig, out_dir: str | P
     best_step = 0
     for step in range(1, config.steps + 1):
         rows = torch.randint(0, n, (min(config.batch_size, n),), generator=gen)
-        loss = _loss(model, train, rows, config)
+        loss = _loss(model, train, rows, config, noise_gen)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -203,30 +223,43 @@ def train_context(root: str | Path, config: ContextTrainConfig, out_dir: str | P
 
 @dataclass
 class ContextPredictor:
-    """A trained :class:`ContextResidual` as a :class:`training.evaluate.Predictor`."""
+    """A trained :class:`ContextResidual` or :class:`ContextDiffusion` as a :class:`training.evaluate.Predictor`."""
 
-    model: ContextResidual
+    model: ContextResidual | ContextDiffusion
     root: Path
     gravity: dict[str, np.ndarray]
     stats: Stats
     name: str = "context_residual"
     label: str = "Context residual"
-    stochastic: bool = False
+
+    @property
+    def stochastic(self) -> bool:
+        return isinstance(self.model, ContextDiffusion)
 
     @torch.no_grad()
     def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Any, seed: int) -> np.ndarray:
+        """Biases [B, K, T, 6] (one per window, held over it); a diffusion model draws K by DDIM."""
         imu = items["imu"]
         B, T, _ = imu.shape
         ctx = open_context(self.root, sequence)
-        feats, base = context_features(ctx, np.asarray(items["t0_ns"], dtype=np.int64), T, self.stats,
-                                       self.model.config, float(np.linalg.norm(self.gravity[sequence])))
+        t0 = np.asarray(items["t0_ns"], dtype=np.int64)
+        feats, base = context_features(ctx, t0, T, self.stats, self.model.config,
+                                       float(np.linalg.norm(self.gravity[sequence])))
         temp = items.get(TEMPERATURE)
-        out = self.model(imu.float(), torch.from_numpy(feats).float(), torch.from_numpy(base).float(),
-                         None if temp is None else temp.float())
-        return np.broadcast_to(out.double().numpy()[:, None, None, :], (B, 1, T, 6)).copy()
+        args = (imu.float(), torch.from_numpy(feats).float(), torch.from_numpy(base).float())
+        temp = None if temp is None else temp.float()
+        if self.stochastic:
+            if sampler is not None and Sampler(sampler) is not Sampler.DDIM:
+                raise ConfigError(f"the context diffusion model samples by DDIM only, not {sampler!r}",
+                                  field="evaluation.samplers", hint="use samplers: [ddim]")
+            gen = torch.Generator().manual_seed(seed * 1_000_003 + int(t0[0]) % 1_000_003)
+            out = self.model.sample(*args, k, temp, gen).double().numpy()  # [B, K, 6]
+        else:
+            out = self.model(*args, temp).double().numpy()[:, None]  # [B, 1, 6]
+        return np.broadcast_to(out[:, :, None, :], (B, out.shape[1], T, 6)).copy()
 
 
-def evaluate_context(model: ContextResidual, root: str | Path, config: EvaluationConfig = EvaluationConfig(),
+def evaluate_context(model: ContextResidual | ContextDiffusion, root: str | Path, config: EvaluationConfig = EvaluationConfig(),
                      out_dir: str | Path | None = None, *, name: str = "context_residual") -> EvaluationResult:
     """Table I's protocol on the test split (:func:`training.evaluate.evaluate_predictor`); written to
     ``out_dir`` when given."""
