@@ -171,6 +171,28 @@ def test_context_diffusion_learns_the_bias_and_needs_its_input(sim_dataset):
     assert max(blind["mean"]) < 0.5 and max(blind[""]) < 0.5, blind
 
 
+def test_context_diffusion_losses_follow_the_forward_process():
+    """Against the closed forms: ``x0_hat`` is the target exactly when the noise estimate is exact, and
+    the integration weights are ``min(alpha_bar / (1 - alpha_bar), 1)`` of the drawn steps."""
+    from training.context_diffusion import ContextDiffusion
+
+    model = ContextDiffusion(ContextModelConfig(history_s=(), diffusion=True), Stats(*(np.ones(6),) * 4))
+    torch.nn.init.zeros_(model.denoiser[-1].weight)
+    torch.nn.init.zeros_(model.denoiser[-1].bias)  # eps_hat = 0
+    cond = torch.zeros(5, model.denoiser[0].in_features - 6 - 32)
+    target = torch.randn(5, 6, generator=torch.Generator().manual_seed(3))
+    gen = torch.Generator().manual_seed(7)
+    mse, x0, w = model.losses(cond, target, gen)
+    replay = torch.Generator().manual_seed(7)
+    t = torch.randint(0, 1000, (5,), generator=replay)
+    noise = torch.randn(5, 6, generator=replay)
+    ab = torch.cumprod(1 - torch.linspace(1e-4, 0.02, 1000), 0)[t][:, None]
+    x_t = ab.sqrt() * target + (1 - ab).sqrt() * noise
+    torch.testing.assert_close(mse, noise.square().mean())
+    torch.testing.assert_close(x0, x_t / ab.sqrt())
+    torch.testing.assert_close(w, (ab / (1 - ab)).clamp(max=1)[:, 0])
+
+
 def test_context_diffusion_refuses_an_integration_loss_alone():
     from pipeline.errors import ConfigError
     from training.context_train import ContextTrainConfig

@@ -11,14 +11,13 @@ Notation (:mod:`training.scheduler`): ``x_0 = r``, ``x_t`` the noised residual a
 1. Forward process (DDPM eq. 4): ``x_t = sqrt(alpha_bar_t) r + sqrt(1 - alpha_bar_t) eps``.
 2. Noise predictor: ``eps_hat = mlp(x_t, step_embedding(t), c)``.
 3. Loss (DDPM eq. 14): ``|eps - eps_hat|^2``; with ``both`` also the 1-s integration error of the
-   bias from ``x0_hat`` (DDIM eq. 9), weighted per window by ``alpha_bar_t`` so that the noisy steps,
-   whose ``x0_hat`` says little, weigh little.
+   bias from ``x0_hat`` (DDIM eq. 9), weighted per window by ``min(SNR_t, 1)``, ``SNR_t = alpha_bar_t
+   / (1 - alpha_bar_t)`` (min-SNR weighting, Hang et al. 2023): ``x0_hat``'s error is ``eps``'s
+   divided by ``sqrt(SNR_t)``, so a noisy step weighs as its noise error.
 4. Sampling: DDIM (eta 0) from ``x_T ~ N(0, I)``; ``bias = base + bias_std * x_0`` [B, K, 6].
 """
 
 from __future__ import annotations
-
-import math
 
 import torch
 from torch import nn
@@ -74,7 +73,7 @@ class ContextDiffusion(nn.Module):
     def losses(self, cond: torch.Tensor, residual: torch.Tensor,
                generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Steps 1-3 for target residuals [B, 6]: the noise MSE (scalar), ``x0_hat`` [B, 6] and the
-        integration term's weights [B] (``alpha_bar_t`` of the drawn steps, scaled to sum to B)."""
+        integration term's weights [B] (``min(SNR_t, 1)`` of the drawn steps)."""
         B = len(residual)
         t = torch.randint(0, self.scheduler.train_timesteps, (B,), generator=generator)
         noise = randn(tuple(residual.shape), generator, residual.device, residual.dtype)
@@ -82,7 +81,7 @@ class ContextDiffusion(nn.Module):
         eps = self.eps(x_t, t, cond)
         ab = self.scheduler.alphas_cumprod[t].to(residual)[:, None]
         x0 = (x_t - (1.0 - ab).sqrt() * eps) / ab.sqrt()
-        weights = ab[:, 0] * (B / ab.sum().clamp_min(math.ulp(1.0)))
+        weights = (ab / (1.0 - ab)).clamp(max=1.0)[:, 0]  # min(SNR_t, 1): the x0 error counts as the eps error
         return (eps - noise).square().mean(), x0, weights
 
     def unnormalise(self, base: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:

@@ -37,6 +37,7 @@ log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 
 
 __all__ = [
     "TrainingPlan",
+    "chain_priority",
     "evaluate_step",
     "evaluation_dir",
     "evaluation_summaries",
@@ -67,6 +68,12 @@ def evaluation_dir(name: str, seed: int | str | None = None) -> str:
 def is_sampled(method: str) -> bool:
     """Whether ``method`` draws samples (a diffusion network): its evaluation reads the sampling options."""
     return get_network(method).is_diffusion
+
+
+def chain_priority(method: str) -> int:
+    """Snakemake priority of ``method``'s train and evaluate jobs: 1 for a sampled model (the longest
+    chains, started first so that short jobs fill the cores at the end), else 0."""
+    return int(is_sampled(method))
 
 
 def evaluation_summaries(plan: TrainingPlan, evaluation: EvaluationConfig) -> list[str]:

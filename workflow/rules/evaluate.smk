@@ -19,6 +19,7 @@ rule evaluate:
         ),
         dataset_checksum=windows_dataset_checksum,
     threads: TRAINING_PLAN.threads
+    priority: lambda wildcards: learning.chain_priority(wildcards.method)  # as the rule train
     script:
         "../scripts/evaluate.py"
 

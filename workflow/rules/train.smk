@@ -28,5 +28,8 @@ rule train:
         dataset_checksum=windows_dataset_checksum,
         processes=TRAINING_PLAN.processes,
     threads: TRAINING_PLAN.threads
+    # the sampled (diffusion) models' chains are the longest (their evaluation draws K samples per
+    # window): started first, they leave the short jobs to fill the cores at the end
+    priority: lambda wildcards: learning.chain_priority(wildcards.method)
     script:
         "../scripts/train.py"
