@@ -23,7 +23,7 @@ import torch
 from torch import nn
 
 from training.config import Sampler
-from training.context_model import ContextModelConfig, Stats, WindowEncoder
+from training.context_model import ContextModelConfig, NormalisedInput, Stats, WindowEncoder
 from training.models.layers import StepEncoder
 from training.scheduler import NoiseScheduler, randn
 
@@ -33,7 +33,7 @@ __all__ = ["ContextDiffusion"]
 STEP_DIM = 32
 
 
-class ContextDiffusion(nn.Module):
+class ContextDiffusion(NormalisedInput):
     """``bias = base + bias_std * r``, ``r ~ p(r | window, context)`` by DDIM (module docstring).
 
     Args:
@@ -44,27 +44,18 @@ class ContextDiffusion(nn.Module):
     stochastic = True
 
     def __init__(self, config: ContextModelConfig, stats: Stats) -> None:
-        super().__init__()
-        self.config = config
-        c_in = 6 + (1 if config.use_temperature else 0)
-        for name in ("imu_mean", "imu_std", "bias_mean", "bias_std"):
-            self.register_buffer(name, torch.tensor(getattr(stats, name), dtype=torch.float32))
-        self.register_buffer("temperature", torch.tensor([stats.temperature_mean, stats.temperature_std]))
-        self.encoder = WindowEncoder(c_in, config.channels)
+        super().__init__(config, stats)
+        self.encoder = WindowEncoder(self.c_in, config.channels)
         self.step_encoder = StepEncoder(STEP_DIM, nn.GELU)
         h = config.hidden
-        self.denoiser = nn.Sequential(nn.Linear(6 + STEP_DIM + config.channels + c_in + config.features(), h), nn.GELU(),
-                                      nn.Linear(h, h), nn.GELU(), nn.Linear(h, 6))
+        self.denoiser = nn.Sequential(nn.Linear(6 + STEP_DIM + config.channels + self.c_in + config.features(), h),
+                                      nn.GELU(), nn.Linear(h, h), nn.GELU(), nn.Linear(h, 6))
         self.scheduler = NoiseScheduler()
 
     def condition(self, imu: torch.Tensor, features: torch.Tensor,
                   temperature_degc: torch.Tensor | None = None) -> torch.Tensor:
         """The condition ``c`` [B, D] of raw ``imu`` [B, T, 6], ``features`` [B, F] (and [B, T] temperature)."""
-        x = (imu - self.imu_mean) / self.imu_std
-        if self.config.use_temperature:
-            t = (temperature_degc - self.temperature[0]) / self.temperature[1]
-            x = torch.cat([x, t.unsqueeze(-1).to(x)], dim=-1)
-        return self.encoder.summary(x, features)
+        return self.encoder.summary(self.normalise(imu, temperature_degc), features)
 
     def eps(self, x_t: torch.Tensor, t: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
         """Step 2: the noise estimate [B, 6] of ``x_t`` [B, 6] at steps ``t`` [B] under ``cond`` [B, D]."""

@@ -45,7 +45,7 @@ from training.context import SequenceContext, open_context
 from training.ref_start_rest import start_rest_bias
 
 __all__ = ["Base", "ContextFeeder", "ContextLoss", "ContextModelConfig", "ContextNet", "ContextResidual",
-           "WindowEncoder", "context_features", "integration_errors"]
+           "NormalisedInput", "WindowEncoder", "context_features", "integration_errors"]
 
 
 class Base(str, enum.Enum):
@@ -217,7 +217,33 @@ class _Residual(nn.Module):
         return self.head(full) + self.linear(full[:, self.encoder.channels:])
 
 
-class ContextResidual(nn.Module):
+class NormalisedInput(nn.Module):
+    """The train split's statistics as buffers, and the window normalised with them.
+
+    Args:
+        config: Sizes and inputs (``use_temperature`` adds the temperature channel).
+        stats: Train-split statistics.
+    """
+
+    def __init__(self, config: ContextModelConfig, stats: Stats) -> None:
+        super().__init__()
+        self.config = config
+        self.c_in = 6 + (1 if config.use_temperature else 0)
+        for name in ("imu_mean", "imu_std", "bias_mean", "bias_std"):
+            self.register_buffer(name, torch.tensor(getattr(stats, name), dtype=torch.float32))
+        self.register_buffer("temperature", torch.tensor([stats.temperature_mean, stats.temperature_std]))
+
+    def normalise(self, imu: torch.Tensor, temperature_degc: torch.Tensor | None = None) -> torch.Tensor:
+        """The normalised window [B, T, C] of raw ``imu`` [B, T, 6] (and the temperature [B, T] as a
+        7th channel with ``use_temperature``)."""
+        x = (imu - self.imu_mean) / self.imu_std
+        if self.config.use_temperature:
+            t = (temperature_degc - self.temperature[0]) / self.temperature[1]
+            x = torch.cat([x, t.unsqueeze(-1).to(x)], dim=-1)
+        return x
+
+
+class ContextResidual(NormalisedInput):
     """``bias = base + bias_std * (mlp(...) + linear(...))`` (module docstring).
 
     Args:
@@ -226,22 +252,14 @@ class ContextResidual(nn.Module):
     """
 
     def __init__(self, config: ContextModelConfig, stats: Stats) -> None:
-        super().__init__()
-        self.config = config
-        c_in = 6 + (1 if config.use_temperature else 0)
-        for name in ("imu_mean", "imu_std", "bias_mean", "bias_std"):
-            self.register_buffer(name, torch.tensor(getattr(stats, name), dtype=torch.float32))
-        self.register_buffer("temperature", torch.tensor([stats.temperature_mean, stats.temperature_std]))
-        self.core = _Residual(c_in, config)
+        super().__init__(config, stats)
+        self.core = _Residual(self.c_in, config)
 
     def forward(self, imu: torch.Tensor, features: torch.Tensor, base: torch.Tensor,
                 temperature_degc: torch.Tensor | None = None) -> torch.Tensor:
         """Bias [B, 6] (raw units) from ``imu`` [B, T, 6], ``features`` [B, F], ``base`` [B, 6] and the
         temperature [B, T] (with ``use_temperature``)."""
-        x = (imu - self.imu_mean) / self.imu_std
-        if self.config.use_temperature:
-            t = (temperature_degc - self.temperature[0]) / self.temperature[1]
-            x = torch.cat([x, t.unsqueeze(-1).to(x)], dim=-1)
+        x = self.normalise(imu, temperature_degc)
         return base.to(x) + self.core(x, features) * self.bias_std
 
 
