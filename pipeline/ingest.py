@@ -82,8 +82,11 @@ def refusal_message(findings: Iterable[Finding], action: str = "convert") -> tup
     blocking = fatal_findings(findings) + repairable_findings(findings)
     if not blocking:
         return None
-    listed = "; ".join(f"{f.code} ({f.stream})" for f in blocking)
-    problem = f"refusing to {action}: {len(blocking)} problem(s) remain: {listed}"
+    if len(blocking) == 1:  # one problem: its own sentence names what and where
+        problem = f"refusing to {action}: {blocking[0].code} ({blocking[0].stream}): {blocking[0].message}"
+    else:
+        listed = "; ".join(f"{f.code} ({f.stream})" for f in blocking)
+        problem = f"refusing to {action}: {len(blocking)} problem(s) remain: {listed}"
     hints: list[str] = []
     flags = sorted({REPAIR_FOR_CODE[f.code].value for f in repairable_findings(findings) if f.code in REPAIR_FOR_CODE})
     if flags:

@@ -215,7 +215,7 @@ def test_convert_unknown_repair_is_an_error(fake, tmp_path, capsys):
 
 def test_ingest_library_function(fake, tmp_path):
     fake(unsorted_sequence())
-    with pytest.raises(FatalCheckError, match=r"DUPLICATE_STAMPS \(imu\); rerun with --repair drop-duplicates"):
+    with pytest.raises(FatalCheckError, match=r"DUPLICATE_STAMPS \(imu\): imu has 1 repeated stamps .*; rerun with --repair drop-duplicates"):
         ingest("x", tmp_path / "a", repairs=[Repair.SORT], reader_kwargs={"name": "n"}, check_options=CheckOptions())
     assert not (tmp_path / "a").exists()
     seq = ingest("x", tmp_path / "a", repairs={"sort", Repair.DROP_DUPLICATES}, reader_kwargs={"name": "n"})

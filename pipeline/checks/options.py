@@ -25,6 +25,11 @@ CLOCK_MISMATCH      fatal/warn  stamps on different clocks (fatal), or overlap <
 TOO_SHORT           fatal       IMU shorter than ``min_duration_s``
 NO_IMU              fatal       no IMU stream (info with ``allow_pose_only``)
 NO_POSES            warning     IMU only: bias recovery needs a pose stream
+STAMP_UNIT          repairable  stamps in s, ms or us where nanoseconds are required (stamps-to-ns)
+POSE_PLACEHOLDERS   warning     frames at the origin with identity orientation (drop-placeholder-poses)
+CLOCK_OFFSET        warning     a pose clock seconds off the IMU's (:mod:`pipeline.checks.rig`)
+POSITION_UNIT       repairable  positions in mm or cm (positions-to-m)
+FRAME_DISAGREEMENT  warning     IMU and poses disagree about the body frame (recover refuses the stream)
 ==================  ==========  ==================================================
 """
 
@@ -56,6 +61,9 @@ class Repair(str, enum.Enum):
     CONTINUOUS_QUATERNIONS = "continuous-quaternions"
     GYRO_DEG_TO_RAD = "gyro-deg-to-rad"
     ACC_G_TO_MPS2 = "acc-g-to-mps2"
+    STAMPS_TO_NS = "stamps-to-ns"
+    POSITIONS_TO_M = "positions-to-m"
+    DROP_PLACEHOLDER_POSES = "drop-placeholder-poses"
 
 
 #: The repair that fixes each repairable (or optionally repairable) finding code.
@@ -67,6 +75,9 @@ REPAIR_FOR_CODE: dict[str, Repair] = {
     "QUAT_SIGN_FLIPS": Repair.CONTINUOUS_QUATERNIONS,
     "GYRO_DEGPS": Repair.GYRO_DEG_TO_RAD,
     "ACC_IN_G": Repair.ACC_G_TO_MPS2,
+    "STAMP_UNIT": Repair.STAMPS_TO_NS,
+    "POSITION_UNIT": Repair.POSITIONS_TO_M,
+    "POSE_PLACEHOLDERS": Repair.DROP_PLACEHOLDER_POSES,
 }
 
 #: How to get past each fatal finding code (used in refusal messages).
@@ -83,7 +94,8 @@ FATAL_HINTS: dict[str, str] = {
 CHECK_CODES = frozenset({
     "EMPTY_STREAM", "NONFINITE_ROWS", "NON_MONOTONIC", "DUPLICATE_STAMPS", "GAPS", "RATE", "GYRO_DEGPS",
     "ACC_IN_G", "ACC_SCALE_SUSPECT", "SATURATION", "QUAT_NOT_UNIT", "QUAT_SIGN_FLIPS", "NO_TIME_OVERLAP",
-    "CLOCK_MISMATCH", "TOO_SHORT", "NO_IMU", "NO_POSES", "POSE_RATE_LOW", "IMU_RATE_MISMATCH",
+    "CLOCK_MISMATCH", "TOO_SHORT", "NO_IMU", "NO_POSES", "POSE_RATE_LOW", "IMU_RATE_MISMATCH", "STAMP_UNIT",
+    "POSE_PLACEHOLDERS", "CLOCK_OFFSET", "POSITION_UNIT", "FRAME_DISAGREEMENT",
 })
 
 #: A recorded IMU rate this far (relative) from the calibration's ``rate_hz`` is IMU_RATE_MISMATCH.

@@ -13,7 +13,17 @@ import numpy as np
 
 from pipeline.checks.options import DEG_TO_RAD, G_MPS2, CheckOptions, Repair
 from pipeline.checks.stream_checks import detect_acc_in_g, detect_gyro_degps
-from pipeline.checks.streams import finite_rows, masked_rows, stream_views, valid_rows
+from pipeline.checks.rig import fit_rig, placeholder_rows
+from pipeline.checks.stamp_unit import scaled_stamps, stamp_unit
+from pipeline.checks.streams import (
+    StreamView,
+    finite_rows,
+    masked_rows,
+    pose_stream_label,
+    stream_views,
+    time_stats,
+    valid_rows,
+)
 from pipeline.errors import ConfigError
 from pipeline.types import ImuSeries, Sequence
 
@@ -59,10 +69,10 @@ def apply_repairs(seq: Sequence, repairs: Iterable[Repair | str], options: Check
                   ) -> tuple[Sequence, list[str]]:
     """Apply the allowed repairs to every stream; ``seq`` is not modified.
 
-    Order: drop non-finite rows, sort, drop duplicates (keeps the first row of
-    each stamp), unit scaling, normalise quaternions, make them continuous.
-    The unit repairs are applied only where their check fires (so ``--repair all``
-    leaves correct data alone) and not when the user ignores that code.
+    Order: stamps to nanoseconds, drop non-finite rows and placeholder poses, sort, drop duplicates (keeps
+    the first row of each stamp), normalise quaternions, make them continuous, IMU unit scaling, positions
+    to metres. The unit repairs are applied only where their check fires (so ``--repair all`` leaves
+    correct data alone) and not when the user ignores that code.
 
     Args:
         seq: The sequence.
@@ -78,11 +88,15 @@ def apply_repairs(seq: Sequence, repairs: Iterable[Repair | str], options: Check
     changes: list[str] = []
     imu, poses, gt = seq.imu, dict(seq.poses), seq.ground_truth
 
-    for s in stream_views(seq):
+    views = stream_views(seq)
+    t0s = {s.name: int(np.min(s.t_ns)) for s in views if len(s.t_ns) >= 2}
+    for s in views:
         if len(s.t_ns) == 0:
             continue
-        obj = _fix_rows(s.name, s.obj, valid_rows(s), allowed, changes)
+        obj = _fix_stamp_unit(s, [t for n, t in t0s.items() if n != s.name], allowed, opts, changes)
+        obj = _fix_rows(s.name, obj, valid_rows(s), allowed, changes)
         if s.kind != "imu":
+            obj = _fix_placeholders(s.name, obj, allowed, opts, changes)
             obj = _fix_quat(s.name, obj, allowed, opts, changes)
         if s.kind == "imu":
             imu = obj
@@ -93,6 +107,7 @@ def apply_repairs(seq: Sequence, repairs: Iterable[Repair | str], options: Check
     work = replace(seq, imu=imu, poses=poses, ground_truth=gt)
     if imu is not None and len(imu) > 1:
         work = replace(work, imu=_fix_imu_units(work, imu, allowed, opts, changes))
+        work = _fix_position_units(work, allowed, opts, changes)
     metadata = dict(seq.metadata)
     metadata["repairs"] = list(metadata.get("repairs") or []) + changes
     work = replace(work, metadata=metadata, findings=list(seq.findings))
@@ -166,3 +181,43 @@ def _fix_imu_units(work: Sequence, imu: ImuSeries, allowed: set[Repair], opts: C
             imu = _replace_stream(imu, acc_mps2=imu.acc_mps2 * G_MPS2)
             changes.append(f"imu: scaled accelerometer by {G_MPS2} (g to m/s^2; {len(imu)} rows)")
     return imu
+
+
+def _fix_stamp_unit(s: StreamView, other_t0_ns: list[int], allowed: set[Repair], opts: CheckOptions,
+                    changes: list[str]) -> Any:
+    """Stamps in s, ms or us scaled to ns where STAMP_UNIT fires (as allowed and not ignored)."""
+    if Repair.STAMPS_TO_NS not in allowed or "STAMP_UNIT" in opts.ignore or len(s.t_ns) < 2:
+        return s.obj
+    found = stamp_unit(s.kind, time_stats(s.t_ns), other_t0_ns)
+    if found is None:
+        return s.obj
+    unit, factor = found
+    changes.append(f"{s.name}: stamps scaled from {unit} to nanoseconds (x{factor:.0e}; {len(s.t_ns)} rows)")
+    return replace(s.obj, t_ns=scaled_stamps(s.obj.t_ns, factor))
+
+
+def _fix_placeholders(name: str, obj: Any, allowed: set[Repair], opts: CheckOptions, changes: list[str]) -> Any:
+    """Placeholder poses (origin, identity orientation) dropped (as allowed and not ignored)."""
+    if Repair.DROP_PLACEHOLDER_POSES not in allowed or "POSE_PLACEHOLDERS" in opts.ignore:
+        return obj
+    poses = obj.to_pose_series() if hasattr(obj, "to_pose_series") else obj
+    bad = placeholder_rows(poses)
+    if not bad.any():
+        return obj
+    changes.append(f"{name}: dropped {int(bad.sum())} placeholder poses (origin with identity orientation)")
+    return obj.take(np.flatnonzero(~bad))
+
+
+def _fix_position_units(work: Sequence, allowed: set[Repair], opts: CheckOptions, changes: list[str]) -> Sequence:
+    """Pose positions in mm or cm scaled to metres where POSITION_UNIT fires (as allowed and not ignored)."""
+    if Repair.POSITIONS_TO_M not in allowed or "POSITION_UNIT" in opts.ignore:
+        return work
+    poses = dict(work.poses)
+    for key, p in work.poses.items():
+        fit = fit_rig(work.imu, p)
+        factor = 1.0 if fit is None else fit.position_factor
+        if factor != 1.0:
+            poses[key] = replace(p, p_m=p.p_m * factor)
+            changes.append(f"{pose_stream_label(key)}: positions scaled from {fit.scale.unit} to metres (x{factor:g}; "
+                           f"{len(p)} rows)")
+    return replace(work, poses=poses)

@@ -28,6 +28,8 @@ from pipeline.checks.stream_checks import (
     check_saturation,
     check_stamps,
 )
+from pipeline.checks.rig import rig_findings
+from pipeline.checks.stamp_unit import check_stamp_unit
 from pipeline.checks.streams import round_or_none, StreamView, stream_views, time_stats, TimeStats, valid_rows
 from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity, StateSeries, Verdict
 
@@ -132,6 +134,7 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
     streams = stream_views(seq)
     n_pose_usable = sum(1 for s in streams if s.kind != "imu" and len(s.t_ns) >= 2)
     spans: dict[str, tuple[int, int]] = {}
+    t0s = {s.name: int(np.min(s.t_ns)) for s in streams if len(s.t_ns) >= 2}
     for s in streams:
         n = len(s.t_ns)
         if n < 2:
@@ -140,27 +143,47 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
                 "EMPTY_STREAM", Severity.FATAL if fatal else Severity.WARNING, s.name,
                 f"{s.name} has {n} rows; " + FATAL_HINTS["EMPTY_STREAM"], {"count": n}))
             continue
-        valid = valid_rows(s)
-        findings += check_nonfinite(s, valid)
-        ts = time_stats(s.t_ns)
-        spans[s.name] = (ts.t0_ns, ts.t1_ns)
+        findings += _stream_findings(seq, s, opts, [t for name, t in t0s.items() if name != s.name], spans)
+    findings += _check_overlap(seq, spans, opts)
+    if not any(f.code in _NO_RIG_CHECKS or f.severity is Severity.FATAL for f in findings):
+        findings += rig_findings(seq)
+    return _apply_ignore(findings, opts)
+
+
+#: Findings (besides fatal ones) after which the rig checks are not run: they would compare streams read in
+#: the wrong units.
+_NO_RIG_CHECKS = ("STAMP_UNIT", "GYRO_DEGPS", "ACC_IN_G")
+
+
+def _stream_findings(seq: Sequence, s: StreamView, opts: CheckOptions, other_t0_ns: list[int],
+                     spans: dict[str, tuple[int, int]]) -> list[Finding]:
+    """The checks of one stream with at least 2 rows; records its span (ns) in ``spans``. A stream whose
+    stamps are not nanoseconds (STAMP_UNIT) gets no stamp, rate or duration findings: they would quote
+    its stamps in the wrong unit."""
+    valid = valid_rows(s)
+    findings = check_nonfinite(s, valid)
+    ts = time_stats(s.t_ns)
+    unit = check_stamp_unit(s, ts, other_t0_ns)
+    findings += unit
+    factor = int(unit[0].details["factor_to_ns"]) if unit else 1
+    spans[s.name] = (ts.t0_ns * factor, ts.t1_ns * factor)
+    if not unit:
         findings += check_stamps(s, ts, opts)
         findings += check_pose_rate(s, ts, opts)
         findings += _check_imu_rate(seq, s, ts)
-        findings += check_quaternions(s, valid, opts)
-        if s.kind == "imu":
-            assert seq.imu is not None
-            duration = (ts.t1_ns - ts.t0_ns) / NS_PER_S
-            if duration < opts.min_duration_s:
-                findings.append(Finding(
-                    "TOO_SHORT", Severity.FATAL, s.name,
-                    f"imu spans {duration:.3f} s, less than the {opts.min_duration_s:g} s minimum; "
-                    + FATAL_HINTS["TOO_SHORT"],
-                    {"duration_s": round_or_none(duration), "min_duration_s": opts.min_duration_s}))
-            findings += check_imu_units(seq, valid)
-            findings += check_saturation(seq.imu, valid, opts)
-    findings += _check_overlap(seq, spans, opts)
-    return _apply_ignore(findings, opts)
+    findings += check_quaternions(s, valid, opts)
+    if s.kind == "imu":
+        assert seq.imu is not None
+        duration = (ts.t1_ns - ts.t0_ns) * factor / NS_PER_S
+        if duration < opts.min_duration_s:
+            findings.append(Finding(
+                "TOO_SHORT", Severity.FATAL, s.name,
+                f"imu spans {duration:.3f} s, less than the {opts.min_duration_s:g} s minimum; "
+                + FATAL_HINTS["TOO_SHORT"],
+                {"duration_s": round_or_none(duration), "min_duration_s": opts.min_duration_s}))
+        findings += check_imu_units(seq, valid)
+        findings += check_saturation(seq.imu, valid, opts)
+    return findings
 
 
 def _apply_ignore(findings: list[Finding], opts: CheckOptions) -> list[Finding]:
