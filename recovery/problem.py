@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
+from pipeline.checks.rig import placeholder_rows
 from pipeline.errors import RecoveryError
 from pipeline.io import select_pose_stream
 from pipeline.types import GRAVITY_MPS2, NS_PER_S, ImuSeries, PoseSeries, Sequence
@@ -37,7 +38,14 @@ def select_stream(sequence: Sequence, pose_stream: str | None) -> tuple[str, Pos
     return select_pose_stream(sequence, pose_stream)
 
 
-def clean_poses(poses: PoseSeries, name: str, warnings: list[str]) -> PoseSeries:
+def clean_poses(poses: PoseSeries, name: str, warnings: list[str]) -> tuple[PoseSeries, np.ndarray]:
+    """The stream without non-finite samples and placeholder frames (origin with the identity orientation:
+    an occluded tracker's, :func:`pipeline.checks.rig.placeholder_rows`), quaternions normalised; and the
+    placeholders' stamps (int64, pose clock), rejected as outliers.
+
+    Raises:
+        RecoveryError: The stamps do not increase strictly.
+    """
     ok = np.isfinite(poses.p_m).all(axis=1)
     if poses.quat_wxyz is not None:
         ok &= np.isfinite(poses.quat_wxyz).all(axis=1)
@@ -46,13 +54,21 @@ def clean_poses(poses: PoseSeries, name: str, warnings: list[str]) -> PoseSeries
     if not ok.all():
         warnings.append(f"pose stream '{name}': dropped {int((~ok).sum())} non-finite samples")
         poses = poses.take(ok)
+    placeholders = placeholder_rows(poses)
+    placeholder_t_ns = poses.t_ns[placeholders]
+    if placeholders.any():
+        t0 = int(poses.t_ns[0])
+        warnings.append(f"pose stream '{name}': rejected {int(placeholders.sum())} placeholder frames (origin with "
+                        f"the identity orientation: the tracker lost the body) at t="
+                        f"{(placeholder_t_ns[0] - t0) / NS_PER_S:.3f}..{(placeholder_t_ns[-1] - t0) / NS_PER_S:.3f} s")
+        poses = poses.take(~placeholders)
     if len(poses) >= 2 and not (np.diff(poses.t_ns) > 0).all():
         raise RecoveryError(f"pose stream '{name}' stamps are not strictly increasing",
                             hint="run 'biasgt convert' (it sorts and deduplicates when allowed)")
     if poses.quat_wxyz is not None:
         q = poses.quat_wxyz / np.linalg.norm(poses.quat_wxyz, axis=1, keepdims=True)
         poses = PoseSeries(poses.t_ns, poses.p_m, q, poses.frame, poses.source_kind, poses.world_frame)
-    return poses
+    return poses, placeholder_t_ns
 
 
 def imu_pieces(imu: ImuSeries, config: RecoveryConfig, warnings: list[str]) -> list[tuple[int, int]]:

@@ -3,11 +3,12 @@ extrinsic, noise, gravity, full solve): typed, frozen, one per stage."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from pipeline.checks.rig import RigFit
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind
 from recovery.config import (
     ExtrinsicMode,
@@ -44,6 +45,9 @@ class Inputs:
         warnings: Plain sentences.
         data_noise: The white-noise densities read off the recording's rest when no calibration gave
             them (``imu_noise`` holds them), else None.
+        rig: The pose stream against the IMU over the whole overlap (:func:`recovery.clock_coarse.screen_rig`:
+            coarse clock offset, positions' unit, frame agreement), None when it could not be judged.
+        placeholder_t_ns: Stamps (pose clock) of the placeholder frames dropped from the stream.
     """
 
     imu: ImuSeries
@@ -63,6 +67,8 @@ class Inputs:
     fuse: bool
     warnings: tuple[str, ...]
     data_noise: DataNoise | None = None
+    rig: RigFit | None = None
+    placeholder_t_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
 
 
 @dataclass(frozen=True)
@@ -80,6 +86,8 @@ class ClockOffset:
         curvature_std_s: The refinement's sigma from the cost's curvature (None: not refined).
         window_offsets_s: The offset refined on the refinement window, then on the windows of
             :func:`recovery.offset.offset_spread_windows`; ``std_s`` is at least their scatter.
+        wide_search: The search over the whole overlap (:mod:`recovery.clock_coarse`; ``recovery.json``
+            ``pose_time_offset_wide_search``), None when it did not run.
     """
 
     mode: TimeOffsetMode
@@ -91,6 +99,7 @@ class ClockOffset:
     warnings: tuple[str, ...] = ()
     curvature_std_s: float | None = None
     window_offsets_s: tuple[float, ...] = ()
+    wide_search: dict[str, Any] | None = None
 
     @property
     def method(self) -> str:

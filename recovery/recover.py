@@ -56,6 +56,7 @@ from recovery.config import (
     TimeOffsetMode,
 )
 from recovery import calibration_init as ci
+from recovery.clock_coarse import coarse_offset, screen_rig
 from recovery.extrinsic import CalibrationDifference, calibration_difference
 from recovery.frame_check import check_frames
 from recovery.calibration_uncertainty import CalibrationCovariance
@@ -69,7 +70,7 @@ from recovery.preintegration import ImuNoise
 from recovery.segments import plan_segments, stitch
 from recovery.records import CalibrationWindows, ClockOffset, ExtrinsicInit, FullSolve, GravityStage, Inputs, NoiseStage
 from recovery.gravity import solve_gravity, level_gravity_test
-from recovery.offset import coarse_offset_inputs, refine_offset, offsets_elsewhere, spread_std_s
+from recovery.offset import refine_offset, offsets_elsewhere, spread_std_s
 from recovery.problem import (COARSE_OFFSET_SPAN_S, bias_guess, calibration_window, chained_solution,
                               clean_poses, continue_from, imu_pieces, Problem, select_stream, shifted_stamps)
 from recovery.result import (RecoveryResult, bias_function, pose_sigmas_from_fusion, build_result, agreement_z,
@@ -231,7 +232,7 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
     if imu is None or len(imu) < 10:
         raise RecoveryError(f"sequence '{sequence.name}' has no IMU data (or fewer than 10 samples)")
     name, poses = select_stream(sequence, pose_stream)
-    poses = clean_poses(poses, name, warnings)
+    poses, placeholder_t_ns = clean_poses(poses, name, warnings)
     kind = poses.source_kind
     if len(poses) < config.min_poses:
         raise RecoveryError(f"pose stream '{name}' has {len(poses)} samples, fewer than min_poses={config.min_poses}")
@@ -240,6 +241,7 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
     has_rot = poses.quat_wxyz is not None and kind != PoseSourceKind.POSITION_TRACKER
     if kind == PoseSourceKind.POSITION_TRACKER and poses.quat_wxyz is not None:
         poses = PoseSeries(poses.t_ns, poses.p_m, None, poses.frame, kind, poses.world_frame)
+    rig = screen_rig(sequence.name, name, imu, poses, config)
     pose_mode = config.pose_factor_mode
     if pose_mode == PoseFactorMode.AUTO:
         pose_mode = PoseFactorMode.RELATIVE if kind == PoseSourceKind.VIO else PoseFactorMode.ABSOLUTE
@@ -280,25 +282,7 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
                                 acc_random_walk=imu_noise.acc_random_walk * start_scale)
     fuse = bool(config.pose_fusion and has_rot and pose_mode == PoseFactorMode.ABSOLUTE)
     return Inputs(imu, name, poses, kind, has_rot, pieces, pose_mode, bool(estimate_g), level_test, base_sp, base_sr,
-                   imu_noise, calibration_noise, opts, fuse, tuple(warnings), data_noise)
-
-
-def _coarse_offset(inputs: Inputs, config: RecoveryConfig) -> ClockOffset:
-    """Stage 2: the clock offset by cross-correlation (ESTIMATE), else as configured."""
-    mode = config.time_offset_mode
-    if mode == TimeOffsetMode.AUTO:
-        mode = TimeOffsetMode.FIXED if inputs.kind == PoseSourceKind.GROUND_TRUTH else TimeOffsetMode.ESTIMATE
-    fixed = ClockOffset(mode, float(config.time_offset_s), 0.0)
-    if mode != TimeOffsetMode.ESTIMATE:
-        return fixed
-    try:
-        imu_c, poses_c = coarse_offset_inputs(inputs.imu, inputs.poses, inputs.pieces, config.max_time_offset_s)
-        coarse = ci.estimate_time_offset(imu_c, poses_c, max_offset_s=config.max_time_offset_s)
-    except BiasgtError as exc:
-        # search with the widest grid step
-        return replace(fixed, std_s=config.offset_refine_step_s, warnings=(
-            f"coarse clock offset failed ({exc}); starting from time_offset_s={config.time_offset_s}",))
-    return replace(fixed, offset_s=coarse.offset_s, std_s=coarse.std_s, coarse_method=coarse.method)
+                   imu_noise, calibration_noise, opts, fuse, tuple(warnings), data_noise, rig, placeholder_t_ns)
 
 
 def _calibration_windows(inputs: Inputs, offset_s: float, config: RecoveryConfig) -> CalibrationWindows:
@@ -638,7 +622,7 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
     bar = _rounds_bar(sequence.name)
 
     t0 = time.perf_counter()
-    coarse = _coarse_offset(inputs, config)
+    coarse = coarse_offset(inputs, config)
     timings["offset_coarse_s"] = time.perf_counter() - t0
     windows = _calibration_windows(inputs, coarse.offset_s, config)
 

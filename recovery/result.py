@@ -138,6 +138,7 @@ def build_result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, off
     outlier_t = np.unique(np.concatenate([s.t_ns[s.outliers] for s in flat])) if flat else np.zeros(0)
     # samples rejected while fusing (the same sample may sit in two overlapping segments)
     rejected = np.unique(np.concatenate(full.fusion_rejected)) if full.fusion_rejected else np.zeros(0, np.int64)
+    placeholders = inputs.placeholder_t_ns + int(round(offset.offset_s * NS_PER_S))  # IMU clock
     if len(outlier_t) > 0.05 * n_kf:
         warnings.append(f"{len(outlier_t)} of {n_kf} poses rejected as outliers: check the pose noise / the stream")
     weights = np.array([len(s.t_ns) for s in flat], dtype=float)
@@ -167,6 +168,7 @@ def build_result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, off
         "pose_time_offset_search": list(offset.search),
         "pose_time_offset_curvature_std_s": offset.curvature_std_s,
         "pose_time_offset_windows_s": [float(x) for x in offset.window_offsets_s],
+        "pose_time_offset_wide_search": offset.wide_search,
         "T_imu_pose": _matrix_to_dict(gravity.T_imu_pose),
         "extrinsic": extrinsic_info,
         "calibration_uncertainty": _calibration_report(full),
@@ -176,10 +178,12 @@ def build_result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, off
         "calibration_sources": calibration_sources(sequence, config, inputs.data_noise),
         "noise_from_data": None if inputs.data_noise is None else inputs.data_noise.to_dict(),
         "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
-        "outliers_rejected": int(len(outlier_t) + len(rejected)),
-        "outlier_t_ns": [int(t) for t in np.union1d(outlier_t, rejected)],  # IMU clock
+        "outliers_rejected": int(len(outlier_t) + len(rejected) + len(placeholders)),
+        "outlier_t_ns": [int(t) for t in np.union1d(np.union1d(outlier_t, rejected), placeholders)],  # IMU clock
+        "placeholders_rejected": int(len(placeholders)),
         "pose_fusion": _fusion_report(inputs.fuse, config, full.fusion_counts, full.fusion_within, len(rejected)),
         "accuracy_floor": _accuracy_floor(choice, inputs.poses, inputs.pose_mode, inputs.has_rot),
+        "imu_rate_hz": float(inputs.imu.rate_hz),
         "keyframes": int(n_kf),
         "keyframe_rate_hz": config.keyframe_rate_hz,
         "segments": len(flat),

@@ -178,21 +178,34 @@ def frame_cases() -> dict[str, Sequence]:
     return _frame_cases()
 
 
-@pytest.mark.parametrize(("case", "first_cause"), [("acc_x_z_swapped", "axis order"),
-                                                   ("quaternion_w_last", "quaternion order")])
-def test_frames_that_disagree_are_refused_naming_axis_and_quaternion_order(frame_cases, case, first_cause):
-    """The true accelerometer bias of the simulation stays far below 0.3 g; a frame mistake makes the
-    recovered one reach a sizeable fraction of gravity, and the recovery is refused."""
+@pytest.mark.parametrize(("case", "cause"), [("acc_x_z_swapped", "the accelerometer's axis order"),
+                                             ("quaternion_w_last", "the pose quaternion order")])
+def test_frames_that_disagree_are_refused_before_the_solve(frame_cases, case, cause):
+    """The rig screen's fits (the gyro's rates against the poses', the specific force against the poses'
+    attitude and acceleration) refuse a frame mistake before any solve, naming the likely cause first."""
     seq = frame_cases[case]
-    assert np.abs(seq.ground_truth.bias_acc_mps2).max() < 0.1 * 9.81  # the truth: a plausible bias
     with pytest.raises(RecoveryError) as info:
         recover(seq, config=RecoveryConfig(**FAST))
     text = str(info.value)
+    assert "disagree about the body frame" in text and "\n" not in text
+    assert text.split("likely cause: ")[1].startswith(cause)
+
+
+@pytest.mark.parametrize(("case", "first_cause"), [("acc_x_z_swapped", "axis order"),
+                                                   ("quaternion_w_last", "quaternion order")])
+def test_the_solved_bias_shows_the_frame_mistake_too(frame_cases, case, first_cause):
+    """Kept past the screen (``keep_frame_disagreement``), the solve itself shows the mistake: the true
+    accelerometer bias of the simulation stays far below 0.3 g, the recovered one reaches a sizeable fraction
+    of gravity, and :func:`recovery.frame_check.frame_disagreement` names the likely causes."""
+    from recovery.frame_check import frame_disagreement
+
+    seq = frame_cases[case]
+    assert np.abs(seq.ground_truth.bias_acc_mps2).max() < 0.1 * 9.81  # the truth: a plausible bias
+    text = frame_disagreement(recover(seq, config=RecoveryConfig(**FAST, keep_frame_disagreement=True)))
     assert "disagree about the body frame" in text and "accelerometer bias reaches" in text
     likely = text.split("likely cause: ")[1]
     assert "axis order" in likely and "quaternion order" in likely
     assert likely.index(first_cause) < likely.index("or the")  # the one the evidence points at comes first
-    assert "\n" not in text
 
 
 def test_a_correct_recording_with_outliers_and_dropouts_passes_the_frame_check(frame_cases):

@@ -18,7 +18,8 @@ from recovery_sim import FAST, bias_errors, sim_sequence
 
 
 def test_coarse_offset_uses_the_most_rotating_span_of_long_recordings():
-    from recovery.recover import COARSE_OFFSET_SPAN_S, coarse_offset_inputs
+    from recovery.offset import coarse_offset_inputs
+    from recovery.recover import COARSE_OFFSET_SPAN_S
 
     t_s = np.arange(0.0, 2000.0, 0.05)
     gyro = np.zeros((len(t_s), 3))

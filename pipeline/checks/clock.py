@@ -42,7 +42,7 @@ RATE_WINDOW_S = 0.1
 #: Gaussian smoothing of the accelerations and of ``|f|^2`` (sigma, s).
 ACC_SMOOTH_S = 0.1
 #: The streams must overlap by at least this share of the shorter one at a searched offset.
-MIN_OVERLAP_FRACTION = 0.5
+MIN_OVERLAP_FRACTION = 0.4
 #: ... and by at least this many seconds.
 MIN_OVERLAP_S = 10.0
 #: The largest offset searched by default (s).

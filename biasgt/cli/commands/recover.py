@@ -158,9 +158,11 @@ def chosen_stream_sentence(seq: Sequence) -> str:
 
 
 def outlier_counts(report: dict) -> str:
-    """Which poses were rejected: keyframe poses (the solve's robust loss) and, with pose fusion, pose samples
-    (before fusing them into keyframes); ``outliers_rejected`` is their sum."""
+    """Which poses were rejected: keyframe poses (the solve's robust loss), with pose fusion pose samples
+    (before fusing them into keyframes), and placeholder frames; ``outliers_rejected`` is their sum."""
     samples = int((report.get("pose_fusion") or {}).get("samples_rejected") or 0)
-    keyframes = int(report["outliers_rejected"]) - samples
+    placeholders = int(report.get("placeholders_rejected") or 0)
+    keyframes = int(report["outliers_rejected"]) - samples - placeholders
     return (f"outliers rejected: {keyframes} of {report['keyframes']} keyframe poses"
-            + (f", {samples} pose samples before fusion" if samples else ""))
+            + (f", {samples} pose samples before fusion" if samples else "")
+            + (f", {placeholders} placeholder frames" if placeholders else ""))
