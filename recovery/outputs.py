@@ -4,7 +4,8 @@ Files (names defined here only): ``bias.csv`` (keyframe bias + sigma, :mod:`pipe
 columns), ``recovery.json`` (:class:`RecoveryReport`), ``trajectory_tum.txt`` (the optimised IMU
 trajectory), ``residuals.csv`` (per keyframe: whitened residuals and the outlier flag) and, when no
 calibration gave the IMU's noise densities, ``sensor.yaml`` (a Kalibr-style file with the noise the
-recording suggests: :func:`suggested_sensor_yaml`).
+recording suggests, read off its rest or, without one, chosen by the evidence search:
+:func:`suggested_sensor_yaml`).
 
 :meth:`RecoveryOutputs.write` writes the folder through :func:`pipeline.atomic.atomic_dir` (it
 appears complete or not at all, and replaces only these files in an existing folder); :meth:`RecoveryOutputs.read` reads it back. Every consumer
@@ -28,7 +29,7 @@ from pipeline.errors import BiasgtError, InputFormatError
 from pipeline.geometry.pose_transform import transform_from_json
 from pipeline.io.tum import read_tum_poses, write_tum
 from pipeline.jsonio import JsonRecord, dumps, number, read_json_object
-from pipeline.types import PoseSeries, PoseSourceKind
+from pipeline.types import CALIBRATION_DEFAULT_SOURCE, PoseSeries, PoseSourceKind
 
 BIAS_CSV = "bias.csv"
 REPORT_JSON = "recovery.json"
@@ -207,21 +208,49 @@ def _line(key: str, value: float, comment: str) -> str:
     return f"{key}: {value:.6g}  # {comment}\n"
 
 
-def suggested_sensor_yaml(report: Mapping[str, Any]) -> str | None:
-    """A Kalibr-style ``sensor.yaml`` from ``recovery.json`` (its ``noise_from_data`` and the chosen
-    ``noise``), or None when the recovery did not read the densities from the data."""
+def _density_lines(report: Mapping[str, Any]) -> tuple[list[str], float] | None:
+    """The white-noise densities' lines and the IMU rate: read off the recording's rest (``noise_from_data``),
+    else chosen by the evidence search from the default densities (no rest found); None otherwise."""
     data = report.get("noise_from_data")
-    noise = report.get("noise") or {}
-    if not isinstance(data, Mapping):
+    if isinstance(data, Mapping):
+        rest = (f"white-noise line (tau = 1 s) of the Allan deviation over {float(data['rest_s']):.1f} s at rest in "
+                f"{int(data['rest_stretches'])} stretch(es), RMS of the three axes")
+        return ([_line("gyroscope_noise_density", float(data["gyro_noise_density"]), f"rad/s/sqrt(Hz): {rest}"),
+                 _line("accelerometer_noise_density", float(data["acc_noise_density"]), f"m/s^2/sqrt(Hz): {rest}")],
+                float(data.get("rate_hz") or 0.0))
+    noise, config = report.get("noise") or {}, report.get("config") or {}
+    sources = report.get("calibration_sources") or {}
+    searched = noise.get("method") == "evidence" and len(config.get("noise_density_scales") or []) > 1
+    fields = ("gyro_noise_density", "acc_noise_density")
+    if not searched or any(sources.get(f) != CALIBRATION_DEFAULT_SOURCE for f in fields):
         return None
-    rest = (f"white-noise line (tau = 1 s) of the Allan deviation over {float(data['rest_s']):.1f} s at rest in "
-            f"{int(data['rest_stretches'])} stretch(es), RMS of the three axes")
+    lines, grid = [], [float(x) for x in config["noise_density_scales"]]
+    for key, field, unit in (("gyroscope_noise_density", "gyro", "rad/s/sqrt(Hz)"),
+                             ("accelerometer_noise_density", "acc", "m/s^2/sqrt(Hz)")):
+        value, scale = noise.get(f"{field}_noise_density"), float(noise.get(f"{field}_noise_density_scale") or 1.0)
+        if not (isinstance(value, (int, float)) and math.isfinite(value)):
+            return None
+        edge = ("; at the edge of its grid: the recording hardly tells it, the true value may lie beyond"
+                if scale in (min(grid), max(grid)) else "")
+        lines.append(_line(key, float(value), f"{unit}: the recording never rests, so the recovery's evidence search "
+                                              f"chose it ({scale:.3g}x the {sources[f'{field}_noise_density']}{edge})"))
+    return lines, float(report.get("imu_rate_hz") or 0.0)
+
+
+def suggested_sensor_yaml(report: Mapping[str, Any]) -> str | None:
+    """A Kalibr-style ``sensor.yaml`` from ``recovery.json``, or None where a calibration file (or the config)
+    gave the densities: the densities read off the recording's rest (``noise_from_data``) or, without a rest,
+    those the evidence search chose from the defaults; the random walks the evidence search chose. Each
+    value carries a comment on where it came from."""
+    found = _density_lines(report)
+    if found is None:
+        return None
+    densities, rate = found
+    noise = report.get("noise") or {}
     parts = ["%YAML:1.0\n",
              f"# IMU noise of '{report.get('sequence', '')}' suggested by 'biasgt recover' (no calibration file gave "
              "it). Put it where the reader looks (imu0/sensor.yaml of an ASL folder) and recover again.\n",
-             "sensor_type: imu\n",
-             _line("gyroscope_noise_density", float(data["gyro_noise_density"]), f"rad/s/sqrt(Hz): {rest}"),
-             _line("accelerometer_noise_density", float(data["acc_noise_density"]), f"m/s^2/sqrt(Hz): {rest}")]
+             "sensor_type: imu\n", *densities]
     for key, field, unit in (("gyroscope_random_walk", "gyro", "rad/s^2/sqrt(Hz)"),
                              ("accelerometer_random_walk", "acc", "m/s^3/sqrt(Hz)")):
         walk, scale = noise.get(f"{field}_random_walk"), noise.get(f"{field}_random_walk_scale")
@@ -229,7 +258,6 @@ def suggested_sensor_yaml(report: Mapping[str, Any]) -> str | None:
         if isinstance(walk, (int, float)) and math.isfinite(walk):
             how = f"{scale:.3g}x the value of {start}" if isinstance(scale, (int, float)) else f"from {start}"
             parts.append(_line(key, float(walk), f"{unit}: the recovery's evidence search chose it ({how})"))
-    rate = float(data.get("rate_hz") or 0.0)
     if rate > 0:
         parts.append(_line("update_rate", rate, "Hz: the IMU's rate in the recording (Kalibr's key)"))
         parts.append(_line("rate_hz", rate, "Hz: the same, under EuRoC's key"))

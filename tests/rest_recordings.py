@@ -15,13 +15,13 @@ GYRO_DENSITY, ACC_DENSITY = 5.0e-4, 6.0e-3
 DURATION_S, REST_S = 50.0, 15.0
 
 
-def simulated(root: Path, seed: int = 3) -> Path:
-    """A EuRoC-layout recording from the project's simulator at ``root``."""
+def simulated(root: Path, seed: int = 3, rest_s: float = REST_S) -> Path:
+    """A EuRoC-layout recording from the project's simulator at ``root`` (``rest_s`` 0: it never rests)."""
     from pipeline.sim.config import SimConfig
     from pipeline.sim.simulator import simulate
     from pipeline.sim.writer import write_simulation
 
-    cfg = SimConfig.from_dict({"name": "rest_sim", "duration_s": DURATION_S, "seed": seed, "motion": {"rest_s": REST_S},
+    cfg = SimConfig.from_dict({"name": "rest_sim", "duration_s": DURATION_S, "seed": seed, "motion": {"rest_s": rest_s},
                                "imu": {"gyro_noise_density": GYRO_DENSITY, "acc_noise_density": ACC_DENSITY,
                                        "reported_gyro_noise_density": GYRO_DENSITY,
                                        "reported_acc_noise_density": ACC_DENSITY}})
@@ -29,9 +29,10 @@ def simulated(root: Path, seed: int = 3) -> Path:
     return root
 
 
-def independent(root: Path, seed: int = 4) -> Path:
-    """A EuRoC-layout recording from the independent generator at ``root``."""
-    seq = make_sequence(DURATION_S, seed=seed, motion=RestThenMotion(LissajousMotion(), rest_s=REST_S),
+def independent(root: Path, seed: int = 4, rest_s: float = REST_S) -> Path:
+    """A EuRoC-layout recording from the independent generator at ``root`` (``rest_s`` 0: it never rests)."""
+    motion = RestThenMotion(LissajousMotion(), rest_s=rest_s) if rest_s > 0 else LissajousMotion()
+    seq = make_sequence(DURATION_S, seed=seed, motion=motion,
                         gyro_noise_density=GYRO_DENSITY, acc_noise_density=ACC_DENSITY)
     write_euroc(seq, root, with_ground_truth=True)
     return root

@@ -21,7 +21,8 @@ from recovery.noise_from_data import MIN_STRETCH_S, densities_from_rest
 from recovery.outputs import SENSOR_YAML, read_report
 from recovery.recover import recover, write_recovery
 from rest_recordings import ACC_DENSITY, GYRO_DENSITY, bias_agreement, independent, simulated
-from validation.validate import validate_inputs
+from validation.rules import RULES
+from validation.validate import BORROWED_NOISE_RULE, name_suggested_noise, validate_inputs
 
 BORROWED = "ADIS16448"
 CONFIG = RecoveryConfig(keyframe_rate_hz=20.0, offset_refine_keyframe_rate_hz=10.0, extrinsic_keyframe_rate_hz=10.0,
@@ -87,3 +88,35 @@ def test_noise_read_off_the_rest_is_written_used_and_recovered_again(generate, t
     assert np.all(rms < AGREEMENT), rms
     val2 = validate_inputs(second, recovery_dir=tmp_path / "rec2")
     assert not any(BORROWED in r for r in val2.reasons), val2.reasons
+
+
+@pytest.mark.parametrize("generate", [simulated, independent], ids=["simulator", "independent"])
+def test_a_recording_that_never_rests_gets_the_noise_of_the_evidence_search(generate, tmp_path):
+    """Without a rest the densities cannot be read off the data; the evidence search still chooses them (and
+    the walks) from the datasheet's, and the sensor.yaml written from its choice, used for a second
+    recovery, gives the same bias within its sigma."""
+    data = generate(tmp_path / "rec", rest_s=0.0)
+    imu_yaml = data / "mav0" / "imu0" / "sensor.yaml"
+    imu_yaml.unlink()
+    first = load_sequence(data)
+    assert densities_from_rest(first.imu) is None  # the case: no rest to read the densities from
+    write_recovery(recover(first, config=CONFIG), tmp_path / "rec1")
+    report = read_report(tmp_path / "rec1").data
+    assert report["noise_from_data"] is None
+    written = read_imu_calibration(tmp_path / "rec1" / SENSOR_YAML)
+    for name in ("gyro_noise_density", "acc_noise_density", "gyro_random_walk", "acc_random_walk"):
+        assert getattr(written, name) == pytest.approx(report["noise"][name], rel=1e-5)
+    text = (tmp_path / "rec1" / SENSOR_YAML).read_text()
+    assert text.count("never rests, so the recovery's evidence search chose it") == 2
+    assert "update_rate: 200" in text
+    generic = RULES[BORROWED_NOISE_RULE].next_step
+    steps = name_suggested_noise([generic], [BORROWED_NOISE_RULE], tmp_path / "rec1")
+    assert steps != [generic] and str(tmp_path / "rec1" / SENSOR_YAML) in steps[0]
+
+    shutil.copyfile(tmp_path / "rec1" / SENSOR_YAML, imu_yaml)
+    second = load_sequence(data)
+    assert "CALIBRATION_DEFAULTED" not in {f.code for f in second.findings}
+    write_recovery(recover(second, config=CONFIG), tmp_path / "rec2")
+    assert not (tmp_path / "rec2" / SENSOR_YAML).exists()
+    rms = bias_agreement(tmp_path / "rec1", tmp_path / "rec2")
+    assert np.all(rms < AGREEMENT), rms

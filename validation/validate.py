@@ -560,14 +560,15 @@ def _row_gravity(gravity_mps2: Any, recovery: RecoveryOutputs | None, fitted: bo
 
 def name_suggested_noise(steps: list[str], reason_codes: Sequence_[str], recovery_dir: str | Path | None) -> list[str]:
     """``steps`` with the borrowed-noise rule's next step naming the ``sensor.yaml`` the recovery wrote
-    from the recording's rest (:mod:`recovery.noise_from_data`), where it wrote one."""
+    (:func:`recovery.outputs.suggested_sensor_yaml`), where it wrote one."""
     suggested = None if recovery_dir is None else Path(recovery_dir) / SENSOR_YAML
     generic = RULES[BORROWED_NOISE_RULE].next_step
     if suggested is None or not suggested.is_file() or BORROWED_NOISE_RULE not in reason_codes:
         return steps
-    step = (f"use {suggested}, which the recovery wrote with the noise densities of this recording's rest and the "
-            "random walks its evidence search chose: put it where the reader looks (imu0/sensor.yaml of an ASL "
-            "folder) and recover again")
+    step = (f"use {suggested}, which the recovery wrote with the noise this recording showed (the densities read "
+            "off its rest or, without one, chosen by the evidence search, and the random walks the search chose; each "
+            "value's comment says which): put it where the reader looks (imu0/sensor.yaml of an ASL folder) and "
+            "recover again")
     return [step if s == generic else s for s in steps]
 
 
