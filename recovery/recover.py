@@ -41,7 +41,6 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.checks.run import reader_warnings
 from pipeline.errors import BiasgtError, RecoveryError
-from pipeline.io import select_pose_stream
 from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import (
     DEFAULT_POSE_SIGMAS,
@@ -57,6 +56,7 @@ from recovery.config import (
 )
 from recovery import calibration_init as ci
 from recovery.clock_coarse import coarse_offset, screen_rig
+from recovery.degenerate import degenerate_error, degenerate_hint
 from recovery.extrinsic import CalibrationDifference, calibration_difference
 from recovery.frame_check import check_frames
 from recovery.calibration_uncertainty import CalibrationCovariance
@@ -155,65 +155,10 @@ def _recover_with_intrinsics(sequence: Sequence, pose_stream: str | None, config
     except (RuntimeError, ValueError) as exc:
         # GTSAM reports a singular (unobservable) problem as a bare RuntimeError, a factor graph
         # that a failed solve left inconsistent as a ValueError from its EliminationTree.
-        text = str(exc)
-        if not any(word in text for word in ("ndetermina", "ill-posed", "ingular", "EliminationTree")):
+        error = degenerate_error(sequence, pose_stream, config, exc)
+        if error is None:
             raise
-        first = text.strip().splitlines()[0] if text.strip() else "singular system"
-        raise RecoveryError(
-            f"sequence '{sequence.name}': the optimisation is degenerate ({first}); the motion does not "
-            "make the bias, clock offset or extrinsic observable",
-            hint=_ignored_units_hint(sequence) + degenerate_hint(sequence, pose_stream, config),
-        ) from exc
-
-
-#: Unit findings whose --ignore makes a degenerate solve likely.
-_UNIT_CODES = ("GYRO_DEGPS", "ACC_IN_G")
-
-
-def _ignored_units_hint(sequence: Sequence) -> str:
-    """The first words of the hint when the user ignored a unit finding (likely the cause)."""
-    from pipeline.checks.options import REPAIR_FOR_CODE
-
-    ignored = list(dict.fromkeys(f.code for f in sequence.findings
-                                 if f.code in _UNIT_CODES and f.details.get("ignored")))
-    if not ignored:
-        return ""
-    repairs = ",".join(REPAIR_FOR_CODE[c].value for c in ignored)
-    return (f"the units finding(s) {', '.join(ignored)} were ignored (--ignore) and are likely "
-            f"real: rerun with --repair {repairs} instead; ")
-
-
-#: Keyframe rate the degenerate-recovery hint suggests for relative (odometry, VIO) pose streams.
-DEGENERATE_KEYFRAME_RATE_HZ = 10.0
-
-
-def degenerate_hint(sequence: Sequence, pose_stream: str | None, config: RecoveryConfig) -> str:
-    """The fixes of a degenerate recovery that apply to this case, most promising first: fewer keyframes
-    for a relative (odometry, VIO) stream only when that lowers their rate; fixing the extrinsic and the
-    clock offset only when they are still estimated; more varied motion always."""
-    fixes = []
-    try:
-        _, poses = select_pose_stream(sequence, pose_stream)
-    except BiasgtError:
-        poses = None
-    if poses is not None and poses.source_kind is PoseSourceKind.VIO and len(poses.t_ns) > 1:
-        rate_hz = NS_PER_S / float(np.median(np.diff(poses.t_ns)))
-        current = config.keyframe_rate_hz or rate_hz
-        if current > 1.2 * DEGENERATE_KEYFRAME_RATE_HZ:
-            fixes.append(f"use fewer keyframes for these odometry/VIO poses at {current:.0f} Hz "
-                         f"(--keyframe-rate {DEGENERATE_KEYFRAME_RATE_HZ:g})")
-    if config.extrinsic_mode is not ExtrinsicMode.KNOWN:
-        fixes.append("fix the extrinsic (--extrinsic known, with T_imu_<frame> in the calibration)")
-    fixed_offset = config.time_offset_mode is TimeOffsetMode.FIXED or (
-        config.time_offset_mode is TimeOffsetMode.AUTO and poses is not None
-        and poses.source_kind is PoseSourceKind.GROUND_TRUTH)
-    if not fixed_offset:
-        fixes.append("fix the clock offset (--time-offset-s)")
-    fixes.append("record more varied motion (rotation about several axes)")
-    if len(fixes) == 1 and poses is not None and poses.source_kind is PoseSourceKind.VIO:
-        fixes.append("use a 6-DoF absolute pose source (motion capture): planar odometry leaves roll, pitch and "
-                     "the vertical unobserved")
-    return "; or ".join(fixes)
+        raise error from exc
 
 
 def _record_intrinsics_mode(result: RecoveryResult, mode: IntrinsicsMode) -> RecoveryResult:

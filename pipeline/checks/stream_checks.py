@@ -84,7 +84,9 @@ def check_stamps(s: StreamView, ts: TimeStats, opts: CheckOptions) -> list[Findi
             "GAPS", Severity.WARNING, s.name,
             f"{s.name} has {len(gap_idx)} gaps longer than {opts.gap_factor:g}x its {nominal / 1e6:.3f} ms period "
             f"(longest {durations[longest]:.3f} s at t={float(rel_s(starts[longest], ts.t0_ns)):.3f} s); "
-            "results across gaps are less reliable, cut the sequence there if they are long",
+            + ("recover bridges them with the IMU alone (the bias sigma grows across them); cut the sequence there "
+               "if the bias across them matters" if s.kind != "imu" else
+               "results across gaps are less reliable, cut the sequence there if they are long"),
             {"count": int(len(gap_idx)), "nominal_period_ms": round_or_none(nominal / 1e6),
              "total_gap_s": round_or_none(float(durations.sum())),
              "gaps": [{"start_t_ns": int(a), "start_t_s": round_or_none(float(rel_s(a, ts.t0_ns))), "duration_s": round_or_none(d)}
