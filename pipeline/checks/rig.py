@@ -123,6 +123,9 @@ def frame_refusal(fit: RigFit | None, stream: str) -> str | None:
     quats = "the pose quaternion order (w-first vs w-last)"
     cause = (f"{quats}, or the gyro's axis order" if gyro
              else "the accelerometer's axis order (columns swapped or a sign flipped in the IMU file)")
+    if fit.offset is None or not fit.offset.trusted:
+        cause += (", or the streams' clocks or bodies differ (no clear clock offset: "
+                  f"{'no overlap to search' if fit.offset is None else fit.offset.describe()})")
     return (f"the IMU and pose stream '{stream}' disagree about the body frame: {'; '.join(found)}; likely cause: "
             f"{cause}")
 
