@@ -64,15 +64,15 @@ def _row(label: str, values: np.ndarray, fmt: str = "{:9.2e}") -> str:
 def bound(seed: int, duration_s: float, clean_rmse: np.ndarray | None = None) -> None:
     """The fit against the true trajectory: sigma of each term x its signal (module docstring), and its ratio
     to ``clean_rmse`` [6] (the clean recovery's per-axis RMSE) when given."""
-    from pipeline.types import ImuSeries
-    from recovery.intrinsics import FitNoise, fit_intrinsics
+    from pipeline.types import ImuNoiseModel, ImuSeries
+    from recovery.intrinsics import fit_intrinsics
 
     truth = ind.draw_intrinsics(seed)
     s = ind.make_sequence(duration_s, seed=seed, intrinsics=truth)
     k = np.arange(0, len(s.t_ns), int(s.rate_hz / 10))  # 10-Hz keyframes
     b = np.hstack([s.bias_gyro_radps, s.bias_acc_mps2])
     r = ind.REPORTED
-    noise = FitNoise(r["gyro_noise_density"], r["acc_noise_density"], 10 * r["gyro_random_walk"], 10 * r["acc_random_walk"])
+    noise = ImuNoiseModel(r["gyro_noise_density"], 10 * r["gyro_random_walk"], r["acc_noise_density"], 10 * r["acc_random_walk"])
     fit = fit_intrinsics(ImuSeries(s.t_ns, s.gyro_radps, s.acc_mps2), s.t_ns[k], s.quat_wxyz[k], s.v_mps[k],
                          lambda t: np.stack([np.interp(t, s.t_ns, b[:, c]) for c in range(6)], axis=1),
                          ind.GRAVITY_MPS2, noise, g_sensitivity=True)

@@ -13,7 +13,7 @@ holds and :mod:`pipeline.checks` reports and, when allowed, repairs it.
 from __future__ import annotations
 
 import enum
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field, fields, make_dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -297,21 +297,53 @@ class StateSeries:
         return PoseSeries(self.t_ns, self.p_m, self.quat_wxyz, frame, PoseSourceKind.GROUND_TRUTH)
 
 
-#: The noise values of :class:`ImuCalibration` (rates and extrinsics have their own defaults).
-CALIBRATION_NOISE_FIELDS = ("gyro_noise_density", "gyro_random_walk", "acc_noise_density", "acc_random_walk")
-#: What :meth:`ImuCalibration.value_sources` says of a value nobody gave.
-CALIBRATION_DEFAULT_SOURCE = "default (EuRoC ADIS16448 datasheet)"
-
-
 @dataclass(frozen=True)
-class ImuCalibration:
-    """IMU noise model and known extrinsics.
+class ImuNoiseModel:
+    """The IMU's continuous-time noise: white-noise densities and bias random walks, the four values of a
+    Kalibr ``sensor.yaml`` (``gyroscope_noise_density`` ...). The one definition of these four names: the
+    calibration (:class:`ImuCalibration`), the recovery's preintegration noise and its config overrides,
+    the noise read off a rest and the intrinsics fit carry them through this record. Defaults: the EuRoC
+    (ADIS16448) datasheet's.
 
     Attributes:
         gyro_noise_density: rad/s/sqrt(Hz) (continuous-time white noise).
         gyro_random_walk: rad/s^2/sqrt(Hz) (bias random walk).
         acc_noise_density: m/s^2/sqrt(Hz).
         acc_random_walk: m/s^3/sqrt(Hz).
+    """
+
+    gyro_noise_density: float = 1.6968e-4
+    gyro_random_walk: float = 1.9393e-5
+    acc_noise_density: float = 2.0e-3
+    acc_random_walk: float = 3.0e-3
+
+    def noise_dict(self) -> dict[str, float]:
+        """The four values by name (:data:`NOISE_FIELDS`)."""
+        return {name: float(getattr(self, name)) for name in NOISE_FIELDS}
+
+    def noise_model(self) -> "ImuNoiseModel":
+        """The four values alone (a subclass's extra fields dropped)."""
+        return ImuNoiseModel(**self.noise_dict())
+
+
+#: The names of :class:`ImuNoiseModel`'s values, and of its white-noise densities.
+NOISE_FIELDS = tuple(f.name for f in fields(ImuNoiseModel))
+NOISE_DENSITY_FIELDS = tuple(name for name in NOISE_FIELDS if name.endswith("_noise_density"))
+#: The same values, each optional (None: not given): the overrides a stage's config may carry.
+ImuNoiseOverrides = make_dataclass("ImuNoiseOverrides", [(name, "float | None", field(default=None))
+                                                        for name in NOISE_FIELDS])
+ImuNoiseOverrides.__doc__ = ("Optional overrides of :class:`ImuNoiseModel`'s values (None: not given), a base "
+                             "of a stage's config.")
+
+#: What :meth:`ImuCalibration.value_sources` says of a value nobody gave.
+CALIBRATION_DEFAULT_SOURCE = "default (EuRoC ADIS16448 datasheet)"
+
+
+@dataclass(frozen=True)
+class ImuCalibration(ImuNoiseModel):
+    """IMU noise model (:class:`ImuNoiseModel`'s values, first) and known extrinsics.
+
+    Attributes:
         rate_hz: Nominal IMU rate.
         gyro_bias_max_radps: The largest gyro bias per axis the sensor can have (its datasheet's bias
             range); a recovered bias beyond it is impossible. Default 0.35 rad/s (20 deg/s): well above
@@ -325,10 +357,6 @@ class ImuCalibration:
             (:data:`CALIBRATION_DEFAULT_SOURCE`).
     """
 
-    gyro_noise_density: float = 1.6968e-4
-    gyro_random_walk: float = 1.9393e-5
-    acc_noise_density: float = 2.0e-3
-    acc_random_walk: float = 3.0e-3
     rate_hz: float = 200.0
     gyro_bias_max_radps: float = 0.35
     acc_bias_max_mps2: float = 2.0
@@ -337,19 +365,16 @@ class ImuCalibration:
     sources: dict[str, str] = field(default_factory=dict)
 
     def value_sources(self) -> dict[str, str]:
-        """Every noise value's origin (:data:`CALIBRATION_NOISE_FIELDS` -> file, ``config`` or the default)."""
-        return {k: self.sources.get(k, CALIBRATION_DEFAULT_SOURCE) for k in CALIBRATION_NOISE_FIELDS}
+        """Every noise value's origin (:data:`NOISE_FIELDS` -> file, ``config`` or the default)."""
+        return {k: self.sources.get(k, CALIBRATION_DEFAULT_SOURCE) for k in NOISE_FIELDS}
 
     def defaulted(self) -> list[str]:
         """Noise values that are the EuRoC defaults, not read from anywhere."""
-        return [k for k in CALIBRATION_NOISE_FIELDS if k not in self.sources]
+        return [k for k in NOISE_FIELDS if k not in self.sources]
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "gyro_noise_density": float(self.gyro_noise_density),
-            "gyro_random_walk": float(self.gyro_random_walk),
-            "acc_noise_density": float(self.acc_noise_density),
-            "acc_random_walk": float(self.acc_random_walk),
+            **self.noise_dict(),
             "rate_hz": float(self.rate_hz),
             "gyro_bias_max_radps": float(self.gyro_bias_max_radps),
             "acc_bias_max_mps2": float(self.acc_bias_max_mps2),
@@ -361,10 +386,7 @@ class ImuCalibration:
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> "ImuCalibration":
         return cls(
-            gyro_noise_density=float(d["gyro_noise_density"]),
-            gyro_random_walk=float(d["gyro_random_walk"]),
-            acc_noise_density=float(d["acc_noise_density"]),
-            acc_random_walk=float(d["acc_random_walk"]),
+            **{name: float(d[name]) for name in NOISE_FIELDS},
             rate_hz=float(d["rate_hz"]),
             gyro_bias_max_radps=float(d.get("gyro_bias_max_radps", cls.gyro_bias_max_radps)),
             acc_bias_max_mps2=float(d.get("acc_bias_max_mps2", cls.acc_bias_max_mps2)),

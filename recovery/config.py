@@ -17,7 +17,7 @@ import yaml
 
 from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping
 from pipeline.errors import ConfigError
-from pipeline.types import GRAVITY_MPS2, PoseSourceKind
+from pipeline.types import GRAVITY_MPS2, NOISE_FIELDS, ImuNoiseOverrides, PoseSourceKind
 
 
 class PoseFactorMode(str, enum.Enum):
@@ -159,7 +159,7 @@ class ImuGapPolicy(str, enum.Enum):
 
 
 @dataclass
-class RecoveryConfig:
+class RecoveryConfig(ImuNoiseOverrides):
     """All knobs of :func:`recovery.recover.recover`.
 
     Attributes:
@@ -208,8 +208,9 @@ class RecoveryConfig:
             levelling a frame leaves); then the tilt is kept and reported.
         position_sigma_m: Pose position noise; ``None`` = default of the source kind.
         rotation_sigma_rad: Pose rotation noise; ``None`` = default of the source kind.
-        gyro_noise_density / acc_noise_density: Override the calibration's white noise.
-        gyro_random_walk / acc_random_walk: Override the calibration's bias random walk.
+        gyro_noise_density / gyro_random_walk / acc_noise_density / acc_random_walk: Override the
+            calibration's IMU noise (:class:`~pipeline.types.ImuNoiseModel`'s values; the fields of
+            :data:`~pipeline.types.ImuNoiseOverrides`, this config's base).
         noise_estimation: See :class:`NoiseEstimation`.
         random_walk_scales: Candidate inflation factors of the random walks (relative to
             the calibration / sensor.yaml) for EVIDENCE; their min and max bound the search.
@@ -287,10 +288,6 @@ class RecoveryConfig:
     gravity_level_tolerance_deg: float = 1.0
     position_sigma_m: float | None = None
     rotation_sigma_rad: float | None = None
-    gyro_noise_density: float | None = None
-    acc_noise_density: float | None = None
-    gyro_random_walk: float | None = None
-    acc_random_walk: float | None = None
     noise_estimation: NoiseEstimation = NoiseEstimation.EVIDENCE
     random_walk_scales: list[float] = field(default_factory=lambda: [0.1, 0.3, 1.0, 3.0, 10.0, 30.0, 100.0, 300.0])
     noise_density_scales: list[float] = field(default_factory=lambda: [0.3, 1.0, 3.0, 10.0, 30.0])
@@ -370,8 +367,8 @@ class RecoveryConfig:
         for name in positive:
             if not float(getattr(self, name)) > 0:
                 raise ConfigError(f"must be > 0, got {getattr(self, name)!r}", field=name)
-        for name in ("keyframe_rate_hz", "marginal_rate_hz", "position_sigma_m", "rotation_sigma_rad", "gyro_noise_density",
-                     "acc_noise_density", "gyro_random_walk", "acc_random_walk", "offset_refine_keyframe_rate_hz",
+        for name in ("keyframe_rate_hz", "marginal_rate_hz", "position_sigma_m", "rotation_sigma_rad", *NOISE_FIELDS,
+                     "offset_refine_keyframe_rate_hz",
                      "extrinsic_keyframe_rate_hz", "gravity_keyframe_rate_hz", "noise_keyframe_rate_hz", "segment_s",
                      "offset_refine_window_s"):
             value = getattr(self, name)

@@ -45,7 +45,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.errors import BiasgtError
-from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
+from pipeline.types import DEFAULT_GRAVITY_MPS2, NOISE_DENSITY_FIELDS, NS_PER_S, ImuNoiseModel, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.gyro_consistency import CouplingKind, rate_coupling
 from recovery.intrinsics_frame import CALIBRATION_ROTATION_SIGMA_RAD, calibration_agreement, rotation_prior
@@ -178,18 +178,8 @@ def _hold_durations(t_ns: np.ndarray, a_ns: int, b_ns: int) -> tuple[np.ndarray,
     return idx[keep], (end[keep] - start[keep]) / NS_PER_S
 
 
-@dataclass(frozen=True)
-class FitNoise:
-    """Noise of the intrinsics fit: white noise (per sqrt(Hz)) and the bias random walk of each sensor."""
-
-    gyro_noise_density: float
-    acc_noise_density: float
-    gyro_random_walk: float
-    acc_random_walk: float
-
-
 def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mps: np.ndarray,
-                   bias_at: Callable[[np.ndarray], np.ndarray], gravity_mps2: np.ndarray, noise: FitNoise, *,
+                   bias_at: Callable[[np.ndarray], np.ndarray], gravity_mps2: np.ndarray, noise: ImuNoiseModel, *,
                    g_sensitivity: bool, block_s: float = 10.0, max_sigma: float = 2e-3,
                    max_sigma_g_sensitivity: float = 5e-4, n_sigma: float = 3.0,
                    present: dict[str, np.ndarray] | None = None,
@@ -458,7 +448,7 @@ def left_out_shift(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps
     return out
 
 
-def _fit_noise(sequence: Sequence, report: dict, max_walk_scale: float = 30.0) -> FitNoise:
+def _fit_noise(sequence: Sequence, report: dict, max_walk_scale: float = 30.0) -> ImuNoiseModel:
     """White noise of the solve, and its random walks capped at ``max_walk_scale`` x the calibration's.
 
     A solve on readings with intrinsic errors inflates the random walk so that the bias follows
@@ -468,9 +458,9 @@ def _fit_noise(sequence: Sequence, report: dict, max_walk_scale: float = 30.0) -
     used = report.get("noise") or {}
     def walk(key: str, datasheet: float) -> float:
         return min(float(used.get(key, datasheet)), max_walk_scale * datasheet)
-    return FitNoise(float(used.get("gyro_noise_density", cal.gyro_noise_density)),
-                    float(used.get("acc_noise_density", cal.acc_noise_density)),
-                    walk("gyro_random_walk", cal.gyro_random_walk), walk("acc_random_walk", cal.acc_random_walk))
+    return ImuNoiseModel(**{f: float(used.get(f, getattr(cal, f))) for f in NOISE_DENSITY_FIELDS},
+                         gyro_random_walk=walk("gyro_random_walk", cal.gyro_random_walk),
+                         acc_random_walk=walk("acc_random_walk", cal.acc_random_walk))
 
 
 #: Another round (a full solve on corrected readings) while the fit still moves a term by more than this.

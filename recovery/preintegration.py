@@ -24,35 +24,22 @@ import gtsam
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from pipeline.types import NS_PER_S
+from pipeline.types import NOISE_FIELDS, NS_PER_S, ImuNoiseModel
 
 
 @dataclass(frozen=True)
-class ImuNoise:
-    """Continuous-time IMU noise model used in preintegration.
+class ImuNoise(ImuNoiseModel):
+    """Continuous-time IMU noise model used in preintegration: :class:`~pipeline.types.ImuNoiseModel`'s values
+    and GTSAM's integration noise.
 
     Attributes:
-        gyro_noise_density: rad/s/sqrt(Hz).
-        acc_noise_density: m/s^2/sqrt(Hz).
-        gyro_random_walk: rad/s^2/sqrt(Hz).
-        acc_random_walk: m/s^3/sqrt(Hz).
         integration_sigma: GTSAM integration noise (m/s/sqrt(Hz)-ish; tiny).
     """
 
-    gyro_noise_density: float
-    acc_noise_density: float
-    gyro_random_walk: float
-    acc_random_walk: float
     integration_sigma: float = 1e-4
 
     def to_dict(self) -> dict[str, float]:
-        return {
-            "gyro_noise_density": float(self.gyro_noise_density),
-            "acc_noise_density": float(self.acc_noise_density),
-            "gyro_random_walk": float(self.gyro_random_walk),
-            "acc_random_walk": float(self.acc_random_walk),
-            "integration_sigma": float(self.integration_sigma),
-        }
+        return {**self.noise_dict(), "integration_sigma": float(self.integration_sigma)}
 
 
 def make_params(noise: ImuNoise, gravity_mps2: float,
@@ -163,9 +150,6 @@ def preintegrate(
     return out
 
 
-#: The noise terms :class:`NoiseBasis` re-weights: ImuNoise fields, each a density whose square scales a part.
-NOISE_TERMS = ("gyro_noise_density", "acc_noise_density", "gyro_random_walk", "acc_random_walk")
-
 
 @dataclass(frozen=True)
 class NoiseBasis:
@@ -174,7 +158,7 @@ class NoiseBasis:
     GTSAM propagates the preintegration covariance as ``P <- F P F^T + G Q G^T`` from zero, with
     ``F`` and ``G`` independent of the noise, and maps it to the factor's residual covariance by a
     noise-free Jacobian; so the residual covariance is linear in each noise term's covariance.
-    With ``R`` that of ``noise`` and ``R_i`` the part of its term ``i`` (:data:`NOISE_TERMS`, each
+    With ``R`` that of ``noise`` and ``R_i`` the part of its term ``i`` (:data:`~pipeline.types.NOISE_FIELDS`, each
     preintegrated alone), a term scaled by ``s_i`` gives ``R + sum_i (s_i^2 - 1) R_i`` exactly. The
     evidence search over the noise (:mod:`recovery.noise`) evaluates many on one window: five
     preintegrations instead of one per candidate. The preintegrated deltas do not depend on the noise.
@@ -183,7 +167,7 @@ class NoiseBasis:
         pims: ``K - 1`` measurements preintegrated with ``noise``.
         noise: Their noise.
         cov: Their residual covariances, [K-1, 15, 15].
-        parts: Per term of :data:`NOISE_TERMS`, its part of ``cov``, [K-1, 15, 15].
+        parts: Per noise value (:data:`~pipeline.types.NOISE_FIELDS`; each a density whose square scales a part), its part of ``cov``, [K-1, 15, 15].
     """
 
     pims: list
@@ -203,10 +187,10 @@ class NoiseBasis:
             bias: Linearisation bias, as for :func:`preintegrate`.
         """
         pims = preintegrate(samples, params_for(noise), bias)
-        zero = ImuNoise(0.0, 0.0, 0.0, 0.0, integration_sigma=0.0)
+        zero = ImuNoise(**dict.fromkeys(NOISE_FIELDS, 0.0), integration_sigma=0.0)
         parts = {term: np.array([p.residualCovariance() for p in
                                  preintegrate(samples, params_for(replace(zero, **{term: getattr(noise, term)})), bias)])
-                 for term in NOISE_TERMS}
+                 for term in NOISE_FIELDS}
         return cls(pims, noise, np.array([p.residualCovariance() for p in pims]), parts)
 
     def covariances(self, noise: ImuNoise) -> np.ndarray:

@@ -41,7 +41,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.checks.run import reader_warnings
 from pipeline.errors import BiasgtError, RecoveryError
-from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
+from pipeline.types import NOISE_DENSITY_FIELDS, NOISE_FIELDS, NS_PER_S, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import (
     DEFAULT_POSE_SIGMAS,
     CalibrationSolve,
@@ -63,7 +63,7 @@ from recovery.calibration_uncertainty import CalibrationCovariance
 from recovery.graph import solve_window
 from recovery.window import SolveOptions, WindowInit, WindowSolution
 from recovery.noise import grid_edge_warnings, NoiseChoice, PoseErrorGrid, estimate_noise
-from recovery.noise_from_data import DENSITY_FIELDS, data_noise_for
+from recovery.noise_from_data import data_noise_for
 from recovery.pose_error import PoseErrorModel
 from recovery.outputs import RecoveryReport
 from recovery.preintegration import ImuNoise
@@ -203,17 +203,11 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
     default_sp, default_sr = DEFAULT_POSE_SIGMAS[kind]
     base_sp = config.position_sigma_m or default_sp
     base_sr = config.rotation_sigma_rad or default_sr
-    imu_noise = ImuNoise(
-        gyro_noise_density=config.gyro_noise_density or imu_calibration.gyro_noise_density,
-        acc_noise_density=config.acc_noise_density or imu_calibration.acc_noise_density,
-        gyro_random_walk=config.gyro_random_walk or imu_calibration.gyro_random_walk,
-        acc_random_walk=config.acc_random_walk or imu_calibration.acc_random_walk,
-        integration_sigma=config.integration_sigma,
-    )
-    data_noise = data_noise_for(sequence, {f: getattr(config, f) for f in DENSITY_FIELDS})
+    imu_noise = ImuNoise(**{f: getattr(config, f) or getattr(imu_calibration, f) for f in NOISE_FIELDS},
+                         integration_sigma=config.integration_sigma)
+    data_noise = data_noise_for(sequence, {f: getattr(config, f) for f in NOISE_DENSITY_FIELDS})
     if data_noise is not None:  # no calibration gave the densities: the recording's rest does
-        imu_noise = replace(imu_noise, gyro_noise_density=data_noise.gyro_noise_density,
-                            acc_noise_density=data_noise.acc_noise_density)
+        imu_noise = data_noise.applied_to(imu_noise)
     opts = SolveOptions(
         pose_mode=pose_mode, relative_horizon=config.relative_horizon, position_sigma_m=base_sp,
         rotation_sigma_rad=base_sr, robust_loss=config.robust_loss, robust_k=config.robust_k,

@@ -17,7 +17,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.bias_table import BiasTrack
 from pipeline.io.registry import recorded_format
-from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
+from pipeline.types import NOISE_DENSITY_FIELDS, NS_PER_S, PoseSeries, PoseSourceKind, Sequence
 from recovery.config import (
     PoseFactorMode,
     PoseSigmaMethod,
@@ -27,7 +27,7 @@ from recovery.bounds import bias_rmse_floor
 from recovery.calibration_uncertainty import OFFSET_INDEX
 from recovery.window import KeyframePoses, WindowSolution
 from recovery.noise import NoiseChoice
-from recovery.noise_from_data import DENSITY_FIELDS, DataNoise
+from recovery.noise_from_data import DataNoise
 from recovery.outputs import RecoveryOutputs, RecoveryReport
 from recovery.problem import FUSED_KEYFRAME_RATE_HZ, Problem
 from recovery.records import ClockOffset, ExtrinsicInit, FullSolve, GravityStage, Inputs, NoiseStage
@@ -121,7 +121,7 @@ def calibration_sources(sequence: Sequence, config: RecoveryConfig,
     or the EuRoC default nobody gave."""
     sources = sequence.calibration.value_sources()
     if data_noise is not None:
-        sources.update(dict.fromkeys(DENSITY_FIELDS, DATA_NOISE_SOURCE))
+        sources.update(dict.fromkeys(NOISE_DENSITY_FIELDS, DATA_NOISE_SOURCE))
     return {k: ("recovery config" if getattr(config, k) is not None else v) for k, v in sources.items()}
 
 
@@ -135,10 +135,7 @@ def build_result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, off
     bias = np.concatenate([s.bias for s in stitched])
     bias_std = np.concatenate([s.bias_std for s in stitched])
     n_kf = len(t_ns)
-    outlier_t = np.unique(np.concatenate([s.t_ns[s.outliers] for s in flat])) if flat else np.zeros(0)
-    # samples rejected while fusing (the same sample may sit in two overlapping segments)
-    rejected = np.unique(np.concatenate(full.fusion_rejected)) if full.fusion_rejected else np.zeros(0, np.int64)
-    placeholders = inputs.placeholder_t_ns + int(round(offset.offset_s * NS_PER_S))  # IMU clock
+    outlier_t, rejected, outliers = _outliers(full, inputs, offset)
     if len(outlier_t) > 0.05 * n_kf:
         warnings.append(f"{len(outlier_t)} of {n_kf} poses rejected as outliers: check the pose noise / the stream")
     weights = np.array([len(s.t_ns) for s in flat], dtype=float)
@@ -178,9 +175,7 @@ def build_result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, off
         "calibration_sources": calibration_sources(sequence, config, inputs.data_noise),
         "noise_from_data": None if inputs.data_noise is None else inputs.data_noise.to_dict(),
         "residuals": {"pose_whitened_rms": pose_rms, "imu_whitened_rms": imu_rms},
-        "outliers_rejected": int(len(outlier_t) + len(rejected) + len(placeholders)),
-        "outlier_t_ns": [int(t) for t in np.union1d(np.union1d(outlier_t, rejected), placeholders)],  # IMU clock
-        "placeholders_rejected": int(len(placeholders)),
+        **outliers,
         "pose_fusion": _fusion_report(inputs.fuse, config, full.fusion_counts, full.fusion_within, len(rejected)),
         "accuracy_floor": _accuracy_floor(choice, inputs.poses, inputs.pose_mode, inputs.has_rot),
         "imu_rate_hz": float(inputs.imu.rate_hz),
@@ -209,6 +204,20 @@ def build_result(sequence: Sequence, config: RecoveryConfig, inputs: Inputs, off
         report=RecoveryReport.from_json(report),
         residuals=_residuals_at(t_ns, flat, outlier_t),
     )
+
+
+def _outliers(full: FullSolve, inputs: Inputs, offset: ClockOffset) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """The keyframe poses the solves rejected, the samples rejected while fusing (the same sample may sit in
+    two overlapping segments; stamps, IMU clock), and ``recovery.json``'s outlier fields (the placeholder
+    frames dropped before the solve included)."""
+    flat = full.flat
+    outlier_t = np.unique(np.concatenate([s.t_ns[s.outliers] for s in flat])) if flat else np.zeros(0)
+    rejected = np.unique(np.concatenate(full.fusion_rejected)) if full.fusion_rejected else np.zeros(0, np.int64)
+    placeholders = inputs.placeholder_t_ns + int(round(offset.offset_s * NS_PER_S))
+    return outlier_t, rejected, {
+        "outliers_rejected": int(len(outlier_t) + len(rejected) + len(placeholders)),
+        "outlier_t_ns": [int(t) for t in np.union1d(np.union1d(outlier_t, rejected), placeholders)],
+        "placeholders_rejected": int(len(placeholders))}
 
 
 def solve_rate_hz(config: RecoveryConfig, problem: "Problem") -> float:

@@ -58,7 +58,8 @@ def test_bridged_states_follow_the_true_motion_across_a_pause_despite_a_wrong_gr
     p, v, R, _ = _circle(kf_t / NS_PER_S, g_true)
     samples = midpoint_samples(np.round(imu_t * NS_PER_S).astype(np.int64), imu_6, kf_t)
     tilted = Rotation.from_rotvec([np.radians(0.2), 0.0, 0.0]).apply([0.0, 0.0, -1.0])
-    params = make_params(ImuNoise(1e-4, 1e-3, 1e-5, 1e-4), 9.81, tilted)
+    params = make_params(ImuNoise(gyro_noise_density=1e-4, acc_noise_density=1e-3, gyro_random_walk=1e-5,
+                                   acc_random_walk=1e-4), 9.81, tilted)
     pims = preintegrate(samples, params, np.zeros(6))
     truth = [gtsam.Pose3(gtsam.Rot3(R[k].as_matrix()), p[k]) for k in range(len(kf_t))]
     start = [x if m else gtsam.Pose3() for x, m in zip(truth, measured)]

@@ -13,7 +13,7 @@ from pipeline.sim import SimConfig, simulate
 from pipeline.sim.config import MotionConfig, PoseStreamConfig
 from recovery.config import IntrinsicsMode, RecoveryConfig
 from pipeline.types import PoseSeries, PoseSourceKind
-from recovery.intrinsics import FitNoise, ImuIntrinsics, IntrinsicsFit, drop_insignificant, fit_intrinsics, \
+from recovery.intrinsics import ImuIntrinsics, IntrinsicsFit, drop_insignificant, fit_intrinsics, \
     intrinsics_bias_variance, raw_bias, recover_with_intrinsics
 from recovery.recover import recover
 
@@ -108,7 +108,8 @@ def test_fit_recovers_injected_intrinsics_against_the_true_trajectory(drone_120s
     k = np.arange(0, len(gt.t_ns), 20)  # 10-Hz keyframes
     bias = np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])
     cal = drone.sequence.calibration
-    noise = FitNoise(cal.gyro_noise_density, cal.acc_noise_density, 10 * cal.gyro_random_walk, 10 * cal.acc_random_walk)
+    noise = dataclasses.replace(cal.noise_model(), gyro_random_walk=10 * cal.gyro_random_walk,
+                                acc_random_walk=10 * cal.acc_random_walk)
     fit = fit_intrinsics(imu, gt.t_ns[k], gt.quat_wxyz[k], gt.v_mps[k],
                          lambda t: np.stack([np.interp(t, tr.t_ns, bias[:, c]) for c in range(6)], axis=1),
                          drone.truth.gravity_mps2, noise, g_sensitivity=True)
@@ -132,7 +133,8 @@ def test_present_terms_take_their_refinement_below_the_gate(drone_120s):
     k = np.arange(0, len(gt.t_ns), 20)
     bias = np.hstack([tr.bias_gyro_radps, tr.bias_acc_mps2])
     cal = drone.sequence.calibration
-    noise = FitNoise(cal.gyro_noise_density, cal.acc_noise_density, 10 * cal.gyro_random_walk, 10 * cal.acc_random_walk)
+    noise = dataclasses.replace(cal.noise_model(), gyro_random_walk=10 * cal.gyro_random_walk,
+                                acc_random_walk=10 * cal.acc_random_walk)
 
     def fit(present):
         return fit_intrinsics(imu, gt.t_ns[k], gt.quat_wxyz[k], gt.v_mps[k],

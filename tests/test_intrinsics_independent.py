@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 
 import independent as ind
-from pipeline.types import ImuSeries
-from recovery.intrinsics import FitNoise, fit_intrinsics
+from pipeline.types import ImuNoiseModel, ImuSeries
+from recovery.intrinsics import fit_intrinsics
 from recovery.intrinsics_frame import rotation_prior
 from recovery.intrinsics_report import intrinsics_clause
 
@@ -52,7 +52,7 @@ def test_a_calibration_rotation_pins_the_accelerometer_tilt_the_data_cannot():
     k = np.arange(0, len(s.t_ns), int(s.rate_hz / 10))  # 10-Hz keyframes
     b = np.hstack([s.bias_gyro_radps, s.bias_acc_mps2])
     r = ind.REPORTED
-    noise = FitNoise(r["gyro_noise_density"], r["acc_noise_density"], 10 * r["gyro_random_walk"], 10 * r["acc_random_walk"])
+    noise = ImuNoiseModel(r["gyro_noise_density"], 10 * r["gyro_random_walk"], r["acc_noise_density"], 10 * r["acc_random_walk"])
     # the solve's extrinsic is the identity and differs from the file's by -phi (its IMU frame: the file's turned)
     report = {"extrinsic": {"mode": "prior", "difference_from_calibration": {"rotation_vector_deg": (-np.degrees(phi)).tolist()}},
               "T_imu_pose": {"quat_wxyz": [1.0, 0.0, 0.0, 0.0]}}

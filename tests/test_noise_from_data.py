@@ -40,8 +40,8 @@ def test_a_large_turn_on_gyro_bias_does_not_hide_the_rest(generate, seed, tmp_pa
     assert find_static_segments(imu, min_duration_s=MIN_STRETCH_S) == []  # the calibrated-IMU test misses it
     noise = densities_from_rest(imu)
     assert noise is not None and 13.0 <= noise.rest_s <= 16.0  # the 15-s rest (motion starts smoothly)
-    assert noise.gyro_noise_density == pytest.approx(GYRO_DENSITY, rel=0.3)
-    assert noise.acc_noise_density == pytest.approx(ACC_DENSITY, rel=0.3)
+    assert noise.densities()["gyro_noise_density"] == pytest.approx(GYRO_DENSITY, rel=0.3)
+    assert noise.densities()["acc_noise_density"] == pytest.approx(ACC_DENSITY, rel=0.3)
 
 
 #: How far (RMS over the keyframes, in the two recoveries' combined sigma) the bias recovered with the

@@ -157,7 +157,8 @@ def test_a_walk_at_either_bound_says_what_that_bound_means():
     from recovery.recover import grid_edge_warnings
 
     cfg = RecoveryConfig(random_walk_scales=[0.3, 1.0, 300.0])
-    choice = NoiseChoice(ImuNoise(1e-4, 1e-3, 1e-5, 1e-4), 1e-3, 1e-3, gyro_rw_scale=0.3, acc_rw_scale=300.0)
+    choice = NoiseChoice(ImuNoise(gyro_noise_density=1e-4, acc_noise_density=1e-3, gyro_random_walk=1e-5,
+                                  acc_random_walk=1e-4), 1e-3, 1e-3, gyro_rw_scale=0.3, acc_rw_scale=300.0)
     gyro, acc = grid_edge_warnings(choice, PoseSourceKind.MOCAP, cfg)
     assert gyro.startswith("gyro random walk: the evidence search hit its bound (0.3x") and "steadier" in gyro
     assert acc.startswith("acc random walk: the evidence search hit its bound (300x") and "artefacts" in acc

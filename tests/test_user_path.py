@@ -232,12 +232,12 @@ def test_degenerate_wheel_odometry_hint_works(shared_data: Path, tmp_path: Path,
 def test_recovery_json_says_where_each_noise_value_came_from(wrong_datasheet) -> None:
     import json
 
-    from pipeline.types import CALIBRATION_NOISE_FIELDS
+    from pipeline.types import NOISE_FIELDS
 
     sim, rec = wrong_datasheet
     sources = json.loads((rec / "recovery.json").read_text())["calibration_sources"]
     yaml_path = str(sim / "mav0" / "imu0" / "sensor.yaml")
-    assert sources == dict.fromkeys(CALIBRATION_NOISE_FIELDS, yaml_path)
+    assert sources == dict.fromkeys(NOISE_FIELDS, yaml_path)
 
 
 def test_calibration_sources_name_the_recovery_config_when_it_overrides() -> None:

@@ -36,17 +36,15 @@ from pipeline.types import NS_PER_S, STANDARD_GRAVITY_MPS2, ImuSeries, PoseSerie
 POSITION_UNITS = {1.0: "metres", 1e-2: "centimetres", 1e-3: "millimetres"}
 
 
-def on_pose_clock(imu: ImuSeries, offset_s: float) -> ImuSeries:
-    """``imu`` with its stamps moved onto a pose clock that runs ``offset_s`` behind (``t_imu = t_pose + offset``)."""
-    return ImuSeries(imu.t_ns - int(round(offset_s * NS_PER_S)), imu.gyro_radps, imu.acc_mps2)
-
-
-def overlap_grid(imu: ImuSeries, poses: PoseSeries, dt_s: float = GRID_DT_S) -> Grid | None:
-    """The grid over the overlap of two streams on one clock; None below :data:`MIN_OVERLAP_S`."""
-    a, b = max(int(imu.t_ns[0]), int(poses.t_ns[0])), min(int(imu.t_ns[-1]), int(poses.t_ns[-1]))
+def on_pose_clock(imu: ImuSeries, poses: PoseSeries, offset_s: float, dt_s: float = GRID_DT_S
+                  ) -> tuple[ImuSeries, Grid] | None:
+    """``imu`` with its stamps moved onto the pose clock (``t_imu = t_pose + offset_s``), and the grid over the
+    two streams' overlap there; None below :data:`MIN_OVERLAP_S`."""
+    imu_p = ImuSeries(imu.t_ns - int(round(offset_s * NS_PER_S)), imu.gyro_radps, imu.acc_mps2)
+    a, b = max(int(imu_p.t_ns[0]), int(poses.t_ns[0])), min(int(imu_p.t_ns[-1]), int(poses.t_ns[-1]))
     if (b - a) / NS_PER_S < MIN_OVERLAP_S:
         return None
-    return Grid(a, 0.0, dt_s, int((b - a) / NS_PER_S / dt_s) + 1)
+    return imu_p, Grid(a, 0.0, dt_s, int((b - a) / NS_PER_S / dt_s) + 1)
 
 
 @dataclass(frozen=True)
@@ -67,10 +65,10 @@ class PositionScale:
 def position_scale(imu: ImuSeries, poses: PoseSeries, offset_s: float) -> PositionScale | None:
     """The factor that turns ``poses``' positions into metres (see the module docstring); None without a
     usable overlap."""
-    imu_p = on_pose_clock(imu, offset_s)
-    grid = overlap_grid(imu_p, poses)
-    if grid is None:
+    aligned = on_pose_clock(imu, poses, offset_s)
+    if aligned is None:
         return None
+    imu_p, grid = aligned
     a, ma = pose_acceleration(poses, grid, ACC_SMOOTH_S)
     f2, mf = specific_force_sq(imu_p, grid, ACC_SMOOTH_S)
     m = ma & mf
@@ -161,10 +159,10 @@ def frame_agreement(imu: ImuSeries, poses: PoseSeries, offset_s: float, position
     None for a position-only stream or without a usable overlap."""
     if poses.quat_wxyz is None:
         return None
-    imu_p = on_pose_clock(imu, offset_s)
-    grid = overlap_grid(imu_p, poses)
-    if grid is None:
+    aligned = on_pose_clock(imu, poses, offset_s)
+    if aligned is None:
         return None
+    imu_p, grid = aligned
     wi, mi = gyro_rate(imu_p, grid, RATE_WINDOW_S)
     wp, mp = pose_rate(poses, grid, RATE_WINDOW_S)
     a_w, ma = pose_acceleration(poses, grid, ACC_SMOOTH_S)

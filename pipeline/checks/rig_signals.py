@@ -12,7 +12,7 @@ its own clock) with a validity mask (outside a stream's span, in its gaps); a co
 * :func:`pose_acceleration` / :func:`specific_force_sq`: the poses' second derivative and the
   accelerometer's ``|f|^2``, both Gaussian-smoothed;
 * :func:`masked_lag_correlation`: the Pearson correlation over the overlap at every lag
-  (``scipy.signal.correlate``, FFT);
+  (FFT, as ``scipy.signal.correlate``);
 * :func:`masked_lag_regression`: the R^2 of a linear fit of one signal on several at every lag.
 """
 
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
-from scipy.signal import correlate, correlation_lags
+from scipy.fft import irfft, next_fast_len, rfft
 from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
@@ -167,14 +167,20 @@ def specific_force(imu: ImuSeries, grid: Grid, smooth_s: float) -> np.ndarray:
     return gaussian_filter1d(f, smooth_s / grid.dt_s, axis=0, mode="nearest")
 
 
-def _corr(y: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """``sum_n x[n] y[n + k]`` for every lag ``k`` of :func:`lags` (equal lengths)."""
-    return correlate(y, x, mode="full", method="fft")
+def full_correlation(y: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``sum_n x[n] y[n + k]`` for every lag ``k`` of :func:`lags` (equal lengths ``n``), ``[2n - 1]``: what
+    ``scipy.signal.correlate(y, x, mode="full")`` gives, by FFT (scipy.fft: scipy.signal would load
+    scipy.stats, ~0.5 s and ~25 MB, into every process that runs the checks)."""
+    n = len(x)
+    size = next_fast_len(2 * n - 1, real=True)
+    full = irfft(rfft(y, size) * np.conj(rfft(x, size)), size)
+    return np.concatenate([full[size - (n - 1):], full[:n]]) if n > 1 else full[:1]
 
 
 def lags(n: int) -> np.ndarray:
-    """The lags ``k`` (grid steps) of :func:`masked_lag_correlation` for signals of length ``n``."""
-    return correlation_lags(n, n, mode="full")
+    """The lags ``k`` (grid steps) of :func:`masked_lag_correlation` for signals of length ``n``:
+    ``-(n - 1) .. n - 1`` (``scipy.signal.correlation_lags(n, n)``)."""
+    return np.arange(-(n - 1), n)
 
 
 def masked_lag_correlation(x: np.ndarray, mx: np.ndarray, y: np.ndarray, my: np.ndarray
@@ -190,9 +196,9 @@ def masked_lag_correlation(x: np.ndarray, mx: np.ndarray, y: np.ndarray, my: np.
     """
     fx, fy = mx.astype(float), my.astype(float)
     x, y = np.where(mx, x, 0.0), np.where(my, y, 0.0)
-    count = np.rint(_corr(fy, fx))
-    sx, sy = _corr(fy, x), _corr(y, fx)
-    sxx, syy, sxy = _corr(fy, x * x), _corr(y * y, fx), _corr(y, x)
+    count = np.rint(full_correlation(fy, fx))
+    sx, sy = full_correlation(fy, x), full_correlation(y, fx)
+    sxx, syy, sxy = full_correlation(fy, x * x), full_correlation(y * y, fx), full_correlation(y, x)
     with np.errstate(invalid="ignore", divide="ignore"):
         n = np.maximum(count, 1.0)
         cov = sxy - sx * sy / n
@@ -221,13 +227,13 @@ def masked_lag_regression(features: np.ndarray, mx: np.ndarray, y: np.ndarray, m
     fy = my.astype(float)
     y = np.where(my, y, 0.0)
     p = F.shape[1]
-    count = np.rint(_corr(fy, mx.astype(float)))
+    count = np.rint(full_correlation(fy, mx.astype(float)))
     gram = np.empty((len(count), p, p))
     for i in range(p):
         for j in range(i, p):
-            gram[:, i, j] = gram[:, j, i] = _corr(fy, F[:, i] * F[:, j])
-    rhs = np.stack([_corr(y, F[:, i]) for i in range(p)], axis=1)
-    yy, ys = _corr(y * y, mx.astype(float)), _corr(y, mx.astype(float))
+            gram[:, i, j] = gram[:, j, i] = full_correlation(fy, F[:, i] * F[:, j])
+    rhs = np.stack([full_correlation(y, F[:, i]) for i in range(p)], axis=1)
+    yy, ys = full_correlation(y * y, mx.astype(float)), full_correlation(y, mx.astype(float))
     scale = np.maximum(np.trace(gram, axis1=1, axis2=2) / p, 1e-300)
     gram += ridge * scale[:, None, None] * np.eye(p)
     coef = np.linalg.solve(gram, rhs[..., None])[..., 0]

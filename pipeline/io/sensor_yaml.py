@@ -16,7 +16,7 @@ import numpy as np
 import yaml
 
 from pipeline.errors import InputFormatError
-from pipeline.types import CALIBRATION_NOISE_FIELDS, ImuCalibration
+from pipeline.types import NOISE_FIELDS, ImuCalibration
 
 #: sensor.yaml key -> ImuCalibration field.
 IMU_NOISE_KEYS = {
@@ -175,7 +175,7 @@ def read_imu_calibration(path: str | Path) -> ImuCalibration:
     if T_BS is not None:
         kwargs["T_body_imu"] = T_BS
     sources = {attr: str(path) for attr in kwargs
-               if attr in CALIBRATION_NOISE_FIELDS or attr in IMU_LIMIT_KEYS.values() or attr == "rate_hz"}
+               if attr in NOISE_FIELDS or attr in IMU_LIMIT_KEYS.values() or attr == "rate_hz"}
     return ImuCalibration(**kwargs, sources=sources)
 
 

@@ -28,7 +28,7 @@ from pipeline.sim.motion import (
     read_ground_truth_file,
 )
 from pipeline.sim.poses import PoseTruth, simulate_pose_stream
-from pipeline.types import CALIBRATION_NOISE_FIELDS, ImuCalibration, ImuSeries, PoseSeries, Sequence, StateSeries
+from pipeline.types import NOISE_FIELDS, ImuCalibration, ImuSeries, PoseSeries, Sequence, StateSeries
 
 log = logging.getLogger(__name__)
 
@@ -287,5 +287,5 @@ def _calibration(config: SimConfig, pose_truth: PoseTruth) -> ImuCalibration:
         rate_hz=imu_cfg.rate_hz,
         T_body_imu=np.eye(4),
         T_imu_frames={pose_truth.frame: pose_truth.T_imu_frame.copy()} if config.poses.extrinsic_known else {},
-        sources=dict.fromkeys(CALIBRATION_NOISE_FIELDS, "simulator config (reported datasheet values)"),
+        sources=dict.fromkeys(NOISE_FIELDS, "simulator config (reported datasheet values)"),
     )
