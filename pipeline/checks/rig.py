@@ -134,10 +134,12 @@ def _offset_finding(label: str, c: CoarseOffset) -> list[Finding]:
     if not c.trusted or abs(c.offset_s) <= FINE_SEARCH_S:
         return []
     side = "behind" if c.offset_s > 0 else "ahead of"
+    found = ("recover takes a ground truth as on the imu clock: estimate it (--estimate-time-offset)"
+             if label == GROUND_TRUTH_STREAM else "recover finds it over the whole overlap")
     return [Finding(
         "CLOCK_OFFSET", Severity.WARNING, label,
-        f"{label} stamps run {abs(c.offset_s):.3f} s {side} the imu's ({c.describe()}); recover finds it over the "
-        f"whole overlap, or fix it: --time-offset-s {c.offset_s:.3f} (or re-stamp the poses)",
+        f"{label} stamps run {abs(c.offset_s):.3f} s {side} the imu's ({c.describe()}); {found}, or fix it: "
+        f"--time-offset-s {c.offset_s:.3f} (or re-stamp the poses)",
         {"offset_s": round_or_none(c.offset_s), "peak": round_or_none(c.peak, 3),
          "runner_up": round_or_none(c.runner_up, 3), "method": c.method})]
 
