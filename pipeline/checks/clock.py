@@ -3,7 +3,7 @@
 The recovery's own offset search (:mod:`recovery.calibration_init.time_offset`) looks within
 ``max_time_offset_s`` (0.5 s) of zero; a mocap PC whose clock runs seconds off the IMU's sends it
 astray. :func:`coarse_clock_offset` searches every offset at which the streams still overlap by
-half the shorter one (and at most ``max_offset_s``), on a 20-Hz grid:
+:data:`MIN_OVERLAP_FRACTION` of the shorter one (and at most ``max_offset_s``), on a 20-Hz grid:
 
 * 6-DoF streams (``"rotation"``): the Pearson correlation of ``|omega|`` of the gyro and of the pose
   orientations (mean rates over 0.1 s; rotation invariant, so no extrinsic is needed);
