@@ -13,7 +13,6 @@ import numpy as np
 
 from pipeline.checks.options import DEG_TO_RAD, G_MPS2, CheckOptions, Repair
 from pipeline.checks.stream_checks import detect_acc_in_g, detect_gyro_degps
-from pipeline.checks.rig import fit_rig, placeholder_rows
 from pipeline.checks.stamp_unit import scaled_stamps, stamp_unit
 from pipeline.checks.streams import (
     StreamView,
@@ -200,6 +199,8 @@ def _fix_placeholders(name: str, obj: Any, allowed: set[Repair], opts: CheckOpti
     """Placeholder poses (origin, identity orientation) dropped (as allowed and not ignored)."""
     if Repair.DROP_PLACEHOLDER_POSES not in allowed or "POSE_PLACEHOLDERS" in opts.ignore:
         return obj
+    from pipeline.checks.rig import placeholder_rows  # scipy: off the CLI start-up path
+
     poses = obj.to_pose_series() if hasattr(obj, "to_pose_series") else obj
     bad = placeholder_rows(poses)
     if not bad.any():
@@ -212,6 +213,8 @@ def _fix_position_units(work: Sequence, allowed: set[Repair], opts: CheckOptions
     """Pose positions in mm or cm scaled to metres where POSITION_UNIT fires (as allowed and not ignored)."""
     if Repair.POSITIONS_TO_M not in allowed or "POSITION_UNIT" in opts.ignore:
         return work
+    from pipeline.checks.rig import fit_rig  # scipy: off the CLI start-up path
+
     poses = dict(work.poses)
     for key, p in work.poses.items():
         fit = fit_rig(work.imu, p)

@@ -28,7 +28,6 @@ from pipeline.checks.stream_checks import (
     check_saturation,
     check_stamps,
 )
-from pipeline.checks.rig import rig_findings
 from pipeline.checks.stamp_unit import check_stamp_unit
 from pipeline.checks.streams import round_or_none, StreamView, stream_views, time_stats, TimeStats, valid_rows
 from pipeline.types import NS_PER_S, Finding, PoseSeries, Sequence, Severity, StateSeries, Verdict
@@ -146,6 +145,8 @@ def run_checks(seq: Sequence, options: CheckOptions | None = None) -> list[Findi
         findings += _stream_findings(seq, s, opts, [t for name, t in t0s.items() if name != s.name], spans)
     findings += _check_overlap(seq, spans, opts)
     if not any(f.code in _NO_RIG_CHECKS or f.severity is Severity.FATAL for f in findings):
+        from pipeline.checks.rig import rig_findings  # scipy: off the CLI start-up path
+
         findings += rig_findings(seq)
     return _apply_ignore(findings, opts)
 

@@ -13,15 +13,15 @@ import math
 
 import numpy as np
 
-from pipeline.checks.options import Repair
+from pipeline.checks.options import GROUND_TRUTH_STREAM, Repair
 from pipeline.checks.streams import StreamView, TimeStats, round_or_none
 from pipeline.types import NS_PER_S, Finding, Severity
 
 #: Units stamps may be written in, by their factor to nanoseconds.
 STAMP_UNITS = {"seconds": 1_000_000_000, "milliseconds": 1_000_000, "microseconds": 1_000}
 #: Plausible rates (Hz) per stream kind; read as nanoseconds, a rate above the upper one is implausible.
-MIN_PLAUSIBLE_HZ = {"imu": 10.0, "poses": 0.5, "ground_truth": 0.5}
-MAX_PLAUSIBLE_HZ = {"imu": 20_000.0, "poses": 5_000.0, "ground_truth": 20_000.0}
+MIN_PLAUSIBLE_HZ = {"imu": 10.0, "poses": 0.5, GROUND_TRUTH_STREAM: 0.5}
+MAX_PLAUSIBLE_HZ = {"imu": 20_000.0, "poses": 5_000.0, GROUND_TRUTH_STREAM: 20_000.0}
 
 
 def stamp_unit(kind: str, ts: TimeStats, other_t0_ns: list[int]) -> tuple[str, int] | None:
