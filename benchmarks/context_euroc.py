@@ -6,7 +6,7 @@ Usage::
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/context_euroc.py RUN/results/windows/dataset \\
         --base-dir RUN [--steps N] [--seed S] [--variants NAME ...] [--grid] [--channel-oracles] [--labels dataset|state]
 
-Writes the dataset's sequence records (``context/``, :func:`training.context.write_context`) when it
+Writes the dataset's sequence records (``context/``, :func:`training.data.records.write_context`) when it
 has none, evaluates the reference rows ``train_mean``, ``start_rest``, ``sequence_mean`` (oracle) and
 ``state_bias`` (EuRoC's own bias, oracle), ``bias_filter`` with config/euroc.yaml's protocol (nominal
 gravity; ``--gravity recovered``: each sequence's recovered gravity), trains the context model
@@ -35,11 +35,11 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from training.config import EvaluationConfig  # noqa: E402
-from training.context import has_context, open_context, write_context  # noqa: E402
-from training.context_train import ContextTrainConfig, evaluate_context, train_context  # noqa: E402
-from training.dataset import read_manifest  # noqa: E402
-from training.evaluate import evaluate_reference  # noqa: E402
-from training.ref_sequence_mean import sequence_mean_bias  # noqa: E402
+from training.data.records import has_context, open_context, write_context  # noqa: E402
+from training.context.train import ContextTrainConfig, evaluate_context, train_context  # noqa: E402
+from training.data.dataset import read_manifest  # noqa: E402
+from training.evaluation.evaluate import evaluate_reference  # noqa: E402
+from training.rows.sequence_mean import sequence_mean_bias  # noqa: E402
 from training.references import ReferenceRow, register_reference  # noqa: E402
 
 REFERENCES = ("train_mean", "start_rest", "bias_filter", "sequence_mean", "state_bias")
@@ -55,7 +55,7 @@ VARIANTS = {
     "filter_history_integration": dict(model=dict(base="filter"), loss="integration"),
     "filter_history_both": dict(model=dict(base="filter"), loss="both"),
     "filter_history_label": dict(model=dict(base="filter"), loss="label"),
-    # the residual drawn by a conditional diffusion model (training/context_diffusion.py): its noise
+    # the residual drawn by a conditional diffusion model (training/context/diffusion.py): its noise
     # loss alone, or with the integration of its x0 estimate
     "filter_history_diffusion": dict(model=dict(base="filter", diffusion=True), loss="label"),
     "filter_history_diffusion_both": dict(model=dict(base="filter", diffusion=True), loss="both"),

@@ -55,11 +55,11 @@ from pipeline.io import load_sequence  # noqa: E402
 from pipeline.io.tum import read_tum_poses  # noqa: E402
 from pipeline.types import DEFAULT_GRAVITY_MPS2, PoseSourceKind  # noqa: E402
 from training.config import EvaluationConfig  # noqa: E402
-from training.context import has_context, write_context  # noqa: E402
-from training.context_model import Stats  # noqa: E402
-from training.context_train import ContextPredictor, ContextTrainConfig, train_context  # noqa: E402
-from training.dataset import read_manifest  # noqa: E402
-from training.evaluate import evaluate_predictor, evaluate_reference, load_test_windows  # noqa: E402
+from training.data.records import has_context, write_context  # noqa: E402
+from training.context.model import Stats  # noqa: E402
+from training.context.train import ContextPredictor, ContextTrainConfig, train_context  # noqa: E402
+from training.data.dataset import read_manifest  # noqa: E402
+from training.evaluation.evaluate import evaluate_predictor, evaluate_reference, load_test_windows  # noqa: E402
 from validation.attitude import reference_attitude_offset  # noqa: E402
 from validation.reference import reference_from_states  # noqa: E402
 

@@ -4,11 +4,11 @@ Usage::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/context_learning.py [--out DIR] [--steps N] [--seed S]
 
-Writes the simulated dataset of :mod:`training.sim_context` (24 train, 4 validation, 8 test
+Writes the simulated dataset of :mod:`training.data.sim_context` (24 train, 4 validation, 8 test
 sequences of 60 s at 100 Hz: a start rest showing a per-sequence turn-on bias, a temperature-driven
 bias with one unit's coefficients) to ``DIR`` (default: a temporary folder), evaluates the reference
 rows (train mean, start_rest, sequence_mean, the true bias) and trains the context model
-(:mod:`training.context_train`) in several variants, each evaluated with Table I's protocol. Prints
+(:mod:`training.context.train`) in several variants, each evaluated with Table I's protocol. Prints
 PRMSE (m) and ROE (deg) and the share of the gap from the train mean to the true bias each row
 closes (the goal: >= 80 % for the learned row), with wall and CPU time. Exit code 0 (the figures
 are the output).
@@ -30,9 +30,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import torch  # noqa: E402
 
 from training.config import EvaluationConfig  # noqa: E402
-from training.context_train import ContextTrainConfig, evaluate_context, train_context  # noqa: E402
-from training.evaluate import evaluate_reference  # noqa: E402
-from training.sim_context import RestSim, write_rest_sim_dataset  # noqa: E402
+from training.context.train import ContextTrainConfig, evaluate_context, train_context  # noqa: E402
+from training.evaluation.evaluate import evaluate_reference  # noqa: E402
+from training.data.sim_context import RestSim, write_rest_sim_dataset  # noqa: E402
 
 VARIANTS = {
     "start_rest + residual (temperature, label loss)": dict(model=dict(base="rest", use_temperature=True,

@@ -23,8 +23,8 @@ from pipeline.bias_table import BiasTrack, read_bias_csv
 from pipeline.errors import BiasgtError
 from pipeline.layout import WINDOWS_DATASET, Stage
 from recovery.outputs import BIAS_CSV, read_report
-from training.dataset import MANIFEST
-from training.table import AVERAGE, TABLE_CSV
+from training.data.dataset import MANIFEST
+from training.evaluation.table import AVERAGE, TABLE_CSV
 from validation.outputs import HELDOUT_SOURCE, ValidationSummary, read_summary
 
 log = logging.getLogger(__name__)

@@ -1,4 +1,4 @@
-"""The causal bias filter (training.bias_filter): its bias against the truth of the independent
+"""The causal bias filter (training.rows.bias_filter): its bias against the truth of the independent
 generator (tests/independent.py, written from the equations), its causality, and its reference row.
 """
 
@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from independent import REPORTED, LissajousMotion, RestThenMotion, make_sequence
-from training.bias_filter import run_bias_filter, track_of
+from training.rows.bias_filter import run_bias_filter, track_of
 from training.config import EvaluationConfig
-from training.context import SequenceContext, detect_rests, open_context
-from training.evaluate import evaluate_reference
+from training.data.records import SequenceContext, detect_rests, open_context
+from training.evaluation.evaluate import evaluate_reference
 from training.references import get_reference
-from training.sim_context import RestSim, write_rest_sim_dataset
+from training.data.sim_context import RestSim, write_rest_sim_dataset
 
 #: The prior a train split would give: zero mean, a sigma of the generator's turn-on sizes.
 PRIOR_STD = np.r_[np.full(3, 0.02), np.full(3, 0.1)]
@@ -70,7 +70,7 @@ def test_bias_filter_row_holds_the_track_at_each_window_end(tmp_path):
 
 
 def test_filter_base_and_context_block(tmp_path):
-    from training.context_model import Base, ContextModelConfig, Stats, context_features
+    from training.context.model import Base, ContextModelConfig, Stats, context_features
 
     sim = RestSim(duration_s=20.0, rate_hz=50.0)
     dataset = write_rest_sim_dataset(tmp_path / "ds", sim, train=2, val=1, test=1, seed=5)
@@ -93,9 +93,9 @@ def test_filter_base_and_context_block(tmp_path):
 def test_label_source_state_reads_the_state_bias_where_a_sequence_has_one(tmp_path):
     from pipeline.types import Split
     from training.config import EvalGravity
-    from training.context_model import ContextModelConfig, Stats
-    from training.context_train import LabelSource, load_split
-    from training.dataset import STATE_BIAS, WindowDataset
+    from training.context.model import ContextModelConfig, Stats
+    from training.context.train import LabelSource, load_split
+    from training.data.dataset import STATE_BIAS, WindowDataset
 
     sim = RestSim(duration_s=20.0, rate_hz=50.0)
     dataset = write_rest_sim_dataset(tmp_path / "ds", sim, train=2, val=1, test=1, seed=7)
@@ -130,7 +130,7 @@ def test_registered_network_with_the_filter_base_starts_at_the_filter_gyro():
 
     import torch
 
-    from training.context_model import ContextNet
+    from training.context.model import ContextNet
     from training.networks import ContextOptions
 
     options = ContextOptions(base="filter", history_s=())

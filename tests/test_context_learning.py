@@ -12,13 +12,13 @@ import torch
 
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 from training.config import EvaluationConfig
-from training.context import CONTEXT_DIR, SequenceContext, detect_rests, open_context
-from training.context_model import ContextModelConfig, Stats, context_features, integration_errors
-from training.dataset import WindowDataset
-from training.evaluate import evaluate_reference
-from training.ref_sequence_mean import sequence_mean_bias
-from training.ref_start_rest import start_rest_bias
-from training.sim_context import RestSim, simulate_rest_sequence, write_rest_sim_dataset
+from training.data.records import CONTEXT_DIR, SequenceContext, detect_rests, open_context
+from training.context.model import ContextModelConfig, Stats, context_features, integration_errors
+from training.data.dataset import WindowDataset
+from training.evaluation.evaluate import evaluate_reference
+from training.rows.sequence_mean import sequence_mean_bias
+from training.rows.start_rest import start_rest_bias
+from training.data.sim_context import RestSim, simulate_rest_sequence, write_rest_sim_dataset
 from toy_windows import one_torch_thread  # noqa: F401 (a fixture)
 
 SIM = RestSim(duration_s=20.0, rate_hz=50.0)
@@ -77,7 +77,7 @@ def test_start_rest_is_causal_and_falls_back_to_the_train_mean(sim_dataset):
 def test_write_context_from_stores_matches_the_windows(tmp_path):
     from window_data import make_window_dataset
 
-    from training.context import write_context
+    from training.data.records import write_context
 
     ds = make_window_dataset(tmp_path, splits={"train": 1, "val": 1, "test": 1}, duration_s=6.0)
     write_context(ds)
@@ -134,7 +134,7 @@ def _closure(ds, result) -> tuple[float, float]:
 
 @pytest.mark.usefixtures("one_torch_thread")
 def test_context_model_learns_the_bias_and_needs_its_input(sim_dataset):
-    from training.context_train import ContextTrainConfig, evaluate_context, train_context
+    from training.context.train import ContextTrainConfig, evaluate_context, train_context
 
     def run(**model):
         cfg = ContextTrainConfig(model=ContextModelConfig(history_s=(), **model), steps=300, lr=3e-3, val_every=50,
@@ -153,8 +153,8 @@ def test_context_model_learns_the_bias_and_needs_its_input(sim_dataset):
 def test_context_diffusion_learns_the_bias_and_needs_its_input(sim_dataset):
     """The residual drawn by DDIM: its sample mean closes the simulated gap; samples drawn without the
     input spread over the train split's residuals and close none of it."""
-    from training.context_diffusion import ContextDiffusion
-    from training.context_train import ContextTrainConfig, evaluate_context, train_context
+    from training.context.diffusion import ContextDiffusion
+    from training.context.train import ContextTrainConfig, evaluate_context, train_context
 
     sampled = EvaluationConfig(samples=8, samplers=["ddim"], gravity="recovered")
 
@@ -174,7 +174,7 @@ def test_context_diffusion_learns_the_bias_and_needs_its_input(sim_dataset):
 def test_context_diffusion_losses_follow_the_forward_process():
     """Against the closed forms: ``x0_hat`` is the target exactly when the noise estimate is exact, and
     the integration weights are ``min(alpha_bar / (1 - alpha_bar), 1)`` of the drawn steps."""
-    from training.context_diffusion import ContextDiffusion
+    from training.context.diffusion import ContextDiffusion
 
     model = ContextDiffusion(ContextModelConfig(history_s=(), diffusion=True), Stats(*(np.ones(6),) * 4))
     torch.nn.init.zeros_(model.denoiser[-1].weight)
@@ -195,7 +195,7 @@ def test_context_diffusion_losses_follow_the_forward_process():
 
 def test_context_diffusion_refuses_an_integration_loss_alone():
     from pipeline.errors import ConfigError
-    from training.context_train import ContextTrainConfig
+    from training.context.train import ContextTrainConfig
 
     with pytest.raises(ConfigError, match="noise loss"):
         ContextTrainConfig(model=ContextModelConfig(diffusion=True), loss="integration")
@@ -205,10 +205,10 @@ def test_context_diffusion_refuses_an_integration_loss_alone():
 def test_registered_context_network_trains_and_evaluates_through_the_public_functions(sim_dataset, tmp_path):
     """``biasgt train --method context_residual`` / ``biasgt evaluate``'s functions: the batches carry the
     records' context, the checkpoint alone rebuilds the model, and it closes the simulated gap."""
-    from training.checkpoint import load_run
+    from training.fit.checkpoint import load_run
     from training.config import TrainConfig
-    from training.evaluate import evaluate_run
-    from training.train import train
+    from training.evaluation.evaluate import evaluate_run
+    from training.fit.train import train
 
     config = TrainConfig(method="context_residual", preset="tiny", seed=0, max_steps=300, batch_size=64, lr=3e-3,
                          warmup_steps=10, val_every=50, checkpoint_every=300, use_temperature=True, device="cpu",

@@ -6,12 +6,12 @@ import pytest
 import torch
 
 from pipeline.errors import DataError, InputFormatError
-from training.batch import WindowBatch
+from training.data.batch import WindowBatch
 from training.networks import get_network, network_names
 from training.config import ModelConfig, Preset, Sampler, TrainConfig
-from training.models import build_model, count_parameters
+from training.models.bias_model import build_model, count_parameters
 from training.models.layers import TcnEncoder
-from training.normalizer import Normalizer
+from training.data.normalizer import Normalizer
 
 STATS = dict(imu_mean=[0.0] * 6, imu_std=[1.0] * 6, bias_mean=[0.01] * 6, bias_std=[0.02] * 6)
 

@@ -78,7 +78,7 @@ class ModelConfig:
             m/s^2) as the released code does.
         clip_x0_range: DDIM and DDPM clip each step's x0 estimate (diffusers' ``clip_sample``, per
             channel and in raw units here) to stop estimates that run away at high noise levels
-            (see :mod:`training.scheduler`). The clip applies at the last step too, so no sample
+            (see :mod:`training.models.scheduler`). The clip applies at the last step too, so no sample
             leaves it: it must hold every bias the model may need to predict. ``evidence``
             (default): the train mean +- (the largest distance of a train or validation bias
             from it + ``clip_x0_sigmas`` train sigmas); a validation sequence whose bias lies

@@ -107,12 +107,12 @@ class UnetOptions(TcnOptions):
 
 @dataclass(frozen=True)
 class ContextOptions:
-    """The context residual (:class:`training.context_model.ContextNet`): a constant base plus a
+    """The context residual (:class:`training.context.model.ContextNet`): a constant base plus a
     residual from the window and what came before it in its sequence's record.
 
     Attributes:
         base: ``mean`` (the train split's mean bias), ``rest`` (the start-rest estimate) or
-            ``filter`` (the bias filter's gyro bias, :mod:`training.bias_filter`; the train mean's
+            ``filter`` (the bias filter's gyro bias, :mod:`training.rows.bias_filter`; the train mean's
             accelerometer).
         history_s: Spans (s) of the history means before the window (plus one since the record's
             start, and the time since it); empty: the start rest only.
@@ -167,7 +167,7 @@ class Network:
         factory: ``"module:attr"`` of the network's constructor (see the module docstring), or a callable.
         presets: Preset name -> option values replacing the defaults (a preset not listed: the defaults).
         context: The network reads a context vector of each window from its sequence's record
-            (``WindowBatch.context`` [B, F]; the dataset needs ``context/``, :mod:`training.context`):
+            (``WindowBatch.context`` [B, F]; the dataset needs ``context/``, :mod:`training.data.records`):
             ``forward(condition [B, T, C_in], context [B, F])``.
     """
 
@@ -254,7 +254,7 @@ BUILTIN = (
             "training.models.rnn:GruRegressor", RNN_PRESETS),
     Network("context_residual", "context_residual", Objective.INDIRECT, "train mean + a residual from the window "
             "and the means of the IMU record before it, trained through the integrator", "#d62728", ContextOptions,
-            "training.context_model:ContextNet", context=True),
+            "training.context.model:ContextNet", context=True),
 )
 for _network in BUILTIN:
     register_network(_network)

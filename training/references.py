@@ -7,7 +7,7 @@ it by default, its implementation and the inputs that implementation needs. Tabl
 rows in registration order, after the learned methods (:mod:`training.networks`).
 
 Adding a row: a function ``bias(items, **inputs) -> [B, 1, T, 6]`` (rad/s, m/s^2) in a module
-(e.g. :mod:`training.baselines`), then one entry in :data:`BUILTIN` below. The function is named
+(e.g. :mod:`training.rows.baselines`), then one entry in :data:`BUILTIN` below. The function is named
 as ``"module:attr"`` and imported only when the row is evaluated, so that this module (read by the
 workflow at start-up) does not import torch.
 
@@ -27,8 +27,8 @@ items of one test sequence: ``imu`` [B, T, 6], ``bias`` [B, T, 6], ``dt_s`` [B, 
 ``rng``
     A ``numpy.random.Generator`` seeded from the evaluation seed and the batch.
 ``context``
-    The sequence's whole IMU record (:class:`training.context.SequenceContext`; the dataset needs
-    ``context/``, :func:`training.context.write_context`).
+    The sequence's whole IMU record (:class:`training.data.records.SequenceContext`; the dataset needs
+    ``context/``, :func:`training.data.records.write_context`).
 ``sequence_dir``
     The sequence's windows folder (``DATASET/sequences/<seq>``, a ``pathlib.Path``).
 ``info.<key>``
@@ -129,7 +129,7 @@ def get_reference(name: Any, *, field: str = "reference") -> ReferenceRow:
 
 # ----------------------------------------------------------------------------- built-in rows (Table I order)
 
-_B = "training.baselines"
+_B = "training.rows.baselines"
 BUILTIN = (
     ReferenceRow("zero", "Zero bias", "no bias correction: the raw readings integrated", f"{_B}:zero_bias"),
     ReferenceRow("train_mean", "Train-mean bias", "the train split's mean bias, held constant",
@@ -149,16 +149,16 @@ BUILTIN = (
                  note=f"{_B}:paper_walk_note"),
     ReferenceRow("start_rest", "Start-rest bias", "from the IMU alone: the gyro mean over the record's first rest, "
                  "the accelerometer's bias along gravity there (the train mean across it), held constant",
-                 "training.ref_start_rest:start_rest_row", needs=("context", "bias_mean", "gravity_mps2"),
-                 default=False, note="training.ref_start_rest:start_rest_note"),
+                 "training.rows.start_rest:start_rest_row", needs=("context", "bias_mean", "gravity_mps2"),
+                 default=False, note="training.rows.start_rest:start_rest_note"),
     ReferenceRow("sequence_mean", "Sequence-mean bias (oracle)", "each test sequence's own mean dataset bias, held "
-                 "constant: the best one constant per sequence", "training.ref_sequence_mean:sequence_mean_row",
+                 "constant: the best one constant per sequence", "training.rows.sequence_mean:sequence_mean_row",
                  oracle=True, needs=("sequence_dir",), default=False,
-                 note="training.ref_sequence_mean:sequence_mean_note"),
+                 note="training.rows.sequence_mean:sequence_mean_note"),
     ReferenceRow("bias_filter", "Bias filter", "from the IMU alone: a causal error-state Kalman filter over the "
                  "record (rests and bounded motion), its estimate at each window's end",
-                 "training.bias_filter:bias_filter_row", needs=("context", "bias_mean", "bias_std", "gravity_mps2"),
-                 default=False, note="training.bias_filter:bias_filter_note"),
+                 "training.rows.bias_filter:bias_filter_row", needs=("context", "bias_mean", "bias_std", "gravity_mps2"),
+                 default=False, note="training.rows.bias_filter:bias_filter_note"),
 )
 for _row in BUILTIN:
     register_reference(_row)

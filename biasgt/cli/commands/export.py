@@ -1,4 +1,4 @@
-"""``biasgt export``: a trained model with its sampler as TorchScript or ONNX (adapter over training.export)."""
+"""``biasgt export``: a trained model with its sampler as TorchScript or ONNX (adapter over training.deploy.export)."""
 
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.export import export_run
+    from training.deploy.export import export_run
 
     out = export_run(args.checkpoint, args.out, args.format, sampler=args.sampler, steps=args.steps)
     print(f"wrote {out}")

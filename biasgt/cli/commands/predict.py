@@ -1,4 +1,4 @@
-"""``biasgt predict``: the bias of a recording from its IMU alone, with a trained model (adapter over training.predict)."""
+"""``biasgt predict``: the bias of a recording from its IMU alone, with a trained model (adapter over training.deploy.predict)."""
 
 from __future__ import annotations
 
@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.predict import predict_file
+    from training.deploy.predict import predict_file
 
     paths = predict_file(args.checkpoint, args.input, args.out, samples=args.samples, sampler=args.sampler,
                          steps=args.steps, seed=args.seed, device=args.device,

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from training.dataset import STATE_BIAS
+from training.data.dataset import STATE_BIAS
 
 __all__ = ["sequence_mean_bias", "sequence_mean_note", "sequence_mean_row"]
 

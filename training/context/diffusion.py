@@ -1,12 +1,12 @@
 """The context residual drawn by a conditional diffusion model instead of regressed.
 
-Same inputs and base as :class:`training.context_model.ContextResidual` (the window, the causal
+Same inputs and base as :class:`training.context.model.ContextResidual` (the window, the causal
 context vector, a constant base); what is learned is the distribution of the window's residual
 ``r = (bias - base) / bias_std`` [6] (normalised bias units, one per window, held over it).
 
-Notation (:mod:`training.scheduler`): ``x_0 = r``, ``x_t`` the noised residual at step ``t``,
+Notation (:mod:`training.models.scheduler`): ``x_0 = r``, ``x_t`` the noised residual at step ``t``,
 ``alpha_bar_t`` the schedule's cumulative product, ``c`` the condition ``[code, mean(x), features]``
-(:meth:`training.context_model.WindowEncoder.summary`).
+(:meth:`training.context.model.WindowEncoder.summary`).
 
 1. Forward process (DDPM eq. 4): ``x_t = sqrt(alpha_bar_t) r + sqrt(1 - alpha_bar_t) eps``.
 2. Noise predictor: ``eps_hat = mlp(x_t, step_embedding(t), c)``.
@@ -23,9 +23,9 @@ import torch
 from torch import nn
 
 from training.config import Sampler
-from training.context_model import ContextModelConfig, NormalisedInput, Stats, WindowEncoder
+from training.context.model import ContextModelConfig, NormalisedInput, Stats, WindowEncoder
 from training.models.layers import StepEncoder
-from training.scheduler import NoiseScheduler, randn
+from training.models.scheduler import NoiseScheduler, randn
 
 __all__ = ["ContextDiffusion"]
 

@@ -50,8 +50,8 @@ from recovery.outputs import REPORT_JSON, RecoveryOutputs
 from validation.metrics import plan_windows, windows_with_any
 from validation.reference import ReferenceStates, build_reference, gap_free_mask
 from validation.sources import recovered_bias_at_imu
-from training.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
-from training.windows_config import WindowConfig
+from training.data.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
+from training.data.windows_config import WindowConfig
 from validation.config import ValidationConfig
 from validation.outputs import Verdict, read_summary
 
@@ -394,10 +394,10 @@ def _check_sources(sources: list[WindowSource]) -> None:
 
 def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
                          config: WindowConfig = WindowConfig()) -> WindowManifest:
-    """Window every source and write the dataset atomically (:func:`training.dataset.write_dataset`).
+    """Window every source and write the dataset atomically (:func:`training.data.dataset.write_dataset`).
 
     ``biasgt windows`` and the workflow's windows stage then write the sequence records
-    (``context/``, :func:`training.context.write_context`: each whole IMU record once, 56 bytes per
+    (``context/``, :func:`training.data.records.write_context`: each whole IMU record once, 56 bytes per
     IMU sample, 64 with temperature, whatever the overlap).
 
     Sequences are loaded, cut and written one at a time. The dataset rate is ``config.resample_hz``
@@ -410,7 +410,7 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
         config: Window settings.
 
     Returns:
-        The manifest (see :func:`training.dataset.write_dataset`).
+        The manifest (see :func:`training.data.dataset.write_dataset`).
 
     Raises:
         ConfigError: A sequence listed twice (in one or two splits), no train sequence.

@@ -14,12 +14,12 @@ Every sequence is one IMU unit:
 
 So the bias of every window is a fixed function of the start rest's IMU mean and temperature and
 the window's temperature: a model given those (``use_temperature`` and the start-rest context,
-:mod:`training.context_model`) can predict it; a 1-s model without context cannot know the turn-on.
+:mod:`training.context.model`) can predict it; a 1-s model without context cannot know the turn-on.
 
 The reference states come from the project's own integrator run over the whole sequence with the
 true readings, so the true bias integrates every window to its reference end up to the noise.
-Written in the real formats: the window dataset (:func:`training.dataset.write_dataset`) and its
-sequence records (``context/``, :mod:`training.context`).
+Written in the real formats: the window dataset (:func:`training.data.dataset.write_dataset`) and its
+sequence records (``context/``, :mod:`training.data.records`).
 """
 
 from __future__ import annotations
@@ -33,8 +33,8 @@ from pipeline.atomic import atomic_dir
 from pipeline.geometry.integration import integrate_numpy
 from pipeline.geometry.so3_numpy import so3_exp_np
 from pipeline.types import DEFAULT_GRAVITY_MPS2, Split
-from training.context import CONTEXT_DIR
-from training.dataset import SequenceWindows, write_dataset
+from training.data.records import CONTEXT_DIR
+from training.data.dataset import SequenceWindows, write_dataset
 
 __all__ = ["RestSim", "simulate_rest_sequence", "write_rest_sim_dataset"]
 
@@ -113,7 +113,7 @@ def _windows(seq: dict[str, np.ndarray], name: str, split: Split, sim: RestSim) 
               "start_R": seq["R"][starts], "start_v": seq["v"][starts], "start_p": seq["p"][starts],
               "end_R": seq["R"][last], "end_v": seq["v"][last], "end_p": seq["p"][last],
               "temperature_degc": seq["temperature_degc"][idx]}
-    info = {"rate_hz": sim.rate_hz, "gravity_mps2": list(DEFAULT_GRAVITY_MPS2), "simulated": "training.sim_context"}
+    info = {"rate_hz": sim.rate_hz, "gravity_mps2": list(DEFAULT_GRAVITY_MPS2), "simulated": "training.data.sim_context"}
     return SequenceWindows(name, split, arrays, info=info)
 
 
@@ -129,7 +129,7 @@ def write_rest_sim_dataset(out: str | Path, sim: RestSim = RestSim(), *, train: 
             seqs.append((f"rest_{split.value}_{i:02d}", split, simulate_rest_sequence(sim, seed * 10_007 + k)))
             k += 1
     write_dataset((_windows(s, name, split, sim) for name, split, s in seqs), out,
-                  config={"simulation": "training.sim_context", "seed": seed, "rate_hz": sim.rate_hz},
+                  config={"simulation": "training.data.sim_context", "seed": seed, "rate_hz": sim.rate_hz},
                   extra={"rate_hz": sim.rate_hz})
     with atomic_dir(out / CONTEXT_DIR) as tmp:
         for name, _, s in seqs:

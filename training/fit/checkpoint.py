@@ -32,8 +32,8 @@ import torch
 from pipeline.atomic import atomic_path
 from pipeline.errors import BiasgtError
 from training.config import ModelConfig, TrainConfig
-from training.models import BiasModel, build_model
-from training.normalizer import Normalizer
+from training.models.bias_model import BiasModel, build_model
+from training.data.normalizer import Normalizer
 
 log = logging.getLogger(__name__)
 

@@ -1,10 +1,10 @@
-"""Train and evaluate :class:`training.context_model.ContextResidual` on a window dataset with records.
+"""Train and evaluate :class:`training.context.model.ContextResidual` on a window dataset with records.
 
-The dataset needs its sequence records (``context/``, :func:`training.context.write_context`).
+The dataset needs its sequence records (``context/``, :func:`training.data.records.write_context`).
 Each split is loaded into memory once (windows, context features, base bias, gravity): the
 train split of EuRoC is about 1,300 windows, 12 MB of IMU. Training: AdamW, cosine learning
 rate, a batch order drawn from ``seed``; the validation split's loss every ``val_every`` steps
-picks the kept weights. Evaluation: :func:`training.evaluate.evaluate_predictor` on the test
+picks the kept weights. Evaluation: :func:`training.evaluation.evaluate.evaluate_predictor` on the test
 split, the protocol of every row of Table I.
 """
 
@@ -27,8 +27,8 @@ from pipeline.atomic import write_text_atomic
 from pipeline.errors import ConfigError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, Split
 from training.config import EvalGravity, EvaluationConfig, Sampler
-from training.context_diffusion import ContextDiffusion
-from training.context_model import (
+from training.context.diffusion import ContextDiffusion
+from training.context.model import (
     ContextLoss,
     ContextModelConfig,
     ContextResidual,
@@ -36,10 +36,10 @@ from training.context_model import (
     context_features,
     integration_errors,
 )
-from training.dataset import STATE_BIAS, TEMPERATURE, WindowDataset
-from training.evaluate import evaluate_predictor, load_test_windows
-from training.outputs import EvaluationResult, write_evaluation
-from training.context import open_context
+from training.data.dataset import STATE_BIAS, TEMPERATURE, WindowDataset
+from training.evaluation.evaluate import evaluate_predictor, load_test_windows
+from training.evaluation.outputs import EvaluationResult, write_evaluation
+from training.data.records import open_context
 
 log = logging.getLogger(__name__)
 
@@ -50,7 +50,7 @@ _KEYS = ("imu", "bias", "start_R", "start_v", "start_p", "end_R", "end_p")
 
 class LabelSource(str, enum.Enum):
     """What the label loss fits: the dataset's labels (the recovered bias), or the dataset's own
-    ground-truth-state bias (:data:`training.dataset.STATE_BIAS`, EuRoC's) where a sequence has one
+    ground-truth-state bias (:data:`training.data.dataset.STATE_BIAS`, EuRoC's) where a sequence has one
     and its labels elsewhere."""
 
     DATASET = "dataset"
@@ -223,7 +223,7 @@ def train_context(root: str | Path, config: ContextTrainConfig,
 
 @dataclass
 class ContextPredictor:
-    """A trained :class:`ContextResidual` or :class:`ContextDiffusion` as a :class:`training.evaluate.Predictor`."""
+    """A trained :class:`ContextResidual` or :class:`ContextDiffusion` as a :class:`training.evaluation.evaluate.Predictor`."""
 
     model: ContextResidual | ContextDiffusion
     root: Path
@@ -261,7 +261,7 @@ class ContextPredictor:
 
 def evaluate_context(model: ContextResidual | ContextDiffusion, root: str | Path, config: EvaluationConfig = EvaluationConfig(),
                      out_dir: str | Path | None = None, *, name: str = "context_residual") -> EvaluationResult:
-    """Table I's protocol on the test split (:func:`training.evaluate.evaluate_predictor`); written to
+    """Table I's protocol on the test split (:func:`training.evaluation.evaluate.evaluate_predictor`); written to
     ``out_dir`` when given."""
     windows = load_test_windows(root, config)
     stats = Stats.from_manifest(dict(windows.dataset.manifest.normalization))

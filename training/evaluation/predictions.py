@@ -1,6 +1,6 @@
 """Every evaluated window's predicted bias, kept so that Table I can be re-derived from a run's files.
 
-``predictions.parquet`` (written by :func:`training.outputs.write_evaluation` beside
+``predictions.parquet`` (written by :func:`training.evaluation.outputs.write_evaluation` beside
 ``summary.json``) holds one row per sampler, test window and time step:
 
 * ``sampler`` ("" for a deterministic predictor), ``window`` (position among the evaluation's

@@ -28,7 +28,7 @@ from pipeline.bias_table import BIAS_COLUMNS, STD_COLUMNS
 from pipeline.atomic import OutputKind, atomic_path, check_output_location
 from pipeline.errors import DataError
 from pipeline.types import NS_PER_S, Sequence
-from training.checkpoint import check_finite_output
+from training.fit.checkpoint import check_finite_output
 from training.config import Sampler
 from training.networks import get_network
 
@@ -65,7 +65,7 @@ def load_input(path: str | Path, reader_kwargs: Mapping[str, Any] | None = None,
 
 def predict_batch(imu: np.ndarray, temperature: np.ndarray | None, dtype: torch.dtype):
     """A WindowBatch of IMU windows [B, T, 6]; the reference fields, which sampling never reads, are zero."""
-    from training.batch import TEMPERATURE_KEY, WindowBatch
+    from training.data.batch import TEMPERATURE_KEY, WindowBatch
 
     B, T, _ = imu.shape
     z = lambda *shape: torch.zeros(*shape, dtype=dtype)  # noqa: E731
@@ -82,7 +82,7 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     """Per-IMU-sample predicted bias of ``sequence`` (see the module docstring).
 
     Args:
-        run: A :class:`training.checkpoint.LoadedRun`.
+        run: A :class:`training.fit.checkpoint.LoadedRun`.
         sequence: The recording (its IMU, and temperature when the model uses it).
 
     Raises:
@@ -162,7 +162,7 @@ def predict_file(checkpoint: str | Path, input_path: str | Path, out_path: str |
     Returns:
         The two files written.
     """
-    from training.checkpoint import load_run
+    from training.fit.checkpoint import load_run
 
     out = Path(out_path)
     paths = [out.with_suffix(".csv"), out.with_suffix(".parquet")]

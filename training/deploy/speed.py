@@ -10,10 +10,10 @@ import time
 import torch
 
 from pipeline.types import GRAVITY_MPS2
-from training.batch import WindowBatch
+from training.data.batch import WindowBatch
 from training.config import IMU_CHANNELS, ModelConfig, Preset, Sampler
-from training.models import BiasModel, build_model
-from training.normalizer import Normalizer
+from training.models.bias_model import BiasModel, build_model
+from training.data.normalizer import Normalizer
 
 __all__ = ["synthetic_batch", "probe_model", "training_throughput", "sampling_latency"]
 

@@ -1,8 +1,8 @@
 """The ``start_rest`` reference row: each sequence's bias read from the IMU at rest, held constant.
 
-From the sequence's own IMU record (:mod:`training.context`), no pose and no label:
+From the sequence's own IMU record (:mod:`training.data.records`), no pose and no label:
 
-* **gyro**: the mean gyro over the first rest of the record (:func:`training.context.detect_rests`);
+* **gyro**: the mean gyro over the first rest of the record (:func:`training.data.records.detect_rests`);
   the Earth's rotation (7.3e-5 rad/s) is left in it.
 * **accelerometer**: at rest the accelerometer reads ``f + b_a`` with ``|f| = g``. With the gravity
   magnitude known, only the bias component along gravity is observable from one static attitude:
@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from training.context import SequenceContext
+from training.data.records import SequenceContext
 
 __all__ = ["start_rest_bias", "start_rest_note", "start_rest_row"]
 

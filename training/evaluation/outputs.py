@@ -6,12 +6,12 @@ Files (names defined here only), all written by :func:`write_evaluation` through
 * ``summary.json``: :class:`EvaluationSummary` (``schema_version`` :data:`SCHEMA_VERSION`),
   read back by :func:`read_summary`; its rows are :class:`RowResult` (a sampler and an
   :class:`Aggregation`, with :class:`Metrics` per sequence and on average), its calibration
-  :class:`Calibration`, its clip use :class:`training.clip.ClipUse`.
+  :class:`Calibration`, its clip use :class:`training.models.clip.ClipUse`.
 * ``windows.parquet``: one row per window, sampler, aggregation and sample.
-* ``predictions.parquet``: per time step and channel (:mod:`training.predictions`).
+* ``predictions.parquet``: per time step and channel (:mod:`training.evaluation.predictions`).
 * ``examples.parquet``: a few test windows, the same for every method, for the report's figure.
 
-The records are computed by :mod:`training.evaluate`; Table I (:mod:`training.table`), the
+The records are computed by :mod:`training.evaluation.evaluate`; Table I (:mod:`training.evaluation.table`), the
 training report and the benchmarks read them through here.
 """
 
@@ -30,9 +30,9 @@ import pandas as pd
 from pipeline.atomic import atomic_dir
 from pipeline.errors import InputFormatError
 from pipeline.jsonio import to_plain
-from training.clip import ClipUse
+from training.models.clip import ClipUse
 from training.config import Sampler
-from training.predictions import PREDICTIONS_PARQUET
+from training.evaluation.predictions import PREDICTIONS_PARQUET
 
 __all__ = [
     "Aggregation",
@@ -52,7 +52,7 @@ EXAMPLES_PARQUET = "examples.parquet"
 
 
 class Aggregation(str, enum.Enum):
-    """How the K samples of a window become figures (see :mod:`training.evaluate`)."""
+    """How the K samples of a window become figures (see :mod:`training.evaluation.evaluate`)."""
 
     SAMPLES = "samples"  # metrics per sample, averaged over the K samples (the paper)
     MEAN = "mean"  # the per-time-step mean of the K samples as the prediction

@@ -1,7 +1,7 @@
 """A causal bias filter over a sequence's IMU record: the gyro and accelerometer bias from the IMU
 alone, for a platform that stays near where it started (a room-scale MAV, a hand-held rig).
 
-An error-state Kalman filter (ESKF) runs once over the record (:mod:`training.context`) and keeps
+An error-state Kalman filter (ESKF) runs once over the record (:mod:`training.data.records`) and keeps
 its bias estimate and sigma at every sample: a recurrent state carried across consecutive windows,
 with hand-written dynamics. Its value at a window's last sample reads no later sample (causal).
 
@@ -20,7 +20,7 @@ Per sample ``k``:
 
 Every ``update_s`` seconds, one Kalman update (Joseph form):
 
-5. in a rest (:func:`training.context.detect_rests`): ``v = 0`` (``zupt_mps``) and the mean gyro over
+5. in a rest (:func:`training.data.records.detect_rests`): ``v = 0`` (``zupt_mps``) and the mean gyro over
    the last update interval ``= b_g`` (``zaru_radps``: the rest shows the gyro bias, up to what the
    platform's own vibration adds);
 6. elsewhere, bounded motion: ``v = 0`` (``motion_speed_mps``) and ``p = 0`` (``motion_range_m``).
@@ -40,7 +40,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.geometry.so3_numpy import hat_np, so3_exp_np
-from training.context import SequenceContext
+from training.data.records import SequenceContext
 
 __all__ = ["BiasTrack", "FilterConfig", "bias_filter_row", "bias_filter_note", "run_bias_filter", "track_of"]
 

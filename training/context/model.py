@@ -1,11 +1,11 @@
 """A bias model that sees what came before its window: a learned residual on a constant baseline.
 
-Input of one window (causal: nothing after the window's last sample, :mod:`training.context`):
+Input of one window (causal: nothing after the window's last sample, :mod:`training.data.records`):
 
 * the window itself, ``imu`` [T, 6] (and the temperature [T] with ``use_temperature``), normalised
   with the train split's statistics;
 * a context vector [F] (:func:`context_features`): the start-rest bias estimate
-  (:mod:`training.ref_start_rest`, normalised) and whether a rest was seen, the rest's temperature,
+  (:mod:`training.rows.start_rest`, normalised) and whether a rest was seen, the rest's temperature,
   the mean IMU over the ``history_s`` seconds before the window and since the record's start
   (with the fraction of each span that exists), and the time since the record's start.
 
@@ -19,7 +19,7 @@ scale small corrections). Losses (:class:`ContextLoss`): the label MSE in normal
 1-s integrated rotation and position error from the reference start state through the project's
 torch integrator (:func:`integration_errors`, no label read), or their sum.
 
-Two ways to train it: :mod:`training.context_train` (the benchmarks' trainer, three losses), or as
+Two ways to train it: :mod:`training.context.train` (the benchmarks' trainer, three losses), or as
 the registered network :class:`ContextNet` (``biasgt train``; integration loss), whose batches
 carry the context vectors from :class:`ContextFeeder`.
 """
@@ -40,9 +40,9 @@ from torch import nn
 from pipeline.geometry.integration import integrate
 from pipeline.geometry.so3_torch import so3_log
 from pipeline.types import DEFAULT_GRAVITY_MPS2
-from training.bias_filter import track_of
-from training.context import SequenceContext, open_context
-from training.ref_start_rest import start_rest_bias
+from training.rows.bias_filter import track_of
+from training.data.records import SequenceContext, open_context
+from training.rows.start_rest import start_rest_bias
 
 __all__ = ["Base", "ContextFeeder", "ContextLoss", "ContextModelConfig", "ContextNet", "ContextResidual",
            "NormalisedInput", "WindowEncoder", "context_features", "integration_errors"]
@@ -53,8 +53,8 @@ class Base(str, enum.Enum):
 
     NONE = "none"  # no base: the residual is the whole bias (the benchmarks' trainer only)
     MEAN = "mean"  # the train split's mean bias (the train_mean row)
-    REST = "rest"  # the start-rest estimate (the start_rest row, training/ref_start_rest.py)
-    FILTER = "filter"  # the bias filter's gyro bias (training/bias_filter.py), the train mean's accelerometer
+    REST = "rest"  # the start-rest estimate (the start_rest row, training/rows/start_rest.py)
+    FILTER = "filter"  # the bias filter's gyro bias (training/rows/bias_filter.py), the train mean's accelerometer
 
 
 class ContextLoss(str, enum.Enum):
@@ -75,13 +75,13 @@ class ContextModelConfig:
             record's start); empty: no history features (the start rest only).
         since_start: A history mean since the record's start too; None: with ``history_s`` only.
         filter: The bias filter's estimate and sigma at the window's end in the context
-            (:mod:`training.bias_filter`; on with ``base`` ``filter``).
+            (:mod:`training.rows.bias_filter`; on with ``base`` ``filter``).
         use_temperature: The window's temperature as a 7th channel and the rest's in the context.
         use_context: Give the context vector (False: zeros, the 1-s model's information).
         channels: Encoder channels.
         hidden: Head width.
         diffusion: Draw the residual from a conditional diffusion model
-            (:class:`training.context_diffusion.ContextDiffusion`) instead of regressing it.
+            (:class:`training.context.diffusion.ContextDiffusion`) instead of regressing it.
     """
 
     base: Base = Base.REST
@@ -327,7 +327,7 @@ class ContextFeeder:
     @classmethod
     def for_model(cls, root: str | Path, config: ContextModelConfig, normalizer: Any) -> ContextFeeder:
         """The feeder of a model of ``config`` (:func:`model_config_of`) on the dataset ``root``, with
-        the statistics of its :class:`training.normalizer.Normalizer` (the train split's, as the
+        the statistics of its :class:`training.data.normalizer.Normalizer` (the train split's, as the
         checkpoint holds them)."""
         n = {k: getattr(normalizer, k).double().numpy() for k in ("imu_mean", "imu_std", "bias_mean", "bias_std")}
         stats = Stats(**n, temperature_mean=float(normalizer.temperature_mean),

@@ -90,7 +90,7 @@ class ClipUse:
 
 def clip_use(model: Any, sampler: Sampler, count: Any) -> ClipUse:
     """The :class:`ClipUse` of ``sampler`` from a model (:class:`training.models.BiasModel`) and the
-    :class:`training.scheduler.ClipCount` of its sampling runs (NaN bounds: no clipping)."""
+    :class:`training.models.scheduler.ClipCount` of its sampling runs (NaN bounds: no clipping)."""
     bounds = model.released_clip() if sampler is Sampler.RELEASED else model.x0_clip()
     nz = model.normalizer
     if bounds is None:

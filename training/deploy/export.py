@@ -121,7 +121,7 @@ def export_run(checkpoint: str | Path, out_path: str | Path, fmt: ExportFormat |
         ConfigError: DDPM sampler.
         ExportError: The exporter fails (e.g. onnx is not installed).
     """
-    from training.checkpoint import load_run
+    from training.fit.checkpoint import load_run
 
     fmt = ExportFormat(fmt)
     run = load_run(checkpoint, device="cpu")

@@ -1,6 +1,6 @@
 """Each sequence's whole IMU record beside a window dataset, for models that look before their window.
 
-The window dataset (:mod:`training.dataset`) holds 1-s windows only. A model or reference row that
+The window dataset (:mod:`training.data.dataset`) holds 1-s windows only. A model or reference row that
 may see what came *before* its window (a rest at the start, a long history) reads the sequence's
 record from ``DATASET/context/`` instead, stored once per sequence::
 
@@ -39,8 +39,8 @@ from pipeline.atomic import atomic_dir
 from pipeline.errors import DataError, InputFormatError
 from pipeline.ingest import load
 from pipeline.store import is_store, read_store
-from training.dataset import read_manifest
-from training.windows import resample_imu
+from training.data.dataset import read_manifest
+from training.data.windows import resample_imu
 
 log = logging.getLogger(__name__)
 
@@ -112,7 +112,7 @@ class SequenceContext:
     rests: list[tuple[int, int]] = dataclasses.field(default_factory=list)
     _cum: np.ndarray | None = None
     _tcum: np.ndarray | None = None
-    #: Arrays derived from the record once per process (e.g. :func:`training.bias_filter.track_of`), by key.
+    #: Arrays derived from the record once per process (e.g. :func:`training.rows.bias_filter.track_of`), by key.
     derived: dict = dataclasses.field(default_factory=dict, repr=False, compare=False)
 
     @classmethod
@@ -125,7 +125,7 @@ class SequenceContext:
         folder = Path(dataset_dir) / CONTEXT_DIR / name
         if not (folder / "imu.npy").is_file():
             raise InputFormatError(f"the window dataset has no sequence record of '{name}'", path=folder,
-                                   hint="write it with training.context.write_context(DATASET) "
+                                   hint="write it with training.data.records.write_context(DATASET) "
                                         "(benchmarks/context_euroc.py does)")
         imu = np.load(folder / "imu.npy", mmap_mode="r")
         t_ns = np.load(folder / "t_ns.npy")
@@ -144,7 +144,7 @@ class SequenceContext:
         bad = (i >= len(self.t_ns)) | (self.t_ns[np.minimum(i, len(self.t_ns) - 1)] != t0)
         if bad.any():
             raise DataError(f"window stamp {int(t0[bad][0])} is not a sample of the record of '{self.name}'",
-                            hint="re-write the dataset's context with training.context.write_context")
+                            hint="re-write the dataset's context with training.data.records.write_context")
         return i
 
     def _prefix(self) -> np.ndarray:

@@ -1,10 +1,10 @@
 """The evaluation's test windows: the test split made non-overlapping, with the protocol's choices.
 
-See :mod:`training.evaluate` for the protocol. :func:`load_test_windows` applies the evaluation's
+See :mod:`training.evaluation.evaluate` for the protocol. :func:`load_test_windows` applies the evaluation's
 stated choices (:class:`training.config.EvaluationConfig`): the gravity of the integration
 (:class:`training.config.EvalGravity`) and the oracle's random walks
 (:class:`training.config.OracleWalk`), and carries optional per-window dataset arrays (the
-ground-truth-state bias :data:`training.dataset.STATE_BIAS`, and those a reference row needs; NaN
+ground-truth-state bias :data:`training.data.dataset.STATE_BIAS`, and those a reference row needs; NaN
 where a sequence has none) into the items.
 """
 
@@ -20,7 +20,7 @@ from torch.utils.data import default_collate
 
 from pipeline.errors import DataError
 from training.config import EvalGravity, EvaluationConfig, OracleWalk
-from training.dataset import STATE_BIAS, Split, WindowDataset
+from training.data.dataset import STATE_BIAS, Split, WindowDataset
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 
 __all__ = ["TestWindows", "load_test_windows", "non_overlapping"]

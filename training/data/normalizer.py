@@ -2,7 +2,7 @@
 
 The statistics are the window dataset's train-split statistics (``manifest.json``
 ``normalization``: ``imu_mean``, ``imu_std``, ``bias_mean``, ``bias_std``, 6 floats each, see
-:func:`training.dataset.normalization_stats`). As in diffusion_policy's ``LinearNormalizer`` they
+:func:`training.data.dataset.normalization_stats`). As in diffusion_policy's ``LinearNormalizer`` they
 are registered buffers of a submodule, so a checkpoint rebuilds the model with its normaliser and
 never needs the dataset again.
 """

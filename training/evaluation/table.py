@@ -4,7 +4,7 @@ In ``table.csv`` rows are the test sequences and ``Average`` (the mean over sequ
 paper) and columns the evaluated methods and references; ``table.md`` (and the training report)
 shows it transposed, one row per method and variant, grouped by method, and one column per
 sequence, so that twenty rows still fit a page. A diffusion model gives one column per
-sampler and aggregation (:class:`training.outputs.Aggregation`): ``<method>`` is the
+sampler and aggregation (:class:`training.evaluation.outputs.Aggregation`): ``<method>`` is the
 paper's figure (correct DDIM, metrics averaged over the K samples), ``<method> mean`` /
 ``median`` use the mean / median of the samples as the prediction, ``<method> released``
 uses the released code's sampler. Columns follow the registries' order: the learned methods
@@ -20,11 +20,11 @@ Files: ``table.csv`` (one row per sequence, two numeric columns per method: ``<c
 PRMSE_m``, ``<column> ROE_deg``, plus ``<column> seeds``) and ``table.md`` (the marked table
 and a legend).
 
-When test sequences are the paper's EuRoC test sequences (:func:`training.paper.paper_sequence`),
+When test sequences are the paper's EuRoC test sequences (:func:`training.evaluation.paper.paper_sequence`),
 ``table.md`` also holds Table I **in the paper's shape** (:func:`format_paper_markdown`): methods
 as rows; the paper's test sequences as columns (MH_02's cells "no IMU available") and their
 Average over the sequences evaluated; below, the paper's published rows
-(:mod:`training.paper`) averaged over the same sequences; and a footnote stating the protocol
+(:mod:`training.evaluation.paper`) averaged over the same sequences; and a footnote stating the protocol
 (gravity, the oracle's random walks, the evaluation reference, the sequences whose labels came
 from ground-truth poses), read from the evaluation summaries.
 """
@@ -44,11 +44,11 @@ from pipeline.atomic import write_text_atomic
 from pipeline.errors import DataError
 from training.networks import network_names
 from training.references import get_reference, reference_names
-from training.paper import COMMON_SEQUENCES, MISSING_SEQUENCES, PAPER_ROWS, PAPER_SEQUENCES, SOURCE, TABLE_I, \
+from training.evaluation.paper import COMMON_SEQUENCES, MISSING_SEQUENCES, PAPER_ROWS, PAPER_SEQUENCES, SOURCE, TABLE_I, \
     paper_average, paper_sequence
 
 if TYPE_CHECKING:  # the evaluation (and torch) is imported when a table is written, not with the paths
-    from training.outputs import EvaluationSummary
+    from training.evaluation.outputs import EvaluationSummary
 
 log = logging.getLogger(__name__)
 
@@ -269,7 +269,7 @@ def write_table(summary_paths: Iterable[str | Path], out_dir: str | Path) -> pd.
     Returns:
         The numeric table (see :func:`build_table`).
     """
-    from training.outputs import read_summary
+    from training.evaluation.outputs import read_summary
 
     summaries = [read_summary(p) for p in summary_paths]
     columns = table_columns(summaries)

@@ -51,7 +51,7 @@ class WindowBatch:
 
     @classmethod
     def from_items(cls, items: Mapping[str, Any]) -> WindowBatch:
-        """From a :class:`training.dataset.WindowDataset` ``DataLoader`` batch (a dict of stacked
+        """From a :class:`training.data.dataset.WindowDataset` ``DataLoader`` batch (a dict of stacked
         tensors; ``t0_ns`` and ``sequence`` are ignored).
 
         Raises:
@@ -60,7 +60,7 @@ class WindowBatch:
         names = [f.name for f in fields(cls) if f.name not in (TEMPERATURE_KEY, "gravity_mps2", "context")]
         missing = [n for n in names if n not in items]
         if missing:
-            raise DataError(f"window batch lacks {missing}", hint="load windows with training.dataset.WindowDataset")
+            raise DataError(f"window batch lacks {missing}", hint="load windows with training.data.dataset.WindowDataset")
         return cls(**{n: items[n] for n in names}, temperature_degc=items.get(TEMPERATURE_KEY),
                    gravity_mps2=items.get("gravity_mps2"), context=items.get("context"))
 

@@ -4,7 +4,7 @@
 test split), builds the model with the manifest's normaliser statistics, and runs AdamW with a
 linear warm-up + cosine learning-rate schedule, gradient-norm clipping and, for diffusion models,
 an EMA of the weights (validation and evaluation use the EMA weights). Run layout and checkpoint
-contents: :mod:`training.checkpoint`.
+contents: :mod:`training.fit.checkpoint`.
 
 Determinism: weights are initialised from ``seed``; the batch order is a pure function of
 ``(seed, step)`` (:class:`BatchOrder`: one permutation per epoch, drawn from a generator seeded
@@ -41,14 +41,14 @@ from torch.utils.data import DataLoader, default_collate
 
 from pipeline.atomic import write_text_atomic
 from pipeline.errors import BiasgtError, DataError
-from training.batch import TEMPERATURE_KEY, WindowBatch
-from training.clip import clip_bounds
-from training.checkpoint import BEST, CHECKPOINT_FORMAT, LAST, METRICS, RUN_JSON, load_checkpoint, save_checkpoint
+from training.data.batch import TEMPERATURE_KEY, WindowBatch
+from training.models.clip import clip_bounds
+from training.fit.checkpoint import BEST, CHECKPOINT_FORMAT, LAST, METRICS, RUN_JSON, load_checkpoint, save_checkpoint
 from training.config import ModelConfig, TrainConfig
-from training.dataset import MANIFEST, Split, WindowDataset
-from training.ema import EMA
-from training.models import BiasModel, build_model, count_parameters
-from training.normalizer import Normalizer
+from training.data.dataset import MANIFEST, Split, WindowDataset
+from training.fit.ema import EMA
+from training.models.bias_model import BiasModel, build_model, count_parameters
+from training.data.normalizer import Normalizer
 
 log = logging.getLogger(__name__)
 
@@ -111,14 +111,14 @@ class _Data:
     info: dict[str, Any]
     normalizer: Normalizer
     gravity: dict[str, list[float]] = field(default_factory=dict)
-    context: Any = None  # a context network's training.context_model.ContextFeeder, else None
+    context: Any = None  # a context network's training.context.model.ContextFeeder, else None
 
     def collate(self, items: list[dict[str, Any]]) -> WindowBatch:
         out = default_collate(items)
         if self.context is not None:
             out["context"] = self.context(out["sequence"], out["t0_ns"], out["imu"].shape[1]).to(out["imu"].dtype)
         if self.gravity:
-            from training.models import DEFAULT_GRAVITY_MPS2
+            from training.models.bias_model import DEFAULT_GRAVITY_MPS2
 
             out["gravity_mps2"] = torch.tensor([self.gravity.get(n, DEFAULT_GRAVITY_MPS2) for n in out["sequence"]],
                                                dtype=out["imu"].dtype)
@@ -173,19 +173,19 @@ def _context_feeder(config: TrainConfig, dataset_dir: Path, normalizer: Normaliz
     mc = config.model_config()
     if not mc.spec.context:
         return None
-    from training.context import has_context
-    from training.context_model import ContextFeeder, model_config_of
+    from training.data.records import has_context
+    from training.context.model import ContextFeeder, model_config_of
 
     if not has_context(dataset_dir):
         raise DataError(f"{config.method} reads the sequence records and the dataset has none", path=dataset_dir,
                         hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them with "
-                             "training.context.write_context")
+                             "training.data.records.write_context")
     return ContextFeeder.for_model(dataset_dir, model_config_of(mc), normalizer)
 
 
 def _model_config(config: TrainConfig, data: _Data) -> ModelConfig:
     """The model's config with a diffusion model's x0 clip resolved from the train and validation
-    splits (:func:`training.clip.clip_bounds`)."""
+    splits (:func:`training.models.clip.clip_bounds`)."""
     mc = config.model_config()
     if not mc.spec.is_diffusion or mc.clip_x0_bounds is not None:
         return mc

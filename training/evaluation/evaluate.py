@@ -11,20 +11,20 @@ to the ground-truth state of every segment):
   summary's ``gravity_source`` names it per sequence).
 * Per sequence: ``PRMSE = sqrt(mean_w |p_end - p_gt|^2)`` (m) and ``ROE = mean_w |Log(R_gt^T
   R_end)|`` (deg); the **Average** row is the mean over test sequences, as in Table I.
-* A diffusion model draws ``K`` samples per window. Rows (:class:`~training.outputs.Aggregation`): ``samples``
+* A diffusion model draws ``K`` samples per window. Rows (:class:`~training.evaluation.outputs.Aggregation`): ``samples``
   (each metric per sample, averaged: the paper's figure), ``mean`` and ``median`` (the
   per-time-step mean / median of the K samples as one prediction). Deterministic predictors
   have one ``samples`` row.
 * **Calibration** of a diffusion model's spread, per channel: the fraction of ground-truth bias
   values inside the central interval of the K samples, for :data:`CALIBRATION_LEVELS`.
-* **Clip use** per sampler and channel (:class:`training.clip.ClipUse`).
+* **Clip use** per sampler and channel (:class:`training.models.clip.ClipUse`).
 
 Outputs (``OUT/``, written atomically): ``summary.json``,
 ``windows.parquet`` (one row per window, sampler, aggregation and sample), ``predictions.parquet``
 (per time step and channel: the samples' mean and, for K > 1, std, median and quantiles) and
 ``examples.parquet`` (a few test windows, the same for every method, for the report's figure).
-The records (:class:`~training.outputs.EvaluationSummary`, :class:`~training.outputs.EvaluationResult`
-and their parts), their writer and their reader live in :mod:`training.outputs`.
+The records (:class:`~training.evaluation.outputs.EvaluationSummary`, :class:`~training.evaluation.outputs.EvaluationResult`
+and their parts), their writer and their reader live in :mod:`training.evaluation.outputs`.
 """
 
 from __future__ import annotations
@@ -42,13 +42,13 @@ import pandas as pd
 import torch
 
 from pipeline.errors import ConfigError, DataError, InputFormatError
-from training.checkpoint import CheckpointError, check_finite_output
-from training.clip import ClipUse, clip_use
+from training.fit.checkpoint import CheckpointError, check_finite_output
+from training.models.clip import ClipUse, clip_use
 from training.config import EvaluationConfig, Sampler
-from training.dataset import FORMAT_VERSION, STATE_BIAS
-from training.eval_windows import TestWindows, load_test_windows
+from training.data.dataset import FORMAT_VERSION, STATE_BIAS
+from training.evaluation.windows import TestWindows, load_test_windows
 from training.networks import Network, get_network
-from training.outputs import (
+from training.evaluation.outputs import (
     Aggregation,
     Calibration,
     EvaluationResult,
@@ -57,7 +57,7 @@ from training.outputs import (
     RowResult,
     write_evaluation,
 )
-from training.predictions import CHANNELS, prediction_frame
+from training.evaluation.predictions import CHANNELS, prediction_frame
 from training.references import ReferenceRow, get_reference
 from validation.metrics import prmse_m, roe_deg, window_end_errors
 
@@ -128,7 +128,7 @@ class ReferencePredictor:
         if need == "rng":
             return np.random.default_rng([seed, int(items["t0_ns"][0]) % (2**62)])
         if need == "context":
-            from training.context import open_context
+            from training.data.records import open_context
 
             return open_context(w.root, sequence)
         if need == "sequence_dir":
@@ -146,12 +146,12 @@ class ReferencePredictor:
 
 @dataclass
 class ModelPredictor:
-    """A trained model (:func:`training.checkpoint.load_run`) as a predictor."""
+    """A trained model (:func:`training.fit.checkpoint.load_run`) as a predictor."""
 
-    run: Any  # training.checkpoint.LoadedRun
+    run: Any  # training.fit.checkpoint.LoadedRun
     steps: int = 25
-    clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.scheduler.ClipCount
-    context: Any = None  # a context network's training.context_model.ContextFeeder (evaluate_run sets it)
+    clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.models.scheduler.ClipCount
+    context: Any = None  # a context network's training.context.model.ContextFeeder (evaluate_run sets it)
 
     @property
     def method(self) -> Network:
@@ -171,7 +171,7 @@ class ModelPredictor:
 
     def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
                 seed: int) -> np.ndarray:
-        from training.batch import WindowBatch
+        from training.data.batch import WindowBatch
 
         model = self.run.model
         device = next(model.parameters()).device
@@ -183,7 +183,7 @@ class ModelPredictor:
         gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + int(items["t0_ns"][0]) % 1_000_003)
         kwargs = {}
         if self.stochastic:
-            from training.scheduler import ClipCount
+            from training.models.scheduler import ClipCount
 
             kwargs = {"sampler": sampler, "steps": self.steps,
                       "clip_count": self.clip_counts.setdefault(Sampler(sampler), ClipCount())}
@@ -454,7 +454,7 @@ def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method
 
 
 def _run_provenance(run: Any, checkpoint: Path) -> dict[str, Any]:
-    from training.models import count_parameters
+    from training.models.bias_model import count_parameters
 
     info = {"path": str(checkpoint), "method": str(run.config.method),
             "preset": getattr(run.config.preset, "value", run.config.preset), "seed": run.config.seed,
@@ -477,20 +477,20 @@ def _context_feeder(run: Any, root: Path) -> Any:
     """A context network's feeder on the dataset ``root`` (checkpoint's normaliser), else None."""
     if not get_network(run.config.method).context:
         return None
-    from training.context import has_context
-    from training.context_model import ContextFeeder
+    from training.data.records import has_context
+    from training.context.model import ContextFeeder
 
     if not has_context(root):
         raise DataError(f"{run.config.method} reads the sequence records and the dataset has none", path=root,
                         hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them with "
-                             "training.context.write_context")
+                             "training.data.records.write_context")
     return ContextFeeder.for_model(root, run.model.net.context_config, run.model.normalizer)
 
 
 def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str | Path | None = None,
                  config: EvaluationConfig = EvaluationConfig(), *, method: str | None = None,
                  device: str = "cpu") -> EvaluationResult:
-    """Evaluate a trained run, rebuilt from its checkpoint alone (:func:`training.checkpoint.load_run`).
+    """Evaluate a trained run, rebuilt from its checkpoint alone (:func:`training.fit.checkpoint.load_run`).
 
     Args:
         checkpoint: A run folder (its ``best.pt``) or a ``.pt`` file.
@@ -503,7 +503,7 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
     Raises:
         CheckpointError / ConfigError / InputFormatError / DataError: see :func:`check_compatible`.
     """
-    from training.checkpoint import load_run
+    from training.fit.checkpoint import load_run
 
     checkpoint = Path(checkpoint)
     windows = load_test_windows(dataset_dir, config)
