@@ -40,7 +40,8 @@ from training.context.train import ContextTrainConfig, evaluate_context, train_c
 from training.data.dataset import read_manifest  # noqa: E402
 from training.evaluation.evaluate import evaluate_reference  # noqa: E402
 from training.rows.sequence_mean import sequence_mean_bias  # noqa: E402
-from training.references import ReferenceRow, register_reference  # noqa: E402
+from training import references  # noqa: E402
+from training.references import ReferenceRow  # noqa: E402
 
 REFERENCES = ("train_mean", "start_rest", "bias_filter", "sequence_mean", "state_bias")
 VARIANTS = {
@@ -97,7 +98,7 @@ def _channel_rows() -> list[str]:
     names = []
     for part in ("gyro", "acc", "acc_along", "acc_across"):
         name = f"sequence_mean_{part}"
-        register_reference(ReferenceRow(name, f"Sequence mean on {part} (oracle)", "", functools.partial(
+        references.register(ReferenceRow(name, f"Sequence mean on {part} (oracle)", "", functools.partial(
             _channel_oracle, part=part), oracle=True, needs=("sequence_dir", "bias_mean", "context"), default=False))
         names.append(name)
     return names

@@ -21,9 +21,9 @@ from pipeline.errors import ConfigError
 from training.fit.checkpoint import load_checkpoint, load_run, save_checkpoint
 from training.config import EvaluationConfig, ModelConfig, TrainConfig, TrainingPlan
 from training.evaluation.evaluate import evaluate_reference, evaluate_run
-from training.networks import Network, Objective, get_network, network_names, register_network, unregister_network
-from training.references import (ReferenceRow, get_reference, reference_names, register_reference,
-                                 unregister_reference)
+from training import networks, references
+from training.networks import Network, Objective, get_network, network_names
+from training.references import ReferenceRow, get_reference, reference_names
 from training.evaluation.table import TABLE_CSV, TABLE_MD, write_table
 from training.fit.train import train
 from window_data import make_window_dataset, train_tiny
@@ -60,15 +60,15 @@ def half_truth(items: dict, *, bias_mean: np.ndarray, extra_scale: np.ndarray | 
 @pytest.fixture()
 def dummies():
     """A dummy network and a dummy row, registered through the public API and removed afterwards."""
-    register_network(Network(DUMMY_NET, "Dummy linear", Objective.REGRESSION, "a linear test network", "#000000",
+    networks.register(Network(DUMMY_NET, "Dummy linear", Objective.REGRESSION, "a linear test network", "#000000",
                              DummyOptions, DummyNet, {"tiny": {"width": 4}}))
-    register_reference(ReferenceRow(DUMMY_ROW, "Half the GT bias", "half the recovered bias (test)", half_truth,
+    references.register(ReferenceRow(DUMMY_ROW, "Half the GT bias", "half the recovered bias (test)", half_truth,
                                     oracle=False, needs=("bias_mean", "info.extra_scale"), default=False))
     try:
         yield
     finally:
-        unregister_network(DUMMY_NET)
-        unregister_reference(DUMMY_ROW)
+        networks.unregister(DUMMY_NET)
+        references.unregister(DUMMY_ROW)
     assert DUMMY_NET not in network_names() and DUMMY_ROW not in reference_names()
 
 

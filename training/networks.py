@@ -6,10 +6,12 @@ place (registration order) in Table I and the reports, its options dataclass (th
 sizes, with values per size preset) and its factory. The CLI choices, the workflow's start-up
 checks, Table I's order and the report colours read the registry; nothing else names a method.
 
-Adding a network: a module holding its ``nn.Module`` (and, if it needs sizes other than an
-existing options class, a frozen dataclass of them), then one :func:`register_network` line in
-:data:`BUILTIN` below. The factory is given as ``"module:attr"`` and imported only when a model is
-built, so that this module (read by the workflow at start-up) does not import torch.
+The registry's form is :mod:`pipeline.registry`'s: the :data:`BUILTIN` tuple, :func:`register` and
+:func:`unregister`, plugins found through the ``biasgt.networks`` entry points. Adding a network: a
+module holding its ``nn.Module`` and, if it needs sizes other than an existing options class, a frozen
+dataclass of them; then one :class:`Network` line in :data:`BUILTIN` below. The factory and the options
+are given as ``"module:attr"`` and imported only when a plan names the method, so that this module
+(read by ``--help`` and the workflow at start-up) imports no torch.
 
 Factory contract: ``factory(config)`` with ``config`` a :class:`training.config.ModelConfig`
 (shared fields plus this network's options, readable as ``config.network.<field>`` or
@@ -32,8 +34,8 @@ from typing import Any
 from pipeline.registry import Registry, resolve
 from pipeline.errors import ConfigError
 
-__all__ = ["ContextOptions", "Network", "Objective", "RnnOptions", "UnetOptions", "get_network", "network_names", "register_network",
-           "unregister_network"]
+__all__ = ["BUILTIN", "NETWORKS", "ContextOptions", "Network", "Objective", "RnnOptions", "UnetOptions", "get_network",
+           "network_names", "register", "unregister"]
 
 
 class Objective(str, enum.Enum):
@@ -180,6 +182,7 @@ class Network:
     factory: str | Callable[[Any], Any]
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     context: bool = False
+    default: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objective", Objective(self.objective))
@@ -208,36 +211,6 @@ class Network:
         return factory(config)
 
 
-_NETWORKS: Registry[Network] = Registry("network")
-
-
-def register_network(network: Network) -> Network:
-    """Add ``network`` (after the registered ones: its place in Table I). Refuses a name in use."""
-    return _NETWORKS.add(network.name, network)
-
-
-def unregister_network(name: str) -> None:
-    """Remove a registered network (tests)."""
-    _NETWORKS.remove(name)
-
-
-def network_names() -> tuple[str, ...]:
-    """Registered method names in registration (Table I) order."""
-    return tuple(_NETWORKS)
-
-
-def get_network(name: Any, *, field: str = "method") -> Network:
-    """The registered network ``name``.
-
-    Raises:
-        ConfigError: No network of that name (the hint lists the registered ones).
-    """
-    key = str(getattr(name, "value", name))
-    if key not in _NETWORKS:
-        raise ConfigError(f"unknown method '{key}'", field=field, hint=f"choose one of {', '.join(_NETWORKS)}")
-    return _NETWORKS[key]
-
-
 # ----------------------------------------------------------------------------- built-in networks (Table I order)
 
 BUILTIN = (
@@ -256,5 +229,36 @@ BUILTIN = (
             "and the means of the IMU record before it, trained through the integrator", "#d62728", ContextOptions,
             "training.context.model:ContextNet", context=True),
 )
-for _network in BUILTIN:
-    register_network(_network)
+
+
+#: The registered networks by name, in registration (Table I) order.
+NETWORKS: Registry[Network] = Registry("network", BUILTIN, entry_type=Network, noun="method")
+
+
+def register(network: Network, *, before: str | None = None) -> Network:
+    """Add ``network`` (at the end, or just before ``before``: its place in Table I).
+
+    Raises:
+        RegistryError: Its name is taken, or ``before`` is not registered.
+    """
+    return NETWORKS.register(network, before=before)
+
+
+def unregister(name: str) -> None:
+    """Remove a registered network (nothing when it is not registered)."""
+    NETWORKS.unregister(name)
+
+
+def network_names(*, default_only: bool = False) -> tuple[str, ...]:
+    """Registered method names in registration (Table I) order (``default_only``: those a workflow trains
+    when its ``training.methods`` is not given)."""
+    return tuple(n for n, net in NETWORKS.items() if net.default or not default_only)
+
+
+def get_network(name: Any, *, field: str = "method") -> Network:
+    """The registered network ``name``.
+
+    Raises:
+        RegistryError: No network of that name (the hint lists the registered ones).
+    """
+    return NETWORKS.lookup(name, field=field)

@@ -22,7 +22,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from training.config import Sampler
+from training.config import STEPS, Sampler
 from training.context.model import ContextModelConfig, NormalisedInput, Stats, WindowEncoder
 from training.models.layers import StepEncoder
 from training.models.scheduler import NoiseScheduler, randn
@@ -83,7 +83,7 @@ class ContextDiffusion(NormalisedInput):
     @torch.no_grad()
     def sample(self, imu: torch.Tensor, features: torch.Tensor, base: torch.Tensor, num_samples: int,
                temperature_degc: torch.Tensor | None = None, generator: torch.Generator | None = None,
-               steps: int = 25) -> torch.Tensor:
+               steps: int = STEPS) -> torch.Tensor:
         """Step 4: ``num_samples`` biases [B, K, 6] (raw units) per window."""
         cond = self.condition(imu, features, temperature_degc).repeat_interleave(num_samples, dim=0)
         z = self.scheduler.sample(lambda x, t: self.eps(x, t, cond), (len(cond), 6), sampler=Sampler.DDIM,

@@ -422,9 +422,9 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
         if not src.split.windowed:
             log.info("%s: split %s, not windowed", src.name, src.split.value)
     sources = [s for s in sources if s.split.windowed]
-    excluded = {src.name: reason for src in sources if (reason := verdict_exclusion(src, config)) is not None}
-    for name, reason in excluded.items():
-        log.warning("sequence '%s' left out of the window dataset: %s", name, reason)
+    excluded = {src.name: left for src in sources if (left := verdict_exclusion(src, config)) is not None}
+    for name, left in excluded.items():
+        log.warning("sequence '%s' left out of the window dataset: %s", name, left.text)
     usable = [s for s in sources if s.name not in excluded]
     if not any(s.split is Split.TRAIN for s in usable):
         raise unusable_error(sources, excluded)
@@ -444,33 +444,47 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
             yield sw
 
     return write_dataset(windows(), out_dir, config=config.to_dict(),
-                         extra={"excluded": excluded, "not_validated": not_validated})
+                         extra={"excluded": {n: left.text for n, left in excluded.items()},
+                                "not_validated": not_validated})
 
 
 #: Sequences whose reasons the "none is usable" error lists (the worst first); the rest are counted.
 _REASONS_SHOWN = 3
 
 
-def unusable_error(sources: list[WindowSource], excluded: Mapping[str, str]) -> ConfigError:
+@dataclasses.dataclass(frozen=True)
+class Exclusion:
+    """Why a sequence stays out of the dataset: its validation ``verdict`` and the leading reason."""
+
+    verdict: Verdict
+    reason: str
+
+    @property
+    def text(self) -> str:
+        """``"validation <VERDICT>: <reason>"`` (the manifest's ``excluded`` entry)."""
+        return f"validation {self.verdict.value}: {self.reason}"
+
+
+def unusable_error(sources: list[WindowSource], excluded: Mapping[str, Exclusion]) -> ConfigError:
     """One line for a dataset left without a train sequence by the verdicts: how many sequences are usable,
     the worst reasons (FAIL before WARN, each cut to its first clause) and where the reports are."""
     everyone = len(excluded) == len(sources)
     train = [s.name for s in sources if s.split is Split.TRAIN]
     head = (f"none of the {len(sources)} sequences is usable" if everyone
             else f"none of the {len(train)} train sequence(s) is usable")
-    order = sorted((n for n in excluded if everyone or n in train), key=lambda n: "FAIL" not in excluded[n])
-    shown = [f"{n}: {excluded[n].split(';')[0][:100]}" for n in order[:_REASONS_SHOWN]]
+    order = sorted((n for n in excluded if everyone or n in train), key=lambda n: excluded[n].verdict is not Verdict.FAIL)
+    shown = [f"{n}: {excluded[n].text.split(';')[0][:100]}" for n in order[:_REASONS_SHOWN]]
     more = f"; {len(order) - _REASONS_SHOWN} more" if len(order) > _REASONS_SHOWN else ""
     folders = [s.validation_dir for s in sources if s.name in excluded and s.validation_dir is not None]
     where = folders[0] if len(folders) == 1 else Path(os.path.commonpath([str(f) for f in folders]))
-    warn = any(excluded[n].startswith("validation WARN") for n in order)
+    warn = any(excluded[n].verdict is Verdict.WARN for n in order)
     return ConfigError(f"{head} (left out by their validation verdict): {'; '.join(shown)}{more}",
                        path=where, hint=("the reports (validation.json, and report.html per sequence) say why; "
                                          "fix those recordings" + (", or set windows.accept_warn (--accept-warn) "
                                                                    "to take WARN sequences" if warn else "")))
 
 
-def verdict_exclusion(source: WindowSource, config: WindowConfig) -> str | None:
+def verdict_exclusion(source: WindowSource, config: WindowConfig) -> Exclusion | None:
     """Why ``source`` stays out of the dataset (its validation verdict), or None to take it.
 
     Raises:
@@ -481,8 +495,7 @@ def verdict_exclusion(source: WindowSource, config: WindowConfig) -> str | None:
     summary = read_summary(source.validation_dir)
     if summary.verdict is Verdict.PASS or (summary.verdict is Verdict.WARN and config.accept_warn):
         return None
-    first = summary.reasons[0] if summary.reasons else "no reason given"
-    return f"validation {summary.verdict.value}: {first}"
+    return Exclusion(summary.verdict, summary.reasons[0] if summary.reasons else "no reason given")
 
 
 # ----------------------------------------------------------------------------- splits and results layout

@@ -25,7 +25,7 @@ from torch import nn
 
 from pipeline.atomic import atomic_path
 from pipeline.errors import BiasgtError, ConfigError
-from training.config import IMU_CHANNELS, ExportFormat, Sampler
+from training.config import IMU_CHANNELS, STEPS, ExportFormat, Sampler
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ class ExportedSampler(nn.Module):
         steps: Sampling steps.
     """
 
-    def __init__(self, model: nn.Module, sampler: Sampler = Sampler.DDIM, steps: int = 25) -> None:
+    def __init__(self, model: nn.Module, sampler: Sampler = Sampler.DDIM, steps: int = STEPS) -> None:
         super().__init__()
         self.model = model
         self.sampler = Sampler(sampler)
@@ -113,7 +113,7 @@ def write_export(module: ExportedSampler, example: tuple[torch.Tensor, ...], pat
 
 
 def export_run(checkpoint: str | Path, out_path: str | Path, fmt: ExportFormat | str, *,
-               sampler: Sampler | str = Sampler.DDIM, steps: int = 25) -> Path:
+               sampler: Sampler | str = Sampler.DDIM, steps: int = STEPS) -> Path:
     """Export a trained run (rebuilt from its checkpoint) with its sampler; written atomically.
 
     Raises:

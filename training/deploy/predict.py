@@ -29,7 +29,7 @@ from pipeline.atomic import OutputKind, atomic_path, check_output_location
 from pipeline.errors import DataError
 from pipeline.types import NS_PER_S, Sequence
 from training.fit.checkpoint import check_finite_output
-from training.config import Sampler
+from training.config import SAMPLES, STEPS, Sampler
 from training.networks import get_network
 
 log = logging.getLogger(__name__)
@@ -77,8 +77,8 @@ def predict_batch(imu: np.ndarray, temperature: np.ndarray | None, dtype: torch.
     return WindowBatch.from_items(items)
 
 
-def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sampler = Sampler.DDIM,
-                     steps: int = 25, seed: int = 0, batch_windows: int = 32) -> pd.DataFrame:
+def predict_sequence(run, sequence: Sequence, *, samples: int = SAMPLES, sampler: Sampler = Sampler.DDIM,
+                     steps: int = STEPS, seed: int = 0, batch_windows: int = 32) -> pd.DataFrame:
     """Per-IMU-sample predicted bias of ``sequence`` (see the module docstring).
 
     Args:
@@ -147,8 +147,8 @@ def predict_sequence(run, sequence: Sequence, *, samples: int = 50, sampler: Sam
     return frame
 
 
-def predict_file(checkpoint: str | Path, input_path: str | Path, out_path: str | Path, *, samples: int = 50,
-                 sampler: Sampler = Sampler.DDIM, steps: int = 25, seed: int = 0, device: str = "cpu",
+def predict_file(checkpoint: str | Path, input_path: str | Path, out_path: str | Path, *, samples: int = SAMPLES,
+                 sampler: Sampler = Sampler.DDIM, steps: int = STEPS, seed: int = 0, device: str = "cpu",
                  reader_kwargs: Mapping[str, Any] | None = None, repairs: Iterable[Any] = (),
                  check_options: Any = None, resample_hz: float | None = None) -> list[Path]:
     """Predict the bias of a recording and write ``OUT.csv`` and ``OUT.parquet`` (atomically each).

@@ -11,7 +11,7 @@ import torch
 
 from pipeline.types import GRAVITY_MPS2
 from training.data.batch import WindowBatch
-from training.config import IMU_CHANNELS, ModelConfig, Preset, Sampler
+from training.config import IMU_CHANNELS, STEPS, ModelConfig, Preset, Sampler
 from training.models.bias_model import BiasModel, build_model
 from training.data.normalizer import Normalizer
 
@@ -64,7 +64,7 @@ def training_throughput(method: str, preset: Preset = Preset.SMALL, *, window_sa
 
 
 def sampling_latency(method: str, preset: Preset = Preset.PAPER, *, num_samples: int = 1,
-                     window_samples: int = 200, sampler: Sampler = Sampler.DDIM, steps: int = 25, repeats: int = 5,
+                     window_samples: int = 200, sampler: Sampler = Sampler.DDIM, steps: int = STEPS, repeats: int = 5,
                      device: str = "cpu") -> float:
     """Median seconds to draw ``num_samples`` samples for one window (one batched call)."""
     model = probe_model(method, preset).to(device).eval()

@@ -44,7 +44,7 @@ import torch
 from pipeline.errors import ConfigError, DataError, InputFormatError
 from training.fit.checkpoint import CheckpointError, check_finite_output
 from training.models.clip import ClipUse, clip_use
-from training.config import EvaluationConfig, Sampler
+from training.config import STEPS, EvaluationConfig, Sampler
 from training.data.dataset import FORMAT_VERSION, STATE_BIAS
 from training.evaluation.windows import TestWindows, load_test_windows
 from training.networks import Network, get_network
@@ -149,7 +149,7 @@ class ModelPredictor:
     """A trained model (:func:`training.fit.checkpoint.load_run`) as a predictor."""
 
     run: Any  # training.fit.checkpoint.LoadedRun
-    steps: int = 25
+    steps: int = STEPS
     clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.models.scheduler.ClipCount
     context: Any = None  # a context network's training.context.model.ContextFeeder (evaluate_run sets it)
 

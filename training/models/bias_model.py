@@ -26,7 +26,7 @@ from pipeline.errors import DataError
 from pipeline.geometry.integration import integrate
 from pipeline.geometry.so3_torch import so3_log
 from training.data.batch import WindowBatch
-from training.config import IMU_CHANNELS, ModelConfig, Sampler
+from training.config import IMU_CHANNELS, STEPS, ModelConfig, Sampler
 from training.data.normalizer import Normalizer
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 from training.models.scheduler import ClipCount, NoiseScheduler, randn
@@ -155,7 +155,7 @@ class BiasModel(nn.Module):
 
     @torch.no_grad()
     def sample(self, batch: WindowBatch, num_samples: int = 1, *, sampler: Sampler = Sampler.DDIM,
-               steps: int = 25, generator: torch.Generator | None = None, eta: float = 0.0,
+               steps: int = STEPS, generator: torch.Generator | None = None, eta: float = 0.0,
                clip_count: ClipCount | None = None) -> torch.Tensor:
         """Predicted bias [B, K, T, 6] in raw units (rad/s, m/s^2).
 

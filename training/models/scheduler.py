@@ -33,7 +33,7 @@ from dataclasses import dataclass
 
 import torch
 
-from training.config import Sampler
+from training.config import STEPS, Sampler
 
 __all__ = ["ClipCount", "NoiseScheduler", "randn"]
 
@@ -179,7 +179,7 @@ class NoiseScheduler:
         shape: tuple[int, ...],
         *,
         sampler: Sampler = Sampler.DDIM,
-        steps: int = 25,
+        steps: int = STEPS,
         eta: float = 0.0,
         generator: torch.Generator | None = None,
         device: torch.device | str = "cpu",
