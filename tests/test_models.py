@@ -55,7 +55,7 @@ def test_every_method_samples_raw_units_and_rebuilds_from_state_dict(method):
     model = build_model(ModelConfig.for_preset(method, Preset.TINY), Normalizer(STATS)).eval()
     batch = _batch(T=21)  # an odd length: the U-Net pads and crops
     if get_network(method).context:  # the window's context vector from its sequence's record
-        batch.context = torch.randn(len(batch), model.net.features, generator=torch.Generator().manual_seed(2))
+        batch.context = torch.randn(len(batch), model.net.context_size, generator=torch.Generator().manual_seed(2))
     loss = model.loss(batch, torch.Generator().manual_seed(0))
     assert loss.dim() == 0 and torch.isfinite(loss)
     s = model.sample(batch, 4, steps=5, generator=torch.Generator().manual_seed(1))

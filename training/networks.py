@@ -34,7 +34,7 @@ from typing import Any
 from pipeline.registry import Registry, resolve
 from pipeline.errors import ConfigError
 
-__all__ = ["BUILTIN", "NETWORKS", "ContextOptions", "Network", "Objective", "RnnOptions", "UnetOptions", "get_network",
+__all__ = ["BUILTIN", "NETWORKS", "Base", "ContextDiffusionOptions", "ContextLoss", "ContextOptions", "Network", "Objective", "RnnOptions", "UnetOptions", "get_network",
            "network_names", "register", "unregister"]
 
 
@@ -107,39 +107,87 @@ class UnetOptions(TcnOptions):
                               field="unet_dims", hint="choose dims divisible by the GroupNorm groups")
 
 
+class Base(str, enum.Enum):
+    """The constant a context network's residual is added to (the one list of bases)."""
+
+    NONE = "none"  # no base: the residual is the whole bias
+    MEAN = "mean"  # the train split's mean bias (the train_mean row)
+    REST = "rest"  # the start-rest estimate (the start_rest row, training/rows/start_rest.py)
+    FILTER = "filter"  # the bias filter's gyro bias (training/rows/bias_filter.py), the train mean's accelerometer
+
+
+class ContextLoss(str, enum.Enum):
+    """What a context network is trained on."""
+
+    LABEL = "label"  # the labels: MSE of the normalised bias (a diffusion network: its noise loss)
+    INTEGRATION = "integration"  # the 1-s integration error, no label read
+    BOTH = "both"  # their sum (label_weight times the label term)
+
+
 @dataclass(frozen=True)
 class ContextOptions:
-    """The context residual (:class:`training.context.model.ContextNet`): a constant base plus a
-    residual from the window and what came before it in its sequence's record.
+    """The context networks (:mod:`training.context`): a constant base plus a residual from the window
+    and what came before it in its sequence's record.
 
     Attributes:
-        base: ``mean`` (the train split's mean bias), ``rest`` (the start-rest estimate) or
-            ``filter`` (the bias filter's gyro bias, :mod:`training.rows.bias_filter`; the train mean's
-            accelerometer).
+        base: The constant the residual is added to (:class:`Base`).
         history_s: Spans (s) of the history means before the window (plus one since the record's
             start, and the time since it); empty: the start rest only.
+        since_start: A history mean since the record's start too; None: with ``history_s`` only.
         filter: The bias filter's estimate and sigma in the context (always with base ``filter``).
+        use_context: Give the context vector (False: zeros, the 1-s window's information alone).
         channels: Window encoder channels.
         hidden: Head width.
+        loss: The training loss (:class:`ContextLoss`).
+        label_weight: Weight of the label term (with ``both``).
         rot_scale_deg / pos_scale_m: The integration loss is ``mean(rot^2) / rot_scale^2 +
             mean(pos^2) / pos_scale^2`` (end errors of the windows; no velocity term). It replaces
             the training's ``indirect_weights``.
     """
 
-    base: str = "mean"
+    base: Base = Base.MEAN
     history_s: tuple[float, ...] = (5.0, 30.0)
+    since_start: bool | None = None
     filter: bool = False
+    use_context: bool = True
     channels: int = 32
     hidden: int = 64
+    loss: ContextLoss = ContextLoss.INTEGRATION
+    label_weight: float = 1.0
     rot_scale_deg: float = 0.1
     pos_scale_m: float = 0.05
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "history_s", tuple(float(s) for s in self.history_s))
-        if self.base not in ("mean", "rest", "filter"):
-            raise ConfigError(f"context base '{self.base}'", field="base", hint="use mean, rest or filter")
+        for name, kind in (("base", Base), ("loss", ContextLoss)):
+            try:
+                object.__setattr__(self, name, kind(getattr(self, name)))
+            except ValueError:
+                raise ConfigError(f"context {name} '{getattr(self, name)}'", field=name,
+                                  hint=f"use one of {', '.join(k.value for k in kind)}") from None
         if not (self.rot_scale_deg > 0 and self.pos_scale_m > 0):
             raise ConfigError("rot_scale_deg and pos_scale_m must be positive", field="rot_scale_deg")
+
+
+@dataclass(frozen=True)
+class ContextDiffusionOptions(ContextOptions):
+    """The context residual drawn by a diffusion model (:mod:`training.context.diffusion`): the options of
+    :class:`ContextOptions`, trained on its noise loss (``label``) or with the integration of its x0
+    estimate too (``both``).
+
+    Attributes:
+        step_dim: Size of the diffusion step's embedding.
+    """
+
+    loss: ContextLoss = ContextLoss.LABEL
+    step_dim: int = 32
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.loss is ContextLoss.INTEGRATION:
+            raise ConfigError("a diffusion residual needs its noise loss: loss 'integration' alone trains no "
+                              "diffusion model", field="loss",
+                              hint="use 'label' (the noise loss) or 'both' (plus the integration of x0_hat)")
 
 
 #: Preset values of the TCN encoder (``paper`` = the dataclass defaults).
@@ -228,6 +276,9 @@ BUILTIN = (
     Network("context_residual", "context_residual", Objective.INDIRECT, "train mean + a residual from the window "
             "and the means of the IMU record before it, trained through the integrator", "#d62728", ContextOptions,
             "training.context.model:ContextNet", context=True),
+    Network("context_diffusion", "context_diffusion", Objective.DIFFUSION, "the context residual drawn by a "
+            "conditional diffusion model (one residual per window) instead of regressed", "#e377c2",
+            ContextDiffusionOptions, "training.context.diffusion:ContextDiffusionNet", context=True, default=False),
 )
 
 

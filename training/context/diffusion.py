@@ -1,8 +1,10 @@
 """The context residual drawn by a conditional diffusion model instead of regressed.
 
-Same inputs and base as :class:`training.context.model.ContextResidual` (the window, the causal
-context vector, a constant base); what is learned is the distribution of the window's residual
-``r = (bias - base) / bias_std`` [6] (normalised bias units, one per window, held over it).
+Same inputs and base as :class:`training.context.model.ContextNet` (the window, the causal context
+vector, a constant base); what is learned is the distribution of the window's residual
+``r = bias_n - base_n`` [6] (normalised bias units, one per window, held over it). The model
+(:class:`training.models.bias_model.BiasModel`) diffuses, trains and samples it as every diffusion
+network, with one state [6] per window (``per_window``) and the base this network gives (``base``).
 
 Notation (:mod:`training.models.scheduler`): ``x_0 = r``, ``x_t`` the noised residual at step ``t``,
 ``alpha_bar_t`` the schedule's cumulative product, ``c`` the condition ``[code, mean(x), features]``
@@ -10,82 +12,66 @@ Notation (:mod:`training.models.scheduler`): ``x_0 = r``, ``x_t`` the noised res
 
 1. Forward process (DDPM eq. 4): ``x_t = sqrt(alpha_bar_t) r + sqrt(1 - alpha_bar_t) eps``.
 2. Noise predictor: ``eps_hat = mlp(x_t, step_embedding(t), c)``.
-3. Loss (DDPM eq. 14): ``|eps - eps_hat|^2``; with ``both`` also the 1-s integration error of the
-   bias from ``x0_hat`` (DDIM eq. 9), weighted per window by ``min(SNR_t, 1)``, ``SNR_t = alpha_bar_t
-   / (1 - alpha_bar_t)`` (min-SNR weighting, Hang et al. 2023): ``x0_hat``'s error is ``eps``'s
-   divided by ``sqrt(SNR_t)``, so a noisy step weighs as its noise error.
-4. Sampling: DDIM (eta 0) from ``x_T ~ N(0, I)``; ``bias = base + bias_std * x_0`` [B, K, 6].
+3. Loss (DDPM eq. 14): ``|eps - eps_hat|^2``; with loss ``both`` also the 1-s integration error of
+   the bias from ``x0_hat`` (DDIM eq. 9), weighted per window by ``min(SNR_t, 1)``, ``SNR_t =
+   alpha_bar_t / (1 - alpha_bar_t)`` (min-SNR weighting, Hang et al. 2023): ``x0_hat``'s error is
+   ``eps``'s divided by ``sqrt(SNR_t)``, so a noisy step weighs as its noise error.
+4. Sampling: the model's sampler from ``x_T ~ N(0, I)``; ``bias_n = base_n + x_0``.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torch import nn
 
-from training.config import STEPS, Sampler
-from training.context.model import ContextModelConfig, NormalisedInput, Stats, WindowEncoder
+from training.context.model import WindowEncoder, loss_weights, model_config_of
 from training.models.layers import StepEncoder
-from training.models.scheduler import NoiseScheduler, randn
 
-__all__ = ["ContextDiffusion"]
-
-#: Size of the diffusion step's embedding.
-STEP_DIM = 32
+__all__ = ["ContextDiffusionNet"]
 
 
-class ContextDiffusion(NormalisedInput):
-    """``bias = base + bias_std * r``, ``r ~ p(r | window, context)`` by DDIM (module docstring).
+class ContextDiffusionNet(nn.Module):
+    """The noise predictor of the window's residual (module docstring).
 
     Args:
-        config: Sizes and inputs (``config.diffusion`` is True).
-        stats: Train-split statistics (stored as buffers).
+        config: A :class:`training.config.ModelConfig` whose options are
+            :class:`training.networks.ContextDiffusionOptions`.
     """
 
-    stochastic = True
+    per_window = True
 
-    def __init__(self, config: ContextModelConfig, stats: Stats) -> None:
-        super().__init__(config, stats)
-        self.encoder = WindowEncoder(self.c_in, config.channels)
-        self.step_encoder = StepEncoder(STEP_DIM, nn.GELU)
-        h = config.hidden
-        self.denoiser = nn.Sequential(nn.Linear(6 + STEP_DIM + config.channels + self.c_in + config.features(), h),
-                                      nn.GELU(), nn.Linear(h, h), nn.GELU(), nn.Linear(h, 6))
-        self.scheduler = NoiseScheduler()
+    def __init__(self, config: Any) -> None:
+        super().__init__()
+        o = config.network
+        self.context_config = model_config_of(config)
+        self.label_weight, self.integration_weights = loss_weights(o)
+        c_in = config.condition_channels
+        self.encoder = WindowEncoder(c_in, o.channels)
+        self.step_encoder = StepEncoder(o.step_dim, nn.GELU)
+        h = o.hidden
+        self.denoiser = nn.Sequential(nn.Linear(6 + o.step_dim + o.channels + c_in + self.features, h), nn.GELU(),
+                                      nn.Linear(h, h), nn.GELU(), nn.Linear(h, 6))
 
-    def condition(self, imu: torch.Tensor, features: torch.Tensor,
-                  temperature_degc: torch.Tensor | None = None) -> torch.Tensor:
-        """The condition ``c`` [B, D] of raw ``imu`` [B, T, 6], ``features`` [B, F] (and [B, T] temperature)."""
-        return self.encoder.summary(self.normalise(imu, temperature_degc), features)
+    @property
+    def features(self) -> int:
+        """Size F of the context vector (the base's six values follow it)."""
+        return self.context_config.features()
 
-    def eps(self, x_t: torch.Tensor, t: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
-        """Step 2: the noise estimate [B, 6] of ``x_t`` [B, 6] at steps ``t`` [B] under ``cond`` [B, D]."""
-        return self.denoiser(torch.cat([x_t, self.step_encoder(t), cond], dim=-1))
+    @property
+    def context_size(self) -> int:
+        """Size of the context each window carries: the vector, then the base's six values."""
+        return self.features + 6
 
-    def losses(self, cond: torch.Tensor, residual: torch.Tensor,
-               generator: torch.Generator | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Steps 1-3 for target residuals [B, 6]: the noise MSE (scalar), ``x0_hat`` [B, 6] and the
-        integration term's weights [B] (``min(SNR_t, 1)`` of the drawn steps)."""
-        B = len(residual)
-        t = torch.randint(0, self.scheduler.train_timesteps, (B,), generator=generator)
-        noise = randn(tuple(residual.shape), generator, residual.device, residual.dtype)
-        x_t = self.scheduler.add_noise(residual, noise, t)
-        eps = self.eps(x_t, t, cond)
-        ab = self.scheduler.alphas_cumprod[t].to(residual)[:, None]
-        x0 = (x_t - (1.0 - ab).sqrt() * eps) / ab.sqrt()
-        weights = (ab / (1.0 - ab)).clamp(max=1.0)[:, 0]  # min(SNR_t, 1): the x0 error counts as the eps error
-        return (eps - noise).square().mean(), x0, weights
+    def encode(self, condition: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
+        """The condition ``c`` [B, D] of the normalised window [B, T, C_in] and its context [B, F + 6]."""
+        return self.encoder.summary(condition, context[:, :self.features])
 
-    def unnormalise(self, base: torch.Tensor, residual: torch.Tensor) -> torch.Tensor:
-        """Bias (raw units) of a residual [..., 6] on a base [B, 6] (broadcast over the middle axes)."""
-        shape = (len(base),) + (1,) * (residual.dim() - 2) + (6,)
-        return base.reshape(shape).to(residual) + residual * self.bias_std
+    def base(self, context: torch.Tensor) -> torch.Tensor:
+        """The window's normalised base [B, 6]: the context's last six values."""
+        return context[:, self.features:self.features + 6]
 
-    @torch.no_grad()
-    def sample(self, imu: torch.Tensor, features: torch.Tensor, base: torch.Tensor, num_samples: int,
-               temperature_degc: torch.Tensor | None = None, generator: torch.Generator | None = None,
-               steps: int = STEPS) -> torch.Tensor:
-        """Step 4: ``num_samples`` biases [B, K, 6] (raw units) per window."""
-        cond = self.condition(imu, features, temperature_degc).repeat_interleave(num_samples, dim=0)
-        z = self.scheduler.sample(lambda x, t: self.eps(x, t, cond), (len(cond), 6), sampler=Sampler.DDIM,
-                                  steps=steps, generator=generator, dtype=cond.dtype)
-        return self.unnormalise(base, z.reshape(len(imu), num_samples, 6))
+    def denoise(self, x_t: torch.Tensor, t: torch.Tensor, code: torch.Tensor) -> torch.Tensor:
+        """Step 2: the noise estimate [B, 6] of ``x_t`` [B, 6] at steps ``t`` [B] under ``code`` [B, D]."""
+        return self.denoiser(torch.cat([x_t, self.step_encoder(t), code], dim=-1))

@@ -1,32 +1,30 @@
-"""A bias model that sees what came before its window: a learned residual on a constant baseline.
+"""A bias network that sees what came before its window: a learned residual on a constant base.
 
 Input of one window (causal: nothing after the window's last sample, :mod:`training.data.records`):
 
-* the window itself, ``imu`` [T, 6] (and the temperature [T] with ``use_temperature``), normalised
-  with the train split's statistics;
+* the window itself, ``imu`` [T, 6] (and the temperature [T] with the temperature channel),
+  normalised with the train split's statistics (the model's :class:`training.data.normalizer.Normalizer`);
 * a context vector [F] (:func:`context_features`): the start-rest bias estimate
   (:mod:`training.rows.start_rest`, normalised) and whether a rest was seen, the rest's temperature,
   the mean IMU over the ``history_s`` seconds before the window and since the record's start
-  (with the fraction of each span that exists), and the time since the record's start.
+  (with the fraction of each span that exists), the time since the record's start, and the bias
+  filter's estimate and sigma (:mod:`training.rows.bias_filter`) where asked.
 
-Output: one bias [6] per window, held over the window (rad/s, m/s^2)::
+:class:`ContextFeeder` gives each batch ``context`` [B, F + 6]: that vector, then the window's base
+bias (:class:`training.networks.Base`, normalised). Output: one normalised bias [6] per window,
+held over the window::
 
-    bias = base + bias_std * (mlp(encoder(window), window mean, context) + linear(window mean, context))
+    bias_n = base_n + mlp(encoder(window), window mean, context) + linear(window mean, context)
 
-``base`` is the train mean or the start-rest estimate; the head's last layer starts at zero, so an
-untrained model *is* its base and training learns a correction (as AirIMU and Brossard's denoiser
-scale small corrections). Losses (:class:`ContextLoss`): the label MSE in normalised units, the
-1-s integrated rotation and position error from the reference start state through the project's
-torch integrator (:func:`integration_errors`, no label read), or their sum.
-
-Two ways to train it: :mod:`training.context.train` (the benchmarks' trainer, three losses), or as
-the registered network :class:`ContextNet` (``biasgt train``; integration loss), whose batches
-carry the context vectors from :class:`ContextFeeder`.
+The head's last layers start at zero, so an untrained network *is* its base and training learns a
+correction (as AirIMU and Brossard's denoiser scale small corrections). The loss
+(:class:`training.networks.ContextLoss`): the label MSE in normalised units, the 1-s integrated
+rotation and position error from the reference start state (no label read), or their sum; the
+model (:class:`training.models.bias_model.BiasModel`) reads its weights from the network.
 """
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -37,37 +35,19 @@ import numpy as np
 import torch
 from torch import nn
 
-from pipeline.geometry.integration import integrate
-from pipeline.geometry.so3_torch import so3_log
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 from training.rows.bias_filter import track_of
 from training.data.records import SequenceContext, open_context
+from training.networks import Base, ContextLoss
 from training.rows.start_rest import start_rest_bias
 
-__all__ = ["Base", "ContextFeeder", "ContextLoss", "ContextModelConfig", "ContextNet", "ContextResidual",
-           "NormalisedInput", "WindowEncoder", "context_features", "integration_errors"]
-
-
-class Base(str, enum.Enum):
-    """The constant the residual is added to."""
-
-    NONE = "none"  # no base: the residual is the whole bias (the benchmarks' trainer only)
-    MEAN = "mean"  # the train split's mean bias (the train_mean row)
-    REST = "rest"  # the start-rest estimate (the start_rest row, training/rows/start_rest.py)
-    FILTER = "filter"  # the bias filter's gyro bias (training/rows/bias_filter.py), the train mean's accelerometer
-
-
-class ContextLoss(str, enum.Enum):
-    """Training loss (module docstring)."""
-
-    LABEL = "label"
-    INTEGRATION = "integration"
-    BOTH = "both"
+__all__ = ["ContextFeeder", "ContextModelConfig", "ContextNet", "Stats", "WindowEncoder", "context_features",
+           "loss_weights", "model_config_of"]
 
 
 @dataclass(frozen=True)
 class ContextModelConfig:
-    """Sizes and inputs of :class:`ContextResidual`.
+    """Inputs and sizes of a context network (:func:`model_config_of` its options).
 
     Attributes:
         base: The constant the residual is added to.
@@ -80,8 +60,6 @@ class ContextModelConfig:
         use_context: Give the context vector (False: zeros, the 1-s model's information).
         channels: Encoder channels.
         hidden: Head width.
-        diffusion: Draw the residual from a conditional diffusion model
-            (:class:`training.context.diffusion.ContextDiffusion`) instead of regressing it.
     """
 
     base: Base = Base.REST
@@ -92,7 +70,6 @@ class ContextModelConfig:
     use_context: bool = True
     channels: int = 32
     hidden: int = 64
-    diffusion: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "base", Base(self.base))
@@ -217,69 +194,31 @@ class _Residual(nn.Module):
         return self.head(full) + self.linear(full[:, self.encoder.channels:])
 
 
-class NormalisedInput(nn.Module):
-    """The train split's statistics as buffers, and the window normalised with them.
-
-    Args:
-        config: Sizes and inputs (``use_temperature`` adds the temperature channel).
-        stats: Train-split statistics.
-    """
-
-    def __init__(self, config: ContextModelConfig, stats: Stats) -> None:
-        super().__init__()
-        self.config = config
-        self.c_in = 6 + (1 if config.use_temperature else 0)
-        for name in ("imu_mean", "imu_std", "bias_mean", "bias_std"):
-            self.register_buffer(name, torch.tensor(getattr(stats, name), dtype=torch.float32))
-        self.register_buffer("temperature", torch.tensor([stats.temperature_mean, stats.temperature_std]))
-
-    def normalise(self, imu: torch.Tensor, temperature_degc: torch.Tensor | None = None) -> torch.Tensor:
-        """The normalised window [B, T, C] of raw ``imu`` [B, T, 6] (and the temperature [B, T] as a
-        7th channel with ``use_temperature``)."""
-        x = (imu - self.imu_mean) / self.imu_std
-        if self.config.use_temperature:
-            t = (temperature_degc - self.temperature[0]) / self.temperature[1]
-            x = torch.cat([x, t.unsqueeze(-1).to(x)], dim=-1)
-        return x
-
-
-class ContextResidual(NormalisedInput):
-    """``bias = base + bias_std * (mlp(...) + linear(...))`` (module docstring).
-
-    Args:
-        config: Sizes and inputs.
-        stats: Train-split statistics (stored as buffers).
-    """
-
-    def __init__(self, config: ContextModelConfig, stats: Stats) -> None:
-        super().__init__(config, stats)
-        self.core = _Residual(self.c_in, config)
-
-    def forward(self, imu: torch.Tensor, features: torch.Tensor, base: torch.Tensor,
-                temperature_degc: torch.Tensor | None = None) -> torch.Tensor:
-        """Bias [B, 6] (raw units) from ``imu`` [B, T, 6], ``features`` [B, F], ``base`` [B, 6] and the
-        temperature [B, T] (with ``use_temperature``)."""
-        x = self.normalise(imu, temperature_degc)
-        return base.to(x) + self.core(x, features) * self.bias_std
-
-
 def model_config_of(config: Any) -> ContextModelConfig:
     """The :class:`ContextModelConfig` of a registered context network's
     :class:`training.config.ModelConfig` (options :class:`training.networks.ContextOptions`)."""
     o = config.network
-    return ContextModelConfig(base=o.base, history_s=o.history_s, filter=o.filter,
-                              use_temperature=config.condition_channels > 6, channels=o.channels, hidden=o.hidden)
+    return ContextModelConfig(base=o.base, history_s=o.history_s, since_start=o.since_start, filter=o.filter,
+                              use_temperature=config.condition_channels > 6, use_context=o.use_context,
+                              channels=o.channels, hidden=o.hidden)
+
+
+def loss_weights(options: Any) -> tuple[float, tuple[float, float, float]]:
+    """``(label weight, integration weights)`` of a context network's options: the integration weights
+    (rotation, velocity, position) are ``1 / rot_scale^2, 0, 1 / pos_scale^2`` (zero without the term)."""
+    label = options.label_weight if options.loss in (ContextLoss.LABEL, ContextLoss.BOTH) else 0.0
+    if options.loss is ContextLoss.LABEL:
+        return float(label), (0.0, 0.0, 0.0)
+    return float(label), (1.0 / math.radians(options.rot_scale_deg) ** 2, 0.0, 1.0 / options.pos_scale_m ** 2)
 
 
 class ContextNet(nn.Module):
     """The context residual as a registered network (:mod:`training.networks`, objective indirect).
 
-    ``forward(condition [B, T, C_in] normalised, context [B, F]) -> normalised bias [B, T, 6]``,
-    the window's one bias held over it: ``base + residual``, with ``base`` zero (the train mean),
-    the context's first six values (the start-rest estimate, normalised) or the filter block's gyro
-    (the bias filter's gyro, the train mean's accelerometer). ``context`` is
-    :class:`ContextFeeder`'s. ``integration_weights`` (rotation, velocity, position) replace the
-    training's ``indirect_weights``: ``1 / rot_scale^2, 0, 1 / pos_scale^2``.
+    ``forward(condition [B, T, C_in] normalised, context [B, F + 6]) -> normalised bias [B, T, 6]``,
+    the window's one bias held over it: the base (the context's last six values, :class:`ContextFeeder`)
+    plus the residual. ``label_weight`` and ``integration_weights`` (rotation, velocity, position) are
+    the model's loss weights (:func:`loss_weights`): they replace the training's ``indirect_weights``.
 
     Args:
         config: A :class:`training.config.ModelConfig` whose options are
@@ -289,22 +228,22 @@ class ContextNet(nn.Module):
     def __init__(self, config: Any) -> None:
         super().__init__()
         self.context_config = model_config_of(config)
-        o = config.network
-        self.integration_weights = (1.0 / math.radians(o.rot_scale_deg) ** 2, 0.0, 1.0 / o.pos_scale_m ** 2)
+        self.label_weight, self.integration_weights = loss_weights(config.network)
         self.core = _Residual(config.condition_channels, self.context_config)
 
     @property
     def features(self) -> int:
-        """Size F of the context vector."""
+        """Size F of the context vector (the base's six values follow it)."""
         return self.context_config.features()
 
+    @property
+    def context_size(self) -> int:
+        """Size of the context each window carries: the vector, then the base's six values."""
+        return self.features + 6
+
     def forward(self, condition: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
-        z = self.core(condition, context)
-        if self.context_config.base is Base.REST:
-            z = z + context[:, :6].to(z)
-        elif self.context_config.base is Base.FILTER:  # the filter block closes the vector: bias then sigma
-            gyro = context[:, -12:-9].to(z)
-            z = z + torch.cat([gyro, torch.zeros_like(gyro)], dim=-1)
+        F = self.features
+        z = self.core(condition, context[:, :F]) + context[:, F:F + 6].to(condition)
         return z[:, None].expand(-1, condition.shape[1], -1)
 
 
@@ -316,8 +255,9 @@ CONTEXT_GRAVITY_MPS2 = float(np.linalg.norm(DEFAULT_GRAVITY_MPS2))
 class ContextFeeder:
     """The context vectors of windows, read from a dataset's sequence records.
 
-    ``feeder(sequences [B] names, t0_ns [B], T) -> context [B, F]`` (float64 tensor, rows in the
-    given order; :func:`context_features` with the nominal gravity magnitude).
+    ``feeder(sequences [B] names, t0_ns [B], T) -> context [B, F + 6]`` (float64 tensor, rows in the
+    given order): :func:`context_features` with the nominal gravity magnitude, then the base bias
+    normalised with the train statistics.
     """
 
     root: Path
@@ -325,39 +265,24 @@ class ContextFeeder:
     stats: Stats
 
     @classmethod
-    def for_model(cls, root: str | Path, config: ContextModelConfig, normalizer: Any) -> ContextFeeder:
-        """The feeder of a model of ``config`` (:func:`model_config_of`) on the dataset ``root``, with
-        the statistics of its :class:`training.data.normalizer.Normalizer` (the train split's, as the
-        checkpoint holds them)."""
+    def for_model(cls, root: str | Path, config: Any, normalizer: Any) -> ContextFeeder:
+        """The feeder of a model of ``config`` (a :class:`training.config.ModelConfig` of a context
+        network) on the dataset ``root``, with the statistics of its
+        :class:`training.data.normalizer.Normalizer` (the train split's, as the checkpoint holds them)."""
         n = {k: getattr(normalizer, k).double().numpy() for k in ("imu_mean", "imu_std", "bias_mean", "bias_std")}
         stats = Stats(**n, temperature_mean=float(normalizer.temperature_mean),
                       temperature_std=float(normalizer.temperature_std))
-        return cls(Path(root), config, stats)
+        return cls(Path(root), model_config_of(config), stats)
 
     def __call__(self, sequences: Sequence[str], t0_ns: Any, T: int) -> torch.Tensor:
         t0 = np.asarray(t0_ns, dtype=np.int64).reshape(-1)
         names = np.asarray(list(sequences), dtype=object)
-        out = np.zeros((len(t0), self.config.features()))
+        F = self.config.features()
+        out = np.zeros((len(t0), F + 6))
         for name in dict.fromkeys(names):
             rows = np.flatnonzero(names == name)
-            out[rows], _ = context_features(open_context(self.root, str(name)), t0[rows], T, self.stats, self.config,
-                                            CONTEXT_GRAVITY_MPS2)
+            feats, base = context_features(open_context(self.root, str(name)), t0[rows], T, self.stats, self.config,
+                                           CONTEXT_GRAVITY_MPS2)
+            out[rows, :F] = feats
+            out[rows, F:] = (base - self.stats.bias_mean) / self.stats.bias_std
         return torch.from_numpy(out)
-
-
-def integration_errors(imu: torch.Tensor, bias: torch.Tensor, dt_s: torch.Tensor, start_R: torch.Tensor,
-                       start_v: torch.Tensor, start_p: torch.Tensor, end_R: torch.Tensor, end_p: torch.Tensor,
-                       gravity_mps2: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """Squared end rotation error [B] (rad^2, ``|Log(R_gt^T R)|^2``) and squared end position error [B]
-    (m^2) of windows integrated (float64, :func:`pipeline.geometry.integration.integrate`, differentiable)
-    from their reference start with ``imu - bias`` (``bias`` [B, 6] held, or [B, T, 6]); one gravity [3]."""
-    f64 = torch.float64
-    imu = imu.to(f64)
-    b = bias.to(f64)
-    if b.dim() == 2:
-        b = b[:, None].expand_as(imu)
-    res = integrate(imu[..., :3], imu[..., 3:], dt_s.to(f64), start_R.to(f64), start_v.to(f64), start_p.to(f64),
-                    gravity_mps2=gravity_mps2.to(f64), bias_gyro_radps=b[..., :3], bias_acc_mps2=b[..., 3:])
-    rot = so3_log(end_R.to(f64).transpose(-1, -2) @ res.R).square().sum(-1)
-    pos = (res.p - end_p.to(f64)).square().sum(-1)
-    return rot, pos

@@ -31,7 +31,7 @@ class WindowBatch:
         temperature_degc: [B, T] IMU temperature (deg C) when the dataset carries it, else None.
         gravity_mps2: [B, 3] gravity in the reference world frame when known (the indirect loss
             integrates with it), else None (the loss uses the validation's default).
-        context: [B, F] each window's context vector from its sequence's record, for a network
+        context: [B, F] each window's context from its sequence's record (:class:`training.context.model.ContextFeeder`), for a network
             that reads one (:attr:`training.networks.Network.context`), else None.
     """
 

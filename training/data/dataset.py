@@ -427,6 +427,34 @@ def read_manifest(root: str | Path) -> WindowManifest:
     return WindowManifest.from_json(read_json_object(path, hint="re-create the dataset with 'biasgt windows'"), path)
 
 
+def with_state_labels(root: str | Path, out_dir: str | Path) -> Path:
+    """A copy of the dataset at ``root`` whose labels (``bias.npy``) are the ground-truth state's own bias
+    (:data:`STATE_BIAS`, EuRoC's) where a sequence has it finite throughout; every other file (the
+    manifest with its normalisation, the records) is linked, not copied. Written atomically.
+
+    Raises:
+        InputFormatError: ``root`` is not a window dataset.
+    """
+    root, out_dir = Path(root).resolve(), Path(out_dir)
+    manifest = read_manifest(root)
+    with atomic_dir(out_dir) as tmp:
+        for entry in root.iterdir():
+            if entry.name != "sequences":
+                (tmp / entry.name).symlink_to(entry)
+        for name, seq in manifest.sequences.items():
+            src, dst = root / seq.path, tmp / seq.path
+            dst.mkdir(parents=True)
+            state = np.load(src / f"{STATE_BIAS}.npy") if (src / f"{STATE_BIAS}.npy").is_file() else None
+            relabel = state is not None and bool(np.all(np.isfinite(state)))
+            for f in src.iterdir():
+                if f.name == "bias.npy" and relabel:
+                    np.save(dst / f.name, state.astype(np.float64, copy=False))
+                else:
+                    (dst / f.name).symlink_to(f)
+            log.info("%s: labels %s", name, f"from {STATE_BIAS}" if relabel else "kept")
+    return out_dir
+
+
 class WindowDataset(torch.utils.data.Dataset):
     """Windows of one split, memory-mapped; a ``torch.utils.data.Dataset``.
 

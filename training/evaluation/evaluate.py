@@ -484,7 +484,7 @@ def _context_feeder(run: Any, root: Path) -> Any:
         raise DataError(f"{run.config.method} reads the sequence records and the dataset has none", path=root,
                         hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them with "
                              "training.data.records.write_context")
-    return ContextFeeder.for_model(root, run.model.net.context_config, run.model.normalizer)
+    return ContextFeeder.for_model(root, run.model.config, run.model.normalizer)
 
 
 def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str | Path | None = None,

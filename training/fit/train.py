@@ -174,13 +174,13 @@ def _context_feeder(config: TrainConfig, dataset_dir: Path, normalizer: Normaliz
     if not mc.spec.context:
         return None
     from training.data.records import has_context
-    from training.context.model import ContextFeeder, model_config_of
+    from training.context.model import ContextFeeder
 
     if not has_context(dataset_dir):
         raise DataError(f"{config.method} reads the sequence records and the dataset has none", path=dataset_dir,
                         hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them with "
                              "training.data.records.write_context")
-    return ContextFeeder.for_model(dataset_dir, model_config_of(mc), normalizer)
+    return ContextFeeder.for_model(dataset_dir, mc, normalizer)
 
 
 def _model_config(config: TrainConfig, data: _Data) -> ModelConfig:
@@ -371,7 +371,7 @@ class _Trainer:
             return self.model.loss(batch, self.noise)
         noise = t = None
         if self.model.spec.is_diffusion:  # every rank draws the global batch's noise and takes its share
-            shape = (min(self.config.batch_size, len(self.data.train)), *batch.bias.shape[1:])
+            shape = (min(self.config.batch_size, len(self.data.train)), *self.model.state_shape(batch.bias.shape[1]))
             noise, t = self.model.draw_noise(shape, self.noise, self.device)
             noise, t = noise[self.rank::self.world], t[self.rank::self.world]
         return self.ddp(batch, noise=noise, t=t)  # DDP's hooks run on forward(), which is BiasModel.loss

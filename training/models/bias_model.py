@@ -31,13 +31,23 @@ from training.data.normalizer import Normalizer
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 from training.models.scheduler import ClipCount, NoiseScheduler, randn
 
-__all__ = ["BiasModel", "build_model", "count_parameters", "DEFAULT_GRAVITY_MPS2"]
+__all__ = ["BiasModel", "build_model", "count_parameters", "integration_errors", "DEFAULT_GRAVITY_MPS2"]
 
 #: Gravity used by the indirect loss when a batch carries none: pipeline.types.DEFAULT_GRAVITY_MPS2.
 
 
 class BiasModel(nn.Module):
     """A bias predictor with its normaliser (see the module docstring).
+
+    The network's objective (:class:`training.networks.Objective`) chooses the one loss and the one
+    prediction. A network may declare, as attributes:
+
+    * ``label_weight`` and ``integration_weights`` (rotation, velocity, position): the weights of the
+      label term (diffusion: the noise loss) and of the integration term (diffusion: of its x0
+      estimate, each window weighted by ``min(SNR_t, 1)``); by default the objective's: the label term
+      alone (diffusion, regression) or the integration alone with the training's ``indirect_weights``;
+    * ``per_window``: a diffusion network that draws one bias [6] per window, held over it;
+    * ``base(context) -> [B, 6]``: a diffusion network's normalised base (it draws the residual).
 
     Args:
         config: Sizes and method.
@@ -56,25 +66,37 @@ class BiasModel(nn.Module):
         self.use_temperature = config.condition_channels > IMU_CHANNELS
         self.net = self.spec.build(config)
         self.scheduler = NoiseScheduler(config.train_timesteps, config.beta_start, config.beta_end)
+        self.per_window = bool(getattr(self.net, "per_window", False))
+        indirect = self.spec.is_indirect
+        self.label_weight = float(getattr(self.net, "label_weight", 0.0 if indirect else 1.0))
+        weights = getattr(self.net, "integration_weights", self.indirect_weights if indirect else None)
+        self.integration_weights = tuple(float(w) for w in weights) if weights is not None and any(weights) else None
 
     def _condition(self, batch: WindowBatch) -> torch.Tensor:
         """Normalised condition [B, T, 6 or 7]."""
         return self.normalizer.condition(batch.condition(self.use_temperature))
 
-    def _net(self, cond: torch.Tensor, batch: WindowBatch) -> torch.Tensor:
-        """A regression / indirect network's normalised bias [B, T, 6] (a context network also reads
-        ``batch.context``)."""
+    def _context(self, batch: WindowBatch, like: torch.Tensor) -> tuple[torch.Tensor, ...]:
+        """``(context [B, F'],)`` for a network that reads it (:attr:`training.networks.Network.context`), else ``()``."""
         if not self.spec.context:
-            return self.net(cond)
+            return ()
         if batch.context is None:
             raise DataError(f"{self.method} reads each window's context from its sequence's record, and the batch "
                             "carries none", hint="train and evaluate it on a window dataset with records "
                             "(context/, written by 'biasgt windows'), with 'biasgt train' / 'biasgt evaluate'")
-        return self.net(cond, batch.context.to(cond))
+        return (batch.context.to(like),)
+
+    def _base(self, batch: WindowBatch, like: torch.Tensor) -> torch.Tensor | None:
+        """A diffusion network's normalised base [B, 6] (None: it draws the bias itself)."""
+        return self.net.base(*self._context(batch, like)) if hasattr(self.net, "base") else None
+
+    def state_shape(self, samples: int) -> tuple[int, ...]:
+        """Shape of one window's diffused state: [T, 6], or [6] for a ``per_window`` network."""
+        return (IMU_CHANNELS,) if self.per_window else (samples, IMU_CHANNELS)
 
     def draw_noise(self, shape: tuple[int, ...], generator: torch.Generator | None = None,
                    device: torch.device | str = "cpu") -> tuple[torch.Tensor, torch.Tensor]:
-        """Diffusion noise [B, T, 6] and steps [B] for a batch of ``shape`` (noise drawn first)."""
+        """Diffusion noise of ``shape`` ([B, *state_shape]) and steps [B] (noise drawn first)."""
         noise = randn(shape, generator, device, torch.float32)
         dev = generator.device if generator is not None else device
         t = torch.randint(0, self.scheduler.train_timesteps, (shape[0],), generator=generator, device=dev).to(device)
@@ -87,24 +109,53 @@ class BiasModel(nn.Module):
         Args:
             batch: The windows.
             generator: Draws the diffusion noise and steps (:meth:`draw_noise`) unless given.
-            noise: Diffusion noise [B, T, 6] (data-parallel training draws it for the global batch).
+            noise: Diffusion noise [B, *state_shape] (data-parallel training draws it for the global batch).
             t: Diffusion steps [B].
         """
         cond = self._condition(batch)
         if self.spec.is_diffusion:
-            x0 = self.normalizer.bias(batch.bias)
-            if noise is None or t is None:
-                noise, t = self.draw_noise(tuple(x0.shape), generator, x0.device)
-            noise, t = noise.to(x0), t.to(x0.device)
-            eps = self.net.denoise(self.scheduler.add_noise(x0, noise, t), t, self.net.encode(cond))
-            return F.mse_loss(eps, noise)
-        pred = self._net(cond, batch)
-        if self.spec.is_indirect:
-            return self._integration_loss(batch, self.normalizer.unbias(pred))
-        return F.mse_loss(pred, self.normalizer.bias(batch.bias))
+            return self._diffusion_loss(cond, batch, generator, noise, t)
+        pred = self.net(cond, *self._context(batch, cond))
+        terms = []
+        if self.label_weight:
+            mse = F.mse_loss(pred, self.normalizer.bias(batch.bias))
+            terms.append(mse if self.label_weight == 1.0 else self.label_weight * mse)
+        if self.integration_weights is not None:
+            terms.append(self._integration_loss(batch, self.normalizer.unbias(pred), self.integration_weights))
+        return terms[0] if len(terms) == 1 else terms[0] + terms[1]
 
-    def _integration_loss(self, batch: WindowBatch, bias: torch.Tensor) -> torch.Tensor:
-        """End-state error of the windows integrated (float64) with ``bias`` [B, T, 6] removed.
+    def _diffusion_loss(self, cond: torch.Tensor, batch: WindowBatch, generator: torch.Generator | None,
+                        noise: torch.Tensor | None, t: torch.Tensor | None) -> torch.Tensor:
+        """The noise MSE of the normalised bias (a ``per_window`` network's window mean, less its base),
+        plus, with integration weights, the integration of its x0 estimate weighted by ``min(SNR_t, 1)``."""
+        x0 = self.normalizer.bias(batch.bias)
+        if self.per_window:
+            x0 = x0.mean(1)
+        base = self._base(batch, x0)
+        if base is not None:
+            x0 = x0 - base
+        if noise is None or t is None:
+            noise, t = self.draw_noise(tuple(x0.shape), generator, x0.device)
+        noise, t = noise.to(x0), t.to(x0.device)
+        x_t = self.scheduler.add_noise(x0, noise, t)
+        eps = self.net.denoise(x_t, t, self.net.encode(cond, *self._context(batch, cond)))
+        mse = F.mse_loss(eps, noise)
+        if self.integration_weights is None:
+            return mse if self.label_weight == 1.0 else self.label_weight * mse
+        ab = self.scheduler.alphas_cumprod[t].to(x0).reshape(-1, *(1,) * (x0.dim() - 1))
+        x0_hat = (x_t - (1.0 - ab).sqrt() * eps) / ab.sqrt()
+        snr_weights = (ab / (1.0 - ab)).clamp(max=1.0).reshape(len(x0), -1)[:, 0]  # x0's error counts as eps's
+        bias = x0_hat if base is None else x0_hat + base
+        if self.per_window:
+            bias = bias[:, None].expand(-1, cond.shape[1], -1)
+        integration = self._integration_loss(batch, self.normalizer.unbias(bias), self.integration_weights, snr_weights)
+        return self.label_weight * mse + integration
+
+    def _integration_loss(self, batch: WindowBatch, bias: torch.Tensor, weights: tuple[float, float, float] | None = None,
+                          window_weights: torch.Tensor | None = None) -> torch.Tensor:
+        """End-state error of the windows integrated (float64) with ``bias`` [B, T, 6] removed:
+        ``sum_i w_i (weights . (rot_i, vel_i, pos_i)) / B`` (``weights``: the model's integration weights
+        by default; ``window_weights`` w [B], default 1).
 
         Windows are integrated in groups of equal gravity (``batch.gravity_mps2`` [B, 3], else
         :data:`DEFAULT_GRAVITY_MPS2`), since the integrator takes one gravity vector per call.
@@ -118,17 +169,16 @@ class BiasModel(nn.Module):
         terms = torch.zeros(3, dtype=f64, device=batch.imu.device)
         for g in range(len(values)):
             i = (group == g).nonzero().squeeze(1)
-            imu, b = batch.imu[i].to(f64), bias[i].to(f64)
-            res = integrate(imu[..., :3], imu[..., 3:], batch.dt_s[i].to(f64), batch.start_R[i].to(f64),
-                            batch.start_v[i].to(f64), batch.start_p[i].to(f64), gravity_mps2=values[g],
-                            bias_gyro_radps=b[..., :3], bias_acc_mps2=b[..., 3:])
-            rot = so3_log(batch.end_R[i].to(f64).transpose(-1, -2) @ res.R).square().sum(-1)
-            vel = (res.v - batch.end_v[i].to(f64)).square().sum(-1)
-            pos = (res.p - batch.end_p[i].to(f64)).square().sum(-1)
+            rot, vel, pos = integration_errors(batch.imu[i], bias[i], batch.dt_s[i], batch.start_R[i],
+                                               batch.start_v[i], batch.start_p[i], batch.end_R[i], batch.end_v[i],
+                                               batch.end_p[i], values[g])
+            if window_weights is not None:
+                w = window_weights[i].to(f64)
+                rot, vel, pos = w * rot, w * vel, w * pos
             terms = terms + torch.stack([rot.sum(), vel.sum(), pos.sum()])
-        weights = torch.tensor(getattr(self.net, "integration_weights", self.indirect_weights), dtype=f64,
-                               device=terms.device)
-        return ((weights * terms).sum() / len(batch)).to(batch.imu.dtype)
+        weights = weights if weights is not None else self.integration_weights or self.indirect_weights
+        weights_t = torch.tensor(weights, dtype=f64, device=terms.device)
+        return ((weights_t * terms).sum() / len(batch)).to(batch.imu.dtype)
 
     def forward(self, batch: WindowBatch, generator: torch.Generator | None = None, *,
                 noise: torch.Tensor | None = None, t: torch.Tensor | None = None) -> torch.Tensor:
@@ -157,23 +207,57 @@ class BiasModel(nn.Module):
     def sample(self, batch: WindowBatch, num_samples: int = 1, *, sampler: Sampler = Sampler.DDIM,
                steps: int = STEPS, generator: torch.Generator | None = None, eta: float = 0.0,
                clip_count: ClipCount | None = None) -> torch.Tensor:
-        """Predicted bias [B, K, T, 6] in raw units (rad/s, m/s^2).
+        """Predicted bias [B, K, T, 6] in raw units (rad/s, m/s^2): the one prediction of every network.
 
-        Regression and indirect models return K identical copies. Only ``batch.imu`` (and the
-        temperature) are read. ``generator`` (on the model's device) draws the initial noise.
-        ``clip_count`` adds how often the sampler's clip bound (:class:`training.models.scheduler.ClipCount`).
+        Regression and indirect models return K identical copies. Only ``batch.imu`` (the temperature,
+        a context network's ``batch.context``) is read. ``generator`` (on the model's device) draws the
+        initial noise. ``clip_count`` adds how often the sampler's clip bound
+        (:class:`training.models.scheduler.ClipCount`). A network with a base draws its residual: the
+        clips apply to the bias, so they are moved by the base.
         """
         cond = self._condition(batch)
         B, T, _ = cond.shape
         K = int(num_samples)
+        context = self._context(batch, cond)
         if not self.spec.is_diffusion:
-            return self.normalizer.unbias(self._net(cond, batch))[:, None].expand(B, K, T, IMU_CHANNELS).clone()
-        code = self.net.encode(cond).repeat_interleave(K, dim=0)  # [B*K, C], window b's samples adjacent
-        z = self.scheduler.sample(lambda x, t: self.net.denoise(x, t, code), (B * K, T, IMU_CHANNELS),
+            return self.normalizer.unbias(self.net(cond, *context))[:, None].expand(B, K, T, IMU_CHANNELS).clone()
+        code = self.net.encode(cond, *context).repeat_interleave(K, dim=0)  # [B*K, C], window b's samples adjacent
+        clip, clip_x0 = self.released_clip(), self.x0_clip()
+        base = self._base(batch, cond)
+        if base is not None:
+            base = base.repeat_interleave(K, dim=0)
+            clip = (clip[0] - base, clip[1] - base)
+            clip_x0 = None if clip_x0 is None else (
+                (-clip_x0 - base, clip_x0 - base) if isinstance(clip_x0, float) else (clip_x0[0] - base, clip_x0[1] - base))
+        z = self.scheduler.sample(lambda x, t: self.net.denoise(x, t, code), (B * K, *self.state_shape(T)),
                                   sampler=Sampler(sampler), steps=steps, eta=eta, generator=generator,
-                                  device=cond.device, dtype=cond.dtype, clip=self.released_clip(),
-                                  clip_x0=self.x0_clip(), clip_count=clip_count)
+                                  device=cond.device, dtype=cond.dtype, clip=clip, clip_x0=clip_x0,
+                                  clip_count=clip_count)
+        if base is not None:
+            z = z + base
+        if self.per_window:
+            z = z[:, None].expand(-1, T, -1)
         return self.normalizer.unbias(z).reshape(B, K, T, IMU_CHANNELS)
+
+
+def integration_errors(imu: torch.Tensor, bias: torch.Tensor, dt_s: torch.Tensor, start_R: torch.Tensor,
+                       start_v: torch.Tensor, start_p: torch.Tensor, end_R: torch.Tensor, end_v: torch.Tensor,
+                       end_p: torch.Tensor, gravity_mps2: torch.Tensor
+                       ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Squared end errors [B] of windows integrated (float64, differentiable,
+    :func:`pipeline.geometry.integration.integrate`) from their reference start with ``imu - bias``
+    (``bias`` [B, T, 6], or [B, 6] held over the window) under one gravity [3]: rotation ``|Log(R_gt^T R)|^2``
+    (rad^2), velocity (m^2/s^2) and position (m^2)."""
+    f64 = torch.float64
+    imu, b = imu.to(f64), bias.to(f64)
+    if b.dim() == 2:
+        b = b[:, None].expand_as(imu)
+    res = integrate(imu[..., :3], imu[..., 3:], dt_s.to(f64), start_R.to(f64), start_v.to(f64), start_p.to(f64),
+                    gravity_mps2=gravity_mps2.to(f64), bias_gyro_radps=b[..., :3], bias_acc_mps2=b[..., 3:])
+    rot = so3_log(end_R.to(f64).transpose(-1, -2) @ res.R).square().sum(-1)
+    vel = (res.v - end_v.to(f64)).square().sum(-1)
+    pos = (res.p - end_p.to(f64)).square().sum(-1)
+    return rot, vel, pos
 
 
 def build_model(config: ModelConfig, normalizer: Normalizer,
