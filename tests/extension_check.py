@@ -52,6 +52,7 @@ def help_text(main, argv: list[str]) -> str:
 
 
 def main_check(work: Path, n: Names) -> None:
+    work.mkdir(parents=True, exist_ok=True)
     from biasgt.cli.app import build_parser, main
     from biasgt.workflow.config import load_config
     from pipeline.io.registry import detect_format

@@ -463,6 +463,18 @@ class TrainingPlan:
 
 
 @dataclass(frozen=True)
+class Draw:
+    """How one pass of an evaluation draws a predictor's bias: ``samples`` per window with ``sampler`` in
+    ``steps`` denoising steps, the noise seeded from ``seed`` (a deterministic predictor: one sample, no
+    sampler). :meth:`EvaluationConfig.draws` makes them; the predictor reads them, nothing in between."""
+
+    samples: int
+    sampler: Sampler | None
+    steps: int
+    seed: int
+
+
+@dataclass(frozen=True)
 class EvaluationConfig:
     """Options of an evaluation (the workflow's ``evaluation:`` section maps onto it).
 
@@ -507,6 +519,13 @@ class EvaluationConfig:
                                   hint=f"give a positive {name}")
         if not self.samplers:
             raise ConfigError("no sampler to evaluate", field="samplers", hint="list at least 'ddim'")
+
+    def draws(self, stochastic: bool) -> tuple[Draw, ...]:
+        """The passes of a predictor: one per sampler, ``samples`` each, for a stochastic one (a diffusion
+        model); one deterministic pass otherwise."""
+        if not stochastic:
+            return (Draw(1, None, self.steps, self.seed),)
+        return tuple(Draw(self.samples, sampler, self.steps, self.seed) for sampler in self.samplers)
 
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any] | None) -> EvaluationConfig:

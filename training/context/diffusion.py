@@ -26,13 +26,13 @@ from typing import Any
 import torch
 from torch import nn
 
-from training.context.model import WindowEncoder, loss_weights, model_config_of
+from training.context.model import ContextInput, WindowEncoder
 from training.models.layers import StepEncoder
 
 __all__ = ["ContextDiffusionNet"]
 
 
-class ContextDiffusionNet(nn.Module):
+class ContextDiffusionNet(ContextInput):
     """The noise predictor of the window's residual (module docstring).
 
     Args:
@@ -43,10 +43,8 @@ class ContextDiffusionNet(nn.Module):
     per_window = True
 
     def __init__(self, config: Any) -> None:
-        super().__init__()
+        super().__init__(config)
         o = config.network
-        self.context_config = model_config_of(config)
-        self.label_weight, self.integration_weights = loss_weights(o)
         c_in = config.condition_channels
         self.encoder = WindowEncoder(c_in, o.channels)
         self.step_encoder = StepEncoder(o.step_dim, nn.GELU)
@@ -54,23 +52,9 @@ class ContextDiffusionNet(nn.Module):
         self.denoiser = nn.Sequential(nn.Linear(6 + o.step_dim + o.channels + c_in + self.features, h), nn.GELU(),
                                       nn.Linear(h, h), nn.GELU(), nn.Linear(h, 6))
 
-    @property
-    def features(self) -> int:
-        """Size F of the context vector (the base's six values follow it)."""
-        return self.context_config.features()
-
-    @property
-    def context_size(self) -> int:
-        """Size of the context each window carries: the vector, then the base's six values."""
-        return self.features + 6
-
     def encode(self, condition: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
         """The condition ``c`` [B, D] of the normalised window [B, T, C_in] and its context [B, F + 6]."""
         return self.encoder.summary(condition, context[:, :self.features])
-
-    def base(self, context: torch.Tensor) -> torch.Tensor:
-        """The window's normalised base [B, 6]: the context's last six values."""
-        return context[:, self.features:self.features + 6]
 
     def denoise(self, x_t: torch.Tensor, t: torch.Tensor, code: torch.Tensor) -> torch.Tensor:
         """Step 2: the noise estimate [B, 6] of ``x_t`` [B, 6] at steps ``t`` [B] under ``code`` [B, D]."""

@@ -37,11 +37,12 @@ from torch import nn
 
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 from training.rows.bias_filter import track_of
-from training.data.records import SequenceContext, open_context
+from pipeline.errors import DataError
+from training.data.records import SequenceContext, has_context, open_context
 from training.networks import Base, ContextLoss
 from training.rows.start_rest import start_rest_bias
 
-__all__ = ["ContextFeeder", "ContextModelConfig", "ContextNet", "Stats", "WindowEncoder", "context_features",
+__all__ = ["ContextFeeder", "ContextInput", "ContextModelConfig", "ContextNet", "Stats", "WindowEncoder", "context_features",
            "loss_weights", "model_config_of"]
 
 
@@ -212,13 +213,9 @@ def loss_weights(options: Any) -> tuple[float, tuple[float, float, float]]:
     return float(label), (1.0 / math.radians(options.rot_scale_deg) ** 2, 0.0, 1.0 / options.pos_scale_m ** 2)
 
 
-class ContextNet(nn.Module):
-    """The context residual as a registered network (:mod:`training.networks`, objective indirect).
-
-    ``forward(condition [B, T, C_in] normalised, context [B, F + 6]) -> normalised bias [B, T, 6]``,
-    the window's one bias held over it: the base (the context's last six values, :class:`ContextFeeder`)
-    plus the residual. ``label_weight`` and ``integration_weights`` (rotation, velocity, position) are
-    the model's loss weights (:func:`loss_weights`): they replace the training's ``indirect_weights``.
+class ContextInput(nn.Module):
+    """What every context network shares: its inputs (:func:`model_config_of` its options) and loss weights
+    (:func:`loss_weights`), and the layout of the context a window carries: ``[vector F, base 6]``.
 
     Args:
         config: A :class:`training.config.ModelConfig` whose options are
@@ -229,7 +226,6 @@ class ContextNet(nn.Module):
         super().__init__()
         self.context_config = model_config_of(config)
         self.label_weight, self.integration_weights = loss_weights(config.network)
-        self.core = _Residual(config.condition_channels, self.context_config)
 
     @property
     def features(self) -> int:
@@ -241,9 +237,30 @@ class ContextNet(nn.Module):
         """Size of the context each window carries: the vector, then the base's six values."""
         return self.features + 6
 
+    def base(self, context: torch.Tensor) -> torch.Tensor:
+        """The window's normalised base [B, 6]: the context's last six values."""
+        return context[:, self.features:self.features + 6]
+
+
+class ContextNet(ContextInput):
+    """The context residual as a registered network (:mod:`training.networks`, objective indirect).
+
+    ``forward(condition [B, T, C_in] normalised, context [B, F + 6]) -> normalised bias [B, T, 6]``,
+    the window's one bias held over it: the base (the context's last six values, :class:`ContextFeeder`)
+    plus the residual. ``label_weight`` and ``integration_weights`` (rotation, velocity, position) are
+    the model's loss weights: they replace the training's ``indirect_weights``.
+
+    Args:
+        config: A :class:`training.config.ModelConfig` whose options are
+            :class:`training.networks.ContextOptions`.
+    """
+
+    def __init__(self, config: Any) -> None:
+        super().__init__(config)
+        self.core = _Residual(config.condition_channels, self.context_config)
+
     def forward(self, condition: torch.Tensor, context: torch.Tensor) -> torch.Tensor:
-        F = self.features
-        z = self.core(condition, context[:, :F]) + context[:, F:F + 6].to(condition)
+        z = self.core(condition, context[:, :self.features]) + self.base(context).to(condition)
         return z[:, None].expand(-1, condition.shape[1], -1)
 
 
@@ -265,10 +282,20 @@ class ContextFeeder:
     stats: Stats
 
     @classmethod
-    def for_model(cls, root: str | Path, config: Any, normalizer: Any) -> ContextFeeder:
-        """The feeder of a model of ``config`` (a :class:`training.config.ModelConfig` of a context
-        network) on the dataset ``root``, with the statistics of its
-        :class:`training.data.normalizer.Normalizer` (the train split's, as the checkpoint holds them)."""
+    def for_model(cls, root: str | Path, config: Any, normalizer: Any) -> ContextFeeder | None:
+        """The feeder of a model of ``config`` (a :class:`training.config.ModelConfig`) on the dataset
+        ``root``, with the statistics of its :class:`training.data.normalizer.Normalizer` (the train
+        split's, as the checkpoint holds them); None for a network that reads no context.
+
+        Raises:
+            DataError: The network reads the records and the dataset has none.
+        """
+        if not config.spec.context:
+            return None
+        if not has_context(root):
+            raise DataError(f"{config.method} reads the sequence records and the dataset has none", path=root,
+                            hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them "
+                                 "with training.data.records.write_context")
         n = {k: getattr(normalizer, k).double().numpy() for k in ("imu_mean", "imu_std", "bias_mean", "bias_std")}
         stats = Stats(**n, temperature_mean=float(normalizer.temperature_mean),
                       temperature_std=float(normalizer.temperature_std))

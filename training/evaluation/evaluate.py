@@ -35,19 +35,19 @@ import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 import pandas as pd
 import torch
 
-from pipeline.errors import ConfigError, DataError, InputFormatError
-from training.fit.checkpoint import CheckpointError, check_finite_output
-from training.models.clip import ClipUse, clip_use
-from training.config import STEPS, EvaluationConfig, Sampler
+from pipeline.errors import ConfigError, InputFormatError
+from training.config import Draw, EvaluationConfig, Sampler
 from training.data.dataset import FORMAT_VERSION, STATE_BIAS
+from training.evaluation.predictors import ModelPredictor, Predictor, ReferencePredictor, context_feeder
 from training.evaluation.windows import TestWindows, load_test_windows
-from training.networks import Network, get_network
+from training.fit.checkpoint import CheckpointError
+from training.networks import get_network
 from training.evaluation.outputs import (
     Aggregation,
     Calibration,
@@ -58,7 +58,7 @@ from training.evaluation.outputs import (
     write_evaluation,
 )
 from training.evaluation.predictions import CHANNELS, prediction_frame
-from training.references import ReferenceRow, get_reference
+from training.references import get_reference
 from validation.metrics import prmse_m, roe_deg, window_end_errors
 
 log = logging.getLogger(__name__)
@@ -66,6 +66,8 @@ log = logging.getLogger(__name__)
 __all__ = [
     "CALIBRATION_LEVELS",
     "EvaluationConfig",
+    "ModelPredictor",
+    "ReferencePredictor",
     "TestWindows",
     "evaluate_predictor",
     "evaluate_reference",
@@ -81,120 +83,6 @@ EXAMPLE_SAMPLES = 5  # individual prediction samples kept per example window (th
 PROTOCOL = ("non-overlapping windows of the test split (every other 50%-overlap window), each integrated "
             "from the reference start state; end-point PRMSE (m) and ROE (deg) per sequence; Average = "
             "mean over sequences")
-
-
-# ----------------------------------------------------------------------------- predictors
-
-
-class Predictor(Protocol):
-    """What the evaluation asks of a bias predictor."""
-
-    name: str  # folder / column name (a registered method or reference row)
-    label: str
-    stochastic: bool  # draws different samples (a diffusion model)
-
-    def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
-                seed: int) -> np.ndarray:
-        """Bias [B, K, T, 6] (rad/s, m/s^2) for windows of one sequence (K = 1 unless stochastic)."""
-
-
-@dataclass
-class ReferencePredictor:
-    """A reference row (:class:`training.references.ReferenceRow`) as a predictor: it is given the
-    inputs it declares (see :mod:`training.references`)."""
-
-    row: ReferenceRow
-    windows: TestWindows
-    stochastic: bool = False
-
-    @property
-    def name(self) -> str:
-        return self.row.name
-
-    @property
-    def label(self) -> str:
-        return self.row.label
-
-    def _input(self, need: str, items: dict[str, Any], sequence: str, seed: int) -> Any:
-        w = self.windows
-        if need == "bias_mean":
-            return w.bias_mean
-        if need == "bias_std":
-            return np.asarray(w.manifest["normalization"]["bias_std"], dtype=np.float64)
-        if need == "random_walk":
-            return np.tile(w.random_walk[sequence], (len(items["imu"]), 1))
-        if need == "gravity_mps2":
-            return w.gravity_mps2[sequence]
-        if need == "rng":
-            return np.random.default_rng([seed, int(items["t0_ns"][0]) % (2**62)])
-        if need == "context":
-            from training.data.records import open_context
-
-            return open_context(w.root, sequence)
-        if need == "sequence_dir":
-            return Path(w.root) / w.manifest["sequences"][sequence]["path"]
-        if need.startswith("info."):
-            value = w.manifest["sequences"][sequence].get("info", {}).get(need.removeprefix("info."))
-            return None if value is None else np.asarray(value)
-        return np.asarray(items[need], dtype=np.float64)
-
-    def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
-                seed: int) -> np.ndarray:
-        inputs = {n: self._input(n, items, sequence, seed) for n in self.row.needs}
-        return self.row.predict({key: (v.numpy() if torch.is_tensor(v) else v) for key, v in items.items()}, inputs)
-
-
-@dataclass
-class ModelPredictor:
-    """A trained model (:func:`training.fit.checkpoint.load_run`) as a predictor."""
-
-    run: Any  # training.fit.checkpoint.LoadedRun
-    steps: int = STEPS
-    clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.models.scheduler.ClipCount
-    context: Any = None  # a context network's training.context.model.ContextFeeder (evaluate_run sets it)
-
-    @property
-    def method(self) -> Network:
-        return get_network(self.run.config.method)
-
-    @property
-    def name(self) -> str:
-        return self.method.name
-
-    @property
-    def label(self) -> str:
-        return self.method.label
-
-    @property
-    def stochastic(self) -> bool:
-        return self.method.is_diffusion
-
-    def predict(self, items: dict[str, Any], sequence: str, k: int, sampler: Sampler | None,
-                seed: int) -> np.ndarray:
-        from training.data.batch import WindowBatch
-
-        model = self.run.model
-        device = next(model.parameters()).device
-        dtype = next(model.parameters()).dtype
-        cast = {key: (v.to(dtype) if torch.is_tensor(v) and v.is_floating_point() else v) for key, v in items.items()}
-        if self.context is not None:
-            cast["context"] = self.context(items["sequence"], items["t0_ns"], items["imu"].shape[1]).to(dtype)
-        batch = WindowBatch.from_items(cast).to(device)
-        gen = torch.Generator(device=device).manual_seed(seed * 1_000_003 + int(items["t0_ns"][0]) % 1_000_003)
-        kwargs = {}
-        if self.stochastic:
-            from training.models.scheduler import ClipCount
-
-            kwargs = {"sampler": sampler, "steps": self.steps,
-                      "clip_count": self.clip_counts.setdefault(Sampler(sampler), ClipCount())}
-        out = model.sample(batch, num_samples=k, generator=gen, **kwargs).detach().to("cpu", torch.float64).numpy()
-        check_finite_output(out, self.run.path)
-        return out
-
-    def clip_use(self, sampler: Sampler | None) -> ClipUse | None:
-        """How often ``sampler``'s clip bound over the predictions so far (None: not a diffusion model)."""
-        count = None if sampler is None else self.clip_counts.get(Sampler(sampler))
-        return None if count is None else clip_use(self.run.model, Sampler(sampler), count)
 
 
 # ----------------------------------------------------------------------------- evaluation
@@ -265,9 +153,10 @@ def _example_frame(pred: np.ndarray, items: dict[str, Any], rows: np.ndarray, sa
     return pd.DataFrame(frame)
 
 
-def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | None, k: int,
-                 config: EvaluationConfig) -> tuple[_Accumulator, pd.DataFrame, pd.DataFrame]:
+def _run_draw(predictor: Predictor, windows: TestWindows, draw: Draw,
+              config: EvaluationConfig) -> tuple[_Accumulator, pd.DataFrame, pd.DataFrame]:
     acc = _Accumulator()
+    sampler, k = draw.sampler, draw.samples
     examples = _example_rows(windows, config.examples, config.seed)
     ex_frames, pred_frames = [], []
     aggs = (Aggregation.MEAN, Aggregation.MEDIAN) if k > 1 else ()
@@ -277,7 +166,7 @@ def _run_sampler(predictor: Predictor, windows: TestWindows, sampler: Sampler | 
     bar = progress(len(windows), desc=what, unit="window", logger=log)
     for name, rows in _batches(windows, config.batch_windows):
         items = windows.items(rows)
-        pred = predictor.predict(items, name, k, sampler, config.seed)  # [B, K, T, 6]
+        pred = predictor.predict(items, name, draw)  # [B, K, T, 6]
         g = windows.gravity_mps2[name]
         pos, rot = _errors(items, pred, g)
         pred_frames.append(prediction_frame(pred, rows, windows.sequence[rows], windows.t0_ns[rows],
@@ -361,13 +250,14 @@ def evaluate_predictor(predictor: Predictor, windows: TestWindows, config: Evalu
         checkpoint: Provenance of a learned model (stored).
     """
     t_start = time.perf_counter()
-    k = config.samples if predictor.stochastic else 1
-    samplers: tuple[Sampler | None, ...] = config.samplers if predictor.stochastic else (None,)
+    draws = config.draws(predictor.stochastic)
+    k = draws[0].samples
     rows, calib, clip, frames, examples, predictions = [], [], [], [], [], []
-    for sampler in samplers:
+    for draw in draws:
+        sampler = draw.sampler
         log.info("%s: sampling %d test windows, %d sample(s) each%s", predictor.name, len(windows.sequence), k,
                  f" ({sampler.value})" if sampler is not None else "")
-        acc, ex, pr = _run_sampler(predictor, windows, sampler, k, config)
+        acc, ex, pr = _run_draw(predictor, windows, draw, config)
         predictions.append(pr)
         rows.extend(_rows_of(acc, windows, sampler))
         frames.append(_windows_frame(acc, windows, sampler))
@@ -473,20 +363,6 @@ def _read_json(path: Path) -> dict[str, Any]:
         return {}
 
 
-def _context_feeder(run: Any, root: Path) -> Any:
-    """A context network's feeder on the dataset ``root`` (checkpoint's normaliser), else None."""
-    if not get_network(run.config.method).context:
-        return None
-    from training.data.records import has_context
-    from training.context.model import ContextFeeder
-
-    if not has_context(root):
-        raise DataError(f"{run.config.method} reads the sequence records and the dataset has none", path=root,
-                        hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them with "
-                             "training.data.records.write_context")
-    return ContextFeeder.for_model(root, run.model.config, run.model.normalizer)
-
-
 def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str | Path | None = None,
                  config: EvaluationConfig = EvaluationConfig(), *, method: str | None = None,
                  device: str = "cpu") -> EvaluationResult:
@@ -509,7 +385,7 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
     windows = load_test_windows(dataset_dir, config)
     run = load_run(checkpoint, device=device)
     check_compatible(run, windows, checkpoint, method=method)
-    predictor = ModelPredictor(run, steps=config.steps, context=_context_feeder(run, windows.root))
+    predictor = ModelPredictor(run, context=context_feeder(run, windows.root))
     try:
         result = evaluate_predictor(predictor, windows, config, kind="learned",
                                     checkpoint=_run_provenance(run, checkpoint))

@@ -164,23 +164,10 @@ def _open_data(config: TrainConfig, dataset_dir: Path) -> _Data:
             "rate_hz": manifest.get("rate_hz"), "config_hash": manifest.get("config_hash"),
             "manifest_hash": hashlib.sha256(mpath.read_bytes()).hexdigest()[:16],
             "train_windows": len(train_ds), "val_windows": len(val_ds)}
-    return _Data(train_ds, val_ds, manifest, info, normalizer, gravity, _context_feeder(config, dataset_dir, normalizer))
-
-
-def _context_feeder(config: TrainConfig, dataset_dir: Path, normalizer: Normalizer) -> Any:
-    """The context vectors' source of a network that reads them (:attr:`training.networks.Network.context`),
-    else None (every other model's batches are as before)."""
-    mc = config.model_config()
-    if not mc.spec.context:
-        return None
-    from training.data.records import has_context
     from training.context.model import ContextFeeder
 
-    if not has_context(dataset_dir):
-        raise DataError(f"{config.method} reads the sequence records and the dataset has none", path=dataset_dir,
-                        hint="re-create the dataset with 'biasgt windows' (it writes context/), or write them with "
-                             "training.data.records.write_context")
-    return ContextFeeder.for_model(dataset_dir, mc, normalizer)
+    feeder = ContextFeeder.for_model(dataset_dir, config.model_config(), normalizer)  # None: no context read
+    return _Data(train_ds, val_ds, manifest, info, normalizer, gravity, feeder)
 
 
 def _model_config(config: TrainConfig, data: _Data) -> ModelConfig:
