@@ -18,8 +18,10 @@ from training.data.normalizer import Normalizer
 __all__ = ["synthetic_batch", "probe_model", "training_throughput", "sampling_latency"]
 
 
-def synthetic_batch(batch_size: int, window_samples: int, rate_hz: float = 200.0, seed: int = 0) -> WindowBatch:
-    """Random windows [B, T, 6] with level start/end states (shapes and dtypes as a real batch)."""
+def synthetic_batch(batch_size: int, window_samples: int, rate_hz: float = 200.0, seed: int = 0,
+                    context_size: int | None = None) -> WindowBatch:
+    """Random windows [B, T, 6] with level start/end states (shapes and dtypes as a real batch), and a random
+    context [B, context_size] for a network that reads one."""
     g = torch.Generator().manual_seed(seed)
     B, T = batch_size, window_samples
     eye = torch.eye(3).expand(B, 3, 3).clone()
@@ -28,7 +30,8 @@ def synthetic_batch(batch_size: int, window_samples: int, rate_hz: float = 200.0
     return WindowBatch(imu=imu, bias=0.01 * torch.randn(B, T, IMU_CHANNELS, generator=g),
                        bias_std=torch.full((B, T, IMU_CHANNELS), 1e-3), dt_s=torch.full((B, T - 1), 1.0 / rate_hz),
                        start_R=eye, start_v=torch.zeros(B, 3), start_p=torch.zeros(B, 3), end_R=eye.clone(),
-                       end_v=torch.zeros(B, 3), end_p=torch.zeros(B, 3))
+                       end_v=torch.zeros(B, 3), end_p=torch.zeros(B, 3),
+                       context=None if context_size is None else torch.randn(B, context_size, generator=g))
 
 
 def probe_model(method: str, preset: Preset, seed: int = 0) -> BiasModel:
@@ -43,7 +46,7 @@ def training_throughput(method: str, preset: Preset = Preset.SMALL, *, window_sa
     """Windows per second of optimiser steps (loss, backward, clip, AdamW), data loading excluded."""
     model = probe_model(method, preset).to(device).train()
     opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
-    batch = synthetic_batch(batch_size, window_samples).to(device)
+    batch = synthetic_batch(batch_size, window_samples, context_size=getattr(model.net, "context_size", None)).to(device)
     g = torch.Generator().manual_seed(0)
 
     def step() -> None:
@@ -68,7 +71,7 @@ def sampling_latency(method: str, preset: Preset = Preset.PAPER, *, num_samples:
                      device: str = "cpu") -> float:
     """Median seconds to draw ``num_samples`` samples for one window (one batched call)."""
     model = probe_model(method, preset).to(device).eval()
-    batch = synthetic_batch(1, window_samples).to(device)
+    batch = synthetic_batch(1, window_samples, context_size=getattr(model.net, "context_size", None)).to(device)
     times = []
     for i in range(repeats + 1):
         _sync(device)
