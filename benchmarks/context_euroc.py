@@ -4,26 +4,33 @@ Usage::
 
     biasgt run --config config/euroc.yaml --until windows --directory RUN    # the window dataset only
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/context_euroc.py RUN/results/windows/dataset \\
-        --base-dir RUN [--steps N] [--seed S] [--variants NAME ...] [--grid] [--channel-oracles] [--labels dataset|state]
+        --base-dir RUN [--work DIR] [--steps N] [--seed S] [--variants NAME ...] [--grid] [--channel-oracles] \\
+        [--labels dataset|state]
 
-Writes the dataset's sequence records (``context/``, :func:`training.context.write_context`) when it
+Writes the dataset's sequence records (``context/``, :func:`training.data.records.write_context`) when it
 has none, evaluates the reference rows ``train_mean``, ``start_rest``, ``sequence_mean`` (oracle) and
 ``state_bias`` (EuRoC's own bias, oracle), ``bias_filter`` with config/euroc.yaml's protocol (nominal
-gravity; ``--gravity recovered``: each sequence's recovered gravity), trains the context model
-variants (one seed, single thread) and evaluates them the same way; a diffusion variant draws
-DIFFUSION_SAMPLES DDIM samples per window and prints the metric over samples, then the sample mean
-and median as predictions. Prints, per row, PRMSE (m) / ROE (deg) averaged over the test sequences
-and per sequence, the rests found in each test record, the share of the gap from ``train_mean`` to
-``sequence_mean`` each variant closes (PRMSE: the accelerometer's part; ROE: the gyro's), and wall
-and CPU time. Exit code 0 (the figures are the output).
+gravity; ``--gravity recovered``: each sequence's recovered gravity), trains the context network
+variants (the registered ``context_residual`` and ``context_diffusion`` with the variant's options,
+by ``biasgt train``'s trainer into ``--work``; one seed, single thread) and evaluates them the same
+way (``biasgt evaluate``'s function); a diffusion variant draws DIFFUSION_SAMPLES DDIM samples per
+window and prints the metric over samples, then the sample mean and median as predictions.
+``--labels state`` trains on a copy of the dataset whose labels are EuRoC's own bias where a
+sequence has it (:func:`training.data.dataset.with_state_labels`). Prints, per row, PRMSE (m) / ROE
+(deg) averaged over the test sequences and per sequence, the rests found in each test record, the
+share of the gap from ``train_mean`` to ``sequence_mean`` each variant closes (PRMSE: the
+accelerometer's part; ROE: the gyro's), and wall and CPU time. Exit code 0 (the figures are the output).
 """
 
 from __future__ import annotations
 
 import argparse
 import functools
+import json
 import os
+import shutil
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -35,30 +42,40 @@ import numpy as np  # noqa: E402
 import torch  # noqa: E402
 
 from training.config import EvaluationConfig  # noqa: E402
-from training.context import has_context, open_context, write_context  # noqa: E402
-from training.context_train import ContextTrainConfig, evaluate_context, train_context  # noqa: E402
-from training.dataset import read_manifest  # noqa: E402
-from training.evaluate import evaluate_reference  # noqa: E402
-from training.ref_sequence_mean import sequence_mean_bias  # noqa: E402
-from training.references import ReferenceRow, register_reference  # noqa: E402
+from training.data.records import has_context, open_context, write_context  # noqa: E402
+from training.config import TrainConfig  # noqa: E402
+from training.data.dataset import read_manifest, with_state_labels  # noqa: E402
+from training.evaluation.evaluate import evaluate_reference, evaluate_run  # noqa: E402
+from training.fit.train import train  # noqa: E402
+from training.networks import get_network  # noqa: E402
+from training.rows.sequence_mean import sequence_mean_bias  # noqa: E402
+from training import references  # noqa: E402
+from training.references import ReferenceRow  # noqa: E402
 
 REFERENCES = ("train_mean", "start_rest", "bias_filter", "sequence_mean", "state_bias")
+
+
+def variant(base: str, loss: str = "integration", *, diffusion: bool = False, **options) -> tuple[str, dict]:
+    """``(method, model options)`` of a context variant: the registered network and its options."""
+    return ("context_diffusion" if diffusion else "context_residual", {"base": base, "loss": loss, **options})
+
+
 VARIANTS = {
-    "rest_label": dict(model=dict(base="rest", history_s=()), loss="label"),
-    "rest_integration": dict(model=dict(base="rest", history_s=()), loss="integration"),
-    "rest_both": dict(model=dict(base="rest", history_s=()), loss="both"),
-    "rest_history_label": dict(model=dict(base="rest"), loss="label"),
-    "rest_history_integration": dict(model=dict(base="rest"), loss="integration"),
-    "mean_history_label": dict(model=dict(base="mean"), loss="label"),
-    "mean_history_integration": dict(model=dict(base="mean"), loss="integration"),
-    "mean_history_both": dict(model=dict(base="mean"), loss="both"),
-    "filter_history_integration": dict(model=dict(base="filter"), loss="integration"),
-    "filter_history_both": dict(model=dict(base="filter"), loss="both"),
-    "filter_history_label": dict(model=dict(base="filter"), loss="label"),
-    # the residual drawn by a conditional diffusion model (training/context_diffusion.py): its noise
+    "rest_label": variant("rest", "label", history_s=()),
+    "rest_integration": variant("rest", "integration", history_s=()),
+    "rest_both": variant("rest", "both", history_s=()),
+    "rest_history_label": variant("rest", "label"),
+    "rest_history_integration": variant("rest", "integration"),
+    "mean_history_label": variant("mean", "label"),
+    "mean_history_integration": variant("mean", "integration"),
+    "mean_history_both": variant("mean", "both"),
+    "filter_history_integration": variant("filter", "integration"),
+    "filter_history_both": variant("filter", "both"),
+    "filter_history_label": variant("filter", "label"),
+    # the residual drawn by a conditional diffusion model (training/context/diffusion.py): its noise
     # loss alone, or with the integration of its x0 estimate
-    "filter_history_diffusion": dict(model=dict(base="filter", diffusion=True), loss="label"),
-    "filter_history_diffusion_both": dict(model=dict(base="filter", diffusion=True), loss="both"),
+    "filter_history_diffusion": variant("filter", "label", diffusion=True),
+    "filter_history_diffusion_both": variant("filter", "both", diffusion=True),
 }
 #: Samples per window of the diffusion variants (DDIM), as config/euroc.yaml's diffusion rows.
 DIFFUSION_SAMPLES = 10
@@ -69,8 +86,24 @@ GRID_CONTEXT = {"1s": dict(use_context=False, history_s=()), "5s": dict(history_
                 "30s": dict(history_s=(30.0,), since_start=False), "start": dict(history_s=(), since_start=True)}
 GRID_TARGET = ("label", "integration", "both")
 GRID_BASE = ("none", "mean", "rest")
-GRID = {f"{c}_{t}_{b}": dict(model=dict(base=b, **GRID_CONTEXT[c]), loss=t)
-        for c in GRID_CONTEXT for t in GRID_TARGET for b in GRID_BASE}
+GRID = {f"{c}_{t}_{b}": variant(b, t, **GRID_CONTEXT[c]) for c in GRID_CONTEXT for t in GRID_TARGET for b in GRID_BASE}
+
+
+def train_variant(dataset: Path, method: str, options: dict, out: Path, *, steps: int, seed: int, lr: float = 1e-3,
+                  use_temperature: bool = False) -> Path:
+    """One context variant trained by the one trainer (``biasgt train``'s) into the run folder ``out``:
+    AdamW (weight decay 1e-4), cosine learning rate without warm-up, the validation loss every 50 steps
+    picking the kept weights."""
+    config = TrainConfig(method=method, seed=seed, max_steps=steps, batch_size=64, lr=lr, weight_decay=1e-4,
+                         warmup_steps=0, val_every=50, checkpoint_every=steps, use_temperature=use_temperature,
+                         device="cpu", threads=1, model_overrides=options)
+    shutil.rmtree(out, ignore_errors=True)
+    return train(config, dataset, out)
+
+
+def best_step(run: Path) -> int:
+    """The step whose weights a run kept (its ``run.json``)."""
+    return int(json.loads((run / "run.json").read_text())["best_step"])
 
 
 def _channel_oracle(items: dict, *, sequence_dir: Path, bias_mean: np.ndarray, context, part: str) -> np.ndarray:
@@ -97,7 +130,7 @@ def _channel_rows() -> list[str]:
     names = []
     for part in ("gyro", "acc", "acc_along", "acc_across"):
         name = f"sequence_mean_{part}"
-        register_reference(ReferenceRow(name, f"Sequence mean on {part} (oracle)", "", functools.partial(
+        references.register(ReferenceRow(name, f"Sequence mean on {part} (oracle)", "", functools.partial(
             _channel_oracle, part=part), oracle=True, needs=("sequence_dir", "bias_mean", "context"), default=False))
         names.append(name)
     return names
@@ -121,14 +154,16 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("dataset", type=Path)
     parser.add_argument("--base-dir", type=Path, default=None, help="the workflow's folder (store paths start there)")
+    parser.add_argument("--work", type=Path, default=None, help="folder of the variants' runs (default: a temporary one)")
     parser.add_argument("--steps", type=int, default=600)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--variants", nargs="*", default=list(VARIANTS), choices=[*VARIANTS, *GRID])
     parser.add_argument("--labels", choices=["dataset", "state"], default="dataset",
                         help="the label loss's target: the dataset's labels, or EuRoC's own bias where a sequence has it")
     parser.add_argument("--gravity", choices=["nominal", "recovered"], default="nominal",
-                        help="the integration's gravity: nominal (0, 0, -9.81), the paper's protocol in EuRoC's state "
-                             "frame; recovered: each sequence's own, for test records judged against a raw pose stream")
+                        help="the evaluation's gravity: nominal (0, 0, -9.81), the paper's protocol in EuRoC's state "
+                             "frame; recovered: each sequence's own, for test records judged against a raw pose stream "
+                             "(training integrates with each sequence's recovered gravity, as 'biasgt train')")
     parser.add_argument("--grid", action="store_true", help="train the whole ablation grid (GRID) instead")
     parser.add_argument("--no-references", action="store_true", help="train and evaluate the variants only")
     parser.add_argument("--channel-oracles", action="store_true",
@@ -153,13 +188,15 @@ def main() -> int:
     for ref in (*refs, *(_channel_rows() if args.channel_oracles else ())):
         print(_line(ref, evaluate_reference(ref, args.dataset, None, cfg).summary), flush=True)
     ends = [evaluate_reference(r, args.dataset, None, cfg).summary.rows[0].average for r in ("train_mean", "sequence_mean")]
+    work = args.work or Path(tempfile.mkdtemp(prefix="context_euroc_"))
+    train_on = with_state_labels(args.dataset, work / "state_labels") if args.labels == "state" else args.dataset
     for name in list(GRID) if args.grid else args.variants:
         t, c = time.perf_counter(), time.process_time()
-        model = train_context(args.dataset, ContextTrainConfig(steps=args.steps, seed=args.seed, val_every=50,
-                                                               labels=args.labels, **{**VARIANTS, **GRID}[name]))
-        sampled = getattr(model, "stochastic", False)
-        summary = evaluate_context(model, args.dataset, sampled_cfg if sampled else cfg, name=name).summary
-        print(_line(name, summary) + f"   [best step {model.info['best_step']}, {time.perf_counter() - t:.0f} s wall, "
+        method, options = {**VARIANTS, **GRID}[name]
+        run = train_variant(train_on, method, options, work / name, steps=args.steps, seed=args.seed)
+        sampled = get_network(method).is_diffusion
+        summary = evaluate_run(run, args.dataset, None, sampled_cfg if sampled else cfg, method=method).summary
+        print(_line(name, summary) + f"   [best step {best_step(run)}, {time.perf_counter() - t:.0f} s wall, "
               f"{time.process_time() - c:.0f} s CPU]", flush=True)
         for row in summary.rows:  # a diffusion variant: the metric over samples, then the sample mean and median
             if row.key:

@@ -13,9 +13,11 @@ train sequence from its ground-truth poses (label set b), and ``test_vicon0.yaml
 every test sequence that has a raw ``vicon0`` stream from that stream (its windows' start and end
 states come from vicon0 through the recovery's clock offset and extrinsic).
 
-``run`` trains one context variant (``--variant``, default ``filter_history_both``) per seed on three
-label sets: (a) biasgt's labels of ``config/euroc.yaml`` (raw streams where a sequence has one), (b)
-biasgt's labels from the ground-truth poses, (c) EuRoC's own bias where a sequence has it, else (a).
+``run`` trains one context variant (``--variant``, default ``filter_history_both``: the registered
+context network with the variant's options, by ``biasgt train``'s trainer into ``WORK/runs``) per
+seed on three label sets: (a) biasgt's labels of ``config/euroc.yaml`` (raw streams where a sequence
+has one), (b) biasgt's labels from the ground-truth poses, (c) EuRoC's own bias where a sequence has
+it, else (a) (:func:`training.data.dataset.with_state_labels`).
 Each model, and the reference rows, are judged on the test split three ways:
 
 * ``state``: EuRoC's ground-truth state (the paper's protocol);
@@ -55,19 +57,16 @@ from pipeline.io import load_sequence  # noqa: E402
 from pipeline.io.tum import read_tum_poses  # noqa: E402
 from pipeline.types import DEFAULT_GRAVITY_MPS2, PoseSourceKind  # noqa: E402
 from training.config import EvaluationConfig  # noqa: E402
-from training.context import has_context, write_context  # noqa: E402
-from training.context_model import Stats  # noqa: E402
-from training.context_train import ContextPredictor, ContextTrainConfig, train_context  # noqa: E402
-from training.dataset import read_manifest  # noqa: E402
-from training.evaluate import evaluate_predictor, evaluate_reference, load_test_windows  # noqa: E402
+from training.data.records import has_context, write_context  # noqa: E402
+from training.data.dataset import read_manifest, with_state_labels  # noqa: E402
+from training.evaluation.evaluate import evaluate_reference, evaluate_run  # noqa: E402
 from validation.attitude import reference_attitude_offset  # noqa: E402
 from validation.reference import reference_from_states  # noqa: E402
 
 EUROC_CONFIG = REPO / "config" / "euroc.yaml"
 REFERENCES = ("train_mean", "start_rest", "bias_filter", "sequence_mean", "state_bias")
-#: Label set -> (run folder under WORK, the trainer's label source).
-LABEL_SETS = {"a: raw streams": ("a", "dataset"), "b: ground-truth poses": ("b", "dataset"),
-              "c: EuRoC's bias": ("a", "state")}
+#: Label set -> its dataset under WORK (c: a's windows labelled with EuRoC's bias where a sequence has it).
+LABEL_SETS = {"a: raw streams": "a", "b: ground-truth poses": "b", "c: EuRoC's bias": "c"}
 JUDGES = ("state", "vicon0", "turned")
 
 
@@ -144,10 +143,6 @@ def _across_gravity(seq, rotvec_rad: np.ndarray, manifest) -> dict[str, np.ndarr
     return {"euroc_minus_train_mean": across(euroc), "tilt_equivalent": across(-np.cross(rotvec_rad, a))}
 
 
-def _stats(dataset: Path) -> Stats:
-    return Stats.from_manifest(dict(read_manifest(dataset).normalization))
-
-
 def _per_sequence(summary) -> dict[str, tuple[float, float]]:
     return {s: (m.prmse_m, m.roe_deg) for s, m in summary.rows[0].sequences.items()}
 
@@ -165,7 +160,7 @@ def _fmt(runs: list[dict[str, tuple[float, float]]], judge: str) -> str:
 
 
 def run(work: Path, seeds: list[int], steps: int, variant: str) -> None:
-    from context_euroc import VARIANTS
+    from context_euroc import VARIANTS, train_variant
 
     cfg = EvaluationConfig(samples=1, gravity="nominal")
     vicon_cfg = yaml.safe_load((work / "test_vicon0.yaml").read_text())
@@ -181,7 +176,7 @@ def run(work: Path, seeds: list[int], steps: int, variant: str) -> None:
         print(f"  {n[:5]} tilt {o['tilt_deg']:.2f} deg, heading {o['heading_deg']:.2f} deg; "
               f"{np.round(o['euroc_minus_train_mean'], 3)} beside {np.round(o['tilt_equivalent'], 3)}")
     judged = {"state": datasets["a"], "vicon0": datasets["v"], "turned": work / "turned" / "dataset"}
-    windows = {j: load_test_windows(ds, cfg) for j, ds in judged.items()}
+    datasets["c"] = with_state_labels(datasets["a"], work / "c" / "dataset")
     print("\nreference rows (train_mean etc. from label set a)")
     for judge, ds in judged.items():
         for ref in REFERENCES:
@@ -190,16 +185,15 @@ def run(work: Path, seeds: list[int], steps: int, variant: str) -> None:
             except BiasgtError as exc:
                 print(f"  {judge:7s} {ref:14s} n/a ({exc.problem})")
     print(f"\n{variant}, {steps} steps, seeds {seeds}: PRMSE m / ROE deg (turned: PRMSE only)")
-    for label, (key, source) in LABEL_SETS.items():
+    method, options = VARIANTS[variant]
+    for label, key in LABEL_SETS.items():
         runs: dict[str, list] = {j: [] for j in JUDGES}
         t, c = time.perf_counter(), time.process_time()
         for seed in seeds:
-            model = train_context(datasets[key], ContextTrainConfig(steps=steps, seed=seed, val_every=50, labels=source,
-                                                                    **VARIANTS[variant]))
-            stats = _stats(datasets[key])
-            for judge, w in windows.items():
-                predictor = ContextPredictor(model, judged[judge], dict(w.gravity_mps2), stats, name=variant)
-                runs[judge].append(_per_sequence(evaluate_predictor(predictor, w, cfg, kind="learned").summary))
+            run_dir = train_variant(datasets[key], method, options, work / "runs" / f"{key}_{variant}_seed{seed}",
+                                    steps=steps, seed=seed)
+            for judge, ds in judged.items():
+                runs[judge].append(_per_sequence(evaluate_run(run_dir, ds, None, cfg, method=method).summary))
         for judge in JUDGES:
             print(f"  ({label:22s}) {judge:7s} {_fmt(runs[judge], judge)}")
         print(f"  {'':24s} [{time.perf_counter() - t:.0f} s wall, {time.process_time() - c:.0f} s CPU]", flush=True)

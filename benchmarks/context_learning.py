@@ -4,11 +4,14 @@ Usage::
 
     OMP_NUM_THREADS=1 .venv/bin/python benchmarks/context_learning.py [--out DIR] [--steps N] [--seed S]
 
-Writes the simulated dataset of :mod:`training.sim_context` (24 train, 4 validation, 8 test
+The variants' runs are written beside the dataset (``DIR/../runs``).
+
+Writes the simulated dataset of :mod:`training.data.sim_context` (24 train, 4 validation, 8 test
 sequences of 60 s at 100 Hz: a start rest showing a per-sequence turn-on bias, a temperature-driven
 bias with one unit's coefficients) to ``DIR`` (default: a temporary folder), evaluates the reference
-rows (train mean, start_rest, sequence_mean, the true bias) and trains the context model
-(:mod:`training.context_train`) in several variants, each evaluated with Table I's protocol. Prints
+rows (train mean, start_rest, sequence_mean, the true bias) and trains the registered context network
+(``context_residual``, by ``biasgt train``'s trainer) in several variants, each evaluated with Table
+I's protocol. Prints
 PRMSE (m) and ROE (deg) and the share of the gap from the train mean to the true bias each row
 closes (the goal: >= 80 % for the learned row), with wall and CPU time. Exit code 0 (the figures
 are the output).
@@ -28,24 +31,20 @@ sys.path.insert(0, str(REPO))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import torch  # noqa: E402
+from context_euroc import train_variant, variant  # noqa: E402
 
 from training.config import EvaluationConfig  # noqa: E402
-from training.context_train import ContextTrainConfig, evaluate_context, train_context  # noqa: E402
-from training.evaluate import evaluate_reference  # noqa: E402
-from training.sim_context import RestSim, write_rest_sim_dataset  # noqa: E402
+from training.data.sim_context import RestSim, write_rest_sim_dataset  # noqa: E402
+from training.evaluation.evaluate import evaluate_reference, evaluate_run  # noqa: E402
 
+#: name -> (method, options, condition on the temperature)
 VARIANTS = {
-    "start_rest + residual (temperature, label loss)": dict(model=dict(base="rest", use_temperature=True,
-                                                                        history_s=()), loss="label"),
-    "train_mean + residual (temperature, label loss)": dict(model=dict(base="mean", use_temperature=True,
-                                                                        history_s=()), loss="label"),
-    "start_rest + residual (temperature, integration loss)": dict(model=dict(base="rest", use_temperature=True,
-                                                                              history_s=()), loss="integration"),
-    "start_rest + residual (temperature, 5/30 s history, label)": dict(model=dict(base="rest",
-                                                                                   use_temperature=True), loss="label"),
-    "1-s model, no context, no temperature (label loss)": dict(model=dict(base="mean", use_temperature=False,
-                                                                           use_context=False, history_s=()),
-                                                               loss="label"),
+    "start_rest + residual (temperature, label loss)": (*variant("rest", "label", history_s=()), True),
+    "train_mean + residual (temperature, label loss)": (*variant("mean", "label", history_s=()), True),
+    "start_rest + residual (temperature, integration loss)": (*variant("rest", "integration", history_s=()), True),
+    "start_rest + residual (temperature, 5/30 s history, label)": (*variant("rest", "label"), True),
+    "1-s model, no context, no temperature (label loss)": (*variant("mean", "label", use_context=False,
+                                                                    history_s=()), False),
 }
 
 
@@ -63,11 +62,11 @@ def main() -> int:
     rows = {}
     for ref in ("train_mean", "start_rest", "sequence_mean", "ground_truth"):
         rows[ref] = evaluate_reference(ref, root, None, cfg).summary.rows[0].average
-    for name, v in VARIANTS.items():
+    for i, (name, (method, options, temperature)) in enumerate(VARIANTS.items()):
         t = time.perf_counter()
-        model = train_context(root, ContextTrainConfig(steps=args.steps, lr=3e-3, seed=args.seed, val_every=50,
-                                                       gravity="recovered", **v))
-        rows[name] = evaluate_context(model, root, cfg).summary.rows[0].average
+        run = train_variant(root, method, options, root.parent / "runs" / f"variant{i}", steps=args.steps,
+                            seed=args.seed, lr=3e-3, use_temperature=temperature)
+        rows[name] = evaluate_run(run, root, None, cfg, method=method).summary.rows[0].average
         print(f"  trained {name}: {time.perf_counter() - t:.0f} s wall", flush=True)
     tm, gt = rows["train_mean"], rows["ground_truth"]
     print(f"\nsimulated test split ({root}): PRMSE m / ROE deg, gap closed from train mean to the true bias")

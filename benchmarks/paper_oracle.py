@@ -7,11 +7,11 @@ Usage::
 Needs no recovery and no training: every figure comes from the real IMU and EuRoC's ground-truth
 state (``state_groundtruth_estimate0``) of MH_04, V1_03 and V2_02. The windows are the evaluation's
 (1 s, the 50 %-overlap candidates of :func:`validation.validate.plan_windows` with a reference at both
-ends, every other one kept as :func:`training.eval_windows.non_overlapping` keeps them), each integrated
+ends, every other one kept as :func:`training.evaluation.windows.non_overlapping` keeps them), each integrated
 from the ground-truth state at its first stamp, PRMSE / ROE per sequence, Average over the three.
 
 Rows: zero bias; EuRoC's own bias; EuRoC's bias at the window start held constant; the random-walk
-oracle as the paper (:func:`training.baselines.random_walk_oracle`: EuRoC's bias at the window start, the
+oracle as the paper (:func:`training.rows.baselines.random_walk_oracle`: EuRoC's bias at the window start, the
 walks of ``imu0/sensor.yaml``, the best of ``--candidates`` walks per window by end-position error).
 Each with nominal gravity (0, 0, -9.81) and both integration schemes (midpoint, the project's; Euler,
 AirIMU's pypose preintegrator), so that the protocol choices show their effect.
@@ -33,7 +33,7 @@ integration scheme (ROE excepted: Euler is nearer the paper). It is the size of 
 per-sample increments ``sigma / sqrt(dt)`` (200x the stated walk over 1 s at 200 Hz) and the
 path chosen by ``3 * position error [m] + rotation error [deg]`` (the weighting the released code
 ranks checkpoints by; it has no random-walk baseline), the row "random-walk oracle, paper's walks"
-(:func:`training.baselines.random_walk_paper`) reproduces the paper's column: Euler
+(:func:`training.rows.baselines.random_walk_paper`) reproduces the paper's column: Euler
 0.0714 / 0.1735, midpoint 0.0704 / 0.1509, against 0.0718 / 0.1684. The stated model's walks
 barely move the bias in a second; no selection, window cut or integration brings them above
 0.046 m.
@@ -53,10 +53,10 @@ sys.path.insert(0, str(REPO))
 
 from pipeline.io import load_sequence  # noqa: E402
 from pipeline.types import IntegrationScheme  # noqa: E402
-from training.baselines import random_walk_oracle, random_walk_paper  # noqa: E402
-from training.eval_windows import non_overlapping  # noqa: E402
-from training.paper import TABLE_I, paper_average, paper_sequence  # noqa: E402
-from training.windows import state_bias_at  # noqa: E402
+from training.rows.baselines import random_walk_oracle, random_walk_paper  # noqa: E402
+from training.evaluation.windows import non_overlapping  # noqa: E402
+from training.evaluation.paper import TABLE_I, paper_average, paper_sequence  # noqa: E402
+from training.data.windows import state_bias_at  # noqa: E402
 from validation.validate import (DEFAULT_GRAVITY_MPS2, ValidationConfig, build_reference, plan_windows,  # noqa: E402
                                  prmse_m, roe_deg, window_end_errors)
 

@@ -4,11 +4,11 @@ Prints:
 
 1. Training throughput (windows/s) per method at a preset (default ``small``): optimiser steps
    (loss, backward, clipping, AdamW) on synthetic 201-sample windows
-   (:func:`training.speed.training_throughput`; data loading excluded; ``run.json`` of a real
+   (:func:`training.deploy.speed.training_throughput`; data loading excluded; ``run.json`` of a real
    run holds the figure with loading).
 2. Latency of DDIM-25 (eta 0) for ONE window of 201 samples: one sample, and 50 samples
    batched, for the paper-size RNN (2,192,710 parameters) and U-Net (42,814,022), in PyTorch
-   eager, TorchScript (``torch.jit.trace`` of :class:`training.export.ExportedSampler`) and
+   eager, TorchScript (``torch.jit.trace`` of :class:`training.deploy.export.ExportedSampler`) and
    onnxruntime (the ONNX export of the same module), with ``--threads`` (default 2) intra-op
    threads; and, for reference, eager with PyTorch's dynamic int8 quantisation of the GRU and
    Linear layers (``torch.ao.quantization.quantize_dynamic``), printed with its largest sample
@@ -42,9 +42,9 @@ sys.path.insert(0, str(REPO))
 
 from training.config import Preset, Sampler  # noqa: E402
 from training.networks import network_names  # noqa: E402
-from training.export import ExportedSampler, ExportFormat, example_inputs, onnx_session, write_export  # noqa: E402,E501
-from training.models import count_parameters  # noqa: E402
-from training.speed import probe_model, training_throughput  # noqa: E402
+from training.deploy.export import ExportedSampler, ExportFormat, example_inputs, onnx_session, write_export  # noqa: E402,E501
+from training.models.bias_model import count_parameters  # noqa: E402
+from training.deploy.speed import probe_model, training_throughput  # noqa: E402
 
 T = 201
 STEPS = 25
@@ -113,8 +113,8 @@ def _dynamic_int8(module: torch.nn.Module) -> torch.nn.Module:
 
 
 def print_table(results: Path) -> None:
-    from training.outputs import SUMMARY_JSON, read_summary
-    from training.table import format_markdown, table_columns
+    from training.evaluation.outputs import SUMMARY_JSON, read_summary
+    from training.evaluation.table import format_markdown, table_columns
 
     paths = sorted((results / "evaluation").glob(f"**/{SUMMARY_JSON}"))
     if not paths:

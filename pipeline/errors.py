@@ -81,6 +81,11 @@ class ConfigError(BiasgtError):
     """A configuration file or option is invalid."""
 
 
+class RegistryError(ConfigError):
+    """A registry (readers, networks, reference rows, verdict rules: :mod:`pipeline.registry`) refuses an
+    entry, has no entry of a name, or cannot load a plugin's."""
+
+
 class RecoveryError(BiasgtError):
     """Bias recovery cannot produce a trustworthy result from this input."""
 

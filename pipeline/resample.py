@@ -6,7 +6,7 @@ rates: a Kaiser-windowed FIR low-pass at the lower of the two Nyquist frequencie
 ``padtype="line"`` so that the ends of a piece with a trend or an offset such as gravity do not
 ring). A piece whose stamps jitter is first put onto its own nominal grid by linear interpolation
 (within a fraction of a sample, far below the filter's band edge). The output grid of a piece is
-``t_first + round(k / rate_hz)`` (ns), the convention of :mod:`training.windows`.
+``t_first + round(k / rate_hz)`` (ns), the convention of :mod:`training.data.windows`.
 """
 
 from __future__ import annotations

@@ -72,6 +72,17 @@ class Verdict(str, enum.Enum):
     WARN = "WARN"
     FAIL = "FAIL"
 
+    @classmethod
+    def parse(cls, value: Any) -> Verdict | None:
+        """The verdict a file holds (``"PASS"``, any case, or a :class:`Verdict`); None when it holds none
+        or something else. Every reader of a written verdict compares what this returns, never the text."""
+        if isinstance(value, cls):
+            return value
+        try:
+            return cls(str(value).strip().upper())
+        except ValueError:
+            return None
+
 
 class Severity(str, enum.Enum):
     """Severity of an input-check finding."""

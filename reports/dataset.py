@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 from pipeline.atomic import write_text_atomic
 from pipeline.errors import ConfigError
 from pipeline.layout import DATASET_REPORT_HTML, REPORT_HTML, Stage
-from pipeline.types import NS_PER_S
+from pipeline.types import NS_PER_S, Verdict
 from reports.dataset_inputs import DatasetInputs, SequenceRow, average_rows, gather_dataset
 from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
 
@@ -74,11 +74,11 @@ EXTRA_CSS = ("table.sortable th{cursor:pointer;white-space:nowrap}table.sortable
 
 
 def _headline(inp: DatasetInputs) -> Html:
-    verdicts = Counter(r.verdict or "not validated" for r in inp.rows)
-    counts = join((tag("span", f"{verdicts.get(v, 0)} {v}", class_=f"count-{v}", data_count=verdicts.get(v, 0))
-                   for v in ("PASS", "WARN", "FAIL")), sep=" · ")
+    verdicts = Counter(r.verdict for r in inp.rows)  # None: not validated
+    counts = join((tag("span", f"{verdicts.get(v, 0)} {v.value}", class_=f"count-{v.value}",
+                       data_count=verdicts.get(v, 0)) for v in Verdict), sep=" · ")
     parts = [p(Html(f"{len(inp.rows)} sequences: " + counts
-                    + (f" · {verdicts['not validated']} not validated" if verdicts.get("not validated") else "")),
+                    + (f" · {verdicts[None]} not validated" if verdicts.get(None) else "")),
                class_="counts")]
     totals = (inp.manifest or {}).get("totals") or {}
     if inp.manifest is None:
@@ -127,8 +127,8 @@ def _row(r: SequenceRow, link: str) -> Html:
     cells = [
         _cell(tag("a", r.name, href=link), r.name),
         _cell(r.split or ""),
-        _cell(r.verdict or "n/a", class_=r.verdict or None),
-        _cell(r.reason or ("" if r.verdict else "not validated"), class_="small"),
+        _cell(r.verdict.value if r.verdict is not None else "n/a", class_=r.verdict.value if r.verdict else None),
+        _cell(r.reason or ("" if r.verdict is not None else "not validated"), class_="small"),
         _cell(f"{r.pose_stream or ''}" + (f" ({r.pose_kind})" if r.pose_kind else "")),
         _cell(reference, "" if r.independent is None else int(bool(r.independent))),
         *_metric_cells(r),

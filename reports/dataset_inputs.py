@@ -22,9 +22,10 @@ import pandas as pd
 from pipeline.bias_table import BiasTrack, read_bias_csv
 from pipeline.errors import BiasgtError
 from pipeline.layout import WINDOWS_DATASET, Stage
+from pipeline.types import Verdict
 from recovery.outputs import BIAS_CSV, read_report
-from training.dataset import MANIFEST
-from training.table import AVERAGE, TABLE_CSV
+from training.data.dataset import MANIFEST
+from training.evaluation.table import AVERAGE, TABLE_CSV
 from validation.outputs import HELDOUT_SOURCE, ValidationSummary, read_summary
 
 log = logging.getLogger(__name__)
@@ -59,7 +60,7 @@ class SequenceRow:
 
     name: str
     split: str | None = None
-    verdict: str | None = None
+    verdict: Verdict | None = None
     reason: str = ""
     pose_stream: str | None = None
     pose_kind: str | None = None
@@ -181,7 +182,7 @@ def _fill_validation(row: SequenceRow, folder: Path, inputs: DatasetInputs) -> N
     except BiasgtError as exc:
         inputs.problems.append(f"{row.name}: no validation ({exc})")
         return
-    row.verdict = summary.verdict.value
+    row.verdict = summary.verdict
     row.reason = summary.reasons[0] if summary.reasons else ""
     sources = summary.data.get("sources") or {}
     cand = sources.get(summary.candidate) or {}

@@ -14,7 +14,7 @@ from typing import Any
 from pipeline.checks.options import CHECK_CODES
 from pipeline.checks.run import run_checks, stream_summaries
 from pipeline.errors import BiasgtError
-from pipeline.types import NS_PER_S, Finding, Sequence, Severity
+from pipeline.types import NS_PER_S, Finding, Sequence, Severity, Verdict
 from recovery.intrinsics_report import intrinsics_clause
 from reports.html import Html, esc, fmt, join, p, section, table, tag, ul
 from reports.quality_inputs import (TITLE, ReportInputs, better_worse, candidate_name, first_of_kind, num,
@@ -30,10 +30,14 @@ NOT_INDEPENDENT = "NOT_INDEPENDENT"
 
 
 _USABILITY = {
-    "PASS": "usable for training.",
-    "WARN": "usable with care: read the reasons below before training on it.",
-    "FAIL": "not usable for training as it is.",
+    Verdict.PASS: "usable for training.",
+    Verdict.WARN: "usable with care: read the reasons below before training on it.",
+    Verdict.FAIL: "not usable for training as it is.",
 }
+#: The verdict box's CSS class (no verdict: ``v-none``).
+_VERDICT_CLASS = {Verdict.PASS: "v-pass", Verdict.WARN: "v-warn", Verdict.FAIL: "v-fail"}
+#: The verdict word of a validation without one.
+NO_VERDICT = "NO VERDICT"
 
 
 def mm_pair(a_m: float | None, b_m: float | None) -> tuple[str, str]:
@@ -59,11 +63,12 @@ def verdict_summary(validation: dict[str, Any] | None,
     """``(word, sentence)``: PASS/WARN/FAIL (or NO VERDICT) and one plain-words headline (the DATASET source
     named ``dataset_label``)."""
     if validation is None:
-        return "NO VERDICT", "The validation stage's output is missing, so the recovered bias has not been judged."
-    word = str(validation.get("verdict", "")).upper() or "NO VERDICT"
+        return NO_VERDICT, "The validation stage's output is missing, so the recovered bias has not been judged."
+    verdict = Verdict.parse(validation.get("verdict"))
+    word = verdict.value if verdict is not None else str(validation.get("verdict") or "").upper() or NO_VERDICT
     cand = candidate_name(validation)
     sources = validation_sources(validation)
-    usable = _USABILITY.get(word, "")
+    usable = _USABILITY.get(verdict, "")
     if cand is None:
         return word, f"The validation holds no bias source. {usable}".strip()
     cs = sources[cand]
@@ -158,7 +163,8 @@ def implausible_frame(inp: ReportInputs, check: str, body: Html | None) -> Html 
 
 def verdict_section(inp: ReportInputs) -> Html:
     word, sentence = verdict_summary(inp.validation, dataset_bias_label(inp.sequence))
-    cls = {"PASS": "v-pass", "WARN": "v-warn", "FAIL": "v-fail"}.get(word, "v-none")
+    verdict = Verdict.parse(word)
+    cls = _VERDICT_CLASS.get(verdict, "v-none")
     body = [Html(tag("span", word, class_="word") + esc(sentence))]
     if inp.validation is not None:
         reasons = [str(r) for r in inp.validation.get("reasons") or []]
@@ -166,7 +172,7 @@ def verdict_section(inp: ReportInputs) -> Html:
             body.append(p("Reasons (with the rule's code):"))
             body.append(ul([Html(esc(r) + (" " + tag("code", esc(c), class_="rule") if c else ""))
                             for r, c in zip(reasons, reason_codes(inp.validation))]))
-        elif word == "PASS":
+        elif verdict is Verdict.PASS:
             body.append(p("No reason for concern was found in what was checked: the candidate is at least as good "
                           "as every baseline, few windows are flagged and few were dropped."))
         steps = [str(x) for x in inp.validation.get("next_steps") or [] if isinstance(x, str)]

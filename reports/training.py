@@ -9,7 +9,7 @@ intervals of the K samples against the nominal level), and parameters, training 
 evaluation latency per method.
 
 Inputs are the workflow's folders (``results/evaluation/...`` written by
-:func:`training.outputs.write_evaluation`, ``results/training/...`` written by
+:func:`training.evaluation.outputs.write_evaluation`, ``results/training/...`` written by
 ``biasgt train``); :func:`build_training_report` writes the page atomically.
 """
 
@@ -26,10 +26,10 @@ from matplotlib.figure import Figure
 
 from pipeline.atomic import write_text_atomic
 from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
-from training.outputs import EXAMPLES_PARQUET, EvaluationSummary, read_summary
+from training.evaluation.outputs import EXAMPLES_PARQUET, EvaluationSummary, read_summary
 from training.networks import get_network, network_names
-from training.predictions import CHANNELS
-from training.table import AVERAGE, TableColumn, build_table, cell_marks, method_label, table_columns
+from training.evaluation.predictions import CHANNELS
+from training.evaluation.table import AVERAGE, TableColumn, build_table, cell_marks, method_label, table_columns
 
 log = logging.getLogger(__name__)
 

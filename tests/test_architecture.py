@@ -71,3 +71,42 @@ def test_no_private_name_is_imported_across_modules() -> None:
                         continue  # a private submodule, used inside its own package
                     offences.append(f"{path.relative_to(REPO)}:{node.lineno} imports {target}.{name}")
     assert not offences, "private names imported across modules:\n" + "\n".join(offences)
+
+
+def _verdict_words() -> set[str]:
+    from pipeline.checks.options import CHECK_VERDICT_WORDS
+    from pipeline.types import Verdict
+
+    return {v.value for v in Verdict} | set(CHECK_VERDICT_WORDS.values())
+
+
+def _literals(node: ast.AST) -> list[str]:
+    return [n.value for n in ast.walk(node) if isinstance(n, ast.Constant) and isinstance(n.value, str)]
+
+
+def test_no_module_compares_a_verdict_as_a_string_literal() -> None:
+    """A verdict is compared as :class:`pipeline.types.Verdict` (``Verdict.parse`` for one read from a file,
+    ``check_verdict`` for the input checks' words), never as its text: no ``==``, ``!=``, ``in`` or ``is`` with a
+    verdict word (PASS, WARN, FAIL, or the input checks' ok / repairable / fatal) as a literal, no text search
+    for one (``startswith("validation WARN")``), and no table or list of those literals kept by hand."""
+    words = _verdict_words()
+    offences = []
+    for package in PACKAGES:
+        for path in sorted((REPO / package).rglob("*.py")):
+            tree = ast.parse(path.read_text(encoding="utf-8"))
+            for node in ast.walk(tree):
+                found: list[str] = []
+                if isinstance(node, ast.Compare):
+                    found = [v for side in (node.left, *node.comparators) for v in _literals(side)
+                             if v in words or any(w in v for w in ("PASS", "WARN", "FAIL") if v != w and len(v) < 20)]
+                elif isinstance(node, (ast.Dict, ast.Tuple, ast.List, ast.Set)):  # a hand-kept table or list
+                    items = node.keys if isinstance(node, ast.Dict) else node.elts
+                    keys = [k.value for k in items if isinstance(k, ast.Constant) and isinstance(k.value, str)]
+                    found = [k for k in keys if k in words] if sum(k in words for k in keys) >= 2 else []
+                elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+                      and node.func.attr in ("startswith", "endswith", "find", "index", "count")):
+                    found = [v for arg in node.args for v in _literals(arg)
+                             if any(w in v.split() or v == w for w in ("PASS", "WARN", "FAIL"))]
+                if found:
+                    offences.append(f"{path.relative_to(REPO)}:{node.lineno} {sorted(set(found))}")
+    assert not offences, "verdicts compared as string literals:\n" + "\n".join(offences)

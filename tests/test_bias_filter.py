@@ -1,4 +1,4 @@
-"""The causal bias filter (training.bias_filter): its bias against the truth of the independent
+"""The causal bias filter (training.rows.bias_filter): its bias against the truth of the independent
 generator (tests/independent.py, written from the equations), its causality, and its reference row.
 """
 
@@ -8,12 +8,12 @@ import numpy as np
 import pytest
 
 from independent import REPORTED, LissajousMotion, RestThenMotion, make_sequence
-from training.bias_filter import run_bias_filter, track_of
+from training.rows.bias_filter import run_bias_filter, track_of
 from training.config import EvaluationConfig
-from training.context import SequenceContext, detect_rests, open_context
-from training.evaluate import evaluate_reference
+from training.data.records import SequenceContext, detect_rests, open_context
+from training.evaluation.evaluate import evaluate_reference
 from training.references import get_reference
-from training.sim_context import RestSim, write_rest_sim_dataset
+from training.data.sim_context import RestSim, write_rest_sim_dataset
 
 #: The prior a train split would give: zero mean, a sigma of the generator's turn-on sizes.
 PRIOR_STD = np.r_[np.full(3, 0.02), np.full(3, 0.1)]
@@ -70,7 +70,7 @@ def test_bias_filter_row_holds_the_track_at_each_window_end(tmp_path):
 
 
 def test_filter_base_and_context_block(tmp_path):
-    from training.context_model import Base, ContextModelConfig, Stats, context_features
+    from training.context.model import Base, ContextModelConfig, Stats, context_features
 
     sim = RestSim(duration_s=20.0, rate_hz=50.0)
     dataset = write_rest_sim_dataset(tmp_path / "ds", sim, train=2, val=1, test=1, seed=5)
@@ -90,12 +90,9 @@ def test_filter_base_and_context_block(tmp_path):
     np.testing.assert_allclose(feats[:, -6:], track.std[last] / stats.bias_std)
 
 
-def test_label_source_state_reads_the_state_bias_where_a_sequence_has_one(tmp_path):
+def test_state_labels_are_the_state_bias_where_a_sequence_has_one(tmp_path):
     from pipeline.types import Split
-    from training.config import EvalGravity
-    from training.context_model import ContextModelConfig, Stats
-    from training.context_train import LabelSource, load_split
-    from training.dataset import STATE_BIAS, WindowDataset
+    from training.data.dataset import STATE_BIAS, WindowDataset, with_state_labels
 
     sim = RestSim(duration_s=20.0, rate_hz=50.0)
     dataset = write_rest_sim_dataset(tmp_path / "ds", sim, train=2, val=1, test=1, seed=7)
@@ -105,16 +102,13 @@ def test_label_source_state_reads_the_state_bias_where_a_sequence_has_one(tmp_pa
     labels = np.load(folder / "bias.npy")
     state = labels + np.r_[0.0, 0.0, 0.0, 0.5, 0.5, 0.5]  # a state bias that differs from the labels
     np.save(folder / f"{STATE_BIAS}.npy", state)
-    stats = Stats(np.zeros(6), np.ones(6), np.zeros(6), np.ones(6))
-    mc = ContextModelConfig(base="mean", history_s=())
-    kept = load_split(dataset, Split.TRAIN, stats, mc, EvalGravity.NOMINAL)
-    taken = load_split(dataset, Split.TRAIN, stats, mc, EvalGravity.NOMINAL, LabelSource.STATE)
-    n = len(labels)
-    np.testing.assert_array_equal(kept["bias"][:n].numpy(), labels)
-    np.testing.assert_array_equal(taken["bias"][:n].numpy(), state)
-    # the other sequence has no state: its labels stay
-    np.testing.assert_array_equal(taken["bias"][n:].numpy(), kept["bias"][n:].numpy())
-    assert second != first
+    taken = WindowDataset(with_state_labels(dataset, tmp_path / "state"), Split.TRAIN)
+    np.testing.assert_array_equal(np.asarray(taken.arrays(first)["bias"]), state)
+    # the other sequence has no state: its labels stay; everything else is the dataset's own
+    np.testing.assert_array_equal(np.asarray(taken.arrays(second)["bias"]), np.asarray(ds.arrays(second)["bias"]))
+    np.testing.assert_array_equal(np.asarray(taken.arrays(first)["imu"]), np.asarray(ds.arrays(first)["imu"]))
+    assert taken.manifest["normalization"] == ds.manifest["normalization"]
+    assert np.array_equal(np.load(folder / "bias.npy"), labels)  # the source untouched
 
 
 def test_bias_filter_row_has_a_table_i_footnote_only_when_present():
@@ -125,21 +119,33 @@ def test_bias_filter_row_has_a_table_i_footnote_only_when_present():
     assert row.footnote([SimpleNamespace(method="train_mean")]) is None
 
 
-def test_registered_network_with_the_filter_base_starts_at_the_filter_gyro():
-    from types import SimpleNamespace
-
+def test_registered_network_with_the_filter_base_starts_at_the_filter_gyro(tmp_path):
+    """The context the feeder gives ends with the base (the filter's gyro, the train mean's accelerometer,
+    normalised), and the untrained network is that base."""
     import torch
 
-    from training.context_model import ContextNet
-    from training.networks import ContextOptions
+    from training.config import ModelConfig
+    from training.context.model import ContextFeeder, ContextNet
+    from training.data.normalizer import Normalizer
 
-    options = ContextOptions(base="filter", history_s=())
-    net = ContextNet(SimpleNamespace(network=options, condition_channels=6))
+    sim = RestSim(duration_s=20.0, rate_hz=50.0)
+    dataset = write_rest_sim_dataset(tmp_path / "ds", sim, train=2, val=1, test=1, seed=5)
+    config = ModelConfig.for_preset("context_residual", "tiny", base="filter", history_s=())
+    mean, std = np.r_[0.01, -0.02, 0.03, 0.1, -0.1, 0.2], PRIOR_STD
+    normalizer = Normalizer({"imu_mean": np.zeros(6), "imu_std": np.ones(6), "bias_mean": mean, "bias_std": std})
+    feeder = ContextFeeder.for_model(dataset, config, normalizer)
+    net = ContextNet(config)
     F = net.features
     assert F == 8 + 12  # the rest summary, then the filter block
-    context = torch.zeros(2, F, dtype=torch.float64)
-    context[:, -12:-6] = torch.tensor([[0.5, -1.0, 2.0, 3.0, 3.0, 3.0], [0.0, 1.0, 0.0, -3.0, 0.0, 0.0]])
-    out = net(torch.zeros(2, 40, 6), context)  # untrained: the residual's last layers are zero
-    assert out.shape == (2, 40, 6)
-    torch.testing.assert_close(out[:, 0, :3], context[:, -12:-9].float())  # the filter's gyro (normalised)
-    torch.testing.assert_close(out[:, 0, 3:], torch.zeros(2, 3))  # the train mean's accelerometer
+    ctx = open_context(dataset, "rest_test_00")
+    t0, T = ctx.t_ns[[0, 300, 600]], 50
+    context = feeder(["rest_test_00"] * 3, t0, T)
+    assert context.shape == (3, F + 6)
+    track = track_of(ctx, normalizer.bias_mean.double().numpy(), normalizer.bias_std.double().numpy(), 9.81)
+    last = ctx.index(t0) + T - 1
+    f32 = normalizer.bias_std.double().numpy()
+    np.testing.assert_allclose(context[:, F:F + 3].numpy(), (track.bias[last, :3] - mean[:3]) / f32[:3], rtol=1e-6)
+    np.testing.assert_array_equal(context[:, F + 3:].numpy(), 0.0)  # the train mean's accelerometer
+    out = net(torch.zeros(3, 40, 6), context)  # untrained: the residual's last layers are zero
+    assert out.shape == (3, 40, 6)
+    torch.testing.assert_close(out[:, 0], context[:, F:].float())

@@ -12,13 +12,13 @@ import torch
 from torch.utils.data import default_collate
 
 from pipeline.errors import ConfigError, DataError
-from training.batch import WindowBatch
-from training.checkpoint import load_run
-from training.clip import clip_bounds
+from training.data.batch import WindowBatch
+from training.fit.checkpoint import load_run
+from training.models.clip import clip_bounds
 from training.config import ClipRange, ModelConfig, Preset, Sampler, TrainConfig
-from training.dataset import Split, WindowDataset, write_dataset
-from training.scheduler import ClipCount
-from training.train import train
+from training.data.dataset import Split, WindowDataset, write_dataset
+from training.models.scheduler import ClipCount
+from training.fit.train import train
 
 sys.path.insert(0, str(Path(__file__).parent))
 from toy_windows import Kind, Toy, one_torch_thread, toy_sequence  # noqa: E402,F401 (a fixture)

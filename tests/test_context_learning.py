@@ -12,13 +12,13 @@ import torch
 
 from pipeline.types import DEFAULT_GRAVITY_MPS2
 from training.config import EvaluationConfig
-from training.context import CONTEXT_DIR, SequenceContext, detect_rests, open_context
-from training.context_model import ContextModelConfig, Stats, context_features, integration_errors
-from training.dataset import WindowDataset
-from training.evaluate import evaluate_reference
-from training.ref_sequence_mean import sequence_mean_bias
-from training.ref_start_rest import start_rest_bias
-from training.sim_context import RestSim, simulate_rest_sequence, write_rest_sim_dataset
+from training.data.records import CONTEXT_DIR, SequenceContext, detect_rests, open_context
+from training.context.model import ContextModelConfig, Stats, context_features
+from training.data.dataset import WindowDataset
+from training.evaluation.evaluate import evaluate_reference
+from training.rows.sequence_mean import sequence_mean_bias
+from training.rows.start_rest import start_rest_bias
+from training.data.sim_context import RestSim, simulate_rest_sequence, write_rest_sim_dataset
 from toy_windows import one_torch_thread  # noqa: F401 (a fixture)
 
 SIM = RestSim(duration_s=20.0, rate_hz=50.0)
@@ -77,7 +77,7 @@ def test_start_rest_is_causal_and_falls_back_to_the_train_mean(sim_dataset):
 def test_write_context_from_stores_matches_the_windows(tmp_path):
     from window_data import make_window_dataset
 
-    from training.context import write_context
+    from training.data.records import write_context
 
     ds = make_window_dataset(tmp_path, splits={"train": 1, "val": 1, "test": 1}, duration_s=6.0)
     write_context(ds)
@@ -110,11 +110,13 @@ def test_true_bias_integrates_to_the_reference(sim_dataset):
     a = ds.arrays("rest_test_00")
     t = lambda k: torch.from_numpy(np.array(a[k], dtype=np.float64))  # noqa: E731
     dt = torch.from_numpy(np.diff(np.asarray(a["t_ns"]), axis=1) * 1e-9)
+    from training.models.bias_model import integration_errors
+
     g = torch.tensor(DEFAULT_GRAVITY_MPS2, dtype=torch.float64)
-    args = (dt, t("start_R"), t("start_v"), t("start_p"), t("end_R"), t("end_p"), g)
+    args = (dt, t("start_R"), t("start_v"), t("start_p"), t("end_R"), t("end_v"), t("end_p"), g)
     imu = t("imu")
-    rot_true, pos_true = integration_errors(imu, t("bias"), *args)
-    rot_zero, pos_zero = integration_errors(imu, torch.zeros(len(imu), 6), *args)
+    rot_true, _, pos_true = integration_errors(imu, t("bias"), *args)
+    rot_zero, _, pos_zero = integration_errors(imu, torch.zeros(len(imu), 6), *args)
     assert float(pos_true.sqrt().max()) < 0.01 < float(pos_zero.sqrt().mean())
     assert float(rot_true.sqrt().max()) < float(rot_zero.sqrt().mean()) / 5
 
@@ -132,17 +134,27 @@ def _closure(ds, result) -> tuple[float, float]:
     return _closures(ds, result)[result.summary.rows[0].key]
 
 
+def _trained(ds, out, method: str, steps: int, evaluation: EvaluationConfig, *, use_temperature: bool, lr: float = 1e-3,
+             **options):
+    """``method`` trained by the one trainer (``biasgt train``'s) and evaluated by ``biasgt evaluate``'s function."""
+    from training.config import TrainConfig
+    from training.evaluation.evaluate import evaluate_run
+    from training.fit.train import train
+
+    config = TrainConfig(method=method, preset="tiny", seed=0, max_steps=steps, batch_size=64, lr=lr,
+                         warmup_steps=10, val_every=50, checkpoint_every=steps, use_temperature=use_temperature,
+                         device="cpu", model_overrides={"history_s": (), **options})
+    return evaluate_run(train(config, ds, out), ds, None, evaluation, method=method)
+
+
 @pytest.mark.usefixtures("one_torch_thread")
-def test_context_model_learns_the_bias_and_needs_its_input(sim_dataset):
-    from training.context_train import ContextTrainConfig, evaluate_context, train_context
+def test_context_model_learns_the_bias_and_needs_its_input(sim_dataset, tmp_path):
+    def run(name, **options):
+        return _closure(sim_dataset, _trained(sim_dataset, tmp_path / name, "context_residual", 300, EVAL,
+                                              loss="label", **options))
 
-    def run(**model):
-        cfg = ContextTrainConfig(model=ContextModelConfig(history_s=(), **model), steps=300, lr=3e-3, val_every=50,
-                                 gravity="recovered")
-        return _closure(sim_dataset, evaluate_context(train_context(sim_dataset, cfg), sim_dataset, EVAL))
-
-    learned = run(base="rest", use_temperature=True)
-    blind = run(base="mean", use_temperature=False, use_context=False)  # a model ignoring its input
+    learned = run("learned", base="rest", use_temperature=True)
+    blind = run("blind", base="mean", use_temperature=False, use_context=False)  # a model ignoring its input
     rest_only = _closure(sim_dataset, evaluate_reference("start_rest", sim_dataset, None, EVAL))
     assert min(learned) >= 0.8, learned
     assert learned[0] > rest_only[0] + 0.1, (learned, rest_only)  # the temperature term is learned
@@ -150,65 +162,83 @@ def test_context_model_learns_the_bias_and_needs_its_input(sim_dataset):
 
 
 @pytest.mark.usefixtures("one_torch_thread")
-def test_context_diffusion_learns_the_bias_and_needs_its_input(sim_dataset):
+def test_context_diffusion_learns_the_bias_and_needs_its_input(sim_dataset, tmp_path):
     """The residual drawn by DDIM: its sample mean closes the simulated gap; samples drawn without the
     input spread over the train split's residuals and close none of it."""
-    from training.context_diffusion import ContextDiffusion
-    from training.context_train import ContextTrainConfig, evaluate_context, train_context
-
     sampled = EvaluationConfig(samples=8, samplers=["ddim"], gravity="recovered")
 
-    def run(**model):
-        cfg = ContextTrainConfig(model=ContextModelConfig(history_s=(), diffusion=True, **model), steps=600, lr=3e-3,
-                                 val_every=50, gravity="recovered")
-        trained = train_context(sim_dataset, cfg)
-        assert isinstance(trained, ContextDiffusion)
-        return _closures(sim_dataset, evaluate_context(trained, sim_dataset, sampled))
+    def run(name, **options):
+        return _closures(sim_dataset, _trained(sim_dataset, tmp_path / name, "context_diffusion", 600, sampled,
+                                               lr=3e-3, **options))
 
-    learned = run(base="rest", use_temperature=True)
-    blind = run(base="mean", use_temperature=False, use_context=False)
+    learned = run("learned", base="rest", use_temperature=True)
+    blind = run("blind", base="mean", use_temperature=False, use_context=False)
     assert min(learned["mean"]) >= 0.8 and min(learned[""]) >= 0.7, learned
     assert max(blind["mean"]) < 0.5 and max(blind[""]) < 0.5, blind
 
 
-def test_context_diffusion_losses_follow_the_forward_process():
-    """Against the closed forms: ``x0_hat`` is the target exactly when the noise estimate is exact, and
-    the integration weights are ``min(alpha_bar / (1 - alpha_bar), 1)`` of the drawn steps."""
-    from training.context_diffusion import ContextDiffusion
+def _context_batch(model, B: int = 5, T: int = 11):
+    """A batch of B still windows (identity attitude, no motion) with random labels and a random context."""
+    from training.data.batch import WindowBatch
 
-    model = ContextDiffusion(ContextModelConfig(history_s=(), diffusion=True), Stats(*(np.ones(6),) * 4))
-    torch.nn.init.zeros_(model.denoiser[-1].weight)
-    torch.nn.init.zeros_(model.denoiser[-1].bias)  # eps_hat = 0
-    cond = torch.zeros(5, model.denoiser[0].in_features - 6 - 32)
-    target = torch.randn(5, 6, generator=torch.Generator().manual_seed(3))
-    gen = torch.Generator().manual_seed(7)
-    mse, x0, w = model.losses(cond, target, gen)
-    replay = torch.Generator().manual_seed(7)
-    t = torch.randint(0, 1000, (5,), generator=replay)
-    noise = torch.randn(5, 6, generator=replay)
-    ab = torch.cumprod(1 - torch.linspace(1e-4, 0.02, 1000), 0)[t][:, None]
-    x_t = ab.sqrt() * target + (1 - ab).sqrt() * noise
-    torch.testing.assert_close(mse, noise.square().mean())
-    torch.testing.assert_close(x0, x_t / ab.sqrt())
-    torch.testing.assert_close(w, (ab / (1 - ab)).clamp(max=1)[:, 0])
+    g = torch.Generator().manual_seed(3)
+    eye = torch.eye(3).expand(B, 3, 3)
+    z3 = torch.zeros(B, 3)
+    return WindowBatch(imu=0.01 * torch.randn(B, T, 6, generator=g), bias=0.01 * torch.randn(B, T, 6, generator=g),
+                       bias_std=torch.zeros(B, T, 6), dt_s=torch.full((B, T - 1), 0.01), start_R=eye, start_v=z3,
+                       start_p=z3, end_R=eye, end_v=z3, end_p=z3,
+                       context=torch.randn(B, model.net.context_size, generator=g))
+
+
+def test_context_diffusion_losses_follow_the_forward_process():
+    """Against the closed forms (DDPM eq. 4, DDIM eq. 9), with the noise estimate zeroed: the loss is the noise's
+    mean square plus the integration of ``x0_hat = x_t / sqrt(alpha_bar)`` (on the base), each window weighted
+    by ``min(alpha_bar / (1 - alpha_bar), 1)``."""
+    import math
+
+    from training.config import ModelConfig
+    from training.data.normalizer import Normalizer
+    from training.models.bias_model import BiasModel, integration_errors
+
+    config = ModelConfig.for_preset("context_diffusion", "tiny", history_s=(), loss="both")
+    model = BiasModel(config, Normalizer({k: [1.0] * 6 for k in ("imu_mean", "imu_std", "bias_mean", "bias_std")}))
+    torch.nn.init.zeros_(model.net.denoiser[-1].weight)
+    torch.nn.init.zeros_(model.net.denoiser[-1].bias)  # eps_hat = 0
+    batch = _context_batch(model)
+    B = len(batch)
+    t = torch.tensor([0, 10, 200, 600, 999])
+    noise = torch.randn(B, 6, generator=torch.Generator().manual_seed(7))
+    loss = model.loss(batch, noise=noise, t=t)
+    ab = torch.cumprod(1 - torch.linspace(1e-4, 0.02, 1000, dtype=torch.float64), 0)[t][:, None]
+    base = batch.context[:, -6:].double()
+    x0 = (batch.bias.double() - 1.0).mean(1) - base  # the normalised window mean (mean 1, std 1) on the base
+    x_t = ab.sqrt() * x0 + (1 - ab).sqrt() * noise.double()
+    bias = (x_t / ab.sqrt() + base) + 1.0  # x0_hat on the base, unnormalised
+    rot, _, pos = integration_errors(batch.imu, bias, batch.dt_s, batch.start_R, batch.start_v, batch.start_p,
+                                     batch.end_R, batch.end_v, batch.end_p, torch.tensor([0.0, 0.0, -9.81]))
+    w = (ab / (1 - ab)).clamp(max=1)[:, 0]
+    o = config.network
+    expected = noise.double().square().mean() + (w * (rot / math.radians(o.rot_scale_deg) ** 2
+                                                      + pos / o.pos_scale_m ** 2)).sum() / B
+    torch.testing.assert_close(loss.double(), expected, rtol=2e-5, atol=0)
 
 
 def test_context_diffusion_refuses_an_integration_loss_alone():
     from pipeline.errors import ConfigError
-    from training.context_train import ContextTrainConfig
+    from training.networks import ContextDiffusionOptions
 
     with pytest.raises(ConfigError, match="noise loss"):
-        ContextTrainConfig(model=ContextModelConfig(diffusion=True), loss="integration")
+        ContextDiffusionOptions(loss="integration")
 
 
 @pytest.mark.usefixtures("one_torch_thread")
 def test_registered_context_network_trains_and_evaluates_through_the_public_functions(sim_dataset, tmp_path):
     """``biasgt train --method context_residual`` / ``biasgt evaluate``'s functions: the batches carry the
     records' context, the checkpoint alone rebuilds the model, and it closes the simulated gap."""
-    from training.checkpoint import load_run
+    from training.fit.checkpoint import load_run
     from training.config import TrainConfig
-    from training.evaluate import evaluate_run
-    from training.train import train
+    from training.evaluation.evaluate import evaluate_run
+    from training.fit.train import train
 
     config = TrainConfig(method="context_residual", preset="tiny", seed=0, max_steps=300, batch_size=64, lr=3e-3,
                          warmup_steps=10, val_every=50, checkpoint_every=300, use_temperature=True, device="cpu",

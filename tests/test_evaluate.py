@@ -13,10 +13,10 @@ from scipy.spatial.transform import Rotation
 from independent import rk4_integrate
 from pipeline.errors import DataError, InputFormatError
 from pipeline.store import read_store
-from training.baselines import random_walk_paths
-from training.dataset import MANIFEST, Split, WindowDataset
-from training.evaluate import EvaluationConfig, evaluate_reference, load_test_windows
-from training.outputs import Aggregation, read_summary
+from training.rows.baselines import random_walk_paths
+from training.data.dataset import MANIFEST, Split, WindowDataset
+from training.evaluation.evaluate import EvaluationConfig, evaluate_reference, load_test_windows
+from training.evaluation.outputs import Aggregation, read_summary
 from validation.validate import ValidationConfig, validate_inputs
 from window_data import make_window_dataset
 

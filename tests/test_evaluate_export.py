@@ -8,10 +8,10 @@ import torch
 
 from biasgt.cli.app import main
 from pipeline.errors import ConfigError
-from training.checkpoint import load_run
+from training.fit.checkpoint import load_run
 from training.config import Sampler
-from training.export import export_run, onnx_session
-from training.predict import predict_batch
+from training.deploy.export import export_run, onnx_session
+from training.deploy.predict import predict_batch
 from window_data import make_window_dataset, train_tiny
 
 

@@ -16,10 +16,10 @@ from biasgt.cli.app import main
 from pipeline.errors import ConfigError, InputFormatError
 from biasgt.workflow.learning import TrainingPlan, evaluate_step, table_step
 from training.config import Sampler
-from training.dataset import STATE_BIAS
-from training.evaluate import CALIBRATION_LEVELS, CHANNELS, EvaluationConfig, evaluate_run, load_test_windows
-from training.outputs import Aggregation, read_summary
-from training.table import TABLE_MD
+from training.data.dataset import STATE_BIAS
+from training.evaluation.evaluate import CALIBRATION_LEVELS, CHANNELS, EvaluationConfig, evaluate_run, load_test_windows
+from training.evaluation.outputs import Aggregation, read_summary
+from training.evaluation.table import TABLE_MD
 from window_data import make_window_dataset, train_tiny
 
 METHODS = ("diffusion_rnn", "regression_rnn")
@@ -70,7 +70,7 @@ def test_diffusion_summary_rows_and_calibration(trained):
     assert ex["window"].nunique() == 2 and set(ex["sampler"]) == {"ddim", "released"}
     assert np.all(ex["q0.025"] <= ex["q0.975"])
     # the paper's Fig. 3: a few samples and the dataset's own bias beside the label, in the windows' layout
-    from training.evaluate import EXAMPLE_SAMPLES
+    from training.evaluation.evaluate import EXAMPLE_SAMPLES
 
     kept = [c for c in ex.columns if c.startswith("sample") and c[6:].isdigit()]
     assert kept == [f"sample{j}" for j in range(min(EXAMPLE_SAMPLES, EVAL["samples"]))]
@@ -99,8 +99,8 @@ def _midpoint_end_states(imu: np.ndarray, bias: np.ndarray, dt_s: np.ndarray, R0
 
 def _rows_from_predictions(folder: Path, dataset: Path, stat: str, sampler: str) -> dict[str, tuple[float, float]]:
     """Sequence -> (PRMSE m, ROE deg) recomputed from predictions.parquet and the dataset's test arrays alone."""
-    from training.dataset import Split, WindowDataset
-    from training.predictions import PREDICTIONS_PARQUET, prediction_array
+    from training.data.dataset import Split, WindowDataset
+    from training.evaluation.predictions import PREDICTIONS_PARQUET, prediction_array
 
     frame = pd.read_parquet(folder / PREDICTIONS_PARQUET)
     windows, bias = prediction_array(frame, stat, sampler)

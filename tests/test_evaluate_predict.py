@@ -11,8 +11,8 @@ from pipeline.bias_table import CSV_HEADER
 from biasgt.cli.app import main
 from pipeline.errors import DataError
 from pipeline.store import read_store
-from training.checkpoint import load_run
-from training.predict import predict_batch, predict_sequence, window_starts
+from training.fit.checkpoint import load_run
+from training.deploy.predict import predict_batch, predict_sequence, window_starts
 from validation.validate import read_bias_file, validate_inputs
 from window_data import make_window_dataset, train_tiny
 

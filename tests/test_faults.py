@@ -30,8 +30,8 @@ import yaml
 from biasgt.cli.app import main
 from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
 from pipeline.sim.writer import write_simulation
-from training.checkpoint import BEST, load_checkpoint, load_run, save_checkpoint
-from training.dataset import ARRAYS
+from training.fit.checkpoint import BEST, load_checkpoint, load_run, save_checkpoint
+from training.data.dataset import ARRAYS
 from window_data import make_window_dataset, train_tiny
 
 pytestmark = pytest.mark.xdist_group("faults")
@@ -111,7 +111,7 @@ def test_corrupted_checkpoint_is_refused_naming_it(trained, tmp_path, capsys, co
 
 def test_bit_flipped_checkpoint_from_before_checksums_is_refused_as_non_finite(trained, tmp_path):
     """A checkpoint without stored checksums is still refused when a weight is NaN."""
-    from training.checkpoint import CheckpointError
+    from training.fit.checkpoint import CheckpointError
 
     state = load_checkpoint(trained / "run" / BEST)
     state.pop("weights_sha256")
@@ -190,8 +190,8 @@ def test_predict_on_a_good_recording_and_its_rate_hint(trained, tmp_path, capsys
 
 @pytest.mark.parametrize("command", ["evaluate", "train", "predict"])
 def test_output_path_that_is_a_file_is_refused_before_any_work(trained, tmp_path, capsys, command, monkeypatch):
-    import training.checkpoint as checkpoint
-    import training.train as train_module
+    import training.fit.checkpoint as checkpoint
+    import training.fit.train as train_module
 
     def no_work(*args, **kwargs):
         raise AssertionError("work started before the output location was checked")
@@ -452,7 +452,7 @@ def test_config_without_a_test_split_says_so_once_at_config_check(tmp_path, capl
 
 def test_batch_size_larger_than_the_train_split_is_said_and_recorded(trained, tmp_path, caplog):
     """The train split has 9 windows; batch size 64 uses all 9 per step: said, and run.json records 9."""
-    from training.dataset import WindowDataset
+    from training.data.dataset import WindowDataset
 
     n_train = len(WindowDataset(trained / "dataset", "train"))
     assert n_train < 64
@@ -535,7 +535,7 @@ def test_unfinished_run_folder_is_not_used_as_a_trained_model(trained, tmp_path,
 
 def test_non_finite_loss_before_any_checkpoint_claims_no_kept_checkpoint(trained, tmp_path, capsys, monkeypatch):
     """A diverged training with nothing saved yet says so, and names no folder as if it held a run."""
-    from training.models import BiasModel
+    from training.models.bias_model import BiasModel
 
     monkeypatch.setattr(BiasModel, "loss", lambda self, *a, **k: torch.tensor(float("nan"), requires_grad=True))
     (tmp_path / "tiny.yaml").write_text("batch_size: 4\ndevice: cpu\nval_every: 1\nwarmup_steps: 1\nthreads: 1\n")
@@ -551,7 +551,7 @@ def test_non_finite_loss_before_any_checkpoint_claims_no_kept_checkpoint(trained
 def test_predictions_that_cannot_be_integrated_are_refused_naming_the_checkpoint(trained, tmp_path, capsys,
                                                                                monkeypatch):
     """Finite but absurd predictions make the integrated attitude no rotation (scipy's SVD fails): one line."""
-    import training.evaluate as ev
+    import training.evaluation.evaluate as ev
 
     def svd_fails(*args, **kwargs):
         raise np.linalg.LinAlgError("SVD did not converge")

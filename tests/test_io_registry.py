@@ -27,28 +27,16 @@ from pipeline.io.registry import (
     unregister,
 )
 from pipeline.store import read_store
-from pipeline.types import ImuSeries, Sequence
+from plugin.biasgt_demo_plugin import reader as demo_reader
 from workflow_configs import write_config
 
 REPO = Path(__file__).resolve().parents[1]
 
-# A CSV dialect of some IMU logger: stamps in milliseconds, accelerometer in g, gyro in rad/s.
+# A CSV dialect of some IMU logger: stamps in milliseconds, accelerometer in g, gyro in rad/s (the demo
+# plugin's reader, registered here by hand).
 DIALECT = "imu_ms_g"
-HEADER = "t_ms,gx,gy,gz,ax_g,ay_g,az_g"
-G0 = 9.80665  # standard gravity [m/s^2], the definition of 1 g
-
-
-def _detect(path: Path) -> bool:
-    if not path.is_file():
-        return False
-    with path.open(encoding="utf-8", errors="replace") as f:
-        return f.readline().strip() == HEADER
-
-
-def _load(path: Path, *, name: str | None = None) -> Sequence:
-    rows = np.loadtxt(path, delimiter=",", skiprows=1, ndmin=2)
-    imu = ImuSeries(np.round(rows[:, 0] * 1e6).astype(np.int64), rows[:, 1:4], rows[:, 4:7] * G0)
-    return Sequence(name=name or path.stem, imu=imu)  # load_sequence records the format
+HEADER, G0 = demo_reader.HEADER, demo_reader.G0
+_detect, _load = demo_reader.detect, demo_reader.load
 
 
 @pytest.fixture

@@ -6,12 +6,12 @@ import pytest
 import torch
 
 from pipeline.errors import DataError, InputFormatError
-from training.batch import WindowBatch
+from training.data.batch import WindowBatch
 from training.networks import get_network, network_names
 from training.config import ModelConfig, Preset, Sampler, TrainConfig
-from training.models import build_model, count_parameters
+from training.models.bias_model import build_model, count_parameters
 from training.models.layers import TcnEncoder
-from training.normalizer import Normalizer
+from training.data.normalizer import Normalizer
 
 STATS = dict(imu_mean=[0.0] * 6, imu_std=[1.0] * 6, bias_mean=[0.01] * 6, bias_std=[0.02] * 6)
 
@@ -55,7 +55,7 @@ def test_every_method_samples_raw_units_and_rebuilds_from_state_dict(method):
     model = build_model(ModelConfig.for_preset(method, Preset.TINY), Normalizer(STATS)).eval()
     batch = _batch(T=21)  # an odd length: the U-Net pads and crops
     if get_network(method).context:  # the window's context vector from its sequence's record
-        batch.context = torch.randn(len(batch), model.net.features, generator=torch.Generator().manual_seed(2))
+        batch.context = torch.randn(len(batch), model.net.context_size, generator=torch.Generator().manual_seed(2))
     loss = model.loss(batch, torch.Generator().manual_seed(0))
     assert loss.dim() == 0 and torch.isfinite(loss)
     s = model.sample(batch, 4, steps=5, generator=torch.Generator().manual_seed(1))

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from training.paper import (COMMON_SEQUENCES, PAPER_AVERAGE_4, PAPER_ROWS, PAPER_SEQUENCES, TABLE_I, paper_average,
+from training.evaluation.paper import (COMMON_SEQUENCES, PAPER_AVERAGE_4, PAPER_ROWS, PAPER_SEQUENCES, TABLE_I, paper_average,
                             paper_sequence)
 
 

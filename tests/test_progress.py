@@ -44,9 +44,9 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def test_train_evaluate_and_predict_report_progress(data: Path, tmp_path: Path, caplog) -> None:
-    from training.evaluate import evaluate_reference
-    from training.checkpoint import load_run
-    from training.predict import predict_sequence
+    from training.evaluation.evaluate import evaluate_reference
+    from training.fit.checkpoint import load_run
+    from training.deploy.predict import predict_sequence
     from pipeline.store import read_store
     from window_data import train_tiny
 
@@ -78,7 +78,7 @@ def test_workflow_terminal_gets_one_line_per_running_job(tmp_path: Path) -> None
     old = time.time() - 100
     os.utime(done, (old, old))
     running = logs / "train" / "m_seed0.log"
-    running.write_text("x\n2026-12-02 14:36:27,000 INFO training.train: train m:  40%|####  | 32/80 "
+    running.write_text("x\n2026-12-02 14:36:27,000 INFO training.fit.train: train m:  40%|####  | 32/80 "
                        "[00:41<01:02, 0.77step/s]\n")
     assert last_line(running).startswith("train m:  40%")
     assert running_lines(logs, time.time() - 10) == [f"  [running] logs/train/m_seed0.log: {last_line(running)}"]

@@ -13,10 +13,10 @@ from scipy.spatial.transform import Rotation
 from independent import rk4_integrate
 from pipeline.errors import ConfigError, InputFormatError
 from pipeline.store import read_store
-from training.baselines import random_walk_oracle, random_walk_paper, state_bias
+from training.rows.baselines import random_walk_oracle, random_walk_paper, state_bias
 from training.config import EvalGravity, OracleWalk
-from training.evaluate import EvaluationConfig, evaluate_reference, load_test_windows
-from training.windows import state_bias_at
+from training.evaluation.evaluate import EvaluationConfig, evaluate_reference, load_test_windows
+from training.data.windows import state_bias_at
 from window_data import GRAVITY, RW, make_window_dataset
 
 PAPER = EvaluationConfig(gravity="nominal", oracle_random_walk="sensor")
@@ -184,7 +184,7 @@ def test_paper_walks_step_by_sigma_over_sqrt_dt_and_are_chosen_by_position_and_r
     """The paper's random-walk column as its figures imply: per-sample increments sigma / sqrt(h) and the walk
     with the smallest 3 x position error [m] + rotation error [deg] kept, checked against the walks built
     step by step here and integrated by an independent RK4."""
-    from training.baselines import PAPER_POSITION_WEIGHT
+    from training.rows.baselines import PAPER_POSITION_WEIGHT
 
     w = load_test_windows(data, PAPER)
     name = "test0"

@@ -18,14 +18,14 @@ from torch import nn
 from biasgt.cli.app import build_parser
 from biasgt.workflow.config import load_config
 from pipeline.errors import ConfigError
-from training.checkpoint import load_checkpoint, load_run, save_checkpoint
+from training.fit.checkpoint import load_checkpoint, load_run, save_checkpoint
 from training.config import EvaluationConfig, ModelConfig, TrainConfig, TrainingPlan
-from training.evaluate import evaluate_reference, evaluate_run
-from training.networks import Network, Objective, get_network, network_names, register_network, unregister_network
-from training.references import (ReferenceRow, get_reference, reference_names, register_reference,
-                                 unregister_reference)
-from training.table import TABLE_CSV, TABLE_MD, write_table
-from training.train import train
+from training.evaluation.evaluate import evaluate_reference, evaluate_run
+from training import networks, references
+from training.networks import Network, Objective, get_network, network_names
+from training.references import ReferenceRow, get_reference, reference_names
+from training.evaluation.table import TABLE_CSV, TABLE_MD, write_table
+from training.fit.train import train
 from window_data import make_window_dataset, train_tiny
 from workflow_configs import sim_entry, write_config
 
@@ -60,15 +60,15 @@ def half_truth(items: dict, *, bias_mean: np.ndarray, extra_scale: np.ndarray | 
 @pytest.fixture()
 def dummies():
     """A dummy network and a dummy row, registered through the public API and removed afterwards."""
-    register_network(Network(DUMMY_NET, "Dummy linear", Objective.REGRESSION, "a linear test network", "#000000",
+    networks.register(Network(DUMMY_NET, "Dummy linear", Objective.REGRESSION, "a linear test network", "#000000",
                              DummyOptions, DummyNet, {"tiny": {"width": 4}}))
-    register_reference(ReferenceRow(DUMMY_ROW, "Half the GT bias", "half the recovered bias (test)", half_truth,
+    references.register(ReferenceRow(DUMMY_ROW, "Half the GT bias", "half the recovered bias (test)", half_truth,
                                     oracle=False, needs=("bias_mean", "info.extra_scale"), default=False))
     try:
         yield
     finally:
-        unregister_network(DUMMY_NET)
-        unregister_reference(DUMMY_ROW)
+        networks.unregister(DUMMY_NET)
+        references.unregister(DUMMY_ROW)
     assert DUMMY_NET not in network_names() and DUMMY_ROW not in reference_names()
 
 
@@ -141,7 +141,7 @@ def test_evaluate_cli_defaults_are_the_evaluation_configs(monkeypatch, tmp_path)
         seen["config"] = config
         raise _Stop
 
-    monkeypatch.setattr("training.evaluate.evaluate_reference", evaluate_reference)
+    monkeypatch.setattr("training.evaluation.evaluate.evaluate_reference", evaluate_reference)
     args = build_parser().parse_args(["evaluate", "--reference", "zero", "--dataset", str(tmp_path), "--out",
                                       str(tmp_path / "o")])
     with pytest.raises(_Stop):
@@ -171,7 +171,7 @@ HOMONYMS = {
                      "pipeline/sim/writer.py", "pipeline/sim/simulator.py", "pipeline/types.py", "pipeline/store.py", "validation/reference.py",
                      "validation/plausibility.py", "reports/quality_residuals.py", "reports/quality_verdict.py",
                      "biasgt/cli/commands/_args.py", "biasgt/workflow/params.py"},
-    "state_bias": {"training/dataset.py", "training/windows.py"},
+    "state_bias": {"training/data/dataset.py", "training/data/windows.py"},
 }
 
 

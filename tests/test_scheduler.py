@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from training.config import Sampler
-from training.scheduler import ClipCount, NoiseScheduler
+from training.models.scheduler import ClipCount, NoiseScheduler
 
 diffusers = pytest.importorskip("diffusers")  # a test dependency (pyproject 'test' extra); guard only
 

@@ -11,9 +11,9 @@ import pytest
 
 from pipeline.errors import DataError
 from training.references import get_reference
-from training.evaluate import evaluate_reference
-from training.outputs import Metrics, read_summary
-from training.table import AVERAGE, TABLE_CSV, TABLE_MD, table_columns, write_table
+from training.evaluation.evaluate import evaluate_reference
+from training.evaluation.outputs import Metrics, read_summary
+from training.evaluation.table import AVERAGE, TABLE_CSV, TABLE_MD, table_columns, write_table
 from window_data import make_window_dataset
 
 #: The rows this dataset can evaluate, in their registration (Table I) order.
@@ -77,7 +77,7 @@ def test_seeds_give_mean_and_std(evaluated, tmp_path):
 
 def test_twenty_rows_with_their_variants_fit_a_page() -> None:
     """Methods are rows, grouped with their sampler / aggregation variants; sequences are the columns."""
-    from training.table import TableColumn, format_markdown
+    from training.evaluation.table import TableColumn, format_markdown
 
     seqs = ["MH_02_easy", "V1_03_difficult", "V2_02_medium"]
     columns = []

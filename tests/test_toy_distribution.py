@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 import torch
 
-from training.batch import WindowBatch
-from training.checkpoint import load_run
+from training.data.batch import WindowBatch
+from training.fit.checkpoint import load_run
 from training.config import Preset, TrainConfig
-from training.dataset import Split, WindowDataset
-from training.train import train
+from training.data.dataset import Split, WindowDataset
+from training.fit.train import train
 
 sys.path.insert(0, str(Path(__file__).parent))
 from toy_windows import Kind, Toy, one_torch_thread, write_toy_dataset  # noqa: E402,F401 (a fixture)

@@ -17,10 +17,10 @@ import pytest
 import torch
 
 from pipeline.errors import BiasgtError, DataError, InputFormatError
-from training.checkpoint import BEST, LAST, CheckpointError, load_checkpoint, load_run, weights_hash
+from training.fit.checkpoint import BEST, LAST, CheckpointError, load_checkpoint, load_run, weights_hash
 from training.config import Preset, TrainConfig
-from training.dataset import Split, WindowDataset
-from training.train import TrainingError, train
+from training.data.dataset import Split, WindowDataset
+from training.fit.train import TrainingError, train
 
 sys.path.insert(0, str(Path(__file__).parent))
 from toy_windows import Kind, Toy, one_torch_thread, write_toy_dataset  # noqa: E402,F401 (a fixture)
@@ -101,7 +101,7 @@ def _assert_bit_identical(a, b, where: str = "") -> None:
 def test_resume_with_dropout_is_bit_identical(toy_ds, tmp_path, monkeypatch):
     """Dropout draws from torch's global RNG: nothing else may draw from it between the restore and the
     first resumed step (a DataLoader iterator without its own generator does)."""
-    import training.train as train_module
+    import training.fit.train as train_module
 
     config = TrainConfig(method="diffusion_rnn", max_steps=20, model_overrides={"tcn_dropout": 0.3},
                          **{**TINY, "checkpoint_every": 5})
@@ -172,7 +172,7 @@ def test_checkpoint_holds_everything_to_rebuild_and_best_is_the_lowest_validatio
 
 
 def test_non_finite_loss_names_the_step_and_keeps_the_last_good_checkpoint(toy_ds, tmp_path, monkeypatch):
-    from training.models import BiasModel
+    from training.models.bias_model import BiasModel
 
     real_loss, calls = BiasModel.loss, {"n": 0}
 
@@ -250,7 +250,7 @@ def test_batched_item_reads_equal_single_reads(toy_ds):
 
 def test_temperature_conditioning_trains_from_a_dataset_with_temperature(tmp_path, monkeypatch):
     """A dataset whose windows carry ``temperature_degc`` [T] trains a 7-channel model."""
-    import training.dataset as dataset_module
+    import training.data.dataset as dataset_module
 
     ds = write_toy_dataset(tmp_path / "ds", Toy(), train=48, val=16, test=0, temperature=True)
     if "temperature_degc" not in WindowDataset(ds, Split.TRAIN)[0]:

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import torch
 
-from training.checkpoint import LAST, load_checkpoint
+from training.fit.checkpoint import LAST, load_checkpoint
 
 sys.path.insert(0, str(Path(__file__).parent))
 from toy_windows import Kind, Toy, write_toy_dataset  # noqa: E402

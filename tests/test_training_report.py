@@ -119,7 +119,7 @@ def test_example_figure_draws_samples_and_the_dataset_bias_like_the_papers_fig_3
     import pandas as pd
 
     from reports.training import example_figure
-    from training.evaluate import CHANNELS
+    from training.evaluation.evaluate import CHANNELS
 
     T = 11
     rows = []

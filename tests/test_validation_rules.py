@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from pipeline.bias_table import BiasTrack
+from pipeline.errors import RegistryError
 from pipeline.sim import SimConfig, simulate
 from pipeline.store import write_store
 from pipeline.types import Verdict
@@ -53,7 +54,7 @@ def test_every_rule_has_a_code_a_level_wording_and_is_listed_in_the_docs():
         assert rule.level in (Verdict.WARN, Verdict.FAIL) and rule.wording
         assert f"`{code}`" in docs, f"{code} is not in docs/validation.md"
         assert f"``{code}``" in caption, f"{code} is not in workflow/report/validate.rst"
-    with pytest.raises(ValueError, match="already registered"):
+    with pytest.raises(RegistryError, match="NO_BASELINE already taken"):
         register(RULES["NO_BASELINE"])
 
 
@@ -171,7 +172,7 @@ def test_worse_than_zero_beyond_the_margin_and_significantly_fails_in_sample_and
 
 
 def test_the_in_sample_and_held_out_rules_share_one_comparison(monkeypatch):
-    """Both rules decide by :func:`validation.rules.compare`, called on the in-sample candidate's and the
+    """Both rules decide by :func:`validation.rule_checks.compare.compare`, called on the in-sample candidate's and the
     held-out candidate's errors: forced to say "worse" both FAIL, forced to say "equal" neither fires."""
     from validation.sources import BiasSourceKind as K
 
@@ -181,7 +182,9 @@ def test_the_in_sample_and_held_out_rules_share_one_comparison(monkeypatch):
                          {"zero": (K.ZERO, zero.pos_err_m, zero.rot_err_deg)})
     ev = Evidence({"zero": zero, "recovered": rec}, "recovered", heldout=held)
     calls = []
-    real = rules.compare
+    from validation.rule_checks import compare as comparisons
+
+    real = comparisons.compare
 
     def forced(outcome):
         def fake(label, cand_err, base_err, config, stride, sigma=0.0):
@@ -190,12 +193,12 @@ def test_the_in_sample_and_held_out_rules_share_one_comparison(monkeypatch):
             return dataclasses.replace(got, outcome=outcome, p_value=0.0)
         return fake
 
-    monkeypatch.setattr(rules, "compare", forced("worse"))
+    monkeypatch.setattr(comparisons, "compare", forced("worse"))
     verdict, reasons = rules.judge(ev)
     codes = [r.code for r in reasons]
     assert verdict is Verdict.FAIL and codes.count("WORSE_THAN_ZERO") == 2 and codes.count("HELDOUT_WORSE") == 2
     assert any(c is rec.pos_err_m for c in calls) and any(c is held.metrics.pos_err_m for c in calls)
-    monkeypatch.setattr(rules, "compare", forced(None))
+    monkeypatch.setattr(comparisons, "compare", forced(None))
     assert rules.judge(ev)[0] is Verdict.WARN  # only "no baseline" left: nothing worse than zero
 
 

@@ -22,8 +22,8 @@ from pipeline.sim import ImuNoiseConfig, PoseStreamConfig, SimConfig, simulate
 from pipeline.store import read_store, write_store
 from pipeline.types import ImuSeries
 from synth import write_recovery_folder
-from training.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, Split, WindowDataset, read_manifest
-from training.windows import (
+from training.data.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, Split, WindowDataset, read_manifest
+from training.data.windows import (
     WindowConfig,
     WindowSource,
     build_window_dataset,
@@ -424,9 +424,9 @@ def test_cli_end_to_end_on_two_simulated_sequences(tmp_path, capsys):
     m = read_manifest(tmp_path / "ds")
     assert m["splits"] == {"train": ["sim_a"], "test": ["sim_b"]}
     assert len(WindowDataset(tmp_path / "ds", "test")) == 9
-    # with the sequence records (training.context): each whole IMU record once, the test one too
+    # with the sequence records (training.data.records): each whole IMU record once, the test one too
     from pipeline.store import read_store
-    from training.context import open_context
+    from training.data.records import open_context
 
     imu = read_store(results / "ingest" / "sim_b").imu
     rec = open_context(tmp_path / "ds", "sim_b")

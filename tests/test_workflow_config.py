@@ -265,7 +265,7 @@ def test_stage_sections_take_options_and_defaults_from_the_dataclasses():
     """The schema leaves the stage sections open; their options and defaults are the dataclasses'."""
     from interpolation.config import InterpolationConfig
     from recovery.config import RecoveryConfig
-    from training.windows_config import WindowConfig
+    from training.data.windows_config import WindowConfig
     from validation.config import ValidationConfig
 
     props = load_schema()["properties"]

@@ -335,7 +335,7 @@ def _have_stages() -> str | None:
         from pipeline.sim import simulate, write_simulation  # noqa: F401
         from recovery.recover import recover  # noqa: F401
         from reports.quality import build_quality_report  # noqa: F401
-        from training.windows import build_window_dataset  # noqa: F401
+        from training.data.windows import build_window_dataset  # noqa: F401
     except ImportError as exc:
         return f"a stage is not importable yet ({exc})"
     return None

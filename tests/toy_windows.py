@@ -24,7 +24,7 @@ import pytest
 import torch
 
 from pipeline.geometry.integration import integrate_numpy
-from training.dataset import SequenceWindows, Split, write_dataset
+from training.data.dataset import SequenceWindows, Split, write_dataset
 
 GRAVITY = (0.0, 0.0, -9.81)
 

@@ -12,7 +12,7 @@ from pipeline.bias_table import BiasTrack
 from pipeline.sim import ImuNoiseConfig, SimConfig, simulate
 from pipeline.store import write_store
 from synth import write_recovery_folder
-from training.windows import WindowConfig, WindowSource, build_window_dataset
+from training.data.windows import WindowConfig, WindowSource, build_window_dataset
 
 #: Random walks (gyro, acc) written to recovery.json, as a recovery would.
 RW = (2e-4, 3e-3)

@@ -19,20 +19,25 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping
+from pipeline.jsonio import to_plain
 from pipeline.errors import ConfigError
 from training.networks import Network, get_network, network_names
 from training.references import get_reference, reference_names
 
-__all__ = ["Preset", "Sampler", "ClipRange", "ModelConfig", "TrainConfig", "IMU_CHANNELS"]
+__all__ = ["Preset", "Sampler", "ClipRange", "ModelConfig", "TrainConfig", "IMU_CHANNELS", "SAMPLES", "STEPS"]
 
 #: Channels of one IMU sample and of one bias sample: gyro x, y, z (rad/s), acc x, y, z (m/s^2).
 IMU_CHANNELS = 6
+#: Samples a diffusion model draws per window unless told (the paper's K): evaluation, prediction.
+SAMPLES = 50
+#: Denoising steps of a diffusion model's sampler unless told: evaluation, prediction, export.
+STEPS = 25
 
 
 class Preset(str, enum.Enum):
@@ -78,7 +83,7 @@ class ModelConfig:
             m/s^2) as the released code does.
         clip_x0_range: DDIM and DDPM clip each step's x0 estimate (diffusers' ``clip_sample``, per
             channel and in raw units here) to stop estimates that run away at high noise levels
-            (see :mod:`training.scheduler`). The clip applies at the last step too, so no sample
+            (see :mod:`training.models.scheduler`). The clip applies at the last step too, so no sample
             leaves it: it must hold every bias the model may need to predict. ``evidence``
             (default): the train mean +- (the largest distance of a train or validation bias
             from it + ``clip_x0_sigmas`` train sigmas); a validation sequence whose bias lies
@@ -194,6 +199,20 @@ class ModelConfig:
         return cls(**d)
 
 
+def check_model_overrides(overrides: Iterable[str], methods: Iterable[str]) -> None:
+    """Refuse model options that are neither shared nor an option of one of ``methods``' networks (only
+    their options are read: a network's options class is imported when a plan names it).
+
+    Raises:
+        ConfigError: An unknown option; the hint lists the allowed ones.
+    """
+    known = ModelConfig.shared_options().union(*(get_network(m).option_names() for m in methods))
+    unknown = sorted(set(overrides) - known)
+    if unknown:
+        raise ConfigError(f"unknown model option(s) {', '.join(unknown)}", field="model_overrides",
+                          hint=f"allowed: {', '.join(sorted(known))}")
+
+
 def _network_options(net: Network, options: Any, preset: Preset) -> Any:
     """``options`` as ``net``'s options dataclass (a mapping read into it; None: the preset's)."""
     if options is None:
@@ -293,15 +312,14 @@ class TrainConfig:
     def model_config(self) -> ModelConfig:
         """The network sizes this training uses (preset, temperature channel, overrides).
 
-        ``model_overrides`` may name the options of any registered network (a workflow's options
-        apply to every method); those of this method's network and the shared ones are applied.
+        ``model_overrides`` may name the options of another network (a workflow's options apply to
+        every method of its plan): those of this method's network and the shared ones are applied;
+        only when others are given are the other networks' options read to check them.
         """
         own = ModelConfig.shared_options() | get_network(self.method).option_names()
-        known = ModelConfig.shared_options().union(*(get_network(m).option_names() for m in network_names()))
-        unknown = sorted(set(self.model_overrides) - known)
-        if unknown:
-            raise ConfigError(f"unknown model option(s) {', '.join(unknown)}", field="model_overrides",
-                              hint=f"allowed: {', '.join(sorted(known))}")
+        foreign = set(self.model_overrides) - own
+        if foreign:
+            check_model_overrides(foreign, network_names())
         channels = IMU_CHANNELS + (1 if self.use_temperature else 0)
         return ModelConfig.for_preset(self.method, self.preset, condition_channels=channels,
                                       **{k: v for k, v in self.model_overrides.items() if k in own})
@@ -366,7 +384,7 @@ class TrainingPlan:
             throughput of one 2-thread job.
     """
 
-    methods: tuple[str, ...] = field(default_factory=network_names)
+    methods: tuple[str, ...] = field(default_factory=lambda: network_names(default_only=True))
     seeds: tuple[int, ...] = (0,)
     preset: Preset = Preset.SMALL
     options: Mapping[str, Any] = field(default_factory=dict)
@@ -393,6 +411,10 @@ class TrainingPlan:
         if len(set(self.seeds)) != len(self.seeds):
             raise ConfigError(f"training seeds repeat: {list(self.seeds)}", field="training.seeds",
                               hint="list each seed once")
+        try:  # the plan's options apply to every method it names: only these networks' options are read
+            check_model_overrides(self.model_overrides, self.methods)
+        except ConfigError as exc:
+            raise ConfigError(exc.problem, field="options.model_overrides", hint=exc.hint) from None
         for m in self.methods:
             self.train_config(m, self.seeds[0] if self.seeds else 0)  # bad options fail at load time
 
@@ -401,29 +423,55 @@ class TrainingPlan:
         """From the (partial) ``training:`` section; one-line :class:`ConfigError` on bad keys or values."""
         return dataclass_from_mapping(cls, d, what="training option", field="training")
 
+    @property
+    def model_overrides(self) -> dict[str, Any]:
+        """The plan's ``options.model_overrides`` (every method's; each applies its own)."""
+        overrides = self.options.get("model_overrides") or {}
+        return dict(overrides) if isinstance(overrides, Mapping) else overrides
+
     def train_config(self, method: str, seed: int) -> TrainConfig:
-        """The :class:`TrainConfig` of one run.
+        """The :class:`TrainConfig` of one run: the plan's options, with the model options that apply to
+        ``method`` (its network's and the shared ones).
 
         Raises:
             ConfigError: A bad option, its field named within the section (``options.<key>``).
         """
+        net = get_network(method)
+        options = dict(self.options)
+        if isinstance(options.get("model_overrides"), Mapping):
+            own = ModelConfig.shared_options() | net.option_names()
+            options["model_overrides"] = {k: v for k, v in options["model_overrides"].items() if k in own}
         try:
-            return TrainConfig.from_mapping({**self.options, "method": get_network(method).name, "seed": int(seed),
-                                             "preset": self.preset})
+            return TrainConfig.from_mapping({**options, "method": net.name, "seed": int(seed), "preset": self.preset})
         except ConfigError as exc:  # TrainConfig names its fields as the top of a 'training:' file does
             key = (exc.field or "").removeprefix("training").lstrip(".")
             raise ConfigError(exc.problem, field=f"options.{key}" if key else "options", hint=exc.hint) from None
 
     def run_settings(self, method: str, seed: int | str) -> dict[str, Any]:
-        """Parameters of one train job: its resolved :class:`TrainConfig` as a plain mapping (so that
-        adding a method or a seed retrains nothing else)."""
-        return self.train_config(method, int(seed)).to_dict()
+        """Parameters of one train job: its resolved :class:`TrainConfig` as a plain mapping with the plan's
+        whole ``model_overrides`` (so that adding a method or a seed retrains nothing else)."""
+        settings = self.train_config(method, int(seed)).to_dict()
+        if "model_overrides" in self.options:
+            settings["model_overrides"] = to_plain(self.model_overrides)
+        return settings
 
     def runs(self) -> list[tuple[str, int]]:
         return [(m, s) for m in self.methods for s in self.seeds]
 
     def to_dict(self) -> dict[str, Any]:
         return dataclass_to_mapping(self)
+
+
+@dataclass(frozen=True)
+class Draw:
+    """How one pass of an evaluation draws a predictor's bias: ``samples`` per window with ``sampler`` in
+    ``steps`` denoising steps, the noise seeded from ``seed`` (a deterministic predictor: one sample, no
+    sampler). :meth:`EvaluationConfig.draws` makes them; the predictor reads them, nothing in between."""
+
+    samples: int
+    sampler: Sampler | None
+    steps: int
+    seed: int
 
 
 @dataclass(frozen=True)
@@ -444,9 +492,9 @@ class EvaluationConfig:
         oracle_random_walk: Random-walk strengths of the oracle (:class:`OracleWalk`).
     """
 
-    samples: int = 50
+    samples: int = SAMPLES
     samplers: tuple[Sampler, ...] = (Sampler.DDIM, Sampler.RELEASED)
-    steps: int = 25
+    steps: int = STEPS
     seed: int = 0
     batch_windows: int = 32
     examples: int = 4
@@ -471,6 +519,13 @@ class EvaluationConfig:
                                   hint=f"give a positive {name}")
         if not self.samplers:
             raise ConfigError("no sampler to evaluate", field="samplers", hint="list at least 'ddim'")
+
+    def draws(self, stochastic: bool) -> tuple[Draw, ...]:
+        """The passes of a predictor: one per sampler, ``samples`` each, for a stochastic one (a diffusion
+        model); one deterministic pass otherwise."""
+        if not stochastic:
+            return (Draw(1, None, self.steps, self.seed),)
+        return tuple(Draw(self.samples, sampler, self.steps, self.seed) for sampler in self.samplers)
 
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any] | None) -> EvaluationConfig:

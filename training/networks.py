@@ -6,10 +6,12 @@ place (registration order) in Table I and the reports, its options dataclass (th
 sizes, with values per size preset) and its factory. The CLI choices, the workflow's start-up
 checks, Table I's order and the report colours read the registry; nothing else names a method.
 
-Adding a network: a module holding its ``nn.Module`` (and, if it needs sizes other than an
-existing options class, a frozen dataclass of them), then one :func:`register_network` line in
-:data:`BUILTIN` below. The factory is given as ``"module:attr"`` and imported only when a model is
-built, so that this module (read by the workflow at start-up) does not import torch.
+The registry's form is :mod:`pipeline.registry`'s: the :data:`BUILTIN` tuple, :func:`register` and
+:func:`unregister`, plugins found through the ``biasgt.networks`` entry points. Adding a network: a
+module holding its ``nn.Module`` and, if it needs sizes other than an existing options class, a frozen
+dataclass of them; then one :class:`Network` line in :data:`BUILTIN` below. The factory and the options
+are given as ``"module:attr"`` and imported only when a plan names the method, so that this module
+(read by ``--help`` and the workflow at start-up) imports no torch.
 
 Factory contract: ``factory(config)`` with ``config`` a :class:`training.config.ModelConfig`
 (shared fields plus this network's options, readable as ``config.network.<field>`` or
@@ -32,8 +34,8 @@ from typing import Any
 from pipeline.registry import Registry, resolve
 from pipeline.errors import ConfigError
 
-__all__ = ["ContextOptions", "Network", "Objective", "RnnOptions", "UnetOptions", "get_network", "network_names", "register_network",
-           "unregister_network"]
+__all__ = ["BUILTIN", "NETWORKS", "Base", "ContextDiffusionOptions", "ContextLoss", "ContextOptions", "Network", "Objective", "RnnOptions", "UnetOptions", "get_network",
+           "network_names", "register", "unregister"]
 
 
 class Objective(str, enum.Enum):
@@ -105,39 +107,87 @@ class UnetOptions(TcnOptions):
                               field="unet_dims", hint="choose dims divisible by the GroupNorm groups")
 
 
+class Base(str, enum.Enum):
+    """The constant a context network's residual is added to (the one list of bases)."""
+
+    NONE = "none"  # no base: the residual is the whole bias
+    MEAN = "mean"  # the train split's mean bias (the train_mean row)
+    REST = "rest"  # the start-rest estimate (the start_rest row, training/rows/start_rest.py)
+    FILTER = "filter"  # the bias filter's gyro bias (training/rows/bias_filter.py), the train mean's accelerometer
+
+
+class ContextLoss(str, enum.Enum):
+    """What a context network is trained on."""
+
+    LABEL = "label"  # the labels: MSE of the normalised bias (a diffusion network: its noise loss)
+    INTEGRATION = "integration"  # the 1-s integration error, no label read
+    BOTH = "both"  # their sum (label_weight times the label term)
+
+
 @dataclass(frozen=True)
 class ContextOptions:
-    """The context residual (:class:`training.context_model.ContextNet`): a constant base plus a
-    residual from the window and what came before it in its sequence's record.
+    """The context networks (:mod:`training.context`): a constant base plus a residual from the window
+    and what came before it in its sequence's record.
 
     Attributes:
-        base: ``mean`` (the train split's mean bias), ``rest`` (the start-rest estimate) or
-            ``filter`` (the bias filter's gyro bias, :mod:`training.bias_filter`; the train mean's
-            accelerometer).
+        base: The constant the residual is added to (:class:`Base`).
         history_s: Spans (s) of the history means before the window (plus one since the record's
             start, and the time since it); empty: the start rest only.
+        since_start: A history mean since the record's start too; None: with ``history_s`` only.
         filter: The bias filter's estimate and sigma in the context (always with base ``filter``).
+        use_context: Give the context vector (False: zeros, the 1-s window's information alone).
         channels: Window encoder channels.
         hidden: Head width.
+        loss: The training loss (:class:`ContextLoss`).
+        label_weight: Weight of the label term (with ``both``).
         rot_scale_deg / pos_scale_m: The integration loss is ``mean(rot^2) / rot_scale^2 +
             mean(pos^2) / pos_scale^2`` (end errors of the windows; no velocity term). It replaces
             the training's ``indirect_weights``.
     """
 
-    base: str = "mean"
+    base: Base = Base.MEAN
     history_s: tuple[float, ...] = (5.0, 30.0)
+    since_start: bool | None = None
     filter: bool = False
+    use_context: bool = True
     channels: int = 32
     hidden: int = 64
+    loss: ContextLoss = ContextLoss.INTEGRATION
+    label_weight: float = 1.0
     rot_scale_deg: float = 0.1
     pos_scale_m: float = 0.05
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "history_s", tuple(float(s) for s in self.history_s))
-        if self.base not in ("mean", "rest", "filter"):
-            raise ConfigError(f"context base '{self.base}'", field="base", hint="use mean, rest or filter")
+        for name, kind in (("base", Base), ("loss", ContextLoss)):
+            try:
+                object.__setattr__(self, name, kind(getattr(self, name)))
+            except ValueError:
+                raise ConfigError(f"context {name} '{getattr(self, name)}'", field=name,
+                                  hint=f"use one of {', '.join(k.value for k in kind)}") from None
         if not (self.rot_scale_deg > 0 and self.pos_scale_m > 0):
             raise ConfigError("rot_scale_deg and pos_scale_m must be positive", field="rot_scale_deg")
+
+
+@dataclass(frozen=True)
+class ContextDiffusionOptions(ContextOptions):
+    """The context residual drawn by a diffusion model (:mod:`training.context.diffusion`): the options of
+    :class:`ContextOptions`, trained on its noise loss (``label``) or with the integration of its x0
+    estimate too (``both``).
+
+    Attributes:
+        step_dim: Size of the diffusion step's embedding.
+    """
+
+    loss: ContextLoss = ContextLoss.LABEL
+    step_dim: int = 32
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        if self.loss is ContextLoss.INTEGRATION:
+            raise ConfigError("a diffusion residual needs its noise loss: loss 'integration' alone trains no "
+                              "diffusion model", field="loss",
+                              hint="use 'label' (the noise loss) or 'both' (plus the integration of x0_hat)")
 
 
 #: Preset values of the TCN encoder (``paper`` = the dataclass defaults).
@@ -167,7 +217,7 @@ class Network:
         factory: ``"module:attr"`` of the network's constructor (see the module docstring), or a callable.
         presets: Preset name -> option values replacing the defaults (a preset not listed: the defaults).
         context: The network reads a context vector of each window from its sequence's record
-            (``WindowBatch.context`` [B, F]; the dataset needs ``context/``, :mod:`training.context`):
+            (``WindowBatch.context`` [B, F]; the dataset needs ``context/``, :mod:`training.data.records`):
             ``forward(condition [B, T, C_in], context [B, F])``.
     """
 
@@ -180,6 +230,7 @@ class Network:
     factory: str | Callable[[Any], Any]
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
     context: bool = False
+    default: bool = True
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "objective", Objective(self.objective))
@@ -208,36 +259,6 @@ class Network:
         return factory(config)
 
 
-_NETWORKS: Registry[Network] = Registry("network")
-
-
-def register_network(network: Network) -> Network:
-    """Add ``network`` (after the registered ones: its place in Table I). Refuses a name in use."""
-    return _NETWORKS.add(network.name, network)
-
-
-def unregister_network(name: str) -> None:
-    """Remove a registered network (tests)."""
-    _NETWORKS.remove(name)
-
-
-def network_names() -> tuple[str, ...]:
-    """Registered method names in registration (Table I) order."""
-    return tuple(_NETWORKS)
-
-
-def get_network(name: Any, *, field: str = "method") -> Network:
-    """The registered network ``name``.
-
-    Raises:
-        ConfigError: No network of that name (the hint lists the registered ones).
-    """
-    key = str(getattr(name, "value", name))
-    if key not in _NETWORKS:
-        raise ConfigError(f"unknown method '{key}'", field=field, hint=f"choose one of {', '.join(_NETWORKS)}")
-    return _NETWORKS[key]
-
-
 # ----------------------------------------------------------------------------- built-in networks (Table I order)
 
 BUILTIN = (
@@ -254,7 +275,41 @@ BUILTIN = (
             "training.models.rnn:GruRegressor", RNN_PRESETS),
     Network("context_residual", "context_residual", Objective.INDIRECT, "train mean + a residual from the window "
             "and the means of the IMU record before it, trained through the integrator", "#d62728", ContextOptions,
-            "training.context_model:ContextNet", context=True),
+            "training.context.model:ContextNet", context=True),
+    Network("context_diffusion", "context_diffusion", Objective.DIFFUSION, "the context residual drawn by a "
+            "conditional diffusion model (one residual per window) instead of regressed", "#e377c2",
+            ContextDiffusionOptions, "training.context.diffusion:ContextDiffusionNet", context=True, default=False),
 )
-for _network in BUILTIN:
-    register_network(_network)
+
+
+#: The registered networks by name, in registration (Table I) order.
+NETWORKS: Registry[Network] = Registry("network", BUILTIN, entry_type=Network, noun="method")
+
+
+def register(network: Network, *, before: str | None = None) -> Network:
+    """Add ``network`` (at the end, or just before ``before``: its place in Table I).
+
+    Raises:
+        RegistryError: Its name is taken, or ``before`` is not registered.
+    """
+    return NETWORKS.register(network, before=before)
+
+
+def unregister(name: str) -> None:
+    """Remove a registered network (nothing when it is not registered)."""
+    NETWORKS.unregister(name)
+
+
+def network_names(*, default_only: bool = False) -> tuple[str, ...]:
+    """Registered method names in registration (Table I) order (``default_only``: those a workflow trains
+    when its ``training.methods`` is not given)."""
+    return tuple(n for n, net in NETWORKS.items() if net.default or not default_only)
+
+
+def get_network(name: Any, *, field: str = "method") -> Network:
+    """The registered network ``name``.
+
+    Raises:
+        RegistryError: No network of that name (the hint lists the registered ones).
+    """
+    return NETWORKS.lookup(name, field=field)

@@ -6,10 +6,12 @@ workflow's ``evaluation.references``, folder names), its Table I label, whether 
 it by default, its implementation and the inputs that implementation needs. Table I lists the
 rows in registration order, after the learned methods (:mod:`training.networks`).
 
-Adding a row: a function ``bias(items, **inputs) -> [B, 1, T, 6]`` (rad/s, m/s^2) in a module
-(e.g. :mod:`training.baselines`), then one entry in :data:`BUILTIN` below. The function is named
-as ``"module:attr"`` and imported only when the row is evaluated, so that this module (read by the
-workflow at start-up) does not import torch.
+The registry's form is :mod:`pipeline.registry`'s: the :data:`BUILTIN` tuple, :func:`register` and
+:func:`unregister`, plugins found through the ``biasgt.references`` entry points. Adding a row: a
+function ``bias(items, **inputs) -> [B, 1, T, 6]`` (rad/s, m/s^2) in its own module of
+:mod:`training.rows`, then one entry in :data:`BUILTIN` below (``default=False`` unless every
+workflow's Table I should show it). The function is named as ``"module:attr"`` and imported only
+when the row is evaluated, so that this module (read by the workflow at start-up) imports no torch.
 
 Inputs (``needs``): the evaluation gives the function ``items`` (the collated float64 window
 items of one test sequence: ``imu`` [B, T, 6], ``bias`` [B, T, 6], ``dt_s`` [B, T-1], ``start_*``,
@@ -27,8 +29,8 @@ items of one test sequence: ``imu`` [B, T, 6], ``bias`` [B, T, 6], ``dt_s`` [B, 
 ``rng``
     A ``numpy.random.Generator`` seeded from the evaluation seed and the batch.
 ``context``
-    The sequence's whole IMU record (:class:`training.context.SequenceContext`; the dataset needs
-    ``context/``, :func:`training.context.write_context`).
+    The sequence's whole IMU record (:class:`training.data.records.SequenceContext`; the dataset needs
+    ``context/``, :func:`training.data.records.write_context`).
 ``sequence_dir``
     The sequence's windows folder (``DATASET/sequences/<seq>``, a ``pathlib.Path``).
 ``info.<key>``
@@ -46,10 +48,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from pipeline.registry import Registry, resolve
-from pipeline.errors import ConfigError
 
-__all__ = ["EVALUATION_INPUTS", "ReferenceRow", "get_reference", "reference_names", "register_reference",
-           "unregister_reference"]
+__all__ = ["BUILTIN", "EVALUATION_INPUTS", "REFERENCES", "ReferenceRow", "get_reference", "reference_names", "register",
+           "unregister"]
 
 #: Inputs the evaluation computes itself (see the module docstring); ``info.<key>`` and array names aside.
 EVALUATION_INPUTS = ("bias_mean", "bias_std", "random_walk", "gravity_mps2", "rng", "context", "sequence_dir")
@@ -96,40 +97,9 @@ class ReferenceRow:
         return resolve(self.note)(summaries)
 
 
-_REFERENCES: Registry[ReferenceRow] = Registry("reference row")
-
-
-def register_reference(row: ReferenceRow) -> ReferenceRow:
-    """Add ``row`` (after the registered ones: its place in Table I). Refuses a name in use."""
-    return _REFERENCES.add(row.name, row)
-
-
-def unregister_reference(name: str) -> None:
-    """Remove a registered row (tests)."""
-    _REFERENCES.remove(name)
-
-
-def reference_names(*, default_only: bool = False) -> tuple[str, ...]:
-    """Registered row names in registration (Table I) order (``default_only``: the workflow's default ones)."""
-    return tuple(n for n, r in _REFERENCES.items() if r.default or not default_only)
-
-
-def get_reference(name: Any, *, field: str = "reference") -> ReferenceRow:
-    """The registered row ``name``.
-
-    Raises:
-        ConfigError: No row of that name (the hint lists the registered ones).
-    """
-    key = str(getattr(name, "value", name))
-    if key not in _REFERENCES:
-        raise ConfigError(f"unknown reference row '{key}'", field=field,
-                          hint=f"choose one of {', '.join(_REFERENCES)}")
-    return _REFERENCES[key]
-
-
 # ----------------------------------------------------------------------------- built-in rows (Table I order)
 
-_B = "training.baselines"
+_B = "training.rows.baselines"
 BUILTIN = (
     ReferenceRow("zero", "Zero bias", "no bias correction: the raw readings integrated", f"{_B}:zero_bias"),
     ReferenceRow("train_mean", "Train-mean bias", "the train split's mean bias, held constant",
@@ -149,16 +119,46 @@ BUILTIN = (
                  note=f"{_B}:paper_walk_note"),
     ReferenceRow("start_rest", "Start-rest bias", "from the IMU alone: the gyro mean over the record's first rest, "
                  "the accelerometer's bias along gravity there (the train mean across it), held constant",
-                 "training.ref_start_rest:start_rest_row", needs=("context", "bias_mean", "gravity_mps2"),
-                 default=False, note="training.ref_start_rest:start_rest_note"),
+                 "training.rows.start_rest:start_rest_row", needs=("context", "bias_mean", "gravity_mps2"),
+                 default=False, note="training.rows.start_rest:start_rest_note"),
     ReferenceRow("sequence_mean", "Sequence-mean bias (oracle)", "each test sequence's own mean dataset bias, held "
-                 "constant: the best one constant per sequence", "training.ref_sequence_mean:sequence_mean_row",
+                 "constant: the best one constant per sequence", "training.rows.sequence_mean:sequence_mean_row",
                  oracle=True, needs=("sequence_dir",), default=False,
-                 note="training.ref_sequence_mean:sequence_mean_note"),
+                 note="training.rows.sequence_mean:sequence_mean_note"),
     ReferenceRow("bias_filter", "Bias filter", "from the IMU alone: a causal error-state Kalman filter over the "
                  "record (rests and bounded motion), its estimate at each window's end",
-                 "training.bias_filter:bias_filter_row", needs=("context", "bias_mean", "bias_std", "gravity_mps2"),
-                 default=False, note="training.bias_filter:bias_filter_note"),
+                 "training.rows.bias_filter:bias_filter_row", needs=("context", "bias_mean", "bias_std", "gravity_mps2"),
+                 default=False, note="training.rows.bias_filter:bias_filter_note"),
 )
-for _row in BUILTIN:
-    register_reference(_row)
+
+
+#: The registered rows by name, in registration (Table I) order.
+REFERENCES: Registry[ReferenceRow] = Registry("reference row", BUILTIN, entry_type=ReferenceRow)
+
+
+def register(row: ReferenceRow, *, before: str | None = None) -> ReferenceRow:
+    """Add ``row`` (at the end, or just before ``before``: its place in Table I).
+
+    Raises:
+        RegistryError: Its name is taken, or ``before`` is not registered.
+    """
+    return REFERENCES.register(row, before=before)
+
+
+def unregister(name: str) -> None:
+    """Remove a registered row (nothing when it is not registered)."""
+    REFERENCES.unregister(name)
+
+
+def reference_names(*, default_only: bool = False) -> tuple[str, ...]:
+    """Registered row names in registration (Table I) order (``default_only``: the workflow's default ones)."""
+    return tuple(n for n, r in REFERENCES.items() if r.default or not default_only)
+
+
+def get_reference(name: Any, *, field: str = "reference") -> ReferenceRow:
+    """The registered row ``name``.
+
+    Raises:
+        RegistryError: No row of that name (the hint lists the registered ones).
+    """
+    return REFERENCES.lookup(name, field=field)

@@ -281,8 +281,9 @@ def validate_sequence(
     if heldout is not None:
         heldout_part, judged = _heldout_metrics(imu, heldout, reference, plan, starts, gravity, metrics, config,
                                                 judge_heldout, dict(heldout_info or {}))
+    recording_s = float(imu.t_ns[-1] - imu.t_ns[0]) * 1e-9
     verdict, reasons = judge(Evidence(metrics, candidate, config, dropped["fraction"], judged, inputs, tuple(fails),
-                                      tuple(limitations)))
+                                      tuple(limitations), recording_s))
     ref_info = {"kind": reference.kind.value, **reference.info}
     return ValidationResult(sequence.name, verdict, [r.text for r in reasons], candidate, config, metrics, dropped,
                             ref_info, gravity, notes, heldout=heldout_part, reason_codes=[r.code for r in reasons])

@@ -111,17 +111,17 @@ def recovery_limitations(recovery: RecoveryOutputs, config: ValidationConfig = V
     return _limitations(VerdictInputs(recovery=recovery.report), config, _RECOVERY_CODES)
 
 
-#: The rules of :func:`recovery_limitations` and :func:`input_limitations`.
+#: The rules of :func:`recovery_limitations` (those of :func:`input_limitations`: the rules ``INPUT_*``).
 _RECOVERY_CODES = ("RANDOM_WALK_AT_EDGE", "RANDOM_WALK_FAR", "EXTRINSIC_DIFFERS", "EXTRINSIC_UNOBSERVABLE")
-_INPUT_CODES = tuple(code for code in RULES if code.startswith("INPUT_"))
 
 
 def input_limitations(sequence: Sequence) -> list[Limitation]:
     """The sequence's WARNING findings that limit a bias recovered from it (the rules ``INPUT_*``)."""
-    return _limitations(VerdictInputs(findings=tuple(sequence.findings)), ValidationConfig(), _INPUT_CODES)
+    codes = tuple(code for code in RULES if code.startswith("INPUT_"))
+    return _limitations(VerdictInputs(findings=tuple(sequence.findings)), ValidationConfig(), codes)
 
 
 def _limitations(inputs: VerdictInputs, config: ValidationConfig, codes: Sequence_[str]) -> list[Limitation]:
     """What the rules ``codes`` find in ``inputs``, each with its rule's next step."""
     evidence = Evidence({}, "", config, inputs=inputs)
-    return [Limitation(text, RULES[code].next_step or "") for code in codes for text in RULES[code].check(evidence)]
+    return [Limitation(text, RULES[code].next_step or "") for code in codes for text in RULES[code].fired(evidence)]

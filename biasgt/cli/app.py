@@ -98,7 +98,11 @@ def _caused_by_termination(exc: BaseException) -> bool:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = build_parser()
+    try:
+        parser = build_parser()
+    except BiasgtError as exc:  # a registry's plugin that cannot load: named on one line
+        print(f"biasgt: error: {exc}", file=sys.stderr)
+        return exc.exit_code
     args = parser.parse_args(argv)
     _setup_logging(args.verbose, args.quiet)
     signal.signal(signal.SIGTERM, _raise_terminated)

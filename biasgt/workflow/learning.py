@@ -28,7 +28,7 @@ from pipeline.errors import DataError
 from training.config import EvaluationConfig, TrainConfig, TrainingPlan
 from training.networks import get_network, network_names
 from training.references import reference_names
-from training.table import TABLE_CSV, TABLE_MD, write_table
+from training.evaluation.table import TABLE_CSV, TABLE_MD, write_table
 
 # torch and the evaluation are imported by the steps that use them: the Snakefile imports this
 # module for its paths, and Snakemake parses the Snakefile twice in every cluster job.
@@ -97,7 +97,7 @@ def train_step(dataset_dir: str | Path, out_dir: str | Path, config: Mapping[str
                threads: int | None = None, processes: int = 1) -> Path:
     """Train one run from its resolved :class:`TrainConfig` mapping (:meth:`TrainingPlan.run_settings`),
     as ``processes`` data-parallel processes under torchrun when more than 1."""
-    from training.train import train
+    from training.fit.train import train
 
     _set_threads(threads)
     cfg = TrainConfig.from_mapping(config)
@@ -193,7 +193,7 @@ def evaluate_step(dataset_dir: str | Path, out_dir: str | Path, settings: Mappin
                   run_dir: str | Path | None = None, method: str | None = None, reference: str | None = None,
                   threads: int | None = None) -> Path:
     """Evaluate a trained run (``run_dir``, ``method``) or a reference row (``reference``)."""
-    from training.evaluate import evaluate_reference, evaluate_run
+    from training.evaluation.evaluate import evaluate_reference, evaluate_run
 
     _set_threads(threads)
     config = EvaluationConfig.from_mapping(settings)
@@ -207,7 +207,7 @@ def evaluate_step(dataset_dir: str | Path, out_dir: str | Path, settings: Mappin
 
 def table_step(evaluation_dirs: Sequence[str | Path], out_dir: str | Path) -> Path:
     """Write Table I from the evaluation folders and log it."""
-    from training.outputs import SUMMARY_JSON
+    from training.evaluation.outputs import SUMMARY_JSON
 
     write_table([Path(d) / SUMMARY_JSON for d in evaluation_dirs], out_dir)
     log.info("Table I:\n%s", (Path(out_dir) / TABLE_MD).read_text(encoding="utf-8"))

@@ -46,7 +46,7 @@ from biasgt.workflow.table import (  # noqa: F401  (source_kind: the .smk files 
 )
 from recovery.config import RecoveryConfig
 from training.config import EvaluationConfig, TrainingPlan
-from training.windows_config import WindowConfig
+from training.data.windows_config import WindowConfig
 from validation.config import ValidationConfig
 
 log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'biasgt.workflow'

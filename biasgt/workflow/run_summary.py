@@ -15,6 +15,7 @@ from collections import Counter
 from pathlib import Path
 
 from pipeline.layout import Stage, dataset_report_path
+from pipeline.types import Verdict
 from biasgt.workflow.run import JOB_HEADER
 
 #: Rules that depend on the window dataset through its checksum (directly or through evaluations).
@@ -88,7 +89,7 @@ def _verdict_lines(results: Path) -> list[str]:
         except (OSError, ValueError):
             continue
         reasons = data.get("reasons") or []
-        why = f": {_short(str(reasons[0]))}" if reasons and data.get("verdict") != "PASS" else ""
+        why = f": {_short(str(reasons[0]))}" if reasons and Verdict.parse(data.get("verdict")) is not Verdict.PASS else ""
         lines.append(f"  {path.parent.name}: {data.get('verdict', '?')}{why}")
     return lines
 

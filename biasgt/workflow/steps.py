@@ -148,7 +148,7 @@ def validate_step(store_dir: str | Path, recovery_dir: str | Path, out_dir: str 
 def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path], validations: Sequence[str | Path],
                  out_dir: str | Path, settings: dict[str, Any]) -> Path:
     """Cut the window dataset of the train / val / test sequences whose validation verdict allows it,
-    with its sequence records (``context/``, :func:`training.context.write_context`).
+    with its sequence records (``context/``, :func:`training.data.records.write_context`).
 
     Args:
         stores / recoveries / validations: Each sequence's canonical store, recovery and validation
@@ -156,8 +156,8 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
         out_dir: The dataset folder.
         settings: :func:`windows_settings`.
     """
-    from training.context import write_context
-    from training.windows import WindowSource, build_window_dataset  # torch: only in the job of this step
+    from training.data.records import write_context
+    from training.data.windows import WindowSource, build_window_dataset  # torch: only in the job of this step
 
     named = list(settings.get("sequences") or [])
     if not (len(named) == len(stores) == len(recoveries) == len(validations)):

@@ -106,6 +106,15 @@ IMU_RATE_TOLERANCE = 0.05
 CHECK_VERDICT_WORDS = {Verdict.PASS: "ok", Verdict.WARN: "repairable", Verdict.FAIL: "fatal"}
 
 
+def check_verdict(word: str) -> Verdict:
+    """The :class:`pipeline.types.Verdict` a report's verdict word (:data:`CHECK_VERDICT_WORDS`) stands for.
+
+    Raises:
+        KeyError: Not one of the words.
+    """
+    return {w: v for v, w in CHECK_VERDICT_WORDS.items()}[word]
+
+
 @dataclass(frozen=True)
 class CheckOptions:
     """Thresholds of the input checks.

@@ -6,11 +6,12 @@ and aliases), :func:`detect_format` (each entry's ``detect``, in registration or
 ``--format`` help (:func:`format_help`) and the workflow's source kinds
 (:func:`workflow_formats`, checked at start-up by ``biasgt.workflow.config``).
 
-Adding a reader: write its module with a ``load(path, *, name, **options) -> Sequence`` (and a
-``detect(path) -> bool`` when it can be recognised), then add one :class:`Reader` line to
-:func:`_builtin_readers` (or call :func:`register` from outside the package). Functions are
-given as callables or as ``"module:function"`` strings, imported on first use so that listing
-the formats (``biasgt --help``) imports no reader.
+The registry's form is :mod:`pipeline.registry`'s: the :data:`BUILTIN` tuple, :func:`register` and
+:func:`unregister`, plugins found through the ``biasgt.readers`` entry points. Adding a reader:
+write its module with a ``load(path, *, name, **options) -> Sequence`` (and a ``detect(path) ->
+bool`` when it can be recognised), then add one :class:`Reader` line to :data:`BUILTIN` (or install
+it as a plugin). Functions are given as callables or as ``"module:function"`` strings, imported on
+first use so that listing the formats (``biasgt --help``) imports no reader.
 
 A reader records its format in ``Sequence.metadata[SOURCE_FORMAT_KEY]`` (its name or an alias,
 e.g. ``"rosbag"``); :func:`recorded_format` is the one place that reads it back.
@@ -23,8 +24,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from pipeline.errors import ConfigError, InputFormatError, RegistryError, UnsupportedInputError
+from pipeline.io.rosbag import BAG_SUFFIXES
 from pipeline.registry import Registry, resolve
-from pipeline.errors import ConfigError, InputFormatError, UnsupportedInputError
 
 #: ``Sequence.metadata`` key of the format that produced a sequence (a reader's name or alias).
 SOURCE_FORMAT_KEY = "source_format"
@@ -54,6 +56,10 @@ class Reader:
             the reader recorded (a bag's storage, ``"rosbag1"``), shown by ``biasgt inspect``.
         is_store: The canonical store: checked when it was written (no reader defaults are
             added on reading) and not a source of the workflow (which writes stores).
+        before: Where :func:`register` puts it when not told (a plugin's reader): just before this
+            reader in the detection order (e.g. ``"csv"``, which takes any ``.csv``); None: the end.
+        recognised / reads / notes: docs/inputs.md's formats table (how it is recognised, what is read,
+            notes); empty: the help line says it.
     """
 
     name: str
@@ -66,6 +72,10 @@ class Reader:
     selected_by: tuple[str, ...] = ()
     variant: Callable[[Mapping[str, Any]], str | None] | str | None = None
     is_store: bool = False
+    before: str | None = None
+    recognised: str = ""
+    reads: str = ""
+    notes: str = ""
 
     def loader(self) -> Callable[..., Any]:
         """The ``load`` function (imported now when given as ``"module:function"``)."""
@@ -76,56 +86,77 @@ class Reader:
         return self.detect is not None and bool(resolve(self.detect)(path))
 
 
-def _builtin_readers() -> list[Reader]:
-    """The readers biasgt ships, in detection order (a store folder first, generic CSV last)."""
-    return [
-        Reader("store", "a biasgt store", "a biasgt store folder (sequence.yaml)",
-               load="pipeline.store:read_store", detect="pipeline.store:is_store",
-               aliases=("parquet", "biasgt"), is_store=True),
-        Reader("asl", "an ASL/EuRoC/TUM-VI folder or ASL CSV",
-               "an ASL/EuRoC/TUM-VI folder (mav0/imu0/data.csv) or ASL CSV",
-               load="pipeline.io.asl:load_asl", detect="pipeline.io.asl:detect_asl",
-               aliases=("euroc", "tumvi", "tum-vi")),
-        Reader("bag", "a ROS bag", "a ROS bag (.bag, .mcap, .db3 or a folder with metadata.yaml)",
-               load="pipeline.io.rosbag.reader:read_bag", detect="pipeline.io.rosbag:detect_bag",
-               aliases=("rosbag", "ros", "ros1", "ros2", "rosbag1", "rosbag2", "mcap", "db3"),
-               options=("imu_topic", "pose_topic", "tf_parent", "tf_child", "all_pose_topics"),
-               variant="pipeline.io.rosbag.reader:storage_format"),
-        Reader("tum", "a TUM trajectory", "a TUM trajectory (.txt/.tum: t x y z qx qy qz qw)",
-               load="pipeline.io.tum:read_tum", detect="pipeline.io.tum:detect_tum"),
-        Reader("csv", "a CSV with a column mapping", "any CSV with a column mapping (--csv-mapping)",
-               load="pipeline.io.csv_generic:load_csv", detect="pipeline.io.csv_generic:detect_csv",
-               options=("csv_mapping",), selected_by=("csv_mapping",)),
-    ]
+#: The readers biasgt ships, in detection order (a store folder first, generic CSV last).
+BUILTIN = (
+    Reader("store", "a biasgt store", "a biasgt store folder (sequence.yaml)",
+           load="pipeline.store:read_store", detect="pipeline.store:is_store",
+           aliases=("parquet", "biasgt"), is_store=True,
+           recognised="a folder with `sequence.yaml`",
+           reads="`sequence.yaml` + Parquet (written by `convert` / the workflow)",
+           notes="lossless round trip, int64 ns"),
+    Reader("asl", "an ASL/EuRoC/TUM-VI folder or ASL CSV",
+           "an ASL/EuRoC/TUM-VI folder (mav0/imu0/data.csv) or ASL CSV",
+           load="pipeline.io.asl:load_asl", detect="pipeline.io.asl:detect_asl",
+           aliases=("euroc", "tumvi", "tum-vi"),
+           recognised="a folder with `mav0/` (or its streams), or a CSV whose header is an ASL layout",
+           reads="`mav0/imu0/data.csv`, `vicon0`, `mocap0` (6-DoF), `leica0` (position only), "
+                 "`state_groundtruth_estimate0` / `gt0` (full state with bias), `sensor.yaml` (Kalibr/EuRoC style "
+                 "incl. `%YAML:1.0`, `T_BS`, noise parameters); an optional last IMU column `temperature [degC]` "
+                 "(biasgt's own addition, written by the simulator)",
+           notes="pose stream default priority: streams added with `--add-poses` > vicon0 > mocap0 > leica0 > "
+                 "other mocap > position trackers > VIO > ground truth; choose with `--poses NAME`"),
+    Reader("bag", "a ROS bag", f"a ROS bag ({', '.join(BAG_SUFFIXES)} or a folder with metadata.yaml)",
+           load="pipeline.io.rosbag.reader:read_bag", detect="pipeline.io.rosbag:detect_bag",
+           aliases=("rosbag", "ros", "ros1", "ros2", "rosbag1", "rosbag2", "mcap", "db3"),
+           options=("imu_topic", "pose_topic", "tf_parent", "tf_child", "all_pose_topics"),
+           variant="pipeline.io.rosbag.reader:storage_format",
+           recognised=f"a {' or '.join(f'`{s}`' for s in BAG_SUFFIXES)} file (bz2/lz4 chunks too), or a folder with "
+                      "`metadata.yaml`",
+           reads="`sensor_msgs/Imu`, `geometry_msgs/PoseStamped`, `PoseWithCovarianceStamped`, `TransformStamped`, "
+                 "`nav_msgs/Odometry`, `/tf` (+`/tf_static`) with `--tf-parent/--tf-child`",
+           notes="topics auto-detected by type; ambiguity errors list the candidates and the option to pick one. "
+                 "**Header stamps are used, not bag receive times.** `inspect` shows the storage (`rosbag1`, "
+                 "`rosbag2-sqlite3`, `rosbag2-mcap`)"),
+    Reader("tum", "a TUM trajectory", "a TUM trajectory (.txt/.tum: t x y z qx qy qz qw)",
+           load="pipeline.io.tum:read_tum", detect="pipeline.io.tum:detect_tum",
+           recognised="a `.txt`/`.tum` file whose first data line has 8 numbers", reads="`t[s] x y z qx qy qz qw`",
+           notes="stamps parsed exactly to ns; evo-compatible writer"),
+    Reader("csv", "a CSV with a column mapping", "any CSV with a column mapping (--csv-mapping)",
+           load="pipeline.io.csv_generic:load_csv", detect="pipeline.io.csv_generic:detect_csv",
+           options=("csv_mapping",), selected_by=("csv_mapping",),
+           recognised="any other `.csv`/`.txt`/`.tsv`/`.tum`/`.dat` file, or any file given with `--csv-mapping`",
+           reads="any columns, via a YAML mapping (`--csv-mapping`): time column and unit (s/ms/us/ns/auto), gyro/acc "
+                 "(rad/s or deg/s, m/s² or g), position, quaternion order"),
+)
+
+
+def _check_names(reader: Reader, entries: Mapping[str, Reader]) -> None:
+    """A reader's name and aliases are lower case and taken by no other reader."""
+    taken = {n for r in entries.values() for n in (r.name, *r.aliases)}
+    clash = sorted({reader.name, *reader.aliases} & taken)
+    if clash or reader.name != reader.name.lower():
+        raise RegistryError(f"cannot register reader {reader.name!r}: " +
+                            (f"{', '.join(clash)} already taken" if clash else "names are lower case"),
+                            field="name", hint="pick another name")
 
 
 #: The registered readers by name, in registration (= detection) order.
-READERS: Registry[Reader] = Registry("reader")
-for _reader in _builtin_readers():
-    READERS.add(_reader.name, _reader)
+READERS: Registry[Reader] = Registry("reader", BUILTIN, entry_type=Reader, check=_check_names, noun="input format")
 
 
 def register(reader: Reader, *, before: str | None = None) -> Reader:
-    """Add a reader (to the end of the detection order, or just before the reader ``before``).
+    """Add a reader: just before the reader ``before`` (else its own :attr:`Reader.before`), or at the
+    end of the detection order.
 
     Raises:
-        ConfigError: Its name or an alias is taken, or ``before`` is not registered.
+        RegistryError: Its name or an alias is taken, or ``before`` is not registered.
     """
-    taken = {n for r in READERS.values() for n in (r.name, *r.aliases)}
-    clash = sorted({reader.name, *reader.aliases} & taken)
-    if clash or reader.name != reader.name.lower():
-        raise ConfigError(f"cannot register reader {reader.name!r}: " +
-                          (f"{', '.join(clash)} already taken" if clash else "names are lower case"),
-                          field="name", hint="pick another name")
-    if before is not None and before not in READERS:
-        raise ConfigError(f"no reader {before!r} to register {reader.name!r} before", field="before",
-                          hint="registered: " + ", ".join(READERS))
-    return READERS.add(reader.name, reader, before=before)
+    return READERS.register(reader, before=before if before is not None else reader.before)
 
 
 def unregister(name: str) -> None:
-    """Remove a registered reader (tests clean up with it)."""
-    READERS.remove(name)
+    """Remove a registered reader (nothing when it is not registered)."""
+    READERS.unregister(name)
 
 
 def names() -> list[str]:
@@ -151,12 +182,12 @@ def get_reader(fmt: str) -> Reader:
     """The reader called ``fmt`` (a name or alias, any case).
 
     Raises:
-        ConfigError: Unknown format name (the message lists every name and alias).
+        RegistryError: Unknown format name (the message lists every name and alias).
     """
     reader = find_reader(fmt)
     if reader is None:
         accepted = sorted({n for r in READERS.values() for n in (r.name, *r.aliases)})
-        raise ConfigError(f"unknown input format {fmt!r}", field="format", hint=f"use one of {', '.join(accepted)}")
+        raise RegistryError(f"unknown input format {fmt!r}", field="format", hint=f"use one of {', '.join(accepted)}")
     return reader
 
 
@@ -164,7 +195,7 @@ def parse_format(fmt: str) -> str:
     """The format name of ``fmt``, a name or an alias (``"rosbag"`` -> ``"bag"``), case-insensitive.
 
     Raises:
-        ConfigError: Unknown format name.
+        RegistryError: Unknown format name.
     """
     return get_reader(fmt).name
 

@@ -1,4 +1,4 @@
-# Stage evaluate: PRMSE / ROE on the test split's non-overlapping 1-s windows (training.evaluate):
+# Stage evaluate: PRMSE / ROE on the test split's non-overlapping 1-s windows (training.evaluation.evaluate):
 # results/evaluation/{method}/seed{seed}/ for each trained run and results/evaluation/{reference}/
 # for the rows that need no training (training/references.py).
 # params: the 'evaluation:' section without 'references' (samples, samplers, steps, seed, ...).

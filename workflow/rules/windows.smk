@@ -1,5 +1,5 @@
 # Stage windows: one window dataset of every sequence whose split is train, val or test:
-# results/windows/dataset/ (manifest.json + arrays, see training/windows.py).
+# results/windows/dataset/ (manifest.json + arrays, see training/data/windows.py).
 # params: the 'windows:' section and the (name, split) list, so that a changed split or window
 # option reruns this job only.
 # A checkpoint: the learning jobs depend on the dataset's content (checksum), read after it is written

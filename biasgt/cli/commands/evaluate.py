@@ -1,4 +1,4 @@
-"""``biasgt evaluate``: PRMSE / ROE of a trained run or a reference row on the test split (adapter over training.evaluate)."""
+"""``biasgt evaluate``: PRMSE / ROE of a trained run or a reference row on the test split (adapter over training.evaluation.evaluate)."""
 
 from __future__ import annotations
 
@@ -77,7 +77,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.evaluate import EvaluationConfig, evaluate_reference, evaluate_run
+    from training.evaluation.evaluate import EvaluationConfig, evaluate_reference, evaluate_run
 
     defaults = EvaluationConfig()
     config = EvaluationConfig(samples=args.samples, samplers=tuple(args.sampler or defaults.samplers),

@@ -1,4 +1,4 @@
-"""``biasgt export``: a trained model with its sampler as TorchScript or ONNX (adapter over training.export)."""
+"""``biasgt export``: a trained model with its sampler as TorchScript or ONNX (adapter over training.deploy.export)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ examples:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from training.config import ExportFormat, Sampler
+    from training.config import STEPS, ExportFormat, Sampler
 
     p = subparsers.add_parser("export", help="export a trained model with its sampler (TorchScript or ONNX)",
                               description=DESCRIPTION, epilog=EPILOG,
@@ -36,12 +36,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, type=Path, metavar="FILE", help="output file (written atomically)")
     p.add_argument("--sampler", default=Sampler.DDIM.value, choices=[Sampler.DDIM.value, Sampler.RELEASED.value],
                    help="sampler of a diffusion model (default ddim)")
-    p.add_argument("--steps", type=int, default=25, metavar="N", help="denoising steps (default 25)")
+    p.add_argument("--steps", type=int, default=STEPS, metavar="N", help=f"denoising steps (default {STEPS})")
     p.set_defaults(func=run, out_kind=OutputKind.FILE)
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.export import export_run
+    from training.deploy.export import export_run
 
     out = export_run(args.checkpoint, args.out, args.format, sampler=args.sampler, steps=args.steps)
     print(f"wrote {out}")

@@ -11,7 +11,7 @@ import argparse
 import math
 from typing import Any
 
-from pipeline.checks.options import CHECK_VERDICT_WORDS
+from pipeline.checks.options import CHECK_VERDICT_WORDS, check_verdict
 from pipeline.checks.run import run_checks, stream_summaries, verdict
 from biasgt.cli.commands._args import (
     add_check_arguments,
@@ -71,6 +71,11 @@ def _fmt(x: Any, spec: str) -> str:
     return format(x, spec)
 
 
+#: What the input checks' verdict means for 'biasgt convert'.
+_MEANING = {Verdict.PASS: "can be converted as it is", Verdict.WARN: "'biasgt convert --repair ...' can fix it",
+            Verdict.FAIL: "cannot be converted"}
+
+
 def format_report(report: dict[str, Any]) -> str:
     """Human-readable text of an :func:`inspect_report` object."""
     lines = [f"input:  {report['input']}  (format: {report['format'] or 'unknown'})", ""]
@@ -95,14 +100,11 @@ def format_report(report: dict[str, Any]) -> str:
             lines.append(f"  {f['severity'].upper():<10} {f['code']:<{wc}} {f['stream']:<{ws}} {f['message']}")
     else:
         lines.append("findings: none")
-    counts = {sev: sum(1 for f in findings if f["severity"] == sev) for sev in ("fatal", "repairable", "warning")}
-    summary = ", ".join(f"{n} {sev}{'s' if sev == 'warning' and n > 1 else ''}"
+    counts = {sev: sum(1 for f in findings if Severity(f["severity"]) is sev)
+              for sev in (Severity.FATAL, Severity.REPAIRABLE, Severity.WARNING)}
+    summary = ", ".join(f"{n} {sev.value}{'s' if sev is Severity.WARNING and n > 1 else ''}"
                         for sev, n in counts.items() if n) or "no problems"
-    meaning = {
-        "ok": "can be converted as it is",
-        "repairable": "'biasgt convert --repair ...' can fix it",
-        "fatal": "cannot be converted",
-    }[report["verdict"]]
+    meaning = _MEANING[check_verdict(report["verdict"])]
     lines += ["", f"verdict: {report['verdict']} ({summary}): {meaning}"]
     return "\n".join(lines)
 
@@ -123,4 +125,4 @@ def run(args: argparse.Namespace) -> int:
         print(dumps(report), end="")
     else:
         print(format_report(report))
-    return 1 if report["verdict"] == CHECK_VERDICT_WORDS[Verdict.FAIL] else 0
+    return 1 if check_verdict(report["verdict"]) is Verdict.FAIL else 0

@@ -1,4 +1,4 @@
-"""``biasgt predict``: the bias of a recording from its IMU alone, with a trained model (adapter over training.predict)."""
+"""``biasgt predict``: the bias of a recording from its IMU alone, with a trained model (adapter over training.deploy.predict)."""
 
 from __future__ import annotations
 
@@ -34,7 +34,7 @@ examples:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from training.config import Sampler
+    from training.config import SAMPLES, STEPS, Sampler
 
     p = subparsers.add_parser("predict", help="predict the bias of a recording from its IMU with a trained model",
                               description=DESCRIPTION, epilog=EPILOG,
@@ -43,10 +43,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--checkpoint", required=True, type=Path, metavar="RUN", help="run folder (best.pt) or .pt file")
     p.add_argument("--out", required=True, type=Path, metavar="FILE",
                    help="output path; FILE.csv and FILE.parquet are written")
-    p.add_argument("--samples", type=int, default=50, metavar="K", help="samples per window (default 50)")
+    p.add_argument("--samples", type=int, default=SAMPLES, metavar="K", help=f"samples per window (default {SAMPLES})")
     p.add_argument("--sampler", default=Sampler.DDIM.value, choices=[s.value for s in Sampler],
                    help="sampler of a diffusion model (default ddim)")
-    p.add_argument("--steps", type=int, default=25, metavar="N", help="denoising steps (default 25)")
+    p.add_argument("--steps", type=int, default=STEPS, metavar="N", help=f"denoising steps (default {STEPS})")
     p.add_argument("--seed", type=int, default=0, help="seed of the sampling noise (default 0)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.add_argument("--resample-hz", type=float, default=None, metavar="HZ",
@@ -58,7 +58,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.predict import predict_file
+    from training.deploy.predict import predict_file
 
     paths = predict_file(args.checkpoint, args.input, args.out, samples=args.samples, sampler=args.sampler,
                          steps=args.steps, seed=args.seed, device=args.device,

@@ -1,4 +1,4 @@
-"""``biasgt train``: train one bias model on a window dataset (adapter over training.train)."""
+"""``biasgt train``: train one bias model on a window dataset (adapter over training.fit.train)."""
 
 from __future__ import annotations
 
@@ -84,7 +84,7 @@ def _read_config(path: Path) -> dict:
 
 def run(args: argparse.Namespace) -> int:
     from training.config import TrainConfig
-    from training.train import train
+    from training.fit.train import train
 
     options = _read_config(args.config) if args.config else {}
     for key, value in (("method", args.method), ("preset", args.preset), ("max_steps", args.max_steps),

@@ -1,4 +1,4 @@
-"""``biasgt windows``: cut recovered sequences into a versioned training dataset (adapter over training.windows)."""
+"""``biasgt windows``: cut recovered sequences into a versioned training dataset (adapter over training.data.windows)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pipeline.atomic import OutputKind
 from biasgt.cli.commands._args import add_window_arguments
 from pipeline.errors import ConfigError
 from pipeline.types import Split
-from training.windows_config import WindowConfig
+from training.data.windows_config import WindowConfig
 
 log = logging.getLogger(__name__)
 
@@ -34,7 +34,7 @@ All sequences must share one uniform IMU rate; --resample-hz HZ resamples those 
 (linear interpolation onto a uniform grid, gaps kept). Writes OUT atomically:
   OUT/manifest.json             sequences, splits, window counts, drops, config + hash, code version,
                                 normalisation statistics (train split)
-  OUT/sequences/NAME/*.npy      arrays, memory-mapped by training.dataset.WindowDataset
+  OUT/sequences/NAME/*.npy      arrays, memory-mapped by training.data.dataset.WindowDataset
 """
 
 EPILOG = """\
@@ -85,8 +85,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.context import write_context
-    from training.windows import (  # torch: off the CLI start-up path
+    from training.data.records import write_context
+    from training.data.windows import (  # torch: off the CLI start-up path
         WindowSource,
         build_window_dataset,
         format_summary,
@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.allow_unvalidated:
         _refuse_unvalidated(sources, args.results)
     manifest = build_window_dataset(sources, args.out, config)
-    write_context(args.out)  # the sequence records (training.context)
+    write_context(args.out)  # the sequence records (training.data.records)
     print(f"{len(manifest.sequences)} sequences, {manifest.window_samples} samples per window "
           f"({config.window_s:g} s at {manifest.rate_hz:g} Hz, overlap {config.overlap:g}), "
           f"config {manifest.config_hash}")

@@ -26,8 +26,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+#: File suffix of a ROS 1 bag.
+ROS1_SUFFIX = ".bag"
+#: File suffix of a ROS 2 bag's MCAP storage file.
+MCAP_SUFFIX = ".mcap"
+#: File suffixes of a ROS 2 bag's storage files (MCAP, sqlite3).
+ROS2_SUFFIXES = (MCAP_SUFFIX, ".db3")
 #: File suffixes of a bag (ROS 1 ``.bag``; ROS 2 storage files).
-BAG_SUFFIXES = (".bag", ".mcap", ".db3")
+BAG_SUFFIXES = (ROS1_SUFFIX, *ROS2_SUFFIXES)
 
 
 def detect_bag(path: str | Path) -> bool:

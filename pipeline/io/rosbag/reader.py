@@ -28,6 +28,7 @@ from pipeline.io.rosbag.formats import (
     TRANSFORM_STAMPED,
 )
 from pipeline.io.registry import SOURCE_FORMAT_KEY
+from pipeline.io.rosbag import BAG_SUFFIXES, MCAP_SUFFIX, ROS1_SUFFIX, ROS2_SUFFIXES
 from pipeline.types import NS_PER_S, Finding, ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence, Severity
 
 logger = logging.getLogger(__package__)  # reader and writer log as one: 'pipeline.io.rosbag'
@@ -38,19 +39,20 @@ def _resolve_bag_path(path: Path) -> Path:
     if not path.exists():
         raise InputFormatError("bag does not exist", path=path, hint="check the path")
     if path.is_dir() and not (path / "metadata.yaml").is_file():
-        files = sorted(p for p in path.iterdir() if p.suffix in (".db3", ".mcap") and p.is_file())
+        files = sorted(p for p in path.iterdir() if p.suffix in ROS2_SUFFIXES and p.is_file())
         if len(files) == 1:
             return files[0]
+        storage = "/".join(ROS2_SUFFIXES)
         raise InputFormatError(
             "folder is not a ROS2 bag: it has no metadata.yaml"
-            + (f" and {len(files)} .db3/.mcap files" if files else " and no .db3/.mcap file"),
+            + (f" and {len(files)} {storage} files" if files else f" and no {storage} file"),
             path=path,
-            hint="give the bag folder that holds metadata.yaml, or one .db3/.mcap file",
+            hint=f"give the bag folder that holds metadata.yaml, or one {storage} file",
         )
-    if path.is_file() and path.suffix not in (".bag", ".db3", ".mcap"):
+    if path.is_file() and path.suffix not in BAG_SUFFIXES:
         raise UnsupportedInputError(
             f"unknown bag file extension {path.suffix!r}", path=path,
-            hint="ROS1 bags end in .bag; ROS2 storage files in .db3 or .mcap",
+            hint=f"ROS1 bags end in {ROS1_SUFFIX}; ROS2 storage files in {' or '.join(ROS2_SUFFIXES)}",
         )
     return path
 
@@ -625,7 +627,7 @@ def _bag_metadata(reader: AnyReader, path: Path, open_path: Path, topics: dict[s
     """What ``biasgt inspect`` shows of a bag: storage, span, topics, what was read."""
     start, end = int(reader.start_time), int(reader.end_time)
     storage = "rosbag1" if not reader.is2 else (
-        "rosbag2-mcap" if (open_path.suffix == ".mcap" or any(open_path.glob("*.mcap"))) else "rosbag2-sqlite3")
+        "rosbag2-mcap" if (open_path.suffix == MCAP_SUFFIX or any(open_path.glob(f"*{MCAP_SUFFIX}"))) else "rosbag2-sqlite3")
     meta = {
         "path": str(path),
         "format": storage,

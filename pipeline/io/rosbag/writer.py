@@ -30,6 +30,7 @@ from pipeline.io.rosbag.formats import (
     Ros2Storage,
     RosVersion,
 )
+from pipeline.io.rosbag import ROS1_SUFFIX
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence
 
 logger = logging.getLogger(__package__)  # reader and writer log as one: 'pipeline.io.rosbag'
@@ -152,7 +153,7 @@ def write_bag(
     path = Path(path)
     ros_version = RosVersion(ros_version)
     pose_msg = PoseMsgType(pose_msg)
-    if ros_version == RosVersion.ROS1 and path.suffix != ".bag":
+    if ros_version == RosVersion.ROS1 and path.suffix != ROS1_SUFFIX:
         raise ConfigError("a ROS1 bag must be a .bag file", path=path, hint="give an output path ending in .bag")
     if pose_topic is None:
         pose_topic = "/tf" if pose_msg == PoseMsgType.TF else "/pose"
