@@ -1,4 +1,4 @@
-"""IMU intrinsics estimated around the bias recovery (recovery.intrinsics): the figures of its acceptance.
+"""IMU intrinsics estimated around the bias recovery (recovery.intrinsics.estimate): the figures of its acceptance.
 
     .venv/bin/python benchmarks/intrinsics.py [--duration 120] [--preset aggressive_drone] [--seeds 0 1 2]
                                               [--skip-real] [--skip-sim]
@@ -11,7 +11,7 @@
 3. Real EuRoC V1_01 (IMU + ground-truth poses): the gyro random walk the evidence search picks, and
    the correlation of each axis of the recovered gyro bias with each axis of the angular rate,
    intrinsics off vs on (goals: <= 10x the datasheet, every |correlation| < 0.2).
-4. Where V1_01's excess gyro walk comes from (recovery.gyro_consistency), against EuRoC's
+4. Where V1_01's excess gyro walk comes from (recovery.intrinsics.gyro_consistency), against EuRoC's
    ground-truth poses and OpenVINS's re-estimated poses of the same IMU: the coupling of
    ``gyro - reference rate`` to the rate by frequency band (an intrinsic error has the same gain
    in every band); the walk the evidence search picks after the gyro is corrected by the
@@ -185,7 +185,7 @@ def _recovered_walk(seq, stream: str, gyro_radps: np.ndarray | None = None):
 
 
 def v1_01_reference(seq) -> None:
-    from recovery.gyro_consistency import attitude_increments, fit_walk, rate_coupling
+    from recovery.intrinsics.gyro_consistency import attitude_increments, fit_walk, rate_coupling
 
     cal = seq.calibration  # sensor.yaml's datasheet values
     for stream, label in (("V1_01_easy_original", "EuRoC ground truth"), ("V1_01_easy", "OpenVINS")):

@@ -17,7 +17,7 @@ the accelerometer's ``[x,y,z]z``; without a calibration file's rotation the acce
 ``xz``/``yz``, its tilt, are as blind as its z scale).
 
 When the first solve's accelerometer agrees with the calibration file's extrinsic rotation, the
-fits take the file's rotation as the accelerometer's (``recovery.intrinsics_frame.rotation_prior``):
+fits take the file's rotation as the accelerometer's (``recovery.intrinsics.frame.rotation_prior``):
 the tilt terms are estimated and only the z scale is left to the bias (``absorbed_by_bias``,
 "not observable from this motion").
 """
@@ -65,7 +65,7 @@ def bound(seed: int, duration_s: float, clean_rmse: np.ndarray | None = None) ->
     """The fit against the true trajectory: sigma of each term x its signal (module docstring), and its ratio
     to ``clean_rmse`` [6] (the clean recovery's per-axis RMSE) when given."""
     from pipeline.types import ImuNoiseModel, ImuSeries
-    from recovery.intrinsics import fit_intrinsics
+    from recovery.intrinsics.estimate import fit_intrinsics
 
     truth = ind.draw_intrinsics(seed)
     s = ind.make_sequence(duration_s, seed=seed, intrinsics=truth)

@@ -91,7 +91,7 @@ def case_sim(hard: bool, clean_rmse=None, seed: int = 0):
     dt = time.perf_counter() - t0
     eg, ea = _errors(res, sim.truth)
     rg, ra = np.sqrt((eg**2).mean(0)), np.sqrt((ea**2).mean(0))
-    from recovery.bounds import bias_rmse_floor
+    from recovery.noise.bounds import bias_rmse_floor
 
     imu_cfg, pose_cfg = sim.config.imu, sim.config.poses
     floor_g = bias_rmse_floor(imu_cfg.gyro_noise_density, imu_cfg.gyro_random_walk, pose_cfg.rotation_noise_rad,
@@ -107,7 +107,7 @@ def case_sim(hard: bool, clean_rmse=None, seed: int = 0):
           + ("" if hard else f"  (target <= 1.6e-4: {_mark(bool((rg <= 1.6e-4).all()))})"))
     print(f"[{name}] acc  RMSE per axis {np.array2string(ra, precision=5)} m/s^2"
           + ("" if hard else f"  (target <= 4.5e-3: {_mark(bool((ra <= 4.5e-3).all()))})"))
-    print(f"[{name}] optimal-smoother floor for this noise (recovery.bounds): gyro {floor_g:.3g} rad/s, acc "
+    print(f"[{name}] optimal-smoother floor for this noise (recovery.noise.bounds): gyro {floor_g:.3g} rad/s, acc "
           f"{floor_a:.3g} m/s^2; RMSE / floor: gyro {(rg / floor_g).max():.2f}, acc {(ra / floor_a).max():.2f} "
           f"(target about 1.3x the floor: {_mark(bool((rg <= 1.3 * floor_g).all() and (ra <= 1.3 * floor_a).all()))}"
           f"; the 4.5e-3 acc target is {(4.5e-3 / floor_a):.2f}x the floor)")

@@ -9,14 +9,14 @@ Public API::
     write_recovery(result, "out/recovery")   # bias.csv, recovery.json, trajectory_tum.txt, residuals.csv
     back = RecoveryOutputs.read("out/recovery")  # the same folder, typed
 
-Modules: :mod:`recovery.config` (options and mode enums), :mod:`recovery.preintegration`
-(midpoint preintegration at keyframes off the IMU stamps), :mod:`recovery.window` (one window's
-records), :mod:`recovery.initial` (its initial states), :mod:`recovery.factors` (its factor graph),
-:mod:`recovery.gaps` (keyframes in pose gaps), :mod:`recovery.graph` (its solve and marginals),
-:mod:`recovery.noise` (random walks and pose
-sigma by maximum evidence), :mod:`recovery.segments` (overlapping segments, stitching),
-:mod:`recovery.recover` (the whole stage), :mod:`recovery.outputs` (files),
-:mod:`recovery.calibration_init` (closed-form offset / extrinsic / gravity initialisation).
+Layout: the stage's entry (:mod:`recovery.recover`), its options (:mod:`recovery.config`), the
+problem it builds (:mod:`recovery.problem`), the records its steps hand on (:mod:`recovery.records`),
+its result and files (:mod:`recovery.result`, :mod:`recovery.outputs`), the degenerate-solve hint
+(:mod:`recovery.degenerate`); and by role the subpackages :mod:`recovery.solver` (one window's factor
+graph and solve), :mod:`recovery.noise` (noise strengths), :mod:`recovery.clock` (the pose stream's
+clock offset), :mod:`recovery.frame` (frame check, extrinsic, gravity), :mod:`recovery.intrinsics` (IMU
+intrinsics) and :mod:`recovery.calibration_init` (closed-form offset / extrinsic / gravity
+initialisation).
 """
 
 from recovery.config import (

@@ -103,11 +103,11 @@ class TimeOffsetMode(str, enum.Enum):
 
 
 class IntrinsicsMode(str, enum.Enum):
-    """Which IMU intrinsics are estimated around the solve (:mod:`recovery.intrinsics`).
+    """Which IMU intrinsics are estimated around the solve (:mod:`recovery.intrinsics.estimate`).
 
     AUTO: WITH_G_SENSITIVITY when the plain solve's gyro reads a share of the rate in every
         frequency band against a 6-DoF absolute pose stream (an intrinsic error:
-        :func:`recovery.gyro_consistency.rate_coupling`, on the solved offset and extrinsic),
+        :func:`recovery.intrinsics.gyro_consistency.rate_coupling`, on the solved offset and extrinsic),
         else OFF. The check costs < 1 % of a recovery; each round of the loop a full solve.
     OFF: none (readings taken as they are; the bias absorbs scale and misalignment errors).
     SCALE_MISALIGNMENT: gyro and accelerometer scale and misalignment.
@@ -134,7 +134,7 @@ class NoiseEstimation(str, enum.Enum):
 
 
 class PoseErrorMode(str, enum.Enum):
-    """How the time-correlated error of a 6-DoF absolute pose stream is modelled (:mod:`recovery.pose_error`).
+    """How the time-correlated error of a 6-DoF absolute pose stream is modelled (:mod:`recovery.solver.pose_error`).
 
     AUTO: a first-order Gauss-Markov error per axis group (rotation, position), its sigma (zero
         included: none) and correlation time chosen by evidence with the random walks.
@@ -168,7 +168,7 @@ class RecoveryConfig(ImuNoiseOverrides):
             information -- 10-Hz keyframes with the samples in between fused into them for
             6-DoF absolute streams (``pose_fusion``), each sample a keyframe otherwise.
         pose_fusion: Fuse the pose samples between keyframes into them through the IMU
-            (:mod:`recovery.fusion`; 6-DoF absolute streams). ``False``: keyframes are single
+            (:mod:`recovery.solver.fusion`; 6-DoF absolute streams). ``False``: keyframes are single
             samples and the samples between them are dropped (every sample with
             ``keyframe_rate_hz: null``: slower, the same information).
         relative_horizon: RELATIVE mode: number of keyframes each BetweenFactor spans
@@ -186,7 +186,7 @@ class RecoveryConfig(ImuNoiseOverrides):
             solves; ``None``: :data:`OFFSET_WINDOW_FUSED_S` with fused keyframes, else ``calib_window_s``.
         extrinsic_mode: See :class:`ExtrinsicMode`.
         keep_frame_disagreement: Write a result whose IMU and pose stream disagree about the body frame
-            (:mod:`recovery.frame_check`) with a warning, for the verdict to judge (it FAILs on plausibility),
+            (:mod:`recovery.frame.check`) with a warning, for the verdict to judge (it FAILs on plausibility),
             instead of refusing it.
         extrinsic_keyframe_rate_hz: Keyframe rate of the joint extrinsic solve.
         extrinsic_prior_rotation_deg / extrinsic_prior_translation_m: 1-sigma per axis of the prior a
@@ -240,7 +240,7 @@ class RecoveryConfig(ImuNoiseOverrides):
         robust_k: Threshold of the M-estimator, in sigmas of a 1-D error. GTSAM weighs a
             factor by the norm of its whole whitened error, so a factor of dimension d gets the
             chi(d) threshold with the same tail probability (3 -> 3.76 for the 3-D velocity
-            priors, 4.48 for 6-DoF pose factors; :func:`recovery.factors.robust_norm_threshold`).
+            priors, 4.48 for 6-DoF pose factors; :func:`recovery.solver.factors.robust_norm_threshold`).
         outlier_threshold: After convergence, a pose factor whose whitened residual
             (per-DoF RMS) exceeds this many sigmas is counted in ``outliers_rejected``,
             removed, and the window solved again.

@@ -20,12 +20,12 @@ from recovery.config import (
     ImuGapPolicy,
     RecoveryConfig,
 )
-from recovery.fusion import fuse_poses
-from recovery.graph import solve_window
-from recovery.initial import gyro_keyframe_rotations, propagate_orientations
-from recovery.window import KeyframePoses, SolveOptions, WindowInit, WindowSolution
-from recovery.preintegration import ImuNoise, MidpointSamples, midpoint_samples
-from recovery.segments import plan_segments, stitch
+from recovery.solver.fusion import fuse_poses
+from recovery.solver.graph import solve_window
+from recovery.solver.initial import gyro_keyframe_rotations, propagate_orientations
+from recovery.solver.window import KeyframePoses, SolveOptions, WindowInit, WindowSolution
+from recovery.solver.preintegration import ImuNoise, MidpointSamples, midpoint_samples
+from recovery.solver.segments import plan_segments, stitch
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +116,7 @@ class Problem:
     """Pose stream + IMU; builds windows (IMU samples + keyframes) at a given clock offset.
 
     With ``fuse`` (6-DoF absolute streams), the pose samples of each keyframe bin are fused
-    into the keyframe through the IMU (:mod:`recovery.fusion`), linearised at the extrinsic,
+    into the keyframe through the IMU (:mod:`recovery.solver.fusion`), linearised at the extrinsic,
     gravity and bias set by :meth:`set_linearisation`; otherwise a keyframe is one sample.
     """
 
@@ -176,7 +176,7 @@ class Problem:
             kf = KeyframePoses(t[sel], self.poses.p_m[sel],
                                None if self.poses.quat_wxyz is None else self.poses.quat_wxyz[sel],
                                self.poses.source_kind)
-        kf = kf.with_gap_keyframes()  # pose pauses: keyframes without pose factors (recovery.gaps)
+        kf = kf.with_gap_keyframes()  # pose pauses: keyframes without pose factors (recovery.solver.gaps)
         return midpoint_samples(self.imu.t_ns, self.imu_6, kf.t_ns), kf
 
 

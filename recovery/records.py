@@ -16,11 +16,11 @@ from recovery.config import (
     PoseFactorMode,
     TimeOffsetMode,
 )
-from recovery.calibration_uncertainty import CalibrationCovariance
-from recovery.window import SolveOptions, WindowSolution
-from recovery.noise import NoiseChoice
-from recovery.noise_from_data import DataNoise
-from recovery.preintegration import ImuNoise
+from recovery.solver.calibration_uncertainty import CalibrationCovariance
+from recovery.solver.window import SolveOptions, WindowSolution
+from recovery.noise.evidence import NoiseChoice
+from recovery.noise.from_data import DataNoise
+from recovery.solver.preintegration import ImuNoise
 
 
 @dataclass(frozen=True)
@@ -45,7 +45,7 @@ class Inputs:
         warnings: Plain sentences.
         data_noise: The white-noise densities read off the recording's rest when no calibration gave
             them (``imu_noise`` holds them), else None.
-        rig: The pose stream against the IMU over the whole overlap (:func:`recovery.clock_coarse.screen_rig`:
+        rig: The pose stream against the IMU over the whole overlap (:func:`recovery.clock.coarse.screen_rig`:
             coarse clock offset, positions' unit, frame agreement), None when it could not be judged.
         placeholder_t_ns: Stamps (pose clock) of the placeholder frames dropped from the stream.
     """
@@ -85,8 +85,8 @@ class ClockOffset:
         warnings: Plain sentences.
         curvature_std_s: The refinement's sigma from the cost's curvature (None: not refined).
         window_offsets_s: The offset refined on the refinement window, then on the windows of
-            :func:`recovery.offset.offset_spread_windows`; ``std_s`` is at least their scatter.
-        wide_search: The search over the whole overlap (:mod:`recovery.clock_coarse`; ``recovery.json``
+            :func:`recovery.clock.offset.offset_spread_windows`; ``std_s`` is at least their scatter.
+        wide_search: The search over the whole overlap (:mod:`recovery.clock.coarse`; ``recovery.json``
             ``pose_time_offset_wide_search``), None when it did not run.
     """
 

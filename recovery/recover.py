@@ -13,19 +13,19 @@ Stages (each logged; all results and choices land in ``recovery.json``):
 4. extrinsic ``T_imu_pose``: known (calibration) or initialised in closed form
    and refined jointly in the graph (``E(0)`` Pose3 for 6-DoF sources, ``L(0)``
    lever arm for position trackers) on a decimated window.
-5. noise: bias random walks by maximum evidence (:mod:`recovery.noise`); pose sigmas
+5. noise: bias random walks by maximum evidence (:mod:`recovery.noise.evidence`); pose sigmas
    in closed form from the scatter of fused samples (else by evidence too).
 6. the full solve, by overlapping segments (bounded memory), with robust
    pose factors, outlier rejection, gravity direction and bias marginals
    that include the uncertainty of the estimated clock offset and extrinsic
-   (:mod:`recovery.calibration_uncertainty`); stitched without seams
-   (:mod:`recovery.segments`).
+   (:mod:`recovery.solver.calibration_uncertainty`); stitched without seams
+   (:mod:`recovery.solver.segments`).
 
 Keyframes: for 6-DoF absolute streams every pose sample is used through
-10-Hz keyframes that fuse the samples of their bin (:mod:`recovery.fusion`,
+10-Hz keyframes that fuse the samples of their bin (:mod:`recovery.solver.fusion`,
 linearised at the latest extrinsic / gravity / bias estimate); other streams use
 one keyframe per sample. ``recovery.json`` also states the accuracy floor of the
-noise at hand (:mod:`recovery.bounds`).
+noise at hand (:mod:`recovery.noise.bounds`).
 """
 
 from __future__ import annotations
@@ -55,22 +55,22 @@ from recovery.config import (
     TimeOffsetMode,
 )
 from recovery import calibration_init as ci
-from recovery.clock_coarse import coarse_offset, screen_rig
+from recovery.clock.coarse import coarse_offset, screen_rig
 from recovery.degenerate import degenerate_error, degenerate_hint
-from recovery.extrinsic import CalibrationDifference, calibration_difference
-from recovery.frame_check import check_frames
-from recovery.calibration_uncertainty import CalibrationCovariance
-from recovery.graph import solve_window
-from recovery.window import SolveOptions, WindowInit, WindowSolution
-from recovery.noise import grid_edge_warnings, NoiseChoice, PoseErrorGrid, estimate_noise
-from recovery.noise_from_data import data_noise_for
-from recovery.pose_error import PoseErrorModel
+from recovery.frame.extrinsic import CalibrationDifference, calibration_difference
+from recovery.frame.check import check_frames
+from recovery.solver.calibration_uncertainty import CalibrationCovariance
+from recovery.solver.graph import solve_window
+from recovery.solver.window import SolveOptions, WindowInit, WindowSolution
+from recovery.noise.evidence import grid_edge_warnings, NoiseChoice, PoseErrorGrid, estimate_noise
+from recovery.noise.from_data import data_noise_for
+from recovery.solver.pose_error import PoseErrorModel
 from recovery.outputs import RecoveryReport
-from recovery.preintegration import ImuNoise
-from recovery.segments import plan_segments, stitch
+from recovery.solver.preintegration import ImuNoise
+from recovery.solver.segments import plan_segments, stitch
 from recovery.records import CalibrationWindows, ClockOffset, ExtrinsicInit, FullSolve, GravityStage, Inputs, NoiseStage
-from recovery.gravity import solve_gravity, level_gravity_test
-from recovery.offset import refine_offset, offsets_elsewhere, spread_std_s
+from recovery.frame.gravity import solve_gravity, level_gravity_test
+from recovery.clock.offset import refine_offset, offsets_elsewhere, spread_std_s
 from recovery.problem import (COARSE_OFFSET_SPAN_S, bias_guess, calibration_window, chained_solution,
                               clean_poses, continue_from, imu_pieces, Problem, select_stream, shifted_stamps)
 from recovery.result import (RecoveryResult, bias_function, pose_sigmas_from_fusion, build_result, agreement_z,
@@ -125,7 +125,7 @@ def recover(sequence: Sequence, *, pose_stream: str | None = None,
 
     Raises:
         RecoveryError: The input cannot give a trustworthy result (one line saying why), e.g. the IMU and
-            the pose stream disagree about the body frame (:mod:`recovery.frame_check`).
+            the pose stream disagree about the body frame (:mod:`recovery.frame.check`).
         AmbiguousInputError: The named pose stream does not exist (lists the streams).
         DataError: The sequence has no pose stream and no ground truth.
     """
@@ -139,7 +139,7 @@ def _recover_with_intrinsics(sequence: Sequence, pose_stream: str | None, config
     try:
         if config.intrinsics is IntrinsicsMode.OFF or sequence.imu is None:
             return _recover(sequence, pose_stream=pose_stream, config=replace(config, intrinsics=IntrinsicsMode.OFF))
-        from recovery.intrinsics import auto_intrinsics, recover_with_intrinsics
+        from recovery.intrinsics.estimate import auto_intrinsics, recover_with_intrinsics
 
         plain = replace(config, intrinsics=IntrinsicsMode.OFF)
         first = _recover(sequence, pose_stream=pose_stream, config=plain)

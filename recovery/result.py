@@ -23,11 +23,11 @@ from recovery.config import (
     PoseSigmaMethod,
     RecoveryConfig,
 )
-from recovery.bounds import bias_rmse_floor
-from recovery.calibration_uncertainty import OFFSET_INDEX
-from recovery.window import KeyframePoses, WindowSolution
-from recovery.noise import NoiseChoice
-from recovery.noise_from_data import DataNoise
+from recovery.noise.bounds import bias_rmse_floor
+from recovery.solver.calibration_uncertainty import OFFSET_INDEX
+from recovery.solver.window import KeyframePoses, WindowSolution
+from recovery.noise.evidence import NoiseChoice
+from recovery.noise.from_data import DataNoise
 from recovery.outputs import RecoveryOutputs, RecoveryReport
 from recovery.problem import FUSED_KEYFRAME_RATE_HZ, Problem
 from recovery.records import ClockOffset, ExtrinsicInit, FullSolve, GravityStage, Inputs, NoiseStage
@@ -259,7 +259,7 @@ def pose_sigmas_from_fusion(kf: KeyframePoses, base_sp: float, base_sr: float, c
 
 def _accuracy_floor(choice: NoiseChoice, poses: PoseSeries, pose_mode: PoseFactorMode, has_rot: bool
                     ) -> dict[str, float | None]:
-    """The optimal smoother's per-axis bias RMSE for the noise used (:mod:`recovery.bounds`): what
+    """The optimal smoother's per-axis bias RMSE for the noise used (:mod:`recovery.noise.bounds`): what
     no estimator beats with this IMU and pose stream; absolute pose streams only."""
     rate = _pose_rate_hz(poses)
     if pose_mode != PoseFactorMode.ABSOLUTE or rate is None:
@@ -285,7 +285,7 @@ def bias_function(sol: WindowSolution) -> Any:
 
 def _calibration_report(full: FullSolve) -> dict[str, Any]:
     """``recovery.json`` ``calibration_uncertainty``: whether the bias sigmas include the uncertainty of
-    the estimated calibration (:mod:`recovery.calibration_uncertainty`), and how much it inflated them."""
+    the estimated calibration (:mod:`recovery.solver.calibration_uncertainty`), and how much it inflated them."""
     ratios = [s.extras["calibration_std_ratio"] for s in full.flat if "calibration_std_ratio" in s.extras]
     cal = full.calibration
     out: dict[str, Any] = {"included_in_bias_std": bool(ratios), "parameters": list(cal.parameters) if cal else []}

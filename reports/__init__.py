@@ -6,5 +6,5 @@ Public API (import from the submodules; this package imports nothing heavy itsel
     from reports.dataset import build_dataset_report     # (results_dir, out_path=None): results/report/index.html
 
 Command line: ``biasgt report RESULTS_DIR --sequence NAME --out FILE.html``; ``biasgt report RESULTS_DIR``
-writes the dataset page. The Allan deviation it draws is :mod:`recovery.allan`.
+writes the dataset page. The Allan deviation it draws is :mod:`recovery.noise.allan`.
 """

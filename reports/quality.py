@@ -30,7 +30,7 @@ from pipeline import __version__
 from pipeline.atomic import atomic_path
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.types import Sequence
-from recovery.allan import imu_allan
+from recovery.noise.allan import imu_allan
 from reports.html import Html, esc, join, p, page, tag
 from reports.quality_calibration import bias_section, calibration_section
 from reports.quality_inputs import SECTIONS, ReportInputs, gather_inputs

@@ -12,10 +12,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.errors import BiasgtError
-from recovery.gyro_consistency import rate_coupling
+from recovery.intrinsics.gyro_consistency import rate_coupling
 from reports import plots
 from validation.plausibility import gravity_tilt_deg
-from recovery.allan import ImuAllan
+from recovery.noise.allan import ImuAllan
 from reports.html import Html, esc, figure_img, fmt, join, p, section, table, tag
 from reports.quality_inputs import TITLE, ReportInputs, missing_box, num, rel_s
 from reports.quality_residuals import allan_cell, calibration_origin
@@ -249,7 +249,7 @@ def bias_section(inp: ReportInputs) -> Html:
 
 def gyro_consistency_note(inp: ReportInputs) -> Html | None:
     """Whether the gyro reads a share of the rate against the fitted pose stream: the sentence the
-    recovery's ``intrinsics: auto`` decided on, else :func:`recovery.gyro_consistency.rate_coupling`
+    recovery's ``intrinsics: auto`` decided on, else :func:`recovery.intrinsics.gyro_consistency.rate_coupling`
     on the recovered offset and extrinsic; None without a 6-DoF pose stream long enough for it."""
     rec, seq = inp.recovery, inp.sequence
     poses = seq.poses.get(rec.pose_stream) if rec is not None and rec.pose_stream else None

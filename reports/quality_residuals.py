@@ -15,7 +15,7 @@ from pipeline.errors import BiasgtError
 from pipeline.types import NS_PER_S
 from reports import plots
 from validation.plausibility import pose_residuals
-from recovery.allan import ImuAllan
+from recovery.noise.allan import ImuAllan
 from reports.html import Html, figure_img, fmt, join, p, section, table, tag, ul
 from reports.quality_inputs import (TITLE, MAX_FLAGGED_ROWS, ReportInputs, candidate_name, first_of_kind,
                                     missing_box, num, rel_s, validation_sources, other_estimates_sentence)

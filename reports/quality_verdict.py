@@ -15,7 +15,7 @@ from pipeline.checks.options import CHECK_CODES
 from pipeline.checks.run import run_checks, stream_summaries
 from pipeline.errors import BiasgtError
 from pipeline.types import NS_PER_S, Finding, Sequence, Severity, Verdict
-from recovery.intrinsics_report import intrinsics_clause
+from recovery.intrinsics.report import intrinsics_clause
 from reports.html import Html, esc, fmt, join, p, section, table, tag, ul
 from reports.quality_inputs import (TITLE, ReportInputs, better_worse, candidate_name, first_of_kind, num,
                                     source_label, validation_sources)

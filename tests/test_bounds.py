@@ -1,4 +1,4 @@
-"""recovery.bounds: the optimal smoother's bias RMSE (the floor of any recovery for given noise)."""
+"""recovery.noise.bounds: the optimal smoother's bias RMSE (the floor of any recovery for given noise)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from recovery.bounds import bias_rmse_floor
+from recovery.noise.bounds import bias_rmse_floor
 
 ACC = dict(noise_density=2.0e-3, random_walk=10 * 3.0e-3, pose_sigma=0.5e-3, pose_rate_hz=100.0)
 GYRO = dict(noise_density=1.6968e-4, random_walk=10 * 1.9393e-5, pose_sigma=0.5e-3, pose_rate_hz=100.0)

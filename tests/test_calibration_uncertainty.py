@@ -1,4 +1,4 @@
-"""The estimated calibration's uncertainty in the bias sigmas (recovery.calibration_uncertainty).
+"""The estimated calibration's uncertainty in the bias sigmas (recovery.solver.calibration_uncertainty).
 
 1. The first-order sensitivity the module propagates (from the linearised solve) equals what
    re-solving the whole nonlinear problem -- pose fusion included -- with the calibration moved
@@ -20,13 +20,13 @@ import pytest
 
 from pipeline.sim import simulate
 from pipeline.sim.config import PoseStreamConfig, SimConfig
-from recovery import calibration_uncertainty as cu
-from recovery import graph
+from recovery.solver import calibration_uncertainty as cu
+from recovery.solver import graph
 from recovery import recover as rr
-from recovery.calibration_uncertainty import CALIBRATION_DIM, OFFSET_INDEX, CalibrationCovariance
+from recovery.solver.calibration_uncertainty import CALIBRATION_DIM, OFFSET_INDEX, CalibrationCovariance
 from recovery.config import RecoveryConfig
-from recovery.graph import solve_window
-from recovery.window import WindowInit
+from recovery.solver.graph import solve_window
+from recovery.solver.window import WindowInit
 
 HARD = dict(extrinsic_rotation_deg=15.0, extrinsic_translation_m=0.10, clock_offset_s=0.012, dropouts=4,
             dropout_max_s=1.5, outliers=20, outlier_offset_m=0.1)

@@ -1,4 +1,4 @@
-"""Pose fusion (recovery.fusion): samples between keyframes moved through the IMU and fused.
+"""Pose fusion (recovery.solver.fusion): samples between keyframes moved through the IMU and fused.
 
 Checked against the simulator's truth: exact on noise-free poses (to the IMU's own
 noise), the fused sigmas match the scatter of the errors, the within-bin residuals
@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from pipeline.sim import simulate
 from pipeline.sim.config import PoseStreamConfig, SimConfig
 from recovery.config import RecoveryConfig
-from recovery.fusion import WithinBinStats, fuse_poses, relative_motion
+from recovery.solver.fusion import WithinBinStats, fuse_poses, relative_motion
 from recovery.recover import recover
 
 

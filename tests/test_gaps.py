@@ -1,4 +1,4 @@
-"""Keyframes inside pose gaps (recovery.gaps): where they go, how they start, and a recovery across a 10-s gap."""
+"""Keyframes inside pose gaps (recovery.solver.gaps): where they go, how they start, and a recovery across a 10-s gap."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from pipeline.sim import simulate
 from pipeline.sim.config import PoseStreamConfig, SimConfig
 from pipeline.types import NS_PER_S
 from recovery.config import RecoveryConfig
-from recovery.gaps import GAP_KEYFRAME_PERIOD_S, bridge_gaps, gap_keyframe_stamps
-from recovery.preintegration import ImuNoise, make_params, midpoint_samples, preintegrate
+from recovery.solver.gaps import GAP_KEYFRAME_PERIOD_S, bridge_gaps, gap_keyframe_stamps
+from recovery.solver.preintegration import ImuNoise, make_params, midpoint_samples, preintegrate
 from recovery.recover import recover
 
 
@@ -108,7 +108,7 @@ def test_recovery_across_a_ten_second_pose_gap_tracks_the_true_bias_and_motion()
 
 def _true_solution(gt, idx: np.ndarray):
     """A WindowSolution holding the simulator's true state at ground-truth rows ``idx``."""
-    from recovery.window import WindowSolution
+    from recovery.solver.window import WindowSolution
 
     bias = np.hstack([gt.bias_gyro_radps[idx], gt.bias_acc_mps2[idx]])
     return WindowSolution(gt.t_ns[idx], gt.p_m[idx], gt.quat_wxyz[idx], gt.v_mps[idx], bias, np.full_like(bias, np.nan),
@@ -120,7 +120,7 @@ def test_a_position_only_segment_starts_from_another_solution_inside_it_or_acros
     covers only its middle (filled forwards and backwards with the gyro) or that ends before it, with no
     keyframe in common (carried across the gap with the IMU): within 0.2 deg of the simulator's truth at every
     keyframe, where the closed-form guess would be used otherwise."""
-    from recovery.window import KeyframePoses
+    from recovery.solver.window import KeyframePoses
     from recovery.problem import continue_from
     from pipeline.types import PoseSourceKind
 

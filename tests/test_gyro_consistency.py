@@ -1,4 +1,4 @@
-"""recovery.gyro_consistency: the likelihood against the exact Gaussian density, walk fits on
+"""recovery.intrinsics.gyro_consistency: the likelihood against the exact Gaussian density, walk fits on
 simulated increments with known noise, rate coupling on a rotation with a known misalignment."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from scipy.stats import multivariate_normal
 
 from pipeline.errors import RecoveryError
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind
-from recovery.gyro_consistency import CouplingKind, attitude_increments, fit_walk, rate_coupling, walk_log_likelihood
+from recovery.intrinsics.gyro_consistency import CouplingKind, attitude_increments, fit_walk, rate_coupling, walk_log_likelihood
 
 DT = 0.1
 ND = 1.7e-4  # gyro white noise density, rad/s/sqrt(Hz)
@@ -172,7 +172,7 @@ def test_chance_coherence_of_unrelated_signals_does_not_count():
 def test_a_band_of_three_averages_never_counts_even_at_coherence_rounded_above_one():
     """Three inputs and n <= 3 independent averages give a multiple coherence of exactly 1 for any
     signals; rounding may put it a hair above 1, which must not pass for a coupling."""
-    from recovery.gyro_consistency import RateCoupling
+    from recovery.intrinsics.gyro_consistency import RateCoupling
 
     gain = np.zeros((2, 3, 3))
     gain[0, 1, 0] = 0.01
@@ -207,7 +207,7 @@ def test_quality_report_note_uses_the_recovered_offset_and_extrinsic(tmp_path):
     T = np.eye(4)
     T[:3, :3] = R_imu_pose.as_matrix()
     assert "follows the pose stream's rotation" in note(T, offset_s)
-    assert "recovery.intrinsics" in note(np.eye(4), offset_s)  # a 10-deg rotation left in reads like a misalignment
+    assert "recovery.intrinsics.estimate" in note(np.eye(4), offset_s)  # a 10-deg rotation left in reads like a misalignment
     no_rotation = Sequence("s", imu, {"mocap": PoseSeries(poses.t_ns, poses.p_m, None, "prism",
                                                           PoseSourceKind.POSITION_TRACKER)})
     rec = RecoveryReport.from_json({"pose_stream": "mocap", "T_imu_pose": T.tolist(), "pose_time_offset_s": offset_s})
@@ -237,7 +237,7 @@ def test_cross_spectra_and_chance_level_equal_scipy(nperseg):
     from scipy.special import betaincinv
     from scipy.stats import beta
 
-    from recovery.gyro_consistency import cross_spectra
+    from recovery.intrinsics.gyro_consistency import cross_spectra
 
     x = np.random.default_rng(4).normal(size=(517, 4)).cumsum(0)
     f, S = cross_spectra(x, 15.0, nperseg)

@@ -1,4 +1,4 @@
-"""IMU intrinsics (recovery.intrinsics): the model, the fit against a known trajectory, the loop around recover."""
+"""IMU intrinsics (recovery.intrinsics.estimate): the model, the fit against a known trajectory, the loop around recover."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ from pipeline.sim import SimConfig, simulate
 from pipeline.sim.config import MotionConfig, PoseStreamConfig
 from recovery.config import IntrinsicsMode, RecoveryConfig
 from pipeline.types import PoseSeries, PoseSourceKind
-from recovery.intrinsics import ImuIntrinsics, IntrinsicsFit, drop_insignificant, fit_intrinsics, \
+from recovery.intrinsics.estimate import ImuIntrinsics, IntrinsicsFit, drop_insignificant, fit_intrinsics, \
     intrinsics_bias_variance, raw_bias, recover_with_intrinsics
 from recovery.recover import recover
 

@@ -15,9 +15,9 @@ import pytest
 
 import independent as ind
 from pipeline.types import ImuNoiseModel, ImuSeries
-from recovery.intrinsics import fit_intrinsics
-from recovery.intrinsics_frame import rotation_prior
-from recovery.intrinsics_report import intrinsics_clause
+from recovery.intrinsics.estimate import fit_intrinsics
+from recovery.intrinsics.frame import rotation_prior
+from recovery.intrinsics.report import intrinsics_clause
 
 _spec = importlib.util.spec_from_file_location(
     "benchmark_intrinsics_independent", Path(__file__).resolve().parents[1] / "benchmarks" / "intrinsics_independent.py")

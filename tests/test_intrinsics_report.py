@@ -1,12 +1,12 @@
-"""What the recovery says of the IMU intrinsics (recovery.intrinsics_report) and the sigma of the terms it left out."""
+"""What the recovery says of the IMU intrinsics (recovery.intrinsics.report) and the sigma of the terms it left out."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from recovery.intrinsics import ImuIntrinsics, IntrinsicsFit, intrinsics_bias_variance, left_out_shift
-from recovery.intrinsics_report import intrinsics_clause, term_table
+from recovery.intrinsics.estimate import ImuIntrinsics, IntrinsicsFit, intrinsics_bias_variance, left_out_shift
+from recovery.intrinsics.report import intrinsics_clause, term_table
 from reports.quality_verdict import checked_and_not
 
 GROUPS = ("gyro_scale_misalignment", "acc_scale_misalignment", "gyro_g_sensitivity")
@@ -82,7 +82,7 @@ def test_calibration_agreement_of_the_accelerometer_rotation():
     ``-R dtheta`` (within its sigma) agrees with the file; one 1 deg away does not; no file, no answer."""
     from scipy.spatial.transform import Rotation
 
-    from recovery.intrinsics_frame import calibration_agreement
+    from recovery.intrinsics.frame import calibration_agreement
 
     R = Rotation.from_rotvec([0.1, -0.2, 0.3])
     dtheta_deg = np.array([0.3, -0.2, 0.1])
@@ -105,7 +105,7 @@ def test_calibration_agreement_of_the_accelerometer_rotation():
 def test_chi2_quantile_is_scipy_stats_chi2_ppf() -> None:
     from scipy.stats import chi2
 
-    from recovery.intrinsics_frame import chi2_quantile
+    from recovery.intrinsics.frame import chi2_quantile
 
     for q, dof in ((0.997, 3), (0.5, 1), (0.95, 6)):
         assert chi2_quantile(q, dof) == pytest.approx(chi2.ppf(q, dof), rel=1e-10)

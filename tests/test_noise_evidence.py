@@ -1,4 +1,4 @@
-"""The shortcuts of the noise evidence search and of the LM stopping rule (recovery.noise, recovery.graph).
+"""The shortcuts of the noise evidence search and of the LM stopping rule (recovery.noise.evidence, recovery.solver.graph).
 
 1. ``NoiseBasis``: the residual covariance re-weighted for other noise densities and random walks equals what
    GTSAM's own preintegration with those random walks gives (linearity of its propagation).
@@ -17,13 +17,13 @@ import pytest
 
 from pipeline.sim import simulate
 from pipeline.sim.config import SimConfig
-from recovery import graph
+from recovery.solver import graph
 from recovery import recover as rr
 from recovery.config import RecoveryConfig
-from recovery.factors import noise_basis
-from recovery.graph import evidence_step, solve_window
-from recovery.window import SolveOptions, WindowInit
-from recovery.preintegration import make_params, preintegrate
+from recovery.solver.factors import noise_basis
+from recovery.solver.graph import evidence_step, solve_window
+from recovery.solver.window import SolveOptions, WindowInit
+from recovery.solver.preintegration import make_params, preintegrate
 
 
 @pytest.fixture(scope="module")

@@ -17,7 +17,7 @@ from pipeline.io import load_sequence
 from pipeline.io.sensor_yaml import read_imu_calibration
 from recovery.calibration_init import find_static_segments
 from recovery.config import RecoveryConfig
-from recovery.noise_from_data import MIN_STRETCH_S, densities_from_rest
+from recovery.noise.from_data import MIN_STRETCH_S, densities_from_rest
 from recovery.outputs import SENSOR_YAML, read_report
 from recovery.recover import recover, write_recovery
 from rest_recordings import ACC_DENSITY, GYRO_DENSITY, bias_agreement, independent, simulated

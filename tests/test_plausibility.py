@@ -110,7 +110,7 @@ def test_wheel_odometry_with_the_identity_extrinsic_fails_with_a_plausibility_re
 
 
 def test_the_report_note_calls_a_swapped_frame_a_frame_mismatch(sim60: Path) -> None:
-    from recovery.gyro_consistency import rate_coupling
+    from recovery.intrinsics.gyro_consistency import rate_coupling
 
     seq = load_sequence(sim60)
     sentence = rate_coupling(seq.imu, seq.poses["mocap0"], R_imu_pose=ROTATED[:3, :3]).sentence()

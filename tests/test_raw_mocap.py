@@ -1,6 +1,6 @@
 """Bias recovery from raw motion capture and its verdict.
 
-The pose stream's time-correlated error (recovery.pose_error) against the densities it stands for
+The pose stream's time-correlated error (recovery.solver.pose_error) against the densities it stands for
 and numerical Jacobians; the evidence that chooses it on a simulation with such an error; then on
 EuRoC's raw Vicon stream (shared/data): the clock offset search (6-DoF, and from the positions alone)
 against an offset found from the ground truth, the extrinsic estimated with sensor.yaml's as a prior against rpng/vicon2gt's
@@ -21,7 +21,7 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.types import NS_PER_S
-from recovery.pose_error import (PoseErrorModel, add_error_states, error_key, imu_pose_factor, tracked_pose_factor,
+from recovery.solver.pose_error import (PoseErrorModel, add_error_states, error_key, imu_pose_factor, tracked_pose_factor,
                                  velocity_fit_variance)
 
 # ----------------------------------------------------------------------------- the error states
@@ -111,7 +111,7 @@ def test_velocity_fit_variance_of_a_gauss_markov_position_error():
 
 
 def test_extrinsic_difference_against_scipy():
-    from recovery.extrinsic import calibration_difference
+    from recovery.frame.extrinsic import calibration_difference
 
     T_file = np.eye(4)
     T_file[:3, :3] = Rotation.from_euler("xyz", [10, -5, 30], degrees=True).as_matrix()

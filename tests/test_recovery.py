@@ -95,7 +95,7 @@ def test_accuracy_floor_is_reported_and_not_beaten(clean_run):
     sim, res = clean_run
     floor = res.report["accuracy_floor"]
     # FAST fixes the noise at the simulator's truth: 10x EuRoC walks, 0.5 mm / 0.5 mrad at 100 Hz; the values
-    # are recovery.bounds' for that noise (regression values there, checked against an RTS smoother)
+    # are recovery.noise.bounds' for that noise (regression values there, checked against an RTS smoother)
     assert floor["acc_mps2"] == pytest.approx(6.66e-3, rel=0.02)
     assert floor["gyro_radps"] == pytest.approx(1.304e-4, rel=0.02)
     eg, ea = bias_errors(res, sim.truth)
@@ -152,8 +152,8 @@ def test_a_walk_at_either_bound_says_what_that_bound_means():
     """At the upper bound the bias may be absorbing pose artefacts; at the lower one the bias is steadier than
     the datasheet's walk (an upper limit), which is no reason to distrust it."""
     from pipeline.types import PoseSourceKind
-    from recovery.noise import NoiseChoice
-    from recovery.preintegration import ImuNoise
+    from recovery.noise.evidence import NoiseChoice
+    from recovery.solver.preintegration import ImuNoise
     from recovery.recover import grid_edge_warnings
 
     cfg = RecoveryConfig(random_walk_scales=[0.3, 1.0, 300.0])

@@ -141,8 +141,8 @@ def test_an_optimiser_that_gives_up_far_from_an_optimum_is_refused():
 
     from gtsam.symbol_shorthand import X
 
-    from recovery.factors import BuiltWindow
-    from recovery.graph import refuse_unconverged
+    from recovery.solver.factors import BuiltWindow
+    from recovery.solver.graph import refuse_unconverged
 
     graph = gtsam.NonlinearFactorGraph()
     target = gtsam.Pose3(gtsam.Rot3.Rz(0.3), gtsam.Point3(1.0, 2.0, 3.0))
@@ -196,8 +196,8 @@ def test_frames_that_disagree_are_refused_before_the_solve(frame_cases, case, ca
 def test_the_solved_bias_shows_the_frame_mistake_too(frame_cases, case, first_cause):
     """Kept past the screen (``keep_frame_disagreement``), the solve itself shows the mistake: the true
     accelerometer bias of the simulation stays far below 0.3 g, the recovered one reaches a sizeable fraction
-    of gravity, and :func:`recovery.frame_check.frame_disagreement` names the likely causes."""
-    from recovery.frame_check import frame_disagreement
+    of gravity, and :func:`recovery.frame.check.frame_disagreement` names the likely causes."""
+    from recovery.frame.check import frame_disagreement
 
     seq = frame_cases[case]
     assert np.abs(seq.ground_truth.bias_acc_mps2).max() < 0.1 * 9.81  # the truth: a plausible bias

@@ -11,7 +11,7 @@ import pytest
 from pipeline.sim import simulate
 from pipeline.sim.config import PoseStreamConfig, SimConfig
 from recovery.config import RecoveryConfig, RobustLoss
-from recovery.preintegration import midpoint_samples
+from recovery.solver.preintegration import midpoint_samples
 from recovery.recover import recover
 from recovery_sim import FAST, bias_errors, sim_sequence
 
@@ -63,7 +63,7 @@ def test_numpy_replacements_match_scipy():
     from scipy.integrate import cumulative_trapezoid
 
     from recovery.calibration_init.common import correlate_valid, cumtrapz
-    from recovery.initial import savgol
+    from recovery.solver.initial import savgol
 
     rng = np.random.default_rng(0)
     a, v = rng.normal(size=500), rng.normal(size=380)
@@ -83,7 +83,7 @@ def test_bias_values_pool_round_trip():
     """Bias initial values built from the cached zero pool carry the requested values, any K."""
     from gtsam.symbol_shorthand import B
 
-    from recovery.factors import bias_values
+    from recovery.solver.factors import bias_values
 
     rng = np.random.default_rng(3)
     for K in (5, 12, 7):
@@ -105,7 +105,7 @@ def test_robust_threshold_has_the_one_dimensional_tail_in_every_dimension():
 
     import gtsam
 
-    from recovery.factors import robust_noise, robust_norm_threshold
+    from recovery.solver.factors import robust_noise, robust_norm_threshold
 
     k = 3.0
     p = math.erfc(k / math.sqrt(2.0))  # P(|z| > 3) = 0.0027
@@ -164,7 +164,7 @@ def test_gyro_keyframe_rotations_equal_composing_every_sample():
     sub-interval rotations one by one with scipy."""
     from scipy.spatial.transform import Rotation
 
-    from recovery.initial import gyro_keyframe_rotations
+    from recovery.solver.initial import gyro_keyframe_rotations
 
     sim = sim_sequence(6.0, seed=3)
     imu = sim.sequence.imu
@@ -184,7 +184,7 @@ def test_gyro_keyframe_rotations_equal_composing_every_sample():
 def test_propagated_orientations_equal_composing_every_sample_from_the_last_known():
     from scipy.spatial.transform import Rotation
 
-    from recovery.initial import propagate_orientations
+    from recovery.solver.initial import propagate_orientations
 
     sim = sim_sequence(6.0, seed=3)
     imu = sim.sequence.imu

@@ -10,7 +10,7 @@ from pipeline.sim.config import PoseFormat
 from pipeline.types import ImuSeries, PoseSeries, PoseSourceKind
 from recovery.config import RecoveryConfig
 from recovery.recover import recover
-from recovery.segments import plan_segments
+from recovery.solver.segments import plan_segments
 from recovery_sim import FAST, bias_errors, sim_sequence
 
 
@@ -18,7 +18,7 @@ from recovery_sim import FAST, bias_errors, sim_sequence
 
 
 def test_coarse_offset_uses_the_most_rotating_span_of_long_recordings():
-    from recovery.offset import coarse_offset_inputs
+    from recovery.clock.offset import coarse_offset_inputs
     from recovery.recover import COARSE_OFFSET_SPAN_S
 
     t_s = np.arange(0.0, 2000.0, 0.05)
@@ -70,7 +70,7 @@ def test_newton_clock_offset_equals_the_cost_parabola(seed, monkeypatch):
     """The Newton refinement (analytic slope and curvature of the cost in the offset) lands where
     the parabola through three re-solved costs puts the vertex (within 0.1 sigma, same curvature sigma to 3 %),
     from a coarse value ~0.1 ms off, in one solve; both near the truth."""
-    from recovery import offset as ro
+    from recovery.clock import offset as ro
 
     sim = sim_sequence(40.0, seed=seed, clock_offset_s=0.012, dropouts=1, outliers=4, outlier_offset_m=0.1)
     cfg = RecoveryConfig(**FAST, intrinsics="off")

@@ -164,7 +164,7 @@ PACKAGES = ("biasgt", "pipeline", "recovery", "interpolation", "validation", "tr
 #: a variable of the recovery, the ground-truth pose stream / state, the dataset's ground-truth-state bias array.
 HOMONYMS = {
     "zero": {"validation/sources.py", "validation/validate.py", "validation/verdict.py", "reports/quality_inputs.py",
-             "recovery/calibration_uncertainty.py", "validation/config.py", "reports/dataset.py",
+             "recovery/solver/calibration_uncertainty.py", "validation/config.py", "reports/dataset.py",
              "reports/dataset_inputs.py"},
     "ground_truth": {"pipeline/checks/options.py", "pipeline/checks/streams.py", "pipeline/checks/__init__.py",
                      "pipeline/checks/run.py", "pipeline/io/__init__.py", "pipeline/io/asl.py", "pipeline/io/_text.py",

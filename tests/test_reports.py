@@ -15,7 +15,7 @@ from biasgt.cli.app import main as cli_main
 from pipeline.errors import DataError, InputFormatError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind
 from reports.html import fmt
-from recovery.allan import allan_deviation, fit_noise_parameters, imu_allan, white_noise_upper_bound
+from recovery.noise.allan import allan_deviation, fit_noise_parameters, imu_allan, white_noise_upper_bound
 from reports.quality import SECTIONS, build_quality_report, mm_pair, flagged_stretches, gravity_tilt_deg, pose_residuals, \
     other_estimates_sentence, stage_dirs, verdict_summary
 

@@ -19,7 +19,7 @@ import rig_faults as rf
 from biasgt.cli.app import main
 from pipeline.io import load_sequence
 from recovery.config import RecoveryConfig
-from recovery.frame_check import frame_disagreement
+from recovery.frame.check import frame_disagreement
 from recovery.outputs import read_report
 from recovery.recover import recover
 from recovery_sim import FAST
@@ -158,7 +158,7 @@ FRAME_FAULTS = {
 @pytest.mark.parametrize("generator", rf.GENERATORS)
 def test_inspect_flags_every_input_the_solve_refuses_for_its_frames(generator, tmp_path, capsys):
     """On the same inputs: inspect's FRAME_DISAGREEMENT against the solve's own rule
-    (:func:`recovery.frame_check.frame_disagreement`, the solve kept past the screen), and recover's refusal."""
+    (:func:`recovery.frame.check.frame_disagreement`, the solve kept past the screen), and recover's refusal."""
     flagged, refused = {}, {}
     for case in ["correct", *FRAME_FAULTS]:
         root = tmp_path / case

@@ -1,4 +1,4 @@
-"""The fast NumPy rotation conversions (recovery.rotations) equal SciPy's at every angle up to pi:
+"""The fast NumPy rotation conversions (recovery.solver.rotations) equal SciPy's at every angle up to pi:
 the trace formula, the small-angle series, the hand-over to SciPy near pi, either quaternion sign."""
 
 from __future__ import annotations
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from recovery.rotations import matrix_to_quat_wxyz, matrix_to_rotvec, quat_to_rotvec, relative_rotvecs
+from recovery.solver.rotations import matrix_to_quat_wxyz, matrix_to_rotvec, quat_to_rotvec, relative_rotvecs
 
 ANGLES = [0.0, 1e-9, 1e-4, 0.1, 2.0, np.pi]
 

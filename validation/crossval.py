@@ -11,7 +11,7 @@ recoveries), integrated against the FULL pose stream with the project's one metr
 (:mod:`validation.heldout`: :func:`validation.metrics.window_errors`, PRMSE, ROE).
 
 A recovery sees a held-out block as a pose gap, spanned by keyframes without pose factors
-(:mod:`recovery.gaps`): the block's own IMU readings still enter, its poses do not. A held-out block
+(:mod:`recovery.solver.gaps`): the block's own IMU readings still enter, its poses do not. A held-out block
 at the start or end of the recording lies outside the fold recovery's keyframe span (poses on one
 side only): there the prediction of the bias random walk from the nearest keyframe is that keyframe's
 value with a sigma growing as ``sigma_end^2 + q |t - t_end|`` (:func:`fold_prediction`), so that a
@@ -70,14 +70,14 @@ def imu_and_bias_of(imu: ImuSeries, result) -> tuple[ImuSeries, np.ndarray]:
     """The readings to integrate and the bias to subtract, [N, 6], for a recovery result.
 
     A recovery with IMU intrinsics (``report["intrinsics"]``) reports the bias in the raw readings'
-    convention ``b = M b'``; its readings are corrected (:meth:`recovery.intrinsics.ImuIntrinsics.correct`)
+    convention ``b = M b'``; its readings are corrected (:meth:`recovery.intrinsics.estimate.ImuIntrinsics.correct`)
     and its bias taken as ``b' = M^-1 b``. Otherwise the raw readings and the bias as recovered.
     """
     bias = result.bias_at(imu.t_ns)
     rep = result.report.get("intrinsics")
     if not rep:
         return imu, bias
-    from recovery.intrinsics import ImuIntrinsics
+    from recovery.intrinsics.estimate import ImuIntrinsics
 
     intr = ImuIntrinsics(np.array(rep["gyro_matrix"]), np.array(rep["acc_matrix"]),
                          np.array(rep["gyro_g_sensitivity"]))

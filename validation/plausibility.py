@@ -19,7 +19,7 @@ each check here compares a result with what physics allows; every finding makes 
   which drift) the rotation over 1 s instead, beyond ``max_relative_rotation_residual_deg``.
 * FRAME_SWAP: the gyro's disagreement with the pose stream's rate carries half the rate or more of
   some axis at high coherence in two bands or more
-  (:func:`recovery.gyro_consistency.rate_coupling`): a gyro axis reads another axis's rotation (or
+  (:func:`recovery.intrinsics.gyro_consistency.rate_coupling`): a gyro axis reads another axis's rotation (or
   one the pose stream lacks), which no IMU error does (scale and misalignment are percents).
 """
 
@@ -36,7 +36,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from pipeline.errors import BiasgtError
 from pipeline.geometry.pose_transform import offset_ns, poses_in_imu_frame
 from pipeline.types import NS_PER_S, PoseSeries, PoseSourceKind, Sequence
-from recovery.gyro_consistency import FRAME_SWAP_GAIN, rate_coupling
+from recovery.intrinsics.gyro_consistency import FRAME_SWAP_GAIN, rate_coupling
 from recovery.outputs import RecoveryOutputs
 
 

@@ -37,7 +37,7 @@ FINE_SEARCH_S = 0.5
 MAX_GYRO_RESIDUAL = 0.45
 #: The specific-force fit's RMS residual above which the accelerometer and the poses disagree (m/s^2).
 MAX_ACC_RESIDUAL_MPS2 = 1.5
-#: Fitted biases above these are not biases (as :mod:`recovery.frame_check` judges a solve).
+#: Fitted biases above these are not biases (as :mod:`recovery.frame.check` judges a solve).
 MAX_ACC_BIAS_MPS2 = 0.3 * STANDARD_GRAVITY_MPS2
 MAX_GYRO_BIAS_RADPS = 0.5
 #: Below this gyro rate (RMS, rad/s) the frames are not judged: too little rotation.

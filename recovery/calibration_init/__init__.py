@@ -1,6 +1,6 @@
 """Closed-form initial estimates that bias recovery needs before its factor graph.
 
-Each estimator needs no initial guess; the GTSAM graph (:mod:`recovery.graph`) refines
+Each estimator needs no initial guess; the GTSAM graph (:mod:`recovery.solver.graph`) refines
 the results. Conventions (offset sign, extrinsic direction, gravity) are stated in
 :mod:`recovery.calibration_init.common`.
 

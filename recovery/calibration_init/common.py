@@ -19,7 +19,7 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.errors import DataError, RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries
-from recovery.rotations import relative_rotvecs
+from recovery.solver.rotations import relative_rotvecs
 
 #: Shortest common span of IMU and poses worth estimating anything on.
 MIN_OVERLAP_S = 5.0

@@ -38,7 +38,7 @@ from recovery.calibration_init.common import (
     gyro_integral,
     pose_rotations,
 )
-from recovery.rotations import relative_rotvecs
+from recovery.solver.rotations import relative_rotvecs
 
 log = logging.getLogger(__name__)
 

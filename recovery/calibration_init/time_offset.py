@@ -40,7 +40,7 @@ from recovery.calibration_init.common import (
     pose_rotations,
 )
 from recovery.calibration_init.extrinsic import kabsch_with_bias
-from recovery.rotations import relative_rotvecs
+from recovery.solver.rotations import relative_rotvecs
 
 log = logging.getLogger(__name__)
 

@@ -6,7 +6,7 @@ IMU frame), for auditing a reference before trusting the bias recovered against 
 * :func:`rate_coupling`: the transfer from the angular rate to ``d`` by frequency band (cross
   spectra, Welch). An IMU scale or misalignment error ``S omega`` has the same gain in every band
   the motion excites; a gain at low frequencies only is not a property of the IMU's intrinsics
-  (which :mod:`recovery.intrinsics` estimates) but of the reference's attitude or of a slow
+  (which :mod:`recovery.intrinsics.estimate` estimates) but of the reference's attitude or of a slow
   process, and no intrinsic term can absorb it.
 * :func:`fit_walk`: per axis, the maximum-likelihood gyro bias random walk of the attitude
   increments (gyro integrated over ``interval_s`` against the reference's relative rotation),
@@ -193,7 +193,7 @@ class RateCoupling:
             return (f"Against this pose stream {where} (coherence {self.coherence[b, r]:.2f}), the "
                     f"{'xyz'[c]} term alike in every band where it counts up to {self.bands_hz[-1, 1]:g} Hz: a "
                     f"{'scale' if r == c else 'misalignment'} error of the IMU (or of the extrinsic), which "
-                    "recovery.intrinsics estimates; without it the bias follows the rate.")
+                    "recovery.intrinsics.estimate estimates; without it the bias follows the rate.")
         fast = self.bands_hz[:, 0] >= FAST_BAND_HZ
         return (f"Against this pose stream {where} (coherence {self.coherence[b, r]:.2f}), but the {'xyz'[c]} "
                 f"term reaches at most {np.max(np.abs(self.gain[fast, r, c])):.4f} from {FAST_BAND_HZ:g} Hz up: "

@@ -22,12 +22,12 @@ from pipeline.errors import BiasgtError, RecoveryError
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind
 from recovery import calibration_init as ci
 from recovery.config import RecoveryConfig, TimeOffsetMode
-from recovery.offset import coarse_offset_inputs
+from recovery.clock.offset import coarse_offset_inputs
 from recovery.records import ClockOffset, Inputs
 
 log = logging.getLogger(__name__)
 
-#: The hint of a refused frame disagreement (as :func:`recovery.frame_check.check_frames` gives it).
+#: The hint of a refused frame disagreement (as :func:`recovery.frame.check.check_frames` gives it).
 FRAME_HINT = ("check the IMU file's column order and the pose file's quaternion order against their headers "
               "('biasgt inspect' shows the first rows; a generic CSV's mapping: --csv-mapping), fix them, and "
               "recover again (or, to keep the result for its verdict, which FAILs, --keep-frame-disagreement)")

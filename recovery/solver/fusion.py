@@ -18,7 +18,7 @@ fused keyframe is a pose measurement with covariance ``Sigma / n`` plus a veloci
 measurement with std ``sigma_p / sqrt(sum dt_j^2)`` -- sufficient statistics of the
 bin's samples. The residuals orthogonal to that model depend on the pose noise
 only; their sums of squares (:class:`WithinBinStats`) complete the evidence of a
-pose-noise hypothesis (:mod:`recovery.noise`).
+pose-noise hypothesis (:mod:`recovery.noise.evidence`).
 
 The approximation: the IMU relative motion over half a bin is taken as exact (its
 noise, ~4e-5 m over 25 ms for EuRoC's accelerometer, is an order below mocap
@@ -36,7 +36,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.types import NS_PER_S
-from recovery.rotations import matrix_to_quat_wxyz, matrix_to_rotvec
+from recovery.solver.rotations import matrix_to_quat_wxyz, matrix_to_rotvec
 
 INTEGRATION_STEP_S = 0.005  # sub-step of the relative-motion integration (IMU linearly interpolated)
 # Floors of the robust residual scales used to reject samples: smoothed ground-truth poses have

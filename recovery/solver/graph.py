@@ -1,4 +1,4 @@
-"""Solving one recovery window (:mod:`recovery.factors` builds its graph): Gauss-Newton and
+"""Solving one recovery window (:mod:`recovery.solver.factors` builds its graph): Gauss-Newton and
 Levenberg-Marquardt steps to convergence, outlier rejection, the log evidence the noise search
 compares, and the bias marginals with the fixed calibration's uncertainty.
 """
@@ -17,14 +17,14 @@ from scipy.spatial.transform import Rotation
 
 from pipeline.errors import RecoveryError
 from pipeline.types import NS_PER_S, PoseSourceKind
-from recovery.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, OFFSET_INDEX, KeyframeKinematics, added_bias_variance, measurement_columns, parameter_slope_and_information
+from recovery.solver.calibration_uncertainty import BACKSUBSTITUTION_MAX_RANK, OFFSET_INDEX, KeyframeKinematics, added_bias_variance, measurement_columns, parameter_slope_and_information
 from recovery.config import PoseFactorMode
-from recovery.pose_error import error_key
-from recovery.preintegration import ImuNoise, MidpointSamples, NoiseBasis
-from recovery.rotations import matrix_to_quat_wxyz
-from recovery.factors import add_imu_factors, BuiltWindow, build_window, result_subset
-from recovery.initial import initial_orientations
-from recovery.window import KeyframePoses, SolveOptions, WindowInit, WindowSolution
+from recovery.solver.pose_error import error_key
+from recovery.solver.preintegration import ImuNoise, MidpointSamples, NoiseBasis
+from recovery.solver.rotations import matrix_to_quat_wxyz
+from recovery.solver.factors import add_imu_factors, BuiltWindow, build_window, result_subset
+from recovery.solver.initial import initial_orientations
+from recovery.solver.window import KeyframePoses, SolveOptions, WindowInit, WindowSolution
 
 log = logging.getLogger(__name__)
 
@@ -489,7 +489,7 @@ def _calibration_columns(built: BuiltWindow, samples: MidpointSamples, kf: Keyfr
                          state: tuple[np.ndarray, np.ndarray, np.ndarray], T_imu_pose: np.ndarray, opts: SolveOptions
                          ) -> tuple[list[tuple[int, int, str]], tuple[np.ndarray, np.ndarray]] | None:
     """The pose and velocity factors ``(graph index, keyframe, kind)`` and their measurement columns
-    in the calibration (:func:`recovery.calibration_uncertainty.measurement_columns`) at the optimum
+    in the calibration (:func:`recovery.solver.calibration_uncertainty.measurement_columns`) at the optimum
     ``state``; None unless the factors are 6-DoF absolute with the calibration held fixed."""
     if (opts.pose_mode != PoseFactorMode.ABSOLUTE or opts.estimate_extrinsic or opts.estimate_lever_arm
             or kf.quat_wxyz is None or not built.pose_index):
@@ -509,7 +509,7 @@ def _calibration_variance(gfg: gtsam.GaussianFactorGraph, tree: gtsam.GaussianBa
                           kf: KeyframePoses, state: tuple[np.ndarray, np.ndarray, np.ndarray],
                           T_imu_pose: np.ndarray, opts: SolveOptions, idx: np.ndarray) -> np.ndarray | None:
     """Bias variance [len(idx), 6] (gyro, acc) added by the uncertainty of the fixed calibration
-    (:mod:`recovery.calibration_uncertainty`; ``tree``: ``gfg`` eliminated, or None); None when
+    (:mod:`recovery.solver.calibration_uncertainty`; ``tree``: ``gfg`` eliminated, or None); None when
     there is none or the factors are not 6-DoF absolute."""
     cols = None if opts.calibration_cov is None else _calibration_columns(built, samples, kf, state, T_imu_pose, opts)
     if cols is None:
@@ -523,7 +523,7 @@ def _offset_sensitivity(built: BuiltWindow, result: gtsam.Values, samples: Midpo
                         state: tuple[np.ndarray, np.ndarray, np.ndarray], T_imu_pose: np.ndarray, opts: SolveOptions,
                         extras: dict[str, Any], lin: _Linearised | None) -> None:
     """``extras["offset_slope"]`` / ``["offset_information"]``: the cost's slope and information in
-    the clock offset (:func:`recovery.calibration_uncertainty.parameter_slope_and_information`),
+    the clock offset (:func:`recovery.solver.calibration_uncertainty.parameter_slope_and_information`),
     from the optimiser's last linearisation (its tree stays for the marginals); nothing when the
     factors are not 6-DoF absolute."""
     cols = _calibration_columns(built, samples, kf, state, T_imu_pose, opts)

@@ -6,7 +6,7 @@ Measurement model (the seed paper's Eq. 2, Kalibr's scale-misalignment model; bo
     acc  = M_a f     + b_a + n_a,            M_a = I + S_a      (S_a: 9 terms)
 
 ``S`` holds the scale errors on its diagonal and the misalignments off it; ``G`` (rad/s per
-m/s^2) is the gyro's g-sensitivity. The factor graph of :mod:`recovery.graph` has no such terms,
+m/s^2) is the gyro's g-sensitivity. The factor graph of :mod:`recovery.solver.graph` has no such terms,
 so they are estimated in an alternating outer loop (the intrinsics are constants observed
 through the trajectory, which the pose stream pins down whatever the bias does):
 
@@ -30,7 +30,7 @@ significant, not observable) are still in the readings and in the bias: under a 
 their posterior variance (the prior, for a term the fit cannot see) is added to its sigma. When the
 accelerometer agrees with a calibration file's extrinsic rotation (the solve's turn from it is then
 the gyro's own rotation), every fit takes the file's rotation as the accelerometer's
-(:mod:`recovery.intrinsics_frame`): the accelerometer readings are turned into the solve's frame
+(:mod:`recovery.intrinsics.frame`): the accelerometer readings are turned into the solve's frame
 instead of its bias absorbing gravity times the turn. Design notes and the reasons for this scheme:
 ``docs/internals.md``.
 """
@@ -47,10 +47,10 @@ from scipy.spatial.transform import Rotation
 from pipeline.errors import BiasgtError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NOISE_DENSITY_FIELDS, NS_PER_S, ImuNoiseModel, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
-from recovery.gyro_consistency import CouplingKind, rate_coupling
-from recovery.intrinsics_frame import CALIBRATION_ROTATION_SIGMA_RAD, calibration_agreement, rotation_prior
-from recovery.intrinsics_report import TERMS as _TERMS
-from recovery.intrinsics_report import intrinsics_report, term_table, unobservable_warning
+from recovery.intrinsics.gyro_consistency import CouplingKind, rate_coupling
+from recovery.intrinsics.frame import CALIBRATION_ROTATION_SIGMA_RAD, calibration_agreement, rotation_prior
+from recovery.intrinsics.report import TERMS as _TERMS
+from recovery.intrinsics.report import intrinsics_report, term_table, unobservable_warning
 from recovery.outputs import RecoveryReport
 
 log = logging.getLogger(__name__)
@@ -204,7 +204,7 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
             rounds, whose least-squares refinement is the best estimate of what is left of them;
             gating each refinement again would leave up to ``n_sigma`` sigmas of them unapplied).
         acc_prior: Prior rows ``(H [m, 9], target [m], sigma [m])`` on ``S_a`` (row-major): the
-            accelerometer's rotation from a calibration file (:func:`recovery.intrinsics_frame.rotation_prior`).
+            accelerometer's rotation from a calibration file (:func:`recovery.intrinsics.frame.rotation_prior`).
     """
     R_kf = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
     sample_block = np.clip(((imu.t_ns - t_ns[0]) / NS_PER_S // block_s).astype(int), 0, None)
@@ -525,7 +525,7 @@ def auto_intrinsics(sequence: Sequence, result) -> AutoDecision:
     """Estimate the intrinsics only where the gyro shows them (:class:`IntrinsicsMode` ``AUTO``).
 
     On the plain solve's clock offset and extrinsic, the gyro against a 6-DoF absolute pose stream
-    (:func:`recovery.gyro_consistency.rate_coupling`): a coupling of one axis to another axis's
+    (:func:`recovery.intrinsics.gyro_consistency.rate_coupling`): a coupling of one axis to another axis's
     rate in every excited band is a misalignment (or, with it, a scale error) and starts the loop;
     none, or one below 0.2 Hz only (which no intrinsic term can absorb), does not. Position-only
     and relative (VIO) streams do not pin the orientation down: nothing to check.
@@ -573,7 +573,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
 
     The solve's extrinsic is never held at a calibration file's: it follows the gyro (whose own rotation
     against the accelerometer it takes), and on agreement the fits turn the accelerometer into it
-    (:func:`recovery.intrinsics_frame.rotation_prior`). Held instead, the gyro's rotation would have to be
+    (:func:`recovery.intrinsics.frame.rotation_prior`). Held instead, the gyro's rotation would have to be
     fitted beside the g-sensitivity, which a tilting drone's motion confuses with it.
 
     Args:

@@ -10,7 +10,7 @@ likelihood of all measurements is approximated around the optimum x*:
 of factor f, ``H`` the Gauss-Newton Hessian, obtained from GTSAM as the log
 determinant of the eliminated Bayes net; for keyframes fused from several pose
 samples, plus the Gaussian likelihood of the samples' scatter about their
-keyframes, :class:`recovery.fusion.WithinBinStats`). It is maximised coordinate-wise over
+keyframes, :class:`recovery.solver.fusion.WithinBinStats`). It is maximised coordinate-wise over
 inflation factors of (1) the pose sigmas, (2) the gyro random walk, (3) the acc
 random walk, on a decimated graph over the calibration window, from a start at 10x the
 calibration's walks and, where they score higher, again from the calibration's own values (a
@@ -20,9 +20,9 @@ window carries but not what the optimum estimates.
 
 What it costs: each coordinate is a bracketing search on the grid with a parabola
 through the best point and its neighbours. The window is preintegrated once
-(:class:`recovery.preintegration.NoiseBasis`: the random walks re-weight it exactly). The
+(:class:`recovery.solver.preintegration.NoiseBasis`: the random walks re-weight it exactly). The
 first candidate is solved; a random-walk candidate next to a solved one takes one
-Gauss-Newton step from that optimum (:func:`recovery.graph.evidence_step`), whose log
+Gauss-Newton step from that optimum (:func:`recovery.solver.graph.evidence_step`), whose log
 evidence is close to the full solve's on the scale of the differences between candidates.
 """
 
@@ -37,11 +37,11 @@ import numpy as np
 
 from pipeline.types import PoseSourceKind
 from recovery.config import NoiseEstimation, PoseSigmaMethod, RecoveryConfig
-from recovery.factors import noise_basis
-from recovery.graph import evidence_step, solve_window
-from recovery.window import KeyframePoses, SolveOptions, WindowInit
-from recovery.pose_error import PoseErrorModel
-from recovery.preintegration import ImuNoise, MidpointSamples
+from recovery.solver.factors import noise_basis
+from recovery.solver.graph import evidence_step, solve_window
+from recovery.solver.window import KeyframePoses, SolveOptions, WindowInit
+from recovery.solver.pose_error import PoseErrorModel
+from recovery.solver.preintegration import ImuNoise, MidpointSamples
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,7 @@ class NoiseChoice:
         pose_method: How the pose sigmas were chosen (with ``method`` FIXED: as given).
         method: Evidence search or fixed (as given).
         table: Every evaluated candidate with its log evidence.
-        pose_error: The pose stream's time-correlated error (:mod:`recovery.pose_error`), None: white only.
+        pose_error: The pose stream's time-correlated error (:mod:`recovery.solver.pose_error`), None: white only.
         gyro_density_scale / acc_density_scale: Chosen factors of the white noise densities.
     """
 
@@ -128,7 +128,7 @@ def _imu_noise(base: ImuNoise, gyro_rw_scale: float, acc_rw_scale: float, gyro_d
 
 @dataclass(frozen=True)
 class PoseErrorGrid:
-    """Candidates of the correlated pose error (:mod:`recovery.pose_error`) for the evidence search.
+    """Candidates of the correlated pose error (:mod:`recovery.solver.pose_error`) for the evidence search.
 
     Attributes:
         sigma_scales: Stationary sigmas in units of the white per-sample sigma (0: none).

@@ -16,10 +16,10 @@ from recovery.config import (
     CalibrationSolve,
     RecoveryConfig,
 )
-from recovery.graph import solve_window
-from recovery.window import WindowInit, WindowSolution
-from recovery.noise import NoiseChoice
-from recovery.segments import plan_segments
+from recovery.solver.graph import solve_window
+from recovery.solver.window import WindowInit, WindowSolution
+from recovery.noise.evidence import NoiseChoice
+from recovery.solver.segments import plan_segments
 from recovery.problem import Problem, shifted_stamps
 from recovery.result import bias_function, solve_rate_hz
 from recovery.records import GravityStage, Inputs

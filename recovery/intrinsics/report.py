@@ -57,8 +57,8 @@ def term_table(values: dict[str, np.ndarray], sigma: dict[str, np.ndarray], obse
 
 
 def intrinsics_report(total, last, rounds: int) -> dict:
-    """The ``intrinsics`` entry of ``recovery.json`` (``total``: :class:`recovery.intrinsics.ImuIntrinsics`,
-    ``last``: the last :class:`recovery.intrinsics.IntrinsicsFit`)."""
+    """The ``intrinsics`` entry of ``recovery.json`` (``total``: :class:`recovery.intrinsics.estimate.ImuIntrinsics`,
+    ``last``: the last :class:`recovery.intrinsics.estimate.IntrinsicsFit`)."""
     return {
         "method": "alternating: least-squares fit on the solved trajectory, full solve on corrected readings",
         "rounds": rounds,

@@ -192,7 +192,7 @@ class _Measured:
     """The pose and velocity factors of a linearised solve as a graph of their own: their part
     ``A^T A`` of the Gauss-Newton Hessian times a vector per key, and ``-A^T b``. A factor's
     first key is the measured state (``X`` or ``V``); a pose factor may carry its correlated
-    error state ``N`` (:mod:`recovery.pose_error`) as a second key, which the calibration does
+    error state ``N`` (:mod:`recovery.solver.pose_error`) as a second key, which the calibration does
     not move (its columns are zero there)."""
 
     def __init__(self, gfg: gtsam.GaussianFactorGraph, indices: list[int]) -> None:

@@ -2,7 +2,7 @@
 
 Where the recording holds stretches at rest (:func:`recovery.calibration_init.find_static_segments`,
 together at least ``min_rest_s``), the white-noise densities are read off their Allan deviation
-(:func:`recovery.allan.imu_allan`: the slope -1/2 line at tau = 1 s), one value per sensor (the
+(:func:`recovery.noise.allan.imu_allan`: the slope -1/2 line at tau = 1 s), one value per sensor (the
 RMS over its three axes, as a Kalibr ``sensor.yaml`` holds one). The recovery then starts from
 these instead of the EuRoC datasheet's (``recovery.json`` ``noise_from_data``), and
 :func:`recovery.outputs.suggested_sensor_yaml` writes a ready Kalibr-style ``sensor.yaml`` beside the recovery: these
@@ -21,7 +21,7 @@ import numpy as np
 
 from pipeline.errors import BiasgtError
 from pipeline.types import NOISE_DENSITY_FIELDS, ImuNoiseModel, ImuSeries, Sequence
-from recovery.allan import imu_allan
+from recovery.noise.allan import imu_allan
 from recovery.outputs import SENSOR_YAML
 
 log = logging.getLogger(__name__)

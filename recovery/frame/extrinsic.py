@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from recovery.rotations import matrix_to_rotvec
+from recovery.solver.rotations import matrix_to_rotvec
 
 
 @dataclass(frozen=True)

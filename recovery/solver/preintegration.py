@@ -160,7 +160,7 @@ class NoiseBasis:
     noise-free Jacobian; so the residual covariance is linear in each noise term's covariance.
     With ``R`` that of ``noise`` and ``R_i`` the part of its term ``i`` (:data:`~pipeline.types.NOISE_FIELDS`, each
     preintegrated alone), a term scaled by ``s_i`` gives ``R + sum_i (s_i^2 - 1) R_i`` exactly. The
-    evidence search over the noise (:mod:`recovery.noise`) evaluates many on one window: five
+    evidence search over the noise (:mod:`recovery.noise.evidence`) evaluates many on one window: five
     preintegrations instead of one per candidate. The preintegrated deltas do not depend on the noise.
 
     Attributes:

@@ -7,8 +7,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.types import NS_PER_S
-from recovery.preintegration import MidpointSamples
-from recovery.window import KeyframePoses
+from recovery.solver.preintegration import MidpointSamples
+from recovery.solver.window import KeyframePoses
 
 
 def savgol(y: np.ndarray, win: int, dt: float, deriv: int) -> np.ndarray:

@@ -1,5 +1,5 @@
 """The records of one recovery window: its keyframe poses, how it is solved, where it starts and
-what the solve returns (:mod:`recovery.factors` builds the graph, :mod:`recovery.graph` solves it)."""
+what the solve returns (:mod:`recovery.solver.factors` builds the graph, :mod:`recovery.solver.graph` solves it)."""
 
 from __future__ import annotations
 
@@ -9,11 +9,11 @@ from typing import Any
 import numpy as np
 
 from pipeline.types import GRAVITY_MPS2, NS_PER_S, PoseSourceKind
-from recovery.calibration_uncertainty import CalibrationCovariance
+from recovery.solver.calibration_uncertainty import CalibrationCovariance
 from recovery.config import PoseFactorMode, RobustLoss
-from recovery.fusion import FusedPoses, PerBin, WithinBinStats
-from recovery.gaps import gap_keyframe_stamps
-from recovery.pose_error import PoseErrorModel
+from recovery.solver.fusion import FusedPoses, PerBin, WithinBinStats
+from recovery.solver.gaps import gap_keyframe_stamps
+from recovery.solver.pose_error import PoseErrorModel
 
 
 @dataclass(frozen=True)
@@ -32,7 +32,7 @@ class KeyframePoses:
         per_bin: Within-bin residual sums of the fused samples (for the noise evidence).
         rejected_t_ns: Pose samples rejected while fusing (outliers), int64 [R].
         measured: Whether each keyframe has a pose measurement, bool [K] (None: all have). The
-            others sit inside pose gaps (:mod:`recovery.gaps`): no pose factor, their ``p_m`` and
+            others sit inside pose gaps (:mod:`recovery.solver.gaps`): no pose factor, their ``p_m`` and
             ``quat_wxyz`` only placeholders (interpolated, held).
     """
 
@@ -56,7 +56,7 @@ class KeyframePoses:
         return np.zeros(0, dtype=int) if self.measured is None else np.nonzero(~self.measured)[0]
 
     def with_gap_keyframes(self) -> "KeyframePoses":
-        """These keyframes plus unmeasured ones inside the pose gaps (:func:`recovery.gaps.gap_keyframe_stamps`)."""
+        """These keyframes plus unmeasured ones inside the pose gaps (:func:`recovery.solver.gaps.gap_keyframe_stamps`)."""
         t_ns, measured = gap_keyframe_stamps(self.t_ns)
         if measured.all():
             return self
@@ -79,7 +79,7 @@ class KeyframePoses:
 
     @classmethod
     def from_fused(cls, fused: FusedPoses, source_kind: PoseSourceKind) -> "KeyframePoses":
-        """Keyframes carrying the fused samples of their bins (:mod:`recovery.fusion`)."""
+        """Keyframes carrying the fused samples of their bins (:mod:`recovery.solver.fusion`)."""
         return cls(fused.t_ns, fused.p_m, fused.quat_wxyz, source_kind, fused.count, fused.v_mps,
                    fused.dt2_s2, fused.per_bin, fused.rejected_t_ns)
 
@@ -122,14 +122,14 @@ class SolveOptions:
     marginal_rate_hz: float | None = 20.0  # bias marginals at this rate (+ ends, gap edges), interpolated
     gravity_prior_cov: np.ndarray | None = None  # [2, 2] Unit3-tangent prior on G(0) around init.gravity_unit
     # the calibration held fixed and its covariance: propagated into the bias marginals
-    # (recovery.calibration_uncertainty; 6-DoF absolute pose factors only)
+    # (recovery.solver.calibration_uncertainty; 6-DoF absolute pose factors only)
     calibration_cov: CalibrationCovariance | None = None
     residuals: bool = True  # the whitened residuals per keyframe and their RMS (NaN without)
     # the cost's slope and information in the clock offset into extras (offset_slope,
-    # offset_information; 6-DoF absolute pose factors only): recovery.calibration_uncertainty
+    # offset_information; 6-DoF absolute pose factors only): recovery.solver.calibration_uncertainty
     offset_sensitivity: bool = False
     # the stream's time-correlated error as graph states (6-DoF absolute pose factors;
-    # recovery.pose_error); None or inactive: white pose noise only
+    # recovery.solver.pose_error); None or inactive: white pose noise only
     pose_error: PoseErrorModel | None = None
     # with estimate_extrinsic: a prior on E(0), (T_imu_pose [4, 4], sigmas [6]: rotation rad, translation m)
     extrinsic_prior: tuple[np.ndarray, np.ndarray] | None = None

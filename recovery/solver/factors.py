@@ -10,7 +10,7 @@ Factors: ``CombinedImuFactor`` (or ``CombinedImuFactorWithGravityDirection``)
 between consecutive keyframes, carrying the bias random walk; pose factors per
 source kind (absolute Pose3 prior, GPS-like position with lever arm, relative
 BetweenFactorPose3 for VIO), each wrapped in a robust loss. Keyframes inside pose
-gaps have no pose factor (:mod:`recovery.gaps`).
+gaps have no pose factor (:mod:`recovery.solver.gaps`).
 """
 
 from __future__ import annotations
@@ -27,12 +27,12 @@ from scipy.special import chdtri
 
 from pipeline.types import NS_PER_S, PoseSourceKind
 from recovery.config import PoseFactorMode, RobustLoss
-from recovery.gaps import bridge_gaps
-from recovery.pose_error import add_error_states, error_key, imu_pose_factor, tracked_pose_factor, \
+from recovery.solver.gaps import bridge_gaps
+from recovery.solver.pose_error import add_error_states, error_key, imu_pose_factor, tracked_pose_factor, \
     velocity_fit_variance
-from recovery.preintegration import ImuNoise, MidpointSamples, NoiseBasis, make_params, preintegrate
-from recovery.initial import initial_orientations, initial_velocity
-from recovery.window import KeyframePoses, SolveOptions, WindowInit
+from recovery.solver.preintegration import ImuNoise, MidpointSamples, NoiseBasis, make_params, preintegrate
+from recovery.solver.initial import initial_orientations, initial_velocity
+from recovery.solver.window import KeyframePoses, SolveOptions, WindowInit
 
 # Weak prior on the first bias: keeps the problem well posed without pulling it.
 RELATIVE_ANCHOR_SIGMAS = (1.0, 1.0)  # rad, m: weak absolute priors in RELATIVE mode (conditioning only)
@@ -248,7 +248,7 @@ def add_imu_factors(built: BuiltWindow, pims: list[Any], opts: SolveOptions, ini
                      models: list[Any] | None = None) -> None:
     """The IMU factors between consecutive keyframes (gravity direction as a variable when estimated,
     with its prior) and the prior on the first bias. ``models``: noise models replacing the
-    preintegrated covariances (:class:`recovery.preintegration.NoiseBasis`)."""
+    preintegrated covariances (:class:`recovery.solver.preintegration.NoiseBasis`)."""
     graph, values = built.graph, built.values
     if opts.estimate_gravity:
         gu = np.array([0.0, 0.0, -1.0]) if init.gravity_unit is None else np.asarray(init.gravity_unit, float)
@@ -389,7 +389,7 @@ def _add_relative_factors(built: BuiltWindow, Xs: list[Any], T_imu_pose: np.ndar
 def _add_absolute_factors(built: BuiltWindow, kf: KeyframePoses, Xs: list[Any], Z: list[Any], T_imu_pose: np.ndarray,
                           opts: SolveOptions, skip: set[int]) -> None:
     """6-DoF absolute poses: a prior on each IMU pose, or (extrinsic estimated) z = X E with E a variable;
-    with a correlated error model, its states ``N(k)`` enter each factor (:mod:`recovery.pose_error`)."""
+    with a correlated error model, its states ``N(k)`` enter each factor (:mod:`recovery.solver.pose_error`)."""
     sr, sp = opts.rotation_sigma_rad, opts.position_sigma_m
     models = _FusedModels(kf, opts)
     Ep = _pose3(T_imu_pose)
@@ -423,7 +423,7 @@ def _add_absolute_factors(built: BuiltWindow, kf: KeyframePoses, Xs: list[Any], 
 def _add_velocity_priors(built: BuiltWindow, kf: KeyframePoses, opts: SolveOptions, skip: set[int]) -> None:
     """The fused keyframes' velocities (the bins' line fits): std sigma_p / sqrt(sum dt^2), decoupled
     from the position because the keyframe sits at the bin's mean sample time, and widened by the
-    slope a correlated position error puts into the fit (:func:`recovery.pose_error.velocity_fit_variance`).
+    slope a correlated position error puts into the fit (:func:`recovery.solver.pose_error.velocity_fit_variance`).
     Not while the lever arm is a variable: the fused velocity was computed with a fixed one (omega x lever)."""
     gm = opts.correlated_error
     for k in range(len(kf)):

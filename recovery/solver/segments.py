@@ -18,7 +18,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from pipeline.types import NS_PER_S
-from recovery.window import WindowSolution
+from recovery.solver.window import WindowSolution
 
 
 def plan_segments(t0_ns: int, t1_ns: int, segment_s: float, overlap_s: float) -> list[tuple[int, int]]:

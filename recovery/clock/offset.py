@@ -17,9 +17,9 @@ from recovery.config import (
     OffsetRefineMethod,
     RecoveryConfig,
 )
-from recovery.graph import solve_window
-from recovery.window import SolveOptions, WindowInit
-from recovery.preintegration import ImuNoise
+from recovery.solver.graph import solve_window
+from recovery.solver.window import SolveOptions, WindowInit
+from recovery.solver.preintegration import ImuNoise
 from recovery.problem import COARSE_OFFSET_SPAN_S, calibration_window, Problem, shifted_stamps
 from recovery.records import Inputs
 
@@ -54,7 +54,7 @@ def refine_offset(problem: Problem, coarse_s: float, coarse_std_s: float, window
     """The offset at the minimum of the optimised graph cost, its std from the cost's curvature.
 
     Newton steps on the cost's analytic slope and curvature in the offset when the pose factors
-    are 6-DoF absolute (:func:`recovery.calibration_uncertainty.parameter_slope_and_information`;
+    are 6-DoF absolute (:func:`recovery.solver.calibration_uncertainty.parameter_slope_and_information`;
     one solve when the coarse offset lies within two sigmas); else, or when the steps do not
     settle, a 1-D search: a parabola through the cost at three offsets.
     """
