@@ -229,7 +229,7 @@ def _cost_section(summaries: list[tuple[Path, EvaluationSummary]]) -> Html:
     return Html(table(headers, rows, text_cols=[1, 3])
                 + p("Evaluation time covers every sampler and the metrics; a diffusion sample is "
                     "'steps' denoising passes. Latency of one window on 2 CPU threads, in PyTorch eager, TorchScript "
-                    "and onnxruntime, is printed by benchmarks/training.py.", class_="small"))
+                    "and onnxruntime, is printed by benchmarks/learning/training.py.", class_="small"))
 
 
 # ----------------------------------------------------------------------------- page

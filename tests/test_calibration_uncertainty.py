@@ -7,7 +7,7 @@
 2. On the hard simulated case (unknown 15 deg / 10 cm extrinsic, 12 ms clock offset, dropouts,
    outliers), three seeds: per-axis NEES of the reported sigmas within [0.5, 2], and
    recovery.json says the sigmas include the calibration's uncertainty (inflation >= 1).
-The 120-s figures over more seeds: ``benchmarks/recovery.py --only hard``.
+The 120-s figures over more seeds: ``benchmarks/recovery/recovery.py --only hard``.
 """
 
 from __future__ import annotations

@@ -501,7 +501,7 @@ def test_all_repairs_together_give_a_clean_sequence():
 
 
 def test_checks_on_one_hour_at_200_hz():
-    """One hour at 200 Hz passes the checks (their speed: benchmarks/ingest.py)."""
+    """One hour at 200 Hz passes the checks (their speed: benchmarks/pipeline/ingest.py)."""
     n = 720_000
     rng = np.random.default_rng(0)
     t = T0_NS + np.arange(n, dtype=np.int64) * 5_000_000

@@ -1,4 +1,4 @@
-"""The configs the label-comparison benchmark derives from config/euroc.yaml (benchmarks/context_judges.py):
+"""The configs the label-comparison benchmark derives from config/euroc.yaml (benchmarks/learning/context_judges.py):
 each passes the workflow's own config check, and differs from the base only where it says."""
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def _benchmark():
-    spec = importlib.util.spec_from_file_location("context_judges", REPO / "benchmarks" / "context_judges.py")
+    spec = importlib.util.spec_from_file_location("context_judges", REPO / "benchmarks" / "learning" / "context_judges.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

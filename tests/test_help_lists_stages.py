@@ -47,8 +47,8 @@ def test_make_run_time_comes_from_a_benchmark_that_runs_what_make_run_runs() -> 
 
     text = (REPO / "README.md").read_text()
     claim = text[text.index("How long `make run` takes"):text.index("`make test` runs ")]
-    assert "benchmarks/make_run.py" in claim and "about 2 minutes" not in text
-    out = subprocess.run([sys.executable, str(REPO / "benchmarks" / "make_run.py"), "--print-command"],
+    assert "benchmarks/pipeline/make_run.py" in claim and "about 2 minutes" not in text
+    out = subprocess.run([sys.executable, str(REPO / "benchmarks" / "pipeline" / "make_run.py"), "--print-command"],
                          capture_output=True, text=True, check=True).stdout.split()
     make = (REPO / "Makefile").read_text()
     assert "biasgt run --cores $(CORES)" in make and "CORES ?= 2" in make

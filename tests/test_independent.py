@@ -6,7 +6,7 @@
 3. the project's simulator is checked by an independent RK4 integrator (and GTSAM's scenario
    runner is checked against our closed-form generator's conventions);
 4. recovery on independent 60-s sequences (clean and hard) meets loose versions of the
-   benchmark's targets (the full 120-s figures: ``benchmarks/independent.py``).
+   benchmark's targets (the full 120-s figures: ``benchmarks/recovery/independent.py``).
 """
 
 from __future__ import annotations
@@ -364,7 +364,7 @@ def test_recovery_clean_known_gravity(clean_recovery):
     """With the (true, z-up) gravity direction fixed, the acc sigmas are honest: NEES in [0.5, 2].
 
     The acc RMSE is then at the optimal-smoother level (~7e-3 m/s^2 for 0.03 m/s^3/sqrt(Hz)
-    random walk and 0.5-mm mocap, see benchmarks/independent.py 'bound').
+    random walk and 0.5-mm mocap, see benchmarks/recovery/independent.py 'bound').
     """
     from recovery.config import RecoveryConfig
     from recovery.recover import recover

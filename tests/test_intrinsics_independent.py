@@ -2,7 +2,7 @@
 
 Intrinsic errors drawn per seed at MEMS-like sizes (``independent.draw_intrinsics``); the sequences are
 written as EuRoC folders, read back and recovered with the default configuration (intrinsics AUTO).
-Two seeds of 120 s here; the four-seed table: ``benchmarks/intrinsics_independent.py``.
+Two seeds of 120 s here; the four-seed table: ``benchmarks/recovery/intrinsics_independent.py``.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from recovery.intrinsics.frame import rotation_prior
 from recovery.intrinsics.report import intrinsics_clause
 
 _spec = importlib.util.spec_from_file_location(
-    "benchmark_intrinsics_independent", Path(__file__).resolve().parents[1] / "benchmarks" / "intrinsics_independent.py")
+    "benchmark_intrinsics_independent", Path(__file__).resolve().parents[1] / "benchmarks" / "recovery" / "intrinsics_independent.py")
 _bench = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_bench)
 

@@ -1,7 +1,7 @@
 """Bias recovery on simulated data: its config, accuracy and honesty of the sigmas, outputs and CLI.
 
 Short sequences and reduced keyframe rates keep this file fast; the full
-acceptance runs (120 s, full rate) are in ``benchmarks/recovery.py``.
+acceptance runs (120 s, full rate) are in ``benchmarks/recovery/recovery.py``.
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Bias recovery on real EuRoC data (skips without the shared data folder).
 
-Cheap versions of the acceptance checks in ``benchmarks/recovery.py``: shorter
+Cheap versions of the acceptance checks in ``benchmarks/recovery/recovery.py``: shorter
 spans and decimated keyframes.
 """
 
@@ -28,11 +28,11 @@ def _v101(shared_data, duration_s: float):
 
 
 def _static_start_check(shared_data):
-    """benchmarks/v101_bias_consistency.static_start_check (the benchmarks folder is not a package)."""
+    """benchmarks/recovery/v101_bias_consistency.static_start_check (the benchmarks folder is not a package)."""
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "v101_bias_consistency.py"
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "recovery" / "v101_bias_consistency.py"
     spec = importlib.util.spec_from_file_location("v101_bias_consistency", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
@@ -117,7 +117,7 @@ def test_mh01_leica_agrees_with_gt_recovery(shared_data):
 @pytest.mark.slow
 def test_mh01_leica_agrees_with_gt_recovery_with_intrinsics_on(shared_data):
     """With the IMU intrinsics on, the Leica and GT-pose recoveries still agree within 3 sigma
-    (measured, benchmarks/recovery.py --only mh01 --config '{"intrinsics": "with_g_sensitivity"}': 1.000 on
+    (measured, benchmarks/recovery/recovery.py --only mh01 --config '{"intrinsics": "with_g_sensitivity"}': 1.000 on
     every axis but acc z, 0.998). From the Leica positions nothing is estimated (position-only stream);
     before that rule the fit's 6.7 % accelerometer scale left gyro y at 0 % agreement."""
     from pipeline.io import load_sequence

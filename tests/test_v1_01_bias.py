@@ -1,6 +1,6 @@
 """V1_01's accelerometer bias: EuRoC's (ba_y ~0.55) against OpenVINS's (~0.145), on real data.
 
-Pins the finding of ``benchmarks/v1_01_bias.py`` (the full table: every candidate, 3 folds of 10-s
+Pins the finding of ``benchmarks/recovery/v1_01_bias.py`` (the full table: every candidate, 3 folds of 10-s
 blocks) with its cheapest part: the two published biases and biasgt's recovery from the EuRoC
 ground-truth poses, cross-validated by blocks, judged by validation's 1-s integration error against
 both pose sources; and the attitude difference of the two pose sources, which is independent of
@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 _spec = importlib.util.spec_from_file_location(
-    "benchmark_v1_01_bias", Path(__file__).resolve().parents[1] / "benchmarks" / "v1_01_bias.py")
+    "benchmark_v1_01_bias", Path(__file__).resolve().parents[1] / "benchmarks" / "recovery" / "v1_01_bias.py")
 bench = importlib.util.module_from_spec(_spec)
 sys.modules[_spec.name] = bench  # its dataclasses look their module up
 _spec.loader.exec_module(bench)

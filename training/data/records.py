@@ -126,7 +126,7 @@ class SequenceContext:
         if not (folder / "imu.npy").is_file():
             raise InputFormatError(f"the window dataset has no sequence record of '{name}'", path=folder,
                                    hint="write it with training.data.records.write_context(DATASET) "
-                                        "(benchmarks/context_euroc.py does)")
+                                        "(benchmarks/learning/context_euroc.py does)")
         imu = np.load(folder / "imu.npy", mmap_mode="r")
         t_ns = np.load(folder / "t_ns.npy")
         temp = np.load(folder / "temperature_degc.npy", mmap_mode="r") if (folder / "temperature_degc.npy").is_file() else None

@@ -1,4 +1,4 @@
-"""Speed probes of the models (used by ``benchmarks/training.py``): training throughput and
+"""Speed probes of the models (used by ``benchmarks/learning/training.py``): training throughput and
 sampling latency on synthetic windows of the right shape, so no dataset is needed.
 """
 

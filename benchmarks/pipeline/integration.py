@@ -6,7 +6,7 @@ MIDPOINT scheme, random gyro/acc, per-window [B, 3] biases) on the CPU with
 windows per second, for float32 and float64, forward only (and, with ``--backward``,
 forward + backward: the training-loss use). Wall-clock time; on a shared machine the figures are pessimistic.
 
-Run: ``.venv/bin/python benchmarks/integration.py [--threads N] [--repeats N] [--backward]``
+Run: ``.venv/bin/python benchmarks/pipeline/integration.py [--threads N] [--repeats N] [--backward]``
 """
 
 from __future__ import annotations

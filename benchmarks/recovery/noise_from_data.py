@@ -1,7 +1,7 @@
 """Noise from the data when no calibration file exists: the densities read off a rest, the written
 sensor.yaml, and a second recovery from that file.
 
-    .venv/bin/python benchmarks/noise_from_data.py [--seeds 3 4]
+    .venv/bin/python benchmarks/recovery/noise_from_data.py [--seeds 3 4]
 
 Per generator (the project's simulator, ``pipeline.sim``; the independent one, tests/independent.py)
 and seed: a 50-s recording that opens with a 15-s rest, white noise at 5e-4 rad/s/sqrt(Hz) and 6e-3
@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 

@@ -1,6 +1,6 @@
 """IMU intrinsics estimated around the bias recovery (recovery.intrinsics.estimate): the figures of its acceptance.
 
-    .venv/bin/python benchmarks/intrinsics.py [--duration 120] [--preset aggressive_drone] [--seeds 0 1 2]
+    .venv/bin/python benchmarks/recovery/intrinsics.py [--duration 120] [--preset aggressive_drone] [--seeds 0 1 2]
                                               [--skip-real] [--skip-sim]
 
 1. Simulated sequence with 1 % gyro scale, 0.5 deg gyro misalignment, 0.5 % accelerometer scale and
@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))  # the project's packages before this folder's scripts (benchmarks/recovery.py)
+REPO = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(REPO))  # the project's packages before this folder's scripts (benchmarks/recovery/recovery.py)
 
 from pipeline.sim import SimConfig, simulate  # noqa: E402
 from pipeline.sim.config import MotionConfig, PoseStreamConfig  # noqa: E402

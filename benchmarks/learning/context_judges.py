@@ -2,11 +2,11 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/context_judges.py configs WORK       # WORK/labels_gt.yaml, WORK/test_vicon0.yaml
+    .venv/bin/python benchmarks/learning/context_judges.py configs WORK       # WORK/labels_gt.yaml, WORK/test_vicon0.yaml
     biasgt run --config config/euroc.yaml     --until windows --directory WORK/a --cores 2
     biasgt run --config WORK/labels_gt.yaml   --until windows --directory WORK/b --cores 2
     biasgt run --config WORK/test_vicon0.yaml --until windows --directory WORK/v --cores 2
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/context_judges.py run WORK [--seeds 0 1 2] [--steps 600]
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/learning/context_judges.py run WORK [--seeds 0 1 2] [--steps 600]
 
 ``configs`` derives two workflow configs from ``config/euroc.yaml``: ``labels_gt.yaml`` recovers every
 train sequence from its ground-truth poses (label set b), and ``test_vicon0.yaml`` recovers and judges
@@ -43,7 +43,7 @@ import sys
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

@@ -1,6 +1,6 @@
 """A rig's usual faults over many seeds, on the project's simulator and on the independent generator.
 
-    .venv/bin/python benchmarks/rig_faults.py [--seeds 20] [--recover-seeds 20]
+    .venv/bin/python benchmarks/recovery/rig_faults.py [--seeds 20] [--recover-seeds 20]
 
 Per generator and seed, recordings from tests/rig_faults.py (unknown 20-deg extrinsic, no ground truth):
 
@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 

@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/biasgt run                                  # the default config (simulated, with temperature)
-    .venv/bin/python benchmarks/temperature_bias.py [RESULTS_DIR] [--exclude NAME ...]
+    .venv/bin/python benchmarks/learning/temperature_bias.py [RESULTS_DIR] [--exclude NAME ...]
 
 For the sequences of RESULTS_DIR (default ``results``) whose store carries the IMU temperature,
 fits one linear model per bias axis, pooled over the sequences: ``b(t) = a_seq + c * T(t)`` (a
@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from pipeline.sim.writer import read_simulation_yaml  # noqa: E402

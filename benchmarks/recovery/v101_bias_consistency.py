@@ -14,7 +14,7 @@ must satisfy ``f_k = R_k^T (a_k - g) + b_a`` (``a_k`` from the GT positions). Th
 
 Usage::
 
-    .venv/bin/python benchmarks/v101_bias_consistency.py
+    .venv/bin/python benchmarks/recovery/v101_bias_consistency.py
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import pandas as pd
 from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DATA = Path(os.environ.get("BIASGT_SHARED_DATA", REPO.parent / "shared" / "data")) / "euroc"
 G = 9.81
 STATIC_S = (0.3, 3.3)  # seconds after the first EuRoC GT stamp; the drone takes off at ~3.5-4 s

@@ -3,7 +3,7 @@
 Usage::
 
     biasgt run --config config/euroc.yaml --until windows --directory RUN    # the window dataset only
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/context_euroc.py RUN/results/windows/dataset \\
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/learning/context_euroc.py RUN/results/windows/dataset \\
         --base-dir RUN [--work DIR] [--steps N] [--seed S] [--variants NAME ...] [--grid] [--channel-oracles] \\
         [--labels dataset|state]
 
@@ -34,7 +34,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/paper_oracle.py [--data DIR] [--candidates 50] [--seed 0]
+    .venv/bin/python benchmarks/learning/paper_oracle.py [--data DIR] [--candidates 50] [--seed 0]
 
 Needs no recovery and no training: every figure comes from the real IMU and EuRoC's ground-truth
 state (``state_groundtruth_estimate0``) of MH_04, V1_03 and V2_02. The windows are the evaluation's
@@ -48,7 +48,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from pipeline.io import load_sequence  # noqa: E402

@@ -2,9 +2,9 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/recovery.py                 # all cases except the 1-hour run
-    .venv/bin/python benchmarks/recovery.py --only clean hard
-    .venv/bin/python benchmarks/recovery.py --long          # also 1 hour of 200-Hz IMU (slow)
+    .venv/bin/python benchmarks/recovery/recovery.py                 # all cases except the 1-hour run
+    .venv/bin/python benchmarks/recovery/recovery.py --only clean hard
+    .venv/bin/python benchmarks/recovery/recovery.py --long          # also 1 hour of 200-Hz IMU (slow)
 
 Cases:
     clean  simulated 120 s, known extrinsic, no clock offset, EuRoC-like IMU noise, bias random
@@ -49,7 +49,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 DATA = Path(os.environ.get("BIASGT_SHARED_DATA", REPO.parent / "shared" / "data"))
 

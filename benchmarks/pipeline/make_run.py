@@ -1,6 +1,6 @@
 """How long 'make run' takes: the whole default workflow in a fresh folder, wall and CPU time.
 
-    .venv/bin/python benchmarks/make_run.py [--cores 2] [--config config/config.yaml]
+    .venv/bin/python benchmarks/pipeline/make_run.py [--cores 2] [--config config/config.yaml]
 
 Runs ``biasgt run --cores N`` (what ``make run`` calls) in a new temporary working directory, so
 nothing is reused, and prints the wall time, the CPU time of every process it started, and the
@@ -20,7 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def command(cores: int, config: Path, workdir: Path) -> list[str]:

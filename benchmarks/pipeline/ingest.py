@@ -13,8 +13,8 @@ case; ``--strict`` exits 1 when a target is missed.
 
 Usage::
 
-    .venv/bin/python benchmarks/ingest.py [--strict]
-    .venv/bin/python benchmarks/ingest.py --case hour --input DIR   (one case, JSON line; used internally)
+    .venv/bin/python benchmarks/pipeline/ingest.py [--strict]
+    .venv/bin/python benchmarks/pipeline/ingest.py --case hour --input DIR   (one case, JSON line; used internally)
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 SHARED_DATA = Path(os.environ.get("BIASGT_SHARED_DATA", REPO.parent / "shared" / "data"))
 TARGETS = {"v101": {"seconds": 0.5, "peak_rss_mb": None}, "hour": {"seconds": 5.0, "peak_rss_mb": 1024.0}}
 CHECK_CPU_TARGET_S = 1.0  # the checks alone on one hour at 200 Hz

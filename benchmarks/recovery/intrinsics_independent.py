@@ -1,6 +1,6 @@
 """The recovery on an uncalibrated MEMS IMU from the independent generator (tests/independent.py), with defaults.
 
-    .venv/bin/python benchmarks/intrinsics_independent.py [--seeds 0 1 2 3] [--duration 120] [--bound]
+    .venv/bin/python benchmarks/recovery/intrinsics_independent.py [--seeds 0 1 2 3] [--duration 120] [--bound]
 
 Per seed: the clean sequence and the same one with intrinsic errors drawn at MEMS-like sizes
 (``independent.draw_intrinsics``: gyro scale 0.5-1 %, 0.2-0.5 deg on every off-diagonal term of the
@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 

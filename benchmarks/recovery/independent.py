@@ -2,9 +2,9 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/independent.py                     # all cases, seed 0
-    .venv/bin/python benchmarks/independent.py --only clean hard --seeds 0 1 2
-    .venv/bin/python benchmarks/independent.py --duration 60
+    .venv/bin/python benchmarks/recovery/independent.py                     # all cases, seed 0
+    .venv/bin/python benchmarks/recovery/independent.py --only clean hard --seeds 0 1 2
+    .venv/bin/python benchmarks/recovery/independent.py --duration 60
 
 The sequences come from ``tests/independent.py`` (closed-form Lissajous motion with analytic
 rates, own bias random walk + turn-on offset, own white noise, 100-Hz mocap 0.5 mm / 0.5 mrad),
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 sys.path.insert(0, str(REPO / "tests"))
 

@@ -2,7 +2,7 @@
 
 Usage::
 
-    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/context_learning.py [--out DIR] [--steps N] [--seed S]
+    OMP_NUM_THREADS=1 .venv/bin/python benchmarks/learning/context_learning.py [--out DIR] [--steps N] [--seed S]
 
 The variants' runs are written beside the dataset (``DIR/../runs``).
 
@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 

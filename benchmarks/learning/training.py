@@ -20,7 +20,7 @@ Prints:
 Wall-clock time: on a shared machine the figures are pessimistic. The paper's goals, for
 comparison: RNN 145 ms (one sample, DDIM-25, Jetson AGX Orin GPU); 50 samples within 1 s.
 
-Run: ``.venv/bin/python benchmarks/training.py [--threads 2] [--train-steps 20] [--skip-train]
+Run: ``.venv/bin/python benchmarks/learning/training.py [--threads 2] [--train-steps 20] [--skip-train]
 [--skip-latency] [--methods diffusion_rnn ...] [--latency-samples 1 50] [--latency-methods diffusion_rnn
 diffusion_unet] [--results results]``
 """
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import torch
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from training.config import Preset, Sampler  # noqa: E402

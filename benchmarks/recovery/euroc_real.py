@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/euroc_real.py [--data DIR] [--only V1_02_medium MH_05_difficult ...]
+    .venv/bin/python benchmarks/recovery/euroc_real.py [--data DIR] [--only V1_02_medium MH_05_difficult ...]
 
 For each sequence the real IMU is recovered with default options from its raw stream (``vicon0``:
 6-DoF Vicon body, 100 Hz, stamps not on the IMU clock; ``leica0``: prism positions, ~20 Hz), each
@@ -59,7 +59,7 @@ import yaml
 from scipy.signal import savgol_filter
 from scipy.spatial.transform import Rotation, Slerp
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from pipeline.bias_table import BiasTrack  # noqa: E402

@@ -1,6 +1,6 @@
 """V1_01: which accelerometer bias do the IMU readings support, EuRoC's (ba_y ~0.55) or OpenVINS's (~0.145)?
 
-    .venv/bin/python benchmarks/v1_01_bias.py [--data DIR] [--block-s 10] [--folds 3]
+    .venv/bin/python benchmarks/recovery/v1_01_bias.py [--data DIR] [--block-s 10] [--folds 3]
 
 A bias means something only together with the frame it is expressed against: a tilt of the
 reference attitude and an accelerometer bias trade off (0.4 m/s^2 is a ~2.3 deg tilt). So every
@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))  # the project's packages before this folder's scripts
 
 from pipeline.errors import BiasgtError  # noqa: E402
