@@ -13,7 +13,7 @@ generated from its registry's ``BUILTIN`` entries (a plugin's entries are its ow
 A block sits between ``<!--gen:NAME-->`` and ``<!--/gen:NAME-->`` in Markdown (inline or on lines of
 their own) and between the comment lines ``.. gen:NAME`` and ``.. /gen:NAME`` in reStructuredText.
 ``python -m biasgt.docs --check`` changes nothing and exits 1 naming each block that is out of date
-(``tests/test_docs.py`` runs it).
+(``tests/project/test_docs.py`` runs it).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Run in a fresh interpreter by tests/test_plugins.py (the demo plugin installed) and tests/test_extension_guide.py
+"""Run in a fresh interpreter by tests/project/test_plugins.py (the demo plugin installed) and tests/project/test_extension_guide.py
 (a copy of the repository with the README's four recipes followed): a new reader, network, reference row and
 verdict rule are in the CLI choices and help, the config check, the verdict and Table I, and ``--help`` loads no
 torch. Arguments: a scratch folder and a JSON of the entries' names (:class:`Names`; default: the demo

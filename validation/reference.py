@@ -184,7 +184,7 @@ def _choose_cutoff_hz(x: np.ndarray, p: np.ndarray, h_s: float, sigma: float) ->
     rises; the first grid cutoff where it reaches ``sigma`` removes the noise without eating the
     motion. On the simulator this lands within one grid step of the cutoff with the least velocity
     error for slow, handheld and aggressive motion, 0.5-2 mm noise, 100-200 Hz (see
-    tests/test_validation.py). Fitted on up to three 2000-sample segments for speed. Noise-free
+    tests/validate/test_validation.py). Fitted on up to three 2000-sample segments for speed. Noise-free
     poses (sigma < 1 um) get the highest cutoff below a quarter of the pose rate.
     """
     top = [f for f in _CUTOFF_GRID_HZ if f <= 0.25 / h_s] or [_CUTOFF_GRID_HZ[0]]

@@ -51,7 +51,7 @@ def _load(data: Path) -> dict:
 
 def static_start_check(data: Path = DATA) -> dict[str, np.ndarray]:
     """The numbers behind item 2: EuRoC's b_a and the local b_a of the static start (gravity along
-    the Vicon z), and how far the GT moves there. Used by tests/test_recovery_real.py."""
+    the Vicon z), and how far the GT moves there. Used by tests/recover/test_recovery_real.py."""
     d = _load(data)
     st = d["inside"] & (d["t"] >= STATIC_S[0]) & (d["t"] < STATIC_S[1])
     ba_local = (d["f"][st] - d["rot"][st].inv().apply(d["acc_w"][st] + np.array([0.0, 0.0, G]))).mean(axis=0)

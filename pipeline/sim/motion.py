@@ -9,7 +9,7 @@ acceleration). The IMU sees, at any time ``t``::
 
 ``RotationSpline(t, 1)`` returns the angular rate in the BODY frame for scipy's
 implementation (``R = R_i * exp(theta(t))``); :func:`angular_rate_body` relies on that and
-``tests/test_sim.py`` checks it against a finite difference of the rotation.
+``tests/inputs/test_sim.py`` checks it against a finite difference of the rotation.
 
 Time inside a :class:`Trajectory` is float seconds relative to the first IMU stamp.
 """

@@ -4,7 +4,7 @@ SciPy's :class:`~scipy.spatial.transform.Rotation` orthonormalises every matrix 
 pays a per-call overhead that dominates batched products of a few thousand rotations; these do
 the same conversions with closed forms on rows of arrays. Quaternions are Hamilton, scalar first
 (``quat_wxyz``), returned with ``w >= 0``; rotation vectors have ``|phi| <= pi``. Each equals
-SciPy's to ~1e-15 (``tests/test_rotations.py``). They live here rather than in
+SciPy's to ~1e-15 (``tests/recover/test_rotations.py``). They live here rather than in
 :mod:`pipeline.geometry.so3_numpy`, whose helpers go through SciPy's ``Rotation`` (per-call
 overhead, orthonormalisation) for the rest of the project.
 """

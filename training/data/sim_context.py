@@ -1,6 +1,6 @@
 """A simulated window dataset whose bias is a fixed function of what a context model is given.
 
-The check that the learning *can* learn (benchmarks/learning/context_learning.py, tests/test_context_learning.py).
+The check that the learning *can* learn (benchmarks/learning/context_learning.py, tests/learning/test_context_learning.py).
 Every sequence is one IMU unit:
 
 * it starts with ``rest_s`` seconds at rest at a near-level attitude (tilt below ``max_tilt_deg``,

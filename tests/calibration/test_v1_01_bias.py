@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 _spec = importlib.util.spec_from_file_location(
-    "benchmark_v1_01_bias", Path(__file__).resolve().parents[1] / "benchmarks" / "recovery" / "v1_01_bias.py")
+    "benchmark_v1_01_bias", Path(__file__).resolve().parents[2] / "benchmarks" / "recovery" / "v1_01_bias.py")
 bench = importlib.util.module_from_spec(_spec)
 sys.modules[_spec.name] = bench  # its dataclasses look their module up
 _spec.loader.exec_module(bench)

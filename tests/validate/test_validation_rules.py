@@ -19,7 +19,7 @@ from validation import rules
 from validation.rules import RULES, Evidence, Rule, register, unregister
 from validation.validate import validate_sequence, write_validation
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")

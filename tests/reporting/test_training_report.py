@@ -63,7 +63,7 @@ def test_chromium_renders_training_report(report, tmp_path):
 
     chromium = _find_chromium()
     if chromium is None:
-        pytest.skip("chromium is not installed (tests/test_report_chromium.py installs it where it can)")
+        pytest.skip("chromium is not installed (tests/reporting/test_report_chromium.py installs it where it can)")
     dom = _run(chromium, tmp_path / "profile", "--virtual-time-budget=10000", "--dump-dom", report.resolve().as_uri())
     assert dom.returncode == 0, dom.stderr[-2000:]
     body = re.search(r"<body\b[^>]*>", dom.stdout).group(0)
@@ -107,7 +107,7 @@ def test_curve_legend_sits_beside_the_curves(tmp_path):
 def test_demo_training_records_enough_points_for_a_curve():
     import yaml
 
-    options = yaml.safe_load((Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text())
+    options = yaml.safe_load((Path(__file__).resolve().parents[2] / "config" / "config.yaml").read_text())
     options = options["training"]["options"]
     assert options["max_steps"] // options["val_every"] >= 8  # a validation loss (and a train loss) every val_every
 

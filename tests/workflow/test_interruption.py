@@ -16,7 +16,7 @@ import pytest
 
 from pipeline.atomic import atomic_dir
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _leftovers(folder: Path) -> list[str]:

@@ -12,7 +12,7 @@ from biasgt.cli.app import main
 from biasgt.workflow.config import PROFILES_DIR
 from biasgt.workflow.run import describe_failure, resolve_profile
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_cpu_profile_asks_for_no_gpu_and_little_memory() -> None:

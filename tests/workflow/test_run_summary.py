@@ -70,5 +70,5 @@ def test_demo_position_only_cart_is_explained_by_its_own_sigma(tmp_path: Path) -
     assert data["verdict"] == "PASS", data["reasons"]
     assert truth["prmse_m"] < rec["prmse_m"] <= (truth["prmse_m"] ** 2 + (2 * rec["sigma_prmse_m"]) ** 2) ** 0.5
     assert rec["prmse_m"] < 0.5 * src["constant"]["prmse_m"]
-    config = (Path(__file__).resolve().parents[1] / "config" / "config.yaml").read_text()
+    config = (Path(__file__).resolve().parents[2] / "config" / "config.yaml").read_text()
     assert "within what its own sigma says" in config

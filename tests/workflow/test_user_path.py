@@ -194,7 +194,7 @@ def test_docs_csv_mapping_example_reads_a_csv(tmp_path: Path) -> None:
 
     from pipeline.io import load_sequence
 
-    doc = (Path(__file__).resolve().parents[1] / "docs" / "inputs.md").read_text()
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "inputs.md").read_text()
     block = re.search(r"```yaml\n(# imu_and_mocap\.yaml.*?)```", doc, re.S).group(1)
     mapping = yaml.safe_load(block)
     rows = ["time(ns),wx,wy,wz,ax,ay,az,px,py,pz,qx,qy,qz,qw"]

@@ -32,7 +32,7 @@ def _static_start_check(shared_data):
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "benchmarks" / "recovery" / "v101_bias_consistency.py"
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "recovery" / "v101_bias_consistency.py"
     spec = importlib.util.spec_from_file_location("v101_bias_consistency", path)
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
-PLUGIN = Path(__file__).resolve().parent / "plugin"
-CHECK = Path(__file__).resolve().parent / "extension_check.py"
+REPO = Path(__file__).resolve().parents[2]
+PLUGIN = Path(__file__).resolve().parents[1] / "plugin"
+CHECK = Path(__file__).resolve().parents[1] / "extension_check.py"
 
 
 @pytest.fixture(scope="module")

@@ -31,7 +31,7 @@ from biasgt.workflow.steps import interpolate_step, recover_step, report_step, r
 from test_report_chromium import chromium  # noqa: F401  (the fixture: finds or installs Chromium)
 from workflow_configs import sim_entry, write_config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 SPINE_GROUP = pytest.mark.xdist_group("workflow_snakemake")
 

@@ -22,10 +22,10 @@ from training.config import Preset, TrainConfig
 from training.data.dataset import Split, WindowDataset
 from training.fit.train import TrainingError, train
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1]))
 from toy_windows import Kind, Toy, one_torch_thread, write_toy_dataset  # noqa: E402,F401 (a fixture)
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 pytestmark = pytest.mark.usefixtures("one_torch_thread")
 TINY = dict(preset=Preset.TINY, batch_size=16, lr=3e-3, warmup_steps=5, val_every=10, checkpoint_every=10)
 

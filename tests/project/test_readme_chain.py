@@ -11,7 +11,7 @@ import pytest
 
 from biasgt.cli.app import main
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+README = Path(__file__).resolve().parents[2] / "README.md"
 
 
 def readme_chain() -> list[list[str]]:

@@ -18,7 +18,7 @@ from recovery.intrinsics.estimate import ImuIntrinsics, IntrinsicsFit, drop_insi
 from recovery.recover import recover
 
 _spec = importlib.util.spec_from_file_location(
-    "benchmark_intrinsics", Path(__file__).resolve().parents[1] / "benchmarks" / "recovery" / "intrinsics.py")
+    "benchmark_intrinsics", Path(__file__).resolve().parents[2] / "benchmarks" / "recovery" / "intrinsics.py")
 _bench = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_bench)
 bias_rmse, truth_intrinsics, with_intrinsics = _bench.bias_rmse, _bench.truth_intrinsics, _bench.with_intrinsics

@@ -12,7 +12,7 @@ from training.networks import BUILTIN as NETWORKS
 from training.references import BUILTIN as ROWS
 from validation.rules import BUILTIN as RULES
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_the_docs_blocks_are_up_to_date() -> None:

@@ -10,7 +10,7 @@ import yaml
 
 from biasgt.workflow.config import load_config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _benchmark():

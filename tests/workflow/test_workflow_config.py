@@ -26,7 +26,7 @@ from biasgt.workflow.params import (
 from biasgt.workflow.table import SIMULATE, data_root, source_kinds
 from workflow_configs import sim_entry, write_config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 # ---------------------------------------------------------------------------------------------

@@ -21,10 +21,10 @@ import torch
 
 from training.fit.checkpoint import LAST, load_checkpoint
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1]))
 from toy_windows import Kind, Toy, write_toy_dataset  # noqa: E402
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def test_two_gloo_processes_match_one_process(tmp_path):

@@ -246,7 +246,7 @@ def test_non_finite_dataset_array_is_named_when_opened(trained, tmp_path, capsys
 
 # ----------------------------------------------------------------------------- biasgt run under signals
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def _biasgt_run(workdir: Path, *extra: str, new_session: bool = False) -> subprocess.Popen:

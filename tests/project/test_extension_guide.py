@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 PLUGIN = REPO / "tests" / "plugin" / "biasgt_demo_plugin"
 
 #: The placeholders of each recipe (the README's words for them) and the module that implements it, taken
@@ -41,10 +41,10 @@ NAMES = {"reader": "imu_ms_g", "reader_help": "an IMU log (t_ms, gyro rad/s, acc
          "rule": "SHORT_RECORDING", "rule_help": "a recording shorter than a minute",
          "rule_step": "record for a minute or more"}
 #: The tests the recipes touch, run in the copy.
-CHECKS = ["tests/test_docs.py", "tests/test_help_lists_stages.py", "tests/test_architecture.py",
-          "tests/test_registries.py::test_each_method_and_row_name_lives_in_at_most_two_package_files",
-          "tests/test_io_registry.py::test_each_format_name_lives_in_its_entry_and_its_implementation",
-          "tests/test_validation_rules.py::test_every_rule_has_a_code_a_level_wording_and_is_listed_in_the_docs"]
+CHECKS = ["tests/project/test_docs.py", "tests/project/test_help_lists_stages.py", "tests/test_architecture.py",
+          "tests/evaluation/test_registries.py::test_each_method_and_row_name_lives_in_at_most_two_package_files",
+          "tests/inputs/test_io_registry.py::test_each_format_name_lives_in_its_entry_and_its_implementation",
+          "tests/validate/test_validation_rules.py::test_every_rule_has_a_code_a_level_wording_and_is_listed_in_the_docs"]
 
 
 def recipes() -> dict[str, tuple[str, str, str]]:

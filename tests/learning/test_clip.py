@@ -20,7 +20,7 @@ from training.data.dataset import Split, WindowDataset, write_dataset
 from training.models.scheduler import ClipCount
 from training.fit.train import train
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1]))
 from toy_windows import Kind, Toy, one_torch_thread, toy_sequence  # noqa: E402,F401 (a fixture)
 
 pytestmark = pytest.mark.usefixtures("one_torch_thread")

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from biasgt.cli.app import main
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 #: The workflow's stages: one rule file each (common.smk holds shared helpers).
 STAGES = sorted(p.stem for p in (REPO / "workflow" / "rules").glob("*.smk") if p.stem != "common")
 

@@ -30,7 +30,7 @@ from pipeline.store import read_store
 from plugin.biasgt_demo_plugin import reader as demo_reader
 from workflow_configs import write_config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 # A CSV dialect of some IMU logger: stamps in milliseconds, accelerometer in g, gyro in rad/s (the demo
 # plugin's reader, registered here by hand).

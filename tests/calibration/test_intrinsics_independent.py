@@ -20,7 +20,7 @@ from recovery.intrinsics.frame import rotation_prior
 from recovery.intrinsics.report import intrinsics_clause
 
 _spec = importlib.util.spec_from_file_location(
-    "benchmark_intrinsics_independent", Path(__file__).resolve().parents[1] / "benchmarks" / "recovery" / "intrinsics_independent.py")
+    "benchmark_intrinsics_independent", Path(__file__).resolve().parents[2] / "benchmarks" / "recovery" / "intrinsics_independent.py")
 _bench = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(_bench)
 

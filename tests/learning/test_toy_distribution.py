@@ -22,7 +22,7 @@ from training.config import Preset, TrainConfig
 from training.data.dataset import Split, WindowDataset
 from training.fit.train import train
 
-sys.path.insert(0, str(Path(__file__).parent))
+sys.path.insert(0, str(Path(__file__).parents[1]))
 from toy_windows import Kind, Toy, one_torch_thread, write_toy_dataset  # noqa: E402,F401 (a fixture)
 
 pytestmark = [pytest.mark.slow, pytest.mark.usefixtures("one_torch_thread")]

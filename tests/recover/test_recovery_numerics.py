@@ -149,7 +149,7 @@ def test_a_recovery_process_loads_neither_scipy_signal_nor_scipy_stats(tmp_path)
             "print(json.dumps({'coupling': res.report['intrinsics_auto']['coupling'],\n"
             "                  'loaded': [m for m in ('scipy.signal', 'scipy.stats') if m in sys.modules]}))\n")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=600,
-                         cwd=Path(__file__).resolve().parents[1])
+                         cwd=Path(__file__).resolve().parents[2])
     assert out.returncode == 0, out.stderr[-2000:]
     got = json.loads(out.stdout.strip().splitlines()[-1])
     assert got["coupling"] == "none"  # the intrinsics check ran (on a 6-DoF stream)

@@ -29,7 +29,7 @@ from training.fit.train import train
 from window_data import make_window_dataset, train_tiny
 from workflow_configs import sim_entry, write_config
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DUMMY_NET, DUMMY_ROW = "dummy_linear", "dummy_half_truth"
 #: Ground-truth bias halved: its PRMSE lies between the zero row's and the ground-truth row's.
 HALF = 0.5
