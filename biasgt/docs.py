@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from pipeline.atomic import write_text_atomic
+from pipeline.files.atomic import write_text_atomic
 from pipeline.errors import ConfigError
 from pipeline.registry import reference_name
 

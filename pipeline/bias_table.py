@@ -15,9 +15,9 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.atomic import atomic_path
+from pipeline.files.atomic import atomic_path
 from pipeline.errors import DataError, InputFormatError
-from pipeline.jsonio import dumps
+from pipeline.files.jsonio import dumps
 
 BIAS_COLUMNS = ("bg_x", "bg_y", "bg_z", "ba_x", "ba_y", "ba_z")
 STD_COLUMNS = tuple(f"{c}_std" for c in BIAS_COLUMNS)

@@ -16,7 +16,7 @@ from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
 
 from pipeline.errors import BiasgtError, ConfigError
-from pipeline.jsonio import to_plain
+from pipeline.files.jsonio import to_plain
 
 T = TypeVar("T")
 

@@ -23,9 +23,9 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 import yaml
 
-from pipeline.atomic import atomic_dir
+from pipeline.files.atomic import atomic_dir
 from pipeline.errors import InputFormatError
-from pipeline.jsonio import to_plain
+from pipeline.files.jsonio import to_plain
 from pipeline.types import Finding, ImuCalibration, ImuSeries, PoseSeries, PoseSourceKind, Sequence, StateSeries
 
 STORE_VERSION = 1

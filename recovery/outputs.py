@@ -7,7 +7,7 @@ calibration gave the IMU's noise densities, ``sensor.yaml`` (a Kalibr-style file
 recording suggests, read off its rest or, without one, chosen by the evidence search:
 :func:`suggested_sensor_yaml`).
 
-:meth:`RecoveryOutputs.write` writes the folder through :func:`pipeline.atomic.atomic_dir` (it
+:meth:`RecoveryOutputs.write` writes the folder through :func:`pipeline.files.atomic.atomic_dir` (it
 appears complete or not at all, and replaces only these files in an existing folder); :meth:`RecoveryOutputs.read` reads it back. Every consumer
 (interpolation, validation, windows, the report, the CLI and the workflow) reads through here.
 """
@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from pipeline.atomic import atomic_dir
+from pipeline.files.atomic import atomic_dir
 from pipeline.bias_table import CSV_HEADER, BiasTrack, read_bias_csv
 from pipeline.errors import BiasgtError, InputFormatError
 from pipeline.geometry.pose_transform import transform_from_json
 from pipeline.io.tum import read_tum_poses, write_tum
-from pipeline.jsonio import JsonRecord, dumps, number, read_json_object
+from pipeline.files.jsonio import JsonRecord, dumps, number, read_json_object
 from pipeline.types import CALIBRATION_DEFAULT_SOURCE, PoseSeries, PoseSourceKind
 
 BIAS_CSV = "bias.csv"

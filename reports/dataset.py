@@ -21,7 +21,7 @@ from pathlib import Path
 
 from matplotlib.figure import Figure
 
-from pipeline.atomic import write_text_atomic
+from pipeline.files.atomic import write_text_atomic
 from pipeline.errors import ConfigError
 from pipeline.layout import DATASET_REPORT_HTML, REPORT_HTML, Stage
 from pipeline.types import NS_PER_S, Verdict

@@ -16,7 +16,7 @@ over time; pose and IMU residuals; integration-error distributions; Allan deviat
 
 The page has no external resources: figures are PNG ``data:`` URIs, the stylesheet and a tiny
 script (it counts images that failed to decode, for the headless-browser test) are inline.
-It is written atomically (:func:`pipeline.atomic.atomic_path`): a failure leaves no file.
+It is written atomically (:func:`pipeline.files.atomic.atomic_path`): a failure leaves no file.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from pathlib import Path
 
 
 from pipeline import __version__
-from pipeline.atomic import atomic_path
+from pipeline.files.atomic import atomic_path
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.types import Sequence
 from recovery.noise.allan import imu_allan

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from pipeline.atomic import write_text_atomic
+from pipeline.files.atomic import write_text_atomic
 from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
 from training.evaluation.outputs import EXAMPLES_PARQUET, EvaluationSummary, read_summary
 from training.networks import get_network, network_names

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping
-from pipeline.jsonio import to_plain
+from pipeline.files.jsonio import to_plain
 from pipeline.errors import ConfigError
 from training.networks import Network, get_network, network_names
 from training.references import get_reference, reference_names

@@ -13,7 +13,7 @@ from pipeline.types import IntegrationScheme
 
 
 class CrossvalMode(str, enum.Enum):
-    """When the recovered bias is cross-validated by time blocks (:mod:`validation.crossval`).
+    """When the recovered bias is cross-validated by time blocks (:mod:`validation.crossval.blocks`).
 
     AUTO: when the reference is the pose stream the bias was fitted to: those poses cannot show what
         the bias absorbed from them, the held-out blocks can (and then judge the verdict).
@@ -60,7 +60,7 @@ class ValidationConfig:
         max_random_walk_scale: A recovery whose bias random walk is more than this times (or less
             than 1/this of) the calibration's is only good for WARN.
         crossval: See :class:`CrossvalMode`.
-        crossval_block_s: Cross-validation by time blocks of this length (:mod:`validation.crossval`):
+        crossval_block_s: Cross-validation by time blocks of this length (:mod:`validation.crossval.blocks`):
             recover again, with the recovery's own options, without the poses of each fold of blocks;
             the spliced held-out bias is the source ``recovered_heldout``. ``None``: off.
         crossval_folds: Number of folds of that cross-validation (block ``b`` is in fold ``b % folds``).

@@ -4,7 +4,7 @@ Files (names defined here only): ``validation.json`` (:class:`ValidationSummary`
 reasons and their rule codes, per-source metrics, reference, dropped windows, notes) and ``windows.parquet`` (one
 row per window and source: ``t0_ns, source, pos_err_m, rot_err_deg, flagged``).
 
-Non-finite numbers are written as ``null`` (:func:`pipeline.jsonio.dumps`).
+Non-finite numbers are written as ``null`` (:func:`pipeline.files.jsonio.dumps`).
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from pipeline.atomic import atomic_dir, atomic_path
+from pipeline.files.atomic import atomic_dir, atomic_path
 from pipeline.errors import InputFormatError, ValidationError
-from pipeline.jsonio import JsonRecord, dumps, read_json_object
+from pipeline.files.jsonio import JsonRecord, dumps, read_json_object
 from pipeline.types import Verdict  # the project's one verdict (the rules: validation.rules)
 
 SCHEMA_VERSION = 1

@@ -245,7 +245,7 @@ def validate_sequence(
             against, in the same frame), so that no source's gravity changes another's errors.
         config: Windows, flags and verdict thresholds.
         limitations: What limits the candidate though its numbers pass (rule GIVEN_LIMITATION).
-        heldout: The candidate cross-validated by time blocks (:mod:`validation.crossval`; NaN where a
+        heldout: The candidate cross-validated by time blocks (:mod:`validation.crossval.blocks`; NaN where a
             fold was dropped): measured on the kept windows it covers, beside every other source on
             the same windows (``result.heldout``).
         judge_heldout: The held-out errors judge the verdict (the reference is the stream the bias
@@ -587,7 +587,7 @@ def _heldout_source(sequence: Sequence, recovery: RecoveryOutputs | None, config
     Raises:
         ValidationError: ``required`` and there is no recovery of a pose stream of this sequence.
     """
-    from validation.crossval import BlockFolds, heldout_track
+    from validation.crossval.blocks import BlockFolds, heldout_track
 
     stream = recovery.report.pose_stream if recovery is not None else None
     if recovery is None or stream not in sequence.poses:

@@ -8,7 +8,7 @@ candidate below is a bias AND a frame (the pose-to-IMU rotation, and the gravity
 world), and the arbiter is the 1-s integration error (validation's metric, PRMSE / ROE) on poses the
 bias was not fitted to:
 
-* biasgt's recoveries are cross-validated by time blocks (:mod:`validation.crossval`): recovered
+* biasgt's recoveries are cross-validated by time blocks (:mod:`validation.crossval.blocks`): recovered
   without the poses of one fold of ``--block-s`` blocks, judged on that fold's windows, so every
   window is held out; against the stream they were fitted to, each fold's own estimated extrinsic
   and gravity are used;
@@ -46,14 +46,14 @@ from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, Sequence  # noqa: E4
 from recovery.config import ExtrinsicMode, IntrinsicsMode, RecoveryConfig  # noqa: E402
 from recovery.recover import RecoveryResult, recover  # noqa: E402
 from validation.config import ValidationConfig  # noqa: E402
-from validation.crossval import (  # noqa: E402
+from validation.crossval.blocks import (  # noqa: E402
     BlockFolds,
     CrossValidatedBias,
     crossvalidate_recovery,
     held_constant,
     imu_and_bias_of,
 )
-from validation.heldout import HeldOutErrors, held_out_errors, held_out_windows  # noqa: E402
+from validation.crossval.heldout import HeldOutErrors, held_out_errors, held_out_windows  # noqa: E402
 from validation.validate import WindowPlan, plan_windows, read_bias_file, reference_from_poses  # noqa: E402
 
 DEFAULT_DATA = Path(os.environ.get("BIASGT_SHARED_DATA", REPO.parent / "shared" / "data"))
@@ -141,7 +141,7 @@ def file_candidate(name: str, how: str, path: Path, imu: ImuSeries) -> Candidate
 
 
 def recovered_candidate(spec: Spec, seq: Sequence, folds: BlockFolds) -> Candidate:
-    """Cross-validated by blocks (:func:`validation.crossval.crossvalidate_recovery`), plus the full-data recovery."""
+    """Cross-validated by blocks (:func:`validation.crossval.blocks.crossvalidate_recovery`), plus the full-data recovery."""
     def rec(s: Sequence, stream: str) -> RecoveryResult:
         return recover(s, pose_stream=stream, config=spec.config)
 
@@ -154,7 +154,7 @@ CONSTANT_OF = ("biasgt_gt", "biasgt_ov")  # also judged held constant per fold (
 
 
 def constant_candidate(c: Candidate, imu: ImuSeries, folds: BlockFolds) -> Candidate:
-    """``c``'s folds held constant (:func:`validation.crossval.held_constant`), in the same frames."""
+    """``c``'s folds held constant (:func:`validation.crossval.blocks.held_constant`), in the same frames."""
     cv = held_constant(CrossValidatedBias(c.imu, c.bias, c.recoveries), imu, folds)
     return Candidate(f"{c.name}_const", f"{c.name}'s fold recoveries, each held constant (its mean)", cv.bias, cv.imu,
                      c.fitted_to, c.fold_frames, c.recoveries)

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pipeline import __version__
-from pipeline.atomic import check_output_location, no_space_error
+from pipeline.files.atomic import check_output_location, no_space_error
 from biasgt.cli.commands import (
     convert,
     evaluate,

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import atomic_path
+from pipeline.files.atomic import atomic_path
 from pipeline.errors import DataError
 from pipeline.io._stamps import TimeUnit
 from pipeline.io._text import Delimiter, parse_table, read_text, split_header, table_findings

@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from pipeline.atomic import atomic_dir
+from pipeline.files.atomic import atomic_dir
 from pipeline.errors import ConfigError
 from pipeline.io.tum import write_tum
 from pipeline.sim.config import PoseFormat

@@ -353,7 +353,7 @@ def test_a_degenerate_fold_is_dropped_and_counted(v1_02, tmp_path):
     from recovery.config import RecoveryConfig
     from recovery.recover import recover, write_recovery
     from validation.config import ValidationConfig
-    from validation.crossval import BlockFolds
+    from validation.crossval.blocks import BlockFolds
     from validation.validate import validate_inputs
 
     seq = _excerpt(v1_02, 40.0)

@@ -17,7 +17,7 @@ from pipeline.errors import ConfigError
 from pipeline.sim.config import PoseFormat
 from recovery.config import ExtrinsicMode, PoseFactorMode, RecoveryConfig, RobustLoss
 from pipeline.bias_table import read_bias_csv
-from pipeline.atomic import umask
+from pipeline.files.atomic import umask
 from pipeline.bias_table import CSV_HEADER
 from recovery.recover import write_recovery
 from recovery.recover import recover

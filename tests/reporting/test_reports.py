@@ -422,7 +422,7 @@ def test_failure_leaves_no_file(results_dir, tmp_path, monkeypatch):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]  # no temporary left behind
     # a failure while writing (after the temporary file exists): no file, no temporary
     monkeypatch.setattr(quality, "render_report", lambda inputs: "<!DOCTYPE html>")
-    monkeypatch.setattr("pipeline.atomic.os.replace", boom)
+    monkeypatch.setattr("pipeline.files.atomic.os.replace", boom)
     new = tmp_path / "sub" / "new.html"
     with pytest.raises(RuntimeError):
         build_quality_report(d["ingest"], recovery_dir=d["recovery"], validation_dir=d["validation"], out_path=new)

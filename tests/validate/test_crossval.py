@@ -1,4 +1,4 @@
-"""Cross-validation of a recovered bias by time blocks (validation.crossval, validation.heldout)."""
+"""Cross-validation of a recovered bias by time blocks (validation.crossval.blocks, validation.crossval.heldout)."""
 
 from __future__ import annotations
 
@@ -19,8 +19,8 @@ from pipeline.sim.config import (
 )
 from recovery.recover import recover
 from validation.config import ValidationConfig
-from validation.crossval import BlockFolds, crossvalidate_recovery, fold_prediction, held_constant, without_fold
-from validation.heldout import held_out_errors, held_out_windows
+from validation.crossval.blocks import BlockFolds, crossvalidate_recovery, fold_prediction, held_constant, without_fold
+from validation.crossval.heldout import held_out_errors, held_out_windows
 from validation.validate import plan_windows, reference_from_states
 
 S = 1_000_000_000
@@ -143,7 +143,7 @@ def test_held_constant_is_the_fold_mean_over_its_training_samples(handheld):
 
 
 def test_validate_inputs_adds_the_held_out_source(handheld, tmp_path):
-    """validation.crossval on: the recovery is cross-validated with its own options and compared as
+    """validation.crossval.blocks on: the recovery is cross-validated with its own options and compared as
     'recovered_heldout' on the same windows; against the true state (an independent reference) it is compared,
     not judged: worse than the in-sample recovered bias but far better than none."""
     from recovery.recover import write_recovery

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.atomic import atomic_dir
+from pipeline.files.atomic import atomic_dir
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -32,7 +32,7 @@ def _env() -> dict[str, str]:
 _CHILD = textwrap.dedent("""
     import signal, sys, time
     from pathlib import Path
-    from pipeline.atomic import atomic_dir
+    from pipeline.files.atomic import atomic_dir
     from biasgt.cli.app import _raise_terminated
     signal.signal(signal.SIGTERM, _raise_terminated)
     # Python's own SIGINT handler, as in a foreground process: started from a background job

@@ -38,9 +38,9 @@ import numpy as np
 import torch
 
 from pipeline import __version__
-from pipeline.atomic import atomic_dir
+from pipeline.files.atomic import atomic_dir
 from pipeline.errors import ConfigError, DataError, InputFormatError
-from pipeline.jsonio import JsonRecord, dumps, read_json_object, to_plain
+from pipeline.files.jsonio import JsonRecord, dumps, read_json_object, to_plain
 from pipeline.types import Split
 
 log = logging.getLogger(__name__)

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import atomic_dir
+from pipeline.files.atomic import atomic_dir
 from pipeline.errors import DataError, InputFormatError
 from pipeline.ingest import load
 from pipeline.store import is_store, read_store

@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pipeline.atomic import atomic_dir
+from pipeline.files.atomic import atomic_dir
 from pipeline.geometry.integration import integrate_numpy
 from pipeline.geometry.so3_numpy import so3_exp_np
 from pipeline.types import DEFAULT_GRAVITY_MPS2, Split

@@ -23,7 +23,7 @@ from pathlib import Path
 import torch
 from torch import nn
 
-from pipeline.atomic import atomic_path
+from pipeline.files.atomic import atomic_path
 from pipeline.errors import BiasgtError, ConfigError
 from training.config import IMU_CHANNELS, STEPS, ExportFormat, Sampler
 

@@ -25,7 +25,7 @@ import pandas as pd
 import torch
 
 from pipeline.bias_table import BIAS_COLUMNS, STD_COLUMNS
-from pipeline.atomic import OutputKind, atomic_path, check_output_location
+from pipeline.files.atomic import OutputKind, atomic_path, check_output_location
 from pipeline.errors import DataError
 from pipeline.types import NS_PER_S, Sequence
 from training.fit.checkpoint import check_finite_output

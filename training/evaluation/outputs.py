@@ -1,7 +1,7 @@
 """The evaluation's output folder, written and read in one place.
 
 Files (names defined here only), all written by :func:`write_evaluation` through
-:func:`pipeline.atomic.atomic_dir` (all of them or none):
+:func:`pipeline.files.atomic.atomic_dir` (all of them or none):
 
 * ``summary.json``: :class:`EvaluationSummary` (``schema_version`` :data:`SCHEMA_VERSION`),
   read back by :func:`read_summary`; its rows are :class:`RowResult` (a sampler and an
@@ -27,9 +27,9 @@ from typing import Any
 
 import pandas as pd
 
-from pipeline.atomic import atomic_dir
+from pipeline.files.atomic import atomic_dir
 from pipeline.errors import InputFormatError
-from pipeline.jsonio import to_plain
+from pipeline.files.jsonio import to_plain
 from training.models.clip import ClipUse
 from training.config import Sampler
 from training.evaluation.predictions import PREDICTIONS_PARQUET

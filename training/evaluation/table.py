@@ -40,7 +40,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from pipeline.atomic import write_text_atomic
+from pipeline.files.atomic import write_text_atomic
 from pipeline.errors import DataError
 from training.networks import network_names
 from training.references import get_reference, reference_names

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from pipeline.atomic import atomic_path
+from pipeline.files.atomic import atomic_path
 from pipeline.errors import BiasgtError
 from training.config import ModelConfig, TrainConfig
 from training.models.bias_model import BiasModel, build_model

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch.utils.data import DataLoader, default_collate
 
-from pipeline.atomic import write_text_atomic
+from pipeline.files.atomic import write_text_atomic
 from pipeline.errors import BiasgtError, DataError
 from training.data.batch import TEMPERATURE_KEY, WindowBatch
 from training.models.clip import clip_bounds

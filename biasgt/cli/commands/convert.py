@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 from pipeline.checks.repairs import parse_repairs
 from biasgt.cli.commands._args import (
     add_check_arguments,

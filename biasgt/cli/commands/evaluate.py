@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 
 DESCRIPTION = """\
 Evaluate a bias predictor on the TEST split of a window dataset, as the paper (after AirIMU) does:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 
 DESCRIPTION = """\
 Export a trained model (rebuilt from its checkpoint) together with its sampler as one graph, for

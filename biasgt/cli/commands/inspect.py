@@ -22,7 +22,7 @@ from biasgt.cli.commands._args import (
 from pipeline.errors import BiasgtError
 from pipeline.ingest import load, severity_rank
 from pipeline.io.registry import readers_in_words, recorded_format
-from pipeline.jsonio import dumps, to_plain
+from pipeline.files.jsonio import dumps, to_plain
 from pipeline.types import Finding, Sequence, Severity, Verdict
 
 #: Version of the ``--json`` output; bump when a key changes meaning or disappears.

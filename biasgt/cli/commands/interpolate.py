@@ -7,7 +7,7 @@ import logging
 from pathlib import Path
 
 from interpolation.config import InterpolationConfig, InterpolationMethod
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 from biasgt.cli.commands._args import add_reader_arguments, reader_kwargs_from_args
 
 log = logging.getLogger(__name__)

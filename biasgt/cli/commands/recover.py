@@ -10,7 +10,7 @@ import enum
 import logging
 from pathlib import Path
 
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 from biasgt.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,

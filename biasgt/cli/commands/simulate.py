@@ -10,7 +10,7 @@ from typing import Any
 
 import yaml
 
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 from pipeline.sim.config import MotionPreset, PoseFormat, SimConfig
 
 log = logging.getLogger(__name__)

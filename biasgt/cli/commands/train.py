@@ -7,7 +7,7 @@ import logging
 import os
 from pathlib import Path
 
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 
 log = logging.getLogger(__name__)
 

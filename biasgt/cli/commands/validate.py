@@ -8,7 +8,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 from biasgt.cli.commands._args import (
     add_check_arguments,
     add_reader_arguments,

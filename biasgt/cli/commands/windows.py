@@ -6,7 +6,7 @@ import argparse
 import logging
 from pathlib import Path
 
-from pipeline.atomic import OutputKind
+from pipeline.files.atomic import OutputKind
 from biasgt.cli.commands._args import add_window_arguments
 from pipeline.errors import ConfigError
 from pipeline.types import Split

@@ -17,7 +17,7 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Ros2Writer
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from pipeline.atomic import atomic_dir, atomic_path
+from pipeline.files.atomic import atomic_dir, atomic_path
 from pipeline.errors import ConfigError, DataError
 from pipeline.io.rosbag.formats import (
     IMU_TYPE,

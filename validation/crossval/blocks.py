@@ -8,7 +8,7 @@ recovered from the rest, and that recovery's bias (and, when estimated, its IMU 
 in fold ``k``'s blocks only. Every IMU sample's bias then comes from a recovery that never saw the
 poses around it. The windows judged are those wholly inside one block (no window mixes two
 recoveries), integrated against the FULL pose stream with the project's one metric
-(:mod:`validation.heldout`: :func:`validation.metrics.window_errors`, PRMSE, ROE).
+(:mod:`validation.crossval.heldout`: :func:`validation.metrics.window_errors`, PRMSE, ROE).
 
 A recovery sees a held-out block as a pose gap, spanned by keyframes without pose factors
 (:mod:`recovery.solver.gaps`): the block's own IMU readings still enter, its poses do not. A held-out block

@@ -1,4 +1,4 @@
-"""Errors of a cross-validated bias on the windows it was held out of (:mod:`validation.crossval`).
+"""Errors of a cross-validated bias on the windows it was held out of (:mod:`validation.crossval.blocks`).
 
 The windows judged lie wholly inside one block (no window mixes two folds' recoveries) and have a
 reference at both ends; they are integrated with validation's one metric
@@ -13,7 +13,7 @@ import numpy as np
 
 from pipeline.types import ImuSeries
 from validation.config import ValidationConfig
-from validation.crossval import BlockFolds
+from validation.crossval.blocks import BlockFolds
 from validation.metrics import WindowPlan, prmse_m, roe_deg, window_errors
 from validation.reference import ReferenceStates
 
