@@ -110,3 +110,24 @@ def test_no_module_compares_a_verdict_as_a_string_literal() -> None:
                 if found:
                     offences.append(f"{path.relative_to(REPO)}:{node.lineno} {sorted(set(found))}")
     assert not offences, "verdicts compared as string literals:\n" + "\n".join(offences)
+
+
+#: The most files one folder of the project may hold directly (beyond it, split the folder by role).
+MAX_FILES_PER_FOLDER = 15
+
+
+def test_no_top_level_folder_holds_more_than_fifteen_files() -> None:
+    """The package folders, ``benchmarks/`` and ``tests/`` each hold at most 15 files directly.
+
+    Counts the files (not folders, not ``__pycache__``) directly in each top-level folder; a
+    subpackage or subfolder is its own folder and is counted on its own.
+    """
+    folders = [REPO / name for name in (*PACKAGES, "benchmarks", "tests")]
+    crowded = {}
+    for folder in folders:
+        for here, dirs, files in os.walk(folder):
+            dirs[:] = [d for d in dirs if d != "__pycache__" and not d.startswith(".") and not d.endswith(".egg-info")]
+            count = sum(1 for f in files if not f.endswith(".pyc"))
+            if count > MAX_FILES_PER_FOLDER:
+                crowded[Path(here).relative_to(REPO).as_posix()] = count
+    assert not crowded, f"folders over {MAX_FILES_PER_FOLDER} files (split them by role): {crowded}"
