@@ -298,6 +298,22 @@ def draw_intrinsics(seed: int, *, gyro_scale: tuple[float, float] = (0.005, 0.01
     return IntrinsicErrors(M_g, M_a, rng.uniform(-g_sensitivity, g_sensitivity, (3, 3)))
 
 
+def gauss_markov_rotvec(t_s: np.ndarray, tau_s: float, rng: np.random.Generator) -> np.ndarray:
+    """Three unit-variance first-order Gauss-Markov processes at ``t_s`` [M], [M, 3].
+
+    The exact discretisation of ``dx = -x / tau dt + sqrt(2 / tau) dW``: ``x_k = phi x_{k-1} + sqrt(1 - phi^2) w_k``,
+    ``phi = exp(-(t_k - t_{k-1}) / tau)``, ``x_0 ~ N(0, 1)`` (stationary), exact for uneven steps.
+    """
+    w = rng.standard_normal((len(t_s), 3))
+    phi = np.exp(-np.diff(np.asarray(t_s, dtype=float)) / tau_s)
+    gain = np.sqrt(1.0 - phi**2)
+    x = np.empty_like(w)
+    x[0] = w[0]
+    for k in range(1, len(w)):
+        x[k] = phi[k - 1] * x[k - 1] + gain[k - 1] * w[k]
+    return x
+
+
 def make_sequence(
     duration_s: float = 60.0,
     *,
@@ -319,6 +335,10 @@ def make_sequence(
     T_imu_marker: np.ndarray | None = None,
     t0_ns: int = T0_NS,
     intrinsics: IntrinsicErrors | None = None,
+    gravity_mps2: np.ndarray = GRAVITY_MPS2,
+    correlated_rotation_noise_rad: float = 0.0,
+    correlated_noise_tau_s: float = 1.0,
+    dropouts_s: tuple[tuple[float, float], ...] = (),
 ) -> IndependentSequence:
     """Generate an independent sequence (IMU with known bias + mocap), see module docstring.
 
@@ -333,6 +353,11 @@ def make_sequence(
         T_imu_marker: Marker extrinsic (default identity: the mocap tracks the IMU).
         intrinsics: IMU intrinsic errors applied to the true rate and specific force (the
             ``*_true`` fields stay the ideal ones).
+        gravity_mps2: Gravity in the mocap world frame (tilt it for a frame that is not level).
+        correlated_rotation_noise_rad / correlated_noise_tau_s: Stationary std per axis and correlation
+            time of a first-order Gauss-Markov attitude error of the mocap (right-multiplied, on top of
+            the white noise; :func:`gauss_markov_rotvec`).
+        dropouts_s: ``(start, length)`` seconds after the first IMU sample with no mocap samples.
     """
     motion = motion or LissajousMotion()
     rng = np.random.default_rng([seed, 20261122])
@@ -342,7 +367,7 @@ def make_sequence(
     t_s = rel_ns / NS
     st = motion.state(t_s)
     w_true = st.omega_body_radps
-    f_true = st.specific_force()
+    f_true = st.specific_force(np.asarray(gravity_mps2, dtype=float))
     bg = random_walk_bias(n, rate_hz, rng, turn_on_sigma=gyro_turn_on_sigma, random_walk=gyro_random_walk)
     ba = random_walk_bias(n, rate_hz, rng, turn_on_sigma=acc_turn_on_sigma, random_walk=acc_random_walk)
     if noise and gtsam_noise:
@@ -365,6 +390,14 @@ def make_sequence(
     if noise:
         p_marker = p_marker + rng.standard_normal((m, 3)) * position_noise_m
         rot_marker = rot_marker * Rotation.from_rotvec(rng.standard_normal((m, 3)) * rotation_noise_rad)
+    if correlated_rotation_noise_rad > 0:
+        gm_rng = np.random.default_rng([seed, 5_550_123])  # a stream of its own: the other draws are unchanged
+        rot_marker = rot_marker * Rotation.from_rotvec(
+            gauss_markov_rotvec(true_rel_ns / NS, correlated_noise_tau_s, gm_rng) * correlated_rotation_noise_rad)
+    keep = np.ones(m, dtype=bool)
+    for start_s, length_s in dropouts_s:
+        keep &= ~((true_rel_ns >= start_s * NS) & (true_rel_ns < (start_s + length_s) * NS))
+    true_rel_ns, p_marker, rot_marker = true_rel_ns[keep], p_marker[keep], rot_marker[keep]
     pose_t_ns = t0_ns + true_rel_ns - int(round(clock_offset_s * NS))
     w_meas, f_meas = w_true, f_true
     if intrinsics is not None:
