@@ -204,8 +204,10 @@ class RecoveryConfig(ImuNoiseOverrides):
         gravity_tilt_sigmas / gravity_level_tolerance_deg: With ``estimate_gravity`` automatic, a
             motion-capture or ground-truth frame (level by convention) keeps its nominal gravity (-z),
             and the bias consistent with it, unless the estimated tilt exceeds both this many of its
-            sigmas (the data tell it from the accelerometer bias) and this many degrees (more than
-            levelling a frame leaves); then the tilt is kept and reported.
+            sigmas (the data tell it from the accelerometer bias) and this many degrees; then the tilt
+            is kept and reported. The default tolerance is 0: a tilt the data resolve, however small,
+            is kept, since a level gravity in a tilted frame leaks ``|g| sin(tilt)`` (0.09 m/s^2 at
+            0.5 deg) into the accelerometer bias, turning with the IMU's attitude.
         position_sigma_m: Pose position noise; ``None`` = default of the source kind.
         rotation_sigma_rad: Pose rotation noise; ``None`` = default of the source kind.
         gyro_noise_density / gyro_random_walk / acc_noise_density / acc_random_walk: Override the
@@ -285,7 +287,7 @@ class RecoveryConfig(ImuNoiseOverrides):
     gravity_window_s: float = 300.0
     gravity_keyframe_rate_hz: float | None = None
     gravity_tilt_sigmas: float = 3.0
-    gravity_level_tolerance_deg: float = 1.0
+    gravity_level_tolerance_deg: float = 0.0
     position_sigma_m: float | None = None
     rotation_sigma_rad: float | None = None
     noise_estimation: NoiseEstimation = NoiseEstimation.EVIDENCE

@@ -78,6 +78,8 @@ class VerdictInputs:
         implausible: What physics rules out in the recovery (:mod:`validation.plausibility`).
         not_independent: The reference is the stream the bias was fitted to and no held-out blocks judge.
         crossval_ran: The cross-validation ran (and could not judge: no fold recovered).
+        sigma_check: The held-out test of the recovery's sigma (:mod:`validation.crossval.sigma`,
+            ``SigmaCheck.to_dict``), or None.
     """
 
     findings: tuple[Finding, ...] = ()
@@ -85,6 +87,7 @@ class VerdictInputs:
     implausible: tuple[Implausible, ...] = ()
     not_independent: bool = False
     crossval_ran: bool = False
+    sigma_check: Mapping[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -225,6 +228,10 @@ _ROTATION_STEP = ("rotation error: check the gyro units and the pose-to-IMU rota
                   "rotate more about every axis")
 _HELDOUT_STEP = ("held out the bias does no better than a simpler one: look for pose artefacts the bias absorbed "
                  "(biasgt report's residual plot), and validate against an independent reference if there is one")
+_SIGMA_STEP = ("use the bias sigma widened by validation.json's heldout.sigma_check.factor (per axis) where a "
+               "sigma matters; the recovery did not model an error of this rig (a correlated pose error, a pose frame "
+               "not level, IMU scale or misalignment): check the pose stream (biasgt report's residual plot) and the "
+               "IMU's calibration, and recover again")
 _ZERO_STEP = ("the bias does no better than none: check the IMU units and the pose-to-IMU frame ('biasgt inspect', "
               "recovery.json T_imu_pose), and whether the IMU's bias is measurable at all in this recording")
 #: Input findings that limit what a bias recovered from that input is good for: (what, next step).
@@ -291,6 +298,9 @@ BUILTIN = (
          "held-out blocks judge", f"{_L}:not_independent",
          "validate against another pose stream or a ground truth (--poses STREAM, --add-poses FILE:KIND), or "
          "cross-validate (--crossval on)"),
+    Rule("SIGMA_NOT_CONFIRMED", Verdict.WARN, "limitation: held out, the bias differs from the in-sample bias "
+         "block by block beyond what both sigmas allow (chi-square bound): the sigma is not confirmed held out",
+         f"{_L}:sigma_not_confirmed", _SIGMA_STEP),
     Rule("GIVEN_LIMITATION", Verdict.WARN, "a limitation found by the caller", f"{_L}:given_limitations"),
     *(Rule(f"{label}_TOO_UNCERTAIN", Verdict.WARN, f"{label}: its own sigma exceeds a baseline's error and it is "
            "materially worse: too uncertain to tell from the baseline", f"{_C}:too_uncertain", step,

@@ -506,9 +506,12 @@ def validate_inputs(
         if heldout is not None and own_gravity is not None:
             heldout = replace(heldout, gravity_mps2=own_gravity)
     judged = fitted and heldout is not None and len(heldout_info["dropped_folds"]) < config.crossval_folds
+    if heldout is not None:
+        heldout_info["sigma_check"] = _sigma_check(sequence.imu, heldout.track, recovery, config)
     implausible = plausibility_findings(sequence, recovery) if recovery is not None else []
     inputs = VerdictInputs(tuple(sequence.findings), recovery.report if recovery is not None else None,
-                           tuple(implausible), fitted and not judged, heldout is not None)
+                           tuple(implausible), fitted and not judged, heldout is not None,
+                           (heldout_info or {}).get("sigma_check"))
     result = validate_sequence(sequence, sources, reference=reference, gravity_mps2=gravity, config=config,
                                heldout=heldout, judge_heldout=judged, heldout_info=heldout_info, inputs=inputs)
     result.plausibility = [x.to_dict() for x in implausible]
@@ -525,6 +528,22 @@ def validate_inputs(
         result.notes.append(f"recovery: {recovery_dir}")
     result.notes += reader_warnings(sequence.findings)  # skipped input lines
     return result
+
+
+def _sigma_check(imu: ImuSeries, heldout: BiasTrack, recovery: RecoveryOutputs, config: ValidationConfig
+                 ) -> dict[str, Any] | None:
+    """The held-out test of the recovery's sigma (:mod:`validation.crossval.sigma`) as a dict for
+    ``validation.json`` (``heldout.sigma_check``), or None with too few blocks."""
+    from validation.crossval.blocks import BlockFolds
+    from validation.crossval.sigma import heldout_sigma_check
+
+    noise = recovery.report.get("noise") or {}
+    walks = [noise.get("gyro_random_walk"), noise.get("acc_random_walk")]
+    rw = None if None in walks else np.repeat(np.asarray(walks, dtype=float), 3)
+    insample = recovered_bias_at_imu(recovery.bias, imu.t_ns, rw)
+    folds = BlockFolds(int(imu.t_ns[0]), float(config.crossval_block_s), int(config.crossval_folds))
+    check = heldout_sigma_check(heldout, insample, folds.block(imu.t_ns))
+    return None if check is None else check.to_dict()
 
 
 def _compare_attitude(result: ValidationResult, reference: ReferenceStates, recovery: RecoveryOutputs,

@@ -91,6 +91,9 @@ def block_rates(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | None
 COUPLING_MIN_COHERENCE = 0.5
 COUPLING_CHANCE = 0.001
 COUPLING_MIN_GAIN = 2e-3
+# A band whose rate cross-spectrum is conditioned worse than this lacks rate about some axis (a motion
+# of a few sinusoids): its transfer is not determined, and the band does not count.
+MAX_RATE_CONDITION = 1e10
 # Bands from this frequency up tell an intrinsic error (every band) from a slow process.
 FAST_BAND_HZ = 0.2
 # A share of the rate this large is no IMU intrinsic error (those are percents) but a frame mismatch: a gyro
@@ -268,6 +271,9 @@ def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | No
             needed[b] = max(COUPLING_MIN_COHERENCE, float(betaincinv(3, averages - 3, 1.0 - COUPLING_CHANCE)))
         Sb = S[sel].sum(0)
         S_ww, S_wd, S_dd = Sb[:3, :3], Sb[:3, 3:], np.real(np.diag(Sb[3:, 3:]))
+        if np.linalg.cond(S_ww) > MAX_RATE_CONDITION:  # too little rate about some axis in this band: no coupling
+            needed[b] = np.inf                        # can be told from it (a band that never counts)
+            continue
         Ht = np.linalg.solve(S_ww, S_wd)  # [rate, d]
         gain[b] = np.real(Ht).T
         coh[b] = np.real(np.einsum("ki,ki->i", np.conj(S_wd), Ht)) / S_dd

@@ -246,3 +246,20 @@ def test_cross_spectra_and_chance_level_equal_scipy(nperseg):
     np.testing.assert_allclose(S, S_ref, rtol=1e-10, atol=1e-12 * np.abs(S_ref).max())
     for n in (4, 9, 40, 400):
         assert betaincinv(3, n - 3, 0.999) == pytest.approx(beta.ppf(0.999, 3, n - 3), rel=1e-10)
+
+
+def test_rate_coupling_of_a_rotation_about_one_axis_counts_no_band():
+    """Rotation about z only: the rate cross-spectrum of every band is singular (no rate about x or y), so
+    no coupling can be told from it; every band is left out (never counts), where solving it raised."""
+    rate_hz, n = 200.0, 12000
+    t = np.arange(n) / rate_hz
+    omega = np.zeros((n, 3))
+    omega[:, 2] = sum(0.3 * np.sin(2 * np.pi * f * t) for f in (0.03, 0.1, 0.5, 1.7))
+    yaw = np.concatenate([[0.0], np.cumsum(0.5 * (omega[1:, 2] + omega[:-1, 2]) / rate_hz)])
+    quat = Rotation.from_rotvec(np.column_stack([np.zeros(n), np.zeros(n), yaw])).as_quat()[:, [3, 0, 1, 2]]
+    t_ns = (t * 1e9).astype(np.int64) + 10**18
+    imu = ImuSeries(t_ns, omega, np.tile([0.0, 0.0, 9.81], (n, 1)))
+    poses = PoseSeries(t_ns[::2], np.zeros((n // 2, 3)), quat[::2], "body", PoseSourceKind.GROUND_TRUTH)
+    rc = rate_coupling(imu, poses)
+    assert np.all(rc.gain == 0.0) and np.all(rc.coherence == 0.0)
+    assert rc.kind() is CouplingKind.NONE

@@ -18,7 +18,8 @@ if TYPE_CHECKING:
     from validation.rules import Evidence
 
 __all__ = ["dropped", "extrinsic_differs", "extrinsic_unobservable", "flagged", "given_fails", "given_limitations",
-           "implausible", "input_finding", "no_baseline", "not_independent", "random_walk_at_edge", "random_walk_far"]
+           "implausible", "input_finding", "no_baseline", "not_independent", "random_walk_at_edge", "random_walk_far",
+           "sigma_not_confirmed"]
 
 
 def given_fails(ev: Evidence) -> list[str]:
@@ -90,6 +91,18 @@ def not_independent(ev: Evidence) -> list[str]:
     return ["not an independent test: the reference poses are those the recovery fitted, so pose errors that the "
             "bias absorbed are not seen" + (" (and no cross-validation fold could be recovered)"
                                             if ev.inputs.crossval_ran else "")]
+
+
+def sigma_not_confirmed(ev: Evidence) -> list[str]:
+    check = ev.inputs.sigma_check
+    if not check or not check.get("unconfirmed"):
+        return []
+    from validation.crossval.sigma import AXES
+
+    factors = ", ".join(f"{a} x{f:.1f}" for a, f in zip(AXES, check["factor"]) if a in check["unconfirmed"])
+    return [f"the sigma is not confirmed held out: over {check['blocks']} blocks the held-out bias differs from the "
+            f"in-sample bias beyond the chi-square bound ({check['bound']:.1f}) on {', '.join(check['unconfirmed'])}; "
+            f"widening the sigma by {factors} covers it"]
 
 
 def flagged(ev: Evidence) -> list[str]:
