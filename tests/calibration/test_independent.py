@@ -62,6 +62,29 @@ def test_generator_specific_force_matches_gtsam_scenario_runner():
         np.testing.assert_allclose(st.specific_force(), g.specific_force_gtsam(t), atol=1e-12)
 
 
+def test_generator_rig_imperfections():
+    """A tilted gravity enters the specific force as ``R^T (a - g)``; the Gauss-Markov attitude error has the
+    stationary sigma and the lag-one correlation ``exp(-dt / tau)`` asked for; a dropout leaves no mocap sample
+    in its span."""
+    g = np.array([0.0857, 0.0, -9.8096])
+    base = ind.make_sequence(10.0, seed=1, noise=False)
+    tilted = ind.make_sequence(10.0, seed=1, noise=False, gravity_mps2=g)
+    rot = Rotation.from_quat(base.quat_wxyz[:, [1, 2, 3, 0]])
+    np.testing.assert_allclose(tilted.acc_true_mps2 - base.acc_true_mps2, rot.inv().apply(ind.GRAVITY_MPS2 - g),
+                               atol=1e-12)
+    x = ind.gauss_markov_rotvec(np.arange(200_000) * 0.01, 0.5, np.random.default_rng(0))
+    assert np.std(x) == pytest.approx(1.0, rel=0.03)
+    assert np.mean(x[1:] * x[:-1]) == pytest.approx(np.exp(-0.01 / 0.5), abs=0.02)
+    seq = ind.make_sequence(20.0, seed=2, noise=False, correlated_rotation_noise_rad=4e-3, dropouts_s=((5.0, 1.0),))
+    rel_s = (seq.pose_t_ns - seq.t_ns[0]) / 1e9
+    assert not np.any((rel_s >= 5.0) & (rel_s < 6.0)) and np.any(rel_s < 5.0) and np.any(rel_s >= 6.0)
+    level = ind.make_sequence(20.0, seed=2, noise=False)
+    kept = np.isin(level.pose_t_ns, seq.pose_t_ns)
+    err = (Rotation.from_quat(level.pose_quat_wxyz[kept][:, [1, 2, 3, 0]]).inv()
+           * Rotation.from_quat(seq.pose_quat_wxyz[:, [1, 2, 3, 0]])).as_rotvec()
+    assert 2e-3 < float(np.sqrt(np.mean(err**2))) < 8e-3  # 4 mrad per axis, over ~20 correlation times
+
+
 def test_gtsam_scenario_runner_noise_and_sequence():
     """A sequence on GTSAM's ConstantTwistScenario with GTSAM-sampled white noise: noise level and truth."""
     dens_g, dens_a = ind.REPORTED["gyro_noise_density"], ind.REPORTED["acc_noise_density"]
