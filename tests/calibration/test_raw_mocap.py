@@ -336,8 +336,9 @@ def test_a_held_out_error_worse_than_zero_or_constant_is_a_fail(v1_02_recovery):
     sources = bias_sources(seq, recovery=rec)
     good = sources["recovered"].track
     bad = BiasTrack(good.t_ns, good.bias + [0, 0, 0, 0.5, 0, 0], good.std)
+    own_gravity = np.asarray(rec.report.gravity_world_mps2, dtype=float)  # as validate_inputs gives the held-out row
     for track, fails in ((good, False), (bad, True)):
-        held = BiasSource("recovered_heldout", BiasSourceKind.FILE, track)
+        held = BiasSource("recovered_heldout", BiasSourceKind.FILE, track, gravity_mps2=own_gravity)
         res = validate_sequence(seq, sources, reference=reference, config=config, heldout=held, judge_heldout=True)
         reasons = [r for r in res.reasons if r.startswith("held out") and "not significantly" not in r]
         assert (res.verdict is Verdict.FAIL) == fails and bool(reasons) == fails, res.reasons
