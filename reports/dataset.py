@@ -29,11 +29,11 @@ from pipeline.layout import DATASET_REPORT_HTML, REPORT_HTML, Stage
 from pipeline.types import Verdict
 from reports.dataset_figure import CHANNELS, UNITS, bias_overview_figure, channel_outliers
 from reports.dataset_inputs import DatasetInputs, SequenceRow, average_rows, gather_dataset
-from reports.html import Html, esc, figure_picture, fmt, fmt_unc, join, p, page, scroll_box, section, table, tag, ul
+from reports.html import Html, code_words, esc, figure_picture, fmt, fmt_unc, join, p, page, scroll_box, section, table, tag, ul
 
 log = logging.getLogger(__name__)
 
-__all__ = ["SECTIONS", "SEVERITY", "build_dataset_report", "by_severity", "code_words", "render_dataset_report"]
+__all__ = ["SECTIONS", "SEVERITY", "build_dataset_report", "by_severity", "render_dataset_report"]
 
 SECTIONS = (
     ("headline", "Headline"),
@@ -114,13 +114,6 @@ def _headline(inp: DatasetInputs) -> Html:
     if inp.problems:
         parts.append(tag("div", Html(p("Not shown:") + ul(inp.problems)), class_="missing"))
     return section("headline", SECTIONS[0][1], join(parts))
-
-
-def code_words(code: str) -> str:
-    """A machine code in words: ``bias_not_covered:recovered`` -> ``bias not covered (recovered)``."""
-    head, _, tail = str(code).partition(":")
-    words = head.replace("_", " ")
-    return f"{words} ({tail.replace('_', ' ')})" if tail else words
 
 
 def _drop_words(code: str, count: int) -> Html:

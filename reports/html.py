@@ -148,6 +148,25 @@ def fmt_unc(x: Any, std: Any, unit: str = "") -> str:
     return f"{v:.{decimals}f} ± {s:.{decimals}f} {unit}".rstrip()
 
 
+def code_words(code: str) -> str:
+    """A machine code in words: ``bias_not_covered:recovered`` -> ``bias not covered (recovered)``."""
+    head, _, tail = str(code).partition(":")
+    words = head.replace("_", " ")
+    return f"{words} ({tail.replace('_', ' ')})" if tail else words
+
+
+def code_and_words(code: str) -> Html:
+    """A code in words, the code itself kept beside them (small, for search)."""
+    return Html(esc(code_words(code)) + " " + tag("code", code, class_="rule"))
+
+
+def back_link(href: str | None) -> Html:
+    """The link back to the dataset page (``href`` relative to the report), or nothing when ``href`` is None."""
+    if href is None:
+        return Html("")
+    return tag("nav", tag("a", "← Dataset page: every sequence at a glance", href=href), class_="back")
+
+
 CSS = """
 body{font-family:-apple-system,"Segoe UI",Roboto,"DejaVu Sans",Arial,sans-serif;margin:0 auto;max-width:1100px;
 padding:1.2em 2em 4em;color:#1d232b;line-height:1.45;background:#fff}
@@ -178,6 +197,7 @@ figure{margin:.8em 0 1.4em}figure img{max-width:100%;height:auto;border:1px soli
 figcaption{color:#5b6672;font-size:.9em;margin-top:.3em}
 nav.toc{font-size:.92em;background:#f7f9fb;border:1px solid #e3e8ee;padding:.5em 1em;border-radius:6px}
 nav.toc ol{margin:.2em 0;padding-left:1.4em}
+nav.back{font-size:.92em;margin:0 0 .6em}
 .small{font-size:.88em;color:#5b6672}code{background:#f3f6f9;padding:0 .25em;border-radius:3px}
 """
 
