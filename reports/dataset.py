@@ -76,6 +76,7 @@ EXTRA_CSS = ("table.sortable th{cursor:pointer}table.sortable th[data-dir=asc]::
              "font-weight:700}td.WARN{background:#fff6e0;color:#9a6b00;font-weight:700}td.FAIL{background:#fdecec;"
              "color:#a4231f;font-weight:700}.flag{color:#a4231f;font-weight:700}"
              "table.glance{width:100%;font-size:.88em}table.glance td.reason{min-width:14em}"
+             "table.glance td.num{white-space:nowrap}"
              "td.why{color:#5b6672;font-style:italic}tr.oracle td{font-style:italic;color:#4b5661}"
              ".counts{font-size:1.15em}.count-PASS{color:#1e7a43;font-weight:700}.count-WARN{color:#9a6b00;"
              "font-weight:700}.count-FAIL{color:#a4231f;font-weight:700}code.rule{font-size:.85em}")
@@ -117,7 +118,7 @@ def _headline(inp: DatasetInputs) -> Html:
 
 
 def _drop_words(code: str, count: int) -> Html:
-    return Html(esc(f"{code_words(code)} {count} ") + tag("code", code, class_="rule"))
+    return Html(esc(f"{code_words(code)} ") + tag("code", code, class_="rule") + esc(f": {count}"))
 
 
 def _cell(text: object, sort: object = None, **attrs: object) -> Html:
@@ -200,7 +201,8 @@ DETAIL_HEADERS = ("sequence", "validation reference", "zero bias: PRMSE / ROE", 
 
 
 def _detail_row(r: SequenceRow) -> Html:
-    reference = "" if r.reference is None else f"{r.reference} ({'independent' if r.independent else 'fitted'})"
+    reference = ("" if r.reference is None
+                 else f"{code_words(r.reference)} ({'independent' if r.independent else 'fitted'})")
     noise = join((_walk_words(axis, scale, axis in r.at_bound) for axis, scale in r.noise_scales.items()), sep=", ")
     dropped = join((_drop_words(k, v) for k, v in sorted(r.dropped.items())), sep=", ")
     cells = [

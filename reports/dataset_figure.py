@@ -77,7 +77,7 @@ def bias_overview_figure(rows: Sequence[SequenceRow], layout: str = "wide") -> F
         return None
     narrow = layout == "narrow"
     legend_rows = len(drawn) if narrow else -(-len(drawn) // 2)
-    legend_in = 0.22 * legend_rows + 0.2
+    legend_in = 0.2 * legend_rows + 0.35
     fig = Figure(figsize=(4.2, 12.5 + legend_in) if narrow else (11, 6.8 + legend_in))
     axes = fig.subplots(6, 1, sharex=True).ravel() if narrow else fig.subplots(3, 2, sharex=True).T.ravel()
     outliers = channel_outliers(drawn)
@@ -108,5 +108,5 @@ def bias_overview_figure(rows: Sequence[SequenceRow], layout: str = "wide") -> F
                fontsize=8, title="sequence · split · verdict (line: PASS solid, WARN dashed, FAIL dotted)",
                title_fontsize=8)
     height = fig.get_size_inches()[1]
-    fig.tight_layout(rect=(0, (legend_in + 0.35) / height, 1, 1))
+    fig.tight_layout(rect=(0, (legend_in + 0.1) / height, 1, 1))
     return fig

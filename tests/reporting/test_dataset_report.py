@@ -141,7 +141,7 @@ def test_page_headline_rows_links_table_and_figure(results):
     assert details.cell("b_warn", "validation").text == "vicon0 (fitted)"
     assert details.cell("b_warn", "bias random").text.startswith("gyro 100× (larger than calibrated, at a bound)")
     assert details.cell("b_warn", "pose outliers").text == "5.0%"
-    assert details.cell("a_pass", "windows dropped").text == "imu gap 1 imu_gap, outside recovery 2 outside_recovery"
+    assert details.cell("a_pass", "windows dropped").text == "imu gap imu_gap: 1, outside recovery outside_recovery: 2"
     assert details.cell("c_fail", "windows dropped").text == "left out"  # not the reason a second time
     assert glance.in_scroll and details.in_scroll
     assert "c_fail</strong>: validation FAIL: worse than a constant bias" in html
