@@ -29,6 +29,7 @@ from pipeline.layout import DATASET_REPORT_HTML, REPORT_HTML, Stage
 from pipeline.types import Verdict
 from reports.dataset_figure import CHANNELS, UNITS, bias_overview_figure, channel_outliers
 from reports.dataset_inputs import DatasetInputs, SequenceRow, average_rows, gather_dataset
+from reports.quality_calibration import calibration_word
 from reports.html import Html, code_words, esc, figure_picture, fmt, fmt_unc, join, p, page, scroll_box, section, table, tag, ul
 
 log = logging.getLogger(__name__)
@@ -46,8 +47,6 @@ SECTIONS = (
 LABELS = ("recovered", "zero", "constant", "dataset's", "held-out")
 #: Sort key of a verdict: the most severe first (None: not validated, last).
 SEVERITY = {Verdict.FAIL: 0, Verdict.WARN: 1, Verdict.PASS: 2, None: 3}
-#: A random-walk scale within [1/x, x] of the calibration's reads "as calibrated".
-WALK_AS_CALIBRATED = 3.0
 #: The footnote of oracle rows, as in ``table.md``.
 ORACLE_NOTE = ("(oracle): reads the ground truth at test time; a bound on what the labels allow, not a method, "
                "and not ranked.")
@@ -185,13 +184,7 @@ def _glance_row(r: SequenceRow, link: str, manifest: bool) -> Html:
 
 
 def _walk_words(axis: str, scale: float, at_bound: bool) -> Html:
-    if scale > WALK_AS_CALIBRATED:
-        word = "larger than calibrated"
-    elif scale < 1.0 / WALK_AS_CALIBRATED:
-        word = "smaller than calibrated"
-    else:
-        word = "as calibrated"
-    text = f"{axis} {fmt(scale, 3)}× ({word}{', at a bound' if at_bound else ''})"
+    text = f"{axis} {fmt(scale, 3)}× ({calibration_word(scale)}{', at a bound' if at_bound else ''})"
     return tag("span", text, class_="flag" if at_bound else None)
 
 

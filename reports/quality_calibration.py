@@ -190,11 +190,15 @@ def _noise_notes(noise: dict) -> list[str]:
 AS_CALIBRATED = 3.0
 
 
+def calibration_word(scale: float) -> str:
+    """A noise scale against the calibration's in words: larger than / smaller than / as calibrated."""
+    return ("larger than calibrated" if scale > AS_CALIBRATED else "smaller than calibrated"
+            if scale < 1.0 / AS_CALIBRATED else "as calibrated")
+
+
 def scale_words(scale: float) -> str:
     """A noise scale against the calibration's in words: ``10.2× the calibration's (larger than calibrated)``."""
-    word = ("larger than calibrated" if scale > AS_CALIBRATED else "smaller than calibrated"
-            if scale < 1.0 / AS_CALIBRATED else "as calibrated")
-    return f"{fmt(scale, 3)}× the calibration's ({word})"
+    return f"{fmt(scale, 3)}× the calibration's ({calibration_word(scale)})"
 
 
 def _difference_text(diff: dict) -> str:
