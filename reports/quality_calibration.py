@@ -45,6 +45,21 @@ def _vec(v: Any, digits: int = 4, scale: float = 1.0) -> str:
     return "[" + ", ".join(fmt(x, digits) for x in arr) + "]"
 
 
+def _vec_to(v: Any, std: Any, scale: float = 1.0) -> str:
+    """A vector rounded to the two significant digits of its smallest sigma (4 significant digits without
+    sigmas), so a value never shows more digits than its uncertainty."""
+    try:
+        sig = np.abs(np.asarray(std, dtype=float).reshape(-1)) * scale
+        arr = np.asarray(v, dtype=float).reshape(-1) * scale
+    except (TypeError, ValueError):
+        return _vec(v, 4, scale)
+    sig = sig[np.isfinite(sig) & (sig > 0)]
+    if not len(sig) or not np.isfinite(arr).all():
+        return _vec(v, 4, scale)
+    decimals = max(0, 1 - math.floor(math.log10(float(sig.min()))))
+    return "[" + ", ".join(f"{x:.{decimals}f}" for x in arr) + "]"
+
+
 def calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
     rec = inp.recovery.data if inp.recovery is not None else None  # the JSON object: display fields
     cal = inp.sequence.calibration
@@ -111,7 +126,8 @@ def _estimate_rows(rec: dict) -> list[list[Any]]:
     ext = rec.get("extrinsic") if isinstance(rec.get("extrinsic"), dict) else {}
     how = f"source: {ext.get('source', 'n/a')}" + (f", mode: {ext['mode']}" if "mode" in ext else "")
     frame = rec.get("pose_frame") or "pose"
-    rows.append([f"Extrinsic translation (pose frame '{frame}' in the IMU frame)", _vec(T.get("p_m"), 4, 1e3) + " mm",
+    rows.append([f"Extrinsic translation (pose frame '{frame}' in the IMU frame)",
+                 _vec_to(T.get("p_m"), ext.get("translation_std_m"), 1e3) + " mm",
                  _vec(ext.get("translation_std_m"), 2, 1e3) + " mm" if ext.get("translation_std_m") else "n/a", how])
     if T.get("quat_wxyz") is not None:
         try:

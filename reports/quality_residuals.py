@@ -142,8 +142,10 @@ def integration_section(inp: ReportInputs) -> Html:
                          if not isinstance(x, dict))
         by = dropped.get("by_reason")
         if isinstance(by, dict) and by:
-            text = Html(esc(text + "; by reason: ") + join((Html(code_and_words(k) + esc(f": {x}"))
-                                                             for k, x in by.items()), sep=", "))
+            shown = {k: x for k, x in by.items() if x}
+            if shown:
+                text = Html(esc(text + "; by reason: ") + join((Html(code_and_words(k) + esc(f": {x}"))
+                                                                 for k, x in shown.items()), sep=", "))
         parts.append(p(Html(esc("Windows: ") + esc(text) + "."), class_="small"))
     elif v.get("windows_dropped") is not None:
         parts.append(p(f"Windows dropped: {v.get('windows_dropped')}.", class_="small"))

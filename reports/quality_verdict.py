@@ -117,9 +117,10 @@ def verdict_summary(validation: dict[str, Any] | None,
     return word, sentence.strip()
 
 
-def checked_and_not(validation: dict[str, Any], recovery: Mapping[str, Any] | None = None) -> list[str]:
+def checked_and_not(validation: dict[str, Any], recovery: Mapping[str, Any] | None = None,
+                    dataset_label: str = "the dataset's own bias") -> list[str]:
     """Plain sentences: what the validation checked, and what it did not (the IMU intrinsics: as
-    ``recovery``, ``recovery.json``'s data, says the recovery ran)."""
+    ``recovery``, ``recovery.json``'s data, says the recovery ran; the DATASET source named ``dataset_label``)."""
     ref, cfg, dropped = (validation.get(k) if isinstance(validation.get(k), dict) else {}
                          for k in ("reference", "config", "windows_dropped"))
     kept = dropped.get("kept", "?")
@@ -133,7 +134,7 @@ def checked_and_not(validation: dict[str, Any], recovery: Mapping[str, Any] | No
     return [
         f"Checked: {kept} integrations of {fmt(num(cfg, 'window_s') or 1.0, 3)} s of the IMU minus the bias, each "
         f"from and against {against}; end-point position and rotation errors (PRMSE, ROE) compared with "
-        + " and ".join({"constant_first_window": "a constant bias", "dataset": "the dataset's own bias"}[k]
+        + " and ".join({"constant_first_window": "a constant bias", "dataset": dataset_label}[k]
                        for k in baselines) + ".",
         "Independent reference: " + ("yes." if independent else "no, the reference is what the bias was fitted "
                                                                   "to (pose errors absorbed by the bias are not seen)."),
@@ -191,7 +192,8 @@ def verdict_section(inp: ReportInputs) -> Html:
             body.append(p("What to do next:"))
             body.append(ul(steps))
         body.append(p("What was checked:"))
-        body.append(ul(checked_and_not(inp.validation, inp.recovery.data if inp.recovery is not None else None)))
+        body.append(ul(checked_and_not(inp.validation, inp.recovery.data if inp.recovery is not None else None,
+                                       dataset_bias_label(inp.sequence))))
     else:
         where = inp.validation_dir if inp.validation_dir is not None else "(not given)"
         body.append(p(f"Looked for the validation output in {where}. Run the validation stage to get a verdict; "

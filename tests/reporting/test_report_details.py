@@ -47,6 +47,11 @@ def test_numbers_read_with_sensible_precision_and_units() -> None:
     assert reference_words({"kind": "poses", "stream": "vicon0"}) == "the pose stream 'vicon0' (kind 'poses')"
     assert scale_words(10.2) == "10.2× the calibration's (larger than calibrated)"
     assert scale_words(1.0) == "1× the calibration's (as calibrated)"
+    from reports.quality_calibration import _vec_to
+
+    # the extrinsic in mm beside its sigma in mm, no more digits than the sigma allows
+    assert _vec_to([-0.0006543, 0.0002009, 0.0009333], [0.0007, 0.00065, 0.00092], 1e3) == "[-0.7, 0.2, 0.9]"
+    assert _vec_to([0.1, 0.2, 0.3], None, 1e3) == "[100, 200, 300]"
 
 
 def test_the_intrinsics_clause_says_not_checked_once() -> None:
