@@ -50,7 +50,7 @@ def test_numbers_read_with_sensible_precision_and_units() -> None:
     from reports.quality_calibration import _vec_to
 
     # the extrinsic in mm beside its sigma in mm, no more digits than the sigma allows
-    assert _vec_to([-0.0006543, 0.0002009, 0.0009333], [0.0007, 0.00065, 0.00092], 1e3) == "[-0.7, 0.2, 0.9]"
+    assert _vec_to([-0.0006543, 0.0002009, 0.0009333], [0.0007, 0.00065, 0.00092], 1e3) == "[-0.65, 0.20, 0.93]"
     assert _vec_to([0.1, 0.2, 0.3], None, 1e3) == "[100, 200, 300]"
 
 
