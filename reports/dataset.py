@@ -75,7 +75,7 @@ EXTRA_CSS = ("table.sortable th{cursor:pointer}table.sortable th[data-dir=asc]::
              "font-weight:700}td.WARN{background:#fff6e0;color:#9a6b00;font-weight:700}td.FAIL{background:#fdecec;"
              "color:#a4231f;font-weight:700}.flag{color:#a4231f;font-weight:700}"
              "table.glance{width:100%;font-size:.88em}table.glance td.reason{min-width:14em}"
-             "table.glance td.num{white-space:nowrap}"
+             "td.num span{white-space:nowrap}"
              "td.why{color:#5b6672;font-style:italic}tr.oracle td{font-style:italic;color:#4b5661}"
              ".counts{font-size:1.15em}.count-PASS{color:#1e7a43;font-weight:700}.count-WARN{color:#9a6b00;"
              "font-weight:700}.count-FAIL{color:#a4231f;font-weight:700}code.rule{font-size:.85em}")
@@ -138,7 +138,9 @@ def _metric_cell(r: SequenceRow, label: str) -> Html:
             return _why("not validated")
         return _why("not run" if label in ("held-out", "dataset's", "constant") else "n/a")
     mm = None if prmse is None else 1e3 * prmse
-    return _cell(f"{fmt(mm, 3)} mm / {fmt(roe, 3)}°", "" if prmse is None else prmse, class_="num")
+    # each figure unbroken; the cell wraps between them, at " / ", when the column is narrow
+    text = Html(tag("span", f"{fmt(mm, 3)} mm") + " / " + tag("span", f"{fmt(roe, 3)}°"))
+    return _cell(text, "" if prmse is None else prmse, class_="num")
 
 
 def _windows_cell(r: SequenceRow, manifest: bool) -> Html:

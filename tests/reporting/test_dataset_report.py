@@ -33,8 +33,8 @@ def _validation(verdict: str, reasons: list[str], *, reference: dict, heldout: b
 
 
 def _recovery(stream: str, offset_s: float, offset_std_s: float, gyro_scale: float, *, diff: dict | None = None,
-              outliers: int = 0, keyframes: int = 100) -> dict:
-    return {"pose_stream": stream, "pose_source_kind": "mocap", "pose_time_offset_s": offset_s,
+              outliers: int = 0, keyframes: int = 100, kind: str = "mocap") -> dict:
+    return {"pose_stream": stream, "pose_source_kind": kind, "pose_time_offset_s": offset_s,
             "pose_time_offset_std_s": offset_std_s,
             "T_imu_pose": {"p_m": [0, 0, 0], "quat_wxyz": [1, 0, 0, 0]},
             "extrinsic": {"difference_from_calibration": diff} if diff else {"mode": "estimate"},
@@ -71,7 +71,7 @@ def results(tmp_path) -> Path:
                                       heldout=True),
            _recovery("vicon0", -0.0104, 0.0012, 100.0, outliers=5), 0.02)
     _write(res, "c_fail", _validation("FAIL", ["worse than a constant bias"], reference=state),
-           _recovery("leica0", 0.0, 0.0, 3.0), 1.0)  # an outlier bias: must not set the figure's scale
+           _recovery("leica0", 0.0, 0.0, 3.0, kind="position_tracker"), 1.0)  # an outlier bias: must not set the figure's scale
     _write(res, "d_none", None, _recovery("vicon0", 0.0, 0.0, 1.0), 0.04)
     manifest = {"format_version": 1, "sequences": {
         "a_pass": {"split": "train", "windows": 40, "candidates": 43, "dropped": {"imu_gap": 1, "outside_recovery": 2}},
