@@ -563,3 +563,23 @@ def test_cli_reference_option_and_its_hint(sim10, tmp_path, capsys):
     assert "has positions only" in err and "--reference m=gt_poses" in err
     assert main([*args, "--reference", "m=gt_poses"]) == 0
     assert read_manifest(tmp_path / "ds").sequences["m"].windows > 10
+
+
+def test_the_validation_of_another_sequence_is_refused(sim10, tmp_path, capsys):
+    """``--validation bad=<good's validation>``: refused naming what it judged, not taken as bad's verdict;
+    a validation of the right store but another recovery is refused too."""
+    good = _validated(tmp_path, _source(tmp_path, sim10, "good", "train"))
+    bad = _validated(tmp_path, _source(tmp_path, _sim(seed=7), "bad", "train"), acc_offset_mps2=0.5)
+    assert main(["windows", "--seq", "bad", "train", str(bad.store_dir), str(bad.recovery_dir),
+                 "--validation", f"bad={good.validation_dir}", "--out", str(tmp_path / "ds")]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    assert err[0].startswith(f"biasgt windows: error: {good.validation_dir / 'validation.json'}: this validation "
+                             f"judged sequence 'good', but sequence 'bad' is cut from store {bad.store_dir}, "
+                             "which holds 'bad'"), err
+    assert not (tmp_path / "ds").exists()
+    # same name, another recovery (bad's store re-recovered after its validation)
+    other = _write_recovery(tmp_path / "rec2" / "bad", _sim(seed=7), every=5)
+    with pytest.raises(ConfigError, match="this validation judged another recovery than the one sequence 'bad'"):
+        build_window_dataset([dataclasses.replace(bad, recovery_dir=other)], tmp_path / "ds")
+    assert not (tmp_path / "ds").exists()

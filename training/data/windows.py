@@ -44,16 +44,16 @@ import yaml
 from pipeline.bias_table import BiasTrack
 from pipeline.errors import ConfigError, DataError, InputFormatError, ValidationError
 from pipeline.ingest import load
-from pipeline.store import is_store, read_store
+from pipeline.store import is_store, read_store, stored_name
 from pipeline.types import NS_PER_S, ImuSeries, Sequence, Split
-from recovery.outputs import REPORT_JSON, RecoveryOutputs
+from recovery.outputs import REPORT_JSON, RecoveryOutputs, bias_sha256
 from validation.metrics import plan_windows, windows_with_any
 from validation.reference import ReferenceStates, build_reference, gap_free_mask
 from validation.sources import recovered_bias_at_imu
 from training.data.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
 from training.data.windows_config import WindowConfig
 from validation.config import ValidationConfig
-from validation.outputs import Verdict, read_summary
+from validation.outputs import VALIDATION_JSON, ValidationSummary, Verdict, read_summary
 
 log = logging.getLogger(__name__)
 
@@ -489,13 +489,38 @@ def verdict_exclusion(source: WindowSource, config: WindowConfig) -> Exclusion |
 
     Raises:
         InputFormatError: ``validation_dir`` given without a readable ``validation.json``.
+        ConfigError: The validation judged another sequence or another recovery (:func:`check_validation_judged`).
     """
     if source.validation_dir is None:
         return None
     summary = read_summary(source.validation_dir)
+    check_validation_judged(source, summary)
     if summary.verdict is Verdict.PASS or (summary.verdict is Verdict.WARN and config.accept_warn):
         return None
     return Exclusion(summary.verdict, summary.reasons[0] if summary.reasons else "no reason given")
+
+
+def check_validation_judged(source: WindowSource, summary: ValidationSummary) -> None:
+    """Refuse a validation that judged another sequence than ``source``'s store holds, or another
+    recovery than ``source.recovery_dir`` (its ``bias.csv`` by SHA-256): its verdict says nothing of it.
+
+    A validation.json from before the recovery's hash was recorded is checked by the name alone.
+
+    Raises:
+        ConfigError: Naming the validation.json, what it judged and the fix.
+    """
+    where = Path(source.validation_dir) / VALIDATION_JSON
+    hint = (f"give the validation of '{source.name}' itself ('biasgt validate' of its store with --recovery "
+            f"{source.recovery_dir}; the workflow's validation/{source.name}), or run it again")
+    held = stored_name(source.store_dir)
+    if held is not None and summary.sequence and summary.sequence != held:
+        raise ConfigError(f"this validation judged sequence '{summary.sequence}', but sequence '{source.name}' "
+                          f"is cut from store {source.store_dir}, which holds '{held}'", path=where, hint=hint)
+    judged = summary.recovery_bias_sha256
+    if judged is not None and judged != bias_sha256(source.recovery_dir):
+        raise ConfigError(f"this validation judged another recovery than the one sequence '{source.name}' is cut "
+                          f"with ({source.recovery_dir}/bias.csv differs from the bias it judged)", path=where,
+                          hint=hint)
 
 
 # ----------------------------------------------------------------------------- splits and results layout
