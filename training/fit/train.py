@@ -163,7 +163,9 @@ def _open_data(config: TrainConfig, dataset_dir: Path) -> _Data:
     info = {"format_version": manifest["format_version"], "window_samples": int(manifest["window_samples"]),
             "rate_hz": manifest.get("rate_hz"), "config_hash": manifest.get("config_hash"),
             "manifest_hash": hashlib.sha256(mpath.read_bytes()).hexdigest()[:16],
-            "train_windows": len(train_ds), "val_windows": len(val_ds)}
+            "train_windows": len(train_ds), "val_windows": len(val_ds),
+            # the sequences the model saw: evaluate refuses a test split that holds one of them
+            "train_sequences": list(train_ds.sequences), "val_sequences": list(val_ds.sequences)}
     from training.context.model import ContextFeeder
 
     feeder = ContextFeeder.for_model(dataset_dir, config.model_config(), normalizer)  # None: no context read
