@@ -7,6 +7,7 @@ the failed rule and its log.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
@@ -21,7 +22,7 @@ from typing import IO
 from pipeline.errors import BiasgtError, ConfigError
 from pipeline.layout import RESULTS_DIR
 from biasgt.workflow.config import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE, config_warnings, load_config
-from biasgt.workflow.process_group import exclusive_lock, start_group, stop_group, workflow_processes
+from biasgt.workflow.process_group import exclusive_lock, guard_parent, start_group, stop_group, workflow_processes
 
 log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'biasgt.workflow'
 
@@ -262,11 +263,25 @@ def check_no_earlier_run(workdir: Path, wait_s: float = ORPHAN_WAIT_S) -> None:
                     _describe(live))
         _, live = psutil.wait_procs(live, timeout=wait_s)
     if live:
-        leader = live[0].pid
+        parent = _live_parent(live)
+        leader = parent or live[0].pid
+        charge = f"for the live 'biasgt run' pid {parent}" if parent else "without a 'biasgt run' in charge"
         raise WorkflowRunError(
-            f"an earlier run's Snakemake still works in {workdir} without a 'biasgt run' in charge: {_describe(live)}",
+            f"an earlier run's Snakemake still works in {workdir} {charge}: {_describe(live)}",
             hint=f"let it finish, or stop it (kill -INT {leader}: it cancels its jobs and removes their incomplete "
                  "outputs) and rerun")
+
+
+def _live_parent(procs: Sequence[object]) -> int | None:
+    """The live ``biasgt run`` a guarded Snakemake among ``procs`` serves, or None."""
+    import psutil
+
+    for p in procs:
+        with contextlib.suppress(psutil.Error):
+            parent = guard_parent(p.cmdline())  # type: ignore[attr-defined]
+            if parent is not None and psutil.pid_exists(parent):
+                return parent
+    return None
 
 
 def _stale_snakemake_lock(workdir: Path) -> bool:

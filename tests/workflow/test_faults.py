@@ -366,6 +366,35 @@ def test_a_live_snakemake_of_an_earlier_run_is_named_and_a_stale_lock_cleared(tm
     assert not locks.exists() or list(locks.iterdir()) == []
 
 
+def test_a_run_in_another_folder_of_the_same_checkout_does_not_count(tmp_path, capsys, monkeypatch):
+    """A Snakemake working in another --directory (same Snakefile, same checkout, started from here) is not
+    an earlier run of this folder; one in this folder whose 'biasgt run' lives is named with that parent."""
+    import biasgt.workflow.run as workflow_run
+
+    monkeypatch.setattr(workflow_run, "ORPHAN_WAIT_S", 0.5)
+    here, other = tmp_path / "checkout", tmp_path / "checkout" / "runs" / "b"
+    other.mkdir(parents=True)
+    sleeper = [sys.executable, "-c", "import time; time.sleep(120)"]
+    snakefile = ["--snakefile", str(here / "Snakefile")]
+    elsewhere = subprocess.Popen([*sleeper, "-m", "snakemake", *snakefile, "--directory", str(other)], cwd=here)
+    try:
+        workflow_run.check_no_earlier_run(here, wait_s=0.0)  # not refused: it works in runs/b
+        served = subprocess.Popen([*sleeper, "-m", "biasgt.workflow.guarded_snakemake", str(os.getpid()), *snakefile,
+                                   "--directory", str(here)], cwd=other)
+        try:
+            rc, err = _run_cli(["run", "--directory", str(here), "--until", "simulate"], capsys)
+            assert rc == 2
+            _one_line_error(err, f"biasgt run: error: an earlier run's Snakemake still works in {here} for the live "
+                                 f"'biasgt run' pid {os.getpid()}: pid {served.pid} (snakemake)")
+            assert str(elsewhere.pid) not in err
+        finally:
+            served.kill()
+            served.wait()
+    finally:
+        elsewhere.kill()
+        elsewhere.wait()
+
+
 # ----------------------------------------------------------------------------- other tracebacks
 
 
