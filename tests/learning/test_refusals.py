@@ -4,6 +4,7 @@ run folder in use by another training)."""
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -55,3 +56,76 @@ def test_evaluate_on_another_rate_names_the_rate(trained, tmp_path, capsys):
     assert line.startswith(f"biasgt evaluate: error: {slow}: IMU rate 100 Hz, the checkpoint was trained at "
                            "200 Hz; re-create the dataset with --resample-hz 200"), line
     assert not (tmp_path / "ev").exists()
+
+
+# ----------------------------------------------------------------------------- full disk, a folder in use
+
+#: What numpy's np.save and torch.save raise on a full disk: a write cut short, no errno.
+NUMPY_SHORT_WRITE = OSError("10854 requested and 2032 written")
+TORCH_SHORT_WRITE = RuntimeError("[enforce fail at inline_container.cc:672] . unexpected pos 606720 vs 606608")
+
+
+def _seq_args(root: Path, *names_splits: tuple[str, str]) -> list[str]:
+    args = []
+    for name, split in names_splits:
+        args += ["--seq", name, split, str(root / "stores" / name), str(root / "rec" / name)]
+    return [*args, "--allow-unvalidated"]
+
+
+@pytest.mark.parametrize("where", ["arrays", "records"])
+def test_windows_on_a_full_disk_is_one_line_and_leaves_nothing(trained, tmp_path, capsys, monkeypatch, where):
+    """np.save cut short (as numpy says it: no errno) while writing the window arrays, or later the sequence
+    records: one line naming the folder, and neither the dataset nor a temporary folder is left."""
+    import numpy as np
+
+    save = np.save
+
+    def full(path, *args, **kwargs):
+        if where == "arrays" or Path(path).parent.parent.name.startswith(".context."):
+            raise NUMPY_SHORT_WRITE
+        return save(path, *args, **kwargs)
+
+    monkeypatch.setattr(np, "save", full)
+    out = tmp_path / "out" / "ds"
+    rc = main(["windows", *_seq_args(trained, ("train0", "train"), ("val0", "val")), "--out", str(out)])
+    assert rc == 2
+    assert _first_error(capsys) == (f"biasgt windows: error: {out}: cannot write the output: no space left on device "
+                                    f"in folder {out.parent} (nothing was written); free some space there (or raise "
+                                    "the quota), or choose another --out")
+    assert list((tmp_path / "out").iterdir()) == []
+
+
+def test_train_on_a_full_disk_is_one_line_and_leaves_no_run_folder(trained, tmp_path, capsys, monkeypatch):
+    """torch.save cut short (torch's RuntimeError, no errno): one line, and the new run folder is gone."""
+    import torch
+
+    def full(*args, **kwargs):
+        raise TORCH_SHORT_WRITE
+
+    monkeypatch.setattr(torch, "save", full)
+    out = tmp_path / "run"
+    rc = main(["train", "--dataset", str(trained / "dataset"), "--method", "regression_rnn", "--preset", "tiny",
+               "--max-steps", "2", "--threads", "1", "--out", str(out)])
+    assert rc == 2
+    line = _first_error(capsys)
+    assert line.startswith(f"biasgt train: error: {out}{os.sep}") and \
+        f"cannot write the output: no space left on device in folder {out} (nothing was written)" in line, line
+    assert not out.exists()
+
+
+def test_a_second_training_into_the_same_folder_is_refused(trained, tmp_path, capsys):
+    """While a training holds the run folder, a second one into it refuses at once; the first one's folder is
+    untouched (here the hold is the first training's own, training.fit.run_folder)."""
+    from training.fit.run_folder import hold_run_folder
+
+    out = tmp_path / "run"
+    argv = ["train", "--dataset", str(trained / "dataset"), "--method", "regression_rnn", "--preset", "tiny",
+            "--max-steps", "2", "--threads", "1", "--out", str(out)]
+    with hold_run_folder(out):
+        (out / "metrics.csv").write_text("step\n")  # the first training's file
+        assert main(argv) == 2
+        assert _first_error(capsys) == (f"biasgt train: error: {out}: the run folder is in use: another training "
+                                        "writes there now; wait for it to finish, or choose another --out")
+        assert [p.name for p in out.iterdir()] == ["metrics.csv"]
+    (out / "metrics.csv").unlink()
+    assert main(argv) == 0 and (out / "run.json").is_file()  # once free, the folder is trained into
