@@ -534,6 +534,48 @@ def test_config_errors_name_the_field_once_and_suggest_the_key(tmp_path, capsys,
     assert "training.training" not in err
 
 
+#: A config with 16 errors of every kind: the schema's, the readers', the entries' and the sections' own.
+SIXTEEN = """\
+sequences:
+  - {name: a, source: simulate, duration_s: -3, seed: 1, split: train}
+  - {name: a, source: simulate, duration_s: 3, seed: 2, split: val}
+  - {name: "bad name!", source: simulate, duration_s: 3, seed: 3}
+  - {name: c, source: asl, path: missing/dir, split: test}
+  - {name: d, source: nosuch, path: x}
+  - {name: e, source: simulate, duration_s: 3, seed: 1, splitt: test}
+training: {seeds: [2.9, -1], preset: huge, threads: a}
+evaluation: {samplers: [nope]}
+windows: {window_s: x}
+recovery: {keyframe_rate_hz: x}
+validation: {margin: [1]}
+interpolation: {method: nope}
+ingest: {gap_factr: 3}
+trainng: {}
+"""
+
+
+def test_a_config_with_sixteen_errors_lists_every_one_in_one_pass(tmp_path, capsys):
+    """Every error at once (one line, numbered), the seeds among them as non-negative integers; then with
+    ``seeds: [x]`` alone, the seeds' own words, never Python's ``int()``."""
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(SIXTEEN)
+    rc, err = _run_cli(["run", "--config", str(cfg), "--directory", str(tmp_path), "--dry-run"], capsys)
+    assert rc == 2
+    _one_line_error(err, f"biasgt run: error: {cfg}: 16 problems: [1] sequences[4].source (sequence 'd'): 'nosuch'")
+    for words in ("unknown key 'trainng'", "unknown key 'gap_factr'", "sequences[0].duration_s", "'bad name!'",
+                  "unknown key 'splitt'", "duplicate sequence name 'a'", "missing/dir does not exist",
+                  "'recovery.keyframe_rate_hz'", "'interpolation.method'", "'validation.margin'", "'windows.window_s'",
+                  "training seeds must be non-negative integers, got 2.9, -1", "'training.preset'",
+                  "'training.threads'", "'nope' is not a valid Sampler"):
+        assert err.count(words) == 1, words
+    cfg.write_text(yaml.safe_dump({"sequences": [{"name": "a", "source": "simulate"}], "training": {"seeds": ["x"]}}))
+    rc, err = _run_cli(["run", "--config", str(cfg), "--directory", str(tmp_path), "--dry-run"], capsys)
+    assert rc == 2
+    _one_line_error(err, f"biasgt run: error: {cfg}: training seeds must be non-negative integers, got 'x' (field "
+                         "'training.seeds'); list whole numbers")
+    assert "int()" not in err
+
+
 # ----------------------------------------------------------------------------- interruptible sampling
 
 
