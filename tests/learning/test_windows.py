@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import pickle
 from pathlib import Path
 
@@ -515,9 +516,13 @@ def test_windows_where_every_verdict_is_fail_is_one_short_line(sim10, tmp_path, 
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1, err
     line = err[0]
-    assert "none of the 4 sequences is usable" in line and "bad0: validation FAIL" in line
-    assert "1 more" in line and str(tmp_path / "val") in line
-    assert "accept_warn" not in line and len(line) < 700, line
+    assert line.startswith(f"biasgt windows: error: {tmp_path / 'val'}: none of the 4 sequences is usable (left out "
+                           "by their validation verdict): bad0: validation FAIL: "), line
+    for s in srcs[:3]:  # the worst three, each with its whole first reason
+        reason = json.loads((s.validation_dir / "validation.json").read_text())["reasons"][0]
+        assert f"{s.name}: validation FAIL: {reason}" in line, line
+    assert "; and 1 more (bad3); the reports say why (" + str(tmp_path / "val" / "<sequence>" / "validation.json") in line
+    assert "accept_warn" not in line and len(line) < 1500, line
     assert not (tmp_path / "ds").exists()
 
 

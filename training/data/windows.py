@@ -448,8 +448,10 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
                                 "not_validated": not_validated})
 
 
-#: Sequences whose reasons the "none is usable" error lists (the worst first); the rest are counted.
+#: Sequences whose reasons the "none is usable" error lists (the worst first); the rest are counted and named
+#: (the first :data:`_NAMES_SHOWN`).
 _REASONS_SHOWN = 3
+_NAMES_SHOWN = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -467,21 +469,26 @@ class Exclusion:
 
 def unusable_error(sources: list[WindowSource], excluded: Mapping[str, Exclusion]) -> ConfigError:
     """One line for a dataset left without a train sequence by the verdicts: how many sequences are usable,
-    the worst reasons (FAIL before WARN, each cut to its first clause) and where the reports are."""
+    the worst few (FAIL before WARN) each with its whole first reason, "and K more" naming the others, and
+    where the validation reports are."""
     everyone = len(excluded) == len(sources)
     train = [s.name for s in sources if s.split is Split.TRAIN]
     head = (f"none of the {len(sources)} sequences is usable" if everyone
             else f"none of the {len(train)} train sequence(s) is usable")
     order = sorted((n for n in excluded if everyone or n in train), key=lambda n: excluded[n].verdict is not Verdict.FAIL)
-    shown = [f"{n}: {excluded[n].text.split(';')[0][:100]}" for n in order[:_REASONS_SHOWN]]
-    more = f"; {len(order) - _REASONS_SHOWN} more" if len(order) > _REASONS_SHOWN else ""
+    shown = [f"{n}: {excluded[n].text}" for n in order[:_REASONS_SHOWN]]
+    rest = order[_REASONS_SHOWN:]
+    names = ", ".join(rest[:_NAMES_SHOWN]) + (", ..." if len(rest) > _NAMES_SHOWN else "")
+    more = f"; and {len(rest)} more ({names})" if rest else ""
     folders = [s.validation_dir for s in sources if s.name in excluded and s.validation_dir is not None]
     where = folders[0] if len(folders) == 1 else Path(os.path.commonpath([str(f) for f in folders]))
     warn = any(excluded[n].verdict is Verdict.WARN for n in order)
+    reports = (f"{where / VALIDATION_JSON}" if len(folders) == 1 else f"{where}{os.sep}<sequence>{os.sep}{VALIDATION_JSON}")
     return ConfigError(f"{head} (left out by their validation verdict): {'; '.join(shown)}{more}",
-                       path=where, hint=("the reports (validation.json, and report.html per sequence) say why; "
-                                         "fix those recordings" + (", or set windows.accept_warn (--accept-warn) "
-                                                                   "to take WARN sequences" if warn else "")))
+                       path=where, hint=(f"the reports say why ({reports}; the workflow's quality report "
+                                         "results/report/<sequence>/report.html); fix those recordings"
+                                         + (", or set windows.accept_warn (--accept-warn) to take WARN sequences"
+                                            if warn else "")))
 
 
 def verdict_exclusion(source: WindowSource, config: WindowConfig) -> Exclusion | None:
