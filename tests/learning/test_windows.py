@@ -588,3 +588,18 @@ def test_the_validation_of_another_sequence_is_refused(sim10, tmp_path, capsys):
     with pytest.raises(ConfigError, match="this validation judged another recovery than the one sequence 'bad'"):
         build_window_dataset([dataclasses.replace(bad, recovery_dir=other)], tmp_path / "ds")
     assert not (tmp_path / "ds").exists()
+
+
+def test_a_recovery_of_another_sequence_is_refused(sim10, tmp_path, capsys):
+    """``--seq a train STORE_a RECOVERY_b``: the recovery names sequence 'b' (recovery.json), the store holds 'a':
+    refused before any window is cut, instead of windows of a's IMU labelled with b's bias."""
+    src = _source(tmp_path, sim10, "a", "train")
+    report = src.recovery_dir / "recovery.json"
+    report.write_text(json.dumps({**json.loads(report.read_text()), "sequence": "b"}))
+    assert main(["windows", "--seq", "a", "train", str(src.store_dir), str(src.recovery_dir), "--allow-unvalidated",
+                 "--out", str(tmp_path / "ds")]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith(
+        f"biasgt windows: error: {report}: this recovery is of sequence 'b', but sequence 'a' is cut from store "
+        f"{src.store_dir}, which holds 'a'"), err
+    assert not (tmp_path / "ds").exists()

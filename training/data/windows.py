@@ -46,7 +46,7 @@ from pipeline.errors import ConfigError, DataError, InputFormatError, Validation
 from pipeline.ingest import load
 from pipeline.store import is_store, read_store, stored_name
 from pipeline.types import NS_PER_S, ImuSeries, Sequence, Split
-from recovery.outputs import REPORT_JSON, RecoveryOutputs, bias_sha256
+from recovery.outputs import REPORT_JSON, RecoveryOutputs, bias_sha256, read_report
 from validation.metrics import plan_windows, windows_with_any
 from validation.reference import ReferenceStates, build_reference, gap_free_mask
 from validation.sources import recovered_bias_at_imu
@@ -419,6 +419,8 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
     sources = list(sources)
     _check_sources(sources)
     for src in sources:
+        check_recovery_of_store(src)
+    for src in sources:
         if not src.split.windowed:
             log.info("%s: split %s, not windowed", src.name, src.split.value)
     sources = [s for s in sources if s.split.windowed]
@@ -505,6 +507,24 @@ def verdict_exclusion(source: WindowSource, config: WindowConfig) -> Exclusion |
     if summary.verdict is Verdict.PASS or (summary.verdict is Verdict.WARN and config.accept_warn):
         return None
     return Exclusion(summary.verdict, summary.reasons[0] if summary.reasons else "no reason given")
+
+
+def check_recovery_of_store(source: WindowSource) -> None:
+    """Refuse a recovery folder whose ``recovery.json`` names another sequence than ``source``'s store holds
+    (its bias is another recording's). Without a name on either side (a store-less input, a recovery
+    written without it) there is nothing to compare.
+
+    Raises:
+        ConfigError: Naming the recovery.json, both names and the fix.
+    """
+    if not source.split.windowed or not (Path(source.recovery_dir) / REPORT_JSON).is_file():
+        return
+    held, recovered = stored_name(source.store_dir), read_report(source.recovery_dir).data.get("sequence")
+    if held is not None and recovered and str(recovered) != held:
+        raise ConfigError(f"this recovery is of sequence '{recovered}', but sequence '{source.name}' is cut from "
+                          f"store {source.store_dir}, which holds '{held}'", path=Path(source.recovery_dir) / REPORT_JSON,
+                          hint=f"give the recovery of '{held}' ('biasgt recover' of that store; the workflow's "
+                               f"recovery/{held})")
 
 
 def check_validation_judged(source: WindowSource, summary: ValidationSummary) -> None:
