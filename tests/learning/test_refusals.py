@@ -129,3 +129,23 @@ def test_a_second_training_into_the_same_folder_is_refused(trained, tmp_path, ca
         assert [p.name for p in out.iterdir()] == ["metrics.csv"]
     (out / "metrics.csv").unlink()
     assert main(argv) == 0 and (out / "run.json").is_file()  # once free, the folder is trained into
+
+
+def test_torchscript_export_on_a_full_disk_is_one_line_not_an_abort(trained, tmp_path, capsys, monkeypatch):
+    """torch's own file writer aborts the process when the disk fills (rc 134, a temporary file left); the
+    export is saved to memory and written by Python, whose ENOSPC is the one line and leaves nothing."""
+    import errno
+
+    write_bytes = Path.write_bytes
+
+    def full(self, data):
+        if self.name.startswith(".m.pt."):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self))
+        return write_bytes(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", full)
+    out = tmp_path / "x" / "m.pt"
+    assert main(["export", "--checkpoint", str(trained / "run"), "--format", "torchscript", "--out", str(out)]) == 2
+    assert _first_error(capsys).startswith(f"biasgt export: error: {out}: cannot write the output: no space left on "
+                                           f"device in folder {out.parent} (nothing was written)")
+    assert list(out.parent.iterdir()) == []
