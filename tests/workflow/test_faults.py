@@ -395,23 +395,29 @@ def test_a_run_in_another_folder_of_the_same_checkout_does_not_count(tmp_path, c
         elsewhere.wait()
 
 
-def test_run_in_a_read_only_folder_is_one_line(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("code", ["EROFS", "ENOSPC"])
+def test_run_in_a_read_only_or_full_folder_is_one_line(tmp_path, capsys, monkeypatch, code):
     """``biasgt run --directory`` (and ``--unlock``) where nothing can be written (EROFS, as a read-only mount
-    says it): one line naming the folder, exit 2."""
+    says it; ENOSPC, a full disk): one line naming the folder, exit 2."""
     import errno
     import tempfile
 
     import biasgt.workflow.run as workflow_run
 
-    def read_only(*args, **kwargs):
-        raise OSError(errno.EROFS, os.strerror(errno.EROFS))
+    number = getattr(errno, code)
 
-    monkeypatch.setattr(tempfile, "mkstemp", read_only)
+    def refused(*args, **kwargs):
+        raise OSError(number, os.strerror(number))
+
+    monkeypatch.setattr(tempfile, "mkstemp", refused)
+    first = (f"biasgt run: error: cannot write in the working directory {tmp_path} (Read-only file system); choose "
+             "a writable --directory" if code == "EROFS" else
+             f"biasgt run: error: {tmp_path / 'results'}: cannot write the output: no space left on device in folder "
+             f"{tmp_path} (nothing was written)")
     for extra in (["--until", "simulate"], ["--unlock"]):
         rc, err = _run_cli(["run", "--directory", str(tmp_path), *extra], capsys)
         assert rc == 2
-        _one_line_error(err, f"biasgt run: error: cannot write in the working directory {tmp_path} (Read-only file "
-                             "system); choose a writable --directory")
+        _one_line_error(err, first)
     assert not (tmp_path / workflow_run.RUN_LOCK).exists()
 
 
