@@ -120,19 +120,20 @@ def table_out_of_date(config_file: str | Path | None, workdir: str | Path) -> st
     """Why Table I (``results/evaluation/table.csv``) is out of date, e.g. "train 5 (parameters changed)",
     or None when it is up to date or absent: Snakemake's dry run of the ``table`` rule under ``config_file``
     lists the jobs it would rerun (after a run stopped short of it: ``--until``, ``--target``)."""
-    import io
+    import subprocess
 
-    from biasgt.workflow.run import run_workflow
-    from pipeline.errors import BiasgtError
+    from biasgt.workflow.config import DEFAULT_CONFIG
+    from biasgt.workflow.run import snakemake_command
 
     if not (Path(workdir) / "results" / "evaluation" / "table.csv").is_file():
         return None
-    plan = io.StringIO()
-    try:
-        run_workflow(config_file=config_file, workdir=workdir, dry_run=True, targets=["table"], echo=plan)
-    except BiasgtError as exc:
-        return f"its inputs could not be checked ({exc.problem})"
-    jobs = dry_run_jobs(plan.getvalue())
+    cmd = snakemake_command(config_file=Path(config_file or DEFAULT_CONFIG), workdir=workdir, dry_run=True,
+                            targets=["table"])
+    done = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
+    if done.returncode != 0:
+        return "its inputs could not be checked (snakemake --dry-run failed)"
+    plan = done.stdout + done.stderr
+    jobs = dry_run_jobs(plan)
     if not jobs:
         return None
     return _rules_text(jobs)
