@@ -568,7 +568,7 @@ def test_a_config_with_sixteen_errors_lists_every_one_in_one_pass(tmp_path, caps
     rc, err = _run_cli(["run", "--config", str(cfg), "--directory", str(tmp_path), "--dry-run"], capsys)
     assert rc == 2
     _one_line_error(err, f"biasgt run: error: {cfg}: 16 problems: [1] sequences[4].source (sequence 'd'): 'nosuch'")
-    for words in ("unknown key 'trainng'", "unknown key 'gap_factr'", "sequences[0].duration_s", "'bad name!'",
+    for words in ("unknown key 'trainng'", "unknown key 'gap_factr'", "sequences[0].duration_s", "is not a valid name",
                   "unknown key 'splitt'", "duplicate sequence name 'a'", "missing/dir does not exist",
                   "'recovery.keyframe_rate_hz'", "'interpolation.method'", "'validation.margin'", "'windows.window_s'",
                   "training seeds must be non-negative integers, got 2.9, -1", "'training.preset'",
