@@ -487,7 +487,7 @@ class Draw:
     steps: int
     seed: int
     backend: SamplingBackend = SamplingBackend.EXACT
-    rows: int = 4096
+    rows: int = 2048
 
 
 @dataclass(frozen=True)
@@ -518,7 +518,7 @@ class EvaluationConfig:
     seed: int = 0
     batch_windows: int = 32
     backend: SamplingBackend = SamplingBackend.EXACT
-    sample_rows: int = 4096
+    sample_rows: int = 2048
     examples: int = 4
     references: tuple[str, ...] = field(default_factory=lambda: reference_names(default_only=True))
     gravity: EvalGravity = EvalGravity.RECOVERED

@@ -22,7 +22,7 @@ denoising step of one sample (``torch.utils.flop_counter``: matrix products and 
 steps x samples, divided by a float32 matrix product's GFLOP/s measured on this core at the start.
 
 Run on one core: ``/work/cpu .venv/bin/python benchmarks/learning/sampling.py [--preset small]
-[--windows 16] [--samples 10] [--steps 25] [--methods ...] [--backends ...] [--rows 4096]``.
+[--windows 16] [--samples 10] [--steps 25] [--methods ...] [--backends ...] [--rows 2048]``.
 """
 
 from __future__ import annotations
@@ -151,7 +151,7 @@ def main() -> int:
     parser.add_argument("--windows", type=int, default=16)
     parser.add_argument("--samples", type=int, default=10)
     parser.add_argument("--steps", type=int, default=25)
-    parser.add_argument("--rows", type=int, default=4096, help="rows (windows x samples) per sampler call")
+    parser.add_argument("--rows", type=int, default=2048, help="rows (windows x samples) per sampler call")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--methods", nargs="+", default=diffusion, choices=diffusion)
     parser.add_argument("--backends", nargs="+", default=[b.value for b in SamplingBackend],
