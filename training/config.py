@@ -65,7 +65,7 @@ class SamplingBackend(str, enum.Enum):
     """
 
     EXACT = "exact"  # float32, eager PyTorch (the default)
-    BF16 = "bf16"  # bfloat16 weights and activations (AMX / AVX512-BF16 matrix units)
+    BF16 = "bf16"  # bfloat16 autocast (AMX / AVX512-BF16 matrix units), compiled by torch.compile
     INT8 = "int8"  # dynamic int8 quantisation of the Linear and GRU layers
     ONNX = "onnx"  # the denoiser exported to ONNX and run by onnxruntime (float32)
 

@@ -16,7 +16,7 @@ initialised weights, one run prints side by side:
   ``torch.inference_mode`` (:meth:`training.models.bias_model.BiasModel.sample`).
 
 Columns: CPU seconds (``time.process_time``, after one warm-up call; a backend's preparation,
-e.g. the ONNX export, is timed apart), windows x samples per CPU-second, the speed-up over
+with a 2-step warm-up run on the same shapes: the ONNX export, the bf16 compilation, is timed apart), windows x samples per CPU-second, the speed-up over
 ``before`` and over ``released``, and the ratio to the compute floor. The floor is the FLOPs of one
 denoising step of one sample (``torch.utils.flop_counter``: matrix products and convolutions) x
 steps x samples, divided by a float32 matrix product's GFLOP/s measured on this core at the start.
@@ -135,7 +135,8 @@ def bench_network(method: str, preset: Preset, windows: int, samples: int, steps
     for backend in backends:
         prep = [None]
         prep_s = _cpu_seconds(lambda: prep.__setitem__(0, prepare_denoiser(model.net, backend)))
-        prep_s += _cpu_seconds(lambda: _chunked(model, small, 1, 2, 1, prep[0], 0))  # warm-up (ONNX: export)
+        # warm-up on the timed run's shapes (ONNX: the export; bf16: the compilation)
+        prep_s += _cpu_seconds(lambda: _chunked(model, batch, samples, 2, per_call, prep[0], 0))
         sec = _cpu_seconds(lambda: _chunked(model, batch, samples, steps, per_call, prep[0], 0))
         runs.append((backend.value, prep_s, sec))
     before, released = runs[1][2], runs[0][2]
