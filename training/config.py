@@ -60,14 +60,12 @@ class SamplingBackend(str, enum.Enum):
     """How a diffusion model's denoiser is run while sampling (:mod:`training.models.backends`).
 
     ``exact`` is PyTorch's float32 eager arithmetic: its samples are the reference, the same for the
-    same seed however the windows are batched. The others change the arithmetic for speed, and their
+    same seed however the windows are batched. ``bf16`` changes the arithmetic for speed, and its
     samples are equal to ``exact``'s in distribution only (tested).
     """
 
     EXACT = "exact"  # float32, eager PyTorch (the default)
     BF16 = "bf16"  # bfloat16 autocast (AMX / AVX512-BF16 matrix units), compiled by torch.compile
-    INT8 = "int8"  # dynamic int8 quantisation of the Linear and GRU layers
-    ONNX = "onnx"  # the denoiser exported to ONNX and run by onnxruntime (float32)
 
 
 class ClipRange(str, enum.Enum):

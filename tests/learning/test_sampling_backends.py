@@ -92,11 +92,12 @@ def test_predictor_samples_do_not_depend_on_the_chunks(method):
 @pytest.mark.parametrize("backend", [b for b in SamplingBackend if b is not SamplingBackend.EXACT])
 @pytest.mark.parametrize("method", DIFFUSION)
 def test_backends_sample_the_exact_distribution(method, backend):
-    """Per channel, the mean and spread of 256 samples per window match float32's (same noise)."""
+    """Per channel, the mean and spread of 200 samples per window match float32's (same noise)."""
     model = _model(method)
     items = _items(model, 2)
-    exact = _predictor(model, method).predict(items, "s", Draw(256, Sampler.DDIM, 10, 0))
-    other = _predictor(model, method).predict(items, "s", Draw(256, Sampler.DDIM, 10, 0, backend))
+    exact = _predictor(model, method).predict(items, "s", Draw(200, Sampler.DDIM, 10, 0))
+    # one window (200 rows) per call: the compiled backend pads them to 256
+    other = _predictor(model, method).predict(items, "s", Draw(200, Sampler.DDIM, 10, 0, backend, rows=300))
     assert other.shape == exact.shape and np.isfinite(other).all()
     spread = exact.std(axis=(1, 2))  # [B, 6]
     assert np.all(np.abs(other.mean(axis=(1, 2)) - exact.mean(axis=(1, 2))) <= 0.05 * spread)
@@ -110,4 +111,4 @@ def test_exact_backend_is_the_networks_own_denoiser_and_unknown_ones_are_refused
         prepare_denoiser(_model("diffusion_rnn").net, "fp8")
     with pytest.raises(ConfigError, match="backend"):
         EvaluationConfig(backend="fp8")
-    assert EvaluationConfig.from_mapping({"backend": "int8"}).draws(True)[0].backend is SamplingBackend.INT8
+    assert EvaluationConfig.from_mapping({"backend": "bf16"}).draws(True)[0].backend is SamplingBackend.BF16

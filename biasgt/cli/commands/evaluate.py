@@ -65,8 +65,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("--steps", type=int, default=d.steps, metavar="N", help=f"denoising steps (default {d.steps})")
     p.add_argument("--seed", type=int, default=d.seed, help=f"seed of the sampling noise (default {d.seed})")
     p.add_argument("--backend", choices=[b.value for b in SamplingBackend], default=d.backend.value,
-                   help="how a diffusion model's denoiser runs: exact (float32, the reference), or bf16, int8, onnx "
-                        f"(faster, samples equal in distribution only) (default {d.backend.value})")
+                   help="how a diffusion model's denoiser runs: exact (float32, the reference), or bf16 (compiled "
+                        f"bfloat16, faster, samples equal in distribution only) (default {d.backend.value})")
     p.add_argument("--gravity", choices=[g.value for g in EvalGravity], default=d.gravity.value,
                    help="gravity of the integration: nominal (0, 0, -9.81), as the paper, or each sequence's "
                         f"recovered one (default {d.gravity.value})")
