@@ -50,15 +50,32 @@ def _type_ok(value: Any, kind: Any) -> bool:
     if kind is str:
         return isinstance(value, str)
     if origin in (list, tuple) or kind in (list, tuple):
-        return isinstance(value, (list, tuple))
+        args = [a for a in typing.get_args(kind) if a is not Ellipsis]
+        item = args[0] if len(args) == 1 else None  # list[X] / tuple[X, ...]: every item an X
+        return isinstance(value, (list, tuple)) and (item is None or all(_type_ok(v, item) for v in value))
     return True  # enums are checked by value; other types by the dataclass
 
 
 def _type_name(kind: Any) -> str:
     if typing.get_origin(kind) in (typing.Union, types.UnionType):
         return " or ".join(_type_name(k) for k in typing.get_args(kind))
+    args = [a for a in typing.get_args(kind) if a is not Ellipsis]
+    if typing.get_origin(kind) in (list, tuple) and len(args) == 1 and args[0] in (int, float, str, bool):
+        return f"a list of {_type_name(args[0]).removeprefix('an ').removeprefix('a ')}s"
     return {type(None): "null", float: "a number", int: "an integer", bool: "true/false", str: "a string"}.get(
         kind, "a list" if typing.get_origin(kind) in (list, tuple) else getattr(kind, "__name__", str(kind)))
+
+
+def several(errors: list[ConfigError]) -> ConfigError:
+    """One :class:`ConfigError` standing for ``errors`` (itself when there is one): its ``errors`` attribute
+    lists them, so that a caller gathering every problem of a config lists each
+    (:func:`biasgt.workflow.config.combine_errors`)."""
+    if len(errors) == 1:
+        return errors[0]
+    out = ConfigError("; ".join(e.problem + (f" (field '{e.field}')" if e.field else "") for e in errors),
+                      field=None, hint=errors[0].hint)
+    out.errors = list(errors)  # type: ignore[attr-defined]
+    return out
 
 
 def dataclass_from_mapping(
@@ -78,6 +95,10 @@ def dataclass_from_mapping(
         field: Config field named in errors (``"check_options"``, a workflow section name).
         also_allowed: Keys the caller handles itself (listed as allowed in the hint).
 
+    A field whose metadata holds ``"check"`` (a function of the value returning a :class:`ConfigError` or
+    None) is checked by it instead of by its type. Every key's error is found in one pass
+    (:func:`several`); the dataclass's own checks run once the keys are fine.
+
     Raises:
         ConfigError: Unknown key (naming it and the allowed ones), a value of the wrong type or not
             one of an enum field's values (listing them), or a value the dataclass rejects.
@@ -88,24 +109,34 @@ def dataclass_from_mapping(
     if unknown:
         raise ConfigError(unknown, field=field, hint=f"allowed: {', '.join(sorted(known | set(also_allowed)))}")
     hints = typing.get_type_hints(cls)
+    checks = {f.name: f.metadata["check"] for f in dataclasses.fields(cls) if "check" in f.metadata}  # type: ignore[arg-type]
+    errors = []  # every key's error at once (combine_errors lists them on one line)
     for key, value in options.items():
         kind = hints.get(key)
-        if isinstance(kind, type) and issubclass(kind, enum.Enum):
+        if key in checks:  # the field's own check (metadata {"check": value -> ConfigError | None}): its words
+            if (problem := checks[key](value)) is not None:
+                errors.append(problem)
+        elif isinstance(kind, type) and issubclass(kind, enum.Enum):
             if not isinstance(value, kind):
                 try:
                     options[key] = kind(value)
                 except ValueError:
-                    raise ConfigError(f"{key} {value!r} is not one of {', '.join(str(m.value) for m in kind)}",
-                                      field=f"{field}.{key}") from None
+                    errors.append(ConfigError(f"{key} {value!r} is not one of "
+                                              f"{', '.join(str(m.value) for m in kind)}", field=f"{field}.{key}"))
         elif kind is not None and not _type_ok(value, kind):
-            raise ConfigError(f"{key} must be {_type_name(kind)}, got {value!r}", field=f"{field}.{key}")
+            errors.append(ConfigError(f"{key} must be {_type_name(kind)}, got {value!r}", field=f"{field}.{key}"))
+    if errors:
+        raise several(errors)
     try:
         return cls(**options)
     except BiasgtError as exc:
         # a field the dataclass already names from the section down ('training.methods') keeps its path
-        inner = exc.field or ""
-        path = field if not inner else inner if inner == field or inner.startswith(f"{field}.") else f"{field}.{inner}"
-        raise ConfigError(exc.problem, field=path, hint=exc.hint) from None
+        def under(e: BiasgtError) -> ConfigError:
+            inner = e.field or ""
+            path = field if not inner else inner if inner == field or inner.startswith(f"{field}.") else f"{field}.{inner}"
+            return ConfigError(e.problem, field=path, hint=e.hint)
+
+        raise several([under(e) for e in getattr(exc, "errors", None) or [exc]]) from None
     except (TypeError, ValueError) as exc:
         raise ConfigError(f"invalid {what}s: {exc}", field=field) from None
 

@@ -96,3 +96,7 @@ class ValidationError(BiasgtError):
 
 class OutputLocationError(BiasgtError):
     """The output path cannot be written (a read-only folder, a parent that is a file)."""
+
+
+class NoSpaceError(OutputLocationError):
+    """The disk (or quota) holding the output is full: the output could not be written."""

@@ -39,6 +39,15 @@ def is_store(path: str | Path) -> bool:
     return (Path(path) / META_FILE).is_file()
 
 
+def stored_name(path: str | Path) -> str | None:
+    """The sequence name in a store's ``sequence.yaml`` (read alone), or None when ``path`` is no readable store."""
+    try:
+        meta = yaml.safe_load((Path(path) / META_FILE).read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError):
+        return None
+    return str(meta["name"]) if isinstance(meta, dict) and meta.get("name") is not None else None
+
+
 def _stream_file_name(stream: str) -> str:
     """A safe file stem for a stream or topic name (``/tf:world->base`` -> ``tf_world-_base``)."""
     stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", stream).strip("_")

@@ -14,6 +14,7 @@ appears complete or not at all, and replaces only these files in an existing fol
 
 from __future__ import annotations
 
+import hashlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -192,6 +193,15 @@ class RecoveryOutputs:
                                        hint="give the folder written by 'biasgt recover --out DIR'")
         return cls(read_bias_csv(folder / BIAS_CSV), read_report(folder), read_trajectory(folder),
                    read_residuals(folder))
+
+
+def bias_sha256(folder: str | Path) -> str | None:
+    """SHA-256 of the recovery folder's ``bias.csv`` (what a validation judged), or None without one."""
+    path = Path(folder) / BIAS_CSV
+    try:
+        return hashlib.sha256(path.read_bytes()).hexdigest()
+    except OSError:
+        return None
 
 
 def _write_bias_csv(path: Path, bias: BiasTrack) -> None:

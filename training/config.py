@@ -377,6 +377,19 @@ class OracleWalk(str, enum.Enum):
     RECOVERY = "recovery"  # those each sequence's recovery used
 
 
+def seeds_error(seeds: Any) -> ConfigError | None:
+    """The error of a ``training.seeds`` value that is not a list of non-negative integers (naming every bad
+    one), or None."""
+    if not isinstance(seeds, (list, tuple)):
+        return ConfigError(f"training seeds must be a list, got {seeds!r}", field="training.seeds",
+                           hint="e.g. seeds: [0, 1, 2]")
+    bad = [s for s in seeds if isinstance(s, bool) or not isinstance(s, int) or s < 0]
+    if not bad:
+        return None
+    return ConfigError(f"training seeds must be non-negative integers, got {', '.join(map(repr, bad))}",
+                       field="training.seeds", hint="list whole numbers 0, 1, 2, ... (e.g. seeds: [0, 1, 2])")
+
+
 @dataclass(frozen=True)
 class TrainingPlan:
     """The workflow's ``training:`` section: which runs to train.
@@ -397,7 +410,7 @@ class TrainingPlan:
     """
 
     methods: tuple[str, ...] = field(default_factory=lambda: network_names(default_only=True))
-    seeds: tuple[int, ...] = (0,)
+    seeds: tuple[int, ...] = field(default=(0,), metadata={"check": seeds_error})
     preset: Preset = Preset.SMALL
     options: Mapping[str, Any] = field(default_factory=dict)
     processes: int = 1
@@ -405,7 +418,9 @@ class TrainingPlan:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "methods", tuple(get_network(m, field="training.methods").name for m in self.methods))
-        object.__setattr__(self, "seeds", tuple(int(s) for s in self.seeds))
+        if (bad := seeds_error(self.seeds)) is not None:
+            raise bad
+        object.__setattr__(self, "seeds", tuple(self.seeds))
         object.__setattr__(self, "preset", Preset(self.preset))
         object.__setattr__(self, "options", dict(self.options))
         reserved = sorted({"method", "seed", "preset"} & set(self.options))

@@ -47,6 +47,8 @@ class ValidationSummary(JsonRecord):
         candidate: Name of the judged bias source.
         notes: What could not be validated, and other remarks.
         next_steps: What to do about a WARN or FAIL.
+        recovery_bias_sha256: SHA-256 of the judged recovery's ``bias.csv`` (None: no recovery judged, or
+            a validation.json written before it was recorded).
     """
 
     data: Mapping[str, Any]
@@ -57,6 +59,7 @@ class ValidationSummary(JsonRecord):
     notes: tuple[str, ...]
     next_steps: tuple[str, ...] = ()
     reason_codes: tuple[str, ...] = ()
+    recovery_bias_sha256: str | None = None
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], path: str | Path | None = None) -> ValidationSummary:
@@ -74,7 +77,8 @@ class ValidationSummary(JsonRecord):
                    reasons=tuple(str(r) for r in data.get("reasons") or ()),
                    candidate=str(data.get("candidate", "")), notes=tuple(str(n) for n in data.get("notes") or ()),
                    next_steps=tuple(str(n) for n in data.get("next_steps") or ()),
-                   reason_codes=tuple(str(c) for c in data.get("reason_codes") or ()))
+                   reason_codes=tuple(str(c) for c in data.get("reason_codes") or ()),
+                   recovery_bias_sha256=data.get("recovery_bias_sha256"))
 
 
 def read_summary(folder: str | Path) -> ValidationSummary:

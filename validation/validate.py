@@ -41,7 +41,7 @@ from pipeline.errors import ValidationError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NS_PER_S, ImuSeries, Sequence
 from pipeline.io.asl import CODE_CALIBRATION_DEFAULTED
 
-from recovery.outputs import SENSOR_YAML, RecoveryOutputs
+from recovery.outputs import SENSOR_YAML, RecoveryOutputs, bias_sha256
 from validation.attitude import reference_attitude_offset
 from validation.config import CrossvalMode, ValidationConfig
 from validation.metrics import (SourceMetrics, WindowPlan, flag_windows, plan_windows, prmse_m, roe_deg, window_end_errors,
@@ -146,6 +146,7 @@ class ValidationResult:
     plausibility: list[dict[str, Any]] = field(default_factory=list)
     reference_attitude: dict[str, Any] | None = None
     reason_codes: list[str] = field(default_factory=list)
+    recovery_bias_sha256: str | None = None
 
     def windows_frame(self) -> pd.DataFrame:
         """Per-window errors: t0_ns, source, pos_err_m, rot_err_deg, flagged."""
@@ -160,6 +161,7 @@ class ValidationResult:
         return {
             "schema_version": SCHEMA_VERSION,
             "sequence": self.sequence,
+            **({} if self.recovery_bias_sha256 is None else {"recovery_bias_sha256": self.recovery_bias_sha256}),
             "verdict": self.verdict.value,
             "reasons": list(self.reasons),
             "reason_codes": list(self.reason_codes),
@@ -523,6 +525,7 @@ def validate_inputs(
         _compare_attitude(result, reference, recovery, gravity)
     if recovery is not None:
         result.notes.append(f"recovery: {recovery_dir}")
+        result.recovery_bias_sha256 = bias_sha256(recovery_dir)  # what windows checks it cuts
     result.notes += reader_warnings(sequence.findings)  # skipped input lines
     return result
 

@@ -15,7 +15,7 @@ import copy
 import difflib
 import importlib.resources
 import re
-from collections.abc import Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -189,7 +189,10 @@ def schema_errors(data: dict[str, Any], schema_file: str | Path = SCHEMA_FILE) -
     errors = list(validator_cls(schema).iter_errors(data))
     # An unknown key is reported only when nothing else is wrong: with an invalid 'source',
     # for example, the source's own keys also look "unevaluated".
-    primary = [e for e in errors if e.validator != "unevaluatedProperties"] or errors
+    # An unknown key of an entry (or section) without another error is reported all the same.
+    others = {tuple(e.absolute_path)[:2] for e in errors if e.validator != "unevaluatedProperties"}
+    primary = [e for e in errors if e.validator != "unevaluatedProperties"
+               or tuple(e.absolute_path)[:2] not in others] or errors
     found: dict[str, str] = {}  # every field once: the most relevant error of each
     for error in sorted(primary, key=lambda e: [str(p) for p in e.absolute_path]):
         where, message = _schema_error_message(jsonschema.exceptions.best_match([error]), data)
@@ -201,6 +204,7 @@ def schema_errors(data: dict[str, Any], schema_file: str | Path = SCHEMA_FILE) -
 def combine_errors(errors: list[ConfigError], config_file: str | Path | None) -> ConfigError:
     """One :class:`ConfigError` for every problem found, on one line: ``N problems: [1] ...; [2] ...``
     (each with its field and hint); a single problem is itself, naming ``config_file``."""
+    errors = [inner for e in errors for inner in (getattr(e, "errors", None) or [e])]  # several (pipeline.configs)
     if len(errors) == 1:
         e = errors[0]
         return ConfigError(e.problem, path=e.path or config_file, line=e.line, field=e.field, hint=e.hint)
@@ -211,11 +215,14 @@ def combine_errors(errors: list[ConfigError], config_file: str | Path | None) ->
             text += f": {e.hint}"
             hints.add(e.hint)
         items.append(f"[{i}] {text}")
-    return ConfigError(f"{len(errors)} problems: " + "; ".join(items), path=config_file)
+    out = ConfigError(f"{len(errors)} problems: " + "; ".join(items), path=config_file)
+    out.errors = errors  # type: ignore[attr-defined]  # a caller gathering more lists each once
+    return out
 
 
 def check_config(
-    data: dict[str, Any], config_file: str | Path | None = None, *, check_paths: bool = True
+    data: dict[str, Any], config_file: str | Path | None = None, *, check_paths: bool = True,
+    skip_entries: Collection[int] = (), skip_sections: Collection[str] = (),
 ) -> WorkflowConfig:
     """Check a schema-valid config for what the schema cannot express and build the table.
 
@@ -228,6 +235,8 @@ def check_config(
         config_file: The config file; relative paths resolve against its folder.
         check_paths: Check that input paths exist (also switched off by the config's
             ``check_input_paths: false``).
+        skip_entries / skip_sections: Sequence entries (indices) and stage sections not to check (the
+            schema already faulted them: :func:`load_config` lists every error at once).
 
     Returns:
         The checked config.
@@ -242,54 +251,66 @@ def check_config(
     entries: list[SequenceEntry] = []
     problems: list[ConfigError] = []
     for i, raw in enumerate(data.get("sequences") or []):
-        try:
-            entries.append(_checked_entry(i, raw, seen, root, config_file, check_paths))
-        except ConfigError as exc:
-            problems.append(exc)
-    problems += section_errors(data, config_file, resolve=True)
+        if i in skip_entries or not isinstance(raw, dict):
+            if isinstance(raw, dict) and isinstance(raw.get("name"), str):
+                seen.setdefault(raw["name"], i)  # a later entry of the same name is still a duplicate
+            continue
+        entry, errors = _checked_entry(i, raw, seen, root, config_file, check_paths)
+        problems += errors
+        if entry is not None:
+            entries.append(entry)
+    sections = section_errors(data, config_file, resolve=True, skip=skip_sections)
+    problems += sections
+    if not sections and not skip_sections:  # the entries' stage settings merge into valid sections: checked in the same pass
+        problems += _stage_setting_errors(WorkflowConfig(data, config_file, tuple(entries)), check_paths)
     if problems:
         raise combine_errors(problems, config_file)
-    cfg = WorkflowConfig(data, config_file, tuple(entries))
+    return WorkflowConfig(data, config_file, tuple(entries))
+
+
+def _stage_setting_errors(cfg: WorkflowConfig, check_paths: bool) -> list[ConfigError]:
+    """Every entry's ingest and stage settings errors (each entry's own sections merged into the config's)."""
+    problems = []
     for entry in cfg.sequences:
         for check in (check_ingest_settings, lambda c, e: check_stage_settings(c, e, check_paths)):
             try:
                 check(cfg, entry)
             except ConfigError as exc:
-                problems.append(exc)
-    if problems:
-        raise combine_errors(problems, config_file)
-    return cfg
+                problems += getattr(exc, "errors", None) or [exc]
+    return problems
 
 
 def _checked_entry(i: int, raw: dict[str, Any], seen: dict[str, int], root: Path, config_file: Path | None,
-                   check_paths: bool) -> SequenceEntry:
-    """The table row of ``sequences[i]`` (its name recorded in ``seen``), checked."""
+                   check_paths: bool) -> tuple[SequenceEntry | None, list[ConfigError]]:
+    """The table row of ``sequences[i]`` (its name recorded in ``seen``), or None, and every error of the entry."""
     name = raw["name"]
     where = f"sequences[{i}] ('{name}')"
+    errors = []
     if not NAME_PATTERN.match(name):  # also enforced by the schema
-        raise ConfigError(f"{where}: invalid sequence name", path=config_file, field="name",
-                          hint="use letters, digits, '_', '.', '-'")
+        errors.append(ConfigError(f"{where}: invalid sequence name", path=config_file, field="name",
+                                  hint="use letters, digits, '_', '.', '-'"))
     if name in seen:
-        raise ConfigError(
-            f"{where}: duplicate sequence name '{name}' (also sequences[{seen[name]}])",
-            path=config_file, field="name", hint="give every sequence a unique name",
-        )
-    seen[name] = i
+        errors.append(ConfigError(f"{where}: duplicate sequence name '{name}' (also sequences[{seen[name]}])",
+                                  path=config_file, field="name", hint="give every sequence a unique name"))
+    seen.setdefault(name, i)
     source = source_kind(raw["source"])  # checked by reader_name_errors
     path = None
     if source == SIMULATE:
-        sim = sim_dict(raw, root, config_file, where)
-        _check_sim_config(sim, config_file, where, check_paths)
+        try:
+            _check_sim_config(sim_dict(raw, root, config_file, where), config_file, where, check_paths)
+        except ConfigError as exc:
+            errors.append(exc)
     else:
         path = resolve_input_path(raw["path"], root)
         extra = [resolve_input_path(p["path"], root) for p in raw.get("poses") or []]
         for field_name, p in [("path", path)] + [(f"poses[{j}].path", e) for j, e in enumerate(extra)]:
             if check_paths and not p.exists():
-                raise ConfigError(
+                errors.append(ConfigError(
                     f"{where}: input path {p} does not exist", path=config_file, field=field_name,
-                    hint=f"fix '{field_name}' (relative paths are resolved against data_root = {root})",
-                )
-    return SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw)
+                    hint=f"fix '{field_name}' (relative paths are resolved against data_root = {root})"))
+    if errors:
+        return None, errors
+    return SequenceEntry(name, source, Split(raw.get("split", "none")), i, path, raw), []
 
 
 def section_errors(data: dict[str, Any], config_file: str | Path | None, *, resolve: bool = False,
@@ -307,9 +328,10 @@ def section_errors(data: dict[str, Any], config_file: str | Path | None, *, reso
         try:
             resolved = resolved_section(section, options)
         except ConfigError as exc:
-            # the field names the section ('training.methods'): no second 'training:' in front
-            prefix = "" if (exc.field or "").startswith(f"{section}.") else f"{section}: "
-            out.append(ConfigError(f"{prefix}{exc.problem}", path=config_file, field=exc.field, hint=exc.hint))
+            for e in getattr(exc, "errors", None) or [exc]:
+                # the field names the section ('training.methods'): no second 'training:' in front
+                prefix = "" if (e.field or "").startswith(f"{section}.") else f"{section}: "
+                out.append(ConfigError(f"{prefix}{e.problem}", path=config_file, field=e.field, hint=e.hint))
             continue
         if resolve:
             data[section] = resolved
@@ -370,9 +392,18 @@ def load_config(path: str | Path, *, check_paths: bool = True) -> WorkflowConfig
     """Read, schema-validate (with defaults) and check a workflow config file."""
     path = Path(path)
     data = read_config_file(path)
-    if isinstance(data, dict) and (errors := schema_errors(data)):
-        # the stage sections' own errors too, all at once (a section the schema already faulted is left out)
-        faulted = {e.problem.split(":")[0].split(".")[0].split("[")[0] for e in errors}
-        raise combine_errors([*errors, *section_errors(copy.deepcopy(data), path, skip=faulted)], path)
+    if isinstance(data, dict) and (errors := reader_name_errors(data, path) + schema_errors(data)):
+        # every error in one pass: beside the schema's, those of check_config in the stage sections and
+        # sequence entries the schema found nothing wrong with
+        faulted = {e.problem.split(":")[0] for e in errors}
+        sections = {w.split(".")[0] for w in faulted} & set(STAGE_CONFIGS)
+        entries = {int(m.group(1)) for w in faulted if (m := re.match(r"sequences\[(\d+)\]", w))}
+        if not any(w == "sequences" for w in faulted):
+            try:
+                check_config(copy.deepcopy(data), path, check_paths=check_paths, skip_entries=entries,
+                             skip_sections=sections)
+            except ConfigError as exc:
+                errors += getattr(exc, "errors", None) or [exc]
+        raise combine_errors(errors, path)
     validate_schema(data, config_file=path)
     return check_config(data, path, check_paths=check_paths)

@@ -154,10 +154,34 @@ def _is_snakemake(cmdline: Sequence[str]) -> bool:
                or f"{os.sep}.snakemake{os.sep}" in part for part in cmdline)
 
 
+def working_directory(cmdline: Sequence[str], cwd: str) -> str:
+    """The folder a Snakemake process or job works in: Snakemake's ``--directory``/``-d`` (relative to its
+    ``cwd``), else the workdir of a job's script under ``WORKDIR/.snakemake/``, else ``cwd``. The
+    Snakefile's path says nothing of it (every run from one checkout shares it)."""
+    for i, part in enumerate(cmdline):
+        value = (cmdline[i + 1] if part in ("--directory", "-d") and i + 1 < len(cmdline)
+                 else part.partition("=")[2] if part.startswith("--directory=") else None)
+        if value:
+            return os.path.normpath(os.path.join(cwd, value))
+    marker = f"{os.sep}.snakemake{os.sep}"
+    for part in cmdline:
+        if marker in part:
+            return os.path.normpath(part.split(marker, 1)[0])
+    return cwd
+
+
+def guard_parent(cmdline: Sequence[str]) -> int | None:
+    """The ``biasgt run`` pid a guarded Snakemake (:mod:`biasgt.workflow.guarded_snakemake`) serves, or None."""
+    for i, part in enumerate(cmdline[:-1]):
+        if part.endswith("guarded_snakemake") and cmdline[i + 1].isdigit():
+            return int(cmdline[i + 1])
+    return None
+
+
 def workflow_processes(workdir: str | Path) -> list[psutil.Process]:
     """The Snakemake processes and jobs of this machine (other than this process) that work in
-    ``workdir``: the command line names ``workdir`` (Snakemake's ``--directory``, a job's script
-    under ``workdir/.snakemake``) or the process runs there.
+    ``workdir`` (:func:`working_directory`): those of runs in other folders do not count, even from
+    the same checkout.
 
     Sorted by start time (Snakemake before its jobs).
     """
@@ -168,8 +192,6 @@ def workflow_processes(workdir: str | Path) -> list[psutil.Process]:
             continue
         with contextlib.suppress(psutil.Error):
             cmdline = p.info["cmdline"] or []
-            if not _is_snakemake(cmdline):
-                continue
-            if any(part == workdir or part.startswith(workdir + os.sep) for part in cmdline) or p.cwd() == workdir:
+            if _is_snakemake(cmdline) and working_directory(cmdline, p.cwd()) == workdir:
                 found.append(p)
     return sorted(found, key=lambda p: p.info.get("create_time") or 0.0)

@@ -7,21 +7,24 @@ the failed rule and its log.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import re
 import signal
 import subprocess
 import sys
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO
 
 from pipeline.errors import BiasgtError, ConfigError
+from pipeline.files.atomic import no_space_error
 from pipeline.layout import RESULTS_DIR
 from biasgt.workflow.config import DEFAULT_CONFIG, PROFILES_DIR, SNAKEFILE, config_warnings, load_config
-from biasgt.workflow.process_group import exclusive_lock, start_group, stop_group, workflow_processes
+from biasgt.workflow.process_group import exclusive_lock, guard_parent, start_group, stop_group, workflow_processes
 
 log = logging.getLogger(__package__)  # job logs name the workflow glue as one: 'biasgt.workflow'
 
@@ -262,11 +265,45 @@ def check_no_earlier_run(workdir: Path, wait_s: float = ORPHAN_WAIT_S) -> None:
                     _describe(live))
         _, live = psutil.wait_procs(live, timeout=wait_s)
     if live:
-        leader = live[0].pid
+        parent = _live_parent(live)
+        leader = parent or live[0].pid
+        charge = f"for the live 'biasgt run' pid {parent}" if parent else "without a 'biasgt run' in charge"
         raise WorkflowRunError(
-            f"an earlier run's Snakemake still works in {workdir} without a 'biasgt run' in charge: {_describe(live)}",
+            f"an earlier run's Snakemake still works in {workdir} {charge}: {_describe(live)}",
             hint=f"let it finish, or stop it (kill -INT {leader}: it cancels its jobs and removes their incomplete "
                  "outputs) and rerun")
+
+
+def _live_parent(procs: Sequence[object]) -> int | None:
+    """The live ``biasgt run`` a guarded Snakemake among ``procs`` serves, or None."""
+    import psutil
+
+    for p in procs:
+        with contextlib.suppress(psutil.Error):
+            parent = guard_parent(p.cmdline())  # type: ignore[attr-defined]
+            if parent is not None and psutil.pid_exists(parent):
+                return parent
+    return None
+
+
+def check_workdir_writable(workdir: Path) -> None:
+    """Create ``workdir`` when missing and probe it by creating a file (permission bits do not tell on
+    read-only mounts or for root): results/, logs/ and .snakemake/ are written there.
+
+    Raises:
+        NoSpaceError: The disk is full.
+        WorkflowRunError: The folder cannot be created or written (read-only, no permission).
+    """
+    try:
+        workdir.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".biasgt-write-probe.", dir=workdir)
+    except OSError as exc:
+        raise no_space_error(exc, workdir / RESULTS_DIR) or WorkflowRunError(
+            f"cannot write in the working directory {workdir} ({exc.strerror})",
+            hint="choose a writable --directory (results/, logs/ and .snakemake/ go there), or fix its "
+                 "permissions") from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def _stale_snakemake_lock(workdir: Path) -> bool:
@@ -368,7 +405,7 @@ def run_workflow(
         log.warning("%s: %s", config_file, warning)
     cmd = snakemake_command(config_file=config_file, cores=cores, workdir=workdir, dry_run=dry_run,
                             until=until, targets=targets, extra=extra)
-    workdir.mkdir(parents=True, exist_ok=True)
+    check_workdir_writable(workdir)
     echo = echo or sys.stderr
     with exclusive_lock(workdir / RUN_LOCK) as holder:
         if holder is not None and not dry_run:
@@ -407,6 +444,7 @@ def unlock_workflow(*, config_file: str | Path | None = None, workdir: str | Pat
     """
     config_file = Path(config_file or DEFAULT_CONFIG)
     workdir = Path(workdir or Path.cwd()).resolve()
+    check_workdir_writable(workdir)
     with exclusive_lock(workdir / RUN_LOCK) as holder:
         if holder is not None:
             raise WorkflowRunError(f"a 'biasgt run' (pid {holder or 'unknown'}) is running in {workdir}: its lock "

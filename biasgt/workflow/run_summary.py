@@ -53,17 +53,27 @@ def dry_run_jobs(text: str) -> list[tuple[str, list[str]]]:
     return [(rule, reasons or ["other"]) for rule, reasons in jobs if rule != "all"]
 
 
+def _per_rule(jobs: list[tuple[str, list[str]]]) -> tuple[Counter, dict[str, Counter]]:
+    """Jobs per rule, and the reasons per rule."""
+    why: dict[str, Counter] = {}
+    for rule, reasons in jobs:
+        why.setdefault(rule, Counter()).update(reasons)
+    return Counter(rule for rule, _ in jobs), why
+
+
+def _rules_text(jobs: list[tuple[str, list[str]]]) -> str:
+    """``"train 5 (parameters changed); evaluate 12 (after an upstream job)"``."""
+    counts, why = _per_rule(jobs)
+    return "; ".join(f"{rule} {n} ({', '.join(w for w, _ in why[rule].most_common())})" for rule, n in counts.items())
+
+
 def dry_run_summary(text: str) -> str:
     """One line: how many jobs would run, per rule with why (see the module docstring)."""
     jobs = dry_run_jobs(text)
     if not jobs:
         return "dry run: nothing to do, every output is up to date"
-    counts = Counter(rule for rule, _ in jobs)
-    why: dict[str, Counter] = {}
-    for rule, reasons in jobs:
-        why.setdefault(rule, Counter()).update(reasons)
-    parts = [f"{rule} {n} ({', '.join(w for w, _ in why[rule].most_common())})" for rule, n in counts.items()]
-    line = f"dry run: {len(jobs)} jobs would run: " + "; ".join(parts)
+    counts, why = _per_rule(jobs)
+    line = f"dry run: {len(jobs)} jobs would run: " + _rules_text(jobs)
     conditional = [r for r in DATASET_CONTENT_RULES if r in counts
                    and set(why[r]) <= {"after an upstream job", "inputs changed"}]
     if "windows" in counts and conditional:
@@ -106,7 +116,30 @@ def _windows_line(results: Path) -> str | None:
     return f"  windows: {sum(splits.values())} sequences in the dataset ({entered}){left}"
 
 
-def _table_line(results: Path) -> str | None:
+def table_out_of_date(config_file: str | Path | None, workdir: str | Path) -> str | None:
+    """Why Table I (``results/evaluation/table.csv``) is out of date, e.g. "train 5 (parameters changed)",
+    or None when it is up to date or absent: Snakemake's dry run of the ``table`` rule under ``config_file``
+    lists the jobs it would rerun (after a run stopped short of it: ``--until``, ``--target``)."""
+    import subprocess
+
+    from biasgt.workflow.config import DEFAULT_CONFIG
+    from biasgt.workflow.run import snakemake_command
+
+    if not (Path(workdir) / "results" / "evaluation" / "table.csv").is_file():
+        return None
+    cmd = snakemake_command(config_file=Path(config_file or DEFAULT_CONFIG), workdir=workdir, dry_run=True,
+                            targets=["table"])
+    done = subprocess.run(cmd, capture_output=True, text=True, errors="replace")
+    if done.returncode != 0:
+        return "its inputs could not be checked (snakemake --dry-run failed)"
+    plan = done.stdout + done.stderr
+    jobs = dry_run_jobs(plan)
+    if not jobs:
+        return None
+    return _rules_text(jobs)
+
+
+def _table_line(results: Path, stale: str | None = None) -> str | None:
     table = results / "evaluation" / "table.csv"
     if not table.is_file():
         return None
@@ -122,16 +155,22 @@ def _table_line(results: Path) -> str | None:
         return None
     best = min(ranked, key=ranked.get)
     roe = float(avg[f"{best} ROE_deg"])
+    if stale is not None:
+        return (f"  Table I: OUT OF DATE, not shown: the config changed what it is made of ({stale} would rerun); "
+                "'biasgt run' without --until/--target brings it up to date")
     return (f"  Table I: best average {best}: PRMSE {ranked[best]:.4f} m, ROE {roe:.4f} deg "
             f"({len(ranked)} usable rows; results/evaluation/table.md)")
 
 
-def finished_summary(workdir: str | Path) -> list[str]:
+def finished_summary(workdir: str | Path, table_stale: str | None = None) -> list[str]:
     """The end of ``biasgt run``: the verdict per sequence (with the first reason of a WARN or FAIL), what
-    entered the window dataset, Table I's headline and where the reports are; [] when nothing ran."""
+    entered the window dataset, Table I's headline and where the reports are; [] when nothing ran.
+
+    With ``table_stale`` (:func:`table_out_of_date`), Table I's headline is replaced by a line saying it is
+    out of date and why."""
     results = Path(workdir) / "results"
     lines = _verdict_lines(results)
-    for extra in (_windows_line(results), _table_line(results)):
+    for extra in (_windows_line(results), _table_line(results, table_stale)):
         if extra:
             lines.append(extra)
     reports = sorted((results / "report").glob("*/report.html"))

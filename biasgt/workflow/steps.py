@@ -156,8 +156,8 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
         out_dir: The dataset folder.
         settings: :func:`windows_settings`.
     """
-    from training.data.records import write_context
-    from training.data.windows import WindowSource, build_window_dataset  # torch: only in the job of this step
+    from training.data.records import write_window_dataset  # torch: only in the job of this step
+    from training.data.windows import WindowSource
 
     named = list(settings.get("sequences") or [])
     if not (len(named) == len(stores) == len(recoveries) == len(validations)):
@@ -169,8 +169,8 @@ def windows_step(stores: Sequence[str | Path], recoveries: Sequence[str | Path],
     config = stage_config("windows", settings.get("config") or {})
     log.info("cutting windows of %d sequence(s): %s", len(sources),
              ", ".join(f"{s.name} ({s.split})" for s in sources))
-    build_window_dataset(sources, out_dir, config)
-    write_context(out_dir)  # the sequence records: the start_rest / sequence_mean rows, context networks
+    # with its sequence records (the start_rest / sequence_mean rows, context networks), as one
+    write_window_dataset(sources, out_dir, config)
     log.info("wrote %s", out_dir)
     return Path(out_dir)
 

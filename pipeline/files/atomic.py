@@ -11,6 +11,7 @@ import contextlib
 import enum
 import errno
 import os
+import re
 import shutil
 import signal
 import tempfile
@@ -18,29 +19,38 @@ import threading
 from collections.abc import Collection, Iterator
 from pathlib import Path
 
-from pipeline.errors import OutputLocationError
+from pipeline.errors import NoSpaceError, OutputLocationError
 
 
 #: errno values of a full disk and of an exceeded quota.
 NO_SPACE_ERRNOS = frozenset({errno.ENOSPC, errno.EDQUOT})
 
 
-def no_space_error(exc: BaseException, path: str | Path) -> OutputLocationError | None:
+#: What a write cut short says where the library drops the errno: numpy's ``np.save`` ("10854 requested and
+#: 2032 written") and torch's ``torch.save`` ("unexpected pos 606720 vs 606608", "file write failed").
+_SHORT_WRITE = re.compile(r"\d+ requested and \d+ written|unexpected pos \d+ vs \d+|file write failed")
+
+
+def no_space_error(exc: BaseException, path: str | Path) -> NoSpaceError | None:
     """The one-line error for ``exc`` when it says the disk (or quota) holding ``path`` is full, else None.
 
-    Matches ``OSError.errno`` ENOSPC / EDQUOT (also pyarrow's OSError, which carries it) and, for
-    libraries that only put it in the text, "No space left on device" / "Disk quota exceeded".
+    Matches ``OSError.errno`` ENOSPC / EDQUOT (also pyarrow's OSError, which carries it), libraries that
+    only put it in the text ("No space left on device" / "Disk quota exceeded"), and a write cut short
+    without an errno (numpy's OSError, torch's RuntimeError: :data:`_SHORT_WRITE`), which a full disk
+    or quota is what causes.
     """
-    if not isinstance(exc, OSError):
+    if not isinstance(exc, (OSError, RuntimeError, NoSpaceError)):
         return None
-    text = str(exc)
-    quota = exc.errno == errno.EDQUOT or "quota exceeded" in text.lower()
-    if exc.errno not in NO_SPACE_ERRNOS and not quota and "no space left on device" not in text.lower():
+    text = str(exc)  # a NoSpaceError of an inner writer (a temporary path): named again for ``path``
+    errno_ = exc.errno if isinstance(exc, OSError) else errno.ENOSPC if isinstance(exc, NoSpaceError) else None
+    quota = errno_ == errno.EDQUOT or "quota exceeded" in text.lower()
+    short = _SHORT_WRITE.search(text) is not None
+    if errno_ not in NO_SPACE_ERRNOS and not quota and not short and "no space left on device" not in text.lower():
         return None
     folder = Path(path).parent
     what = "disk quota exceeded" if quota else "no space left on device"
-    return OutputLocationError(f"cannot write the output: {what} in folder {folder} (nothing was written)",
-                               path=path, hint="free some space there (or raise the quota), or choose another --out")
+    return NoSpaceError(f"cannot write the output: {what} in folder {folder} (nothing was written)",
+                        path=path, hint="free some space there (or raise the quota), or choose another --out")
 
 
 def umask() -> int:

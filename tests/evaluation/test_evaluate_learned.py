@@ -189,7 +189,7 @@ def test_cli_evaluate_and_bad_inputs(trained, tmp_path, capsys):
         evaluate_run(run, other, tmp_path / "x")
     # another window length (a real 2-s dataset)
     two = make_window_dataset(tmp_path / "two", splits={"train": 1, "test": 1}, duration_s=5.0, window_s=2.0)
-    with pytest.raises(InputFormatError, match="windows of 401 samples, the checkpoint was trained on 201"):
+    with pytest.raises(InputFormatError, match="windows of 401 samples at 200 Hz, the checkpoint was trained on 201"):
         evaluate_run(run, two, tmp_path / "x")
     assert not (tmp_path / "x").exists()
 

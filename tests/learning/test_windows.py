@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import pickle
 from pathlib import Path
 
@@ -515,9 +516,13 @@ def test_windows_where_every_verdict_is_fail_is_one_short_line(sim10, tmp_path, 
     err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
     assert len(err) == 1, err
     line = err[0]
-    assert "none of the 4 sequences is usable" in line and "bad0: validation FAIL" in line
-    assert "1 more" in line and str(tmp_path / "val") in line
-    assert "accept_warn" not in line and len(line) < 700, line
+    assert line.startswith(f"biasgt windows: error: {tmp_path / 'val'}: none of the 4 sequences is usable (left out "
+                           "by their validation verdict): bad0: validation FAIL: "), line
+    for s in srcs[:3]:  # the worst three, each with its whole first reason
+        reason = json.loads((s.validation_dir / "validation.json").read_text())["reasons"][0]
+        assert f"{s.name}: validation FAIL: {reason}" in line, line
+    assert "; and 1 more (bad3); the reports say why (" + str(tmp_path / "val" / "<sequence>" / "validation.json") in line
+    assert "accept_warn" not in line and len(line) < 1500, line
     assert not (tmp_path / "ds").exists()
 
 
@@ -563,3 +568,38 @@ def test_cli_reference_option_and_its_hint(sim10, tmp_path, capsys):
     assert "has positions only" in err and "--reference m=gt_poses" in err
     assert main([*args, "--reference", "m=gt_poses"]) == 0
     assert read_manifest(tmp_path / "ds").sequences["m"].windows > 10
+
+
+def test_the_validation_of_another_sequence_is_refused(sim10, tmp_path, capsys):
+    """``--validation bad=<good's validation>``: refused naming what it judged, not taken as bad's verdict;
+    a validation of the right store but another recovery is refused too."""
+    good = _validated(tmp_path, _source(tmp_path, sim10, "good", "train"))
+    bad = _validated(tmp_path, _source(tmp_path, _sim(seed=7), "bad", "train"), acc_offset_mps2=0.5)
+    assert main(["windows", "--seq", "bad", "train", str(bad.store_dir), str(bad.recovery_dir),
+                 "--validation", f"bad={good.validation_dir}", "--out", str(tmp_path / "ds")]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and "Traceback" not in err[0], err
+    assert err[0].startswith(f"biasgt windows: error: {good.validation_dir / 'validation.json'}: this validation "
+                             f"judged sequence 'good', but sequence 'bad' is cut from store {bad.store_dir}, "
+                             "which holds 'bad'"), err
+    assert not (tmp_path / "ds").exists()
+    # same name, another recovery (bad's store re-recovered after its validation)
+    other = _write_recovery(tmp_path / "rec2" / "bad", _sim(seed=7), every=5)
+    with pytest.raises(ConfigError, match="this validation judged another recovery than the one sequence 'bad'"):
+        build_window_dataset([dataclasses.replace(bad, recovery_dir=other)], tmp_path / "ds")
+    assert not (tmp_path / "ds").exists()
+
+
+def test_a_recovery_of_another_sequence_is_refused(sim10, tmp_path, capsys):
+    """``--seq a train STORE_a RECOVERY_b``: the recovery names sequence 'b' (recovery.json), the store holds 'a':
+    refused before any window is cut, instead of windows of a's IMU labelled with b's bias."""
+    src = _source(tmp_path, sim10, "a", "train")
+    report = src.recovery_dir / "recovery.json"
+    report.write_text(json.dumps({**json.loads(report.read_text()), "sequence": "b"}))
+    assert main(["windows", "--seq", "a", "train", str(src.store_dir), str(src.recovery_dir), "--allow-unvalidated",
+                 "--out", str(tmp_path / "ds")]) == 2
+    err = [ln for ln in capsys.readouterr().err.splitlines() if ln.strip()]
+    assert len(err) == 1 and err[0].startswith(
+        f"biasgt windows: error: {report}: this recovery is of sequence 'b', but sequence 'a' is cut from store "
+        f"{src.store_dir}, which holds 'a'"), err
+    assert not (tmp_path / "ds").exists()

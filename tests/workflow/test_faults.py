@@ -366,6 +366,61 @@ def test_a_live_snakemake_of_an_earlier_run_is_named_and_a_stale_lock_cleared(tm
     assert not locks.exists() or list(locks.iterdir()) == []
 
 
+def test_a_run_in_another_folder_of_the_same_checkout_does_not_count(tmp_path, capsys, monkeypatch):
+    """A Snakemake working in another --directory (same Snakefile, same checkout, started from here) is not
+    an earlier run of this folder; one in this folder whose 'biasgt run' lives is named with that parent."""
+    import biasgt.workflow.run as workflow_run
+
+    monkeypatch.setattr(workflow_run, "ORPHAN_WAIT_S", 0.5)
+    here, other = tmp_path / "checkout", tmp_path / "checkout" / "runs" / "b"
+    other.mkdir(parents=True)
+    sleeper = [sys.executable, "-c", "import time; time.sleep(120)"]
+    snakefile = ["--snakefile", str(here / "Snakefile")]
+    elsewhere = subprocess.Popen([*sleeper, "-m", "snakemake", *snakefile, "--directory", str(other)], cwd=here)
+    try:
+        workflow_run.check_no_earlier_run(here, wait_s=0.0)  # not refused: it works in runs/b
+        served = subprocess.Popen([*sleeper, "-m", "biasgt.workflow.guarded_snakemake", str(os.getpid()), *snakefile,
+                                   "--directory", str(here)], cwd=other)
+        try:
+            rc, err = _run_cli(["run", "--directory", str(here), "--until", "simulate"], capsys)
+            assert rc == 2
+            _one_line_error(err, f"biasgt run: error: an earlier run's Snakemake still works in {here} for the live "
+                                 f"'biasgt run' pid {os.getpid()}: pid {served.pid} (snakemake)")
+            assert str(elsewhere.pid) not in err
+        finally:
+            served.kill()
+            served.wait()
+    finally:
+        elsewhere.kill()
+        elsewhere.wait()
+
+
+@pytest.mark.parametrize("code", ["EROFS", "ENOSPC"])
+def test_run_in_a_read_only_or_full_folder_is_one_line(tmp_path, capsys, monkeypatch, code):
+    """``biasgt run --directory`` (and ``--unlock``) where nothing can be written (EROFS, as a read-only mount
+    says it; ENOSPC, a full disk): one line naming the folder, exit 2."""
+    import errno
+    import tempfile
+
+    import biasgt.workflow.run as workflow_run
+
+    number = getattr(errno, code)
+
+    def refused(*args, **kwargs):
+        raise OSError(number, os.strerror(number))
+
+    monkeypatch.setattr(tempfile, "mkstemp", refused)
+    first = (f"biasgt run: error: cannot write in the working directory {tmp_path} (Read-only file system); choose "
+             "a writable --directory" if code == "EROFS" else
+             f"biasgt run: error: {tmp_path / 'results'}: cannot write the output: no space left on device in folder "
+             f"{tmp_path} (nothing was written)")
+    for extra in (["--until", "simulate"], ["--unlock"]):
+        rc, err = _run_cli(["run", "--directory", str(tmp_path), *extra], capsys)
+        assert rc == 2
+        _one_line_error(err, first)
+    assert not (tmp_path / workflow_run.RUN_LOCK).exists()
+
+
 # ----------------------------------------------------------------------------- other tracebacks
 
 
@@ -483,6 +538,48 @@ def test_config_errors_name_the_field_once_and_suggest_the_key(tmp_path, capsys,
     assert rc == 2
     _one_line_error(err, *words)
     assert "training.training" not in err
+
+
+#: A config with 16 errors of every kind: the schema's, the readers', the entries' and the sections' own.
+SIXTEEN = """\
+sequences:
+  - {name: a, source: simulate, duration_s: -3, seed: 1, split: train}
+  - {name: a, source: simulate, duration_s: 3, seed: 2, split: val}
+  - {name: "bad name!", source: simulate, duration_s: 3, seed: 3}
+  - {name: c, source: asl, path: missing/dir, split: test}
+  - {name: d, source: nosuch, path: x}
+  - {name: e, source: simulate, duration_s: 3, seed: 1, splitt: test}
+training: {seeds: [2.9, -1], preset: huge, threads: a}
+evaluation: {samplers: [nope]}
+windows: {window_s: x}
+recovery: {keyframe_rate_hz: x}
+validation: {margin: [1]}
+interpolation: {method: nope}
+ingest: {gap_factr: 3}
+trainng: {}
+"""
+
+
+def test_a_config_with_sixteen_errors_lists_every_one_in_one_pass(tmp_path, capsys):
+    """Every error at once (one line, numbered), the seeds among them as non-negative integers; then with
+    ``seeds: [x]`` alone, the seeds' own words, never Python's ``int()``."""
+    cfg = tmp_path / "cfg.yaml"
+    cfg.write_text(SIXTEEN)
+    rc, err = _run_cli(["run", "--config", str(cfg), "--directory", str(tmp_path), "--dry-run"], capsys)
+    assert rc == 2
+    _one_line_error(err, f"biasgt run: error: {cfg}: 16 problems: [1] sequences[4].source (sequence 'd'): 'nosuch'")
+    for words in ("unknown key 'trainng'", "unknown key 'gap_factr'", "sequences[0].duration_s", "is not a valid name",
+                  "unknown key 'splitt'", "duplicate sequence name 'a'", "missing/dir does not exist",
+                  "'recovery.keyframe_rate_hz'", "'interpolation.method'", "'validation.margin'", "'windows.window_s'",
+                  "training seeds must be non-negative integers, got 2.9, -1", "'training.preset'",
+                  "'training.threads'", "'nope' is not a valid Sampler"):
+        assert err.count(words) == 1, words
+    cfg.write_text(yaml.safe_dump({"sequences": [{"name": "a", "source": "simulate"}], "training": {"seeds": ["x"]}}))
+    rc, err = _run_cli(["run", "--config", str(cfg), "--directory", str(tmp_path), "--dry-run"], capsys)
+    assert rc == 2
+    _one_line_error(err, f"biasgt run: error: {cfg}: training seeds must be non-negative integers, got 'x' (field "
+                         "'training.seeds'); list whole numbers")
+    assert "int()" not in err
 
 
 # ----------------------------------------------------------------------------- interruptible sampling

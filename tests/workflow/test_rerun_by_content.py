@@ -82,3 +82,23 @@ def test_dry_run_ends_with_one_line(learned: Path, capsys) -> None:
                  "results/evaluation/zero"]) == 0
     out = capsys.readouterr().out.strip().splitlines()
     assert len(out) == 1 and out[0].startswith("dry run: 5 jobs would run: validate 3 (parameters changed)")
+
+
+def test_a_table_behind_the_config_is_marked_out_of_date(learned: Path, capsys) -> None:
+    """``biasgt run --until ingest`` after the training section changed: Table I is not shown as a result but
+    marked out of date, naming what would rerun; under the config it was made with, its headline shows."""
+    base = _config(learned / "table.yaml")
+    assert main(["run", "--config", str(base), "--directory", str(learned), "--target", "table"]) == 0
+    capsys.readouterr()
+    changed = _config(learned / "steps.yaml", training={"methods": ["diffusion_rnn", "regression_rnn"], "seeds": [0],
+                                                         "preset": "tiny", "options": {"max_steps": 3, "batch_size": 8,
+                                                                                       "val_every": 2, "warmup_steps": 1,
+                                                                                       "checkpoint_every": 2}})
+    assert main(["run", "--config", str(changed), "--directory", str(learned), "--until", "ingest"]) == 0
+    table = [ln for ln in capsys.readouterr().out.splitlines() if "Table I" in ln]
+    assert table == ["  Table I: OUT OF DATE, not shown: the config changed what it is made of (train 2 (parameters "
+                     "changed); evaluate 2 (after an upstream job); table 1 (after an upstream job) would rerun); "
+                     "'biasgt run' without --until/--target brings it up to date"], table
+    assert main(["run", "--config", str(base), "--directory", str(learned), "--until", "ingest"]) == 0
+    table = [ln for ln in capsys.readouterr().out.splitlines() if "Table I" in ln]
+    assert len(table) == 1 and table[0].startswith("  Table I: best average "), table

@@ -39,13 +39,13 @@ from pipeline.files.atomic import atomic_dir
 from pipeline.errors import DataError, InputFormatError
 from pipeline.ingest import load
 from pipeline.store import is_store, read_store
-from training.data.dataset import read_manifest
-from training.data.windows import resample_imu
+from training.data.dataset import WindowManifest, read_manifest
+from training.data.windows import WindowConfig, WindowSource, build_window_dataset, resample_imu
 
 log = logging.getLogger(__name__)
 
 __all__ = ["CONTEXT_DIR", "RestConfig", "SequenceContext", "detect_rests", "has_context", "open_context",
-           "write_context"]
+           "write_context", "write_window_dataset"]
 
 #: Folder of the sequence records inside a window dataset.
 CONTEXT_DIR = "context"
@@ -221,6 +221,22 @@ def _store_dir(info: dict, dataset_dir: Path, base_dir: Path | None, name: str) 
             return cand
     raise InputFormatError(f"the store of '{name}' ({rel}) is not found", path=dataset_dir / "manifest.json",
                            hint="pass base_dir, the folder the workflow ran in (results/ lies under it)")
+
+
+def write_window_dataset(sources: list[WindowSource], out_dir: str | Path,
+                         config: WindowConfig = WindowConfig()) -> WindowManifest:
+    """The window dataset (:func:`training.data.windows.build_window_dataset`) and its sequence records
+    (:func:`write_context`), written as one: both land in a temporary sibling renamed onto ``out_dir`` once
+    complete, so a failure in either (a full disk, a store gone) leaves ``out_dir`` as it was.
+
+    Returns:
+        The manifest.
+    """
+    out_dir = Path(out_dir)
+    with atomic_dir(out_dir) as tmp:
+        manifest = build_window_dataset(sources, tmp, config)
+        write_context(tmp)
+    return manifest
 
 
 def write_context(dataset_dir: str | Path, base_dir: str | Path | None = None) -> Path:

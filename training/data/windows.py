@@ -44,16 +44,16 @@ import yaml
 from pipeline.bias_table import BiasTrack
 from pipeline.errors import ConfigError, DataError, InputFormatError, ValidationError
 from pipeline.ingest import load
-from pipeline.store import is_store, read_store
+from pipeline.store import is_store, read_store, stored_name
 from pipeline.types import NS_PER_S, ImuSeries, Sequence, Split
-from recovery.outputs import REPORT_JSON, RecoveryOutputs
+from recovery.outputs import REPORT_JSON, RecoveryOutputs, bias_sha256, read_report
 from validation.metrics import plan_windows, windows_with_any
 from validation.reference import ReferenceStates, build_reference, gap_free_mask
 from validation.sources import recovered_bias_at_imu
 from training.data.dataset import ARRAYS, STATE_BIAS, TEMPERATURE, SequenceWindows, WindowManifest, write_dataset
 from training.data.windows_config import WindowConfig
 from validation.config import ValidationConfig
-from validation.outputs import Verdict, read_summary
+from validation.outputs import VALIDATION_JSON, ValidationSummary, Verdict, read_summary
 
 log = logging.getLogger(__name__)
 
@@ -419,6 +419,8 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
     sources = list(sources)
     _check_sources(sources)
     for src in sources:
+        check_recovery_of_store(src)
+    for src in sources:
         if not src.split.windowed:
             log.info("%s: split %s, not windowed", src.name, src.split.value)
     sources = [s for s in sources if s.split.windowed]
@@ -448,8 +450,10 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
                                 "not_validated": not_validated})
 
 
-#: Sequences whose reasons the "none is usable" error lists (the worst first); the rest are counted.
+#: Sequences whose reasons the "none is usable" error lists (the worst first); the rest are counted and named
+#: (the first :data:`_NAMES_SHOWN`).
 _REASONS_SHOWN = 3
+_NAMES_SHOWN = 10
 
 
 @dataclasses.dataclass(frozen=True)
@@ -467,21 +471,26 @@ class Exclusion:
 
 def unusable_error(sources: list[WindowSource], excluded: Mapping[str, Exclusion]) -> ConfigError:
     """One line for a dataset left without a train sequence by the verdicts: how many sequences are usable,
-    the worst reasons (FAIL before WARN, each cut to its first clause) and where the reports are."""
+    the worst few (FAIL before WARN) each with its whole first reason, "and K more" naming the others, and
+    where the validation reports are."""
     everyone = len(excluded) == len(sources)
     train = [s.name for s in sources if s.split is Split.TRAIN]
     head = (f"none of the {len(sources)} sequences is usable" if everyone
             else f"none of the {len(train)} train sequence(s) is usable")
     order = sorted((n for n in excluded if everyone or n in train), key=lambda n: excluded[n].verdict is not Verdict.FAIL)
-    shown = [f"{n}: {excluded[n].text.split(';')[0][:100]}" for n in order[:_REASONS_SHOWN]]
-    more = f"; {len(order) - _REASONS_SHOWN} more" if len(order) > _REASONS_SHOWN else ""
+    shown = [f"{n}: {excluded[n].text}" for n in order[:_REASONS_SHOWN]]
+    rest = order[_REASONS_SHOWN:]
+    names = ", ".join(rest[:_NAMES_SHOWN]) + (", ..." if len(rest) > _NAMES_SHOWN else "")
+    more = f"; and {len(rest)} more ({names})" if rest else ""
     folders = [s.validation_dir for s in sources if s.name in excluded and s.validation_dir is not None]
     where = folders[0] if len(folders) == 1 else Path(os.path.commonpath([str(f) for f in folders]))
     warn = any(excluded[n].verdict is Verdict.WARN for n in order)
+    reports = (f"{where / VALIDATION_JSON}" if len(folders) == 1 else f"{where}{os.sep}<sequence>{os.sep}{VALIDATION_JSON}")
     return ConfigError(f"{head} (left out by their validation verdict): {'; '.join(shown)}{more}",
-                       path=where, hint=("the reports (validation.json, and report.html per sequence) say why; "
-                                         "fix those recordings" + (", or set windows.accept_warn (--accept-warn) "
-                                                                   "to take WARN sequences" if warn else "")))
+                       path=where, hint=(f"the reports say why ({reports}; the workflow's quality report "
+                                         "results/report/<sequence>/report.html); fix those recordings"
+                                         + (", or set windows.accept_warn (--accept-warn) to take WARN sequences"
+                                            if warn else "")))
 
 
 def verdict_exclusion(source: WindowSource, config: WindowConfig) -> Exclusion | None:
@@ -489,13 +498,56 @@ def verdict_exclusion(source: WindowSource, config: WindowConfig) -> Exclusion |
 
     Raises:
         InputFormatError: ``validation_dir`` given without a readable ``validation.json``.
+        ConfigError: The validation judged another sequence or another recovery (:func:`check_validation_judged`).
     """
     if source.validation_dir is None:
         return None
     summary = read_summary(source.validation_dir)
+    check_validation_judged(source, summary)
     if summary.verdict is Verdict.PASS or (summary.verdict is Verdict.WARN and config.accept_warn):
         return None
     return Exclusion(summary.verdict, summary.reasons[0] if summary.reasons else "no reason given")
+
+
+def check_recovery_of_store(source: WindowSource) -> None:
+    """Refuse a recovery folder whose ``recovery.json`` names another sequence than ``source``'s store holds
+    (its bias is another recording's). Without a name on either side (a store-less input, a recovery
+    written without it) there is nothing to compare.
+
+    Raises:
+        ConfigError: Naming the recovery.json, both names and the fix.
+    """
+    if not source.split.windowed or not (Path(source.recovery_dir) / REPORT_JSON).is_file():
+        return
+    held, recovered = stored_name(source.store_dir), read_report(source.recovery_dir).data.get("sequence")
+    if held is not None and recovered and str(recovered) != held:
+        raise ConfigError(f"this recovery is of sequence '{recovered}', but sequence '{source.name}' is cut from "
+                          f"store {source.store_dir}, which holds '{held}'", path=Path(source.recovery_dir) / REPORT_JSON,
+                          hint=f"give the recovery of '{held}' ('biasgt recover' of that store; the workflow's "
+                               f"recovery/{held})")
+
+
+def check_validation_judged(source: WindowSource, summary: ValidationSummary) -> None:
+    """Refuse a validation that judged another sequence than ``source``'s store holds, or another
+    recovery than ``source.recovery_dir`` (its ``bias.csv`` by SHA-256): its verdict says nothing of it.
+
+    A validation.json from before the recovery's hash was recorded is checked by the name alone.
+
+    Raises:
+        ConfigError: Naming the validation.json, what it judged and the fix.
+    """
+    where = Path(source.validation_dir) / VALIDATION_JSON
+    hint = (f"give the validation of '{source.name}' itself ('biasgt validate' of its store with --recovery "
+            f"{source.recovery_dir}; the workflow's validation/{source.name}), or run it again")
+    held = stored_name(source.store_dir)
+    if held is not None and summary.sequence and summary.sequence != held:
+        raise ConfigError(f"this validation judged sequence '{summary.sequence}', but sequence '{source.name}' "
+                          f"is cut from store {source.store_dir}, which holds '{held}'", path=where, hint=hint)
+    judged = summary.recovery_bias_sha256
+    if judged is not None and judged != bias_sha256(source.recovery_dir):
+        raise ConfigError(f"this validation judged another recovery than the one sequence '{source.name}' is cut "
+                          f"with ({source.recovery_dir}/bias.csv differs from the bias it judged)", path=where,
+                          hint=hint)
 
 
 # ----------------------------------------------------------------------------- splits and results layout

@@ -16,6 +16,7 @@ through ``torch.onnx.export`` and is run with onnxruntime (:func:`onnx_session`)
 
 from __future__ import annotations
 
+import io
 import logging
 import warnings
 from pathlib import Path
@@ -97,7 +98,11 @@ def write_export(module: ExportedSampler, example: tuple[torch.Tensor, ...], pat
         # the sampler's clip range and timesteps are constants of the graph, as the tracer warns
         warnings.simplefilter("ignore", torch.jit.TracerWarning)
         if fmt is ExportFormat.TORCHSCRIPT:
-            torch.jit.trace(module, example, check_trace=False).save(str(path))
+            # saved to memory, then written by Python: torch's own file writer aborts the process (a C++
+            # exception in a destructor) when the disk fills, where Python's write raises ENOSPC
+            buffer = io.BytesIO()
+            torch.jit.save(torch.jit.trace(module, example, check_trace=False), buffer)
+            Path(path).write_bytes(buffer.getvalue())
             return
         try:
             import onnx  # noqa: F401

@@ -326,12 +326,17 @@ def evaluate_reference(reference: str, dataset_dir: str | Path, out_dir: str | P
     return result
 
 
-def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method: str | None = None) -> None:
+def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method: str | None = None,
+                     allow_train_overlap: bool = False) -> None:
     """Refuse a checkpoint that does not fit the evaluation dataset (one line naming file and fix).
 
+    The IMU rate is compared before the window length (a window of another rate has another length too:
+    the rate is what to fix). A test sequence the model trained or was validated on (the checkpoint's
+    ``train_sequences`` / ``val_sequences``) is refused unless ``allow_train_overlap``.
+
     Raises:
-        ConfigError: The checkpoint holds another method than ``method``.
-        InputFormatError: Another dataset format version, window length or IMU rate.
+        ConfigError: The checkpoint holds another method than ``method``; a test sequence the model saw.
+        InputFormatError: Another dataset format version, IMU rate or window length.
     """
     checkpoint = Path(getattr(run, "path", checkpoint))  # the .pt file itself
     got = str(run.config.method)
@@ -344,15 +349,31 @@ def check_compatible(run: Any, windows: TestWindows, checkpoint: Path, *, method
         raise InputFormatError(f"the checkpoint was trained on dataset format {trained.get('format_version')}, "
                                f"this version reads {FORMAT_VERSION}", path=checkpoint,
                                hint="re-create the dataset with 'biasgt windows' and retrain")
-    t_w, e_w = trained.get("window_samples"), m.get("window_samples")
-    if t_w is not None and int(t_w) != int(e_w):
-        raise InputFormatError(f"windows of {e_w} samples, the checkpoint was trained on {t_w}",
-                               path=windows.root, hint="cut the evaluation dataset with the training window_s "
-                                                       "('biasgt windows --window-s') or retrain")
     t_r, e_r = trained.get("rate_hz"), m.get("rate_hz")
     if t_r is not None and e_r is not None and abs(float(e_r) / float(t_r) - 1.0) > 0.01:
         raise InputFormatError(f"IMU rate {float(e_r):g} Hz, the checkpoint was trained at {float(t_r):g} Hz",
                                path=windows.root, hint=f"re-create the dataset with --resample-hz {float(t_r):g}")
+    t_w, e_w = trained.get("window_samples"), m.get("window_samples")
+    if t_w is not None and int(t_w) != int(e_w):
+        rate = f" at {float(e_r):g} Hz" if e_r is not None else ""
+        raise InputFormatError(f"windows of {e_w} samples{rate}, the checkpoint was trained on {t_w}",
+                               path=windows.root, hint="cut the evaluation dataset with the training window_s "
+                                                       "('biasgt windows --window-s') or retrain")
+    if not allow_train_overlap:
+        _refuse_seen_sequences(trained, windows, checkpoint)
+
+
+def _refuse_seen_sequences(trained: dict[str, Any], windows: TestWindows, checkpoint: Path) -> None:
+    """Refuse a test split holding a sequence the checkpoint's model trained or was validated on."""
+    test = set(windows.dataset.sequences)
+    for split in ("train", "val"):
+        seen = sorted(test & set(trained.get(f"{split}_sequences") or ()))
+        if seen:
+            which = "trained" if split == "train" else "validated (chose its checkpoint)"
+            raise ConfigError(f"the test split of {windows.root} holds {len(seen)} sequence(s) the model "
+                              f"{which} on: {', '.join(seen)}", path=checkpoint,
+                              hint="evaluate on a dataset whose test sequences the model never saw, or pass "
+                                   "--allow-train-overlap to measure it anyway (not a test result)")
 
 
 def _run_provenance(run: Any, checkpoint: Path) -> dict[str, Any]:
@@ -377,7 +398,7 @@ def _read_json(path: Path) -> dict[str, Any]:
 
 def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str | Path | None = None,
                  config: EvaluationConfig = EvaluationConfig(), *, method: str | None = None,
-                 device: str = "cpu") -> EvaluationResult:
+                 device: str = "cpu", allow_train_overlap: bool = False) -> EvaluationResult:
     """Evaluate a trained run, rebuilt from its checkpoint alone (:func:`training.fit.checkpoint.load_run`).
 
     Args:
@@ -387,6 +408,8 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
         config: Samples, samplers, steps, seed.
         method: Expected method (the workflow's job), checked against the checkpoint.
         device: Torch device of the model.
+        allow_train_overlap: Evaluate even when the test split holds sequences the model trained or
+            was validated on (refused otherwise).
 
     Raises:
         CheckpointError / ConfigError / InputFormatError / DataError: see :func:`check_compatible`.
@@ -396,7 +419,7 @@ def evaluate_run(checkpoint: str | Path, dataset_dir: str | Path, out_dir: str |
     checkpoint = Path(checkpoint)
     windows = load_test_windows(dataset_dir, config)
     run = load_run(checkpoint, device=device)
-    check_compatible(run, windows, checkpoint, method=method)
+    check_compatible(run, windows, checkpoint, method=method, allow_train_overlap=allow_train_overlap)
     predictor = ModelPredictor(run, context=context_feeder(run, windows.root))
     try:
         result = evaluate_predictor(predictor, windows, config, kind="learned",

@@ -21,6 +21,7 @@ global batch (:class:`BatchOrder` shards it), gradients are averaged by
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import io
@@ -47,6 +48,7 @@ from training.fit.checkpoint import BEST, CHECKPOINT_FORMAT, LAST, METRICS, RUN_
 from training.config import ModelConfig, TrainConfig
 from training.data.dataset import MANIFEST, Split, WindowDataset
 from training.fit.ema import EMA
+from training.fit.run_folder import hold_run_folder
 from training.models.bias_model import BiasModel, build_model, count_parameters
 from training.data.normalizer import Normalizer
 
@@ -163,7 +165,9 @@ def _open_data(config: TrainConfig, dataset_dir: Path) -> _Data:
     info = {"format_version": manifest["format_version"], "window_samples": int(manifest["window_samples"]),
             "rate_hz": manifest.get("rate_hz"), "config_hash": manifest.get("config_hash"),
             "manifest_hash": hashlib.sha256(mpath.read_bytes()).hexdigest()[:16],
-            "train_windows": len(train_ds), "val_windows": len(val_ds)}
+            "train_windows": len(train_ds), "val_windows": len(val_ds),
+            # the sequences the model saw: evaluate refuses a test split that holds one of them
+            "train_sequences": list(train_ds.sequences), "val_sequences": list(val_ds.sequences)}
     from training.context.model import ContextFeeder
 
     feeder = ContextFeeder.for_model(dataset_dir, config.model_config(), normalizer)  # None: no context read
@@ -425,6 +429,8 @@ def train(config: TrainConfig, dataset_dir: str | Path, out_dir: str | Path, *, 
     Raises:
         TrainingError: ``out_dir`` holds a run and ``resume`` is off; resume with other options or
             data; a non-finite loss (the last good checkpoint is kept).
+        OutputLocationError: Another training holds ``out_dir`` (:func:`training.fit.run_folder.hold_run_folder`);
+            the disk is full (:class:`pipeline.errors.NoSpaceError`: a run folder this call created is removed).
         DataError, InputFormatError: Empty train/val split, another dataset format, missing
             normaliser statistics or temperature.
     """
@@ -433,27 +439,34 @@ def train(config: TrainConfig, dataset_dir: str | Path, out_dir: str | Path, *, 
         torch.set_num_threads(config.threads)
     data = _open_data(config, dataset_dir)
     last = out_dir / LAST
-    if last.exists() and not resume:
-        raise TrainingError("the run folder already holds a training run", path=last,
-                            hint="pass --resume to continue it, or choose another --out")
+    _refuse_finished(last, resume)
     rank, world, started = _distributed(config.device)
     if config.batch_size % world:
         raise TrainingError(f"batch_size {config.batch_size} is not divisible by {world} processes",
                             field="batch_size", hint="choose a global batch size divisible by the process count")
     try:
-        trainer = _Trainer(config, data, out_dir, rank, world)
-        if resume and last.exists():
-            trainer.restore(load_checkpoint(last, trainer.device), last)
-            log.info("resuming %s from step %d", out_dir, trainer.run.step)
-        elif resume:
-            log.info("nothing to resume in %s: starting afresh", out_dir)
-        _fit(trainer)
+        # rank 0 writes, and holds the folder: a second training of it is refused (training.fit.run_folder)
+        with hold_run_folder(out_dir) if rank == 0 else contextlib.nullcontext(out_dir):
+            _refuse_finished(last, resume)  # again, now that no other training can write there
+            trainer = _Trainer(config, data, out_dir, rank, world)
+            if resume and last.exists():
+                trainer.restore(load_checkpoint(last, trainer.device), last)
+                log.info("resuming %s from step %d", out_dir, trainer.run.step)
+            elif resume:
+                log.info("nothing to resume in %s: starting afresh", out_dir)
+            _fit(trainer)
     finally:
         if started:
             import torch.distributed as dist
 
             dist.destroy_process_group()
     return out_dir
+
+
+def _refuse_finished(last: Path, resume: bool) -> None:
+    if last.exists() and not resume:
+        raise TrainingError("the run folder already holds a training run", path=last,
+                            hint="pass --resume to continue it, or choose another --out")
 
 
 def _fit(tr: _Trainer) -> None:

@@ -75,6 +75,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         f"paper, or the recovery's (default {d.oracle_random_walk.value})")
     p.add_argument("--method", choices=network_names(), metavar="METHOD",
                    help=f"refuse a checkpoint of another method ({', '.join(network_names())})")
+    p.add_argument("--allow-train-overlap", action="store_true",
+                   help="evaluate even when the test split holds sequences the model trained or was validated on "
+                        "(refused by default: such figures are no test result)")
     p.add_argument("--device", default="cpu", help="torch device (default cpu)")
     p.set_defaults(func=run, out_kind=OutputKind.FOLDER)
 
@@ -90,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         result = evaluate_reference(args.reference, args.dataset, args.out, config)
     else:
         result = evaluate_run(args.checkpoint, args.dataset, args.out, config, method=args.method,
-                              device=args.device)
+                              device=args.device, allow_train_overlap=args.allow_train_overlap)
     s = result.summary
     print(f"{s.label}: {s.windows} test windows, {s.samples} sample(s) per window -> {args.out}")
     for row in s.rows:

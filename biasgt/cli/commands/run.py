@@ -93,7 +93,7 @@ NO_RUN_OPTIONS = ("--list", "-l", "--list-rules", "--list-target-rules", "--summ
 def main(args: argparse.Namespace) -> int:
     import io
 
-    from biasgt.workflow.run_summary import dry_run_summary, finished_summary
+    from biasgt.workflow.run_summary import dry_run_summary, finished_summary, table_out_of_date
 
     if args.unlock or "--unlock" in args.snakemake_args:  # '-- --unlock' too: never read as a finished run
         workdir = unlock_workflow(config_file=args.config, workdir=args.directory)
@@ -130,7 +130,10 @@ def main(args: argparse.Namespace) -> int:
         print(f"reports ({len(reports)}):")
         for path in reports:
             print(f"  {path}")
-    for line in finished_summary(result.workdir):
+    # a run stopped short of Table I (--until, --target, Snakemake options) may leave it behind the config
+    partial = bool(args.until or args.target or args.snakemake_args)
+    stale = table_out_of_date(args.config, result.workdir) if partial else None
+    for line in finished_summary(result.workdir, stale):
         print(line)
     sys.stdout.flush()
     return 0

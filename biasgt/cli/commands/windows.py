@@ -85,10 +85,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from training.data.records import write_context
+    from training.data.records import write_window_dataset
     from training.data.windows import (  # torch: off the CLI start-up path
         WindowSource,
-        build_window_dataset,
         format_summary,
         read_splits_file,
         sources_from_results,
@@ -120,8 +119,7 @@ def run(args: argparse.Namespace) -> int:
                           hint="give --seq NAME SPLIT STORE RECOVERY_DIR or --splits FILE --results DIR")
     if not args.allow_unvalidated:
         _refuse_unvalidated(sources, args.results)
-    manifest = build_window_dataset(sources, args.out, config)
-    write_context(args.out)  # the sequence records (training.data.records)
+    manifest = write_window_dataset(sources, args.out, config)  # with its sequence records, as one
     print(f"{len(manifest.sequences)} sequences, {manifest.window_samples} samples per window "
           f"({config.window_s:g} s at {manifest.rate_hz:g} Hz, overlap {config.overlap:g}), "
           f"config {manifest.config_hash}")
