@@ -96,7 +96,7 @@ def test_backends_sample_the_exact_distribution(method, backend):
     model = _model(method)
     items = _items(model, 2)
     exact = _predictor(model, method).predict(items, "s", Draw(200, Sampler.DDIM, 10, 0))
-    # one window (200 rows) per call: the compiled backend pads them to 256
+    # one window (200 rows) per call: the compiled backend pads them to 208
     other = _predictor(model, method).predict(items, "s", Draw(200, Sampler.DDIM, 10, 0, backend, rows=300))
     assert other.shape == exact.shape and np.isfinite(other).all()
     spread = exact.std(axis=(1, 2))  # [B, 6]

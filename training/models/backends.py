@@ -33,7 +33,7 @@ from training.config import SamplingBackend
 __all__ = ["Denoise", "PAD_ROWS", "prepare_denoiser"]
 
 #: The compiled backend pads a call's rows to a multiple of this (each new shape compiles anew).
-PAD_ROWS = 128
+PAD_ROWS = 16
 
 #: ``(x_t [N, T, 6], t [N] int64, code [N, C]) -> eps [N, T, 6]`` (float32).
 Denoise = Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor]
