@@ -26,6 +26,7 @@ from pipeline.types import Verdict
 from recovery.outputs import BIAS_CSV, read_report
 from training.data.dataset import MANIFEST
 from training.evaluation.table import AVERAGE, TABLE_CSV
+from training.references import get_reference, reference_names
 from validation.outputs import HELDOUT_SOURCE, ValidationSummary, read_summary
 
 log = logging.getLogger(__name__)
@@ -42,7 +43,8 @@ class SequenceRow:
         name: Sequence name.
         split: train / val / test / none, or None when unknown.
         verdict: PASS / WARN / FAIL, or None (not validated).
-        reason: The leading reason of the verdict.
+        reason: The leading reason of the verdict; ``reason_code``: its rule's code ("" when the file has none).
+        next_steps: What the validation says to do about a WARN or FAIL.
         pose_stream / pose_kind: The pose stream the labels (the recovered bias) came from.
         reference: The validation reference, in words; ``independent``: it is not the stream fitted.
         metrics: Source label (``recovered``, ``zero``, ``constant``, ``dataset's``, ``held-out``)
@@ -62,6 +64,8 @@ class SequenceRow:
     split: str | None = None
     verdict: Verdict | None = None
     reason: str = ""
+    reason_code: str = ""
+    next_steps: tuple[str, ...] = ()
     pose_stream: str | None = None
     pose_kind: str | None = None
     reference: str | None = None
@@ -184,6 +188,8 @@ def _fill_validation(row: SequenceRow, folder: Path, inputs: DatasetInputs) -> N
         return
     row.verdict = summary.verdict
     row.reason = summary.reasons[0] if summary.reasons else ""
+    row.reason_code = summary.reason_codes[0] if summary.reasons and summary.reason_codes else ""
+    row.next_steps = tuple(summary.next_steps)
     sources = summary.data.get("sources") or {}
     cand = sources.get(summary.candidate) or {}
     row.metrics["recovered"] = (_num(cand, "prmse_m"), _num(cand, "roe_deg"))
@@ -235,8 +241,18 @@ def _fill_recovery(row: SequenceRow, folder: Path, inputs: DatasetInputs) -> Non
             inputs.problems.append(f"{row.name}: {exc}")
 
 
-def average_rows(table: pd.DataFrame | None) -> list[tuple[str, float, float]]:
-    """Table I's ``Average`` row as ``(method, prmse_m, roe_deg)`` per method, in the table's order."""
+def oracle_labels() -> tuple[str, ...]:
+    """Table I labels of the reference rows that read the ground truth at test time (not ranked)."""
+    return tuple(get_reference(n).label for n in reference_names() if get_reference(n).oracle)
+
+
+def is_oracle(column: str) -> bool:
+    """Whether a Table I column (``<label>`` or ``<label> <variant>``) is an oracle row."""
+    return any(column == label or column.startswith(label + " ") for label in oracle_labels())
+
+
+def average_rows(table: pd.DataFrame | None) -> list[tuple[str, float, float, bool]]:
+    """Table I's ``Average`` row as ``(method, prmse_m, roe_deg, oracle)`` per method, in the table's order."""
     if table is None or AVERAGE not in table.index:
         return []
     avg = table.loc[AVERAGE]
@@ -244,5 +260,5 @@ def average_rows(table: pd.DataFrame | None) -> list[tuple[str, float, float]]:
     for col in table.columns:
         if col.endswith(" PRMSE_m") and f"{col[:-len(' PRMSE_m')]} ROE_deg" in table.columns:
             method = col[:-len(" PRMSE_m")]
-            out.append((method, float(avg[col]), float(avg[f"{method} ROE_deg"])))
+            out.append((method, float(avg[col]), float(avg[f"{method} ROE_deg"]), is_oracle(method)))
     return [r for r in out if np.isfinite(r[1]) or np.isfinite(r[2])]

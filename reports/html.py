@@ -60,7 +60,8 @@ def ul(items: Iterable[Any], class_: str | None = None) -> Html:
 
 def table(headers: Sequence[Any], rows: Iterable[Sequence[Any]], *, class_: str = "data",
           caption: Any = None, numeric_from: int = 1, text_cols: Iterable[int] = ()) -> Html:
-    """A table; cells from column ``numeric_from`` on (except ``text_cols``) are right-aligned (class ``num``)."""
+    """A table in its own sideways-scrolling box (:func:`scroll_box`); cells from column ``numeric_from`` on
+    (except ``text_cols``) are right-aligned (class ``num``)."""
     text = set(text_cols)
     head = tag("tr", join(tag("th", h) for h in headers))
     body = join(
@@ -69,21 +70,43 @@ def table(headers: Sequence[Any], rows: Iterable[Sequence[Any]], *, class_: str 
         for r in rows
     )
     cap = tag("caption", caption) if caption is not None else Html("")
-    return tag("table", Html(cap + tag("thead", head) + tag("tbody", body)), class_=class_)
+    return scroll_box(tag("table", Html(cap + tag("thead", head) + tag("tbody", body)), class_=class_))
+
+
+def scroll_box(body: Any) -> Html:
+    """``body`` (a wide table) in a box that scrolls sideways by itself, so the page never does."""
+    return tag("div", body, class_="scroll")
 
 
 def section(anchor: str, title: Any, body: Any) -> Html:
     return tag("section", Html(tag("h2", title) + "\n" + esc(body)), id=anchor)
 
 
-def figure_img(fig: Any, alt: str, caption: Any = None, dpi: int = 96) -> Html:
-    """A matplotlib :class:`~matplotlib.figure.Figure` as an embedded PNG (rendered by Agg)."""
+def png_uri(fig: Any, dpi: int = 96) -> str:
+    """A matplotlib :class:`~matplotlib.figure.Figure` as a ``data:image/png;base64`` URI (rendered by Agg)."""
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=dpi)  # the figures call tight_layout: no second "tight" pass
-    data = base64.b64encode(buf.getvalue()).decode("ascii")
-    img = Html(f'<img src="data:image/png;base64,{data}" alt="{esc(alt)}">')
+    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+
+
+def figure_img(fig: Any, alt: str, caption: Any = None, dpi: int = 96) -> Html:
+    """A matplotlib :class:`~matplotlib.figure.Figure` as an embedded PNG (rendered by Agg)."""
+    img = Html(f'<img src="{png_uri(fig, dpi)}" alt="{esc(alt)}">')
     cap = tag("figcaption", caption) if caption is not None else Html("")
     return tag("figure", Html(img + cap))
+
+
+#: Widest viewport (CSS px) that gets a figure's narrow layout (:func:`figure_picture`).
+NARROW_MAX_PX = 640
+
+
+def figure_picture(wide: Any, narrow: Any, alt: str, caption: Any = None, dpi: int = 96) -> Html:
+    """Two layouts of one figure as a ``<picture>``: ``narrow`` on viewports up to :data:`NARROW_MAX_PX`
+    (a phone), ``wide`` otherwise; one ``<img>`` element either way."""
+    source = Html(f'<source media="(max-width: {NARROW_MAX_PX}px)" srcset="{png_uri(narrow, dpi)}">')
+    img = Html(f'<img src="{png_uri(wide, dpi)}" alt="{esc(alt)}">')
+    cap = tag("figcaption", caption) if caption is not None else Html("")
+    return tag("figure", Html(tag("picture", Html(source + img)) + cap))
 
 
 def fmt(x: Any, digits: int = 4, unit: str = "") -> str:
@@ -109,9 +132,47 @@ def fmt_pm(x: Any, std: Any, digits: int = 4, unit: str = "") -> str:
     return f"{base} ± {s} {unit}".rstrip()
 
 
+def fmt_unc(x: Any, std: Any, unit: str = "") -> str:
+    """``x ± std unit`` with ``x`` rounded to the two significant digits of ``std`` (``-7 ± 15 ms``, not
+    ``-7.376 ± 15``); ``x unit (fixed)`` when ``std`` is 0 (a value that was set, not estimated); ``x`` with
+    3 significant digits when ``std`` is missing; ``n/a`` when ``x`` is."""
+    if fmt(x) == "n/a":
+        return "n/a"
+    v = float(x)
+    if fmt(std) == "n/a":
+        return fmt(v, 3, unit)
+    s = abs(float(std))
+    if s == 0.0:
+        return f"{fmt(v, 4, unit)} (fixed)"
+    decimals = max(0, 1 - math.floor(math.log10(s)))
+    return f"{v:.{decimals}f} ± {s:.{decimals}f} {unit}".rstrip()
+
+
+def code_words(code: str) -> str:
+    """A machine code in words: ``bias_not_covered:recovered`` -> ``bias not covered (recovered)``."""
+    head, _, tail = str(code).partition(":")
+    words = head.replace("_", " ")
+    return f"{words} ({tail.replace('_', ' ')})" if tail else words
+
+
+def code_and_words(code: str) -> Html:
+    """A code in words, the code itself kept beside them (small, for search)."""
+    return Html(esc(code_words(code)) + " " + tag("code", code, class_="rule"))
+
+
+def back_link(href: str | None) -> Html:
+    """The link back to the dataset page (``href`` relative to the report), or nothing when ``href`` is None."""
+    if href is None:
+        return Html("")
+    return tag("nav", tag("a", "← Dataset page: every sequence at a glance", href=href), class_="back")
+
+
 CSS = """
 body{font-family:-apple-system,"Segoe UI",Roboto,"DejaVu Sans",Arial,sans-serif;margin:0 auto;max-width:1100px;
 padding:1.2em 2em 4em;color:#1d232b;line-height:1.45;background:#fff}
+p,li,figcaption,summary{overflow-wrap:break-word}
+.scroll{overflow-x:auto;max-width:100%}
+@media (max-width:640px){body{padding:.8em .8em 3em}h1{font-size:1.35em}h2{font-size:1.15em}}
 h1{font-size:1.7em;margin:.2em 0 .1em}h2{font-size:1.3em;border-bottom:2px solid #d8dee6;padding-bottom:.2em;
 margin-top:2.2em}h3{font-size:1.05em;margin:1.4em 0 .4em}
 .meta{color:#5b6672;font-size:.9em;margin:0 0 1em}
@@ -136,6 +197,7 @@ figure{margin:.8em 0 1.4em}figure img{max-width:100%;height:auto;border:1px soli
 figcaption{color:#5b6672;font-size:.9em;margin-top:.3em}
 nav.toc{font-size:.92em;background:#f7f9fb;border:1px solid #e3e8ee;padding:.5em 1em;border-radius:6px}
 nav.toc ol{margin:.2em 0;padding-left:1.4em}
+nav.back{font-size:.92em;margin:0 0 .6em}
 .small{font-size:.88em;color:#5b6672}code{background:#f3f6f9;padding:0 .25em;border-radius:3px}
 """
 

@@ -29,9 +29,10 @@ from pathlib import Path
 from pipeline import __version__
 from pipeline.files.atomic import atomic_path
 from pipeline.errors import BiasgtError, ConfigError
+from pipeline.layout import DATASET_REPORT_HTML, REPORT_HTML, Stage
 from pipeline.types import Sequence
 from recovery.noise.allan import imu_allan
-from reports.html import Html, esc, join, p, page, tag
+from reports.html import Html, back_link, esc, join, p, page, tag
 from reports.quality_calibration import bias_section, calibration_section
 from reports.quality_inputs import SECTIONS, ReportInputs, gather_inputs
 from reports.quality_residuals import allan_section, integration_section, residuals_section
@@ -43,7 +44,7 @@ from reports.quality_residuals import flagged_stretches
 from reports.quality_verdict import dataset_bias_label, mm_pair, verdict_summary
 from validation.plausibility import gravity_tilt_deg, pose_residuals
 
-__all__ = ["SECTIONS", "STAGE_FOLDERS", "ReportInputs", "build_quality_report", "dataset_bias_label", "flagged_stretches",
+__all__ = ["SECTIONS", "STAGE_FOLDERS", "ReportInputs", "build_quality_report", "dataset_bias_label", "dataset_page_href", "flagged_stretches",
            "gather_inputs", "gravity_tilt_deg", "gyro_consistency_note", "mm_pair", "other_estimates_sentence",
            "pose_residuals", "render_report", "stage_dirs", "verdict_summary"]
 
@@ -52,8 +53,17 @@ log = logging.getLogger(__name__)
 # ----------------------------------------------------------------------------- page
 
 
-def render_report(inp: ReportInputs) -> str:
-    """The whole HTML page for ``inp`` (no file written)."""
+def dataset_page_href(out_path: str | Path) -> str | None:
+    """The dataset page relative to a quality report written at the workflow's place
+    (``results/report/<sequence>/report.html`` -> ``../index.html``); None elsewhere."""
+    out = Path(out_path)
+    if out.name == REPORT_HTML and out.parent.parent.name == Stage.REPORT.folder:
+        return f"../{DATASET_REPORT_HTML}"
+    return None
+
+
+def render_report(inp: ReportInputs, index_href: str | None = None) -> str:
+    """The whole HTML page for ``inp`` (no file written); ``index_href``: the dataset page, linked on top."""
     seq = inp.sequence
     allan, allan_error = None, None
     if seq.imu is not None and len(seq.imu) >= 10:
@@ -67,7 +77,8 @@ def render_report(inp: ReportInputs) -> str:
     where = [f"ingest: {inp.ingest_dir}", f"recovery: {inp.recovery_dir or 'not given'}",
              f"validation: {inp.validation_dir or 'not given'}"]
     header = join([
-        tag("h1", f"Dataset quality report: {seq.name}"),
+        back_link(index_href),
+        tag("h1", f"Sequence quality report: {seq.name}"),
         p(Html(f"biasgt {esc(__version__)} · generated {esc(now)}" + tag("br") + join(where, " · ")), class_="meta"),
     ])
     toc = tag("nav", Html(tag("strong", "Contents") + tag("ol", join(
@@ -84,7 +95,7 @@ def render_report(inp: ReportInputs) -> str:
         integration_section(inp),
         allan_section(inp, allan, allan_error),
     ])
-    return page(f"biasgt quality report: {seq.name}", body)
+    return page(f"biasgt sequence quality report: {seq.name}", body)
 
 
 def build_quality_report(
@@ -95,7 +106,8 @@ def build_quality_report(
     out_path: str | Path,
     sequence: Sequence | None = None,
 ) -> Path:
-    """Write the quality report of one sequence as one self-contained HTML file.
+    """Write the quality report of one sequence as one self-contained HTML file (linking back to the dataset
+    page when written at the workflow's place, :func:`dataset_page_href`).
 
     Args:
         ingest_dir: The sequence's canonical store (``results/ingest/<sequence>``); required.
@@ -119,7 +131,7 @@ def build_quality_report(
     inputs = gather_inputs(ingest_dir, recovery_dir=recovery_dir, validation_dir=validation_dir, sequence=sequence)
     for note in inputs.missing + inputs.problems:
         log.info("report %s: %s", inputs.sequence.name, note)
-    text = render_report(inputs)
+    text = render_report(inputs, dataset_page_href(out_path))
     with atomic_path(out_path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     log.info("wrote %s (%.0f kB)", out_path, len(text) / 1024)

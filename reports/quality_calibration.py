@@ -16,7 +16,7 @@ from recovery.intrinsics.gyro_consistency import rate_coupling
 from reports import plots
 from validation.plausibility import gravity_tilt_deg
 from recovery.noise.allan import ImuAllan
-from reports.html import Html, esc, figure_img, fmt, join, p, section, table, tag
+from reports.html import Html, code_words, esc, figure_img, fmt, fmt_unc, join, p, section, table, tag
 from reports.quality_inputs import TITLE, ReportInputs, missing_box, num, rel_s
 from reports.quality_residuals import allan_cell, calibration_origin
 from reports.quality_verdict import implausible_frame
@@ -43,6 +43,21 @@ def _vec(v: Any, digits: int = 4, scale: float = 1.0) -> str:
     except (TypeError, ValueError):
         return "n/a"
     return "[" + ", ".join(fmt(x, digits) for x in arr) + "]"
+
+
+def _vec_to(v: Any, std: Any, scale: float = 1.0) -> str:
+    """A vector rounded to the two significant digits of its smallest sigma (4 significant digits without
+    sigmas), so a value never shows more digits than its uncertainty."""
+    try:
+        sig = np.abs(np.asarray(std, dtype=float).reshape(-1)) * scale
+        arr = np.asarray(v, dtype=float).reshape(-1) * scale
+    except (TypeError, ValueError):
+        return _vec(v, 4, scale)
+    sig = sig[np.isfinite(sig) & (sig > 0)]
+    if not len(sig) or not np.isfinite(arr).all():
+        return _vec(v, 4, scale)
+    decimals = max(0, 1 - math.floor(math.log10(float(sig.min()))))
+    return "[" + ", ".join(f"{x:.{decimals}f}" for x in arr) + "]"
 
 
 def calibration_section(inp: ReportInputs, allan: ImuAllan | None) -> Html:
@@ -100,16 +115,19 @@ def _estimate_rows(rec: dict) -> list[list[Any]]:
     rows = []
     off = num(rec, "pose_time_offset_s")
     off_std = num(rec, "pose_time_offset_std_s")
+    fixed = off_std == 0.0
+    value = fmt_unc(None if off is None else 1e3 * off, None if off_std is None else 1e3 * off_std, "ms")
     rows.append(["Clock offset of the pose stream",
-                 "n/a" if off is None else f"{off * 1e3:.3f} ms",
-                 "n/a" if off_std is None else f"{off_std * 1e3:.3f} ms",
+                 value.split(" ± ")[0] + (" ms" if " ± " in value else ""),
+                 "none: set, not estimated" if fixed else fmt(None if off_std is None else 1e3 * off_std, 2, "ms"),
                  f"add it to the pose stamps to put them on the IMU clock; method: "
-                 f"{rec.get('pose_time_offset_method', 'n/a')}"])
+                 f"{code_words(str(rec.get('pose_time_offset_method', 'n/a')))}"])
     T = rec.get("T_imu_pose") if isinstance(rec.get("T_imu_pose"), dict) else {}
     ext = rec.get("extrinsic") if isinstance(rec.get("extrinsic"), dict) else {}
     how = f"source: {ext.get('source', 'n/a')}" + (f", mode: {ext['mode']}" if "mode" in ext else "")
     frame = rec.get("pose_frame") or "pose"
-    rows.append([f"Extrinsic translation (pose frame '{frame}' in the IMU frame)", _vec(T.get("p_m"), 4) + " m",
+    rows.append([f"Extrinsic translation (pose frame '{frame}' in the IMU frame)",
+                 _vec_to(T.get("p_m"), ext.get("translation_std_m"), 1e3) + " mm",
                  _vec(ext.get("translation_std_m"), 2, 1e3) + " mm" if ext.get("translation_std_m") else "n/a", how])
     if T.get("quat_wxyz") is not None:
         try:
@@ -165,21 +183,38 @@ def _noise_notes(noise: dict) -> list[str]:
     """The other noise values the recovery chose (pose sigmas, scales, correlated pose error) and how."""
     extra = []
     for key, label in (("position_sigma_m", "pose position sigma [m]"), ("rotation_sigma_rad", "pose rotation "
-                       "sigma [rad]"), ("gyro_random_walk_scale", "gyro random-walk scale"),
-                       ("acc_random_walk_scale", "acc random-walk scale"),
-                       ("gyro_density_scale", "gyro white-noise scale"), ("acc_density_scale", "acc white-noise scale")):
+                       "sigma [rad]")):
         if num(noise, key) is not None:
-            extra.append(f"{label}: {fmt(num(noise, key), 4)}")
+            extra.append(f"{label}: {fmt(num(noise, key), 3)}")
+    for key, label in (("gyro_random_walk_scale", "gyro random walk"), ("acc_random_walk_scale", "acc random walk"),
+                       ("gyro_density_scale", "gyro white noise"), ("acc_density_scale", "acc white noise")):
+        if num(noise, key) is not None:
+            extra.append(f"{label}: {scale_words(num(noise, key))}")
     pose_error = noise.get("pose_error")
     if isinstance(pose_error, dict):
         extra.append("correlated pose error (Gauss-Markov): "
                      f"{fmt(num(pose_error, 'rotation_sigma_rad'), 3)} rad over {fmt(num(pose_error, 'rotation_tau_s'), 3)} s, "
                      f"{fmt(num(pose_error, 'position_sigma_m'), 3)} m over {fmt(num(pose_error, 'position_tau_s'), 3)} s")
     if noise.get("method"):
-        extra.append(f"chosen by: {noise['method']}")
+        extra.append(f"chosen by: {code_words(str(noise['method']))}")
     if noise.get("pose_sigma_method"):
         extra.append(f"pose sigmas from: {str(noise['pose_sigma_method']).replace('_', ' ')}")
     return extra
+
+
+#: A noise scale within [1/x, x] of the calibration's reads "as calibrated".
+AS_CALIBRATED = 3.0
+
+
+def calibration_word(scale: float) -> str:
+    """A noise scale against the calibration's in words: larger than / smaller than / as calibrated."""
+    return ("larger than calibrated" if scale > AS_CALIBRATED else "smaller than calibrated"
+            if scale < 1.0 / AS_CALIBRATED else "as calibrated")
+
+
+def scale_words(scale: float) -> str:
+    """A noise scale against the calibration's in words: ``10.2× the calibration's (larger than calibrated)``."""
+    return f"{fmt(scale, 3)}× the calibration's ({calibration_word(scale)})"
 
 
 def _difference_text(diff: dict) -> str:

@@ -273,13 +273,30 @@ def source_label(name: str, kind: str | None) -> str:
     }.get(kind or "", f"The bias '{name}'")
 
 
+#: From this ratio of errors on, a comparison reads "N times the error of", not "(N-1)*100 % worse".
+RATIO_FROM = 2.0
+
+
 def better_worse(cand: float | None, base: float | None) -> str | None:
+    """How an error ``cand`` compares with ``base``, to follow "integrates": ``as well as``, ``12% better
+    than``, ``40% worse than``, or ``with 148 times the error of`` (at :data:`RATIO_FROM` and above)."""
     if cand is None or base is None or base <= 0:
         return None
     rel = 1.0 - cand / base
     if abs(rel) < 0.005:
         return "as well as"
+    if cand / base >= RATIO_FROM:
+        return f"with {cand / base:.3g} times the error of"
     return f"{abs(rel):.0%} {'better' if rel > 0 else 'worse'} than"
+
+
+def relative_cell(cand: float | None, base: float | None) -> str:
+    """A table cell comparing two errors: ``-12.0 %``, ``+40.0 %``, or ``148× (worse)`` from :data:`RATIO_FROM`."""
+    if cand is None or not base:
+        return "—"
+    if cand / base >= RATIO_FROM:
+        return f"{cand / base:.3g}× (worse)"
+    return f"{(cand / base - 1.0) * 100:+.1f} %"
 
 
 def other_estimates_sentence(validation: dict[str, Any]) -> str | None:

@@ -16,9 +16,9 @@ from pipeline.types import NS_PER_S
 from reports import plots
 from validation.plausibility import pose_residuals
 from recovery.noise.allan import ImuAllan
-from reports.html import Html, figure_img, fmt, join, p, section, table, tag, ul
+from reports.html import Html, code_and_words, esc, figure_img, fmt, join, p, section, table, tag, ul
 from reports.quality_inputs import (TITLE, MAX_FLAGGED_ROWS, ReportInputs, candidate_name, first_of_kind,
-                                    missing_box, num, rel_s, validation_sources, other_estimates_sentence)
+                                    missing_box, num, rel_s, validation_sources, other_estimates_sentence, relative_cell)
 from reports.quality_verdict import implausible_frame
 
 log = logging.getLogger(__name__)
@@ -142,14 +142,16 @@ def integration_section(inp: ReportInputs) -> Html:
                          if not isinstance(x, dict))
         by = dropped.get("by_reason")
         if isinstance(by, dict) and by:
-            text += "; by reason: " + ", ".join(f"{k} {x}" for k, x in by.items())
-        parts.append(p(f"Windows: {text}.", class_="small"))
+            shown = {k: x for k, x in by.items() if x}
+            if shown:
+                text = Html(esc(text + "; by reason: ") + join((Html(code_and_words(k) + esc(f": {x}"))
+                                                                 for k, x in shown.items()), sep=", "))
+        parts.append(p(Html(esc("Windows: ") + esc(text) + "."), class_="small"))
     elif v.get("windows_dropped") is not None:
         parts.append(p(f"Windows dropped: {v.get('windows_dropped')}.", class_="small"))
     ref = v.get("reference")
     if isinstance(ref, dict) and ref.get("kind"):
-        parts.append(p(f"Reference: {ref.get('kind')}" + (f" (stream {ref['stream']})" if ref.get("stream") else "")
-                       + ".", class_="small"))
+        parts.append(p(f"Reference: {reference_words(ref)}.", class_="small"))
     w = inp.windows
     if w is not None and len(w) and {"source", "pos_err_m", "rot_err_deg"} <= set(w.columns):
         names = list(dict.fromkeys(w["source"].astype(str)))
@@ -180,6 +182,16 @@ def integration_section(inp: ReportInputs) -> Html:
     return section("integration", TITLE["integration"], join(parts))
 
 
+def reference_words(ref: dict[str, Any]) -> str:
+    """The validation reference in words (``state`` -> the dataset's ground-truth state), its kind kept."""
+    kind = str(ref.get("kind"))
+    if kind == "state":
+        return "the dataset's ground-truth state (position, velocity, orientation; kind 'state')"
+    if ref.get("stream"):
+        return f"the pose stream '{ref['stream']}' (kind '{kind}')"
+    return f"kind '{kind}'"
+
+
 def _source_rows(sources: dict[str, Any], cand: str | None, const: str | None) -> list[list[Any]]:
     """One table row per bias source: windows, PRMSE, ROE, PRMSE relative to the constant bias, flags."""
     rows = []
@@ -187,9 +199,7 @@ def _source_rows(sources: dict[str, Any], cand: str | None, const: str | None) -
         prmse, roe = num(s, "prmse_m"), num(s, "roe_deg")
         rel = "—"
         if const is not None and name != const:
-            bp = num(sources[const], "prmse_m")
-            if prmse is not None and bp:
-                rel = f"{(prmse / bp - 1.0) * 100:+.1f} %"
+            rel = relative_cell(prmse, num(sources[const], "prmse_m"))
         nflag = len(s.get("flagged") or [])
         label = name + (" (judged)" if name == cand else "")
         rows.append([label, s.get("kind", "n/a"), fmt(num(s, "windows"), 6),
@@ -213,12 +223,13 @@ def _flagged_parts(inp: ReportInputs, flagged_list: list[dict[str, Any]], cfg: d
     frows = []
     for f in flagged_list[:MAX_FLAGGED_ROWS]:
         t0 = int(f.get("t0_ns", 0))
-        frows.append([f"{(t0 - inp.t0_ns) / NS_PER_S:.3f}", str(t0),
-                      fmt(1e3 * (num(f, "pos_err_m") or math.nan), 4), fmt(num(f, "rot_err_deg"), 4)])
+        frows.append([f"{(t0 - inp.t0_ns) / NS_PER_S:.3f}",
+                      fmt(1e3 * (num(f, "pos_err_m") or math.nan), 3), fmt(num(f, "rot_err_deg"), 3)])
     more = len(flagged_list) - MAX_FLAGGED_ROWS
     detail = join([
-        table(["start [s]", "start t_ns", "position error [mm]", "rotation error [deg]"], frows, numeric_from=0),
-        p(f"… and {more} more (all are in validation.json).", class_="small") if more > 0 else "",
+        table(["start [s]", "position error [mm]", "rotation error [deg]"], frows, numeric_from=0),
+        p((f"… and {more} more; " if more > 0 else "") + "validation.json holds every one with its exact start "
+          "stamp (t0_ns).", class_="small"),
     ])
     out.append(tag("details", Html(tag("summary", f"Every flagged window ({len(flagged_list)})") + detail)))
     return out

@@ -25,7 +25,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from pipeline.files.atomic import write_text_atomic
-from reports.html import Html, esc, figure_img, fmt, join, p, page, section, table, tag, ul
+from pipeline.layout import DATASET_REPORT_HTML, Stage
+from reports.html import Html, back_link, esc, figure_img, fmt, join, p, page, section, table, tag, ul
 from training.evaluation.outputs import EXAMPLES_PARQUET, EvaluationSummary, read_summary
 from training.networks import get_network, network_names
 from training.evaluation.predictions import CHANNELS
@@ -79,25 +80,43 @@ def _table_section(columns: list[TableColumn]) -> Html:
     return Html(table(headers, rows) + note)
 
 
+#: The y-axis of each objective's loss: the objectives' losses are different quantities, never one axis.
+OBJECTIVE_LOSS = {
+    "diffusion": "diffusion: noise-prediction MSE (normalised)",
+    "regression": "regression: MSE of the normalised bias",
+    "indirect": "indirect: integration error against the reference end state",
+}
+
+
+def _objective(method: str) -> str:
+    return get_network(method).objective.value if method in network_names() else "other"
+
+
 def curves_figure(runs: Sequence[Path]) -> Figure | None:
+    """Train and validation loss per step of every run, one row of panels per objective (their losses are
+    different quantities; :data:`OBJECTIVE_LOSS` labels each y-axis); None without a ``metrics.csv``."""
     frames = [(r, pd.read_csv(r / "metrics.csv")) for r in runs if (r / "metrics.csv").is_file()]
     if not frames:
         return None
-    fig = Figure(figsize=(10, 4))
-    ax_t, ax_v = fig.subplots(1, 2)
+    objectives = list(dict.fromkeys(_objective(r.parent.name) for r, _ in frames))
+    fig = Figure(figsize=(10, 1.0 + 3.0 * len(objectives)))
+    axes = fig.subplots(len(objectives), 2, squeeze=False)
     for run, f in frames:
+        ax_t, ax_v = axes[objectives.index(_objective(run.parent.name))]
         name = f"{run.parent.name}/{run.name}"
         color = _method_color(run.parent.name, None)
         ax_t.plot(f["step"], f["train_loss"], color=color, linewidth=1.0, label=name)
         val = f.dropna(subset=["val_loss"])
         ax_v.plot(val["step"], val["val_loss"], color=color, marker="o", markersize=3, linewidth=1.0, label=name)
-    for ax, title in ((ax_t, "train loss"), (ax_v, "validation loss")):
-        ax.set_yscale("log")
-        ax.set_xlabel("step")
-        ax.set_title(title)
-        ax.grid(True, alpha=0.3)
-    # the legend beside the panels, not over the curves
-    ax_v.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
+    for objective, (ax_t, ax_v) in zip(objectives, axes):
+        for ax, title in ((ax_t, "train loss"), (ax_v, "validation loss")):
+            ax.set_yscale("log")
+            ax.set_xlabel("optimiser step")
+            ax.set_title(f"{title} ({objective})", fontsize=9)
+            ax.grid(True, alpha=0.3)
+        ax_t.set_ylabel(OBJECTIVE_LOSS.get(objective, "loss").replace(": ", ":\n", 1), fontsize=8)
+        # the legend beside the panels, not over the curves
+        ax_v.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0)
     fig.tight_layout()
     return fig
 
@@ -240,8 +259,9 @@ DEMO_STEPS = 2000
 
 
 def summary_box(columns: list[TableColumn], run_dirs: Sequence[Path]) -> Html:
-    """What the report says on top: how many models, how trained, the best usable average, and whether the
-    models are demo-sized (a CPU preset or fewer than :data:`DEMO_STEPS` steps)."""
+    """What the report says on top: how many models, how trained, the best usable average by each metric
+    (PRMSE and ROE; a row best by one is not called best by both), and whether the models are demo-sized (a
+    CPU preset or fewer than :data:`DEMO_STEPS` steps)."""
     runs = []
     for r in run_dirs:
         try:
@@ -261,9 +281,16 @@ def summary_box(columns: list[TableColumn], run_dirs: Sequence[Path]) -> Html:
                 "that).")))
     ranked = [c for c in columns if c.ranked]
     if ranked:
-        best = min(ranked, key=lambda c: float(np.mean(c.prmse_m[AVERAGE])))
-        items.append(f"Best usable average (Table I): {best.name}, PRMSE {np.mean(best.prmse_m[AVERAGE]):.4f} m, "
-                     f"ROE {np.mean(best.roe_deg[AVERAGE]):.4f} deg, over {len(ranked)} usable rows.")
+        by_p = min(ranked, key=lambda c: float(np.mean(c.prmse_m[AVERAGE])))
+        by_r = min(ranked, key=lambda c: float(np.mean(c.roe_deg[AVERAGE])))
+        text = (f"Best usable average (Table I, over {len(ranked)} usable rows): by position error, {by_p.name} "
+                f"(PRMSE {np.mean(by_p.prmse_m[AVERAGE]):.4f} m, ROE {np.mean(by_p.roe_deg[AVERAGE]):.4f} deg)")
+        if by_r is by_p:
+            text += "; it is also best by rotation error."
+        else:
+            text += (f"; by rotation error, {by_r.name} (PRMSE {np.mean(by_r.prmse_m[AVERAGE]):.4f} m, ROE "
+                     f"{np.mean(by_r.roe_deg[AVERAGE]):.4f} deg): no row is best on both.")
+        items.append(text)
     return tag("div", ul(items), class_="verdict v-none", id="summary")
 
 
@@ -274,16 +301,19 @@ def build_training_report(evaluation_dirs: Sequence[str | Path], run_dirs: Seque
     Args:
         evaluation_dirs: Evaluation folders (``summary.json``, ``examples.parquet``).
         run_dirs: Training run folders (``metrics.csv``); missing ones are skipped.
-        out_path: The HTML file.
+        out_path: The HTML file; at the workflow's place (``results/report/``) it links back to the dataset page.
         title: Page title.
     """
+    out = Path(out_path)
     summaries = [(Path(d), read_summary(d)) for d in evaluation_dirs]
     columns = table_columns(s for _, s in summaries)
     curves = curves_figure([Path(r) for r in run_dirs])
     bodies = {
         "table": _table_section(columns),
         "curves": (figure_img(curves, "training curves", "Train loss per step and validation loss (validation "
-                                                        "split: it chooses best.pt) per run.")
+                                                        "split: it chooses best.pt) per run, one row per "
+                                                        "objective: their losses are different quantities and "
+                                                        "are not compared across rows.")
                    if curves is not None else tag("div", "No training run to show.", class_="missing")),
         "examples": _examples_section(summaries),
         "calibration": _calibration_section(summaries),
@@ -293,10 +323,11 @@ def build_training_report(evaluation_dirs: Sequence[str | Path], run_dirs: Seque
     dataset = summaries[0][1].dataset if summaries else {}
     meta = p(f"Dataset {dataset.get('path', 'n/a')} (config hash {dataset.get('config_hash', 'n/a')}), "
              f"{summaries[0][1].windows if summaries else 0} test windows of {dataset.get('window_samples', 'n/a')} "
-             f"samples at {fmt(dataset.get('rate_hz'))} Hz.", class_="meta")
-    body = join([tag("h1", title), meta, summary_box(columns, [Path(r) for r in run_dirs]), toc,
+             f"samples at {fmt(dataset.get('rate_hz'))} Hz: the test split's windows made non-overlapping (the "
+             "dataset page counts the split's overlapping windows, about twice as many).", class_="meta")
+    index = f"{DATASET_REPORT_HTML}" if out.parent.name == Stage.REPORT.folder else None
+    body = join([back_link(index), tag("h1", title), meta, summary_box(columns, [Path(r) for r in run_dirs]), toc,
                  *(section(a, t, bodies[a]) for a, t in SECTIONS)])
-    out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
     write_text_atomic(out, page(title, body))
     log.info("wrote %s", out)

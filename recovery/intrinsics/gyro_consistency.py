@@ -248,7 +248,7 @@ def rate_coupling(imu: ImuSeries, poses: PoseSeries, R_imu_pose: np.ndarray | No
     nper = int(min(segment_s * rate_hz, len(w) / 2))
     if nper / rate_hz < MIN_SEGMENT_S:
         raise RecoveryError(f"the rate coupling needs at least {2 * MIN_SEGMENT_S:.0f} s of overlap, "
-                            f"got {len(w) / rate_hz:.0f} s", hint="use a longer recording")
+                            f"got {math.floor(10 * len(w) / rate_hz) / 10:.1f} s", hint="use a longer recording")
     x = np.hstack([w - w.mean(0), d - d.mean(0)])  # [M, 6]: rate, then d
     # S[f, k, l] = E[conj(X_k) X_l] over the six signals
     f, S = cross_spectra(x, rate_hz, nper)

@@ -101,7 +101,9 @@ def intrinsics_clause(recovery: Mapping[str, Any] | None) -> str:
     if entry is None:
         if auto is not None and not auto.get("estimated", False):
             why = str(auto.get("reason") or "no intrinsic error found").rstrip(".")
-            return f"{words} (not estimated: {why}; any the IMU has, the bias absorbs)"
+            state = "not checked" if why.startswith("not checked: ") else "not estimated"
+            why = why.removeprefix("not checked: ")
+            return f"{words} ({state}: {why}; any the IMU has, the bias absorbs)"
         return f"{words} (not estimated: turned off; any the IMU has, the bias absorbs)"
     if entry.get("method") == "not estimated":
         return f"{words} (not estimated: {str(entry.get('reason', '')).rstrip('.')}; the bias absorbs them)"

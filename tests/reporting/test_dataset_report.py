@@ -12,7 +12,9 @@ import pytest
 
 from pipeline.bias_table import CSV_HEADER
 from pipeline.errors import ConfigError
-from reports.dataset import build_dataset_report
+from html_tables import parse_page, style_rules, table_by_id
+from reports.dataset import GLANCE_HEADERS, build_dataset_report
+from reports.dataset_figure import bias_overview_figure, channel_outliers, trace_label
 from reports.dataset_inputs import gather_dataset
 
 T0 = 1_400_000_000_000_000_000
@@ -26,12 +28,13 @@ def _validation(verdict: str, reasons: list[str], *, reference: dict, heldout: b
     if heldout:
         sources["recovered_heldout"] = {"kind": "file", "prmse_m": 0.00789, "roe_deg": 0.0678}
     return {"schema_version": 1, "sequence": "x", "verdict": verdict, "reasons": reasons, "candidate": "recovered",
-            "reference": reference, "sources": sources, "notes": [], "next_steps": []}
+            "reason_codes": [f"CODE_{i}" for i in range(len(reasons))], "reference": reference, "sources": sources,
+            "notes": [], "next_steps": [f"fix {verdict.lower()} with sensor.yaml"] if reasons else []}
 
 
 def _recovery(stream: str, offset_s: float, offset_std_s: float, gyro_scale: float, *, diff: dict | None = None,
-              outliers: int = 0, keyframes: int = 100) -> dict:
-    return {"pose_stream": stream, "pose_source_kind": "mocap", "pose_time_offset_s": offset_s,
+              outliers: int = 0, keyframes: int = 100, kind: str = "mocap") -> dict:
+    return {"pose_stream": stream, "pose_source_kind": kind, "pose_time_offset_s": offset_s,
             "pose_time_offset_std_s": offset_std_s,
             "T_imu_pose": {"p_m": [0, 0, 0], "quat_wxyz": [1, 0, 0, 0]},
             "extrinsic": {"difference_from_calibration": diff} if diff else {"mode": "estimate"},
@@ -68,7 +71,7 @@ def results(tmp_path) -> Path:
                                       heldout=True),
            _recovery("vicon0", -0.0104, 0.0012, 100.0, outliers=5), 0.02)
     _write(res, "c_fail", _validation("FAIL", ["worse than a constant bias"], reference=state),
-           _recovery("leica0", 0.0, 0.0, 3.0), 0.03)
+           _recovery("leica0", 0.0, 0.0, 3.0, kind="position_tracker"), 1.0)  # an outlier bias: must not set the figure's scale
     _write(res, "d_none", None, _recovery("vicon0", 0.0, 0.0, 1.0), 0.04)
     manifest = {"format_version": 1, "sequences": {
         "a_pass": {"split": "train", "windows": 40, "candidates": 43, "dropped": {"imu_gap": 1, "outside_recovery": 2}},
@@ -80,7 +83,8 @@ def results(tmp_path) -> Path:
     (res / "windows" / "dataset" / "manifest.json").write_text(json.dumps(manifest))
     (res / "evaluation").mkdir()
     pd.DataFrame({"zero PRMSE_m": [0.5, 0.25], "zero ROE_deg": [1.0, 2.0], "regression_rnn PRMSE_m": [0.1, 0.125],
-                  "regression_rnn ROE_deg": [0.2, 0.3]}, index=pd.Index(["b_warn", "Average"], name="sequence")
+                  "regression_rnn ROE_deg": [0.2, 0.3], "Recovered GT bias PRMSE_m": [0.05, 0.0625],
+                  "Recovered GT bias ROE_deg": [0.1, 0.15]}, index=pd.Index(["b_warn", "Average"], name="sequence")
                  ).to_csv(res / "evaluation" / "table.csv")
     (res / "report" / "training.html").write_text("<!DOCTYPE html>")
     return res
@@ -116,21 +120,74 @@ def test_page_headline_rows_links_table_and_figure(results):
     for verdict, n in (("PASS", 1), ("WARN", 1), ("FAIL", 1)):
         assert f'class="count-{verdict}" data-count="{n}"' in html
     assert "1 not validated" in html
-    assert html.count("<tr data-sequence=") == 4
-    a = _row_html(html, "a_pass")
-    assert '<a href="a_pass/report.html">' in a and 'class="PASS"' in a and "train" in a
-    assert "2.100 ± 0.3" in a and "4.25" in a  # the clock offset in ms, the extrinsic in sigmas
-    assert "0.00321 / 0.0456" in a and "0.2 / 2" in a and "0.05 / 0.4" in a
-    b = _row_html(html, "b_warn")
-    assert "vicon0 (fitted)" in b and "0.00789 / 0.0678" in b and 'class="flag">gyro 100x (bound)' in b
-    assert "5.00%" in b and "the gyro walk sits at a bound" in b and "second" not in b
+    glance = table_by_id(html, "sequences-table")
+    assert [h for h in glance.headers] == list(GLANCE_HEADERS)
+    assert [r[0].text for r in glance.rows] == ["c_fail", "b_warn", "a_pass", "d_none"]  # most severe first
+    assert glance.column("verdict") == ["FAIL", "WARN", "PASS", "not validated"]
+    keys = [float(r[2].attrs["data-v"]) for r in glance.rows]
+    assert keys == sorted(keys)  # the verdict column sorts by severity, not alphabetically
+    assert glance.cell("a_pass", "label:").text == "3.21 mm / 0.0456°"
+    assert glance.cell("a_pass", "constant").text == "50 mm / 0.4°"
+    assert glance.cell("b_warn", "held out").text == "7.89 mm / 0.0678°"
+    assert glance.cell("a_pass", "held out").text == "not run"  # an empty cell says why
+    assert glance.cell("d_none", "held out").text == "not validated"
+    assert glance.cell("c_fail", "windows").text == "left out: validation FAIL"
+    assert glance.cell("a_pass", "windows").text == "40 of 43"
+    assert glance.cell("b_warn", "leading").text == "the gyro walk sits at a bound CODE_0"  # words, code kept
+    assert glance.cell("a_pass", "leading").text == "no reason for concern"
+    details = table_by_id(html, "details-table")
+    assert details.cell("a_pass", "clock").text == "2.10 ± 0.30 ms"
+    assert details.cell("a_pass", "extrinsic").text == "4.2 σ"
+    assert details.cell("b_warn", "validation").text == "vicon0 (fitted)"
+    assert details.cell("b_warn", "bias random").text.startswith("gyro 100× (larger than calibrated, at a bound)")
+    assert details.cell("b_warn", "pose outliers").text == "5.0%"
+    assert details.cell("a_pass", "windows dropped").text == "imu gap imu_gap: 1, outside recovery outside_recovery: 2"
+    assert details.cell("c_fail", "windows dropped").text == "left out"  # not the reason a second time
+    assert glance.in_scroll and details.in_scroll
     assert "c_fail</strong>: validation FAIL: worse than a constant bias" in html
+    steps = re.search(r'<section id="next">(.*?)</section>', html, re.S).group(1)
+    assert "fix warn with sensor.yaml" in steps and "fix fail with sensor.yaml" in steps and "a_pass" not in steps
+    assert steps.index("c_fail") < steps.index("b_warn")
     assert '<a href="training.html">' in html
-    assert "regression_rnn</td>\n<td class=\"num\">0.125" in html  # the Average row, not the sequence's
-    assert html.count("data:image/png;base64,") == 1
+    table_i = table_by_id(html, "table-i")
+    assert table_i.column("method") == ["zero", "regression_rnn", "Recovered GT bias (oracle)"]
+    assert table_i.cell("regression_rnn", "average PRMSE").text == "0.1250"  # the Average row, not the sequence's
+    assert [a.get("data-oracle") for a in table_i.row_attrs] == [None, None, "1"]
+    assert "(oracle): reads the ground truth at test time" in html
+    assert html.count("<img ") == 1 and html.count("<source ") == 1 and html.count("data:image/png;base64,") == 2
+    assert "Clipped, so that they do not set the scale: gyro x: c_fail (peak 1 rad/s)" in html
     # every link resolves to a file next to the page
     for href in re.findall(r'href="([^"#][^"]*)"', html):
         assert (out.parent / href).is_file(), href
+
+
+def test_every_table_scrolls_in_its_own_box_and_the_page_has_phone_rules(results):
+    html = build_dataset_report(results).read_text()
+    tables, _ = parse_page(html)
+    assert len(tables) >= 4 and all(t.in_scroll for t in tables)
+    css = style_rules(html)
+    assert ".scroll{overflow-x:auto" in css and "@media (max-width:640px)" in css
+    assert "table.glance{width:100%" in css
+    assert "figure img{max-width:100%" in css
+
+
+def test_figure_names_every_sequence_and_clips_the_outlier(results):
+    inp = gather_dataset(results.parent)
+    assert channel_outliers(inp.rows) == {0: [("c_fail", 1.0)]}
+    for layout in ("wide", "narrow"):
+        fig = bias_overview_figure(inp.rows, layout)
+        labels = [t.get_text() for t in fig.legends[0].get_texts()]
+        assert labels == [trace_label(r) for r in inp.rows]
+        assert "c_fail · train (left out) · FAIL" not in labels  # c_fail's split comes from the workflow
+        assert len(set(labels)) == len(inp.rows) == 4
+        gyro_x = fig.axes[0]
+        colors = {tuple(line.get_color()) for line in gyro_x.get_lines()}
+        assert len(gyro_x.get_lines()) == 4 and len(colors) == 4  # one identifiable trace per sequence
+        assert gyro_x.get_ylim()[1] < 0.5  # the 1 rad/s outlier does not set the scale
+        assert any("clipped: c_fail" in t.get_text() for t in gyro_x.texts)
+        assert not fig.axes[1].texts  # nothing clipped on the other channels
+    narrow = bias_overview_figure(inp.rows, "narrow")
+    assert narrow.get_size_inches()[0] < 5  # a phone-width layout
 
 
 def test_out_path_elsewhere_keeps_links_and_errors(results, tmp_path):

@@ -8,6 +8,8 @@ printed; set BIASGT_REPORT_SCREENSHOT=FILE.png to copy it somewhere).
 
 from __future__ import annotations
 
+import html as html_lib
+import json
 import os
 import re
 import shutil
@@ -70,6 +72,51 @@ def _run(chromium: str, profile: Path, *args: str) -> subprocess.CompletedProces
         return subprocess.run(cmd, capture_output=True, text=True, timeout=120, check=False)
     except subprocess.TimeoutExpired:
         pytest.fail(f"chromium did not finish within 120 s: {' '.join(cmd)}")
+
+
+#: Measures a page in an iframe of each width (srcdoc: same origin, so its layout is readable): the page's
+#: sideways overflow, the widest image, and per table (by id) whether it fits its scroll box.
+MEASURE_SCRIPT = """
+window.addEventListener("load", function () {
+  var out = {};
+  document.querySelectorAll("iframe").forEach(function (f) {
+    var d = f.contentDocument, root = d.documentElement, tables = {};
+    d.querySelectorAll("table[id]").forEach(function (t) {
+      var box = t.parentElement;
+      tables[t.id] = {width: t.scrollWidth, box: box.clientWidth};
+    });
+    var img = 0;
+    Array.prototype.forEach.call(d.images, function (i) { img = Math.max(img, i.getBoundingClientRect().right); });
+    out[f.dataset.width] = {client: root.clientWidth, scroll: root.scrollWidth, img: img, tables: tables};
+  });
+  document.body.dataset.layout = JSON.stringify(out);
+});
+"""
+
+
+def measure_widths(chromium: str, page_file: Path, widths: tuple[int, ...], work: Path) -> dict[str, dict]:
+    """Layout figures of ``page_file`` at each viewport width (CSS px), read in headless Chromium: per width,
+    ``client`` / ``scroll`` (the page's width and scroll width), ``img`` (right edge of the widest image) and
+    ``tables`` (id -> its width and its box's)."""
+    doc = html_lib.escape(page_file.read_text(encoding="utf-8"), quote=True)
+    frames = "".join(f'<iframe data-width="{w}" style="width:{w}px;height:900px;border:0;display:block" '
+                     f'srcdoc="{doc}"></iframe>' for w in widths)
+    harness = work / "harness.html"
+    harness.write_text(f"<!DOCTYPE html><html><body style='margin:0'>{frames}<script>{MEASURE_SCRIPT}</script>"
+                       "</body></html>", encoding="utf-8")
+    res = _run(chromium, work / "profile-measure", f"--window-size={max(widths) + 100},1000",
+               "--virtual-time-budget=15000", "--dump-dom", harness.resolve().as_uri())
+    assert res.returncode == 0, res.stderr[-2000:]
+    found = re.search(r'<body[^>]*data-layout="([^"]*)"', res.stdout)
+    assert found, res.stdout[-1000:]
+    return json.loads(html_lib.unescape(found.group(1)))
+
+
+def test_report_does_not_scroll_sideways_on_a_phone(chromium, report, tmp_path):
+    layout = measure_widths(chromium, report, (390, 1280), tmp_path)
+    for width, m in layout.items():
+        assert m["scroll"] <= m["client"], (width, m)  # wide tables scroll in their own box, not the page
+        assert m["img"] <= m["client"] + 1, (width, m)
 
 
 def test_chromium_renders_report(chromium, report, tmp_path):

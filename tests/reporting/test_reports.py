@@ -336,7 +336,7 @@ def test_report_states_the_extrinsic_difference_and_the_correlated_pose_error(st
     assert ('<div class="warnbox">Estimated extrinsic against the calibration file&#x27;s: 1.52 deg (30.4 σ) in '
             "rotation, 0.40 cm (1.1 σ) in translation; beyond 3 σ") in text
     assert "correlated pose error (Gauss-Markov): 0.002 rad over 1 s, 0.001 m over 3 s" in text
-    assert "gyro white-noise scale: 3" in text
+    assert "gyro white noise: 3× the calibration&#x27;s (as calibrated)" in text
 
 
 def test_missing_stages_are_reported(stage_outputs, tmp_path):
@@ -421,7 +421,7 @@ def test_failure_leaves_no_file(results_dir, tmp_path, monkeypatch):
     assert out.read_text(encoding="utf-8") == "previous"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report.html"]  # no temporary left behind
     # a failure while writing (after the temporary file exists): no file, no temporary
-    monkeypatch.setattr(quality, "render_report", lambda inputs: "<!DOCTYPE html>")
+    monkeypatch.setattr(quality, "render_report", lambda inputs, *_: "<!DOCTYPE html>")
     monkeypatch.setattr("pipeline.files.atomic.os.replace", boom)
     new = tmp_path / "sub" / "new.html"
     with pytest.raises(RuntimeError):
@@ -447,3 +447,18 @@ def test_cli_report(results_dir, recovery_json, tmp_path, capsys):
     # no --sequence: the dataset page over every sequence of the results folder
     assert cli_main(["report", str(results_dir), "--out", str(tmp_path / "index.html")]) == 0
     assert f'<tr data-sequence="{SEQ}">' in (tmp_path / "index.html").read_text(encoding="utf-8")
+
+
+def test_report_at_the_workflow_place_links_back_and_names_the_sequence(results_dir, tmp_path):
+    from reports.quality import dataset_page_href
+
+    assert dataset_page_href(tmp_path / "results" / "report" / SEQ / "report.html") == "../index.html"
+    assert dataset_page_href(tmp_path / "elsewhere.html") is None
+    d = stage_dirs(results_dir, SEQ)
+    out = build_quality_report(d["ingest"], recovery_dir=d["recovery"], validation_dir=d["validation"],
+                               out_path=tmp_path / "report" / SEQ / "report.html")
+    html = out.read_text(encoding="utf-8")
+    assert re.search(r'<nav class="back"><a href="\.\./index\.html">', html)
+    assert f"<h1>Sequence quality report: {SEQ}</h1>" in html and "Dataset quality report" not in html
+    assert "Reference: the " in html and "Reference: state" not in html
+    assert "start t_ns" not in html  # no 19-digit stamps on the page

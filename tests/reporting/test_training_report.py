@@ -10,6 +10,7 @@ import pytest
 
 from biasgt.workflow.learning import evaluate_step
 from reports.training import SECTIONS, build_training_report
+from html_tables import parse_page
 from window_data import make_window_dataset, train_tiny
 
 METHODS = ("diffusion_rnn", "regression_rnn", "indirect_rnn")
@@ -76,7 +77,15 @@ def test_summary_on_top_says_the_models_are_demo_sized(report):
     html = report.read_text()
     top = html[:html.index('id="table"')]
     assert 'id="summary"' in top and "Demo-sized models" in top and "preset tiny" in top
-    assert "Best usable average (Table I):" in top
+    assert "Best usable average (Table I, over" in top
+    # both metrics: a row best by PRMSE is named as such, and the best by ROE beside it
+    assert "by position error," in top and ("also best by rotation error" in top or "by rotation error," in top)
+    assert "made non-overlapping" in top  # why its test windows are fewer than the dataset page's
+
+
+def test_report_links_back_to_the_dataset_page(report):
+    links = parse_page(report.read_text())[1]
+    assert links[0] == "index.html"  # the first link: back to the dataset page beside it
 
 
 def test_curve_legend_sits_beside_the_curves(tmp_path):
@@ -102,6 +111,13 @@ def test_curve_legend_sits_beside_the_curves(tmp_path):
         if legend is not None:
             box, area = legend.get_window_extent(renderer), ax.get_window_extent(renderer)
             assert box.x0 >= area.x1 or box.y1 <= area.y0  # outside the panel
+    # one row of panels per objective: diffusion, regression and indirect losses never share an axis
+    assert len(fig.axes) == 2 * 3
+    ylabels = [ax.get_ylabel() for ax in fig.axes[::2]]
+    assert [y.split(":")[0] for y in ylabels] == ["diffusion", "regression", "indirect"]
+    for i in range(3):
+        methods = {line.get_label().split("/")[0] for line in fig.axes[2 * i].get_lines()}
+        assert methods == {METHODS[i]}
 
 
 def test_demo_training_records_enough_points_for_a_curve():

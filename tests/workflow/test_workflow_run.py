@@ -489,7 +489,8 @@ def test_failed_job_is_one_line_error(tmp_path):
     assert not (tmp_path / "results" / "ingest" / "broken").exists()
 
 
-#: Run after the page has loaded: the row order after sorting by the recovered PRMSE, then by name twice.
+#: Run after the page has loaded: the row order after sorting by the label's (the recovered bias's) PRMSE,
+#: then by name twice.
 SORT_PROBE = """<script>
 window.addEventListener("load", function () {
   var ths = Array.prototype.slice.call(document.querySelectorAll("#sequences-table th"));
@@ -497,7 +498,7 @@ window.addEventListener("load", function () {
     return Array.prototype.map.call(document.querySelectorAll("#sequences-table tbody tr"),
                                     function (r) { return r.dataset.sequence; }).join(",");
   }
-  ths.filter(function (h) { return h.textContent.indexOf("recovered PRMSE") === 0; })[0].click();
+  ths.filter(function (h) { return h.textContent.indexOf("label:") === 0; })[0].click();
   document.body.dataset.byPrmse = order();
   ths[0].click(); ths[0].click();
   document.body.dataset.byNameDesc = order();
@@ -536,10 +537,11 @@ def test_dataset_page_in_chromium(e2e_run, chromium, tmp_path):  # noqa: F811  (
     for split, total in manifest["totals"].items():
         cells = re.search(rf"<tr><td>{split}</td>\s*<td[^>]*>(\d+)</td>\s*<td[^>]*>(\d+)</td>", html)
         assert cells and (int(cells.group(1)), int(cells.group(2))) == (total["sequences"], total["windows"]), split
-    assert re.findall(r'<tr data-sequence="(\w+)">', html) == ["tiny_b", "tiny_a"]  # after the last sort
+    glance = re.search(r'<table[^>]*id="sequences-table".*?</table>', html, re.S).group(0)
+    assert re.findall(r'<tr data-sequence="(\w+)">', glance) == ["tiny_b", "tiny_a"]  # after the last sort
     for href in re.findall(r'href="([^"#][^"]*)"', html):
         assert (page.parent / href).is_file(), href
-    assert len(re.findall(r'href="[^"]*/report.html"', html)) == 2
+    assert len(re.findall(r'href="[^"]*/report.html"', glance)) == 2
     prmse = {n: json.loads((results / "validation" / n / "validation.json").read_text())["sources"]["recovered"]
              ["prmse_m"] for n in verdicts}
     assert re.search(r'data-by-prmse="([^"]*)"', body).group(1) == ",".join(sorted(prmse, key=prmse.get))
