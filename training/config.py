@@ -30,7 +30,7 @@ from pipeline.errors import ConfigError
 from training.networks import Network, get_network, network_names
 from training.references import get_reference, reference_names
 
-__all__ = ["Preset", "Sampler", "ClipRange", "ModelConfig", "TrainConfig", "IMU_CHANNELS", "SAMPLES", "STEPS"]
+__all__ = ["Preset", "Sampler", "SamplingBackend", "ClipRange", "ModelConfig", "TrainConfig", "IMU_CHANNELS", "SAMPLES", "STEPS"]
 
 #: Channels of one IMU sample and of one bias sample: gyro x, y, z (rad/s), acc x, y, z (m/s^2).
 IMU_CHANNELS = 6
@@ -54,6 +54,18 @@ class Sampler(str, enum.Enum):
     DDIM = "ddim"  # correct DDIM (Song et al. 2021), eta 0 by default, spread over the 1000 steps
     RELEASED = "released"  # the released code's sampler: t = S-1..0, each step the clipped x0 estimate
     DDPM = "ddpm"  # ancestral DDPM over the given number of steps
+
+
+class SamplingBackend(str, enum.Enum):
+    """How a diffusion model's denoiser is run while sampling (:mod:`training.models.backends`).
+
+    ``exact`` is PyTorch's float32 eager arithmetic: its samples are the reference, the same for the
+    same seed however the windows are batched. ``bf16`` changes the arithmetic for speed, and its
+    samples are equal to ``exact``'s in distribution only (tested).
+    """
+
+    EXACT = "exact"  # float32, eager PyTorch (the default)
+    BF16 = "bf16"  # bfloat16 autocast (AMX / AVX512-BF16 matrix units), compiled by torch.compile
 
 
 class ClipRange(str, enum.Enum):
@@ -487,6 +499,8 @@ class Draw:
     sampler: Sampler | None
     steps: int
     seed: int
+    backend: SamplingBackend = SamplingBackend.EXACT
+    rows: int = 2048
 
 
 @dataclass(frozen=True)
@@ -499,7 +513,11 @@ class EvaluationConfig:
             released code's, for the ablation).
         steps: Denoising steps of the sampler.
         seed: Seed of the sampling noise and of the oracle's random walks.
-        batch_windows: Windows per model call (times K samples).
+        batch_windows: Windows per evaluation batch (their errors are computed together).
+        backend: How a diffusion model's denoiser runs (:class:`SamplingBackend`; ``exact``: float32).
+        sample_rows: At most this many rows (windows x K samples) per call of a diffusion model's
+            sampler; a batch's windows are drawn in chunks of ``sample_rows // K`` (at least one).
+            The samples do not depend on it (each window draws its noise from its own generator).
         examples: Test windows kept for the report's figure.
         references: Reference rows evaluated by the workflow (:mod:`training.references`; default:
             the rows registered as default).
@@ -512,13 +530,15 @@ class EvaluationConfig:
     steps: int = STEPS
     seed: int = 0
     batch_windows: int = 32
+    backend: SamplingBackend = SamplingBackend.EXACT
+    sample_rows: int = 2048
     examples: int = 4
     references: tuple[str, ...] = field(default_factory=lambda: reference_names(default_only=True))
     gravity: EvalGravity = EvalGravity.RECOVERED
     oracle_random_walk: OracleWalk = OracleWalk.RECOVERY
 
     def __post_init__(self) -> None:
-        for name, kind in (("gravity", EvalGravity), ("oracle_random_walk", OracleWalk)):
+        for name, kind in (("gravity", EvalGravity), ("oracle_random_walk", OracleWalk), ("backend", SamplingBackend)):
             try:
                 object.__setattr__(self, name, kind(getattr(self, name)))
             except ValueError:
@@ -528,7 +548,7 @@ class EvaluationConfig:
         object.__setattr__(self, "samplers", tuple(Sampler(s) for s in self.samplers))
         object.__setattr__(self, "references", tuple(get_reference(b, field="references").name
                                                      for b in self.references))
-        for name in ("samples", "steps", "batch_windows"):
+        for name in ("samples", "steps", "batch_windows", "sample_rows"):
             if int(getattr(self, name)) < 1:
                 raise ConfigError(f"evaluation {name} must be >= 1, got {getattr(self, name)!r}", field=name,
                                   hint=f"give a positive {name}")
@@ -540,7 +560,8 @@ class EvaluationConfig:
         model); one deterministic pass otherwise."""
         if not stochastic:
             return (Draw(1, None, self.steps, self.seed),)
-        return tuple(Draw(self.samples, sampler, self.steps, self.seed) for sampler in self.samplers)
+        return tuple(Draw(self.samples, sampler, self.steps, self.seed, self.backend, self.sample_rows)
+                     for sampler in self.samplers)
 
     @classmethod
     def from_mapping(cls, d: Mapping[str, Any] | None) -> EvaluationConfig:

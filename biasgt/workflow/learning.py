@@ -110,14 +110,14 @@ def train_step(dataset_dir: str | Path, out_dir: str | Path, config: Mapping[str
 def evaluation_settings(section: Mapping[str, Any], *, sampled: bool = True) -> dict[str, Any]:
     """Parameters of an evaluate job: the ``evaluation:`` section without ``references`` (which
     only says which reference jobs exist), so that listing another reference re-evaluates nothing;
-    without the sampling options (``samples``, ``samplers``, ``steps``) for a job that draws no
+    without the sampling options (:data:`SAMPLING_OPTIONS`) for a job that draws no
     samples (``sampled`` False: the references), so that changing them reruns only the models'."""
     drop = {"references"} | (set() if sampled else set(SAMPLING_OPTIONS))
     return {k: v for k, v in section.items() if k not in drop}
 
 
 #: Evaluation options that only matter where samples are drawn (a diffusion model).
-SAMPLING_OPTIONS = ("samples", "samplers", "steps")
+SAMPLING_OPTIONS = ("samples", "samplers", "steps", "backend", "sample_rows")
 
 #: Manifest entries that do not change what a model learns or is tested on (why sequences were left
 #: out, with the verdict's wording; the code version): left out of :func:`dataset_checksum`.

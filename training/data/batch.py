@@ -72,6 +72,11 @@ class WindowBatch:
     def __len__(self) -> int:
         return int(self.imu.shape[0])
 
+    def rows(self, start: int, stop: int) -> WindowBatch:
+        """Windows ``start .. stop-1`` (views of the tensors, None kept)."""
+        return replace(self, **{f.name: getattr(self, f.name)[start:stop] for f in fields(self)
+                                if getattr(self, f.name) is not None})
+
     def condition(self, use_temperature: bool) -> torch.Tensor:
         """The raw condition input [B, T, 6] (or [B, T, 7] with the temperature last).
 

@@ -125,6 +125,20 @@ def _batches(windows: TestWindows, size: int) -> Iterator[tuple[str, np.ndarray]
             yield name, rows[i:i + size]
 
 
+def _predicted_batches(predictor: Predictor, windows: TestWindows, draw: Draw,
+                       size: int) -> Iterator[tuple[str, np.ndarray, dict[str, Any], np.ndarray]]:
+    """``(sequence, rows, items, pred [B, K, T, 6])`` per evaluation batch of ``size`` windows. A stochastic
+    predictor draws all of a sequence's windows in one call (it chunks them by ``draw.rows``; its samples
+    do not depend on the batching), the others batch by batch."""
+    for name in windows.sequences():
+        every = np.flatnonzero(windows.sequence == name)
+        whole = predictor.predict(windows.items(every), name, draw) if predictor.stochastic else None
+        for i in range(0, len(every), size):
+            rows = every[i:i + size]
+            items = windows.items(rows)
+            yield name, rows, items, (whole[i:i + size] if whole is not None else predictor.predict(items, name, draw))
+
+
 def _example_rows(windows: TestWindows, n: int, seed: int) -> np.ndarray:
     rng = np.random.default_rng(seed)
     return np.sort(rng.choice(len(windows), size=min(n, len(windows)), replace=False))
@@ -164,9 +178,7 @@ def _run_draw(predictor: Predictor, windows: TestWindows, draw: Draw,
 
     what = f"evaluate ({sampler.value}, {k} samples)" if sampler is not None else "evaluate"
     bar = progress(len(windows), desc=what, unit="window", logger=log)
-    for name, rows in _batches(windows, config.batch_windows):
-        items = windows.items(rows)
-        pred = predictor.predict(items, name, draw)  # [B, K, T, 6]
+    for name, rows, items, pred in _predicted_batches(predictor, windows, draw, config.batch_windows):
         g = windows.gravity_mps2[name]
         pos, rot = _errors(items, pred, g)
         pred_frames.append(prediction_frame(pred, rows, windows.sequence[rows], windows.t0_ns[rows],

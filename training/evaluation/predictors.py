@@ -10,7 +10,7 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from training.config import Draw, Sampler
+from training.config import Draw, Sampler, SamplingBackend
 from training.evaluation.windows import TestWindows
 from training.fit.checkpoint import check_finite_output
 from training.models.clip import ClipUse, clip_use
@@ -84,6 +84,7 @@ class ModelPredictor:
     run: Any  # training.fit.checkpoint.LoadedRun
     clip_counts: dict[Sampler, Any] = field(default_factory=dict)  # sampler -> training.models.scheduler.ClipCount
     context: Any = None  # a context network's training.context.model.ContextFeeder (:func:`context_feeder`)
+    denoisers: dict[SamplingBackend, Any] = field(default_factory=dict)  # backend -> prepared denoiser (or None)
 
     @property
     def method(self) -> Network:
@@ -102,7 +103,11 @@ class ModelPredictor:
         return self.method.is_diffusion
 
     def predict(self, items: dict[str, Any], sequence: str, draw: Draw) -> np.ndarray:
+        """Bias [B, K, T, 6]: the B windows drawn in chunks of ``draw.rows // K`` windows (one sampler
+        call each), window b's noise from its own generator (seeded from ``draw.seed`` and its first
+        stamp, :class:`training.models.scheduler.WindowNoise`), so the samples do not depend on the chunks."""
         from training.data.batch import WindowBatch
+        from training.models.scheduler import ClipCount, WindowNoise
 
         model = self.run.model
         device = next(model.parameters()).device
@@ -110,18 +115,30 @@ class ModelPredictor:
         cast = {key: (v.to(dtype) if torch.is_tensor(v) and v.is_floating_point() else v) for key, v in items.items()}
         if self.context is not None:
             cast["context"] = self.context(items["sequence"], items["t0_ns"], items["imu"].shape[1]).to(dtype)
-        batch = WindowBatch.from_items(cast).to(device)
-        gen = torch.Generator(device=device).manual_seed(draw.seed * 1_000_003 + int(items["t0_ns"][0]) % 1_000_003)
+        noise = WindowNoise.seeded(draw.seed, [int(t) for t in items["t0_ns"]])
         kwargs = {}
         if draw.sampler is not None:
-            from training.models.scheduler import ClipCount
-
-            kwargs = {"sampler": draw.sampler, "steps": draw.steps,
+            kwargs = {"sampler": draw.sampler, "steps": draw.steps, "denoise": self._denoiser(draw.backend),
                       "clip_count": self.clip_counts.setdefault(Sampler(draw.sampler), ClipCount())}
-        out = model.sample(batch, num_samples=draw.samples, generator=gen, **kwargs)
-        out = out.detach().to("cpu", torch.float64).numpy()
+        batch = WindowBatch.from_items(cast).to(device)
+        per_call = max(1, int(draw.rows) // max(1, int(draw.samples)))
+        outs = []
+        for i in range(0, len(batch), per_call):
+            out = model.sample(batch.rows(i, i + per_call), num_samples=draw.samples,
+                               generator=noise.subset(i, i + per_call), **kwargs)
+            outs.append(out.detach().to("cpu", torch.float64).numpy())
+        out = np.concatenate(outs)
         check_finite_output(out, self.run.path)
         return out
+
+    def _denoiser(self, backend: SamplingBackend) -> Any:
+        """The model's denoiser run by ``backend`` (:func:`training.models.backends.prepare_denoiser`), prepared once."""
+        backend = SamplingBackend(backend)
+        if backend not in self.denoisers:
+            from training.models.backends import prepare_denoiser
+
+            self.denoisers[backend] = prepare_denoiser(self.run.model.net, backend)
+        return self.denoisers[backend]
 
     def clip_use(self, sampler: Sampler | None) -> ClipUse | None:
         """How often ``sampler``'s clip bound over the predictions so far (None: not a diffusion model)."""

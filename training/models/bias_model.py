@@ -18,6 +18,8 @@ the bias at IMU rate in raw units (rad/s, m/s^2).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -29,7 +31,7 @@ from training.data.batch import WindowBatch
 from training.config import IMU_CHANNELS, STEPS, ModelConfig, Sampler
 from training.data.normalizer import Normalizer
 from pipeline.types import DEFAULT_GRAVITY_MPS2
-from training.models.scheduler import ClipCount, NoiseScheduler, randn
+from training.models.scheduler import ClipCount, NoiseScheduler, WindowNoise, randn
 
 __all__ = ["BiasModel", "build_model", "count_parameters", "integration_errors", "DEFAULT_GRAVITY_MPS2"]
 
@@ -203,17 +205,21 @@ class BiasModel(nn.Module):
         return ((-self.config.clip_sample - nz.bias_mean) / nz.bias_std,
                 (self.config.clip_sample - nz.bias_mean) / nz.bias_std)
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def sample(self, batch: WindowBatch, num_samples: int = 1, *, sampler: Sampler = Sampler.DDIM,
-               steps: int = STEPS, generator: torch.Generator | None = None, eta: float = 0.0,
-               clip_count: ClipCount | None = None) -> torch.Tensor:
+               steps: int = STEPS, generator: torch.Generator | WindowNoise | None = None, eta: float = 0.0,
+               clip_count: ClipCount | None = None,
+               denoise: Callable[[torch.Tensor, torch.Tensor, torch.Tensor], torch.Tensor] | None = None
+               ) -> torch.Tensor:
         """Predicted bias [B, K, T, 6] in raw units (rad/s, m/s^2): the one prediction of every network.
 
         Regression and indirect models return K identical copies. Only ``batch.imu`` (the temperature,
-        a context network's ``batch.context``) is read. ``generator`` (on the model's device) draws the
-        initial noise. ``clip_count`` adds how often the sampler's clip bound
+        a context network's ``batch.context``) is read. ``generator`` (on the model's device, or a
+        :class:`training.models.scheduler.WindowNoise` of the B windows) draws the initial noise.
+        ``clip_count`` adds how often the sampler's clip bound
         (:class:`training.models.scheduler.ClipCount`). A network with a base draws its residual: the
-        clips apply to the bias, so they are moved by the base.
+        clips apply to the bias, so they are moved by the base. ``denoise`` replaces the network's
+        ``denoise(x_t, t, code)`` (a sampling backend's, :mod:`training.models.backends`).
         """
         cond = self._condition(batch)
         B, T, _ = cond.shape
@@ -229,7 +235,8 @@ class BiasModel(nn.Module):
             clip = (clip[0] - base, clip[1] - base)
             clip_x0 = None if clip_x0 is None else (
                 (-clip_x0 - base, clip_x0 - base) if isinstance(clip_x0, float) else (clip_x0[0] - base, clip_x0[1] - base))
-        z = self.scheduler.sample(lambda x, t: self.net.denoise(x, t, code), (B * K, *self.state_shape(T)),
+        denoise = self.net.denoise if denoise is None else denoise
+        z = self.scheduler.sample(lambda x, t: denoise(x, t, code), (B * K, *self.state_shape(T)),
                                   sampler=Sampler(sampler), steps=steps, eta=eta, generator=generator,
                                   device=cond.device, dtype=cond.dtype, clip=clip, clip_x0=clip_x0,
                                   clip_count=clip_count)

@@ -28,14 +28,14 @@ Why the clip matters for z-scored biases: ``docs/internals.md``.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import torch
 
 from training.config import STEPS, Sampler
 
-__all__ = ["ClipCount", "NoiseScheduler", "randn"]
+__all__ = ["ClipCount", "NoiseScheduler", "WindowNoise", "randn"]
 
 #: A clip of the x0 estimate: ``c`` for ``[-c, c]``, per-channel ``(lo, hi)`` (broadcast over the last axis), or None.
 Clip = float | tuple[torch.Tensor, torch.Tensor] | None
@@ -70,10 +70,51 @@ class ClipCount:
         return ((self.on_bound.double() / self.values).tolist(), (self.any_step.double() / self.values).tolist())
 
 
-def randn(shape: tuple[int, ...], generator: torch.Generator | None, device: torch.device | str,
+class WindowNoise:
+    """Noise drawn per window: of every draw of ``B * K`` rows (window ``b``'s ``K`` samples in rows
+    ``b*K .. b*K+K-1``, as :meth:`training.models.bias_model.BiasModel.sample` orders them), window
+    ``b``'s rows come from its own generator. So a window's samples do not depend on which windows share
+    its model call, nor on how the windows are chunked.
+
+    Args:
+        generators: One CPU generator per window, in batch order.
+    """
+
+    def __init__(self, generators: Sequence[torch.Generator]) -> None:
+        self.generators = list(generators)
+
+    @classmethod
+    def seeded(cls, seed: int, keys: Sequence[int]) -> WindowNoise:
+        """One generator per window, seeded from ``seed`` and the window's key (its first stamp, ns)."""
+        return cls([torch.Generator().manual_seed(int(seed) * 1_000_003 + int(k) % 1_000_003) for k in keys])
+
+    def __len__(self) -> int:
+        return len(self.generators)
+
+    def subset(self, start: int, stop: int) -> WindowNoise:
+        """The generators of windows ``start .. stop-1`` (the same objects: their draws continue)."""
+        return WindowNoise(self.generators[start:stop])
+
+    def randn(self, shape: tuple[int, ...], device: torch.device | str, dtype: torch.dtype) -> torch.Tensor:
+        """Standard normal noise of ``shape`` [B*K, ...], window ``b``'s rows from generator ``b``.
+
+        Raises:
+            ValueError: ``shape[0]`` is not a multiple of the windows.
+        """
+        B = len(self.generators)
+        if B == 0 or shape[0] % B:
+            raise ValueError(f"{shape[0]} rows do not split over {B} windows")
+        rows = (shape[0] // B, *shape[1:])
+        return torch.cat([torch.randn(rows, generator=g, dtype=dtype) for g in self.generators]).to(device)
+
+
+def randn(shape: tuple[int, ...], generator: torch.Generator | WindowNoise | None, device: torch.device | str,
           dtype: torch.dtype) -> torch.Tensor:
     """Standard normal noise drawn on the generator's device and moved to ``device`` (so a CPU
-    generator serves a CUDA model, and the same seed gives the same noise on every device)."""
+    generator serves a CUDA model, and the same seed gives the same noise on every device);
+    a :class:`WindowNoise` draws each window's rows from its own generator."""
+    if isinstance(generator, WindowNoise):
+        return generator.randn(shape, device, dtype)
     where = generator.device if generator is not None else device
     return torch.randn(shape, generator=generator, device=where, dtype=dtype).to(device)
 
@@ -132,7 +173,8 @@ class NoiseScheduler:
         ab = self._alpha_bar(int(t), x_t)
         return (x_t - (1.0 - ab).sqrt() * eps) / ab.sqrt()
 
-    def ddpm_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor, generator: torch.Generator | None = None,
+    def ddpm_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor,
+                  generator: torch.Generator | WindowNoise | None = None,
                   clip_x0: Clip = None, clipped: torch.Tensor | None = None) -> torch.Tensor:
         """One ancestral step ``x_t -> x_{t_prev}`` (DDPM eqs. 6-7, fixed-small variance;
         ``clip_x0``: clamp ``x0_hat`` to ``[-clip_x0, clip_x0]`` or ``(lo, hi)``, diffusers'
@@ -149,7 +191,7 @@ class NoiseScheduler:
         return mean + var.sqrt() * randn(x_t.shape, generator, x_t.device, x_t.dtype)
 
     def ddim_step(self, eps: torch.Tensor, t: int, x_t: torch.Tensor, eta: float = 0.0,
-                  generator: torch.Generator | None = None, clip_x0: Clip = None,
+                  generator: torch.Generator | WindowNoise | None = None, clip_x0: Clip = None,
                   clipped: torch.Tensor | None = None) -> torch.Tensor:
         """One DDIM step ``x_t -> x_{t_prev}`` (DDIM eq. 12, sigma of eq. 16 scaled by ``eta``;
         ``clip_x0`` and ``clipped`` as in :meth:`ddpm_step`)."""
@@ -181,7 +223,7 @@ class NoiseScheduler:
         sampler: Sampler = Sampler.DDIM,
         steps: int = STEPS,
         eta: float = 0.0,
-        generator: torch.Generator | None = None,
+        generator: torch.Generator | WindowNoise | None = None,
         device: torch.device | str = "cpu",
         dtype: torch.dtype = torch.float32,
         clip: tuple[torch.Tensor, torch.Tensor] | None = None,
@@ -196,7 +238,7 @@ class NoiseScheduler:
             sampler: Which :class:`Sampler`.
             steps: Sampling steps S.
             eta: DDIM's eta (0: deterministic given ``x_T``).
-            generator: Source of ``x_T`` and of any added noise.
+            generator: Source of ``x_T`` and of any added noise (a :class:`WindowNoise`: per window).
             device: Device of the samples.
             dtype: Floating dtype of the samples.
             clip: ``(lo, hi)`` clip range of the RELEASED sampler (default [-1, 1]).

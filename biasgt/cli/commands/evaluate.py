@@ -39,7 +39,7 @@ examples:
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    from training.config import EvalGravity, EvaluationConfig, OracleWalk, Sampler
+    from training.config import EvalGravity, EvaluationConfig, OracleWalk, Sampler, SamplingBackend
     from training.networks import network_names
     from training.references import get_reference, reference_names
 
@@ -64,6 +64,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         f"{' and '.join(s.value for s in d.samplers)})")
     p.add_argument("--steps", type=int, default=d.steps, metavar="N", help=f"denoising steps (default {d.steps})")
     p.add_argument("--seed", type=int, default=d.seed, help=f"seed of the sampling noise (default {d.seed})")
+    p.add_argument("--backend", choices=[b.value for b in SamplingBackend], default=d.backend.value,
+                   help="how a diffusion model's denoiser runs: exact (float32, the reference), or bf16 (compiled "
+                        f"bfloat16, faster, samples equal in distribution only) (default {d.backend.value})")
     p.add_argument("--gravity", choices=[g.value for g in EvalGravity], default=d.gravity.value,
                    help="gravity of the integration: nominal (0, 0, -9.81), as the paper, or each sequence's "
                         f"recovered one (default {d.gravity.value})")
@@ -84,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
 
     defaults = EvaluationConfig()
     config = EvaluationConfig(samples=args.samples, samplers=tuple(args.sampler or defaults.samplers),
-                              steps=args.steps, seed=args.seed, gravity=args.gravity,
+                              steps=args.steps, seed=args.seed, backend=args.backend, gravity=args.gravity,
                               oracle_random_walk=args.oracle_random_walk)
     if args.reference:
         result = evaluate_reference(args.reference, args.dataset, args.out, config)
