@@ -21,7 +21,7 @@ with a 2-step warm-up run on the same shapes: the ONNX export, the bf16 compilat
 denoising step of one sample (``torch.utils.flop_counter``: matrix products and convolutions) x
 steps x samples, divided by a float32 matrix product's GFLOP/s measured on this core at the start.
 
-Run on one core: ``/work/cpu .venv/bin/python benchmarks/learning/sampling.py [--preset small]
+Run on one core: ``OMP_NUM_THREADS=1 .venv/bin/python benchmarks/learning/sampling.py [--preset small]
 [--windows 16] [--samples 10] [--steps 25] [--methods ...] [--backends ...] [--rows 2048]``.
 """
 
