@@ -130,16 +130,21 @@ def table1(res: RunResults, arg: str | None) -> str:
     return _table(["row", "seeds", "average", *map(_short, res.sequences)], rows)
 
 
+def _training_seed(summary) -> int:
+    """The seed a learned method was trained with (its checkpoint's; the summary's own is the sampling seed)."""
+    return int((summary.checkpoint or {}).get("seed", summary.seed))
+
+
 def seeds(res: RunResults, method: str | None) -> str:
     """One method's headline row per training seed, then the mean ± std over seeds of the average."""
-    mine = sorted((s for s in res.summaries if s.method == method), key=lambda s: s.seed)
+    mine = sorted((s for s in res.summaries if s.method == method), key=_training_seed)
     if not mine:
         raise DataError(f"no evaluation of '{method}'", path=res.folder / EVALUATION,
                         hint=f"run the workflow with '{method}' in training.methods, or name another method in the marker")
     rows = []
     for s in mine:
         row = s.row()
-        rows.append([str(s.seed), f"{row.average.prmse_m:.4f} / {row.average.roe_deg:.4f}",
+        rows.append([str(_training_seed(s)), f"{row.average.prmse_m:.4f} / {row.average.roe_deg:.4f}",
                      *(f"{row.sequences[q].prmse_m:.4f} / {row.sequences[q].roe_deg:.4f}" for q in res.sequences)])
     p = [s.row().average.prmse_m for s in mine]
     r = [s.row().average.roe_deg for s in mine]
