@@ -53,12 +53,8 @@ EVALUATION = "results/evaluation"
 TABLE_LOG = "logs/table/table.log"
 
 _RUN = re.compile(r"^<!-- run (?P<name>[\w.-]+): (?P<command>.+?) \| (?P<date>\S+) \| (?P<commit>\S+) -->$", re.M)
-_BLOCK = re.compile(r"^<!-- generated: (?P<kind>\w+)(?: (?P<arg>[\w.-]+))? from (?P<run>[\w.-]+) \((?P<source>[^)]+)\) -->\n"
+_BLOCK = re.compile(r"^<!-- generated: (?P<kind>\w+)(?: (?P<arg>[\w.,-]+))? from (?P<run>[\w.-]+) \((?P<source>[^)]+)\) -->\n"
                     r"(?P<body>.*?)^<!-- end generated -->$", re.S | re.M)
-#: Table I's methods whose rows the paper prints, and the paper's name of each.
-PAPER_NAMES = {"diffusion_rnn": "Ours (RNN)", "diffusion_unet": "Ours (UNet)", "regression_rnn": "Direct Regression (RNN)",
-               "regression_unet": "Direct Regression (UNet)", "random_walk_paper": "Random Walk"}
-
 
 @dataclass(frozen=True)
 class Run:
@@ -153,19 +149,9 @@ def seeds(res: RunResults, method: str | None) -> str:
     return _table(["seed", "average", *map(_short, res.sequences)], rows)
 
 
-def _paper_note(res: RunResults, method: str) -> str:
-    from training.evaluation.paper import COMMON_SEQUENCES, paper_average
-
-    shared = [_short(s) for s in res.sequences]
-    if method not in PAPER_NAMES or not shared or not set(shared) <= set(COMMON_SEQUENCES):
-        return ""
-    p, r = paper_average(PAPER_NAMES[method], shared)
-    return f" (the paper: {p:.4f} / {r:.4f} over the same {len(shared)} test sequences)"
-
-
-def summary(res: RunResults, arg: str | None) -> str:
+def summary(res: RunResults, names: str | None) -> str:
     """The page's summary rows from Table I: the best usable row (by average PRMSE, and by ROE where
-    another row is best there), the paper's diffusion RNN and the constant train-mean bias."""
+    another row is best there), then the rows of ``names`` (comma-separated method or reference names)."""
     from training.evaluation.table import AVERAGE
 
     ranked = [c for c in res.columns if c.ranked]
@@ -178,40 +164,19 @@ def summary(res: RunResults, arg: str | None) -> str:
         f"; in ROE the best usable row is `{best_r.name}`, {_pair(best_r, AVERAGE)}")
     rows = [[f"Table I, best usable row in PRMSE: `{best_p.name}` ({best_p.seeds} seed{'s' * (best_p.seeds > 1)})",
              _pair(best_p, AVERAGE) + both]]
-    diffusion, train_mean = res.column("diffusion_rnn"), res.column("train_mean")
-    if diffusion is not None:
-        rows.append(["the paper's diffusion RNN (`diffusion_rnn`)", _pair(diffusion, AVERAGE)
-                     + _paper_note(res, "diffusion_rnn")])
-    if train_mean is not None:
-        rows.append(["the constant train-mean bias", _pair(train_mean, AVERAGE)])
+    for name in filter(None, (names or "").split(",")):
+        column = res.column(name)
+        if column is None:
+            raise DataError(f"no evaluation of '{name}'", path=res.folder / EVALUATION,
+                            hint="name a method or reference row of the run's Table I in the marker")
+        what = f"`{name}`" if column.name == name else f"{column.name} (`{name}`)"
+        rows.append([f"{what} ({column.seeds} seed{'s' * (column.seeds > 1)})", _pair(column, AVERAGE)])
     return _table(["what", "figure (PRMSE m / ROE deg, average over the test sequences)"], rows)
 
 
-def paper(res: RunResults, arg: str | None) -> str:
-    """Each method's headline row beside the paper's (its Table I averaged over the same sequences)."""
-    from training.evaluation.paper import COMMON_SEQUENCES, TABLE_I, paper_average
-    from training.evaluation.table import AVERAGE
-
-    shared = [_short(s) for s in res.sequences]
-    known = set(shared) <= set(COMMON_SEQUENCES)
-    rows = []
-    for c in res.columns:
-        if c.variant:
-            continue
-        method = next((s.method for s in res.summaries if s.label == c.group), "")
-        theirs = ""
-        if known and method in PAPER_NAMES:
-            theirs = "{:.4f} / {:.4f}".format(*paper_average(PAPER_NAMES[method], shared))
-        rows.append([_row_name(c), _pair(c, AVERAGE), theirs])
-    if known:
-        rows += [[f"{name} (not run)", "", "{:.4f} / {:.4f}".format(*paper_average(name, shared))]
-                 for name in TABLE_I if name not in PAPER_NAMES.values()]
-    return _table(["row", "biasgt, average", "the paper, same sequences"], rows)
-
-
-#: Block kind -> what renders it from a run's results (the argument: a method, for ``seeds``).
-KINDS: dict[str, Callable[[RunResults, str | None], str]] = {
-    "table1": table1, "seeds": seeds, "summary": summary, "paper": paper}
+#: Block kind -> what renders it from a run's results (its argument: a method for ``seeds``, comma-separated
+#: method and reference names for ``summary``).
+KINDS: dict[str, Callable[[RunResults, str | None], str]] = {"table1": table1, "seeds": seeds, "summary": summary}
 
 
 def _summary_paths(evaluation: Path) -> list[Path]:
