@@ -3,8 +3,8 @@
 The page keeps its hand-written prose; every table that quotes a workflow run sits in a marked block,
 and the run it quotes is declared once on the page::
 
-    <!-- run euroc-2026-12-04: biasgt run --config config/euroc.yaml --cores 2 | 2026-12-04 | bc525cd -->
-    <!-- generated: seeds context_residual from euroc-2026-12-04 (results/evaluation) -->
+    <!-- run euroc: biasgt run --config config/euroc.yaml --cores 2 | 2026-12-04 | bc525cd -->
+    <!-- generated: seeds context_residual from euroc (results/evaluation) -->
     ...the table...
     <!-- end generated -->
 
@@ -319,7 +319,7 @@ def _pairs(items: list[str], option: str) -> dict[str, str]:
         name, sep, value = item.partition("=")
         if not sep or not name or not value:
             raise ConfigError(f"{option} {item!r}: expected NAME=VALUE", field=option,
-                              hint=f"for example {option} euroc-2026-12-04=...")
+                              hint=f"for example {option} euroc=...")
         out[name] = value
     return out
 
