@@ -419,6 +419,14 @@ def _noise(problem: Problem, inputs: Inputs, windows: CalibrationWindows, offset
     return NoiseStage(choice, chain, window_s, grid_edge_warnings(choice, inputs.kind, config))
 
 
+def _with_pose_noise(opts: SolveOptions, choice: NoiseChoice) -> SolveOptions:
+    """``opts`` with the chosen pose noise, its correlated error included. The extrinsic is solved
+    again with it once the evidence finds a correlated error: white, the error's slow part pulls the
+    extrinsic by many of its (then too small) sigmas, and the full solve holds that extrinsic fixed."""
+    return replace(opts, pose_error=choice.pose_error, position_sigma_m=choice.position_sigma_m,
+                   rotation_sigma_rad=choice.rotation_sigma_rad)
+
+
 def _correlated_error_applies(inputs: Inputs) -> bool:
     """Whether the stream can carry a time-correlated error model (6-DoF absolute pose factors)."""
     return inputs.has_rot and inputs.pose_mode == PoseFactorMode.ABSOLUTE
@@ -585,6 +593,10 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
 
     t0 = time.perf_counter()
     noise = _noise(problem, inputs, windows, offset.offset_s, T, config)
+    if noise.choice.pose_error is not None and ext_init.opts.estimate_extrinsic:
+        ext_sol = _solve_extrinsic(problem, inputs, windows.calib_window, T,
+                                   _with_pose_noise(ext_init.opts, noise.choice), offset.offset_s, config) or ext_sol
+        T = ext_sol.T_imu_pose if ext_sol is not None else T
     timings["noise_s"] = time.perf_counter() - t0
     _next_round(bar, "gravity")
 
