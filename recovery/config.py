@@ -220,7 +220,8 @@ class RecoveryConfig(ImuNoiseOverrides):
             that the bias absorbs them; hitting a bound is reported in ``recovery.json`` warnings.
         noise_density_scales: Candidate factors of the calibration's white noise densities (gyro and
             acc separately) for EVIDENCE (a flying platform's vibration raises them far above a
-            datasheet's); ``[1]``: as given.
+            datasheet's); ``[1]``: as given. Factors below 1 apply only to densities nobody gave (no
+            calibration, override or rest): given densities are a floor (:func:`recovery.recover.density_grid`).
         pose_sigma_scales: Candidate factors of the pose sigmas (ignored when
             ``position_sigma_m`` is given).
         noise_keyframe_rate_hz: Keyframe rate of the evidence solves.

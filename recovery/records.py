@@ -48,6 +48,8 @@ class Inputs:
         rig: The pose stream against the IMU over the whole overlap (:func:`recovery.clock.coarse.screen_rig`:
             coarse clock offset, positions' unit, frame agreement), None when it could not be judged.
         placeholder_t_ns: Stamps (pose clock) of the placeholder frames dropped from the stream.
+        densities_defaulted: No calibration, config override or rest gave the white-noise densities
+            (the evidence may then lower them below the defaults, :func:`recovery.recover.density_grid`).
     """
 
     imu: ImuSeries
@@ -69,6 +71,7 @@ class Inputs:
     data_noise: DataNoise | None = None
     rig: RigFit | None = None
     placeholder_t_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    densities_defaulted: bool = False
 
 
 @dataclass(frozen=True)

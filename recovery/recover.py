@@ -221,7 +221,9 @@ def _checked_inputs(sequence: Sequence, pose_stream: str | None, config: Recover
                                 acc_random_walk=imu_noise.acc_random_walk * start_scale)
     fuse = bool(config.pose_fusion and has_rot and pose_mode == PoseFactorMode.ABSOLUTE)
     return Inputs(imu, name, poses, kind, has_rot, pieces, pose_mode, bool(estimate_g), level_test, base_sp, base_sr,
-                   imu_noise, calibration_noise, opts, fuse, tuple(warnings), data_noise, rig, placeholder_t_ns)
+                   imu_noise, calibration_noise, opts, fuse, tuple(warnings), data_noise, rig, placeholder_t_ns,
+                   data_noise is None and all(f in sequence.calibration.defaulted() and getattr(config, f) is None
+                                              for f in NOISE_DENSITY_FIELDS))
 
 
 def _calibration_windows(inputs: Inputs, offset_s: float, config: RecoveryConfig) -> CalibrationWindows:
@@ -409,7 +411,7 @@ def _noise(problem: Problem, inputs: Inputs, windows: CalibrationWindows, offset
                             replace(inputs.opts, pose_error=_fixed_pose_error(inputs, config)), config.random_walk_scales,
                             estimate_pose=config.position_sigma_m is None and pose_method is PoseSigmaMethod.EVIDENCE,
                             pose_scales=config.pose_sigma_scales, init=init, pose_error=searched_error,
-                            density_scales=config.noise_density_scales if len(config.noise_density_scales) > 1 else None)
+                            density_scales=density_grid(inputs, config))
     if pose_method is not PoseSigmaMethod.EVIDENCE:
         choice.pose_scale = sp / inputs.position_sigma_m
         choice.pose_method = pose_method
@@ -417,6 +419,25 @@ def _noise(problem: Problem, inputs: Inputs, windows: CalibrationWindows, offset
         choice.pose_error = _fixed_pose_error(inputs, config)
     window_s = float((noise_win[1] - noise_win[0]) / NS_PER_S)
     return NoiseStage(choice, chain, window_s, grid_edge_warnings(choice, inputs.kind, config))
+
+
+def _with_pose_noise(opts: SolveOptions, choice: NoiseChoice) -> SolveOptions:
+    """``opts`` with the chosen pose noise, its correlated error included. The extrinsic is solved
+    again with it once the evidence finds a correlated error: white, the error's slow part pulls the
+    extrinsic by many of its (then too small) sigmas, and the full solve holds that extrinsic fixed."""
+    return replace(opts, pose_error=choice.pose_error, position_sigma_m=choice.position_sigma_m,
+                   rotation_sigma_rad=choice.rotation_sigma_rad)
+
+
+def density_grid(inputs: Inputs, config: RecoveryConfig) -> list[float] | None:
+    """The evidence's candidate factors of the white-noise densities (None: not searched).
+
+    A calibration's, an override's or a rest's densities are a floor: the evidence may raise them (a
+    vibrating platform) but not lower them, because a lower density shrinks every sigma on evidence
+    that a correlated pose error confounds with the IMU's own noise. Defaulted densities may go either way.
+    """
+    grid = [s for s in config.noise_density_scales if inputs.densities_defaulted or s >= 1.0]
+    return grid if len(grid) > 1 else None
 
 
 def _correlated_error_applies(inputs: Inputs) -> bool:
@@ -585,6 +606,10 @@ def _recover(sequence: Sequence, *, pose_stream: str | None, config: RecoveryCon
 
     t0 = time.perf_counter()
     noise = _noise(problem, inputs, windows, offset.offset_s, T, config)
+    if noise.choice.pose_error is not None and ext_init.opts.estimate_extrinsic:
+        ext_sol = _solve_extrinsic(problem, inputs, windows.calib_window, T,
+                                   _with_pose_noise(ext_init.opts, noise.choice), offset.offset_s, config) or ext_sol
+        T = ext_sol.T_imu_pose if ext_sol is not None else T
     timings["noise_s"] = time.perf_counter() - t0
     _next_round(bar, "gravity")
 

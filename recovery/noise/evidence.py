@@ -171,9 +171,9 @@ class _EvidenceSearch:
         self.basis = noise_basis(samples, _imu_noise(base_imu, start["g"], start["a"]), opts, init)
 
     def model_of(self, st: dict[str, float]) -> PoseErrorModel | None:
-        """The correlated pose error of a state (None without a pose-error grid)."""
+        """The correlated pose error of a state (without a pose-error grid: the fixed one of the options)."""
         if self.pose_error is None:
-            return None
+            return self.opts.pose_error
         return PoseErrorModel(self.base_rotation_sigma_rad * st["rs"], st["rt"],
                               self.base_position_sigma_m * st["ps"], st["pt"])
 

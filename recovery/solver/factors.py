@@ -28,8 +28,8 @@ from scipy.special import chdtri
 from pipeline.types import NS_PER_S, PoseSourceKind
 from recovery.config import PoseFactorMode, RobustLoss
 from recovery.solver.gaps import bridge_gaps
-from recovery.solver.pose_error import add_error_states, error_key, imu_pose_factor, tracked_pose_factor, \
-    velocity_fit_variance
+from recovery.solver.pose_error import add_error_states, error_key, imu_pose_factor, lever_position_factor, \
+    rotation_factor, tracked_pose_factor, velocity_fit_variance
 from recovery.solver.preintegration import ImuNoise, MidpointSamples, NoiseBasis, make_params, preintegrate
 from recovery.solver.initial import initial_orientations, initial_velocity
 from recovery.solver.window import KeyframePoses, SolveOptions, WindowInit
@@ -341,13 +341,22 @@ def _add_lever_arm_factors(built: BuiltWindow, kf: KeyframePoses, Z: list[Any], 
     built.values.insert(L(0), np.asarray(T_imu_pose, dtype=float)[:3, 3].copy())
     _add_lever_arm_prior(built, opts)
     R_Et = _pose3(T_imu_pose).rotation().inverse()
+    gm = opts.correlated_error
+    if gm is not None:  # the correlated error's states enter both factors (pose_error)
+        built.neg_log_const += add_error_states(built.graph, built.values, kf.t_ns, gm)
+        S, R_E = gm.selection(), np.asarray(T_imu_pose, dtype=float)[:3, :3]
     for k in range(len(kf)):
         if k in skip:
             continue
         base_r, model_r = models.get("r", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sr / math.sqrt(n)))
         base_p, model_p = models.get("p", k, lambda n: gtsam.noiseModel.Isotropic.Sigma(3, sp / math.sqrt(n)))
-        _add_pose(built, k, gtsam.PoseRotationPrior3D(X(k), Z[k].rotation().compose(R_Et), model_r), base_r)
-        _add_pose(built, k, gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model_p), base_p)
+        Rm = Z[k].rotation().compose(R_Et)
+        rot = (rotation_factor(Rm, R_E, S[:3], model_r, X(k), error_key(k)) if gm is not None
+               else gtsam.PoseRotationPrior3D(X(k), Rm, model_r))
+        pos = (lever_position_factor(kf.p_m[k], R_E, S[3:], model_p, X(k), L(0), error_key(k))
+               if gm is not None and gm.position_active else gtsam.GPSFactorArmCalib(X(k), L(0), kf.p_m[k], model_p))
+        _add_pose(built, k, rot, base_r)
+        _add_pose(built, k, pos, base_p)
 
 
 def _add_lever_arm_prior(built: BuiltWindow, opts: SolveOptions) -> None:

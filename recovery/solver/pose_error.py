@@ -195,6 +195,47 @@ def tracked_pose_factor(z: gtsam.Pose3, S: np.ndarray, noise: Any, key_x: int, k
     return gtsam.CustomFactor(noise, [key_x, key_e, key_n], error)
 
 
+def rotation_factor(R_meas: gtsam.Rot3, R_E: np.ndarray, S_rot: np.ndarray, noise: Any, key_x: int,
+                    key_n: int) -> gtsam.CustomFactor:
+    """The measured IMU rotation ``Rm = R_z R_E^T`` with the correlated error (lever arm estimated,
+    ``R_E`` fixed): ``Log(Rm^-1 R_X) + R_E S_rot n`` (``S_rot`` [3, m]: the rotation rows of ``S``)."""
+    A = np.asarray(R_E @ S_rot, dtype=float, order="F")
+    R_inv = R_meas.inverse()
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
+        Hr = np.zeros((3, 6), order="F")
+        r_x = values.atPose3(key_x).rotation(Hr)
+        Hl = np.zeros((3, 3), order="F")
+        r = gtsam.Rot3.Logmap(R_inv.compose(r_x), Hl) + A @ values.atVector(key_n)
+        if H is not None:
+            H[0] = Hl @ Hr  # d(Rm^-1 R_X) / dR_X is the identity in the right tangent
+            H[1] = A
+        return r
+
+    return gtsam.CustomFactor(noise, [key_x, key_n], error)
+
+
+def lever_position_factor(p_meas_m: np.ndarray, R_E: np.ndarray, S_pos: np.ndarray, noise: Any, key_x: int,
+                          key_l: int, key_n: int) -> gtsam.CustomFactor:
+    """The measured tracked-point position with the lever arm ``L`` a variable and the correlated
+    error: ``X (L + R_E S_pos n) - p_meas`` (``S_pos`` [3, m]: the position rows of ``S``)."""
+    A = np.asarray(R_E @ S_pos, dtype=float, order="F")
+    p_meas_m = np.asarray(p_meas_m, dtype=float)
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list[np.ndarray] | None) -> np.ndarray:
+        Hx = np.zeros((3, 6), order="F")
+        Hq = np.zeros((3, 3), order="F")
+        q = values.atPoint3(key_l) + A @ values.atVector(key_n)
+        r = values.atPose3(key_x).transformFrom(q, Hx, Hq) - p_meas_m
+        if H is not None:
+            H[0] = Hx
+            H[1] = Hq
+            H[2] = Hq @ A
+        return r
+
+    return gtsam.CustomFactor(noise, [key_x, key_l, key_n], error)
+
+
 def velocity_fit_variance(model: PoseErrorModel, span_s: float, n: int) -> float:
     """Variance per axis (m^2/s^2) that the correlated position error adds to the least-squares slope of
     ``n`` samples evenly spread over ``span_s``: ``w^T C w`` with ``w`` the slope's weights and

@@ -21,8 +21,9 @@ import pytest
 from scipy.spatial.transform import Rotation, Slerp
 
 from pipeline.types import NS_PER_S
-from recovery.solver.pose_error import (PoseErrorModel, add_error_states, error_key, imu_pose_factor, tracked_pose_factor,
-                                 velocity_fit_variance)
+from recovery.solver.pose_error import (PoseErrorModel, add_error_states, error_key, imu_pose_factor,
+                                        lever_position_factor, rotation_factor, tracked_pose_factor,
+                                        velocity_fit_variance)
 
 # ----------------------------------------------------------------------------- the error states
 
@@ -86,6 +87,50 @@ def test_pose_factors_with_the_error_state_have_the_numerical_jacobians():
         dims = [6 if k != N else S.shape[1] for k in keys]
         blocks = np.split(A, np.cumsum(dims)[:-1], axis=1)
         for key, dim, block in zip(keys, dims, blocks):
+            np.testing.assert_allclose(block, _numerical_jacobian(f, values, key, dim), atol=1e-6)
+
+
+def test_lever_arm_factors_with_the_error_state_agree_with_gtsams_and_the_6dof_factor():
+    """The lever-arm refinement's factors (R_E fixed, L a variable) with the error state: GTSAM's own
+    PoseRotationPrior3D and GPSFactorArmCalib at n = 0, the 6-DoF tracked factor's rotation and (in the
+    world frame) position residuals at any n, and numerical Jacobians."""
+    rng = np.random.default_rng(2)
+    X, L = gtsam.Symbol("x", 0).key(), gtsam.Symbol("l", 0).key()
+    N = error_key(0)
+    x = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.3, -0.2, 1.1), np.array([1.0, -2.0, 0.5]))
+    e = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.1, 0.4, -0.2), np.array([0.07, -0.02, -0.12]))
+    z = x.compose(e).retract(rng.normal(0, 0.01, 6))
+    R_E = e.rotation().matrix()
+    Rm = z.rotation().compose(e.rotation().inverse())
+    S = PoseErrorModel(1e-3, 1.0, 1e-3, 1.0).selection()
+    unit = gtsam.noiseModel.Unit.Create(3)
+    rot = rotation_factor(Rm, R_E, S[:3], unit, X, N)
+    pos = lever_position_factor(z.translation(), R_E, S[3:], unit, X, L, N)
+    values = gtsam.Values()
+    values.insert(X, x)
+    values.insert(L, e.translation())
+    values.insert(N, np.zeros(6))
+    np.testing.assert_allclose(rot.unwhitenedError(values),
+                               gtsam.PoseRotationPrior3D(X, Rm, unit).unwhitenedError(values), atol=1e-12)
+    np.testing.assert_allclose(pos.unwhitenedError(values), gtsam.GPSFactorArmCalib(
+        X, L, z.translation(), unit).unwhitenedError(values), atol=1e-12)
+    n = rng.normal(0, 0.005, 6)
+    values.update(N, n)
+    # the same measurement model as the 6-DoF factor z = X E Exp(S n): zero where that one is zero
+    z_exact = x.compose(e).compose(gtsam.Pose3.Expmap(S @ n))
+    values6 = gtsam.Values()
+    values6.insert(X, x)
+    values6.insert(gtsam.Symbol("e", 0).key(), e)
+    values6.insert(N, n)
+    six = tracked_pose_factor(z_exact, S, gtsam.noiseModel.Unit.Create(6), X, gtsam.Symbol("e", 0).key(), N)
+    assert np.abs(six.unwhitenedError(values6)).max() < 1e-12
+    Rm_exact = z_exact.rotation().compose(e.rotation().inverse())
+    assert np.abs(rotation_factor(Rm_exact, R_E, S[:3], unit, X, N).unwhitenedError(values)).max() < 1e-9
+    assert np.abs(lever_position_factor(z_exact.translation(), R_E, S[3:], unit, X, L, N)
+                  .unwhitenedError(values)).max() < n @ n  # Exp's translation differs in the second order of n
+    for f, keys, dims in ((rot, (X, N), (6, 6)), (pos, (X, L, N), (6, 3, 6))):
+        A, _ = f.linearize(values).jacobian()
+        for key, dim, block in zip(keys, dims, np.split(A, np.cumsum(dims)[:-1], axis=1)):
             np.testing.assert_allclose(block, _numerical_jacobian(f, values, key, dim), atol=1e-6)
 
 
