@@ -125,8 +125,9 @@ def build_table(columns: list[TableColumn]) -> pd.DataFrame:
 
 
 def _cell(values: list[float], digits: int) -> str:
+    """``mean ± std`` over the seeds, the std the sample standard deviation (ddof 1)."""
     text = f"{np.mean(values):.{digits}f}"
-    return text + (f" ± {np.std(values):.{digits}f}" if len(values) > 1 else "")
+    return text + (f" ± {np.std(values, ddof=1):.{digits}f}" if len(values) > 1 else "")
 
 
 def cell_marks(columns: list[TableColumn], row: str, metric: str) -> dict[str, str]:
