@@ -67,13 +67,18 @@ def _numerical_jacobian(f, values: gtsam.Values, key: int, dim: int, eps: float 
     return np.stack(cols, 1)
 
 
+def _body_marker_measurement(rng):
+    """A body pose x, a marker offset e and a noisy measurement z of x e."""
+    x = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.3, -0.2, 1.1), np.array([1.0, -2.0, 0.5]))
+    e = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.1, 0.4, -0.2), np.array([0.07, -0.02, -0.12]))
+    return x, e, x.compose(e).retract(rng.normal(0, 0.01, 6))
+
+
 def test_pose_factors_with_the_error_state_have_the_numerical_jacobians():
     rng = np.random.default_rng(1)
     X, E = gtsam.Symbol("x", 0).key(), gtsam.Symbol("e", 0).key()
     N = error_key(0)
-    x = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.3, -0.2, 1.1), np.array([1.0, -2.0, 0.5]))
-    e = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.1, 0.4, -0.2), np.array([0.07, -0.02, -0.12]))
-    z = x.compose(e).retract(rng.normal(0, 0.01, 6))
+    x, e, z = _body_marker_measurement(rng)
     S = PoseErrorModel(1e-3, 1.0, 1e-3, 1.0).selection()
     values = gtsam.Values()
     values.insert(X, x)
@@ -97,9 +102,7 @@ def test_lever_arm_factors_with_the_error_state_agree_with_gtsams_and_the_6dof_f
     rng = np.random.default_rng(2)
     X, L = gtsam.Symbol("x", 0).key(), gtsam.Symbol("l", 0).key()
     N = error_key(0)
-    x = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.3, -0.2, 1.1), np.array([1.0, -2.0, 0.5]))
-    e = gtsam.Pose3(gtsam.Rot3.RzRyRx(0.1, 0.4, -0.2), np.array([0.07, -0.02, -0.12]))
-    z = x.compose(e).retract(rng.normal(0, 0.01, 6))
+    x, e, z = _body_marker_measurement(rng)
     R_E = e.rotation().matrix()
     Rm = z.rotation().compose(e.rotation().inverse())
     S = PoseErrorModel(1e-3, 1.0, 1e-3, 1.0).selection()
