@@ -49,6 +49,7 @@ from pipeline.types import DEFAULT_GRAVITY_MPS2, NOISE_DENSITY_FIELDS, NS_PER_S,
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.intrinsics.gyro_consistency import CouplingKind, rate_coupling
 from recovery.intrinsics.frame import CALIBRATION_ROTATION_SIGMA_RAD, calibration_agreement, rotation_prior
+from recovery.intrinsics.least_squares import solve_with_walk
 from recovery.intrinsics.report import TERMS as _TERMS
 from recovery.intrinsics.report import intrinsics_report, term_table, unobservable_warning
 from recovery.outputs import RecoveryReport
@@ -135,11 +136,11 @@ class _Interval:
     r_vel: np.ndarray  # [3]
 
 
-def _interval(t_s: np.ndarray, gyro: np.ndarray, f: np.ndarray, R0: np.ndarray, R1: np.ndarray,
-              v0: np.ndarray, v1: np.ndarray, gravity: np.ndarray) -> _Interval:
-    """Linearised residuals of one interval: samples [n] with hold durations ``t_s`` [n] (s)."""
-    dt = t_s
-    steps = Rotation.from_rotvec(gyro * dt[:, None]).as_matrix()  # [n, 3, 3]
+def _interval(dt: np.ndarray, gyro: np.ndarray, f: np.ndarray, steps: np.ndarray, half: np.ndarray, R0: np.ndarray,
+              R1: np.ndarray, v0: np.ndarray, v1: np.ndarray, gravity: np.ndarray) -> tuple[_Interval, np.ndarray]:
+    """Linearised residuals of one interval: samples [n] held ``dt`` [n] (s), their rotations
+    ``exp(gyro dt)`` and ``exp(gyro dt / 2)`` ([n, 3, 3] each). Returns the interval with ``r_rot``
+    unset and the rotation error [3, 3] it is the log of (converted for every interval at once)."""
     n = len(dt)
     # R_i: attitude at sample i (world from body), propagated from the trajectory's R0 by the gyro
     R = np.empty((n + 1, 3, 3))
@@ -153,18 +154,17 @@ def _interval(t_s: np.ndarray, gyro: np.ndarray, f: np.ndarray, R0: np.ndarray, 
         after[i] = acc_rot.T
         acc_rot = steps[i] @ acc_rot
     dR_imu = R0.T @ R[n]
-    r_rot = Rotation.from_matrix(dR_imu.T @ (R0.T @ R1)).as_rotvec()
     Jdt = after * dt[:, None, None]  # [n, 3, 3]
     # d_omega_i = -(S_g omega_i + G f_i) - db: S omega = kron(omega^T, I) vec_row(S) in row-major -> use einsum
     A_sg = -np.einsum("nij,nk->nijk", Jdt, gyro).reshape(n, 3, 9).sum(0)
     A_g = -np.einsum("nij,nk->nijk", Jdt, f).reshape(n, 3, 9).sum(0)
     # the attitude at the middle of each step rotates the step's (midpoint) specific force
-    half = Rotation.from_rotvec(0.5 * gyro * dt[:, None]).as_matrix()
     Rdt = np.einsum("nij,njk->nik", R[:n], half) * dt[:, None, None]
     dv_imu = np.einsum("nij,nj->i", Rdt, f) + gravity * dt.sum()
     r_vel = (v1 - v0) - dv_imu
     A_sa = -np.einsum("nij,nk->nijk", Rdt, f).reshape(n, 3, 9).sum(0)
-    return _Interval(np.hstack([A_sg, A_g]), A_sa, -Jdt.sum(0), -Rdt.sum(0), r_rot, r_vel)
+    interval = _Interval(np.hstack([A_sg, A_g]), A_sa, -Jdt.sum(0), -Rdt.sum(0), np.zeros(3), r_vel)
+    return interval, dR_imu.T @ (R0.T @ R1)
 
 
 def _hold_durations(t_ns: np.ndarray, a_ns: int, b_ns: int) -> tuple[np.ndarray, np.ndarray]:
@@ -215,20 +215,31 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
     # shows up as a spurious misalignment of ~1e-4)
     gyro = np.vstack([0.5 * (gyro[:-1] + gyro[1:]), gyro[-1:]])
     f = np.vstack([0.5 * (f[:-1] + f[1:]), f[-1:]])
+    held = [_hold_durations(imu.t_ns, int(t_ns[k]), int(t_ns[k + 1])) for k in range(len(t_ns) - 1)]
+    kept = [k for k, (idx, _) in enumerate(held) if len(idx) >= 2 and np.all(np.isfinite(gyro[idx]))]
+    idx_all = np.concatenate([held[k][0] for k in kept] or [np.zeros(0, int)])
+    dt_all = np.concatenate([held[k][1] for k in kept] or [np.zeros(0)])
+    rotvec = gyro[idx_all] * dt_all[:, None]
+    steps_all = Rotation.from_rotvec(rotvec).as_matrix()  # every interval's sample rotations at once
+    half_all = Rotation.from_rotvec(0.5 * rotvec).as_matrix()
+    cut = np.cumsum([len(held[k][0]) for k in kept])[:-1]
     rows: list[_Interval] = []
-    spans: list[float] = []
-    for k in range(len(t_ns) - 1):
-        idx, dt = _hold_durations(imu.t_ns, int(t_ns[k]), int(t_ns[k + 1]))
-        if len(idx) < 2 or not np.all(np.isfinite(gyro[idx])):
-            continue
-        rows.append(_interval(dt, gyro[idx], f[idx], R_kf[k], R_kf[k + 1], v_mps[k], v_mps[k + 1], gravity_mps2))
-        spans.append(float(dt.sum()))
+    errors: list[np.ndarray] = []
+    for k, dt, s_k, h_k in zip(kept, np.split(dt_all, cut), np.split(steps_all, cut), np.split(half_all, cut)):
+        idx = held[k][0]
+        iv, err = _interval(dt, gyro[idx], f[idx], s_k, h_k, R_kf[k], R_kf[k + 1], v_mps[k], v_mps[k + 1],
+                            gravity_mps2)
+        rows.append(iv)
+        errors.append(err)
+    r_rot = Rotation.from_matrix(np.stack(errors)).as_rotvec() if errors else np.zeros((0, 3))
+    rows = [replace(iv, r_rot=r) for iv, r in zip(rows, r_rot)]
+    spans = [float(held[k][1].sum()) for k in kept]
     span = np.asarray(spans)
     n_int = 18 if g_sensitivity else 9
-    x_rot, s_rot, rms_rot, c_rot = _solve_with_walk(np.stack([iv.A_rot[:, :n_int] for iv in rows]),
+    x_rot, s_rot, rms_rot, c_rot = solve_with_walk(np.stack([iv.A_rot[:, :n_int] for iv in rows]),
                                              np.stack([iv.B_rot for iv in rows]), np.stack([iv.r_rot for iv in rows]),
                                              span, noise.gyro_noise_density, noise.gyro_random_walk)
-    x_vel, s_vel, rms_vel, c_vel = _solve_with_walk(np.stack([iv.A_vel for iv in rows]), np.stack([iv.B_vel for iv in rows]),
+    x_vel, s_vel, rms_vel, c_vel = solve_with_walk(np.stack([iv.A_vel for iv in rows]), np.stack([iv.B_vel for iv in rows]),
                                              np.stack([iv.r_vel for iv in rows]), span, noise.acc_noise_density,
                                              noise.acc_random_walk, acc_prior)
     groups = {"gyro_scale_misalignment": (x_rot[:9], s_rot[:9], max_sigma),
@@ -265,59 +276,6 @@ def _block_means(values: np.ndarray, block: np.ndarray) -> np.ndarray:
     counts = np.bincount(block)
     sums = np.stack([np.bincount(block, weights=values[:, c]) for c in range(values.shape[1])], axis=1)
     return (sums / np.maximum(counts, 1)[:, None])[block]
-
-
-def _solve_with_walk(A: np.ndarray, B: np.ndarray, r: np.ndarray, span_s: np.ndarray, noise_density: float,
-                     random_walk: float, prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
-                     ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Sparse weighted least squares for ``r_k = A_k x + B_k d_k`` with a random walk on ``d``.
-
-    Args:
-        A: [K, 3, P] coefficients of the intrinsic terms; B: [K, 3, 3] of interval k's bias
-            correction ``d_k``; r: [K, 3] residuals; span_s: [K] interval lengths.
-        noise_density / random_walk: Sigma of a residual is ``noise_density sqrt(span)`` (rescaled
-            by the fit's own residuals); ``d_k+1 - d_k`` has sigma ``random_walk sqrt(span)``.
-        prior: ``(H [m, P], target [m], sigma [m])``: ``H x = target`` within ``sigma`` (a prior on x).
-
-    Returns:
-        ``(x [P], sigma of x [P] (huge where a term is not identifiable), residual scale, covariance of
-        x [P, P] (rescaled like sigma))``.
-    """
-    from scipy import sparse
-    from scipy.sparse.linalg import splu
-
-    K, _, P = A.shape
-    n = P + 3 * K
-    w_meas = 1.0 / (noise_density * np.sqrt(span_s))
-    row = np.arange(3 * K).reshape(K, 3)
-    a_rows, a_cols = np.broadcast_to(row[:, :, None], (K, 3, P)), np.broadcast_to(np.arange(P), (K, 3, P))
-    b_rows = np.broadcast_to(row[:, :, None], (K, 3, 3))
-    b_cols = np.broadcast_to(P + 3 * np.arange(K)[:, None, None] + np.arange(3)[None, None, :], (K, 3, 3))
-    meas = sparse.csr_matrix((np.concatenate([(A * w_meas[:, None, None]).ravel(), (B * w_meas[:, None, None]).ravel()]),
-                              (np.concatenate([a_rows.ravel(), b_rows.ravel()]),
-                               np.concatenate([a_cols.ravel(), b_cols.ravel()]))), shape=(3 * K, n))
-    w_walk = 1.0 / (random_walk * np.sqrt(0.5 * (span_s[:-1] + span_s[1:])))
-    i = np.arange(3 * (K - 1))
-    walk = sparse.csr_matrix((np.concatenate([-np.repeat(w_walk, 3), np.repeat(w_walk, 3)]),
-                              (np.concatenate([i, i]), np.concatenate([P + i, P + 3 + i]))), shape=(3 * (K - 1), n))
-    blocks, targets = [meas, walk], [(r * w_meas[:, None]).ravel(), np.zeros(3 * (K - 1))]
-    if prior is not None:
-        H, target, sigma_prior = (np.asarray(v, dtype=float) for v in prior)
-        blocks.append(sparse.csr_matrix(np.hstack([H / sigma_prior[:, None], np.zeros((len(H), 3 * K))])))
-        targets.append(target / sigma_prior)
-    M = sparse.vstack(blocks).tocsc()
-    y = np.concatenate(targets)
-    N = (M.T @ M).tocsc() + sparse.identity(n, format="csc") * 1e-12
-    lu = splu(N)
-    x = lu.solve(M.T @ y)
-    res = M[:3 * K] @ x - y[:3 * K]
-    scale = float(np.sqrt(np.mean(res**2)))  # whitened residual RMS: rescales the assumed white noise
-    E = np.zeros((n, P))
-    E[:P, :P] = np.eye(P)
-    cov = lu.solve(E)[:P]
-    cov = cov[:, :P] * max(scale, 1.0) ** 2
-    sigma = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    return x[:P], sigma, scale * noise_density, 0.5 * (cov + cov.T)
 
 
 def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
