@@ -424,10 +424,10 @@ def _whole_process_pairs(store: Path, given: Path, tmp: Path, env: dict) -> tupl
     default recover read -> written (``--speed-child``) and the peer (``--peer-process``)."""
     rec, peer = [], []
     for i in range(PEER_REPEATS):
-        run_rec = lambda: rec.append(_child_cpu_s(["--speed-child", str(store), "default", str(tmp / f"rec{i}")], env))  # noqa: E731
-        run_peer = lambda: peer.append(_child_cpu_s(["--peer-process", str(store), str(given), str(tmp / f"peer{i}.csv")], env))  # noqa: E731
-        for run in ((run_rec, run_peer) if i % 2 == 0 else (run_peer, run_rec)):
-            run()
+        pair = [(rec, ["--speed-child", str(store), "default", str(tmp / f"rec{i}")]),
+                (peer, ["--peer-process", str(store), str(given), str(tmp / f"peer{i}.csv")])]
+        for times, args in (pair if i % 2 == 0 else pair[::-1]):
+            times.append(_child_cpu_s(args, env))
     return rec, peer
 
 

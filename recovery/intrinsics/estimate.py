@@ -132,15 +132,14 @@ class _Interval:
     A_vel: np.ndarray  # [3, 9]     (S_a)
     B_rot: np.ndarray  # [3, 3] coefficient of the gyro bias correction (sum of J_i dt_i)
     B_vel: np.ndarray  # [3, 3] coefficient of the acc bias correction (sum of R_i dt_i)
-    r_rot: np.ndarray  # [3]
     r_vel: np.ndarray  # [3]
 
 
 def _interval(dt: np.ndarray, gyro: np.ndarray, f: np.ndarray, steps: np.ndarray, half: np.ndarray, R0: np.ndarray,
               R1: np.ndarray, v0: np.ndarray, v1: np.ndarray, gravity: np.ndarray) -> tuple[_Interval, np.ndarray]:
     """Linearised residuals of one interval: samples [n] held ``dt`` [n] (s), their rotations
-    ``exp(gyro dt)`` and ``exp(gyro dt / 2)`` ([n, 3, 3] each). Returns the interval with ``r_rot``
-    unset and the rotation error [3, 3] it is the log of (converted for every interval at once)."""
+    ``exp(gyro dt)`` and ``exp(gyro dt / 2)`` ([n, 3, 3] each). Returns the interval and its rotation
+    error [3, 3], whose log is the rotation residual (converted for every interval at once)."""
     n = len(dt)
     # R_i: attitude at sample i (world from body), propagated from the trajectory's R0 by the gyro
     R = np.empty((n + 1, 3, 3))
@@ -163,8 +162,7 @@ def _interval(dt: np.ndarray, gyro: np.ndarray, f: np.ndarray, steps: np.ndarray
     dv_imu = np.einsum("nij,nj->i", Rdt, f) + gravity * dt.sum()
     r_vel = (v1 - v0) - dv_imu
     A_sa = -np.einsum("nij,nk->nijk", Rdt, f).reshape(n, 3, 9).sum(0)
-    interval = _Interval(np.hstack([A_sg, A_g]), A_sa, -Jdt.sum(0), -Rdt.sum(0), np.zeros(3), r_vel)
-    return interval, dR_imu.T @ (R0.T @ R1)
+    return _Interval(np.hstack([A_sg, A_g]), A_sa, -Jdt.sum(0), -Rdt.sum(0), r_vel), dR_imu.T @ (R0.T @ R1)
 
 
 def _hold_durations(t_ns: np.ndarray, a_ns: int, b_ns: int) -> tuple[np.ndarray, np.ndarray]:
@@ -232,12 +230,10 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
         rows.append(iv)
         errors.append(err)
     r_rot = Rotation.from_matrix(np.stack(errors)).as_rotvec() if errors else np.zeros((0, 3))
-    rows = [replace(iv, r_rot=r) for iv, r in zip(rows, r_rot)]
-    spans = [float(held[k][1].sum()) for k in kept]
-    span = np.asarray(spans)
+    span = np.array([held[k][1].sum() for k in kept])
     n_int = 18 if g_sensitivity else 9
     x_rot, s_rot, rms_rot, c_rot = solve_with_walk(np.stack([iv.A_rot[:, :n_int] for iv in rows]),
-                                             np.stack([iv.B_rot for iv in rows]), np.stack([iv.r_rot for iv in rows]),
+                                             np.stack([iv.B_rot for iv in rows]), r_rot,
                                              span, noise.gyro_noise_density, noise.gyro_random_walk)
     x_vel, s_vel, rms_vel, c_vel = solve_with_walk(np.stack([iv.A_vel for iv in rows]), np.stack([iv.B_vel for iv in rows]),
                                              np.stack([iv.r_vel for iv in rows]), span, noise.acc_noise_density,
