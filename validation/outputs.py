@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -79,6 +80,20 @@ class ValidationSummary(JsonRecord):
                    next_steps=tuple(str(n) for n in data.get("next_steps") or ()),
                    reason_codes=tuple(str(c) for c in data.get("reason_codes") or ()),
                    recovery_bias_sha256=data.get("recovery_bias_sha256"))
+
+    @property
+    def sigma_factor(self) -> np.ndarray | None:
+        """Per axis, the factor that widens the recovered sigma to cover the held-out blocks
+        (``heldout.sigma_check.factor``, :mod:`validation.crossval.sigma`; 1 where confirmed), [6],
+        or None where no held-out check ran."""
+        factor = ((self.data.get("heldout") or {}).get("sigma_check") or {}).get("factor")
+        if factor is None:
+            return None
+        out = np.asarray(factor, dtype=np.float64)
+        if out.shape != (6,) or not np.all(np.isfinite(out) & (out >= 1.0)):
+            raise InputFormatError(f"validation.json's heldout.sigma_check.factor is not six factors of at least 1 "
+                                   f"({factor!r})", field="heldout.sigma_check.factor", hint=_RERUN)
+        return out
 
 
 def read_summary(folder: str | Path) -> ValidationSummary:

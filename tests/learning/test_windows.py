@@ -502,6 +502,33 @@ def test_windows_take_only_sequences_whose_verdict_allows_it(sim10, tmp_path):
     assert not (tmp_path / "ds2").exists()
 
 
+def test_window_labels_carry_the_sigma_widened_by_the_heldout_check(sim10, tmp_path):
+    """Where validation.json's held-out check widened an axis' sigma, the dataset's bias_std is the
+    recovered sigma times that factor (the manifest says by how much); without a check it is the recovered one."""
+    plain = _source(tmp_path, sim10, "A", "train")
+    validated = _validated(tmp_path, plain)
+    path = validated.validation_dir / "validation.json"
+    data = json.loads(path.read_text())
+    factor = [2.0, 1.0, 1.0, 1.0, 1.0, 3.5]
+    data.setdefault("heldout", {})["sigma_check"] = {"blocks": 8, "chi2": [40.0, 5, 5, 5, 5, 98.0], "bound": 20.0,
+                                                     "factor": factor}
+    path.write_text(json.dumps(data))
+    m0 = build_window_dataset([plain], tmp_path / "ds0", WindowConfig())
+    m1 = build_window_dataset([validated], tmp_path / "ds1", WindowConfig())
+    std0, std1 = (np.load(root / "sequences" / "A" / "bias_std.npy") for root in (tmp_path / "ds0", tmp_path / "ds1"))
+    assert np.all(std0 > 0)
+    np.testing.assert_allclose(std1, std0 * np.array(factor), rtol=1e-12)
+    np.testing.assert_array_equal(np.load(tmp_path / "ds1" / "sequences" / "A" / "bias.npy"),
+                                  np.load(tmp_path / "ds0" / "sequences" / "A" / "bias.npy"))
+    assert m1["sequences"]["A"]["info"]["bias_std_factor"] == factor
+    assert m0["sequences"]["A"]["info"]["bias_std_factor"] == [1.0] * 6
+    data["heldout"]["sigma_check"]["factor"] = [0.5] * 6  # a factor never narrows: a damaged file is refused
+    path.write_text(json.dumps(data))
+    with pytest.raises(InputFormatError, match="heldout.sigma_check.factor"):
+        build_window_dataset([validated], tmp_path / "ds2", WindowConfig())
+    assert not (tmp_path / "ds2").exists()
+
+
 def test_windows_where_every_verdict_is_fail_is_one_short_line(sim10, tmp_path, capsys):
     """Every sequence FAILs: one line saying none of N is usable, the reasons, and where the reports are."""
     from biasgt.cli.app import main

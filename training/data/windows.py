@@ -8,14 +8,18 @@ Each window holds:
 * ``imu`` [T, 6]: gyro (rad/s) then accelerometer (m/s^2), as recorded (or resampled);
 * ``bias`` / ``bias_std`` [T, 6]: the recovery's keyframe bias interpolated to the IMU stamps
   with its sigma (:func:`interpolation.bias.interpolate_bias`), as ``biasgt interpolate`` writes;
+  where the validation's held-out check did not confirm an axis' sigma, that axis' sigma times the
+  check's factor (``heldout.sigma_check.factor``, :mod:`validation.crossval.sigma`; the manifest's
+  ``info.bias_std_factor``), so a label's sigma covers what the held-out blocks showed;
 * ``start_*`` / ``end_*``: the reference orientation (world-from-imu, [3, 3]), velocity and
   position at the first and last stamp (the ground-truth state, else the recovery's pose stream
   on the IMU clock and frame: :func:`validation.reference.build_reference`);
 * ``t_ns`` [T], the sequence name and, when every sequence's IMU has one, ``temperature_degc`` [T].
 
 The manifest keeps each sequence's provenance (``info``: rates, reference kind, recovery folder,
-``label_pose_stream``, ``bias_random_walk`` [6], ``gravity_mps2``, ``sensor_random_walk`` [6]) and,
-with a ground-truth state, that state's own bias at the window stamps (``state_bias``).
+``label_pose_stream``, ``bias_random_walk`` [6], ``gravity_mps2``, ``sensor_random_walk`` [6],
+``bias_std_factor`` [6]) and, with a ground-truth state, that state's own bias at the window stamps
+(``state_bias``).
 
 Dropped windows are counted per reason: ``imu_gap``, ``imu_nonfinite``, ``outside_recovery`` (the
 bias is never extrapolated) and ``no_reference``.
@@ -244,6 +248,7 @@ def extract_windows(
     *,
     rate_hz: float | None = None,
     reference_stream: str | None = None,
+    sigma_factor: np.ndarray | None = None,
 ) -> SequenceWindows:
     """Cut one sequence into training windows (see the module docstring).
 
@@ -254,6 +259,8 @@ def extract_windows(
         config: Window settings.
         rate_hz: The dataset's IMU rate, which this sequence must match unless resampled (None:
             any uniform rate, or ``config.resample_hz``).
+        sigma_factor: Per axis, the factor the bias sigma is widened by (the validation's held-out
+            check, :attr:`validation.outputs.ValidationSummary.sigma_factor`), [6] (None: 1).
 
     Returns:
         The kept windows (arrays [W, T, 6], [W, T], [W, 3, 3], [W, 3]) with drop counts per
@@ -283,6 +290,8 @@ def extract_windows(
                DropReason.IMU_NONFINITE.value: plan.dropped["imu_nonfinite"]}
 
     bias = recovered_bias_at_imu(recovery.bias, imu.t_ns, random_walk)
+    factor = np.ones(6) if sigma_factor is None else np.asarray(sigma_factor, dtype=np.float64).reshape(6)
+    bias = dataclasses.replace(bias, std=bias.std * factor)
     outside = windows_with_any(np.asarray(bias.clamped, bool), starts, n + 1)
     dropped[DropReason.OUTSIDE_RECOVERY.value] = int(outside.sum())
     keep &= ~outside
@@ -305,6 +314,7 @@ def extract_windows(
         bias_random_walk=random_walk.tolist(),
         sensor_random_walk=[cal.gyro_random_walk] * 3 + [cal.acc_random_walk] * 3,
         gravity_mps2=None if gravity is None else gravity.tolist(),
+        bias_std_factor=factor.tolist(),
     )
     if not len(s):
         log.warning("sequence '%s': all %d windows dropped (%s)", sequence.name, len(starts),
@@ -438,8 +448,9 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
         for src in sources:
             seq = _load_source(src)
             seq = dataclasses.replace(seq, name=src.name)
+            factor = None if src.validation_dir is None else read_summary(src.validation_dir).sigma_factor
             sw = extract_windows(seq, src.recovery_dir, src.split, config, rate_hz=rate,
-                                 reference_stream=src.reference_stream)
+                                 reference_stream=src.reference_stream, sigma_factor=factor)
             sw.info["store_dir"] = str(src.store_dir)
             if rate is None:
                 rate = float(sw.info["rate_hz"])
