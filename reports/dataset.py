@@ -108,12 +108,30 @@ def _headline(inp: DatasetInputs) -> Html:
         if drops:
             parts.append(p(Html("Windows dropped, by reason: " + join((_drop_words(k, v) for k, v in sorted(
                 drops.items())), sep=", "))))
+        widened = _widened_labels(inp.manifest)
+        if widened:
+            parts.append(p(Html("Labels whose bias sigma the held-out check widened (the window dataset carries "
+                                "the widened sigma): " + join(widened, sep="; ")), class_="widened"))
     left = [Html(tag("strong", r.name) + esc(f": {r.left_out}")) for r in inp.rows if r.left_out]
     left += [esc(f"not validated (taken as they are): {n}") for n in (inp.manifest or {}).get("not_validated") or []]
     parts.append(Html(tag("h3", "Left out") + (ul(left, class_="left-out") if left else p("Nothing was left out."))))
     if inp.problems:
         parts.append(tag("div", Html(p("Not shown:") + ul(inp.problems)), class_="missing"))
     return section("headline", SECTIONS[0][1], join(parts))
+
+
+_AXES = ("gyro x", "gyro y", "gyro z", "acc x", "acc y", "acc z")
+
+
+def _widened_labels(manifest: Mapping[str, object]) -> list[Html]:
+    """Per windowed sequence whose ``info.bias_std_factor`` exceeds 1 on some axis: its name and those factors."""
+    out = []
+    for name, seq in sorted((manifest.get("sequences") or {}).items()):
+        factor = ((seq or {}).get("info") or {}).get("bias_std_factor") or []
+        axes = [f"{axis} x{f:.2f}" for axis, f in zip(_AXES, factor) if f > 1.0]
+        if axes:
+            out.append(Html(tag("strong", name) + esc(": " + ", ".join(axes))))
+    return out
 
 
 def _drop_words(code: str, count: int) -> Html:

@@ -502,7 +502,7 @@ def test_windows_take_only_sequences_whose_verdict_allows_it(sim10, tmp_path):
     assert not (tmp_path / "ds2").exists()
 
 
-def test_window_labels_carry_the_sigma_widened_by_the_heldout_check(sim10, tmp_path):
+def test_window_labels_carry_the_sigma_widened_by_the_heldout_check(sim10, tmp_path, caplog):
     """Where validation.json's held-out check widened an axis' sigma, the dataset's bias_std is the
     recovered sigma times that factor (the manifest says by how much); without a check it is the recovered one."""
     plain = _source(tmp_path, sim10, "A", "train")
@@ -514,7 +514,10 @@ def test_window_labels_carry_the_sigma_widened_by_the_heldout_check(sim10, tmp_p
                                                      "factor": factor}
     path.write_text(json.dumps(data))
     m0 = build_window_dataset([plain], tmp_path / "ds0", WindowConfig())
-    m1 = build_window_dataset([validated], tmp_path / "ds1", WindowConfig())
+    with caplog.at_level("WARNING", logger="training.data.windows"):
+        m1 = build_window_dataset([validated], tmp_path / "ds1", WindowConfig())
+    assert "sequence 'A': its labels' bias sigma is widened by the validation's held-out check (x2.00, 1.00, 1.00, " \
+           "1.00, 1.00, 3.50" in caplog.text
     std0, std1 = (np.load(root / "sequences" / "A" / "bias_std.npy") for root in (tmp_path / "ds0", tmp_path / "ds1"))
     assert np.all(std0 > 0)
     np.testing.assert_allclose(std1, std0 * np.array(factor), rtol=1e-12)

@@ -75,7 +75,8 @@ def results(tmp_path) -> Path:
     _write(res, "d_none", None, _recovery("vicon0", 0.0, 0.0, 1.0), 0.04)
     manifest = {"format_version": 1, "sequences": {
         "a_pass": {"split": "train", "windows": 40, "candidates": 43, "dropped": {"imu_gap": 1, "outside_recovery": 2}},
-        "b_warn": {"split": "test", "windows": 30, "candidates": 30, "dropped": {"imu_gap": 0}}},
+        "b_warn": {"split": "test", "windows": 30, "candidates": 30, "dropped": {"imu_gap": 0},
+                   "info": {"bias_std_factor": [2.5, 1.0, 1.0, 1.0, 1.0, 1.25]}}},
         "totals": {"train": {"sequences": 1, "windows": 40, "candidates": 43, "dropped": 3},
                    "test": {"sequences": 1, "windows": 30, "candidates": 30, "dropped": 0}},
         "excluded": {"c_fail": "validation FAIL: worse than a constant bias"}, "not_validated": []}
@@ -120,6 +121,8 @@ def test_page_headline_rows_links_table_and_figure(results):
     for verdict, n in (("PASS", 1), ("WARN", 1), ("FAIL", 1)):
         assert f'class="count-{verdict}" data-count="{n}"' in html
     assert "1 not validated" in html
+    widened = re.search(r'<p class="widened">(.*?)</p>', html, re.S).group(1)
+    assert re.sub(r"<[^>]+>", "", widened).endswith("widened sigma): b_warn: gyro x x2.50, acc z x1.25")
     glance = table_by_id(html, "sequences-table")
     assert [h for h in glance.headers] == list(GLANCE_HEADERS)
     assert [r[0].text for r in glance.rows] == ["c_fail", "b_warn", "a_pass", "d_none"]  # most severe first

@@ -449,6 +449,10 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
             seq = _load_source(src)
             seq = dataclasses.replace(seq, name=src.name)
             factor = None if src.validation_dir is None else read_summary(src.validation_dir).sigma_factor
+            if factor is not None and np.any(factor > 1.0):
+                log.warning("sequence '%s': its labels' bias sigma is widened by the validation's held-out check "
+                            "(x%s on gyro xyz, acc xyz: %s)", src.name, ", ".join(f"{f:.2f}" for f in factor),
+                            Path(src.validation_dir) / VALIDATION_JSON)
             sw = extract_windows(seq, src.recovery_dir, src.split, config, rate_hz=rate,
                                  reference_stream=src.reference_stream, sigma_factor=factor)
             sw.info["store_dir"] = str(src.store_dir)
