@@ -527,8 +527,9 @@ def test_window_labels_carry_the_sigma_widened_by_the_heldout_check(sim10, tmp_p
     assert m0["sequences"]["A"]["info"]["bias_std_factor"] == [1.0] * 6
     data["heldout"]["sigma_check"]["factor"] = [0.5] * 6  # a factor never narrows: a damaged file is refused
     path.write_text(json.dumps(data))
-    with pytest.raises(InputFormatError, match="heldout.sigma_check.factor"):
+    with pytest.raises(InputFormatError, match="heldout.sigma_check.factor") as exc:
         build_window_dataset([validated], tmp_path / "ds2", WindowConfig())
+    assert exc.value.path == str(path)
     assert not (tmp_path / "ds2").exists()
 
 

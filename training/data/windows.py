@@ -448,11 +448,7 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
         for src in sources:
             seq = _load_source(src)
             seq = dataclasses.replace(seq, name=src.name)
-            factor = None if src.validation_dir is None else read_summary(src.validation_dir).sigma_factor
-            if factor is not None and np.any(factor > 1.0):
-                log.warning("sequence '%s': its labels' bias sigma is widened by the validation's held-out check "
-                            "(x%s on gyro xyz, acc xyz: %s)", src.name, ", ".join(f"{f:.2f}" for f in factor),
-                            Path(src.validation_dir) / VALIDATION_JSON)
+            factor = label_sigma_factor(src)
             sw = extract_windows(seq, src.recovery_dir, src.split, config, rate_hz=rate,
                                  reference_stream=src.reference_stream, sigma_factor=factor)
             sw.info["store_dir"] = str(src.store_dir)
@@ -506,6 +502,26 @@ def unusable_error(sources: list[WindowSource], excluded: Mapping[str, Exclusion
                                          "results/report/<sequence>/report.html); fix those recordings"
                                          + (", or set windows.accept_warn (--accept-warn) to take WARN sequences"
                                             if warn else "")))
+
+
+def label_sigma_factor(source: WindowSource) -> np.ndarray | None:
+    """The factor [6] its validation's held-out check widens ``source``'s label sigma by (logged where it
+    exceeds 1), or None without a validation or a check.
+
+    Raises:
+        InputFormatError: A damaged ``heldout.sigma_check.factor``, naming the validation.json.
+    """
+    if source.validation_dir is None:
+        return None
+    where = Path(source.validation_dir) / VALIDATION_JSON
+    try:
+        factor = read_summary(source.validation_dir).sigma_factor
+    except InputFormatError as exc:
+        raise InputFormatError(exc.problem, path=exc.path or where, field=exc.field, hint=exc.hint) from None
+    if factor is not None and np.any(factor > 1.0):
+        log.warning("sequence '%s': its labels' bias sigma is widened by the validation's held-out check "
+                    "(x%s on gyro xyz, acc xyz: %s)", source.name, ", ".join(f"{f:.2f}" for f in factor), where)
+    return factor
 
 
 def verdict_exclusion(source: WindowSource, config: WindowConfig) -> Exclusion | None:
