@@ -50,6 +50,9 @@ class ValidationSummary(JsonRecord):
         next_steps: What to do about a WARN or FAIL.
         recovery_bias_sha256: SHA-256 of the judged recovery's ``bias.csv`` (None: no recovery judged, or
             a validation.json written before it was recorded).
+        sigma_factor: Per axis, the factor that widens the recovered sigma to cover the held-out blocks
+            (``heldout.sigma_check.factor``, :mod:`validation.crossval.sigma`; 1 where confirmed), [6],
+            or None where no held-out check ran.
     """
 
     data: Mapping[str, Any]
@@ -61,13 +64,15 @@ class ValidationSummary(JsonRecord):
     next_steps: tuple[str, ...] = ()
     reason_codes: tuple[str, ...] = ()
     recovery_bias_sha256: str | None = None
+    sigma_factor: tuple[float, ...] | None = None
 
     @classmethod
     def from_json(cls, data: Mapping[str, Any], path: str | Path | None = None) -> ValidationSummary:
         """Parse the JSON object.
 
         Raises:
-            InputFormatError: No known verdict.
+            InputFormatError: No known verdict; a ``heldout.sigma_check.factor`` that is not six factors of
+                at least 1.
         """
         try:
             verdict = Verdict(data.get("verdict"))
@@ -79,21 +84,26 @@ class ValidationSummary(JsonRecord):
                    candidate=str(data.get("candidate", "")), notes=tuple(str(n) for n in data.get("notes") or ()),
                    next_steps=tuple(str(n) for n in data.get("next_steps") or ()),
                    reason_codes=tuple(str(c) for c in data.get("reason_codes") or ()),
-                   recovery_bias_sha256=data.get("recovery_bias_sha256"))
+                   recovery_bias_sha256=data.get("recovery_bias_sha256"), sigma_factor=_sigma_factor(data, path))
 
-    @property
-    def sigma_factor(self) -> np.ndarray | None:
-        """Per axis, the factor that widens the recovered sigma to cover the held-out blocks
-        (``heldout.sigma_check.factor``, :mod:`validation.crossval.sigma`; 1 where confirmed), [6],
-        or None where no held-out check ran."""
-        factor = ((self.data.get("heldout") or {}).get("sigma_check") or {}).get("factor")
-        if factor is None:
-            return None
+
+def _sigma_factor(data: Mapping[str, Any], path: str | Path | None) -> tuple[float, ...] | None:
+    """``heldout.sigma_check.factor`` [6], or None where absent.
+
+    Raises:
+        InputFormatError: Not six finite factors of at least 1.
+    """
+    factor = ((data.get("heldout") or {}).get("sigma_check") or {}).get("factor")
+    if factor is None:
+        return None
+    try:
         out = np.asarray(factor, dtype=np.float64)
-        if out.shape != (6,) or not np.all(np.isfinite(out) & (out >= 1.0)):
-            raise InputFormatError(f"validation.json's heldout.sigma_check.factor is not six factors of at least 1 "
-                                   f"({factor!r})", field="heldout.sigma_check.factor", hint=_RERUN)
-        return out
+    except (TypeError, ValueError):
+        out = np.zeros(0)
+    if out.shape != (6,) or not np.all(np.isfinite(out) & (out >= 1.0)):
+        raise InputFormatError(f"heldout.sigma_check.factor is not six factors of at least 1 ({factor!r})", path=path,
+                               field="heldout.sigma_check.factor", hint=_RERUN)
+    return tuple(float(x) for x in out)
 
 
 def read_summary(folder: str | Path) -> ValidationSummary:

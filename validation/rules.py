@@ -229,9 +229,9 @@ _ROTATION_STEP = ("rotation error: check the gyro units and the pose-to-IMU rota
 _HELDOUT_STEP = ("held out the bias does no better than a simpler one: look for pose artefacts the bias absorbed "
                  "(biasgt report's residual plot), and validate against an independent reference if there is one")
 _SIGMA_STEP = ("use the bias sigma widened by validation.json's heldout.sigma_check.factor (per axis) where a "
-               "sigma matters (the window dataset's labels carry it); the recovery did not model an error of this rig (a correlated pose error, a pose frame "
-               "not level, IMU scale or misalignment): check the pose stream (biasgt report's residual plot) and the "
-               "IMU's calibration, and recover again")
+               "sigma matters (the window dataset's labels carry it); the recovery did not model an error of this "
+               "rig (a correlated pose error, a pose frame not level, IMU scale or misalignment): check the pose "
+               "stream (biasgt report's residual plot) and the IMU's calibration, and recover again")
 _ZERO_STEP = ("the bias does no better than none: check the IMU units and the pose-to-IMU frame ('biasgt inspect', "
               "recovery.json T_imu_pose), and whether the IMU's bias is measurable at all in this recording")
 #: Input findings that limit what a bias recovered from that input is good for: (what, next step).

@@ -248,7 +248,7 @@ def extract_windows(
     *,
     rate_hz: float | None = None,
     reference_stream: str | None = None,
-    sigma_factor: np.ndarray | None = None,
+    sigma_factor: tuple[float, ...] | np.ndarray | None = None,
 ) -> SequenceWindows:
     """Cut one sequence into training windows (see the module docstring).
 
@@ -260,7 +260,7 @@ def extract_windows(
         rate_hz: The dataset's IMU rate, which this sequence must match unless resampled (None:
             any uniform rate, or ``config.resample_hz``).
         sigma_factor: Per axis, the factor the bias sigma is widened by (the validation's held-out
-            check, :attr:`validation.outputs.ValidationSummary.sigma_factor`), [6] (None: 1).
+            check, ``validation.outputs.ValidationSummary.sigma_factor``), [6] (None: 1).
 
     Returns:
         The kept windows (arrays [W, T, 6], [W, T], [W, 3, 3], [W, 3]) with drop counts per
@@ -434,7 +434,9 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
         if not src.split.windowed:
             log.info("%s: split %s, not windowed", src.name, src.split.value)
     sources = [s for s in sources if s.split.windowed]
-    excluded = {src.name: left for src in sources if (left := verdict_exclusion(src, config)) is not None}
+    summaries = {src.name: read_summary(src.validation_dir) for src in sources if src.validation_dir is not None}
+    excluded = {src.name: left for src in sources
+                if (left := verdict_exclusion(src, config, summaries.get(src.name))) is not None}
     for name, left in excluded.items():
         log.warning("sequence '%s' left out of the window dataset: %s", name, left.text)
     usable = [s for s in sources if s.name not in excluded]
@@ -448,7 +450,11 @@ def build_window_dataset(sources: list[WindowSource], out_dir: str | Path,
         for src in sources:
             seq = _load_source(src)
             seq = dataclasses.replace(seq, name=src.name)
-            factor = label_sigma_factor(src)
+            factor = summaries[src.name].sigma_factor if src.name in summaries else None
+            if factor is not None and max(factor) > 1.0:
+                log.warning("sequence '%s': its labels' bias sigma is widened by the validation's held-out check "
+                            "(x%s on gyro xyz, acc xyz: %s)", src.name, ", ".join(f"{f:.2f}" for f in factor),
+                            Path(src.validation_dir) / VALIDATION_JSON)
             sw = extract_windows(seq, src.recovery_dir, src.split, config, rate_hz=rate,
                                  reference_stream=src.reference_stream, sigma_factor=factor)
             sw.info["store_dir"] = str(src.store_dir)
@@ -504,36 +510,16 @@ def unusable_error(sources: list[WindowSource], excluded: Mapping[str, Exclusion
                                             if warn else "")))
 
 
-def label_sigma_factor(source: WindowSource) -> np.ndarray | None:
-    """The factor [6] its validation's held-out check widens ``source``'s label sigma by (logged where it
-    exceeds 1), or None without a validation or a check.
+def verdict_exclusion(source: WindowSource, config: WindowConfig, summary: ValidationSummary | None
+                      ) -> Exclusion | None:
+    """Why ``source`` stays out of the dataset (its validation verdict, ``summary``: read from its
+    ``validation_dir``, None without one), or None to take it.
 
     Raises:
-        InputFormatError: A damaged ``heldout.sigma_check.factor``, naming the validation.json.
-    """
-    if source.validation_dir is None:
-        return None
-    where = Path(source.validation_dir) / VALIDATION_JSON
-    try:
-        factor = read_summary(source.validation_dir).sigma_factor
-    except InputFormatError as exc:
-        raise InputFormatError(exc.problem, path=exc.path or where, field=exc.field, hint=exc.hint) from None
-    if factor is not None and np.any(factor > 1.0):
-        log.warning("sequence '%s': its labels' bias sigma is widened by the validation's held-out check "
-                    "(x%s on gyro xyz, acc xyz: %s)", source.name, ", ".join(f"{f:.2f}" for f in factor), where)
-    return factor
-
-
-def verdict_exclusion(source: WindowSource, config: WindowConfig) -> Exclusion | None:
-    """Why ``source`` stays out of the dataset (its validation verdict), or None to take it.
-
-    Raises:
-        InputFormatError: ``validation_dir`` given without a readable ``validation.json``.
         ConfigError: The validation judged another sequence or another recovery (:func:`check_validation_judged`).
     """
-    if source.validation_dir is None:
+    if summary is None:
         return None
-    summary = read_summary(source.validation_dir)
     check_validation_judged(source, summary)
     if summary.verdict is Verdict.PASS or (summary.verdict is Verdict.WARN and config.accept_warn):
         return None
