@@ -256,7 +256,8 @@ class RecoveryConfig(ImuNoiseOverrides):
         max_imu_gap_s: Longest IMU gap bridged; see ``imu_gap_policy``.
         imu_gap_policy: See :class:`ImuGapPolicy`.
         intrinsics: See :class:`IntrinsicsMode` (AUTO: estimated when the gyro shows an intrinsic error).
-        intrinsics_block_s: Length of the piecewise-constant bias correction of the intrinsics fit.
+        intrinsics_block_s: Blocks (gyro) and low-pass time scale (accelerometer) of the solved bias the
+            intrinsics fit starts from.
         min_poses: Fewest pose samples accepted.
         max_iterations: LM iteration limit.
         relative_error_tol: LM relative error tolerance.

@@ -148,6 +148,7 @@ def run_one(generator: str, scenario: str, seed: int, duration_s: float, validat
     err = np.hstack([res.bias_gyro_radps - truth[0], res.bias_acc_mps2 - truth[1]])
     std = np.hstack([res.bias_gyro_std_radps, res.bias_acc_std_mps2])
     rec["rmse"] = np.sqrt((err**2).mean(0)).tolist()
+    rec["intrinsics_estimated"] = bool((res.report.get("intrinsics_auto") or {}).get("estimated", False))
     rec["nees"] = ((err / std) ** 2).mean(0).tolist()
     level = (res.report.get("gravity") or {}).get("level_test") or {}
     rec["gravity"] = {k: level.get(k) for k in ("tilt_deg", "tilt_sigmas", "level")}

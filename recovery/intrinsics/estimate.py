@@ -12,9 +12,12 @@ through the trajectory, which the pose stream pins down whatever the bias does):
 
 1. solve as usual;
 2. fit, by linear least squares over every keyframe interval, the intrinsics together with a
-   piecewise-constant bias correction (one value per ``block_s``, so slow drift stays with the
-   bias); a term whose sigma exceeds ``max_sigma`` is not observable from this motion: it is
-   fixed to zero and named in a warning;
+   random-walk bias correction around the solved bias (the gyro's as ``block_s`` means, the
+   accelerometer's low-passed at ``1 / block_s``: slow drift stays with the bias); the accelerometer terms' regressor is the bias-free force low-passed at
+   ``REGRESSOR_CUTOFF_HZ``, so that it does not share the interval's own noise with the residual
+   (errors in variables: a scale estimate pulled up by the noise's variance); a term whose sigma
+   exceeds ``max_sigma`` is not observable from this motion: it is not corrected in the readings
+   and is named in a warning;
 3. correct the readings, ``acc' = M_a^-1 acc``, ``gyro' = M_g^-1 (gyro - G f)``, and solve again;
    a term enters when it differs from zero by 3 sigma, and later fits refine it while they move
    a term by more than ``REFINE_SIGMAS`` sigma (at most ``max_rounds``);
@@ -27,7 +30,9 @@ and its sigma includes the uncertainty of the estimated terms (:func:`intrinsics
 a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. The terms left out (not
 significant, not observable) are still in the readings and in the bias: under a datasheet prior
 (:func:`term_prior`), their posterior means are taken out of the bias (:func:`left_out_shift`) and
-their posterior variance (the prior, for a term the fit cannot see) is added to its sigma. When the
+their posterior variance is added to its sigma; a term not observable enough to correct the readings for
+still informs its posterior, and only one whose sigma exceeds ``BLIND_SIGMA_RATIO`` prior sigmas keeps the
+prior. When the
 accelerometer agrees with a calibration file's extrinsic rotation (the solve's turn from it is then
 the gyro's own rotation), every fit takes the file's rotation as the accelerometer's
 (:mod:`recovery.intrinsics.frame`): the accelerometer readings are turned into the solve's frame
@@ -135,10 +140,12 @@ class _Interval:
     r_vel: np.ndarray  # [3]
 
 
-def _interval(dt: np.ndarray, gyro: np.ndarray, f: np.ndarray, steps: np.ndarray, half: np.ndarray, R0: np.ndarray,
-              R1: np.ndarray, v0: np.ndarray, v1: np.ndarray, gravity: np.ndarray) -> tuple[_Interval, np.ndarray]:
+def _interval(dt: np.ndarray, gyro: np.ndarray, f: np.ndarray, f_reg: np.ndarray, steps: np.ndarray, half: np.ndarray,
+              R0: np.ndarray, R1: np.ndarray, v0: np.ndarray, v1: np.ndarray, gravity: np.ndarray
+              ) -> tuple[_Interval, np.ndarray]:
     """Linearised residuals of one interval: samples [n] held ``dt`` [n] (s), their rotations
-    ``exp(gyro dt)`` and ``exp(gyro dt / 2)`` ([n, 3, 3] each). Returns the interval and its rotation
+    ``exp(gyro dt)`` and ``exp(gyro dt / 2)`` ([n, 3, 3] each); ``f`` [n, 3] integrates into the velocity
+    residual, ``f_reg`` [n, 3] is the accelerometer terms' regressor. Returns the interval and its rotation
     error [3, 3], whose log is the rotation residual (converted for every interval at once)."""
     n = len(dt)
     # R_i: attitude at sample i (world from body), propagated from the trajectory's R0 by the gyro
@@ -161,7 +168,7 @@ def _interval(dt: np.ndarray, gyro: np.ndarray, f: np.ndarray, steps: np.ndarray
     Rdt = np.einsum("nij,njk->nik", R[:n], half) * dt[:, None, None]
     dv_imu = np.einsum("nij,nj->i", Rdt, f) + gravity * dt.sum()
     r_vel = (v1 - v0) - dv_imu
-    A_sa = -np.einsum("nij,nk->nijk", Rdt, f).reshape(n, 3, 9).sum(0)
+    A_sa = -np.einsum("nij,nk->nijk", Rdt, f_reg).reshape(n, 3, 9).sum(0)
     return _Interval(np.hstack([A_sg, A_g]), A_sa, -Jdt.sum(0), -Rdt.sum(0), r_vel), dR_imu.T @ (R0.T @ R1)
 
 
@@ -176,17 +183,28 @@ def _hold_durations(t_ns: np.ndarray, a_ns: int, b_ns: int) -> tuple[np.ndarray,
     return idx[keep], (end[keep] - start[keep]) / NS_PER_S
 
 
+#: Low-pass (Hz) of the accelerometer terms' regressor: a 0.1-s interval holds ~20 % of its weight (against
+#: 100 % for the raw force), the handheld and drone motion's tilt and thrust changes pass.
+REGRESSOR_CUTOFF_HZ = 1.0
+
+
 def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mps: np.ndarray,
                    bias_at: Callable[[np.ndarray], np.ndarray], gravity_mps2: np.ndarray, noise: ImuNoiseModel, *,
                    g_sensitivity: bool, block_s: float = 10.0, max_sigma: float = 2e-3,
                    max_sigma_g_sensitivity: float = 5e-4, n_sigma: float = 3.0,
                    present: dict[str, np.ndarray] | None = None,
-                   acc_prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> IntrinsicsFit:
+                   acc_prior: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                   regressor_cutoff_hz: float = REGRESSOR_CUTOFF_HZ) -> IntrinsicsFit:
     """Fit the intrinsics of ``imu`` against a solved trajectory (see the module docstring).
 
     Per keyframe interval the bias correction is a free variable tied to its neighbours by the
     random-walk prior ``noise`` (a Kalman-smoother-like sparse least squares); the solved bias,
-    which may have absorbed rate-correlated error, enters only through its ``block_s`` means.
+    which may have absorbed rate-correlated error, enters only through its ``block_s`` means (gyro)
+    or low-passed at ``1 / block_s`` (accelerometer: a continuous curve, as the block means' steps at
+    each block's end exceed what the walk allows and reach the scale terms times g).
+    The accelerometer terms' regressor is the force less the solved bias, low-passed at
+    ``regressor_cutoff_hz`` (an instrument free of the interval's own noise and of the bias's
+    steps; the gyro's noise is too small against the rate for this to matter).
 
     Args:
         imu: The readings the trajectory was solved with.
@@ -195,7 +213,8 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
         gravity_mps2: Gravity in the trajectory's world frame, [3].
         noise: White noise and bias random walk of the fit.
         g_sensitivity: Also fit ``G``.
-        block_s: Blocks over which the solved bias is averaged before it is subtracted.
+        block_s: Blocks (gyro) and time scale of the low-pass (accelerometer) of the solved bias before it
+            is subtracted.
         max_sigma / max_sigma_g_sensitivity: Largest sigma of an observable term.
         n_sigma: A term is applied only when it differs from zero by more than this many sigmas,
             or when it is ``present`` already (per group, 3x3 booleans: terms applied in earlier
@@ -203,16 +222,21 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
             gating each refinement again would leave up to ``n_sigma`` sigmas of them unapplied).
         acc_prior: Prior rows ``(H [m, 9], target [m], sigma [m])`` on ``S_a`` (row-major): the
             accelerometer's rotation from a calibration file (:func:`recovery.intrinsics.frame.rotation_prior`).
+        regressor_cutoff_hz: Low-pass of the accelerometer terms' regressor.
     """
     R_kf = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
-    sample_block = np.clip(((imu.t_ns - t_ns[0]) / NS_PER_S // block_s).astype(int), 0, None)
-    b = _block_means(bias_at(imu.t_ns), sample_block)
+    # the gyro's solved bias as block means, the accelerometer's low-passed (its scale terms meet the
+    # block ends' steps at g times the walk; the gyro's terms at the rate, which the steps barely touch)
+    b = bias_at(imu.t_ns)
+    b = np.hstack([_block_means(b[:, :3], np.clip(((imu.t_ns - t_ns[0]) / NS_PER_S // block_s).astype(int), 0, None)),
+                   _low_pass(imu.t_ns, b[:, 3:], 1.0 / block_s)])
     gyro, f = imu.gyro_radps - b[:, :3], imu.acc_mps2 - b[:, 3:]
     # midpoint samples: the mean of the readings at both ends of each sample interval (the
     # recovery's preintegration does the same; a zero-order hold lags by half a sample and
     # shows up as a spurious misalignment of ~1e-4)
     gyro = np.vstack([0.5 * (gyro[:-1] + gyro[1:]), gyro[-1:]])
     f = np.vstack([0.5 * (f[:-1] + f[1:]), f[-1:]])
+    f_reg = _low_pass(imu.t_ns, imu.acc_mps2 - bias_at(imu.t_ns)[:, 3:], regressor_cutoff_hz)
     held = [_hold_durations(imu.t_ns, int(t_ns[k]), int(t_ns[k + 1])) for k in range(len(t_ns) - 1)]
     kept = [k for k, (idx, _) in enumerate(held) if len(idx) >= 2 and np.all(np.isfinite(gyro[idx]))]
     idx_all = np.concatenate([held[k][0] for k in kept] or [np.zeros(0, int)])
@@ -225,7 +249,7 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
     errors: list[np.ndarray] = []
     for k, dt, s_k, h_k in zip(kept, np.split(dt_all, cut), np.split(steps_all, cut), np.split(half_all, cut)):
         idx = held[k][0]
-        iv, err = _interval(dt, gyro[idx], f[idx], s_k, h_k, R_kf[k], R_kf[k + 1], v_mps[k], v_mps[k + 1],
+        iv, err = _interval(dt, gyro[idx], f[idx], f_reg[idx], s_k, h_k, R_kf[k], R_kf[k + 1], v_mps[k], v_mps[k + 1],
                             gravity_mps2)
         rows.append(iv)
         errors.append(err)
@@ -267,6 +291,23 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
                          tuple(groups), applied, {"rotation": c_rot, "velocity": c_vel}, estimate)
 
 
+def _low_pass(t_ns: np.ndarray, values: np.ndarray, cutoff_hz: float) -> np.ndarray:
+    """``values`` [N, k] through a zero-phase low-pass with the gain of a 4th-order Butterworth run forwards and
+    backwards (``1 / (1 + (f / cutoff_hz)^8)``, as ``scipy.signal.sosfiltfilt``), applied in the frequency domain
+    to the series extended by its point reflection at both ends (``filtfilt``'s odd padding: no step or kink at
+    the ends, nothing wraps); non-finite rows bridged linearly first."""
+    ok = np.all(np.isfinite(values), axis=1)
+    filled = np.column_stack([np.interp(t_ns, t_ns[ok], values[ok, c]) for c in range(values.shape[1])])
+    n = len(filled)
+    rate_hz = NS_PER_S / float(np.median(np.diff(t_ns))) if n > 1 else 0.0
+    if cutoff_hz <= 0 or cutoff_hz >= 0.5 * rate_hz:
+        return filled
+    extended = np.concatenate([2 * filled[0] - filled[::-1], filled, 2 * filled[-1] - filled[::-1]])
+    spectrum = np.fft.rfft(extended, axis=0)
+    spectrum *= 1.0 / (1.0 + (np.fft.rfftfreq(3 * n, d=1.0 / rate_hz) / cutoff_hz) ** 8)[:, None]
+    return np.fft.irfft(spectrum, n=3 * n, axis=0)[n:2 * n]
+
+
 def _block_means(values: np.ndarray, block: np.ndarray) -> np.ndarray:
     """Each row replaced by the mean of its block's rows ([N, k], block [N] ints >= 0)."""
     counts = np.bincount(block)
@@ -300,11 +341,17 @@ def term_prior(frame_held: bool) -> dict[str, np.ndarray]:
     return out
 
 
+#: A left-out term whose fit sigma exceeds this many prior sigmas is blind: its posterior is the prior (the fit
+#: would hold under 1 % of the information, and a near-singular covariance says nothing reliable).
+BLIND_SIGMA_RATIO = 10.0
+
+
 def _blocks(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray, f_mps2: np.ndarray,
             left: dict[str, np.ndarray] | None, prior: dict[str, np.ndarray] | None):
     """Per covariance block (rotation: S_g[, G]; velocity: S_a): ``(cov, [(group, signal)], first bias
     column, in-model mask, left-out mask, posterior of the left-out terms)``; the posterior is
-    ``(indices, m, P)`` of the observable left-out terms and ``(indices, prior variance)`` of the blind ones."""
+    ``(indices, m, P)`` of the left-out terms the fit sees (sigma within :data:`BLIND_SIGMA_RATIO` prior sigmas,
+    observable or not) and ``(indices, prior variance)`` of the blind ones."""
     gyro_groups = [("gyro_scale_misalignment", omega_radps)]
     if "gyro_g_sensitivity" in fit.estimated:
         gyro_groups.append(("gyro_g_sensitivity", f_mps2))
@@ -316,10 +363,12 @@ def _blocks(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.nd
         for g, (name, _) in enumerate(groups):
             sl = slice(9 * g, 9 * g + 9)
             used[sl] = np.asarray(terms.get(name, np.zeros((3, 3), bool)), bool).ravel()
-            seen[sl] = np.asarray(fit.observable.get(name, np.ones((3, 3), bool)), bool).ravel()
             if left is not None:
                 x[sl] = np.nan_to_num(np.asarray(left.get(name, np.zeros((3, 3))), float).ravel())
                 prior_var[sl] = np.asarray((prior or term_prior(False))[name], float).ravel() ** 2
+        if left is not None:  # a term too weak to correct the readings for still informs its posterior
+            var_fit = np.diag(cov)
+            seen = np.isfinite(var_fit) & (var_fit <= BLIND_SIGMA_RATIO**2 * prior_var)
         out_of_model = ~used if left is not None else np.zeros(n, bool)
         blind = np.flatnonzero(out_of_model & ~seen)  # the fit cannot see them: the prior, its estimate says nothing
         u = np.flatnonzero(out_of_model & seen)
@@ -345,8 +394,8 @@ def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], o
     ``C`` among them) their posterior under the datasheet prior ``L`` (``prior``: per group 3x3 sigmas,
     default :func:`term_prior` without a held frame) is ``m = L (C + L)^-1 x``, ``P = C (C + L)^-1 L``:
     they err by ``P + m m^T`` (their mean square error as zero), or by ``P`` when the bias was
-    ``corrected`` by ``m`` (:func:`left_out_shift`). A term the fit cannot see (not
-    ``fit.observable``) keeps the prior as its error. Without ``left``, terms left out add nothing.
+    ``corrected`` by ``m`` (:func:`left_out_shift`). A term the fit cannot see (sigma above
+    :data:`BLIND_SIGMA_RATIO` prior sigmas) keeps the prior as its error. Without ``left``, terms left out add nothing.
 
     Args:
         fit: The last fit (its ``cov``). terms: The terms estimated. left / prior / corrected: See above.

@@ -73,12 +73,14 @@ def intrinsics_report(total, last, rounds: int) -> dict:
 
 
 def unobservable_warning(fit) -> str | None:
-    """A warning naming the terms that could not be estimated (fixed to identity / zero)."""
+    """A warning naming the terms too weak to correct the readings for (the bias keeps them, within their
+    posterior under the datasheet prior)."""
     missing = [f"{group}[{TERMS[i]}]" for group in fit.estimated
                for i in np.flatnonzero(~fit.observable[group].ravel())]
     if not missing:
         return None
-    return ("IMU intrinsics not observable from this motion, fixed to identity/zero: " + ", ".join(missing[:12])
+    return ("IMU intrinsics not observable from this motion, left in the readings (the bias sigma holds them, "
+            "within the datasheet prior): " + ", ".join(missing[:12])
             + (", ..." if len(missing) > 12 else "") + "; record rotations about and accelerations along every axis")
 
 

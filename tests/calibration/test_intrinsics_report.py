@@ -40,6 +40,28 @@ def test_terms_left_out_are_covered_on_average():
         assert 0.85 < np.mean(corrected) < 1.15, (sigma, np.mean(corrected))
 
 
+def test_a_term_too_weak_to_correct_for_still_narrows_its_prior():
+    """Closed form of the posterior: a left-out term whose fit sigma is 3x the prior's (above the fit's limit for
+    correcting the readings) adds ``(1 / sigma^2 + 1 / tau^2)^-1 f^2`` to the bias variance, its posterior mean
+    ``tau^2 / (tau^2 + sigma^2) x`` times the force leaves the bias; past ``BLIND_SIGMA_RATIO`` prior sigmas the
+    prior ``tau^2 f^2`` stands and the estimate is ignored."""
+    from recovery.intrinsics.estimate import BLIND_SIGMA_RATIO
+    tau, x = 5e-3, 4e-3  # the accelerometer scale's datasheet prior; the fit's estimate of S_a[z, z]
+    f, omega = np.array([[0.2, -0.1, 9.81]]), np.zeros((1, 3))
+    none = {g: np.zeros((3, 3), bool) for g in GROUPS}
+    left = {g: np.zeros((3, 3)) for g in GROUPS}
+    left["acc_scale_misalignment"][2, 2] = x
+    for sigma, var_term, mean in ((3 * tau, 1 / (1 / (3 * tau) ** 2 + 1 / tau**2), x / 10),
+                                  (1.01 * BLIND_SIGMA_RATIO * tau, tau**2, 0.0)):
+        vel = np.eye(9) * 1e-14
+        vel[8, 8] = sigma**2
+        fit = IntrinsicsFit(ImuIntrinsics.identity(), {}, {}, {}, GROUPS, None,
+                            {"rotation": np.eye(18) * 1e-14, "velocity": vel})
+        var = intrinsics_bias_variance(fit, none, omega, f, left=left, corrected=True)[0, 5]
+        assert var == pytest.approx(var_term * f[0, 2] ** 2, rel=1e-6)
+        assert left_out_shift(fit, none, omega, f, left)[0, 5] == pytest.approx(mean * f[0, 2], rel=1e-6, abs=1e-15)
+
+
 def test_term_table_and_the_report_clause():
     sigma = {g: np.full((3, 3), 1e-4) for g in GROUPS}
     observable = {g: np.ones((3, 3), bool) for g in GROUPS}

@@ -6,6 +6,8 @@ spans and decimated keyframes.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -116,9 +118,10 @@ def test_mh01_leica_agrees_with_gt_recovery(shared_data):
 
 @pytest.mark.slow
 def test_mh01_leica_agrees_with_gt_recovery_with_intrinsics_on(shared_data):
-    """With the IMU intrinsics on, the Leica and GT-pose recoveries still agree within 3 sigma
-    (measured, benchmarks/recovery/recovery.py --only mh01 --config '{"intrinsics": "with_g_sensitivity"}': 1.000 on
-    every axis but acc z, 0.998). From the Leica positions nothing is estimated (position-only stream);
+    """With the IMU intrinsics on, the Leica and GT-pose recoveries still agree within 3 sigma, in the readings'
+    convention (the GT recovery's bias with the terms' posterior means put back; without them acc x agrees on 54 % of
+    the keyframes: the fit's x scale, the gravity axis, 0.008 +- 0.003, narrows its prior to a mean of 0.0077, and
+    0.0077 g leaves the bias). From the Leica positions nothing is estimated (position-only stream);
     before that rule the fit's 6.7 % accelerometer scale left gyro y at 0 % agreement."""
     from pipeline.io import load_sequence
     from pipeline.io.tum import read_tum_poses
@@ -133,5 +136,15 @@ def test_mh01_leica_agrees_with_gt_recovery_with_intrinsics_on(shared_data):
     seq.poses["euroc_gt"] = gt
     rb = recover(seq, pose_stream="euroc_gt", config=on)  # the default keyframes, as the benchmark
     assert rb.report["intrinsics"]["rounds"] >= 1
-    frac = (agreement_z(ra, rb) < 3).mean(axis=0)
+    # the GT recovery's bias is in the raw readings' convention, the terms' posterior means taken out of it
+    # (the accelerometer's x scale, its gravity axis, ~0.8 % here); the Leica recovery's bias still holds
+    # them: compare the two in the readings' convention, the means times the 10-s block force put back
+    left = np.array(rb.report["intrinsics"]["left_out_posterior_means"]["acc_scale_misalignment"])
+    force = np.stack([np.interp(rb.t_ns, seq.imu.t_ns, seq.imu.acc_mps2[:, c]) for c in range(3)], axis=1)
+    force -= rb.bias_acc_mps2
+    block = ((rb.t_ns - rb.t_ns[0]) // 10_000_000_000).astype(int)
+    counts = np.bincount(block)
+    block_force = np.stack([np.bincount(block, force[:, c]) / counts for c in range(3)], axis=1)[block]
+    readings_convention = dataclasses.replace(rb, bias_acc_mps2=rb.bias_acc_mps2 + block_force @ left.T)
+    frac = (agreement_z(ra, readings_convention) < 3).mean(axis=0)
     assert (frac >= 0.99).all(), frac
