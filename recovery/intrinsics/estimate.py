@@ -13,8 +13,8 @@ through the trajectory, which the pose stream pins down whatever the bias does):
 1. solve as usual;
 2. fit, by linear least squares over every keyframe interval, the intrinsics together with a
    random-walk bias correction around the solved bias (the gyro's as ``block_s`` means, the
-   accelerometer's low-passed at ``1 / block_s``: slow drift stays with the bias); the accelerometer terms' regressor is the bias-free force low-passed at
-   ``REGRESSOR_CUTOFF_HZ``, so that it does not share the interval's own noise with the residual
+   accelerometer's low-passed at ``1 / block_s``: slow drift stays with the bias); the
+   accelerometer terms' regressor is the bias-free force low-passed at ``REGRESSOR_CUTOFF_HZ``, so that it does not share the interval's own noise with the residual
    (errors in variables: a scale estimate pulled up by the noise's variance); a term whose sigma
    exceeds ``max_sigma`` is not observable from this motion: it is not corrected in the readings
    and is named in a warning;
@@ -26,13 +26,11 @@ through the trajectory, which the pose stream pins down whatever the bias does):
 
 A position-only pose stream does not pin the trajectory down: nothing is estimated for it
 (identity, with a warning). The bias is reported in the raw readings' convention (``b = M b'``),
-and its sigma includes the uncertainty of the estimated terms (:func:`intrinsics_bias_variance`):
+and its sigma includes the uncertainty of the estimated terms (:func:`recovery.intrinsics.posterior.intrinsics_bias_variance`):
 a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. The terms left out (not
 significant, not observable) are still in the readings and in the bias: under a datasheet prior
-(:func:`term_prior`), their posterior means are taken out of the bias (:func:`left_out_shift`) and
-their posterior variance is added to its sigma; a term not observable enough to correct the readings for
-still informs its posterior, and only one whose sigma exceeds ``BLIND_SIGMA_RATIO`` prior sigmas keeps the
-prior. When the
+(:func:`recovery.intrinsics.posterior.term_prior`), their posterior means are taken out of the bias (``left_out_shift``) and
+their posterior variance is added to its sigma (:mod:`recovery.intrinsics.posterior`). When the
 accelerometer agrees with a calibration file's extrinsic rotation (the solve's turn from it is then
 the gyro's own rotation), every fit takes the file's rotation as the accelerometer's
 (:mod:`recovery.intrinsics.frame`): the accelerometer readings are turned into the solve's frame
@@ -55,6 +53,7 @@ from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.intrinsics.gyro_consistency import CouplingKind, rate_coupling
 from recovery.intrinsics.frame import CALIBRATION_ROTATION_SIGMA_RAD, calibration_agreement, rotation_prior
 from recovery.intrinsics.least_squares import solve_with_walk
+from recovery.intrinsics.posterior import intrinsics_bias_variance, left_out_means, left_out_shift, term_prior
 from recovery.intrinsics.report import TERMS as _TERMS
 from recovery.intrinsics.report import intrinsics_report, term_table, unobservable_warning
 from recovery.outputs import RecoveryReport
@@ -227,16 +226,16 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
     R_kf = Rotation.from_quat(quat_wxyz, scalar_first=True).as_matrix()
     # the gyro's solved bias as block means, the accelerometer's low-passed (its scale terms meet the
     # block ends' steps at g times the walk; the gyro's terms at the rate, which the steps barely touch)
-    b = bias_at(imu.t_ns)
-    b = np.hstack([_block_means(b[:, :3], np.clip(((imu.t_ns - t_ns[0]) / NS_PER_S // block_s).astype(int), 0, None)),
-                   _low_pass(imu.t_ns, b[:, 3:], 1.0 / block_s)])
+    solved = bias_at(imu.t_ns)
+    block = np.clip(((imu.t_ns - t_ns[0]) / NS_PER_S // block_s).astype(int), 0, None)
+    b = np.hstack([_block_means(solved[:, :3], block), _low_pass(imu.t_ns, solved[:, 3:], 1.0 / block_s)])
     gyro, f = imu.gyro_radps - b[:, :3], imu.acc_mps2 - b[:, 3:]
     # midpoint samples: the mean of the readings at both ends of each sample interval (the
     # recovery's preintegration does the same; a zero-order hold lags by half a sample and
     # shows up as a spurious misalignment of ~1e-4)
     gyro = np.vstack([0.5 * (gyro[:-1] + gyro[1:]), gyro[-1:]])
     f = np.vstack([0.5 * (f[:-1] + f[1:]), f[-1:]])
-    f_reg = _low_pass(imu.t_ns, imu.acc_mps2 - bias_at(imu.t_ns)[:, 3:], regressor_cutoff_hz)
+    f_reg = _low_pass(imu.t_ns, imu.acc_mps2 - solved[:, 3:], regressor_cutoff_hz)
     held = [_hold_durations(imu.t_ns, int(t_ns[k]), int(t_ns[k + 1])) for k in range(len(t_ns) - 1)]
     kept = [k for k, (idx, _) in enumerate(held) if len(idx) >= 2 and np.all(np.isfinite(gyro[idx]))]
     idx_all = np.concatenate([held[k][0] for k in kept] or [np.zeros(0, int)])
@@ -321,134 +320,6 @@ def raw_bias(total: ImuIntrinsics, bias: np.ndarray, std: np.ndarray) -> tuple[n
     var_g = (std[:, :3] ** 2) @ (total.gyro_matrix ** 2).T
     var_a = (std[:, 3:] ** 2) @ (total.acc_matrix ** 2).T
     return out, np.sqrt(np.hstack([var_g, var_a]))
-
-
-#: The size (1 sigma) of a term on a MEMS IMU's datasheet: scale and misalignment 0.5 %, g-sensitivity
-#: 2e-4 rad/s per m/s^2 (0.1 deg/s per g). The prior of a term the fit cannot tell from the bias.
-TERM_PRIOR = {"gyro_scale_misalignment": 5e-3, "acc_scale_misalignment": 5e-3, "gyro_g_sensitivity": 2e-4}
-#: An accelerometer off-diagonal term when the accelerometer's frame is the IMU frame the solve used (the
-#: extrinsic known): only the triad's non-orthogonality (0.06 deg).
-ACC_CROSS_AXIS_PRIOR = 1e-3
-
-
-def term_prior(frame_held: bool) -> dict[str, np.ndarray]:
-    """Per group, the 3x3 prior sigmas (:data:`TERM_PRIOR`; with ``frame_held``, the accelerometer's
-    off-diagonal terms :data:`ACC_CROSS_AXIS_PRIOR`, else they carry its rotation against the solve's frame too)."""
-    out = {k: np.full((3, 3), v) for k, v in TERM_PRIOR.items()}
-    if frame_held:
-        out["acc_scale_misalignment"] = np.where(np.eye(3, dtype=bool), TERM_PRIOR["acc_scale_misalignment"],
-                                                 ACC_CROSS_AXIS_PRIOR)
-    return out
-
-
-#: A left-out term whose fit sigma exceeds this many prior sigmas is blind: its posterior is the prior (the fit
-#: would hold under 1 % of the information, and a near-singular covariance says nothing reliable).
-BLIND_SIGMA_RATIO = 10.0
-
-
-def _blocks(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray, f_mps2: np.ndarray,
-            left: dict[str, np.ndarray] | None, prior: dict[str, np.ndarray] | None):
-    """Per covariance block (rotation: S_g[, G]; velocity: S_a): ``(cov, [(group, signal)], first bias
-    column, in-model mask, left-out mask, posterior of the left-out terms)``; the posterior is
-    ``(indices, m, P)`` of the left-out terms the fit sees (sigma within :data:`BLIND_SIGMA_RATIO` prior sigmas,
-    observable or not) and ``(indices, prior variance)`` of the blind ones."""
-    gyro_groups = [("gyro_scale_misalignment", omega_radps)]
-    if "gyro_g_sensitivity" in fit.estimated:
-        gyro_groups.append(("gyro_g_sensitivity", f_mps2))
-    for cov, groups, col in ((fit.cov["rotation"], gyro_groups, 0),
-                             (fit.cov["velocity"], [("acc_scale_misalignment", f_mps2)], 3)):
-        n = cov.shape[0]
-        used, seen = np.zeros(n, bool), np.ones(n, bool)
-        x, prior_var = np.zeros(n), np.zeros(n)
-        for g, (name, _) in enumerate(groups):
-            sl = slice(9 * g, 9 * g + 9)
-            used[sl] = np.asarray(terms.get(name, np.zeros((3, 3), bool)), bool).ravel()
-            if left is not None:
-                x[sl] = np.nan_to_num(np.asarray(left.get(name, np.zeros((3, 3))), float).ravel())
-                prior_var[sl] = np.asarray((prior or term_prior(False))[name], float).ravel() ** 2
-        if left is not None:  # a term too weak to correct the readings for still informs its posterior
-            var_fit = np.diag(cov)
-            seen = np.isfinite(var_fit) & (var_fit <= BLIND_SIGMA_RATIO**2 * prior_var)
-        out_of_model = ~used if left is not None else np.zeros(n, bool)
-        blind = np.flatnonzero(out_of_model & ~seen)  # the fit cannot see them: the prior, its estimate says nothing
-        u = np.flatnonzero(out_of_model & seen)
-        m, post = np.zeros(len(u)), np.zeros((len(u), len(u)))
-        if len(u):
-            C, L = cov[np.ix_(u, u)], np.diag(prior_var[u])
-            gain = np.linalg.solve(C + L, np.eye(len(u)))  # (C + L)^-1
-            m, post = L @ gain @ x[u], C @ gain @ L
-        yield cov, groups, col, used, out_of_model, (u, m, 0.5 * (post + post.T)), (blind, prior_var[blind])
-
-
-def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray,
-                             f_mps2: np.ndarray, left: dict[str, np.ndarray] | None = None,
-                             prior: dict[str, np.ndarray] | None = None, corrected: bool = False) -> np.ndarray:
-    """Bias variance [N, 6] (gyro, acc) from the intrinsics: those estimated and those the bias absorbed.
-
-    With ``gyro = M_g omega + G f + b_g`` and ``acc = M_a f + b_a``, errors ``dS`` / ``dG`` of the
-    terms move the recovered bias by ``-(dS_g omega + dG f)`` and ``-dS_a f`` (first order). A term on
-    the gravity axis times ``f ~ g`` is nearly a constant offset, so its sigma reaches the bias in
-    full. A term in the model (``terms``: per group, 3x3 booleans) errs by the fit's covariance. The
-    terms left out (not significant, not observable, or dropped) are still in the readings: with
-    ``left`` (per group, 3x3: the fit's estimate ``x`` of what the readings carry of each, covariance
-    ``C`` among them) their posterior under the datasheet prior ``L`` (``prior``: per group 3x3 sigmas,
-    default :func:`term_prior` without a held frame) is ``m = L (C + L)^-1 x``, ``P = C (C + L)^-1 L``:
-    they err by ``P + m m^T`` (their mean square error as zero), or by ``P`` when the bias was
-    ``corrected`` by ``m`` (:func:`left_out_shift`). A term the fit cannot see (sigma above
-    :data:`BLIND_SIGMA_RATIO` prior sigmas) keeps the prior as its error. Without ``left``, terms left out add nothing.
-
-    Args:
-        fit: The last fit (its ``cov``). terms: The terms estimated. left / prior / corrected: See above.
-        omega_radps / f_mps2: Bias-free angular rate and specific force at the keyframes, [N, 3].
-    """
-    N = len(omega_radps)
-    out = np.zeros((N, 6))
-    for cov, groups, col, used, out_of_model, (u, m, post), (blind, blind_var) in _blocks(
-            fit, terms, omega_radps, f_mps2, left, prior):
-        eff = np.where(np.outer(used, used), cov, 0.0)
-        eff[blind, blind] = blind_var
-        eff[np.ix_(u, u)] = post if corrected else post + np.outer(m, m)
-        counted = used | out_of_model
-        for row in range(3):
-            # d(bias_row) / d(term [row, c]) = -signal_c, for the terms of that row of each group
-            grad = np.zeros((N, cov.shape[0]))
-            for g, (_, signal) in enumerate(groups):
-                grad[:, 9 * g + 3 * row: 9 * g + 3 * row + 3] = -signal * counted[9 * g + 3 * row: 9 * g + 3 * row + 3]
-            out[:, col + row] = np.einsum("np,pq,nq->n", grad, eff, grad)
-    return out
-
-
-def left_out_means(fit: IntrinsicsFit, terms: dict[str, np.ndarray], left: dict[str, np.ndarray],
-                   prior: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
-    """Per group, 3x3: the posterior means of the terms left out (:func:`intrinsics_bias_variance`; zero
-    for the terms in the model and for those the fit cannot see)."""
-    out = {}
-    zeros = np.zeros((1, 3))
-    for _, groups, _, _, _, (u, m, _), _ in _blocks(fit, terms, zeros, zeros, left, prior):
-        full = np.zeros(9 * len(groups))
-        full[u] = m
-        out.update({name: full[9 * g: 9 * g + 9].reshape(3, 3) for g, (name, _) in enumerate(groups)})
-    return out
-
-
-def left_out_shift(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.ndarray, f_mps2: np.ndarray,
-                   left: dict[str, np.ndarray], prior: dict[str, np.ndarray] | None = None) -> np.ndarray:
-    """What the bias absorbed of the terms left out, to subtract from it: ``m s`` per bias axis, [N, 6].
-
-    The posterior means ``m`` of :func:`intrinsics_bias_variance` times their signals; pass the
-    signals low-passed as the bias follows them (a bias random walk takes up ``G f ~ G g`` in full,
-    little of ``S_g omega``).
-
-    Args:
-        omega_radps / f_mps2: The signals at the keyframes, [N, 3].
-    """
-    out = np.zeros((len(omega_radps), 6))
-    for _, groups, col, _, _, (u, m, _), _ in _blocks(fit, terms, omega_radps, f_mps2, left, prior):
-        full = np.zeros(9 * len(groups))
-        full[u] = m
-        for g, (_, signal) in enumerate(groups):
-            out[:, col:col + 3] += signal @ full[9 * g: 9 * g + 9].reshape(3, 3).T
-    return out
 
 
 def _fit_noise(sequence: Sequence, report: dict, max_walk_scale: float = 30.0) -> ImuNoiseModel:

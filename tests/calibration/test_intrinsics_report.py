@@ -45,7 +45,7 @@ def test_a_term_too_weak_to_correct_for_still_narrows_its_prior():
     correcting the readings) adds ``(1 / sigma^2 + 1 / tau^2)^-1 f^2`` to the bias variance, its posterior mean
     ``tau^2 / (tau^2 + sigma^2) x`` times the force leaves the bias; past ``BLIND_SIGMA_RATIO`` prior sigmas the
     prior ``tau^2 f^2`` stands and the estimate is ignored."""
-    from recovery.intrinsics.estimate import BLIND_SIGMA_RATIO
+    from recovery.intrinsics.posterior import BLIND_SIGMA_RATIO
     tau, x = 5e-3, 4e-3  # the accelerometer scale's datasheet prior; the fit's estimate of S_a[z, z]
     f, omega = np.array([[0.2, -0.1, 9.81]]), np.zeros((1, 3))
     none = {g: np.zeros((3, 3), bool) for g in GROUPS}
