@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import enum
+import re
 import types
 import typing
 from collections.abc import Iterable, Mapping
@@ -64,6 +65,20 @@ def _type_name(kind: Any) -> str:
         return f"a list of {_type_name(args[0]).removeprefix('an ').removeprefix('a ')}s"
     return {type(None): "null", float: "a number", int: "an integer", bool: "true/false", str: "a string"}.get(
         kind, "a list" if typing.get_origin(kind) in (list, tuple) else getattr(kind, "__name__", str(kind)))
+
+
+def _number_as_text_hint(value: Any) -> str | None:
+    """The fix for a number YAML 1.1 reads as text (``1e-7``: no point before the exponent), else None."""
+    if isinstance(value, str) and re.fullmatch(r"[-+]?[0-9]+[eE][-+]?[0-9]+", value.strip()):
+        return f"YAML reads {value} as text: write it with a point, {value.replace('e', '.0e').replace('E', '.0E')}"
+    return None
+
+
+def _numbers(value: Any) -> Any:
+    """``value`` with the numbers YAML 1.1 reads as text (``1e-7``), in it or its list, as floats."""
+    if isinstance(value, list):
+        return [_numbers(v) for v in value]
+    return float(value) if _number_as_text_hint(value) else value
 
 
 def several(errors: list[ConfigError]) -> ConfigError:
@@ -124,7 +139,8 @@ def dataclass_from_mapping(
                     errors.append(ConfigError(f"{key} {value!r} is not one of "
                                               f"{', '.join(str(m.value) for m in kind)}", field=f"{field}.{key}"))
         elif kind is not None and not _type_ok(value, kind):
-            errors.append(ConfigError(f"{key} must be {_type_name(kind)}, got {value!r}", field=f"{field}.{key}"))
+            errors.append(ConfigError(f"{key} must be {_type_name(kind)}, got {value!r}", field=f"{field}.{key}",
+                                      hint=_number_as_text_hint(value)))
     if errors:
         raise several(errors)
     try:
@@ -145,3 +161,26 @@ def dataclass_to_mapping(obj: Any) -> dict[str, Any]:
     """A config dataclass as a plain mapping (enums as values, tuples as lists): what
     :func:`dataclass_from_mapping` reads back into an equal object."""
     return to_plain(dataclasses.asdict(obj))
+
+
+def assignments_to_mapping(items: Iterable[str], *, option: str = "--set") -> dict[str, Any]:
+    """``["key=value", ...]`` (command-line overrides, values in YAML; ``1e-7`` a number, as YAML 1.2 reads it)
+    as ``{key: value}``.
+
+    Raises:
+        ConfigError: An item without ``=``, or with a value that is not YAML (the item and the fix named).
+    """
+    import yaml
+
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"{item!r} is not KEY=VALUE", field=option,
+                              hint="write it as KEY=VALUE, e.g. random_walk_scales=[0.1,1,10]")
+        try:
+            out[key.strip()] = _numbers(yaml.safe_load(value))
+        except yaml.YAMLError as exc:
+            raise ConfigError(f"the value of {item!r} is not YAML ({exc.__class__.__name__})", field=option,
+                              hint="quote the value or write a list in brackets") from None
+    return out

@@ -18,6 +18,9 @@ import yaml
 from pipeline.configs import dataclass_from_mapping, dataclass_to_mapping
 from pipeline.errors import ConfigError
 from pipeline.types import GRAVITY_MPS2, NOISE_FIELDS, ImuNoiseOverrides, PoseSourceKind
+from recovery.intrinsics.posterior import IntrinsicsPrior
+
+_PRIOR = IntrinsicsPrior()  # the defaults of the intrinsics_prior_* fields
 
 
 class PoseFactorMode(str, enum.Enum):
@@ -258,6 +261,11 @@ class RecoveryConfig(ImuNoiseOverrides):
         intrinsics: See :class:`IntrinsicsMode` (AUTO: estimated when the gyro shows an intrinsic error).
         intrinsics_block_s: Blocks (gyro) and low-pass time scale (accelerometer) of the solved bias the
             intrinsics fit starts from.
+        intrinsics_prior_scale_misalignment / intrinsics_prior_g_sensitivity /
+            intrinsics_prior_non_orthogonality / intrinsics_prior_calibration_rotation_rad: The intrinsic
+            terms' sizes (1 sigma) before the data, a MEMS datasheet's by default
+            (:class:`recovery.intrinsics.posterior.IntrinsicsPrior`): a term the fit cannot tell from the bias
+            keeps them in the bias sigma, so give a better IMU's or calibration's own.
         min_poses: Fewest pose samples accepted.
         max_iterations: LM iteration limit.
         relative_error_tol: LM relative error tolerance.
@@ -315,6 +323,10 @@ class RecoveryConfig(ImuNoiseOverrides):
     imu_gap_policy: ImuGapPolicy = ImuGapPolicy.SPLIT
     intrinsics: IntrinsicsMode = IntrinsicsMode.AUTO
     intrinsics_block_s: float = 10.0
+    intrinsics_prior_scale_misalignment: float = _PRIOR.scale_misalignment
+    intrinsics_prior_g_sensitivity: float = _PRIOR.g_sensitivity
+    intrinsics_prior_non_orthogonality: float = _PRIOR.non_orthogonality
+    intrinsics_prior_calibration_rotation_rad: float = _PRIOR.calibration_rotation_rad
     min_poses: int = 20
     max_iterations: int = 30
     relative_error_tol: float = 1e-6
@@ -367,7 +379,9 @@ class RecoveryConfig(ImuNoiseOverrides):
                 raise ConfigError(f"invalid value {value!r}", field=name, hint=f"use one of {choices}") from None
         positive = ("max_time_offset_s", "offset_refine_step_s", "calib_window_s", "gravity_mps2", "gravity_window_s",
                     "extrinsic_prior_rotation_deg", "extrinsic_prior_translation_m", "extrinsic_max_sigmas",
-                    "position_only_window_s", "robust_k", "outlier_threshold", "max_imu_gap_s", "integration_sigma")
+                    "position_only_window_s", "robust_k", "outlier_threshold", "max_imu_gap_s", "integration_sigma",
+                    "intrinsics_prior_scale_misalignment", "intrinsics_prior_g_sensitivity",
+                    "intrinsics_prior_non_orthogonality", "intrinsics_prior_calibration_rotation_rad")
         for name in positive:
             if not float(getattr(self, name)) > 0:
                 raise ConfigError(f"must be > 0, got {getattr(self, name)!r}", field=name)
@@ -406,6 +420,11 @@ class RecoveryConfig(ImuNoiseOverrides):
         if not self.pose_sigma_scales or any(float(s) <= 0 for s in self.pose_sigma_scales):
             raise ConfigError("must be a non-empty list of positive numbers", field="pose_sigma_scales")
         self.pose_sigma_scales = [float(s) for s in self.pose_sigma_scales]
+
+    def intrinsics_prior(self) -> IntrinsicsPrior:
+        """The ``intrinsics_prior_*`` fields as the intrinsics fit reads them."""
+        return IntrinsicsPrior(self.intrinsics_prior_scale_misalignment, self.intrinsics_prior_g_sensitivity,
+                               self.intrinsics_prior_non_orthogonality, self.intrinsics_prior_calibration_rotation_rad)
 
     @classmethod
     def field_names(cls) -> list[str]:

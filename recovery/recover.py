@@ -149,7 +149,8 @@ def _recover_with_intrinsics(sequence: Sequence, pose_stream: str | None, config
         mode = config.intrinsics if decision is None else decision.mode
         result = recover_with_intrinsics(
             sequence, lambda seq: _recover(seq, pose_stream=pose_stream, config=plain),
-            g_sensitivity=mode is IntrinsicsMode.WITH_G_SENSITIVITY, block_s=config.intrinsics_block_s, first=first)
+            g_sensitivity=mode is IntrinsicsMode.WITH_G_SENSITIVITY, block_s=config.intrinsics_block_s, first=first,
+            prior=config.intrinsics_prior())
         result = _record_intrinsics_mode(result, mode)
         return result if decision is None else decision.annotate(result)
     except (RuntimeError, ValueError) as exc:

@@ -63,6 +63,8 @@ REPO = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(REPO))
 
 from pipeline.bias_table import BiasTrack  # noqa: E402
+from pipeline.configs import assignments_to_mapping  # noqa: E402
+from pipeline.errors import ConfigError  # noqa: E402
 from pipeline.io import load_sequence  # noqa: E402
 from pipeline.io.tum import read_tum_poses  # noqa: E402
 from pipeline.types import NS_PER_S, ImuSeries, PoseSeries, PoseSourceKind, Sequence, StateSeries  # noqa: E402
@@ -637,14 +639,12 @@ def main() -> None:
     ap.add_argument("--only", nargs="*", default=None, help="sequences (default: all nine)")
     ap.add_argument("--json", type=Path, default=None, help="also write every figure to this file")
     ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                    help="recovery options other than the defaults (YAML values), e.g. noise_density_scales=null")
+                    help="recovery options other than the defaults (YAML values), e.g. noise_density_scales=[1]")
     args = ap.parse_args()
-    overrides = {}
-    for item in args.set:
-        key, sep, value = item.partition("=")
-        if not sep:
-            sys.exit(f"--set {item!r}: expected KEY=VALUE")
-        overrides[key] = yaml.safe_load(value)
+    try:
+        overrides = assignments_to_mapping(args.set)
+    except ConfigError as exc:
+        sys.exit(str(exc))
     if not (args.data / "euroc").is_dir():
         sys.exit(f"no EuRoC data under {args.data}: set --data or BIASGT_SHARED_DATA")
     logging.basicConfig(level=logging.ERROR)

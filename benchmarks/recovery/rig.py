@@ -2,6 +2,7 @@
 
     .venv/bin/python benchmarks/recovery/rig.py [--seeds 20] [--duration 120] [--scenarios clean mems ...]
         [--generators sim independent] [--out records.jsonl] [--no-validate] [--summary-only]
+        [--set KEY=VALUE ...]
 
 Per generator (``sim``: :mod:`pipeline.sim`; ``independent``: ``tests/independent.py``, closed-form motion
 and its own IMU, mocap and writer code) and seed, one recording per scenario, written as an EuRoC folder
@@ -28,6 +29,9 @@ The NEES judged is the labels': the recovered sigma times the validation's held-
 
 Each recording's figures are appended to ``--out`` (JSON lines; a rerun skips the recordings already
 there), so a long sweep can run in the background and be summarised at any time (``--summary-only``).
+``--set`` replaces recovery options (``RecoveryConfig`` fields, YAML values, e.g.
+``random_walk_scales=[0.01,0.03,0.1,0.3,1,3,10,30,100,300]``) for the recovery and its held-out folds; a
+record keeps its options, and a run summarises and resumes only the records of its own.
 """
 
 from __future__ import annotations
@@ -132,18 +136,23 @@ def write_independent(root: Path, scenario: str, seed: int, duration_s: float
     return seq.t_ns, seq.bias_gyro_radps, seq.bias_acc_mps2
 
 
-def run_one(generator: str, scenario: str, seed: int, duration_s: float, validate: bool, tmp: Path) -> dict:
-    """Recover (and validate) one recording with defaults; its figures against the truth as a JSON-able dict."""
+def run_one(generator: str, scenario: str, seed: int, duration_s: float, validate: bool, tmp: Path,
+            options: dict | None = None) -> dict:
+    """Recover (and validate) one recording with defaults, or ``options`` (``RecoveryConfig`` fields); its figures
+    against the truth as a JSON-able dict."""
     from pipeline.io import load_sequence
+    from recovery.config import RecoveryConfig
     from recovery.recover import recover, write_recovery
 
     root = tmp / f"{generator}_{scenario}_{seed}"
     t_ns, bg, ba = (write_sim if generator == "sim" else write_independent)(root, scenario, seed, duration_s)
     seq = load_sequence(root)
     t0 = time.perf_counter()
-    res = recover(seq)
+    res = recover(seq, config=RecoveryConfig.from_dict(options or {}))
     rec = {"generator": generator, "scenario": scenario, "seed": seed, "duration_s": duration_s,
            "draws": draws(scenario, seed), "recover_s": time.perf_counter() - t0}
+    if options:
+        rec["options"] = options
     truth = [np.column_stack([np.interp(res.t_ns, t_ns, b[:, c]) for c in range(3)]) for b in (bg, ba)]
     err = np.hstack([res.bias_gyro_radps - truth[0], res.bias_acc_mps2 - truth[1]])
     std = np.hstack([res.bias_gyro_std_radps, res.bias_acc_std_mps2])
@@ -230,7 +239,9 @@ def read_records(path: Path) -> list[dict]:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from pipeline.configs import assignments_to_mapping
     from pipeline.errors import BiasgtError
+    from recovery.config import RecoveryConfig
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, default=20, help="seeds per scenario and generator (0..N-1)")
@@ -241,9 +252,19 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="JSON-lines file of the per-recording figures (resumed)")
     ap.add_argument("--no-validate", action="store_true", help="recover only (no verdicts)")
     ap.add_argument("--summary-only", action="store_true", help="summarise --out without running")
+    ap.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                    help="recovery options other than the defaults (RecoveryConfig fields, YAML values)")
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.ERROR)
-    records = read_records(args.out) if args.out else []
+    try:
+        options = assignments_to_mapping(args.set)
+        RecoveryConfig.from_dict(options)
+    except BiasgtError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    mine = json.dumps(options, sort_keys=True)
+    records = [r for r in (read_records(args.out) if args.out else [])
+               if json.dumps(r.get("options", {}), sort_keys=True) == mine]
     done = {(r["generator"], r["scenario"], r["seed"], r["duration_s"]) for r in records}
     if not args.summary_only:
         with tempfile.TemporaryDirectory() as tmp:
@@ -253,10 +274,10 @@ def main(argv: list[str] | None = None) -> int:
                         if (gen, scen, seed, args.duration) in done:
                             continue
                         try:
-                            rec = run_one(gen, scen, seed, args.duration, not args.no_validate, Path(tmp))
+                            rec = run_one(gen, scen, seed, args.duration, not args.no_validate, Path(tmp), options)
                         except BiasgtError as exc:  # a refusal is a result: counted, not a crash
                             rec = {"generator": gen, "scenario": scen, "seed": seed, "duration_s": args.duration,
-                                   "draws": draws(scen, seed), "error": str(exc)}
+                                   "draws": draws(scen, seed), "error": str(exc), **({"options": options} if options else {})}
                         records.append(rec)
                         print(f"[{gen} {scen} seed {seed}] " + (f"refused: {rec['error']}" if "error" in rec else
                               f"NEES {np.round(rec['nees'], 2).tolist()} verdict {rec.get('verdict')} "

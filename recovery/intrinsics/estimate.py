@@ -29,7 +29,7 @@ A position-only pose stream does not pin the trajectory down: nothing is estimat
 and its sigma includes the uncertainty of the estimated terms (:func:`recovery.intrinsics.posterior.intrinsics_bias_variance`):
 a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. The terms left out (not
 significant, not observable) are still in the readings and in the bias: under a datasheet prior
-(:func:`recovery.intrinsics.posterior.term_prior`), their posterior means are taken out of the bias (``left_out_shift``) and
+(:class:`recovery.intrinsics.posterior.IntrinsicsPrior`), their posterior means are taken out of the bias (``left_out_shift``) and
 their posterior variance is added to its sigma (:mod:`recovery.intrinsics.posterior`). When the
 accelerometer agrees with a calibration file's extrinsic rotation (the solve's turn from it is then
 the gyro's own rotation), every fit takes the file's rotation as the accelerometer's
@@ -51,9 +51,9 @@ from pipeline.errors import BiasgtError
 from pipeline.types import DEFAULT_GRAVITY_MPS2, NOISE_DENSITY_FIELDS, NS_PER_S, ImuNoiseModel, ImuSeries, Sequence
 from recovery.config import IntrinsicsMode, PoseFactorMode
 from recovery.intrinsics.gyro_consistency import CouplingKind, rate_coupling
-from recovery.intrinsics.frame import CALIBRATION_ROTATION_SIGMA_RAD, calibration_agreement, rotation_prior
+from recovery.intrinsics.frame import calibration_agreement, rotation_prior
 from recovery.intrinsics.least_squares import solve_with_walk
-from recovery.intrinsics.posterior import intrinsics_bias_variance, left_out_means, left_out_shift, term_prior
+from recovery.intrinsics.posterior import IntrinsicsPrior, intrinsics_bias_variance, left_out_means, left_out_shift
 from recovery.intrinsics.report import TERMS as _TERMS
 from recovery.intrinsics.report import intrinsics_report, term_table, unobservable_warning
 from recovery.outputs import RecoveryReport
@@ -475,18 +475,19 @@ def _solve_corrected(sequence: Sequence, solve: Callable[[Sequence], object], re
 
 
 def _fit_round(sequence: Sequence, work: Sequence, result, total: ImuIntrinsics, g_sensitivity: bool, block_s: float,
-               present: dict[str, np.ndarray] | None, from_file: bool) -> IntrinsicsFit:
+               present: dict[str, np.ndarray] | None, from_file: bool, prior: IntrinsicsPrior = IntrinsicsPrior()
+               ) -> IntrinsicsFit:
     """One fit of the loop on ``work`` (``sequence`` corrected by ``total``) against the solve ``result``; with
-    ``from_file``, the accelerometer's rotation is the calibration file's (:func:`rotation_prior`)."""
+    ``from_file``, the accelerometer's rotation is the calibration file's (:func:`rotation_prior` under ``prior``)."""
     gravity = np.asarray(result.report.get("gravity_world_mps2", DEFAULT_GRAVITY_MPS2), dtype=float)
-    acc_prior = rotation_prior(result.report.data, total.acc_matrix - np.eye(3)) if from_file else None
+    acc_prior = rotation_prior(result.report.data, total.acc_matrix - np.eye(3), prior) if from_file else None
     return fit_intrinsics(work.imu, result.t_ns, result.quat_wxyz, result.v_mps, result.bias_at, gravity,
                           _fit_noise(sequence, result.report), g_sensitivity=g_sensitivity, block_s=block_s,
                           present=present, acc_prior=acc_prior)
 
 
 def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
-                            block_s: float, max_rounds: int = 5, first=None):
+                            block_s: float, max_rounds: int = 5, first=None, prior: IntrinsicsPrior = IntrinsicsPrior()):
     """The alternating loop of the module docstring around ``solve`` (a full recovery).
 
     The solve's extrinsic is never held at a calibration file's: it follows the gyro (whose own rotation
@@ -496,6 +497,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
 
     Args:
         first: ``solve(sequence)`` when the caller has it already.
+        prior: The terms' sizes before the data (the prior of those the fit cannot tell from the bias).
 
     Returns:
         The last solve's :class:`recovery.recover.RecoveryResult`, its bias mapped back to the raw
@@ -514,7 +516,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     present: dict[str, np.ndarray] | None = None
     from_file = False  # the accelerometer's rotation is the calibration file's: a prior in every fit
     for rounds in range(1, max_rounds + 1):
-        fit = _fit_round(sequence, work, result, total, g_sensitivity, block_s, present, from_file)
+        fit = _fit_round(sequence, work, result, total, g_sensitivity, block_s, present, from_file, prior)
         if rounds == 1 and fit.estimate is not None and fit.cov is not None:
             # the raw readings' accelerometer rotation against the first solve's difference from the file
             agreement = calibration_agreement(fit.estimate["acc_scale_misalignment"], fit.cov["velocity"],
@@ -523,7 +525,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
                 from_file = True
                 log.info("intrinsics: the accelerometer agrees with the calibration's extrinsic rotation; "
                          "its rotation is taken from the file")
-                fit = _fit_round(sequence, work, result, total, g_sensitivity, block_s, present, from_file)
+                fit = _fit_round(sequence, work, result, total, g_sensitivity, block_s, present, from_file, prior)
         log.info("intrinsics round %d: gyro scale %s, acc scale %s", rounds,
                  np.round(np.diag(fit.step.gyro_matrix) - 1, 5), np.round(np.diag(fit.step.acc_matrix) - 1, 5))
         if rounds > 1 and not fit.moved(REFINE_SIGMAS):
@@ -550,16 +552,16 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
     def at(y: np.ndarray) -> np.ndarray:
         return np.stack([np.interp(result.t_ns, imu.t_ns, y[:, c]) for c in range(3)], axis=1)
     omega, force = at(imu.gyro_radps) - result.bias_gyro_radps, at(imu.acc_mps2) - result.bias_acc_mps2
-    prior = term_prior((result.report.get("extrinsic") or {}).get("mode") == "known")
+    sigmas = prior.term_sigmas((result.report.get("extrinsic") or {}).get("mode") == "known")
     block = ((result.t_ns - result.t_ns[0]) / NS_PER_S // block_s).astype(int)
-    shift = left_out_shift(fit, present or {}, _block_means(omega, block), _block_means(force, block), left, prior)
+    shift = left_out_shift(fit, present or {}, _block_means(omega, block), _block_means(force, block), left, sigmas)
     bias = bias - shift
     # the intrinsics reported with those means in: readings corrected by them match the bias without them
-    means, dev = left_out_means(fit, present or {}, left, prior), total.deviations()
+    means, dev = left_out_means(fit, present or {}, left, sigmas), total.deviations()
     reported = ImuIntrinsics(np.eye(3) + dev["gyro_scale_misalignment"] + means["gyro_scale_misalignment"],
                              np.eye(3) + dev["acc_scale_misalignment"] + means["acc_scale_misalignment"],
                              dev["gyro_g_sensitivity"] + means.get("gyro_g_sensitivity", np.zeros((3, 3))))
-    added = intrinsics_bias_variance(fit, present or {}, omega, force, left=left, prior=prior, corrected=True)
+    added = intrinsics_bias_variance(fit, present or {}, omega, force, left=left, prior=sigmas, corrected=True)
     inflation = np.sqrt(1.0 + added / np.maximum(std**2, 1e-300))
     std = np.sqrt(std**2 + added)
     data = dict(result.report.data)
@@ -576,7 +578,7 @@ def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], obje
             "why": "the gyro's rotation against the accelerometer is an intrinsic term; the accelerometer alone "
                    "tells the extrinsic rotation: agreement with the calibration file's (first solve, raw readings) "
                    "means the solve's turn from it is the gyro's own rotation, and the file's rotation (within "
-                   f"{CALIBRATION_ROTATION_SIGMA_RAD:g} rad) then turns the accelerometer into the solve's frame"}
+                   f"{prior.calibration_rotation_rad:g} rad) then turns the accelerometer into the solve's frame"}
     warning = unobservable_warning(fit)
     if warning:
         data["warnings"] = [*data.get("warnings", []), warning]

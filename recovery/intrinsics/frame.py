@@ -28,6 +28,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from scipy.special import gammaincinv  # scipy.stats would add ~0.5 s to every recovery process
 
+from recovery.intrinsics.posterior import IntrinsicsPrior
+
 #: ``phi = A vec_row(S_a)``: the rotation vector of ``S_a``'s antisymmetric part (``[phi]x``).
 _ANTISYMMETRIC = np.zeros((3, 9))
 _ANTISYMMETRIC[0, 7], _ANTISYMMETRIC[0, 5] = 0.5, -0.5  # (S_zy - S_yz) / 2
@@ -36,11 +38,6 @@ _ANTISYMMETRIC[2, 3], _ANTISYMMETRIC[2, 1] = 0.5, -0.5  # (S_yx - S_xy) / 2
 #: ``(S_xy + S_yx) / 2``, ``(S_xz + S_zx) / 2``, ``(S_yz + S_zy) / 2``: the triad's non-orthogonality.
 _SYMMETRIC = np.zeros((3, 9))
 _SYMMETRIC[0, [1, 3]] = _SYMMETRIC[1, [2, 6]] = _SYMMETRIC[2, [5, 7]] = 0.5
-#: Sigma (rad, per axis) of a calibration file's rotation taken as the accelerometer's: a camera-IMU
-#: calibration's rotation accuracy (~0.03 deg).
-CALIBRATION_ROTATION_SIGMA_RAD = 5e-4
-#: Sigma of an accelerometer triad's non-orthogonality (each symmetric off-diagonal pair, 0.06 deg).
-NON_ORTHOGONALITY_SIGMA = 1e-3
 #: The file's rotation is used when the accelerometer's differs from it by less than this quantile
 #: of chi-square with 3 degrees of freedom.
 AGREEMENT_QUANTILE = 0.997
@@ -91,15 +88,14 @@ def calibration_rotation(report: Mapping[str, Any]) -> np.ndarray | None:
     return -R_est @ np.radians(np.asarray(diff["rotation_vector_deg"], dtype=float))
 
 
-def rotation_prior(report: Mapping[str, Any], applied_acc_terms: np.ndarray,
-                   sigma_rad: float = CALIBRATION_ROTATION_SIGMA_RAD,
-                   sigma_non_orthogonal: float = NON_ORTHOGONALITY_SIGMA) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+def rotation_prior(report: Mapping[str, Any], applied_acc_terms: np.ndarray, prior: IntrinsicsPrior = IntrinsicsPrior()
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
     """Prior rows ``(H [6, 9], target [6], sigma [6])`` on a fit's ``S_a`` (row-major [9]), None when the solve did
     not estimate the extrinsic against a file.
 
     The accelerometer triad is the calibration file's frame (its rotation against the solve's is
-    :func:`calibration_rotation` of the solve ``report``, within ``sigma_rad``) and nearly orthogonal (its
-    symmetric off-diagonal part within ``sigma_non_orthogonal``): a tilt term (``S_xz``, ``S_yz``, times
+    :func:`calibration_rotation` of the solve ``report``, within ``prior.calibration_rotation_rad``) and nearly
+    orthogonal (its symmetric off-diagonal part within ``prior.non_orthogonality``): a tilt term (``S_xz``, ``S_yz``, times
     ``f_z ~ g``), which the data cannot tell from a constant bias, is then the file's rotation. Both less what
     the readings the fit sees were corrected by already (``applied_acc_terms``: ``M_a - I`` [3, 3]; first order).
     """
@@ -109,4 +105,4 @@ def rotation_prior(report: Mapping[str, Any], applied_acc_terms: np.ndarray,
     applied = np.asarray(applied_acc_terms, dtype=float).ravel()
     H = np.vstack([_ANTISYMMETRIC, _SYMMETRIC])
     target = np.concatenate([phi_cal - _ANTISYMMETRIC @ applied, -_SYMMETRIC @ applied])
-    return H, target, np.repeat([float(sigma_rad), float(sigma_non_orthogonal)], 3)
+    return H, target, np.repeat([float(prior.calibration_rotation_rad), float(prior.non_orthogonality)], 3)

@@ -9,6 +9,7 @@ the bias variance (:func:`intrinsics_bias_variance`), with the terms in the mode
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Protocol
 
 import numpy as np
@@ -21,22 +22,35 @@ class IntrinsicsFit(Protocol):
     estimated: tuple[str, ...]  # the groups fitted
 
 
-#: The size (1 sigma) of a term on a MEMS IMU's datasheet: scale and misalignment 0.5 %, g-sensitivity
-#: 2e-4 rad/s per m/s^2 (0.1 deg/s per g). The prior of a term the fit cannot tell from the bias.
-TERM_PRIOR = {"gyro_scale_misalignment": 5e-3, "acc_scale_misalignment": 5e-3, "gyro_g_sensitivity": 2e-4}
-#: An accelerometer off-diagonal term when the accelerometer's frame is the IMU frame the solve used (the
-#: extrinsic known): only the triad's non-orthogonality (0.06 deg).
-ACC_CROSS_AXIS_PRIOR = 1e-3
+@dataclass(frozen=True)
+class IntrinsicsPrior:
+    """The 1-sigma sizes of the IMU's intrinsic terms before the data (the datasheet of a MEMS IMU by default);
+    the prior of a term the fit cannot tell from the bias (``RecoveryConfig``'s ``intrinsics_prior_*``).
 
+    Attributes:
+        scale_misalignment: A scale factor or misalignment term of the gyro or accelerometer matrix (0.5 %).
+        g_sensitivity: A term of the gyro's g-sensitivity, rad/s per m/s^2 (0.1 deg/s per g).
+        non_orthogonality: The accelerometer triad's non-orthogonality, per symmetric off-diagonal pair (0.06 deg).
+        calibration_rotation_rad: Per axis, how far a calibration file's IMU rotation may be off the
+            accelerometer's (a camera-IMU calibration's accuracy, 0.03 deg).
+    """
 
-def term_prior(frame_held: bool) -> dict[str, np.ndarray]:
-    """Per group, the 3x3 prior sigmas (:data:`TERM_PRIOR`; with ``frame_held``, the accelerometer's
-    off-diagonal terms :data:`ACC_CROSS_AXIS_PRIOR`, else they carry its rotation against the solve's frame too)."""
-    out = {k: np.full((3, 3), v) for k, v in TERM_PRIOR.items()}
-    if frame_held:
-        out["acc_scale_misalignment"] = np.where(np.eye(3, dtype=bool), TERM_PRIOR["acc_scale_misalignment"],
-                                                 ACC_CROSS_AXIS_PRIOR)
-    return out
+    scale_misalignment: float = 5e-3
+    g_sensitivity: float = 2e-4
+    non_orthogonality: float = 1e-3
+    calibration_rotation_rad: float = 5e-4
+
+    def term_sigmas(self, frame_held: bool) -> dict[str, np.ndarray]:
+        """Per group, the 3x3 prior sigmas; with ``frame_held`` (the extrinsic known: the accelerometer's frame is
+        the solve's) an accelerometer off-diagonal term is only its triad's non-orthogonality, else it carries
+        the accelerometer's rotation against the solve's frame too."""
+        out = {"gyro_scale_misalignment": np.full((3, 3), self.scale_misalignment),
+               "acc_scale_misalignment": np.full((3, 3), self.scale_misalignment),
+               "gyro_g_sensitivity": np.full((3, 3), self.g_sensitivity)}
+        if frame_held:
+            out["acc_scale_misalignment"] = np.where(np.eye(3, dtype=bool), self.scale_misalignment,
+                                                     self.non_orthogonality)
+        return out
 
 
 #: A left-out term whose fit sigma exceeds this many prior sigmas is blind: its posterior is the prior (the fit
@@ -63,7 +77,7 @@ def _blocks(fit: IntrinsicsFit, terms: dict[str, np.ndarray], omega_radps: np.nd
             used[sl] = np.asarray(terms.get(name, np.zeros((3, 3), bool)), bool).ravel()
             if left is not None:
                 x[sl] = np.nan_to_num(np.asarray(left.get(name, np.zeros((3, 3))), float).ravel())
-                prior_var[sl] = np.asarray((prior or term_prior(False))[name], float).ravel() ** 2
+                prior_var[sl] = np.asarray((prior or IntrinsicsPrior().term_sigmas(False))[name], float).ravel() ** 2
         if left is not None:  # a term too weak to correct the readings for still informs its posterior
             var_fit = np.diag(cov)
             seen = np.isfinite(var_fit) & (var_fit <= BLIND_SIGMA_RATIO**2 * prior_var)
@@ -90,7 +104,7 @@ def intrinsics_bias_variance(fit: IntrinsicsFit, terms: dict[str, np.ndarray], o
     terms left out (not significant, not observable, or dropped) are still in the readings: with
     ``left`` (per group, 3x3: the fit's estimate ``x`` of what the readings carry of each, covariance
     ``C`` among them) their posterior under the datasheet prior ``L`` (``prior``: per group 3x3 sigmas,
-    default :func:`term_prior` without a held frame) is ``m = L (C + L)^-1 x``, ``P = C (C + L)^-1 L``:
+    default :meth:`IntrinsicsPrior.term_sigmas` without a held frame) is ``m = L (C + L)^-1 x``, ``P = C (C + L)^-1 L``:
     they err by ``P + m m^T`` (their mean square error as zero), or by ``P`` when the bias was
     ``corrected`` by ``m`` (:func:`left_out_shift`). A term the fit cannot see (sigma above
     :data:`BLIND_SIGMA_RATIO` prior sigmas) keeps the prior as its error. Without ``left``, terms left out add nothing.

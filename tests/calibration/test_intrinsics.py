@@ -226,6 +226,13 @@ def test_recover_with_intrinsics_on_a_simulated_drone(drone):
     # out (their datasheet prior where the fit cannot see them)
     assert min(rep["bias_std_inflation_mean"]) >= 1.0 and max(rep["bias_std_inflation_mean"]) > 1.0
     assert min(same["bias_std_inflation_mean"]) >= 1.0 and not same["estimated"]
+    # a better IMU's datasheet (every prior 10x smaller) reaches the fit: the terms the fit sees well (the gyro's)
+    # keep about the fit's sigma, those it hardly sees (the accelerometer's tilt terms) add far less
+    better = on.replace(intrinsics_prior_scale_misalignment=5e-4, intrinsics_prior_g_sensitivity=2e-5,
+                        intrinsics_prior_non_orthogonality=1e-4, intrinsics_prior_calibration_rotation_rad=5e-5)
+    added, added_before = (np.array(r["bias_std_added_mean"]) for r in (
+        recover(drone.sequence, config=better).report["intrinsics"], same))
+    assert np.all(added <= added_before) and np.all(added[3:5] < 0.5 * added_before[3:5]), (added, added_before)
 
 
 def test_a_report_record_answers_membership():

@@ -62,6 +62,27 @@ def test_a_term_too_weak_to_correct_for_still_narrows_its_prior():
         assert left_out_shift(fit, none, omega, f, left)[0, 5] == pytest.approx(mean * f[0, 2], rel=1e-6, abs=1e-15)
 
 
+def test_a_blind_tilt_term_keeps_the_configured_prior():
+    """A left-out accelerometer tilt term the fit cannot see (``S_a[x, z]`` times ``f_z ~ g``) adds its prior
+    ``tau^2 f_z^2`` to the x bias variance, with ``tau`` from the recovery's ``intrinsics_prior_*`` options:
+    the triad's non-orthogonality where the frame is held, the scale/misalignment size where it is not."""
+    from recovery.config import RecoveryConfig
+
+    f, omega = np.array([[0.3, -0.2, 9.81]]), np.zeros((1, 3))
+    none = {g: np.zeros((3, 3), bool) for g in GROUPS}
+    left = {g: np.zeros((3, 3)) for g in GROUPS}
+    vel = np.eye(9) * 1e-14
+    vel[2, 2] = 1.0  # S_a[x, z]: blind
+    fit = IntrinsicsFit(ImuIntrinsics.identity(), {}, {}, {}, GROUPS, None, {"rotation": np.eye(18) * 1e-14, "velocity": vel})
+    config = RecoveryConfig.from_dict({"intrinsics_prior_non_orthogonality": 2e-4,
+                                       "intrinsics_prior_scale_misalignment": 3e-3})
+    for frame_held, tau in ((True, 2e-4), (False, 3e-3)):
+        sigmas = config.intrinsics_prior().term_sigmas(frame_held)
+        var = intrinsics_bias_variance(fit, none, omega, f, left=left, prior=sigmas, corrected=True)[0, 3]
+        assert var == pytest.approx(tau**2 * f[0, 2] ** 2 + 1e-14 * (f[0, 0] ** 2 + f[0, 1] ** 2), rel=1e-6)
+    assert RecoveryConfig().intrinsics_prior() == type(config.intrinsics_prior())()  # the defaults: one source
+
+
 def test_term_table_and_the_report_clause():
     sigma = {g: np.full((3, 3), 1e-4) for g in GROUPS}
     observable = {g: np.ones((3, 3), bool) for g in GROUPS}

@@ -41,6 +41,26 @@ def test_config_rejects_unknown_key_and_bad_enum():
     assert json.loads(json.dumps(cfg.to_dict()))["robust_loss"] == "cauchy"
 
 
+def test_command_line_assignments_become_config_fields():
+    from pipeline.configs import assignments_to_mapping
+
+    got = assignments_to_mapping(["random_walk_scales=[0.01, 0.1, 10]", "robust_loss=cauchy", "keyframe_rate_hz=25",
+                                  "position_sigma_m=null"])
+    assert got == {"random_walk_scales": [0.01, 0.1, 10], "robust_loss": "cauchy", "keyframe_rate_hz": 25,
+                   "position_sigma_m": None}
+    cfg = RecoveryConfig.from_dict(got)
+    assert cfg.random_walk_scales == [0.01, 0.1, 10.0] and cfg.robust_loss is RobustLoss.CAUCHY
+    # YAML 1.1 reads 1e-7 as text: a number on a command line; in a config file, an error saying how to write it
+    assert assignments_to_mapping(["intrinsics_prior_g_sensitivity=1e-7", "random_walk_scales=[1e-2, 1]"]) == {
+        "intrinsics_prior_g_sensitivity": 1e-7, "random_walk_scales": [0.01, 1]}
+    with pytest.raises(ConfigError, match="write it with a point, 1.0e-7"):
+        RecoveryConfig.from_dict({"intrinsics_prior_g_sensitivity": "1e-7"})
+    with pytest.raises(ConfigError, match="'robust_loss' is not KEY=VALUE.*--set.*KEY=VALUE"):
+        assignments_to_mapping(["robust_loss"])
+    with pytest.raises(ConfigError, match="not YAML.*quote"):
+        assignments_to_mapping(["random_walk_scales=[0.1, 1"])
+
+
 def test_config_auto_rates_and_segments():
     cfg = RecoveryConfig()
     assert cfg.calibration_rate_hz("noise", fused=True) == 5.0 and cfg.calibration_rate_hz("noise", fused=False) == 10.0
