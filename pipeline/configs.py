@@ -68,10 +68,15 @@ def _type_name(kind: Any) -> str:
 
 
 def _number_as_text_hint(value: Any) -> str | None:
-    """The fix for a number YAML 1.1 reads as text (``1e-7``: no point before the exponent), else None."""
-    if isinstance(value, str) and re.fullmatch(r"[-+]?[0-9]+[eE][-+]?[0-9]+", value.strip()):
-        return f"YAML reads {value} as text: write it with a point, {value.replace('e', '.0e').replace('E', '.0E')}"
-    return None
+    """The fix for a number YAML 1.1 reads as text (``1e-7``, ``1.5e7``: its floats need a point and a signed
+    exponent), else None."""
+    match = isinstance(value, str) and re.fullmatch(r"([-+]?(?:[0-9]+\.?[0-9]*|\.[0-9]+))[eE]([-+]?)([0-9]+)",
+                                                    value.strip())
+    if not match:
+        return None
+    mantissa, sign, exponent = match.groups()
+    written = f"{mantissa if '.' in mantissa else mantissa + '.0'}e{sign or '+'}{exponent}"
+    return f"YAML reads {value} as text: write it with a point and a signed exponent, {written}"
 
 
 def _numbers(value: Any) -> Any:

@@ -277,7 +277,8 @@ def main(argv: list[str] | None = None) -> int:
                             rec = run_one(gen, scen, seed, args.duration, not args.no_validate, Path(tmp), options)
                         except BiasgtError as exc:  # a refusal is a result: counted, not a crash
                             rec = {"generator": gen, "scenario": scen, "seed": seed, "duration_s": args.duration,
-                                   "draws": draws(scen, seed), "error": str(exc), **({"options": options} if options else {})}
+                                   "draws": draws(scen, seed), "error": str(exc),
+                                   **({"options": options} if options else {})}
                         records.append(rec)
                         print(f"[{gen} {scen} seed {seed}] " + (f"refused: {rec['error']}" if "error" in rec else
                               f"NEES {np.round(rec['nees'], 2).tolist()} verdict {rec.get('verdict')} "

@@ -14,8 +14,9 @@ through the trajectory, which the pose stream pins down whatever the bias does):
 2. fit, by linear least squares over every keyframe interval, the intrinsics together with a
    random-walk bias correction around the solved bias (the gyro's as ``block_s`` means, the
    accelerometer's low-passed at ``1 / block_s``: slow drift stays with the bias); the
-   accelerometer terms' regressor is the bias-free force low-passed at ``REGRESSOR_CUTOFF_HZ``, so that it does not share the interval's own noise with the residual
-   (errors in variables: a scale estimate pulled up by the noise's variance); a term whose sigma
+   accelerometer terms' regressor is the bias-free force low-passed at ``REGRESSOR_CUTOFF_HZ``, so
+   that it does not share the interval's own noise with the residual (errors in variables: a scale
+   estimate pulled up by the noise's variance); a term whose sigma
    exceeds ``max_sigma`` is not observable from this motion: it is not corrected in the readings
    and is named in a warning;
 3. correct the readings, ``acc' = M_a^-1 acc``, ``gyro' = M_g^-1 (gyro - G f)``, and solve again;
@@ -26,11 +27,12 @@ through the trajectory, which the pose stream pins down whatever the bias does):
 
 A position-only pose stream does not pin the trajectory down: nothing is estimated for it
 (identity, with a warning). The bias is reported in the raw readings' convention (``b = M b'``),
-and its sigma includes the uncertainty of the estimated terms (:func:`recovery.intrinsics.posterior.intrinsics_bias_variance`):
-a gravity-axis term times ``f ~ g`` is nearly a constant bias offset. The terms left out (not
-significant, not observable) are still in the readings and in the bias: under a datasheet prior
-(:class:`recovery.intrinsics.posterior.IntrinsicsPrior`), their posterior means are taken out of the bias (``left_out_shift``) and
-their posterior variance is added to its sigma (:mod:`recovery.intrinsics.posterior`). When the
+and its sigma includes the uncertainty of the estimated terms
+(:func:`recovery.intrinsics.posterior.intrinsics_bias_variance`): a gravity-axis term times ``f ~ g`` is
+nearly a constant bias offset. The terms left out (not significant, not observable) are still in the
+readings and in the bias: under a datasheet prior (:class:`recovery.intrinsics.posterior.IntrinsicsPrior`),
+their posterior means are taken out of the bias (``left_out_shift``) and their posterior variance is
+added to its sigma (:mod:`recovery.intrinsics.posterior`). When the
 accelerometer agrees with a calibration file's extrinsic rotation (the solve's turn from it is then
 the gyro's own rotation), every fit takes the file's rotation as the accelerometer's
 (:mod:`recovery.intrinsics.frame`): the accelerometer readings are turned into the solve's frame
@@ -487,7 +489,8 @@ def _fit_round(sequence: Sequence, work: Sequence, result, total: ImuIntrinsics,
 
 
 def recover_with_intrinsics(sequence: Sequence, solve: Callable[[Sequence], object], *, g_sensitivity: bool,
-                            block_s: float, max_rounds: int = 5, first=None, prior: IntrinsicsPrior = IntrinsicsPrior()):
+                            block_s: float, max_rounds: int = 5, first=None,
+                            prior: IntrinsicsPrior = IntrinsicsPrior()):
     """The alternating loop of the module docstring around ``solve`` (a full recovery).
 
     The solve's extrinsic is never held at a calibration file's: it follows the gyro (whose own rotation

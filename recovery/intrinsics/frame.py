@@ -95,10 +95,10 @@ def rotation_prior(report: Mapping[str, Any], applied_acc_terms: np.ndarray, pri
 
     The accelerometer triad is the calibration file's frame (its rotation against the solve's is
     :func:`calibration_rotation` of the solve ``report``, within ``prior.calibration_rotation_rad``) and nearly
-    orthogonal (its symmetric off-diagonal part within ``prior.non_orthogonality``): a tilt term (``S_xz``, ``S_yz``, times
-    ``f_z ~ g``), which the data cannot tell from a constant bias, is then the file's rotation. Both less what
-    the readings the fit sees were corrected by already (``applied_acc_terms``: ``M_a - I`` [3, 3]; first order).
-    """
+    orthogonal (its symmetric off-diagonal part within ``prior.non_orthogonality``): a tilt term (``S_xz``,
+    ``S_yz``, times ``f_z ~ g``), which the data cannot tell from a constant bias, is then the file's rotation.
+    Both less what the readings the fit sees were corrected by already (``applied_acc_terms``: ``M_a - I`` [3, 3];
+    first order)."""
     phi_cal = calibration_rotation(report)
     if phi_cal is None:
         return None

@@ -73,7 +73,8 @@ def test_a_blind_tilt_term_keeps_the_configured_prior():
     left = {g: np.zeros((3, 3)) for g in GROUPS}
     vel = np.eye(9) * 1e-14
     vel[2, 2] = 1.0  # S_a[x, z]: blind
-    fit = IntrinsicsFit(ImuIntrinsics.identity(), {}, {}, {}, GROUPS, None, {"rotation": np.eye(18) * 1e-14, "velocity": vel})
+    fit = IntrinsicsFit(ImuIntrinsics.identity(), {}, {}, {}, GROUPS, None,
+                        {"rotation": np.eye(18) * 1e-14, "velocity": vel})
     config = RecoveryConfig.from_dict({"intrinsics_prior_non_orthogonality": 2e-4,
                                        "intrinsics_prior_scale_misalignment": 3e-3})
     for frame_held, tau in ((True, 2e-4), (False, 3e-3)):

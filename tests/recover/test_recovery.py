@@ -12,6 +12,7 @@ import json
 import numpy as np
 import pandas as pd
 import pytest
+import yaml
 
 from pipeline.errors import ConfigError
 from pipeline.sim.config import PoseFormat
@@ -53,8 +54,11 @@ def test_command_line_assignments_become_config_fields():
     # YAML 1.1 reads 1e-7 as text: a number on a command line; in a config file, an error saying how to write it
     assert assignments_to_mapping(["intrinsics_prior_g_sensitivity=1e-7", "random_walk_scales=[1e-2, 1]"]) == {
         "intrinsics_prior_g_sensitivity": 1e-7, "random_walk_scales": [0.01, 1]}
-    with pytest.raises(ConfigError, match="write it with a point, 1.0e-7"):
+    with pytest.raises(ConfigError, match="write it with a point and a signed exponent, 1.0e-7"):
         RecoveryConfig.from_dict({"intrinsics_prior_g_sensitivity": "1e-7"})
+    with pytest.raises(ConfigError, match="1.5e\\+3"):
+        RecoveryConfig.from_dict({"outlier_threshold": "1.5e3"})
+    assert yaml.safe_load("1.0e-7") == 1e-7 and yaml.safe_load("1.5e+3") == 1500.0  # the forms the hint writes
     with pytest.raises(ConfigError, match="'robust_loss' is not KEY=VALUE.*--set.*KEY=VALUE"):
         assignments_to_mapping(["robust_loss"])
     with pytest.raises(ConfigError, match="not YAML.*quote"):
