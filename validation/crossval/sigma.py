@@ -9,12 +9,17 @@ by more, and by more than chance allows over the blocks.
 Per IMU stamp ``t`` with a held-out bias, per axis, the difference and its variance
 
     d_t = heldout_bias_t - insample_bias_t
-    s_t^2 = max(heldout_std_t^2 - insample_std_t^2, MIN_VARIANCE_FRACTION * heldout_std_t^2)
+    s_t^2 = max(heldout_std_t^2 - insample_std_t^2, MIN_VARIANCE_FRACTION * heldout_std_t^2)   (h >= i)
+    s_t^2 = heldout_std_t^2 + insample_std_t^2                                              (h < i)
 
 (the variance of the difference of an estimate and a less informed one of the same quantity is the
 difference of their variances: the in-sample recovery sees the held-out one's data and more; its floor,
 a fraction of the held-out variance, keeps a held-out sigma barely above the in-sample one from blowing the
-statistic up). Per block ``b``, ``z_b^2 = mean_t (d_t / s_t)^2`` (1 in expectation with honest sigmas),
+statistic up). A held-out sigma below the in-sample one cannot be the same model's with less data: the
+fold's own noise search chose another model (on a unit with no bias under a correlated mocap error, a
+walk 80x stiffer than the recording's, with a quarter of its sigma); the two errors are then taken as
+independent, where the nested form's floor read the models' disagreement as the sigma's and widened an
+honest sigma up to 9x. Per block ``b``, ``z_b^2 = mean_t (d_t / s_t)^2`` (1 in expectation with honest sigmas),
 and per axis ``chi2 = sum_b z_b^2``. The stamps of a block are strongly correlated (the bias is smooth),
 blocks apart far less: ``chi2`` is taken as chi-square with as many degrees of freedom as blocks, which
 is conservative (averaging within a block only narrows its spread). An axis beyond the chi-square bound at
@@ -95,7 +100,7 @@ def heldout_sigma_check(heldout: BiasTrack, insample: BiasTrack, block_of: np.nd
         if m.sum() < MIN_BLOCK_SAMPLES:
             continue
         var_h, var_i = heldout.std[m] ** 2, insample.std[m] ** 2
-        var_d = np.maximum(var_h - var_i, MIN_VARIANCE_FRACTION * var_h)
+        var_d = np.where(var_h >= var_i, np.maximum(var_h - var_i, MIN_VARIANCE_FRACTION * var_h), var_h + var_i)
         z2.append(((heldout.bias[m] - insample.bias[m]) ** 2 / np.maximum(var_d, 1e-300)).mean(0))
     if len(z2) < 2:
         return None
