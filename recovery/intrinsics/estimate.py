@@ -230,14 +230,14 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
     # block ends' steps at g times the walk; the gyro's terms at the rate, which the steps barely touch)
     solved = bias_at(imu.t_ns)
     block = np.clip(((imu.t_ns - t_ns[0]) / NS_PER_S // block_s).astype(int), 0, None)
-    b = np.hstack([_block_means(solved[:, :3], block), _low_pass(imu.t_ns, solved[:, 3:], 1.0 / block_s)])
+    b = np.hstack([_block_means(solved[:, :3], block), zero_phase_low_pass(imu.t_ns, solved[:, 3:], 1.0 / block_s)])
     gyro, f = imu.gyro_radps - b[:, :3], imu.acc_mps2 - b[:, 3:]
     # midpoint samples: the mean of the readings at both ends of each sample interval (the
     # recovery's preintegration does the same; a zero-order hold lags by half a sample and
     # shows up as a spurious misalignment of ~1e-4)
     gyro = np.vstack([0.5 * (gyro[:-1] + gyro[1:]), gyro[-1:]])
     f = np.vstack([0.5 * (f[:-1] + f[1:]), f[-1:]])
-    f_reg = _low_pass(imu.t_ns, imu.acc_mps2 - solved[:, 3:], regressor_cutoff_hz)
+    f_reg = zero_phase_low_pass(imu.t_ns, imu.acc_mps2 - solved[:, 3:], regressor_cutoff_hz)
     held = [_hold_durations(imu.t_ns, int(t_ns[k]), int(t_ns[k + 1])) for k in range(len(t_ns) - 1)]
     kept = [k for k, (idx, _) in enumerate(held) if len(idx) >= 2 and np.all(np.isfinite(gyro[idx]))]
     idx_all = np.concatenate([held[k][0] for k in kept] or [np.zeros(0, int)])
@@ -292,7 +292,7 @@ def fit_intrinsics(imu: ImuSeries, t_ns: np.ndarray, quat_wxyz: np.ndarray, v_mp
                          tuple(groups), applied, {"rotation": c_rot, "velocity": c_vel}, estimate)
 
 
-def _low_pass(t_ns: np.ndarray, values: np.ndarray, cutoff_hz: float) -> np.ndarray:
+def zero_phase_low_pass(t_ns: np.ndarray, values: np.ndarray, cutoff_hz: float) -> np.ndarray:
     """``values`` [N, k] through a zero-phase low-pass with the gain of a 4th-order Butterworth run forwards and
     backwards (``1 / (1 + (f / cutoff_hz)^8)``, as ``scipy.signal.sosfiltfilt``), applied in the frequency domain
     to the series extended by its point reflection at both ends (``filtfilt``'s odd padding: no step or kink at

@@ -185,14 +185,14 @@ def test_the_fit_low_pass_is_scipys_forward_backward_butterworth(cutoff_hz):
     away from the ends (the IIR's start-up differs there, within 1 % of the signal's spread)."""
     from scipy.signal import butter, sosfiltfilt
 
-    from recovery.intrinsics.estimate import _low_pass
+    from recovery.intrinsics.estimate import zero_phase_low_pass
 
     rng = np.random.default_rng(0)
     n, rate_hz = 12001, 200.0
     t_ns = (np.arange(n) * 1e9 / rate_hz).astype(np.int64)
     x = (np.cumsum(rng.standard_normal((n, 3)), 0) * 0.01 + rng.standard_normal((n, 3)) * 0.1
          + np.sin(2 * np.pi * 0.3 * np.arange(n) / rate_hz)[:, None])
-    ours = _low_pass(t_ns, x, cutoff_hz)
+    ours = zero_phase_low_pass(t_ns, x, cutoff_hz)
     scipys = sosfiltfilt(butter(4, cutoff_hz, fs=rate_hz, output="sos"), x, axis=0, padtype="odd", padlen=n - 1)
     inner = slice(int(10 * rate_hz), -int(10 * rate_hz))
     assert np.abs(ours - scipys)[inner].max() <= 1e-4 * x.std()
