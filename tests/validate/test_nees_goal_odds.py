@@ -36,3 +36,17 @@ def test_an_error_constant_over_each_recording_meets_both_goals_on_a_minority_of
     assert best < 0.3
     # many independent parts per recording: an honest sigma meets both nearly always
     assert odds.both_goals_odds(1.0, 30, 20) > 0.99
+
+
+def test_the_per_sensor_odds_match_draws_of_a_constant_gyro_error_beside_a_wandering_accelerometer_one():
+    m_gyro, m_acc, best = odds.by_sensor_best(1, 4, 20)
+    rng = np.random.default_rng(11)
+    draws = 40_000
+    nees = np.concatenate([m_gyro * rng.chisquare(1, (draws, 20, 3)), m_acc * rng.chisquare(4, (draws, 20, 3)) / 4],
+                          axis=2)
+    means = nees.mean(1)
+    both = np.all((means >= 0.5) & (means <= 2.0), axis=1) & ((nees.max(2) <= 4.0).mean(1) >= 0.9)
+    # the product of the two goals' odds: a recording far above 4 helps the mean goal as it fails the other, so
+    # the product overstates the joint odds a little
+    assert both.mean() <= best <= both.mean() + 0.05
+    assert best < 0.65  # a constant gyro error keeps the goals a coin flip however the sigmas are scaled
