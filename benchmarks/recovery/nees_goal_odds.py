@@ -72,7 +72,7 @@ def both_goals_odds(m: float, k: float, n: int, axes: int = AXES) -> float:
 
 
 def best_scale(k: float, n: int, axes: int = AXES) -> tuple[float, float]:
-    """``(m, odds)``: the expected NEES that gives both goals their largest joint probability."""
+    """``(m, odds)``: the expected NEES that gives both goals their largest odds (:func:`both_goals_odds`)."""
     grid = np.exp(np.linspace(np.log(0.3), np.log(3.0), 400))
     odds = np.array([both_goals_odds(m, k, n, axes) for m in grid])
     i = int(np.argmax(odds))
@@ -139,7 +139,19 @@ def main(argv: list[str] | None = None) -> int:
         if not args.records.is_file():
             print(f"error: {args.records}: no such file; pass a rig.py --out file", file=sys.stderr)
             return 2
-        records = [json.loads(x) for x in args.records.read_text(encoding="utf-8").splitlines() if x.strip()]
+        records = []
+        for number, line in enumerate(args.records.read_text(encoding="utf-8").splitlines(), 1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+                if not {"generator", "scenario", "seed"} <= record.keys():
+                    raise ValueError("no generator, scenario or seed")
+                records.append(record)
+            except (ValueError, AttributeError) as exc:
+                print(f"error: {args.records}:{number}: not a rig.py record ({exc}); pass a rig.py --out file",
+                      file=sys.stderr)
+                return 2
         print("\n".join(measured_table(records, args.seeds)))
     return 0
 

@@ -50,3 +50,11 @@ def test_the_per_sensor_odds_match_draws_of_a_constant_gyro_error_beside_a_wande
     # the product overstates the joint odds a little
     assert both.mean() <= best <= both.mean() + 0.05
     assert best < 0.65  # a constant gyro error keeps the goals a coin flip however the sigmas are scaled
+
+
+def test_a_file_that_is_not_a_rig_record_is_refused_with_its_line(tmp_path, capsys):
+    bad = tmp_path / "rig.jsonl"
+    bad.write_text('{"generator": "sim", "scenario": "clean", "seed": 0, "nees": [1, 1, 1, 1, 1, 1]}\n{"seed": 1}\n')
+    assert odds.main(["--records", str(bad)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"error: {bad}:2: not a rig.py record (no generator, scenario or seed); pass a rig.py --out file"]
