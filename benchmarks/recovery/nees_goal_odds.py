@@ -19,8 +19,8 @@ its expected value (1 for an honest sigma, 1/2 for a constant truth under a rand
 (``F_j``: the chi-square CDF of ``j`` degrees of freedom; ``B``: the binomial CDF), and both goals
 hold with about the product of the first to the power ``A`` and the last (axes and recordings taken as
 independent; the product slightly overstates the joint odds, since a recording far above 4 helps the
-mean goal as it fails the other). Printed: that probability per ``k`` and ``m``, and its largest value over ``m``; and the
-largest for a gyro of ``k = 1`` beside an accelerometer of 4 or 30 (each sensor's ``m`` its own).
+mean goal as it fails the other). Printed: that probability per ``k`` and ``m``, and its largest value
+over ``m``; and the largest for a gyro of ``k = 1`` beside an accelerometer of 4 or 30 (each sensor's ``m`` its own).
 
 With ``--records`` (a ``rig.py --out`` file), per generator and scenario: the measured per-axis mean
 NEES, the degrees of freedom its spread implies (``k = 2 mean^2 / var``, a scaled chi-square's), and
@@ -30,7 +30,6 @@ the share of bootstrap draws of ``--seeds`` recordings (from the file's) that me
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -38,16 +37,17 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from rig import MEAN_NEES_BOUNDS, NEES_BOUND, WITHIN_SHARE, read_records  # noqa: E402  (the goals: rig.py's)
+
 AXES = 6
-MEAN_BOUNDS = (0.5, 2.0)
-NEES_BOUND = 4.0
-SHARE = 0.9
 
 
 def mean_goal_odds(m: float, k: float, n: int, axes: int = AXES) -> float:
-    """P(every axis' mean over ``n`` recordings in ``MEAN_BOUNDS``), per-axis NEES ``m chi2_k / k``."""
+    """P(every axis' mean over ``n`` recordings in ``MEAN_NEES_BOUNDS``), per-axis NEES ``m chi2_k / k``."""
     dof = n * k
-    lo, hi = (b * dof / m for b in MEAN_BOUNDS)
+    lo, hi = (b * dof / m for b in MEAN_NEES_BOUNDS)
     return float(stats.chi2.cdf(hi, dof) - stats.chi2.cdf(lo, dof)) ** axes
 
 
@@ -57,12 +57,12 @@ def axis_within(m: float, k: float) -> float:
 
 
 def share_goal_odds(p: float, n: int) -> float:
-    """P(at least ``SHARE`` of ``n`` recordings meet a test each meets with probability ``p``)."""
-    return float(stats.binom.sf(math.ceil(SHARE * n - 1e-9) - 1, n, p))
+    """P(at least ``WITHIN_SHARE`` of ``n`` recordings meet a test each meets with probability ``p``)."""
+    return float(stats.binom.sf(math.ceil(WITHIN_SHARE * n - 1e-9) - 1, n, p))
 
 
 def tail_goal_odds(m: float, k: float, n: int, axes: int = AXES) -> float:
-    """P(at least ``SHARE`` of ``n`` recordings have every axis' NEES at most ``NEES_BOUND``)."""
+    """P(at least ``WITHIN_SHARE`` of ``n`` recordings have every axis' NEES at most ``NEES_BOUND``)."""
     return share_goal_odds(axis_within(m, k) ** axes, n)
 
 
@@ -121,8 +121,8 @@ def measured_table(records: list[dict], n: int, draws: int = 4000, seed: int = 0
         pick = rng.integers(0, len(nees), (draws, n))
         sample = nees[pick]  # [draws, n, A]
         means = sample.mean(1)
-        mean_ok = np.all((means >= MEAN_BOUNDS[0]) & (means <= MEAN_BOUNDS[1]), axis=1).mean()
-        tail_ok = ((sample.max(2) <= NEES_BOUND).mean(1) >= SHARE - 1e-9).mean()
+        mean_ok = np.all((means >= MEAN_NEES_BOUNDS[0]) & (means <= MEAN_NEES_BOUNDS[1]), axis=1).mean()
+        tail_ok = ((sample.max(2) <= NEES_BOUND).mean(1) >= WITHIN_SHARE - 1e-9).mean()
         lines.append(f"{gen + ' / ' + scen:28s}{len(nees):5d}  "
                      f"{' '.join(f'{v:.2f}' for v in mean[:3])} / {' '.join(f'{v:.2f}' for v in mean[3:]):17s}"
                      f"{' '.join(f'{v:4.1f}' for v in dof):30s}{mean_ok:10.2f}{tail_ok:10.2f}")
@@ -139,19 +139,11 @@ def main(argv: list[str] | None = None) -> int:
         if not args.records.is_file():
             print(f"error: {args.records}: no such file; pass a rig.py --out file", file=sys.stderr)
             return 2
-        records = []
-        for number, line in enumerate(args.records.read_text(encoding="utf-8").splitlines(), 1):
-            if not line.strip():
-                continue
-            try:
-                record = json.loads(line)
-                if not {"generator", "scenario", "seed"} <= record.keys():
-                    raise ValueError("no generator, scenario or seed")
-                records.append(record)
-            except (ValueError, AttributeError) as exc:
-                print(f"error: {args.records}:{number}: not a rig.py record ({exc}); pass a rig.py --out file",
-                      file=sys.stderr)
-                return 2
+        try:
+            records = read_records(args.records)
+        except ValueError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
         print("\n".join(measured_table(records, args.seeds)))
     return 0
 

@@ -12,12 +12,16 @@ odds = importlib.util.module_from_spec(SPEC)
 SPEC.loader.exec_module(odds)
 
 
+def _goals_met(nees: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per set of recordings ``nees`` [draws, n, axes]: whether every axis' mean is in [0.5, 2], and whether
+    every axis is at most 4 on 90 % of the recordings, [draws] each."""
+    means = nees.mean(1)
+    return np.all((means >= 0.5) & (means <= 2.0), axis=1), (nees.max(2) <= 4.0).mean(1) >= 0.9
+
+
 def _simulated(m: float, k: int, n: int, draws: int, rng: np.random.Generator) -> tuple[float, float]:
     """Both goals' shares over ``draws`` sets of ``n`` recordings whose per-axis NEES is ``m chi2_k / k``."""
-    nees = m * rng.chisquare(k, (draws, n, odds.AXES)) / k
-    means = nees.mean(1)
-    mean_ok = np.all((means >= 0.5) & (means <= 2.0), axis=1)
-    tail_ok = (nees.max(2) <= 4.0).mean(1) >= 0.9
+    mean_ok, tail_ok = _goals_met(m * rng.chisquare(k, (draws, n, odds.AXES)) / k)
     return float(mean_ok.mean()), float(tail_ok.mean())
 
 
@@ -44,8 +48,8 @@ def test_the_per_sensor_odds_match_draws_of_a_constant_gyro_error_beside_a_wande
     draws = 40_000
     nees = np.concatenate([m_gyro * rng.chisquare(1, (draws, 20, 3)), m_acc * rng.chisquare(4, (draws, 20, 3)) / 4],
                           axis=2)
-    means = nees.mean(1)
-    both = np.all((means >= 0.5) & (means <= 2.0), axis=1) & ((nees.max(2) <= 4.0).mean(1) >= 0.9)
+    mean_ok, tail_ok = _goals_met(nees)
+    both = mean_ok & tail_ok
     # the product of the two goals' odds: a recording far above 4 helps the mean goal as it fails the other, so
     # the product overstates the joint odds a little
     assert both.mean() <= best <= both.mean() + 0.05
@@ -58,3 +62,15 @@ def test_a_file_that_is_not_a_rig_record_is_refused_with_its_line(tmp_path, caps
     assert odds.main(["--records", str(bad)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"error: {bad}:2: not a rig.py record (no generator, scenario or seed); pass a rig.py --out file"]
+
+
+def test_the_rig_benchmark_refuses_a_results_file_that_is_not_its_own_with_its_line(tmp_path, capsys):
+    spec = importlib.util.spec_from_file_location(
+        "benchmark_rig", Path(__file__).resolve().parents[2] / "benchmarks" / "recovery" / "rig.py")
+    rig = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rig)
+    bad = tmp_path / "rig.jsonl"
+    bad.write_text("not json\n")
+    assert rig.main(["--summary-only", "--out", str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"error: {bad}:1: not a rig.py record (") and err.endswith("pass a rig.py --out file")

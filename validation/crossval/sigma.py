@@ -18,11 +18,12 @@ a fraction of the held-out variance, keeps a held-out sigma barely above the in-
 statistic up). A held-out sigma below the in-sample one cannot be the same model's with less data: the
 fold's own noise search chose another model (a stiffer walk), and the two errors are taken as independent;
 the nested form would read the models' disagreement as the sigma's. Per block ``b``,
-``z_b^2 = mean_t (d_t / s_t)^2`` (1 in expectation with honest sigmas), and per axis ``chi2 = sum_b z_b^2``. The stamps of a block are strongly correlated (the bias is smooth),
-blocks apart far less: ``chi2`` is taken as chi-square with as many degrees of freedom as blocks, which
-is conservative (averaging within a block only narrows its spread). An axis beyond the chi-square bound at
-``alpha`` (Bonferroni over the six axes) does not confirm its sigma, and the factor that widens it to cover
-the blocks is ``sqrt(chi2 / blocks)``.
+``z_b^2 = mean_t (d_t / s_t)^2`` (1 in expectation with honest sigmas), and per axis
+``chi2 = sum_b z_b^2``. The stamps of a block are strongly correlated (the bias is smooth), blocks apart
+far less: ``chi2`` is taken as chi-square with as many degrees of freedom as blocks, which is conservative
+(averaging within a block only narrows its spread). An axis beyond the chi-square bound at ``alpha``
+(Bonferroni over the six axes) does not confirm its sigma, and the factor that widens it to cover the blocks
+is ``sqrt(chi2 / blocks)``.
 
 The marginal sigma of a keyframe bias is not the sigma of a block's mean bias (its errors average out over
 a block: on clean simulations the block means' NEES is 0.02-0.2), so block means would hide a sigma several
