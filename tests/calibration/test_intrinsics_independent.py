@@ -28,6 +28,9 @@ SEEDS = (0, 1)
 DURATION_S = 120.0
 
 
+pytestmark = pytest.mark.xdist_group("intrinsics_independent")  # one worker computes the module's fixture
+
+
 @pytest.fixture(scope="module")
 def runs():
     out = {}

@@ -23,6 +23,9 @@ sys.modules[_spec.name] = bench  # its dataclasses look their module up
 _spec.loader.exec_module(bench)
 
 
+pytestmark = pytest.mark.xdist_group("v1_01_bias")  # one worker computes the module's fixture
+
+
 @pytest.fixture(scope="module")
 def v101(shared_data):
     spec = next(s for s in bench.SPECS if s.name == "biasgt_gt")
