@@ -58,8 +58,8 @@ GENERATORS = ("sim", "independent")
 #: The MEMS case's full-size intrinsics: gyro scale, misalignment (deg), acc scale, g-sensitivity (rad/s per m/s^2).
 MEMS_SIZES = dict(gyro_scale=0.01, misalignment_deg=0.5, acc_scale=0.005, g_sensitivity=2e-4)
 TILT_DEG = 0.5
-#: The goals: every axis' mean NEES within MEAN_NEES_BOUNDS; every axis at most NEES_BOUND on WITHIN_SHARE
-#: of the recordings.
+#: The goals: the mean NEES within MEAN_NEES_BOUNDS (judged per axis, and over the six axes: both printed);
+#: every axis at most NEES_BOUND on WITHIN_SHARE of the recordings.
 MEAN_NEES_BOUNDS = (0.5, 2.0)
 NEES_BOUND = 4.0
 WITHIN_SHARE = 0.9
@@ -215,9 +215,12 @@ def summarise(records: list[dict]) -> list[str]:
             lines.append(_row("NEES mean (0.5..2)", nees.mean(0), "{:9.2f}"))
             lines.append(_row("NEES 95th percentile", np.percentile(nees, 95, axis=0), "{:9.2f}"))
             pass_over = sum(1 for r, w in zip(rs, worst) if r.get("verdict") == "PASS" and w > NEES_BOUND)
-            mean_ok = bool(np.all((nees.mean(0) >= MEAN_NEES_BOUNDS[0]) & (nees.mean(0) <= MEAN_NEES_BOUNDS[1])))
+            lo, hi = MEAN_NEES_BOUNDS
+            axes_out = int(np.sum((nees.mean(0) < lo) | (nees.mean(0) > hi)))
+            over_axes = float(nees.mean())
             within = float(np.mean(worst <= NEES_BOUND))
-            checks = [f"mean NEES in [0.5, 2] {'yes' if mean_ok else 'NO'}",
+            checks = [f"mean NEES in [{lo:g}, {hi:g}]: each axis {'yes' if not axes_out else f'NO ({axes_out} out)'}, "
+                      f"over the axes {over_axes:.2f} {'yes' if lo <= over_axes <= hi else 'NO'}",
                       f"PASS with an axis NEES > 4: {pass_over}",
                       f"all axes NEES <= 4: {100 * within:.0f} % ({'ok' if within >= WITHIN_SHARE else 'below 90 %'})"]
             if scen == "mocap_gm" and any(verdicts):
