@@ -1,6 +1,7 @@
 """The rig benchmark's goal odds (benchmarks/recovery/nees_goal_odds.py) against direct chi-square draws."""
 
 import importlib.util
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,7 @@ SPEC = importlib.util.spec_from_file_location(
     "nees_goal_odds", Path(__file__).resolve().parents[2] / "benchmarks" / "recovery" / "nees_goal_odds.py")
 odds = importlib.util.module_from_spec(SPEC)
 SPEC.loader.exec_module(odds)
+rig = sys.modules["rig"]  # rig.py, imported by nees_goal_odds.py for the goals
 
 
 def _goals_met(nees: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -64,26 +66,17 @@ def test_a_file_that_is_not_a_rig_record_is_refused_with_its_line(tmp_path, caps
     assert err == [f"error: {bad}:2: not a rig.py record (no generator, scenario or seed); pass a rig.py --out file"]
 
 
-def _rig():
-    spec = importlib.util.spec_from_file_location(
-        "benchmark_rig", Path(__file__).resolve().parents[2] / "benchmarks" / "recovery" / "rig.py")
-    rig = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(rig)
-    return rig
-
-
 def test_the_rig_benchmark_judges_the_mean_nees_per_axis_and_over_the_axes():
     # two recordings: gyro x's mean 0.3 is out; the 12 values' mean is (0.2 + 0.4 + 10 * 0.8) / 12 = 0.7167
     nees = [[0.2, 0.8, 0.8, 0.8, 0.8, 0.8], [0.4, 0.8, 0.8, 0.8, 0.8, 0.8]]
     records = [{"generator": "sim", "scenario": "tilt", "seed": i, "duration_s": 60.0, "recover_s": 1.0,
                 "rmse": [1e-4] * 6, "nees": n, "verdict": "PASS", "reason_codes": []} for i, n in enumerate(nees)]
-    checks = [ln for ln in _rig().summarise(records) if "checks:" in ln]
+    checks = [ln for ln in rig.summarise(records) if "checks:" in ln]
     assert checks == ["    checks: mean NEES in [0.5, 2]: each axis NO (1 out), over the axes 0.72 yes; PASS with an "
                       "axis NEES > 4: 0; all axes NEES <= 4: 100 % (ok)"]
 
 
 def test_the_rig_benchmark_refuses_a_results_file_that_is_not_its_own_with_its_line(tmp_path, capsys):
-    rig = _rig()
     bad = tmp_path / "rig.jsonl"
     bad.write_text("not json\n")
     assert rig.main(["--summary-only", "--out", str(bad)]) == 2
